@@ -1,0 +1,55 @@
+"""Every exception compd raises on purpose, in one place.
+
+The numeric core raises :class:`ModelError` (a model that cannot be run:
+unstable, non-causal, malformed coefficients). Everything that reads a file
+raises an :class:`InputFileError` subclass whose message names the file, the
+place in it and what would fix it, so a user never has to guess.
+"""
+
+from __future__ import annotations
+
+
+class CompdError(Exception):
+    """Base class of compd's own errors."""
+
+
+class ModelError(CompdError, ValueError):
+    """A model that compd refuses to run (unstable, non-causal, malformed).
+
+    ``where`` is the place in the model (``outputs.disp_z_um.submodels[2]``)
+    when the caller knows it.
+    """
+
+    def __init__(self, message: str, *, where: str = "") -> None:
+        self.message = message
+        self.where = where
+        super().__init__(f"{where}: {message}" if where else message)
+
+
+class InputFileError(CompdError):
+    """A file compd was asked to read is malformed.
+
+    The message reads ``FILE: PLACE: what is wrong. FIX`` so it can be acted
+    on without opening the source.
+    """
+
+    def __init__(self, path: object, message: str, *, where: str = "", fix: str = "") -> None:
+        self.path = str(path)
+        self.where = where
+        self.message = message
+        self.fix = fix
+        parts = [self.path]
+        if where:
+            parts.append(where)
+        text = ": ".join([*parts, message])
+        if fix:
+            text = f"{text}. {fix}"
+        super().__init__(text)
+
+
+class ModelFileError(InputFileError):
+    """A model file (YAML) that does not describe a runnable model."""
+
+
+class DataFileError(InputFileError):
+    """A data file (CSV, Parquet) that cannot be used as logged machine data."""

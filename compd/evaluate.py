@@ -1,0 +1,109 @@
+"""Running a model file over a data file: the bridge between files and the numeric core.
+
+Brings the model to the data's sample time (exactly, or refused), gathers
+the model's signals from the data's columns, picks the initial state and
+pairs model outputs with measured columns for comparison.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from compd.data import DataSet
+from compd.errors import DataFileError
+from compd.model.compiled import CompiledModel, ModelState
+from compd.model.metrics import Comparison
+from compd.model.run import SimulationResult, simulate
+from compd.modelfile import ModelFile
+
+InitialState = Literal["steady", "rest"]
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """A model run over a data file, with what was done to make them fit."""
+
+    model_file: ModelFile
+    compiled: CompiledModel
+    data: DataSet
+    result: SimulationResult
+    notes: tuple[str, ...]
+
+    def predicted(self, output: str) -> np.ndarray:
+        return self.result.output(self.compiled, output)
+
+
+def signal_matrix(compiled: CompiledModel, data: DataSet) -> np.ndarray:
+    """The model's signals as an (N, n_signals) array; a missing column names the model and the file."""
+    missing = [name for name in compiled.signals if not data.has(name)]
+    if missing:
+        raise DataFileError(
+            data.path,
+            f"model {compiled.name!r} reads column(s) {missing}, which the file does not have",
+            fix=f"Add them, or rename the model's signals to columns the file has: {sorted(data.columns)}",
+        )
+    return np.column_stack([data.column(name) for name in compiled.signals])
+
+
+def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "steady") -> Evaluation:
+    """Compile ``model_file`` at the data's sample time and simulate it over the whole record.
+
+    ``init="steady"`` starts in equilibrium with the first sample's signals
+    (no start-up transient); ``"rest"`` starts with all TF states at zero.
+    """
+    notes = []
+    model_s = model_file.model.sample_time_s
+    if not np.isclose(model_s, data.sample_time_s, rtol=1e-9, atol=0.0):
+        notes.append(
+            f"model sample time {model_s:g} s converted exactly to the data's "
+            f"{data.sample_time_s:g} s (zero-order hold)"
+        )
+    compiled = model_file.compile(data.sample_time_s)
+    signals = signal_matrix(compiled, data)
+    state: ModelState = (
+        compiled.steady_state(signals[0]) if init == "steady" else compiled.rest_state(signals[0])
+    )
+    result = simulate(compiled, signals, state)
+    return Evaluation(model_file, compiled, data, result, tuple(notes))
+
+
+def measured_columns(evaluation: Evaluation, column: str | None = None) -> dict[str, str]:
+    """Model output -> measured data column to compare it with.
+
+    Without ``column``: every model output the data has a column of the same
+    name for. With ``column``: that output if the model has one of that name,
+    else the model's only output.
+    """
+    outputs = evaluation.compiled.output_names
+    data = evaluation.data
+    if column is not None:
+        data.column(column)  # a clear error when the column is absent
+        if column in outputs:
+            return {column: column}
+        if len(outputs) == 1:
+            return {outputs[0]: column}
+        raise DataFileError(
+            data.path,
+            f"--output {column!r} is not one of the model's outputs {list(outputs)} and the "
+            "model has several",
+            fix="Name the column after the model output it measures",
+        )
+    pairs = {name: name for name in outputs if data.has(name)}
+    if not pairs:
+        raise DataFileError(
+            data.path,
+            f"no column matches the model's outputs {list(outputs)}",
+            fix="Pass --output COLUMN to say which column holds the measured displacement",
+        )
+    return pairs
+
+
+def compare(evaluation: Evaluation, column: str | None = None) -> list[Comparison]:
+    """Model against measurement for each paired output (see :func:`measured_columns`)."""
+    return [
+        Comparison.of(output, evaluation.data.column(measured), evaluation.predicted(output))
+        for output, measured in measured_columns(evaluation, column).items()
+    ]

@@ -1,0 +1,239 @@
+"""Compilation: a model becomes flat arrays once, at load, so a tick is a few array operations.
+
+Every sub-model is brought to the run sample time (continuous parts by
+zero-order hold, discrete parts converted exactly when the rate differs),
+normalised so ``a0 == 1``, checked for stability, and padded to a common
+length ``L`` so all sub-models advance together in transposed direct form II
+(the form ``scipy.signal.lfilter`` uses, so its ``zi`` *is* compd's state)::
+
+    y(k)       = b0 u(k) + z0(k-1)
+    z_i(k)     = b_{i+1} u(k) - a_{i+1} y(k) + z_{i+1}(k-1)
+
+Signals are gathered by index into an extended signal vector whose last two
+slots hold the constants 0 (for "no minus signal") and 1 (for "no gate").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from compd.errors import ModelError
+from compd.model.structure import GateTarget, Model, SubModel
+from compd.model.transfer import ContinuousTF, DiscreteTF, resample_discrete
+
+
+@dataclass(frozen=True, eq=False)
+class ModelState:
+    """Everything a running model remembers: TF states and input references.
+
+    ``z`` has one row per sub-model (DF2T delay line, ``lfilter``'s ``zi``);
+    ``reference`` is each sub-model's input reference (for "value at start"
+    sub-models, the value captured when the model started).
+    """
+
+    z: np.ndarray
+    reference: np.ndarray
+
+    def copy(self) -> ModelState:
+        return ModelState(self.z.copy(), self.reference.copy())
+
+    def to_dict(self) -> dict[str, list[list[float]] | list[float]]:
+        """Plain lists, for JSON/YAML persistence."""
+        return {"z": self.z.tolist(), "reference": self.reference.tolist()}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, object]) -> ModelState:
+        try:
+            z = np.asarray(data["z"], dtype=float)
+            reference = np.asarray(data["reference"], dtype=float)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelError(f"saved model state is malformed ({exc}); expected keys z, reference") from exc
+        return cls(z=z, reference=reference)
+
+
+@dataclass(frozen=True, eq=False)
+class CompiledModel:
+    """A model as flat arrays at one sample time. Build with :func:`compile_model`."""
+
+    name: str
+    sample_time_s: float
+    signals: tuple[str, ...]
+    output_names: tuple[str, ...]
+    submodels: tuple[SubModel, ...]
+    submodel_paths: tuple[str, ...]
+    discrete: tuple[DiscreteTF, ...]
+    b: np.ndarray  # (S, L) numerators, a0-normalised, delay folded in
+    a: np.ndarray  # (S, L) denominators, a[:, 0] == 1
+    plus_index: np.ndarray  # (S,) index into the extended signal vector
+    minus_index: np.ndarray  # (S,) index, or the constant-0 slot
+    fixed_reference: np.ndarray  # (S,) NaN where the reference is the value at start
+    gate_index: np.ndarray  # (S,) index, or the constant-1 slot
+    gate_threshold: np.ndarray  # (S,)
+    gate_sign: np.ndarray  # (S,) +1 active above threshold, -1 active below
+    gate_on_input: np.ndarray  # (S,) bool
+    gain: np.ndarray  # (S,)
+    output_matrix: np.ndarray  # (n_outputs, S) 0/1: which sub-models sum into which output
+
+    @property
+    def n_submodels(self) -> int:
+        return self.b.shape[0]
+
+    @property
+    def n_states(self) -> int:
+        """DF2T delay-line length per sub-model (``L - 1``)."""
+        return self.b.shape[1] - 1
+
+    def extended(self, signals: np.ndarray) -> np.ndarray:
+        """Signal values (last axis in :attr:`signals` order) with the constant 0 and 1 slots appended."""
+        signals = np.asarray(signals, dtype=float)
+        constants = np.broadcast_to([0.0, 1.0], (*signals.shape[:-1], 2))
+        return np.concatenate([signals, constants], axis=-1)
+
+    def signal_vector(self, values: Mapping[str, float]) -> np.ndarray:
+        """Signal values in :attr:`signals` order from a name -> value mapping."""
+        missing = [name for name in self.signals if name not in values]
+        if missing:
+            raise ModelError(f"model {self.name!r} needs signals {missing} that were not given")
+        return np.array([values[name] for name in self.signals], dtype=float)
+
+    def raw_inputs(self, extended: np.ndarray) -> np.ndarray:
+        """``signal - minus`` per sub-model (before the reference is removed)."""
+        return extended[..., self.plus_index] - extended[..., self.minus_index]
+
+    def gates(self, extended: np.ndarray) -> np.ndarray:
+        """1.0 where each sub-model's gate is open, else 0.0."""
+        opened = (extended[..., self.gate_index] - self.gate_threshold) * self.gate_sign > 0.0
+        return opened.astype(float)
+
+    def check_state(self, state: ModelState) -> None:
+        """Refuse a state that belongs to a different model structure."""
+        expected = (self.n_submodels, self.n_states)
+        if state.z.shape != expected or state.reference.shape != (self.n_submodels,):
+            raise ModelError(
+                f"state has shape z{state.z.shape}/reference{state.reference.shape} but model "
+                f"{self.name!r} needs z{expected}/reference({self.n_submodels},): it was saved "
+                "by a different model"
+            )
+        if not (np.all(np.isfinite(state.z)) and np.all(np.isfinite(state.reference))):
+            raise ModelError("state contains NaN or inf")
+
+    def rest_state(self, signals: np.ndarray | Mapping[str, float]) -> ModelState:
+        """All TF states zero; "value at start" references taken from ``signals``."""
+        reference = self._references(signals)
+        return ModelState(np.zeros((self.n_submodels, self.n_states)), reference)
+
+    def steady_state(self, signals: np.ndarray | Mapping[str, float]) -> ModelState:
+        """The state in equilibrium with ``signals`` held constant: no start-up transient.
+
+        For a DF2T filter fed a constant ``u`` the steady output is
+        ``y = K u`` with ``K = B(1)/A(1)`` and ``z_i = sum_{k>i} (b_k u - a_k y)``.
+        """
+        vector = self._vector(signals)
+        reference = self._references(vector)
+        extended = self.extended(vector)
+        u = self.raw_inputs(extended) - reference
+        u = u * np.where(self.gate_on_input, self.gates(extended), 1.0)
+        y = u * self.b.sum(axis=1) / self.a.sum(axis=1)
+        terms = self.b[:, 1:] * u[:, None] - self.a[:, 1:] * y[:, None]
+        z = np.cumsum(terms[:, ::-1], axis=1)[:, ::-1]
+        return ModelState(np.ascontiguousarray(z), reference)
+
+    def _vector(self, signals: np.ndarray | Mapping[str, float]) -> np.ndarray:
+        vector = self.signal_vector(signals) if isinstance(signals, Mapping) else np.asarray(signals, float)
+        if vector.shape != (len(self.signals),) or not np.all(np.isfinite(vector)):
+            raise ModelError(
+                f"initial signals must be {len(self.signals)} finite values in the order "
+                f"{list(self.signals)}, got {vector.tolist()}"
+            )
+        return vector
+
+    def _references(self, signals: np.ndarray | Mapping[str, float]) -> np.ndarray:
+        at_start = self.raw_inputs(self.extended(self._vector(signals)))
+        return np.where(np.isnan(self.fixed_reference), at_start, self.fixed_reference)
+
+
+def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledModel:
+    """Compile ``model`` to run at ``sample_time_s`` (default: the model's own).
+
+    Raises :class:`ModelError` naming the sub-model (``outputs.X.submodels[i]``)
+    when one is non-causal, unstable or cannot be brought to the sample time.
+    """
+    run_s = float(model.sample_time_s if sample_time_s is None else sample_time_s)
+    if not (np.isfinite(run_s) and run_s > 0):
+        raise ModelError(f"sample time must be > 0 seconds, got {run_s}")
+    if not model.outputs or not any(output.submodels for output in model.outputs):
+        raise ModelError(f"model {model.name!r} has no sub-models")
+    signals = model.signals()
+    index = {name: i for i, name in enumerate(signals)}
+    zero_slot, one_slot = len(signals), len(signals) + 1
+
+    subs: list[SubModel] = []
+    paths: list[str] = []
+    tfs: list[DiscreteTF] = []
+    owner: list[int] = []
+    for out_i, output in enumerate(model.outputs):
+        for sub_i, sub in enumerate(output.submodels):
+            path = f"outputs.{output.name}.submodels[{sub_i}] ({sub.name})"
+            try:
+                tfs.append(_discretise(sub.tf, model.sample_time_s, run_s))
+            except ModelError as exc:
+                raise ModelError(exc.message, where=path) from exc
+            subs.append(sub)
+            paths.append(path)
+            owner.append(out_i)
+
+    length = max(max(tf.b.size, tf.a.size) for tf in tfs)
+    b = np.zeros((len(tfs), length))
+    a = np.zeros((len(tfs), length))
+    for row, tf in enumerate(tfs):
+        b[row, : tf.b.size] = tf.b
+        a[row, : tf.a.size] = tf.a
+    output_matrix = np.zeros((len(model.outputs), len(tfs)))
+    output_matrix[owner, np.arange(len(tfs))] = 1.0
+
+    return CompiledModel(
+        name=model.name,
+        sample_time_s=run_s,
+        signals=signals,
+        output_names=tuple(output.name for output in model.outputs),
+        submodels=tuple(subs),
+        submodel_paths=tuple(paths),
+        discrete=tuple(tfs),
+        b=b,
+        a=a,
+        plus_index=np.array([index[s.input.signal] for s in subs], dtype=np.intp),
+        minus_index=np.array(
+            [zero_slot if s.input.minus is None else index[s.input.minus] for s in subs], dtype=np.intp
+        ),
+        fixed_reference=np.array(
+            [np.nan if s.input.reference is None else s.input.reference for s in subs]
+        ),
+        gate_index=np.array(
+            [one_slot if s.gate is None else index[s.gate.signal] for s in subs], dtype=np.intp
+        ),
+        gate_threshold=np.array([s.gate.threshold if s.gate else 0.0 for s in subs]),
+        gate_sign=np.array([1.0 if s.gate is None or s.gate.above else -1.0 for s in subs]),
+        gate_on_input=np.array([s.gate is not None and s.gate.target is GateTarget.INPUT for s in subs]),
+        gain=np.array([s.gain for s in subs], dtype=float),
+        output_matrix=output_matrix,
+    )
+
+
+def _discretise(tf: DiscreteTF | ContinuousTF, model_s: float, run_s: float) -> DiscreteTF:
+    if isinstance(tf, ContinuousTF):
+        tf.check_stable()
+        discrete = tf.discretise(run_s)
+    else:
+        tf.check_stable()
+        discrete = resample_discrete(tf, model_s, run_s)
+    discrete.check_stable()
+    return discrete
+
+
+def qualified_names(compiled: CompiledModel) -> Sequence[str]:
+    """``output/submodel`` names, one per sub-model row."""
+    owners = compiled.output_matrix.argmax(axis=0)
+    return [f"{compiled.output_names[o]}/{s.name}" for o, s in zip(owners, compiled.submodels, strict=True)]

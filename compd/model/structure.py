@@ -1,0 +1,99 @@
+"""The structure of a compensation model: axis outputs as sums of gated, gained sub-models.
+
+Seed 001 superposes one TF per physical effect; seed 002 eq. 5/6 adds a gate
+(``g_n = 1`` while the spindle turns) and post-process gains ``g1, g2``::
+
+    disp_z = sum_i  gain_i * gate_i(k) * TF_i( input_i(k) )
+
+where ``input_i`` is a signal, or the difference of two signals, taken as a
+change from a reference (its value at start, or a fixed value).
+
+These are plain frozen values; the model file layer builds them, the
+compiler turns them into flat arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+from compd.model.transfer import ContinuousTF, DiscreteTF
+
+
+class GateTarget(str, Enum):
+    """Where a gate acts.
+
+    ``OUTPUT`` (seed 002 eq. 5 read literally): the TF always runs on its
+    input and its *contribution* is switched; ``INPUT``: the TF's input is
+    switched, so its contribution decays with the TF's own dynamics.
+    """
+
+    OUTPUT = "output"
+    INPUT = "input"
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """``signal - minus - reference``; ``reference=None`` means the value at start."""
+
+    signal: str
+    minus: str | None = None
+    reference: float | None = None
+
+    def describe(self) -> str:
+        text = self.signal if self.minus is None else f"{self.signal} - {self.minus}"
+        origin = "value at start" if self.reference is None else f"{self.reference:g}"
+        return f"({text}) - {origin}"
+
+
+@dataclass(frozen=True)
+class Gate:
+    """Active while ``signal > threshold`` (``above=True``) or ``signal < threshold``."""
+
+    signal: str
+    threshold: float = 0.0
+    above: bool = True
+    target: GateTarget = GateTarget.OUTPUT
+
+    def describe(self) -> str:
+        sign = ">" if self.above else "<"
+        return f"{self.target.value} while {self.signal} {sign} {self.threshold:g}"
+
+
+@dataclass(frozen=True)
+class SubModel:
+    """One physical effect's contribution to one axis output."""
+
+    name: str
+    effect: str
+    input: InputSpec
+    tf: DiscreteTF | ContinuousTF
+    gain: float = 1.0
+    gate: Gate | None = None
+
+
+@dataclass(frozen=True)
+class Output:
+    """One axis output (e.g. ``disp_z_um``): the sum of its sub-models, in um."""
+
+    name: str
+    submodels: tuple[SubModel, ...]
+
+
+@dataclass(frozen=True)
+class Model:
+    """A machine's compensation model; discrete TFs are at ``sample_time_s``."""
+
+    name: str
+    sample_time_s: float
+    outputs: tuple[Output, ...]
+
+    def signals(self) -> tuple[str, ...]:
+        """Every signal the model reads, in first-use order."""
+        seen: dict[str, None] = {}
+        for output in self.outputs:
+            for sub in output.submodels:
+                for name in (sub.input.signal, sub.input.minus, sub.gate and sub.gate.signal):
+                    if name:
+                        seen.setdefault(name, None)
+        return tuple(seen)

@@ -1,0 +1,284 @@
+"""Model files: schema-versioned YAML parsed into frozen model objects.
+
+The schema (``schema: compd.model/1``) is written down in pydantic models with
+unknown keys forbidden. Every problem is reported as
+``FILE: line N (outputs.disp_z_um.submodels[2].tf.den): what is wrong. fix``,
+and nothing about the coefficients is guessed: each TF states its form
+(``continuous`` in s, ``discrete`` in z^-1) and its ``power_order``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from compd.errors import ModelError, ModelFileError
+from compd.model.compiled import CompiledModel, compile_model
+from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, SubModel
+from compd.model.transfer import ContinuousTF, DiscreteTF
+
+SCHEMA = "compd.model/1"
+
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+
+
+class SignalDoc(_Strict):
+    unit: str
+    description: str = ""
+
+
+class InputDoc(_Strict):
+    signal: str = Field(min_length=1)
+    minus: str | None = None
+    reference: Literal["start"] | FiniteFloat = "start"
+
+
+class GateDoc(_Strict):
+    signal: str = Field(min_length=1)
+    above: FiniteFloat | None = None
+    below: FiniteFloat | None = None
+    applies_to: Literal["output", "input"] = "output"
+
+    @model_validator(mode="after")
+    def _one_threshold(self) -> GateDoc:
+        if (self.above is None) == (self.below is None):
+            raise ValueError("give exactly one of 'above' or 'below' (the gate's threshold)")
+        return self
+
+
+class TFDoc(_Strict):
+    form: Literal["continuous", "discrete"]
+    power_order: Literal["ascending", "descending"]
+    num: list[FiniteFloat] = Field(min_length=1)
+    den: list[FiniteFloat] = Field(min_length=1)
+    nk: int = Field(default=0, ge=0)
+    delay_s: FiniteFloat = Field(default=0.0, ge=0.0)
+
+    @model_validator(mode="after")
+    def _delay_matches_form(self) -> TFDoc:
+        if self.form == "continuous" and self.nk:
+            raise ValueError("'nk' (delay in samples) is for discrete TFs; use 'delay_s' for a continuous TF")
+        if self.form == "discrete" and self.delay_s:
+            raise ValueError("'delay_s' is for continuous TFs; use 'nk' (samples) for a discrete TF")
+        return self
+
+
+class SubModelDoc(_Strict):
+    name: str = Field(min_length=1)
+    effect: str = Field(min_length=1)
+    input: InputDoc
+    tf: TFDoc
+    gain: FiniteFloat = 1.0
+    gate: GateDoc | None = None
+
+
+class OutputDoc(_Strict):
+    unit: Literal["um"] = "um"
+    description: str = ""
+    submodels: list[SubModelDoc] = Field(min_length=1)
+
+    @field_validator("submodels")
+    @classmethod
+    def _unique_names(cls, submodels: list[SubModelDoc]) -> list[SubModelDoc]:
+        names = [s.name for s in submodels]
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            raise ValueError(f"sub-model names must be unique within an output; repeated: {duplicates}")
+        return submodels
+
+
+class ProvenanceDoc(_Strict):
+    data: str | None = None
+    command: str | None = None
+    created: str | None = None
+    compd_version: str | None = None
+    fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+    notes: str = ""
+
+
+class ModelDoc(_Strict):
+    schema_: Literal["compd.model/1"] = Field(alias="schema")
+    name: str = Field(min_length=1)
+    description: str = ""
+    sample_time_s: FiniteFloat = Field(gt=0)
+    signals: dict[str, SignalDoc] | None = None
+    outputs: dict[str, OutputDoc] = Field(min_length=1)
+    provenance: ProvenanceDoc = ProvenanceDoc()
+
+
+@dataclass(frozen=True)
+class ModelFile:
+    """A parsed model file: the model, its documentation and where it came from."""
+
+    path: str
+    sha256: str
+    model: Model
+    doc: ModelDoc
+
+    def compile(self, sample_time_s: float | None = None) -> CompiledModel:
+        """Compile for running; a refusal names this file and the sub-model."""
+        try:
+            return compile_model(self.model, sample_time_s)
+        except ModelError as exc:
+            raise ModelFileError(self.path, exc.message, where=exc.where) from exc
+
+
+def load_model(path: str | Path) -> ModelFile:
+    """Read, validate and build a model file (does not compile; see :meth:`ModelFile.compile`)."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ModelFileError(path, f"cannot read the file ({exc.strerror})") from exc
+    return parse_model(raw.decode("utf-8", errors="replace"), path, hashlib.sha256(raw).hexdigest())
+
+
+def parse_model(text: str, path: str | Path = "<model>", sha256: str | None = None) -> ModelFile:
+    """Validate model-file text; ``path`` is only used in messages."""
+    sha256 = sha256 or hashlib.sha256(text.encode()).hexdigest()
+    try:
+        data = yaml.safe_load(text)
+        root = yaml.compose(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ModelFileError(path, f"not valid YAML: {problem}", where=where) from exc
+    if not isinstance(data, dict):
+        raise ModelFileError(path, "expected a mapping with keys schema, name, sample_time_s, outputs")
+    if data.get("schema") != SCHEMA:
+        raise ModelFileError(
+            path,
+            f"unsupported or missing schema {data.get('schema')!r}",
+            where="schema",
+            fix=f"Start the file with 'schema: {SCHEMA}'",
+        )
+    try:
+        doc = ModelDoc.model_validate(data)
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        location = tuple(error["loc"])
+        raise ModelFileError(
+            path,
+            _describe(error),
+            where=_where(root, location),
+            fix=_FIXES.get(error["type"], ""),
+        ) from exc
+    return ModelFile(str(path), sha256, _build(doc, path, root), doc)
+
+
+def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
+    declared = doc.signals
+    outputs = []
+    for out_name, out_doc in doc.outputs.items():
+        subs = []
+        for i, sub in enumerate(out_doc.submodels):
+            location: tuple[str | int, ...] = ("outputs", out_name, "submodels", i)
+            used = [sub.input.signal, sub.input.minus, sub.gate.signal if sub.gate else None]
+            undeclared = [s for s in used if s and declared is not None and s not in declared]
+            if undeclared:
+                raise ModelFileError(
+                    path,
+                    f"signal(s) {undeclared} are not declared under 'signals'",
+                    where=_where(root, location),
+                    fix=f"Declare them with their unit, or use one of {sorted(declared or {})}",
+                )
+            try:
+                tf = _tf(sub.tf)
+            except ModelError as exc:
+                raise ModelFileError(path, exc.message, where=_where(root, (*location, "tf"))) from exc
+            subs.append(
+                SubModel(
+                    name=sub.name,
+                    effect=sub.effect,
+                    input=InputSpec(
+                        sub.input.signal,
+                        sub.input.minus,
+                        None if sub.input.reference == "start" else float(sub.input.reference),
+                    ),
+                    tf=tf,
+                    gain=sub.gain,
+                    gate=_gate(sub.gate),
+                )
+            )
+        outputs.append(Output(out_name, tuple(subs)))
+    return Model(doc.name, doc.sample_time_s, tuple(outputs))
+
+
+def _tf(doc: TFDoc) -> DiscreteTF | ContinuousTF:
+    num, den = np.asarray(doc.num), np.asarray(doc.den)
+    if doc.power_order == "descending":
+        num, den = num[::-1], den[::-1]
+    if doc.form == "continuous":
+        return ContinuousTF.from_coefficients(num, den, doc.delay_s)
+    return DiscreteTF.from_coefficients(num, den, doc.nk)
+
+
+def _gate(doc: GateDoc | None) -> Gate | None:
+    if doc is None:
+        return None
+    above = doc.above is not None
+    threshold = doc.above if doc.above is not None else doc.below
+    assert threshold is not None  # guaranteed by GateDoc's validator
+    return Gate(doc.signal, float(threshold), above, GateTarget(doc.applies_to))
+
+
+_FIXES = {
+    "extra_forbidden": "Remove the key or fix its spelling (see config/README.md for the schema)",
+    "missing": "Add the key",
+    "literal_error": "Use one of the allowed values",
+    "float_parsing": "Give a number",
+    "finite_number": "Give a finite number",
+}
+
+
+def _describe(error: Any) -> str:
+    kind = error["type"]
+    if kind == "extra_forbidden":
+        return f"unknown key {error['loc'][-1]!r}"
+    if kind == "missing":
+        return f"required key {error['loc'][-1]!r} is missing"
+    message = str(error["msg"])
+    if message.startswith("Value error, "):
+        message = message[len("Value error, ") :]
+    shown = error.get("input")
+    if kind != "missing" and not isinstance(shown, dict | list):
+        message = f"{message} (got {shown!r})"
+    return message
+
+
+def _where(root: yaml.Node | None, location: tuple[str | int, ...]) -> str:
+    """``line N (a.b[2].c)``: the dotted place, with the YAML line of the deepest node found."""
+    dotted = ""
+    for part in location:
+        if isinstance(part, int):
+            dotted += f"[{part}]"
+        else:
+            dotted += f".{part}" if dotted else str(part)
+    node, line = root, None
+    for part in location:
+        if isinstance(node, yaml.MappingNode):
+            match = next((v for k, v in node.value if k.value == part), None)
+            if match is None:
+                key = next((k for k, _ in node.value if k.value == part), None)
+                line = key.start_mark.line + 1 if key is not None else line
+                break
+            node = match
+        elif isinstance(node, yaml.SequenceNode) and isinstance(part, int) and part < len(node.value):
+            node = node.value[part]
+        else:
+            break
+        line = node.start_mark.line + 1
+    if line is None and root is not None:
+        line = root.start_mark.line + 1
+    return f"line {line} ({dotted})" if dotted else f"line {line}"

@@ -1,0 +1,1 @@
+"""Bundled example models, data and configuration (installed as ``compd.bundled``)."""
