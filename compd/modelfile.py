@@ -166,7 +166,10 @@ def parse_model(text: str, path: str | Path = "<model>", sha256: str | None = No
     try:
         doc = ModelDoc.model_validate(data)
     except ValidationError as exc:
-        error = exc.errors()[0]
+        # A misspelt key shows up as "unknown key" plus "missing key"; the
+        # unknown one is the more useful to report.
+        errors = sorted(exc.errors(), key=lambda e: e["type"] != "extra_forbidden")
+        error = errors[0]
         location = tuple(error["loc"])
         raise ModelFileError(
             path,
