@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 from rich.console import Console
-from rich.table import Table
+from rich.table import Column, Table
 
 from compd import __version__
 from compd.data import DataSet, load_data
@@ -50,39 +50,64 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"compd {__version__}")
     commands = parser.add_subparsers(title="commands", metavar="COMMAND")
 
-    demo = commands.add_parser("demo", help="compare the bundled example models with bundled example data")
+    demo = commands.add_parser(
+        "demo", help="compare the bundled example models with bundled example data"
+    )
     demo.set_defaults(handler=_demo)
 
     model = commands.add_parser("model", help="model files").add_subparsers(metavar="ACTION")
     check = model.add_parser("check", help="validate and compile a model file; show its sub-models")
     check.add_argument("model", type=Path, metavar="MODEL.yaml")
-    check.add_argument("--sample-time-s", type=float, help="compile for this sample time (default: the model's)")
+    check.add_argument(
+        "--sample-time-s", type=float, help="compile for this sample time (default: the model's)"
+    )
     check.set_defaults(handler=_model_check)
 
-    sim = commands.add_parser("simulate", help="model output and each sub-model's contribution per sample")
+    sim = commands.add_parser(
+        "simulate", help="model output and each sub-model's contribution per sample"
+    )
     sim.add_argument("model", type=Path, metavar="MODEL.yaml")
     sim.add_argument("data", type=Path, metavar="DATA.csv")
     sim.add_argument("--out", type=Path, required=True, metavar="PRED.csv")
     _data_options(sim)
     sim.set_defaults(handler=_simulate)
 
-    cmp_ = commands.add_parser("compare", help="model against measurement: fit %%, residue, reduction")
+    cmp_ = commands.add_parser(
+        "compare", help="model against measurement: fit %%, residue, reduction"
+    )
     cmp_.add_argument("model", type=Path, metavar="MODEL.yaml")
     cmp_.add_argument("data", type=Path, metavar="DATA.csv")
-    cmp_.add_argument("--output", metavar="COLUMN", help="measured column to compare (default: columns named like the model's outputs)")
-    cmp_.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    cmp_.add_argument(
+        "--output",
+        metavar="COLUMN",
+        help="measured column to compare (default: columns named like the model's outputs)",
+    )
+    cmp_.add_argument(
+        "--json", action="store_true", help="print one JSON object instead of a table"
+    )
     _data_options(cmp_)
     cmp_.set_defaults(handler=_compare)
     return parser
 
 
 def _data_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--init", choices=("steady", "rest"), default="steady",
-                        help="initial model state: in equilibrium with the first sample (default) or all zero")
-    parser.add_argument("--max-gap-s", type=float, default=60.0,
-                        help="longest run of missing samples to interpolate, in s (default 60)")
-    parser.add_argument("--resample", action="store_true",
-                        help="interpolate irregularly sampled data onto a uniform grid instead of refusing it")
+    parser.add_argument(
+        "--init",
+        choices=("steady", "rest"),
+        default="steady",
+        help="initial model state: in equilibrium with the first sample (default) or all zero",
+    )
+    parser.add_argument(
+        "--max-gap-s",
+        type=float,
+        default=60.0,
+        help="longest run of missing samples to interpolate, in s (default 60)",
+    )
+    parser.add_argument(
+        "--resample",
+        action="store_true",
+        help="interpolate irregularly sampled data onto a uniform grid instead of refusing it",
+    )
 
 
 def _load_data(args: argparse.Namespace) -> DataSet:
@@ -90,7 +115,9 @@ def _load_data(args: argparse.Namespace) -> DataSet:
 
 
 def _console() -> Console:
-    return Console(highlight=False)
+    # Piped output (a file, a CI log) is read by people and grep alike:
+    # don't wrap tables at rich's 80-column default.
+    return Console(highlight=False, width=None if sys.stdout.isatty() else 200)
 
 
 def _fmt(value: float, digits: int = 2) -> str:
@@ -105,9 +132,21 @@ def _model_check(args: argparse.Namespace) -> int:
         f"[bold]{compiled.name}[/bold]  {model_file.path}  sha256 {model_file.sha256[:12]}  "
         f"sample time {compiled.sample_time_s:g} s  signals: {', '.join(compiled.signals)}"
     )
-    table = Table("sub-model", "effect", "input", "order", "nk", "poles (z)", "time constants (s)",
-                  "static gain (um/unit)", "gain", "gate")
-    for name, sub, tf in zip(qualified_names(compiled), compiled.submodels, compiled.discrete, strict=True):
+    table = Table(
+        "effect",
+        "input",
+        "order",
+        "nk",
+        "poles (z)",
+        "time constants (s)",
+        "static gain (um/unit)",
+        "gain",
+        "gate",
+    )
+    table.columns.insert(0, Column("sub-model", no_wrap=True))
+    for name, sub, tf in zip(
+        qualified_names(compiled), compiled.submodels, compiled.discrete, strict=True
+    ):
         table.add_row(
             name,
             sub.effect,
@@ -160,23 +199,39 @@ def _compare_json(evaluation: Evaluation, comparisons: list[Comparison]) -> dict
         "samples": len(evaluation.data),
         "sample_time_s": evaluation.data.sample_time_s,
         "notes": [*evaluation.data.notes, *evaluation.notes],
-        "outputs": {c.output: {k: clean(v) for k, v in c.as_dict().items() if k != "output"} for c in comparisons},
+        "outputs": {
+            c.output: {k: clean(v) for k, v in c.as_dict().items() if k != "output"}
+            for c in comparisons
+        },
     }
 
 
 def _comparison_table(evaluation: Evaluation, comparisons: list[Comparison]) -> Table:
     data = evaluation.data
     table = Table(
-        "output", "fit %", "residue RMS", "residue p-p", "max |residue|",
-        "uncomp. RMS", "uncomp. p-p", "RMS reduction", "p-p reduction",
+        "output",
+        "fit %",
+        "residue RMS",
+        "residue p-p",
+        "max |residue|",
+        "uncomp. RMS",
+        "uncomp. p-p",
+        "RMS reduction",
+        "p-p reduction",
         title=f"{evaluation.compiled.name} vs {data.path} ({len(data)} samples, "
         f"{data.sample_time_s:g} s, {data.time_s[-1] / 3600:.2f} h); errors in um",
     )
     for c in comparisons:
         table.add_row(
-            c.output, _fmt(c.fit_percent, 1), _fmt(c.residue.rms_um), _fmt(c.residue.peak_to_peak_um),
-            _fmt(c.residue.max_abs_um), _fmt(c.uncompensated.rms_um), _fmt(c.uncompensated.peak_to_peak_um),
-            f"{_fmt(c.rms_reduction_percent, 1)} %", f"{_fmt(c.peak_to_peak_reduction_percent, 1)} %",
+            c.output,
+            _fmt(c.fit_percent, 1),
+            _fmt(c.residue.rms_um),
+            _fmt(c.residue.peak_to_peak_um),
+            _fmt(c.residue.max_abs_um),
+            _fmt(c.uncompensated.rms_um),
+            _fmt(c.uncompensated.peak_to_peak_um),
+            f"{_fmt(c.rms_reduction_percent, 1)} %",
+            f"{_fmt(c.peak_to_peak_reduction_percent, 1)} %",
         )
     return table
 

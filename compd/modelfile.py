@@ -67,9 +67,13 @@ class TFDoc(_Strict):
     @model_validator(mode="after")
     def _delay_matches_form(self) -> TFDoc:
         if self.form == "continuous" and self.nk:
-            raise ValueError("'nk' (delay in samples) is for discrete TFs; use 'delay_s' for a continuous TF")
+            raise ValueError(
+                "'nk' (delay in samples) is for discrete TFs; use 'delay_s' for a continuous TF"
+            )
         if self.form == "discrete" and self.delay_s:
-            raise ValueError("'delay_s' is for continuous TFs; use 'nk' (samples) for a discrete TF")
+            raise ValueError(
+                "'delay_s' is for continuous TFs; use 'nk' (samples) for a discrete TF"
+            )
         return self
 
 
@@ -93,7 +97,9 @@ class OutputDoc(_Strict):
         names = [s.name for s in submodels]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
-            raise ValueError(f"sub-model names must be unique within an output; repeated: {duplicates}")
+            raise ValueError(
+                f"sub-model names must be unique within an output; repeated: {duplicates}"
+            )
         return submodels
 
 
@@ -155,7 +161,9 @@ def parse_model(text: str, path: str | Path = "<model>", sha256: str | None = No
         problem = getattr(exc, "problem", None) or str(exc)
         raise ModelFileError(path, f"not valid YAML: {problem}", where=where) from exc
     if not isinstance(data, dict):
-        raise ModelFileError(path, "expected a mapping with keys schema, name, sample_time_s, outputs")
+        raise ModelFileError(
+            path, "expected a mapping with keys schema, name, sample_time_s, outputs"
+        )
     if data.get("schema") != SCHEMA:
         raise ModelFileError(
             path,
@@ -199,7 +207,9 @@ def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
             try:
                 tf = _tf(sub.tf)
             except ModelError as exc:
-                raise ModelFileError(path, exc.message, where=_where(root, (*location, "tf"))) from exc
+                raise ModelFileError(
+                    path, exc.message, where=_where(root, (*location, "tf"))
+                ) from exc
             subs.append(
                 SubModel(
                     name=sub.name,
@@ -277,7 +287,9 @@ def _where(root: yaml.Node | None, location: tuple[str | int, ...]) -> str:
                 line = key.start_mark.line + 1 if key is not None else line
                 break
             node = match
-        elif isinstance(node, yaml.SequenceNode) and isinstance(part, int) and part < len(node.value):
+        elif (
+            isinstance(node, yaml.SequenceNode) and isinstance(part, int) and part < len(node.value)
+        ):
             node = node.value[part]
         else:
             break

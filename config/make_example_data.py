@@ -34,7 +34,10 @@ def first_order(u: np.ndarray, gain: float, tau_s: float, dt_s: float = 1.0) -> 
 def with_gains(path: Path, gains: dict[str, float]):
     model = load_model(path).model
     outputs = tuple(
-        replace(o, submodels=tuple(replace(s, gain=s.gain * gains.get(s.name, 1.0)) for s in o.submodels))
+        replace(
+            o,
+            submodels=tuple(replace(s, gain=s.gain * gains.get(s.name, 1.0)) for s in o.submodels),
+        )
         for o in model.outputs
     )
     return compile_model(replace(model, outputs=outputs))
@@ -52,7 +55,9 @@ def main() -> None:
     base = shop[0] + first_order(shop - shop[0], 1.0, 3600.0) + first_order(speed, 0.25e-3, 7200.0)
 
     z_true = with_gains(HERE / "seed000_hmc_tf.yaml", {"z_heat": 1.07, "etve": 0.85})
-    y_true = with_gains(HERE / "example_gated_arx.yaml", {"cooling": 1.12, "heating_difference": 0.9})
+    y_true = with_gains(
+        HERE / "example_gated_arx.yaml", {"cooling": 1.12, "heating_difference": 0.9}
+    )
     signals = {"T_spindle_degC": spindle, "T_shopfloor_degC": shop, "spindle_speed_rpm": speed}
 
     def run(compiled):

@@ -50,7 +50,9 @@ def refusal(tmp_path: Path, text: str) -> str:
     return message
 
 
-@pytest.mark.parametrize("name", ["seed000_hmc_tf.yaml", "seed000_linear_regression.yaml", "example_gated_arx.yaml"])
+@pytest.mark.parametrize(
+    "name", ["seed000_hmc_tf.yaml", "seed000_linear_regression.yaml", "example_gated_arx.yaml"]
+)
 def test_bundled_example_models_load_and_compile(name: str) -> None:
     """Every model shipped in config/ is valid and compiles at its own sample time."""
     compiled = load_model(CONFIG / name).compile()
@@ -79,8 +81,11 @@ def test_valid_file_builds_input_gate_and_defaults(tmp_path: Path) -> None:
 
 def test_descending_power_order_is_reversed_explicitly(tmp_path: Path) -> None:
     """power_order: descending gives the same TF as the ascending list reversed."""
-    text = VALID.replace("ascending", "descending").replace(
-        "[0.0162, 10.74, 5.368]", "[5.368, 10.74, 0.0162]").replace("[0.002098, 2.379, 1.0]", "[1.0, 2.379, 0.002098]")
+    text = (
+        VALID.replace("ascending", "descending")
+        .replace("[0.0162, 10.74, 5.368]", "[5.368, 10.74, 0.0162]")
+        .replace("[0.002098, 2.379, 1.0]", "[1.0, 2.379, 0.002098]")
+    )
     ascending = load_model(write(tmp_path, VALID)).compile()
     descending = load_model(write(tmp_path, text)).compile()
     assert_allclose(ascending.b, descending.b, rtol=1e-14)
@@ -129,14 +134,18 @@ def test_yaml_syntax_error_gives_line_and_column(tmp_path: Path) -> None:
 
 def test_non_causal_discrete_tf_names_its_place(tmp_path: Path) -> None:
     """A discrete TF with a0 = 0 is refused at load with the sub-model's tf place."""
-    text = VALID.replace("form: continuous", "form: discrete").replace("[0.002098, 2.379, 1.0]", "[0.0, 1.0]")
+    text = VALID.replace("form: continuous", "form: discrete").replace(
+        "[0.002098, 2.379, 1.0]", "[0.0, 1.0]"
+    )
     message = refusal(tmp_path, text)
     assert "outputs.disp_z_um.submodels[0].tf" in message and "non-causal" in message
 
 
 def test_unstable_model_is_refused_at_compile_naming_file_and_sub_model(tmp_path: Path) -> None:
     """An unstable TF passes the schema but compile refuses it naming the file and sub-model."""
-    text = VALID.replace("form: continuous", "form: discrete").replace("[0.002098, 2.379, 1.0]", "[1.0, -1.5]")
+    text = VALID.replace("form: continuous", "form: discrete").replace(
+        "[0.002098, 2.379, 1.0]", "[1.0, -1.5]"
+    )
     message = refusal(tmp_path, text)
     assert "outputs.disp_z_um.submodels[0] (heat): unstable" in message
 
@@ -149,7 +158,7 @@ def test_undeclared_signal_is_refused(tmp_path: Path) -> None:
 
 def test_duplicate_sub_model_names_are_refused(tmp_path: Path) -> None:
     """Two sub-models of one output may not share a name (gains and reports address them by name)."""
-    sub = VALID[VALID.index("      - name: heat"):]
+    sub = VALID[VALID.index("      - name: heat") :]
     message = refusal(tmp_path, VALID + sub)
     assert "repeated: ['heat']" in message
 
@@ -162,7 +171,9 @@ def test_gate_needs_exactly_one_threshold(tmp_path: Path) -> None:
 
 def test_nk_on_a_continuous_tf_is_refused(tmp_path: Path) -> None:
     """Delays are nk samples for discrete TFs and delay_s seconds for continuous ones."""
-    message = refusal(tmp_path, VALID.replace("form: continuous", "form: continuous\n          nk: 2"))
+    message = refusal(
+        tmp_path, VALID.replace("form: continuous", "form: continuous\n          nk: 2")
+    )
     assert "use 'delay_s'" in message
 
 

@@ -50,7 +50,9 @@ class ModelState:
             z = np.asarray(data["z"], dtype=float)
             reference = np.asarray(data["reference"], dtype=float)
         except (KeyError, TypeError, ValueError) as exc:
-            raise ModelError(f"saved model state is malformed ({exc}); expected keys z, reference") from exc
+            raise ModelError(
+                f"saved model state is malformed ({exc}); expected keys z, reference"
+            ) from exc
         return cls(z=z, reference=reference)
 
 
@@ -142,7 +144,11 @@ class CompiledModel:
         return ModelState(np.ascontiguousarray(z), reference)
 
     def _vector(self, signals: np.ndarray | Mapping[str, float]) -> np.ndarray:
-        vector = self.signal_vector(signals) if isinstance(signals, Mapping) else np.asarray(signals, float)
+        vector = (
+            self.signal_vector(signals)
+            if isinstance(signals, Mapping)
+            else np.asarray(signals, float)
+        )
         if vector.shape != (len(self.signals),) or not np.all(np.isfinite(vector)):
             raise ModelError(
                 f"initial signals must be {len(self.signals)} finite values in the order "
@@ -206,7 +212,8 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
         a=a,
         plus_index=np.array([index[s.input.signal] for s in subs], dtype=np.intp),
         minus_index=np.array(
-            [zero_slot if s.input.minus is None else index[s.input.minus] for s in subs], dtype=np.intp
+            [zero_slot if s.input.minus is None else index[s.input.minus] for s in subs],
+            dtype=np.intp,
         ),
         fixed_reference=np.array(
             [np.nan if s.input.reference is None else s.input.reference for s in subs]
@@ -216,7 +223,9 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
         ),
         gate_threshold=np.array([s.gate.threshold if s.gate else 0.0 for s in subs]),
         gate_sign=np.array([1.0 if s.gate is None or s.gate.above else -1.0 for s in subs]),
-        gate_on_input=np.array([s.gate is not None and s.gate.target is GateTarget.INPUT for s in subs]),
+        gate_on_input=np.array(
+            [s.gate is not None and s.gate.target is GateTarget.INPUT for s in subs]
+        ),
         gain=np.array([s.gain for s in subs], dtype=float),
         output_matrix=output_matrix,
     )
@@ -236,4 +245,7 @@ def _discretise(tf: DiscreteTF | ContinuousTF, model_s: float, run_s: float) -> 
 def qualified_names(compiled: CompiledModel) -> Sequence[str]:
     """``output/submodel`` names, one per sub-model row."""
     owners = compiled.output_matrix.argmax(axis=0)
-    return [f"{compiled.output_names[o]}/{s.name}" for o, s in zip(owners, compiled.submodels, strict=True)]
+    return [
+        f"{compiled.output_names[o]}/{s.name}"
+        for o, s in zip(owners, compiled.submodels, strict=True)
+    ]

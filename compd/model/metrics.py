@@ -23,7 +23,9 @@ def fit_percent(measured: np.ndarray, simulated: np.ndarray) -> float:
     spread = np.linalg.norm(measured - measured.mean())
     if spread == 0.0:
         return float("nan")
-    return float((1.0 - np.linalg.norm(measured - np.asarray(simulated, dtype=float)) / spread) * 100.0)
+    return float(
+        (1.0 - np.linalg.norm(measured - np.asarray(simulated, dtype=float)) / spread) * 100.0
+    )
 
 
 @dataclass(frozen=True)

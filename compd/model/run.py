@@ -57,7 +57,9 @@ class TickRunner:
         extended = self._extended
         extended[: self._n_signals] = signals
         if not np.isfinite(extended).all():
-            raise ModelError(f"non-finite signal value in {signals!r}; the state was left unchanged")
+            raise ModelError(
+                f"non-finite signal value in {signals!r}; the state was left unchanged"
+            )
         u = extended[compiled.plus_index] - extended[compiled.minus_index] - self._reference
         gate = compiled.gates(extended)
         u *= np.where(self._input_gated, gate, 1.0)

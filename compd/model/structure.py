@@ -15,12 +15,12 @@ compiler turns them into flat arrays.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import Enum
+from enum import StrEnum
 
 from compd.model.transfer import ContinuousTF, DiscreteTF
 
 
-class GateTarget(str, Enum):
+class GateTarget(StrEnum):
     """Where a gate acts.
 
     ``OUTPUT`` (seed 002 eq. 5 read literally): the TF always runs on its

@@ -19,11 +19,10 @@ Everything here is pure numerics: numpy and scipy, no files, no logging.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
@@ -83,6 +82,9 @@ class DiscreteTF:
             )
         if int(nk) != nk or nk < 0:
             raise ModelError(f"nk (input delay in samples) must be a whole number >= 0, got {nk}")
+        # Trailing zero coefficients carry nothing and would add spurious poles at z = 0.
+        b = np.trim_zeros(b, "b") if np.any(b) else b[:1]
+        a = np.trim_zeros(a, "b")
         return cls(num=tuple(b / a[0]), den=tuple(a / a[0]), nk=int(nk))
 
     @property
@@ -189,8 +191,8 @@ class ContinuousTF:
         with _quiet_conversions():
             a_c, b_c, c_c, d_c = scipy.signal.tf2ss(num_desc, den_desc)
         n_states = a_c.shape[0]
-        if n_states == 0:
-            return DiscreteTF.from_coefficients([float(np.squeeze(d_c))], [1.0], nk)
+        if n_states == 0 or len(self.den) == 1:  # a static gain (tf2ss pads it with a dummy state)
+            return DiscreteTF.from_coefficients([self.num[0] / self.den[0]], [1.0], nk)
         block = np.zeros((n_states + 1, n_states + 1))
         block[:n_states, :n_states] = a_c
         block[:n_states, n_states:] = b_c
@@ -221,8 +223,12 @@ def continuous_equivalent(tf: DiscreteTF, sample_time_s: float) -> ContinuousTF:
     continuous equivalent exists (a pole at z = 0 or on the negative real
     axis), in which case the model must be re-identified at the data's rate.
     """
+    if tf.order == 0:
+        return _static_equivalent(tf, sample_time_s)
     poles = tf.poles()
-    if poles.size and np.any((np.abs(poles) < 1e-12) | ((poles.real <= 0) & (np.abs(poles.imag) < 1e-12))):
+    if poles.size and np.any(
+        (np.abs(poles) < 1e-12) | ((poles.real <= 0) & (np.abs(poles.imag) < 1e-12))
+    ):
         raise ModelError(
             "has a pole at z = 0 or on the negative real axis, so it has no continuous-time "
             "equivalent and cannot be converted to another sample time. Resample the data to "
@@ -252,6 +258,18 @@ def continuous_equivalent(tf: DiscreteTF, sample_time_s: float) -> ContinuousTF:
     return ContinuousTF.from_coefficients(num_s[::-1], den_s[::-1], delay_samples * sample_time_s)
 
 
+def _static_equivalent(tf: DiscreteTF, sample_time_s: float) -> ContinuousTF:
+    """A static gain, possibly delayed; a FIR of several taps has no continuous equivalent."""
+    taps = np.flatnonzero(tf.b)
+    if taps.size > 1:
+        raise ModelError(
+            "is a moving average of several samples (FIR), which has no continuous-time "
+            "equivalent. Resample the data to the model's sample time or re-identify"
+        )
+    delay = int(taps[0]) if taps.size else 0
+    return ContinuousTF.from_coefficients([float(tf.b[delay])], [1.0], delay * sample_time_s)
+
+
 def _padded(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Equal-length coefficient arrays (ascending z^-1 powers are descending z powers then)."""
     size = max(num.size, den.size)
@@ -263,4 +281,3 @@ def resample_discrete(tf: DiscreteTF, from_s: float, to_s: float) -> DiscreteTF:
     if from_s == to_s:
         return tf
     return continuous_equivalent(tf, from_s).discretise(to_s)
-

@@ -10,8 +10,9 @@ def first_order(gain: float, pole: float, nk: int = 1) -> DiscreteTF:
     return DiscreteTF.from_coefficients([gain * (1.0 - pole)], [1.0, -pole], nk=nk)
 
 
-def single(tf: DiscreteTF, *, reference: float | None = 0.0, gate: Gate | None = None,
-           gain: float = 1.0) -> Model:
+def single(
+    tf: DiscreteTF, *, reference: float | None = 0.0, gate: Gate | None = None, gain: float = 1.0
+) -> Model:
     """One output ``disp_z_um`` with one sub-model on signal ``T_degC``."""
     sub = SubModel("heat", "test effect", InputSpec("T_degC", reference=reference), tf, gain, gate)
     return Model("test", 1.0, (Output("disp_z_um", (sub,)),))

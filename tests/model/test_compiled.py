@@ -65,8 +65,14 @@ def test_output_gate_switches_the_contribution_instantly() -> None:
 def test_input_gate_lets_the_contribution_decay_with_the_tf_dynamics() -> None:
     """An input gate zeroes the TF's input, so the contribution decays at the TF's own pole."""
     tf = first_order(1.0, 0.99)
-    sub = SubModel("heat", "spindle", InputSpec("T_degC", reference=0.0), tf, 1.0,
-                   gate_on(target=GateTarget.INPUT))
+    sub = SubModel(
+        "heat",
+        "spindle",
+        InputSpec("T_degC", reference=0.0),
+        tf,
+        1.0,
+        gate_on(target=GateTarget.INPUT),
+    )
     compiled = compile_model(Model("m", 1.0, (Output("disp_z_um", (sub,)),)))
     runner = TickRunner(compiled, compiled.steady_state({"T_degC": 5.0, "speed_rpm": 4000.0}))
     stopped = [runner.step({"T_degC": 5.0, "speed_rpm": 0.0})[0] for _ in range(3)]
@@ -77,8 +83,14 @@ def test_below_gate_is_active_under_the_threshold() -> None:
     """A gate with above=False is open while the signal is below its threshold (e.g. door closed)."""
     from compd.model import Gate
 
-    sub = SubModel("s", "e", InputSpec("T_degC", reference=0.0), first_order(1.0, 0.5), 1.0,
-                   Gate("door", 0.5, above=False))
+    sub = SubModel(
+        "s",
+        "e",
+        InputSpec("T_degC", reference=0.0),
+        first_order(1.0, 0.5),
+        1.0,
+        Gate("door", 0.5, above=False),
+    )
     compiled = compile_model(Model("m", 1.0, (Output("y", (sub,)),)))
     runner = TickRunner(compiled, compiled.steady_state({"T_degC": 2.0, "door": 0.0}))
     assert runner.step({"T_degC": 2.0, "door": 0.0})[0] == pytest.approx(2.0)
@@ -91,7 +103,9 @@ def test_outputs_are_the_sum_of_their_gained_sub_models() -> None:
         SubModel("a", "ambient", InputSpec("T_amb", reference=0.0), first_order(1.0, 0.9), 2.0),
         SubModel("b", "spindle", InputSpec("T_sp", "T_amb", 0.0), first_order(0.5, 0.8), 1.0),
     )
-    subs_y = (SubModel("c", "spindle", InputSpec("T_sp", reference=0.0), first_order(3.0, 0.7), 0.5),)
+    subs_y = (
+        SubModel("c", "spindle", InputSpec("T_sp", reference=0.0), first_order(3.0, 0.7), 0.5),
+    )
     compiled = compile_model(Model("m", 1.0, (Output("z", subs_z), Output("y", subs_y))))
     assert compiled.signals == ("T_amb", "T_sp")
     runner = TickRunner(compiled, compiled.steady_state([1.0, 3.0]))
@@ -107,7 +121,9 @@ def test_state_round_trips_through_json_and_continues_identically() -> None:
     runner = TickRunner(compiled, compiled.rest_state([0.0]))
     for k in range(50):
         runner.step([np.sin(k / 5)])
-    restored = TickRunner(compiled, ModelState.from_dict(json.loads(json.dumps(runner.state.to_dict()))))
+    restored = TickRunner(
+        compiled, ModelState.from_dict(json.loads(json.dumps(runner.state.to_dict())))
+    )
     for k in range(50, 100):
         assert restored.step([np.sin(k / 5)])[0] == runner.step([np.sin(k / 5)])[0]
 
@@ -133,8 +149,12 @@ def test_non_finite_input_is_refused_and_leaves_the_state_unchanged() -> None:
 
 def test_compile_error_names_the_sub_model() -> None:
     """An unstable sub-model is refused with its place in the model."""
-    bad = SubModel("bad", "e", InputSpec("T", reference=0.0),
-                   ContinuousTF.from_coefficients([1.0], [-1.0, 1.0]))
+    bad = SubModel(
+        "bad",
+        "e",
+        InputSpec("T", reference=0.0),
+        ContinuousTF.from_coefficients([1.0], [-1.0, 1.0]),
+    )
     good = SubModel("good", "e", InputSpec("T", reference=0.0), first_order(1.0, 0.5))
     with pytest.raises(ModelError, match=r"outputs\.disp_z_um\.submodels\[1\] \(bad\): unstable"):
         compile_model(Model("m", 1.0, (Output("disp_z_um", (good, bad)),)))
@@ -143,10 +163,24 @@ def test_compile_error_names_the_sub_model() -> None:
 def test_compiled_arrays_are_padded_to_a_common_length() -> None:
     """Sub-models of different orders share one (S, L) layout with a0 == 1."""
     compiled = compile_model(
-        Model("m", 1.0, (Output("z", (
-            SubModel("a", "e", InputSpec("T"), first_order(1.0, 0.5, nk=4)),
-            SubModel("b", "e", InputSpec("T"), ContinuousTF.from_coefficients([1.0], [1.0, 3.0, 2.0])),
-        )),))
+        Model(
+            "m",
+            1.0,
+            (
+                Output(
+                    "z",
+                    (
+                        SubModel("a", "e", InputSpec("T"), first_order(1.0, 0.5, nk=4)),
+                        SubModel(
+                            "b",
+                            "e",
+                            InputSpec("T"),
+                            ContinuousTF.from_coefficients([1.0], [1.0, 3.0, 2.0]),
+                        ),
+                    ),
+                ),
+            ),
+        )
     )
     assert compiled.b.shape == compiled.a.shape == (2, 5)
     assert_allclose(compiled.a[:, 0], 1.0)

@@ -54,9 +54,17 @@ def test_comparison_reports_residue_and_uncompensated_figures() -> None:
     assert c.residue.max_abs_um == 2.0
     assert c.uncompensated.peak_to_peak_um == 20.0
     assert c.peak_to_peak_reduction_percent == pytest.approx(85.0)
-    assert c.rms_reduction_percent == pytest.approx((1 - c.residue.rms_um / c.uncompensated.rms_um) * 100)
+    assert c.rms_reduction_percent == pytest.approx(
+        (1 - c.residue.rms_um / c.uncompensated.rms_um) * 100
+    )
     keys = c.as_dict()
-    assert {"fit_percent", "rms_um", "peak_to_peak_um", "max_abs_um", "uncompensated_rms_um"} <= set(keys)
+    assert {
+        "fit_percent",
+        "rms_um",
+        "peak_to_peak_um",
+        "max_abs_um",
+        "uncompensated_rms_um",
+    } <= set(keys)
 
 
 def test_reduction_of_nothing_is_undefined() -> None:

@@ -44,12 +44,29 @@ def random_models(draw: st.DrawFn) -> Model:
         subs = []
         for sub_i in range(draw(st.integers(1, 3))):
             signal, minus = draw(st.sampled_from(["s0", "s1"])), draw(st.sampled_from([None, "s1"]))
-            gate = draw(st.one_of(st.none(), st.builds(
-                Gate, st.just("s2"), st.floats(-0.5, 0.5), st.booleans(), st.sampled_from(list(GateTarget)),
-            )))
+            gate = draw(
+                st.one_of(
+                    st.none(),
+                    st.builds(
+                        Gate,
+                        st.just("s2"),
+                        st.floats(-0.5, 0.5),
+                        st.booleans(),
+                        st.sampled_from(list(GateTarget)),
+                    ),
+                )
+            )
             reference = draw(st.one_of(st.none(), st.floats(-5, 5)))
-            subs.append(SubModel(f"sub{sub_i}", "e", InputSpec(signal, minus if minus != signal else None, reference),
-                                 draw(stable_tfs()), draw(st.floats(0.0, 2.0)), gate))
+            subs.append(
+                SubModel(
+                    f"sub{sub_i}",
+                    "e",
+                    InputSpec(signal, minus if minus != signal else None, reference),
+                    draw(stable_tfs()),
+                    draw(st.floats(0.0, 2.0)),
+                    gate,
+                )
+            )
         outputs.append(Output(f"out{out_i}", tuple(subs)))
     return Model("random", 1.0, tuple(outputs))
 
@@ -68,7 +85,9 @@ def test_step_and_simulate_agree(model: Model, seed: int, steady: bool) -> None:
     scale = max(1.0, float(np.max(np.abs(result.outputs))))
     assert_allclose(stepped, result.outputs, rtol=1e-9, atol=1e-9 * scale)
     assert_allclose(runner.state.z, result.final_state.z, rtol=1e-9, atol=1e-9 * scale)
-    assert_allclose(result.outputs, result.contributions @ compiled.output_matrix.T, atol=1e-12 * scale)
+    assert_allclose(
+        result.outputs, result.contributions @ compiled.output_matrix.T, atol=1e-12 * scale
+    )
 
 
 def difference_equation(num: list[float], den: list[float], nk: int, u: np.ndarray) -> np.ndarray:
@@ -87,7 +106,9 @@ def test_simulate_equals_the_papers_difference_equation() -> None:
     compiled = compile_model(single(DiscreteTF.from_coefficients(num, den, nk)))
     u = np.sin(np.arange(400) / 17.0) + 0.3
     result = simulate(compiled, u[:, None], compiled.rest_state([0.0]))
-    assert_allclose(result.outputs[:, 0], difference_equation(num, den, nk, u), rtol=1e-10, atol=1e-13)
+    assert_allclose(
+        result.outputs[:, 0], difference_equation(num, den, nk, u), rtol=1e-10, atol=1e-13
+    )
 
 
 def test_steady_state_simulation_stays_flat_for_constant_inputs() -> None:

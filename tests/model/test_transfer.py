@@ -20,11 +20,16 @@ E_ETVE = ContinuousTF.from_coefficients(
 @pytest.mark.parametrize("sample_time_s", [1.0, 15.0, 60.0])
 def test_zoh_matches_scipy_cont2discrete(tf: ContinuousTF, sample_time_s: float) -> None:
     """Discretising a seed 000 TF gives scipy's cont2discrete(zoh) coefficients to 1e-9 relative."""
-    num, den, _ = scipy.signal.cont2discrete((tf.num[::-1], tf.den[::-1]), sample_time_s, method="zoh")
+    num, den, _ = scipy.signal.cont2discrete(
+        (tf.num[::-1], tf.den[::-1]), sample_time_s, method="zoh"
+    )
     num, den = np.squeeze(num) / den[0], den / den[0]
     discrete = tf.discretise(sample_time_s)
-    assert_allclose(discrete.num, num, rtol=1e-9, atol=1e-9 * np.max(np.abs(num)))
-    assert_allclose(discrete.den, den, rtol=1e-9, atol=1e-12)
+    # compd drops exactly-zero trailing coefficients (at 60 s a pole of e^-142 underflows).
+    compd_num = np.pad(discrete.num, (0, num.size - len(discrete.num)))
+    compd_den = np.pad(discrete.den, (0, den.size - len(discrete.den)))
+    assert_allclose(compd_num, num, rtol=1e-9, atol=1e-9 * np.max(np.abs(num)))
+    assert_allclose(compd_den, den, rtol=1e-9, atol=1e-12)
 
 
 def test_zoh_keeps_the_static_gain_and_time_constants() -> None:
@@ -32,7 +37,9 @@ def test_zoh_keeps_the_static_gain_and_time_constants() -> None:
     discrete = E_Z_HEAT.discretise(1.0)
     assert discrete.static_gain() == pytest.approx(0.0162 / 0.002098, rel=1e-9)
     slow, fast = discrete.time_constants_s(1.0)
-    assert_allclose(sorted([-1 / p.real for p in E_Z_HEAT.poles()], reverse=True), [slow, fast], rtol=1e-9)
+    assert_allclose(
+        sorted([-1 / p.real for p in E_Z_HEAT.poles()], reverse=True), [slow, fast], rtol=1e-9
+    )
 
 
 def test_discrete_tf_is_normalised_so_a0_is_one() -> None:
@@ -118,3 +125,28 @@ def test_delay_that_is_not_a_whole_number_of_samples_is_refused() -> None:
     tf = ContinuousTF.from_coefficients([1.0], [1.0, 100.0], delay_s=5.0)
     with pytest.raises(ModelError, match="whole number"):
         tf.discretise(2.0)
+
+
+def test_static_gain_with_delay_converts_between_sample_times() -> None:
+    """A delayed static gain (the controller's regression, order 0) converts to a coarser rate exactly."""
+    tf = DiscreteTF.from_coefficients([7.0], [1.0], nk=10)
+    converted = resample_discrete(tf, 1.0, 5.0)
+    assert converted.b.tolist() == [0.0, 0.0, 7.0]
+
+
+def test_fir_of_several_taps_is_not_converted() -> None:
+    """A moving average over samples has no continuous equivalent: refused."""
+    with pytest.raises(ModelError, match="FIR"):
+        resample_discrete(DiscreteTF.from_coefficients([0.5, 0.5], [1.0]), 1.0, 10.0)
+
+
+def test_trailing_zero_coefficients_add_no_poles() -> None:
+    """den: [1, -0.9, 0] is the first-order TF of [1, -0.9], not a second pole at z = 0."""
+    tf = DiscreteTF.from_coefficients([0.1, 0.0], [1.0, -0.9, 0.0])
+    assert tf.order == 1 and tf.num == (0.1,)
+
+
+def test_a_static_continuous_gain_stays_static() -> None:
+    """K over 1 (order 0) discretises to the same gain with no dynamics."""
+    tf = ContinuousTF.from_coefficients([7.0], [1.0]).discretise(10.0)
+    assert (tf.num, tf.den) == ((7.0,), (1.0,))

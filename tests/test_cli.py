@@ -1,0 +1,176 @@
+"""The compd command: model check, simulate, compare and demo, end to end on real files."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from numpy.testing import assert_allclose
+
+from compd.cli import main
+
+CONFIG = Path(__file__).parent.parent / "config"
+DATA = CONFIG / "example_spectrum.csv"
+SEED000 = CONFIG / "seed000_hmc_tf.yaml"
+REGRESSION = CONFIG / "seed000_linear_regression.yaml"
+GATED = CONFIG / "example_gated_arx.yaml"
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def compare_json(capsys: pytest.CaptureFixture[str], *argv: object) -> dict:
+    code, out, err = run(capsys, "compare", *argv, "--json")
+    assert code == 0, err
+    return json.loads(out)
+
+
+def test_compare_json_has_the_contract_keys(capsys: pytest.CaptureFixture[str]) -> None:
+    """compare --json prints one object whose per-output keys scripts rely on."""
+    report = compare_json(capsys, SEED000, DATA)
+    z = report["outputs"]["disp_z_um"]
+    for key in ("fit_percent", "rms_um", "peak_to_peak_um", "max_abs_um", "uncompensated_rms_um"):
+        assert isinstance(z[key], float), key
+    assert report["samples"] == 2880 and report["sample_time_s"] == 10.0
+
+
+def test_tf_model_beats_the_controllers_linear_regression(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """On the example data seed 000's TF model leaves far less residue than the built-in regression (seed 000's claim)."""
+    tf = compare_json(capsys, SEED000, DATA)["outputs"]["disp_z_um"]
+    regression = compare_json(capsys, REGRESSION, DATA)["outputs"]["disp_z_um"]
+    assert tf["fit_percent"] > 85.0
+    assert tf["rms_um"] < 0.5 * regression["rms_um"]
+    assert tf["rms_reduction_percent"] > 85.0
+
+
+def test_compare_table_is_human_readable(capsys: pytest.CaptureFixture[str]) -> None:
+    """The default output is a table naming the output, fit % and the residue figures."""
+    code, out, err = run(capsys, "compare", GATED, DATA)
+    assert code == 0, err
+    assert "disp_y_um" in out and "fit %" in out and "residue RMS" in out
+    assert "converted exactly" in err  # the 1 s model runs on 10 s data
+
+
+def test_compare_with_a_renamed_measured_column(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--output COLUMN pairs a single-output model with a column of another name."""
+    frame = pd.read_csv(DATA).rename(columns={"disp_z_um": "z_probe"})
+    frame.to_csv(tmp_path / "renamed.csv", index=False)
+    renamed = compare_json(capsys, SEED000, tmp_path / "renamed.csv", "--output", "z_probe")
+    original = compare_json(capsys, SEED000, DATA)
+    assert renamed["outputs"]["disp_z_um"]["rms_um"] == pytest.approx(
+        original["outputs"]["disp_z_um"]["rms_um"]
+    )
+
+
+def test_simulate_writes_outputs_and_contributions(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """simulate's CSV has time, the output and each sub-model's contribution, which sum to the output."""
+    out = tmp_path / "pred.csv"
+    code, stdout, err = run(capsys, "simulate", SEED000, DATA, "--out", out)
+    assert code == 0, err
+    frame = pd.read_csv(out)
+    assert list(frame.columns) == ["time_s", "disp_z_um", "disp_z_um.z_heat", "disp_z_um.etve"]
+    assert len(frame) == 2880
+    assert_allclose(
+        frame["disp_z_um"], frame["disp_z_um.z_heat"] + frame["disp_z_um.etve"], atol=2e-6
+    )
+    assert "wrote 2880 samples" in stdout
+
+
+def test_fit_percent_agrees_with_simulated_csv(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """fit % in compare equals seed 001 eq. 2 computed from simulate's output and the measured column."""
+    out = tmp_path / "pred.csv"
+    assert run(capsys, "simulate", GATED, DATA, "--out", out)[0] == 0
+    predicted = pd.read_csv(out)["disp_y_um"].to_numpy()
+    measured = pd.read_csv(DATA)["disp_y_um"].to_numpy()
+    expected = (
+        1 - np.linalg.norm(measured - predicted) / np.linalg.norm(measured - measured.mean())
+    ) * 100
+    report = compare_json(capsys, GATED, DATA)["outputs"]["disp_y_um"]
+    assert report["fit_percent"] == pytest.approx(expected, abs=1e-3)
+    assert report["max_abs_um"] == pytest.approx(np.max(np.abs(measured - predicted)), abs=1e-5)
+
+
+def test_model_check_lists_sub_models_with_poles_and_gates(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """model check prints each sub-model's time constants, static gain and gate."""
+    code, out, err = run(capsys, "model", "check", GATED)
+    assert code == 0, err
+    assert "disp_y_um/heating_difference" in out
+    assert "spindle_speed_rpm > 0" in out
+    assert "10800.0" in out  # the ambient TF's 3 h time constant
+    assert "ok" in out
+
+
+def test_bad_model_exits_2_naming_file_and_place(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A malformed model ends with status 2 and the file/place message, no traceback."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(
+        GATED.read_text().replace(
+            "power_order: ascending, nk: 1,\n             num: [0.000138882459046]",
+            "power_order: sideways, nk: 1,\n             num: [0.000138882459046]",
+        )
+    )
+    code, _, err = run(capsys, "model", "check", bad)
+    assert code == 2
+    assert str(bad) in err and "outputs.disp_y_um.submodels[0].tf.power_order" in err
+    assert "Traceback" not in err
+
+
+def test_missing_signal_column_exits_2_naming_the_column(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Data without a column the model reads is refused naming the column and the model."""
+    pd.read_csv(DATA).drop(columns=["T_shopfloor_degC"]).to_csv(tmp_path / "d.csv", index=False)
+    code, _, err = run(capsys, "compare", SEED000, tmp_path / "d.csv")
+    assert code == 2
+    assert "T_shopfloor_degC" in err and "seed000-hmc-z" in err
+
+
+def test_no_measured_column_says_how_to_choose_one(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Data without the model's output column points the user to --output."""
+    pd.read_csv(DATA).drop(columns=["disp_z_um"]).to_csv(tmp_path / "d.csv", index=False)
+    code, _, err = run(capsys, "compare", SEED000, tmp_path / "d.csv")
+    assert code == 2 and "--output COLUMN" in err
+
+
+def test_demo_runs_on_the_bundled_files(capsys: pytest.CaptureFixture[str]) -> None:
+    """compd demo compares the three bundled models and states the TF-vs-regression result."""
+    code, out, err = run(capsys, "demo")
+    assert code == 0, err
+    assert "seed000-hmc-z" in out and "example-gated-arx-y" in out
+    assert "controller's linear regression leaves" in out
+
+
+@pytest.mark.skipif(shutil.which("compd") is None, reason="compd is not installed as a command")
+def test_installed_console_script_runs() -> None:
+    """The installed `compd` console script answers --version."""
+    result = subprocess.run(["compd", "--version"], capture_output=True, text=True, check=True)
+    assert result.stdout.startswith("compd ")
+
+
+def test_module_entry_point_runs() -> None:
+    """python -m compd.cli works without the console script (e.g. under systemd later)."""
+    result = subprocess.run(
+        [sys.executable, "-m", "compd.cli", "--version"], capture_output=True, text=True
+    )
+    assert result.returncode == 0 and "compd" in result.stdout
