@@ -44,7 +44,7 @@ def test_compare_json_has_the_contract_keys(capsys: pytest.CaptureFixture[str]) 
 def test_tf_model_beats_the_controllers_linear_regression(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    """On the example data seed 000's TF model leaves far less residue than the built-in regression (seed 000's claim)."""
+    """Seed 000's claim on the example data: its TF model leaves far less residue than the built-in regression."""
     tf = compare_json(capsys, SEED000, DATA)["outputs"]["disp_z_um"]
     regression = compare_json(capsys, REGRESSION, DATA)["outputs"]["disp_z_um"]
     assert tf["fit_percent"] > 85.0
