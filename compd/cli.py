@@ -251,7 +251,7 @@ def _demo(args: argparse.Namespace) -> int:
         f"[bold]compd {__version__} demo[/bold]: an 8-hour SPECTRUM-style test (spindle speed steps, "
         "then cooling) on a milling centre, bundled as example_spectrum.csv.\n"
     )
-    rows = []
+    rows: list[tuple[str, Comparison]] = []
     for name in ("seed000_hmc_tf.yaml", "seed000_linear_regression.yaml", "example_gated_arx.yaml"):
         with resources.as_file(bundled / name) as model_path:
             evaluation = evaluate(load_model(model_path), data)

@@ -81,12 +81,12 @@ class CompiledModel:
 
     @property
     def n_submodels(self) -> int:
-        return self.b.shape[0]
+        return int(self.b.shape[0])
 
     @property
     def n_states(self) -> int:
         """DF2T delay-line length per sub-model (``L - 1``)."""
-        return self.b.shape[1] - 1
+        return int(self.b.shape[1]) - 1
 
     def extended(self, signals: np.ndarray) -> np.ndarray:
         """Signal values (last axis in :attr:`signals` order) with the constant 0 and 1 slots appended."""
@@ -103,11 +103,12 @@ class CompiledModel:
 
     def raw_inputs(self, extended: np.ndarray) -> np.ndarray:
         """``signal - minus`` per sub-model (before the reference is removed)."""
-        return extended[..., self.plus_index] - extended[..., self.minus_index]
+        difference: np.ndarray = extended[..., self.plus_index] - extended[..., self.minus_index]
+        return difference
 
     def gates(self, extended: np.ndarray) -> np.ndarray:
         """1.0 where each sub-model's gate is open, else 0.0."""
-        opened = (extended[..., self.gate_index] - self.gate_threshold) * self.gate_sign > 0.0
+        opened: np.ndarray = (extended[..., self.gate_index] - self.gate_threshold) * self.gate_sign > 0.0
         return opened.astype(float)
 
     def check_state(self, state: ModelState) -> None:

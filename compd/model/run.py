@@ -72,7 +72,8 @@ class TickRunner:
             z[...] = shifted
         contributions = y * compiled.gain * np.where(self._output_gated, gate, 1.0)
         self.contributions = contributions
-        return compiled.output_matrix @ contributions
+        outputs: np.ndarray = compiled.output_matrix @ contributions
+        return outputs
 
 
 @dataclass(frozen=True, eq=False)
