@@ -103,12 +103,16 @@ class CompiledModel:
 
     def raw_inputs(self, extended: np.ndarray) -> np.ndarray:
         """``signal - minus`` per sub-model (before the reference is removed)."""
-        difference: np.ndarray = extended[..., self.plus_index] - extended[..., self.minus_index]
+        difference: np.ndarray = extended.take(self.plus_index, axis=-1) - extended.take(
+            self.minus_index, axis=-1
+        )
         return difference
 
     def gates(self, extended: np.ndarray) -> np.ndarray:
         """1.0 where each sub-model's gate is open, else 0.0."""
-        opened: np.ndarray = (extended[..., self.gate_index] - self.gate_threshold) * self.gate_sign > 0.0
+        opened: np.ndarray = (
+            extended.take(self.gate_index, axis=-1) - self.gate_threshold
+        ) * self.gate_sign > 0.0
         return opened.astype(float)
 
     def check_state(self, state: ModelState) -> None:

@@ -1,0 +1,37 @@
+"""Run every benchmark, each in its own interpreter, and exit non-zero if any target fails.
+
+A fresh process per script keeps one benchmark's allocations and warm caches
+out of the next one's figures (tracemalloc peaks in particular). The
+checkout's own ``compd`` is put first on ``PYTHONPATH`` so the figures are
+those of the working tree, not of an installed copy. For humans, not CI:
+timings on shared runners are too noisy to gate a merge on.
+
+Run: ``python benchmarks/run_all.py`` from anywhere.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+SCRIPTS = ("bench_step.py", "bench_simulate.py")
+
+
+def main() -> int:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(HERE.parent), env.get("PYTHONPATH")]))
+    results = {}
+    for script in SCRIPTS:
+        results[script] = subprocess.run([sys.executable, str(HERE / script)], env=env).returncode
+        print()
+    for script, code in results.items():
+        status = {0: "all targets PASS", 1: "a target FAILED"}.get(code, f"crashed (exit {code})")
+        print(f"{script:<20}{status}")
+    return 0 if all(code == 0 for code in results.values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
