@@ -53,7 +53,7 @@ class LfilterTicker:
         if not np.isfinite(extended).all():
             raise ModelError("non-finite signal value")
         u = extended[compiled.plus_index] - extended[compiled.minus_index] - self._reference
-        gate = compiled.gates(extended)
+        gate = compiled.gates_open(extended)
         u *= np.where(compiled.gate_on_input, gate, 1.0)
         y = np.empty(compiled.n_submodels)
         for row in range(compiled.n_submodels):

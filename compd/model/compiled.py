@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -36,9 +37,6 @@ class ModelState:
 
     z: np.ndarray
     reference: np.ndarray
-
-    def copy(self) -> ModelState:
-        return ModelState(self.z.copy(), self.reference.copy())
 
     def to_dict(self) -> dict[str, list[list[float]] | list[float]]:
         """Plain lists, for JSON/YAML persistence."""
@@ -79,6 +77,12 @@ class CompiledModel:
     gain: np.ndarray  # (S,)
     output_matrix: np.ndarray  # (n_outputs, S) 0/1: which sub-models sum into which output
 
+    @cached_property
+    def signed_threshold(self) -> np.ndarray:
+        """``gate_threshold * gate_sign``, the right-hand side of the gate test."""
+        signed: np.ndarray = self.gate_threshold * self.gate_sign
+        return signed
+
     @property
     def n_submodels(self) -> int:
         return int(self.b.shape[0])
@@ -108,12 +112,16 @@ class CompiledModel:
         )
         return difference
 
-    def gates(self, extended: np.ndarray) -> np.ndarray:
-        """1.0 where each sub-model's gate is open, else 0.0."""
+    def gates_open(self, extended: np.ndarray) -> np.ndarray:
+        """True where each sub-model's gate is open (always, for sub-models without a gate).
+
+        ``value * sign > threshold * sign`` is ``value > threshold`` for an
+        'above' gate and ``value < threshold`` for a 'below' gate.
+        """
         opened: np.ndarray = (
-            extended.take(self.gate_index, axis=-1) - self.gate_threshold
-        ) * self.gate_sign > 0.0
-        return opened.astype(float)
+            extended.take(self.gate_index, axis=-1) * self.gate_sign > self.signed_threshold
+        )
+        return opened
 
     def check_state(self, state: ModelState) -> None:
         """Refuse a state that belongs to a different model structure."""
@@ -142,7 +150,7 @@ class CompiledModel:
         reference = self._references(vector)
         extended = self.extended(vector)
         u = self.raw_inputs(extended) - reference
-        u = u * np.where(self.gate_on_input, self.gates(extended), 1.0)
+        u = u * (self.gates_open(extended) | ~self.gate_on_input)
         y = u * self.b.sum(axis=1) / self.a.sum(axis=1)
         terms = self.b[:, 1:] * u[:, None] - self.a[:, 1:] * y[:, None]
         z = np.cumsum(terms[:, ::-1], axis=1)[:, ::-1]

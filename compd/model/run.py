@@ -61,7 +61,6 @@ class TickRunner:
         self._reference = state.reference.copy()
         self._n_signals = len(compiled.signals)
         self._extended = compiled.extended(np.zeros(self._n_signals))
-        self._signed_threshold = compiled.gate_threshold * compiled.gate_sign
         self._input_ungated = ~compiled.gate_on_input
         self._weighted_outputs = compiled.output_matrix * compiled.gain
         #: Each sub-model's contribution (um) at the last tick, gain and gate applied.
@@ -89,7 +88,7 @@ class TickRunner:
             raise ModelError(
                 f"non-finite signal value in {signals!r}; the state was left unchanged"
             )
-        opened = extended[compiled.gate_index] * compiled.gate_sign > self._signed_threshold
+        opened = compiled.gates_open(extended)
         u = extended[compiled.plus_index] - extended[compiled.minus_index]
         u -= self._reference
         u *= opened | self._input_ungated
@@ -140,10 +139,8 @@ def simulate(compiled: CompiledModel, signals: np.ndarray, state: ModelState) ->
     for s in range(compiled.n_submodels):
         u = rows[compiled.plus_index[s]] - rows[compiled.minus_index[s]]
         u -= state.reference[s]
-        gate = (
-            rows[compiled.gate_index[s]] * compiled.gate_sign[s]
-            > compiled.gate_threshold[s] * compiled.gate_sign[s]
-        )
+        # CompiledModel.gates_open's test, on one sub-model's row of the record.
+        gate = rows[compiled.gate_index[s]] * compiled.gate_sign[s] > compiled.signed_threshold[s]
         if compiled.gate_on_input[s]:
             u *= gate
         if compiled.n_states:
