@@ -103,12 +103,47 @@ class OutputDoc(_Strict):
         return submodels
 
 
+class CalibrationDoc(_Strict):
+    """What the model was fitted on: `compare` judges new data against it.
+
+    ``rms_um`` is the free-run residue RMS per output on the calibration data
+    (the default failing-window tolerance is twice it); ``ranges`` is
+    ``[min, max]`` of every signal column of that data, so operating
+    conditions outside what the model has seen can be named.
+    """
+
+    data: str
+    samples: int = Field(ge=1)
+    sample_time_s: FiniteFloat = Field(gt=0)
+    fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+    rms_um: dict[str, FiniteFloat] = Field(default_factory=dict)
+    ranges: dict[str, tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=dict)
+
+
+class ExtensionDoc(_Strict):
+    """One ``compd extend`` step: a sub-model added by superposition (seed 001 sect. 4.3)."""
+
+    parent_sha256: str
+    data: str
+    effect_signal: str
+    submodels: list[str] = Field(default_factory=list)
+    fit_percent_before: dict[str, FiniteFloat] = Field(default_factory=dict)
+    fit_percent_after: dict[str, FiniteFloat] = Field(default_factory=dict)
+    verify_data: str | None = None
+    verify_fit_percent_before: dict[str, FiniteFloat] = Field(default_factory=dict)
+    verify_fit_percent_after: dict[str, FiniteFloat] = Field(default_factory=dict)
+    created: str | None = None
+
+
 class ProvenanceDoc(_Strict):
     data: str | None = None
     command: str | None = None
     created: str | None = None
     compd_version: str | None = None
+    method: str | None = None
     fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+    calibration: CalibrationDoc | None = None
+    extensions: list[ExtensionDoc] = Field(default_factory=list)
     notes: str = ""
 
 

@@ -1,0 +1,110 @@
+"""What the command modules share: data-file options, console, number formatting, compare output."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from rich.console import Console
+from rich.table import Table
+
+from compd.data import DataSet, load_data
+from compd.evaluate import Evaluation
+from compd.model.metrics import Comparison
+
+EXIT_INPUT_ERROR = 2
+
+
+def data_options(parser: argparse.ArgumentParser) -> None:
+    """``--init``, ``--max-gap-s`` and ``--resample``, for every command that reads a data file."""
+    parser.add_argument(
+        "--init",
+        choices=("steady", "rest"),
+        default="steady",
+        help="initial model state: in equilibrium with the first sample (default) or all zero",
+    )
+    parser.add_argument(
+        "--max-gap-s",
+        type=float,
+        default=60.0,
+        help="longest run of missing samples to interpolate, in s (default 60)",
+    )
+    parser.add_argument(
+        "--resample",
+        action="store_true",
+        help="interpolate irregularly sampled data onto a uniform grid instead of refusing it",
+    )
+
+
+def load_data_from_args(args: argparse.Namespace, path: object = None) -> DataSet:
+    """Load ``path`` (default ``args.data``) with the options of :func:`data_options`."""
+    return load_data(
+        args.data if path is None else path, max_gap_s=args.max_gap_s, resample=args.resample
+    )
+
+
+def console() -> Console:
+    # Piped output (a file, a CI log) is read by people and grep alike:
+    # don't wrap tables at rich's 80-column default.
+    return Console(highlight=False, width=None if sys.stdout.isatty() else 200)
+
+
+def fmt(value: float | None, digits: int = 2) -> str:
+    return "n/a" if value is None or math.isnan(value) else f"{value:.{digits}f}"
+
+
+def json_clean(value: object) -> object:
+    """NaN becomes ``null`` (JSON has no NaN; scripts read undefined values as null)."""
+    return None if isinstance(value, float) and math.isnan(value) else value
+
+
+def print_notes(evaluation: Evaluation) -> None:
+    for note in (*evaluation.data.notes, *evaluation.notes):
+        print(f"note: {note}", file=sys.stderr)
+
+
+def compare_json(evaluation: Evaluation, comparisons: list[Comparison]) -> dict[str, object]:
+    """The ``compare --json`` object (key names are a contract, see the README)."""
+    return {
+        "model": evaluation.compiled.name,
+        "model_sha256": evaluation.model_file.sha256,
+        "data": evaluation.data.path,
+        "samples": len(evaluation.data),
+        "sample_time_s": evaluation.data.sample_time_s,
+        "notes": [*evaluation.data.notes, *evaluation.notes],
+        "outputs": {
+            c.output: {k: json_clean(v) for k, v in c.as_dict().items() if k != "output"}
+            for c in comparisons
+        },
+    }
+
+
+def comparison_table(evaluation: Evaluation, comparisons: list[Comparison]) -> Table:
+    data = evaluation.data
+    table = Table(
+        "output",
+        "fit %",
+        "residue RMS",
+        "residue p-p",
+        "max |residue|",
+        "uncomp. RMS",
+        "uncomp. p-p",
+        "RMS reduction",
+        "p-p reduction",
+        title=f"{evaluation.compiled.name} vs {data.path} ({len(data)} samples, "
+        f"{data.sample_time_s:g} s, {data.time_s[-1] / 3600:.2f} h); errors in um",
+    )
+    for c in comparisons:
+        table.add_row(
+            c.output,
+            fmt(c.fit_percent, 1),
+            fmt(c.residue.rms_um),
+            fmt(c.residue.peak_to_peak_um),
+            fmt(c.residue.max_abs_um),
+            fmt(c.uncompensated.rms_um),
+            fmt(c.uncompensated.peak_to_peak_um),
+            f"{fmt(c.rms_reduction_percent, 1)} %",
+            f"{fmt(c.peak_to_peak_reduction_percent, 1)} %",
+        )
+    return table
