@@ -17,7 +17,10 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-SCRIPTS = ("bench_step.py", "bench_simulate.py")
+SCRIPTS = ("bench_step.py", "bench_simulate.py", "bench_identify.py", "bench_tick.py", "bench_diagnose.py")
+#: Arguments per script: the tick benchmark's quick run (600 ticks at 0.1 s, 1 minute);
+#: its full run (600 real 1 Hz ticks, 10 minutes) is ``python benchmarks/bench_tick.py``.
+ARGS = {"bench_tick.py": ["--ticks", "600", "--period-s", "0.1"]}
 
 
 def main() -> int:
@@ -25,7 +28,9 @@ def main() -> int:
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(HERE.parent), env.get("PYTHONPATH")]))
     results = {}
     for script in SCRIPTS:
-        results[script] = subprocess.run([sys.executable, str(HERE / script)], env=env).returncode
+        results[script] = subprocess.run(
+            [sys.executable, str(HERE / script), *ARGS.get(script, [])], env=env
+        ).returncode
         print()
     for script, code in results.items():
         status = {0: "all targets PASS", 1: "a target FAILED"}.get(code, f"crashed (exit {code})")

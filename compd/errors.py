@@ -53,3 +53,40 @@ class ModelFileError(InputFileError):
 
 class DataFileError(InputFileError):
     """A data file (CSV, Parquet) that cannot be used as logged machine data."""
+
+
+class RecorderError(CompdError):
+    """The recorder could not write its CSV files (disk full, no permission).
+
+    Recording is a side job of the compensation loop: the loop logs this
+    error and keeps compensating; the rows of the failed tick are lost.
+    """
+
+
+class ControlError(CompdError):
+    """The control socket cannot be served or reached (no daemon, stale socket, no reply)."""
+
+
+class ConfigFileError(InputFileError):
+    """A daemon configuration file (YAML) that compd refuses to start with."""
+
+
+class DriverError(CompdError):
+    """A machine driver could not read or write; the loop reconnects and goes on.
+
+    Drivers raise only this family: a library's own exceptions are translated
+    at the driver boundary, so the loop needs to know three cases, not every
+    protocol stack's.
+    """
+
+
+class DriverTimeoutError(DriverError):
+    """The device did not answer within the read or write timeout."""
+
+
+class DriverDisconnectedError(DriverError):
+    """The connection is down (refused, reset, not yet open)."""
+
+
+class DriverProtocolError(DriverError):
+    """The device answered, but not as expected (unknown address, bad reply, wrong type)."""

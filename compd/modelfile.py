@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import yaml
@@ -22,6 +22,8 @@ from compd.errors import ModelError, ModelFileError
 from compd.model.compiled import CompiledModel, compile_model
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
+from compd.yamlplace import describe as _describe
+from compd.yamlplace import where as _where
 
 SCHEMA = "compd.model/1"
 
@@ -288,47 +290,3 @@ _FIXES = {
     "float_parsing": "Give a number",
     "finite_number": "Give a finite number",
 }
-
-
-def _describe(error: Any) -> str:
-    kind = error["type"]
-    if kind == "extra_forbidden":
-        return f"unknown key {error['loc'][-1]!r}"
-    if kind == "missing":
-        return f"required key {error['loc'][-1]!r} is missing"
-    message = str(error["msg"])
-    if message.startswith("Value error, "):
-        message = message[len("Value error, ") :]
-    shown = error.get("input")
-    if kind != "missing" and not isinstance(shown, dict | list):
-        message = f"{message} (got {shown!r})"
-    return message
-
-
-def _where(root: yaml.Node | None, location: tuple[str | int, ...]) -> str:
-    """``line N (a.b[2].c)``: the dotted place, with the YAML line of the deepest node found."""
-    dotted = ""
-    for part in location:
-        if isinstance(part, int):
-            dotted += f"[{part}]"
-        else:
-            dotted += f".{part}" if dotted else str(part)
-    node, line = root, None
-    for part in location:
-        if isinstance(node, yaml.MappingNode):
-            match = next((v for k, v in node.value if k.value == part), None)
-            if match is None:
-                key = next((k for k, _ in node.value if k.value == part), None)
-                line = key.start_mark.line + 1 if key is not None else line
-                break
-            node = match
-        elif (
-            isinstance(node, yaml.SequenceNode) and isinstance(part, int) and part < len(node.value)
-        ):
-            node = node.value[part]
-        else:
-            break
-        line = node.start_mark.line + 1
-    if line is None and root is not None:
-        line = root.start_mark.line + 1
-    return f"line {line} ({dotted})" if dotted else f"line {line}"

@@ -174,3 +174,74 @@ def test_module_entry_point_runs() -> None:
         [sys.executable, "-m", "compd.cli", "--version"], capture_output=True, text=True
     )
     assert result.returncode == 0 and "compd" in result.stdout
+
+
+# compare: where the model fails (failing windows)
+
+
+@pytest.fixture(scope="module")
+def residue_case(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A spindle-only model on a record with rough cutting (4.5 kW, beyond calibration) from 8 h to 10 h."""
+    from tests.residue_case import write_case
+
+    return write_case(tmp_path_factory.mktemp("residue_case"))
+
+
+def test_compare_json_lists_failing_windows_while_the_missing_effect_acts(
+    residue_case: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Windows fail only during and just after rough cutting, naming spindle power as outside calibration."""
+    report = compare_json(capsys, *residue_case)
+    windows = report["failing_windows"]
+    assert windows, "rough cutting must make windows fail"
+    assert report["window_s"] == 900.0 and report["window_tolerance_sources"] == {
+        "disp_z_um": "calibration"
+    }
+    assert report["outputs"]["disp_z_um"]["window_tolerance_um"] == pytest.approx(1.2)  # 2 x 0.6
+    for w in windows:
+        assert {"output", "start_s", "end_s", "rms_um", "outside_calibration", "conditions"} <= set(
+            w
+        )
+        assert 8 * 3600 <= w["start_s"] < 11 * 3600 and w["end_s"] - w["start_s"] == 900.0
+        assert w["rms_um"] > 1.2
+        if w["conditions"]["spindle_power_kw"] > 2.0:
+            assert "spindle_power_kw" in w["outside_calibration"]
+    assert sum("spindle_power_kw" in w["outside_calibration"] for w in windows) >= 4
+
+
+def test_compare_tolerance_and_window_options(
+    residue_case: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--tolerance-um replaces the calibration tolerance and --window-s the 15-min window."""
+    report = compare_json(capsys, *residue_case, "--tolerance-um", "100")
+    assert (
+        report["failing_windows"] == []
+        and report["window_tolerance_sources"]["disp_z_um"] == "given"
+    )
+    report = compare_json(capsys, *residue_case, "--window-s", "3600")
+    assert all(w["end_s"] - w["start_s"] == 3600.0 for w in report["failing_windows"])
+    with pytest.raises(SystemExit) as exited:  # argparse refuses it before anything is read
+        run(capsys, "compare", *residue_case, "--window-s", "0")
+    assert exited.value.code == 2 and "--window-s: must be a number > 0" in capsys.readouterr().err
+
+
+def test_compare_table_shows_failing_windows_with_conditions(
+    residue_case: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The human output lists failing windows as h:mm spans with mean conditions and outside-calibration signals."""
+    code, out, err = run(capsys, "compare", *residue_case)
+    assert code == 0, err
+    assert "windows of 15 min above 1.20 um RMS (2x the calibration residue RMS)" in out
+    assert "mean spindle_power_kw" in out and "outside calibration" in out
+    assert "│ 8:30 " in out
+
+
+def test_compare_without_calibration_record_says_which_tolerance_it_used(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A model without provenance.calibration is judged against twice this record's RMS, with a note."""
+    report = compare_json(capsys, SEED000, DATA)
+    assert report["window_tolerance_sources"] == {"disp_z_um": "record"}
+    z = report["outputs"]["disp_z_um"]
+    assert z["window_tolerance_um"] == pytest.approx(2 * z["rms_um"])
+    assert any("no calibration residue RMS" in note for note in report["notes"])

@@ -22,6 +22,11 @@ from compd.errors import CompdError
 COMMAND_MODULES = (
     "compd.cli.demo",
     "compd.cli.evaluate",
+    "compd.cli.fit",
+    "compd.cli.diagnose",
+    "compd.cli.report",
+    "compd.cli.service",
+    "compd.cli.twin",
 )
 
 

@@ -108,3 +108,16 @@ def comparison_table(evaluation: Evaluation, comparisons: list[Comparison]) -> T
             f"{fmt(c.peak_to_peak_reduction_percent, 1)} %",
         )
     return table
+
+
+def order_arg(text: str) -> int | str:
+    """``--order``: ``auto`` or a whole number >= 1 (an argparse ``type``)."""
+    if text == "auto":
+        return text
+    try:
+        order = int(text)
+    except ValueError:
+        order = 0
+    if order < 1:
+        raise argparse.ArgumentTypeError(f"must be 'auto' or a whole number >= 1, got {text!r}")
+    return order

@@ -1,15 +1,34 @@
-"""``compd model check``, ``compd simulate`` and ``compd compare``: a model file over a data file."""
+"""``compd model check``, ``compd simulate`` and ``compd compare``: a model file over a data file.
+
+``compare`` also says where the model fails: the residue cut into windows
+(``--window-s``, default 15 min), those whose RMS exceeds the tolerance
+(``--tolerance-um``, default twice the model's calibration residue RMS) with
+the operating conditions then and the signals outside the calibration range
+(see :mod:`compd.analysis`). JSON layout: top-level ``failing_windows`` is
+the list over every compared output, time-ordered per output, each entry
+``{output, start_s, end_s, rms_um, outside_calibration, conditions}``;
+``outputs.<name>.window_tolerance_um`` is the tolerance used and top-level
+``window_tolerance_sources.<name>`` says where it came from.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
+from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 from rich.table import Column, Table
 
+from compd.analysis import (
+    CONDITION_PATTERNS,
+    DEFAULT_WINDOW_S,
+    WindowsResult,
+    find_failing_windows,
+)
 from compd.cli.common import (
     compare_json,
     comparison_table,
@@ -18,7 +37,8 @@ from compd.cli.common import (
     load_data_from_args,
     print_notes,
 )
-from compd.evaluate import compare, evaluate
+from compd.cli.service import register_model_load
+from compd.evaluate import compare, evaluate, measured_columns
 from compd.model.compiled import qualified_names
 from compd.modelfile import load_model
 
@@ -31,6 +51,7 @@ def register(commands: Any) -> None:
         "--sample-time-s", type=float, help="compile for this sample time (default: the model's)"
     )
     check.set_defaults(handler=_model_check)
+    register_model_load(model)
 
     sim = commands.add_parser(
         "simulate", help="model output and each sub-model's contribution per sample"
@@ -53,6 +74,18 @@ def register(commands: Any) -> None:
     )
     cmp_.add_argument(
         "--json", action="store_true", help="print one JSON object instead of a table"
+    )
+    cmp_.add_argument(
+        "--window-s",
+        type=_positive,
+        default=DEFAULT_WINDOW_S,
+        help=f"length of the windows the residue is judged in, s (default {DEFAULT_WINDOW_S:g})",
+    )
+    cmp_.add_argument(
+        "--tolerance-um",
+        type=_positive,
+        help="residue RMS above which a window fails, um (default: twice the model's "
+        "calibration residue RMS; without a calibration record twice this record's)",
     )
     data_options(cmp_)
     cmp_.set_defaults(handler=_compare)
@@ -111,12 +144,119 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _positive(text: str) -> float:
+    """An argparse ``type``: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
+    return value
+
+
 def _compare(args: argparse.Namespace) -> int:
     evaluation = evaluate(load_model(args.model), load_data_from_args(args), init=args.init)
     comparisons = compare(evaluation, args.output)
+    windows = [
+        find_failing_windows(
+            evaluation,
+            output,
+            measured,
+            tolerance_um=args.tolerance_um,
+            window_s=args.window_s,
+        )
+        for output, measured in measured_columns(evaluation, args.output).items()
+    ]
     if args.json:
-        print(json.dumps(compare_json(evaluation, comparisons), indent=2, allow_nan=False))
+        report: dict[str, Any] = compare_json(evaluation, comparisons)
+        report["notes"] = [*report["notes"], *(n for w in windows for n in w.notes)]
+        report.update(windows_json(windows))
+        for w in windows:
+            report["outputs"][w.output]["window_tolerance_um"] = w.tolerance_um
+        print(json.dumps(report, indent=2, allow_nan=False))
         return 0
     print_notes(evaluation)
-    console().print(comparison_table(evaluation, comparisons))
+    for note in (n for w in windows for n in w.notes):
+        print(f"note: {note}", file=sys.stderr)
+    out = console()
+    out.print(comparison_table(evaluation, comparisons))
+    for result in windows:
+        out.print(windows_summary(result))
+        if result.windows:
+            out.print(windows_table(result))
     return 0
+
+
+def windows_json(results: list[WindowsResult]) -> dict[str, object]:
+    """Top-level ``window_s``, ``window_tolerance_sources`` and ``failing_windows`` (a contract)."""
+    return {
+        "window_s": results[0].window_s if results else DEFAULT_WINDOW_S,
+        "window_tolerance_sources": {r.output: r.tolerance_source for r in results},
+        "failing_windows": [
+            {
+                "output": r.output,
+                "start_s": w.start_s,
+                "end_s": w.end_s,
+                # Rounded (to 1 nm and 6 decimals): figures, not bit patterns, across BLAS builds.
+                "rms_um": round(w.rms_um, 6),
+                "outside_calibration": list(w.outside_calibration),
+                "conditions": {k: round(v, 6) for k, v in w.conditions.items()},
+            }
+            for r in results
+            for w in r.windows
+        ],
+    }
+
+
+_SOURCES = {
+    "given": "as given",
+    "calibration": "2x the calibration residue RMS",
+    "record": "2x this record's residue RMS: no calibration record",
+}
+
+
+def windows_summary(result: WindowsResult) -> str:
+    count = len(result.windows)
+    colour = "red" if count else "green"
+    return (
+        f"{result.output}: [{colour}]{count} of {result.window_count} windows[/{colour}] of "
+        f"{result.window_s / 60:g} min above {result.tolerance_um:.2f} um RMS "
+        f"({_SOURCES[result.tolerance_source]})"
+    )
+
+
+def windows_table(result: WindowsResult) -> Table:
+    """Failing windows: span (h:mm from the start), RMS, mean conditions, outside-calibration signals."""
+    shown = _shown(result)
+    table = Table(
+        "from", "to", "residue RMS (um)", *(f"mean {n}" for n in shown), "outside calibration"
+    )
+    for w in result.windows:
+        table.add_row(
+            _clock(w.start_s),
+            _clock(w.end_s),
+            f"{w.rms_um:.2f}",
+            *(_cell(w.conditions[n], n in w.outside_calibration) for n in shown),
+            f"[bold red]{', '.join(w.outside_calibration)}[/bold red]"
+            if w.outside_calibration
+            else "-",
+        )
+    return table
+
+
+def _shown(result: WindowsResult) -> list[str]:
+    """The operating-condition columns (spindle, feed, door, coolant) shown in the table."""
+    return [
+        n for n in result.conditions if any(fnmatchcase(n.lower(), p) for p in CONDITION_PATTERNS)
+    ]
+
+
+def _cell(value: float, outside: bool) -> str:
+    text = f"{value:.4g}"
+    return f"[bold red]{text}[/bold red]" if outside else text
+
+
+def _clock(seconds: float) -> str:
+    minutes = round(seconds / 60.0)
+    return f"{minutes // 60}:{minutes % 60:02d}"

@@ -1,0 +1,153 @@
+"""``compd fit``: identify a model from calibration data and write it as a model file."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+from rich.table import Table
+
+from compd.cli.common import console, fmt, load_data_from_args
+from compd.cli.progress import progress_reporter
+from compd.errors import DataFileError
+from compd.fit import FitResult, fit_data
+from compd.model.identify import METHODS
+
+
+def register(commands: Any) -> None:
+    parser = commands.add_parser(
+        "fit",
+        help="identify TFs (ARX, OE or MLR) from calibration data and write a model file",
+        description="Identify a model of one output column from input columns, taken as changes "
+        "from their first value, and write it as a compd.model/1 file. Every fit % printed is the "
+        "free-run simulation fit (seed 001 eq. 2), the figure compd compare reproduces.",
+    )
+    parser.add_argument(
+        "--data", type=Path, required=True, metavar="CALIB.csv", help="calibration data file"
+    )
+    parser.add_argument(
+        "--output", required=True, metavar="COLUMN", help="measured displacement (um)"
+    )
+    parser.add_argument(
+        "--inputs", required=True, metavar="A,B,C", help="input columns, comma-separated"
+    )
+    parser.add_argument(
+        "--phase-gate",
+        metavar="SIGNAL",
+        help="separate heating and cooling (seed 002 eq. 5): per input a cooling TF, always on, "
+        "and a heating-difference TF whose input is switched on while SIGNAL > 0",
+    )
+    parser.add_argument(
+        "--order",
+        default="auto",
+        metavar="auto|N",
+        help="model order: auto (default; chosen on held-back data) or N in 1..3",
+    )
+    parser.add_argument(
+        "--method",
+        choices=METHODS,
+        default="oe",
+        help="oe (default): a denominator per input, fitted on the simulation error; arx: least "
+        "squares with a common denominator; mlr: static linear regression (the baseline)",
+    )
+    parser.add_argument("--out", type=Path, required=True, metavar="MODEL.yaml")
+    parser.add_argument("--name", help="model name (default OUTPUT-METHOD)")
+    parser.add_argument(
+        "--max-gap-s",
+        type=float,
+        default=60.0,
+        help="longest run of missing samples to interpolate, in s (default 60)",
+    )
+    parser.add_argument(
+        "--resample",
+        action="store_true",
+        help="interpolate irregularly sampled data onto a uniform grid instead of refusing it",
+    )
+    parser.set_defaults(handler=_fit)
+
+
+def _order(args: argparse.Namespace) -> int | str:
+    text = str(args.order).strip().lower()
+    if text == "auto":
+        return "auto"
+    try:
+        return int(text)
+    except ValueError:
+        raise DataFileError(
+            args.data,
+            f"order {args.order!r} is not a number",
+            where="--order",
+            fix="Use auto or 1..3",
+        ) from None
+
+
+def _fit(args: argparse.Namespace) -> int:
+    order = _order(args)
+    data = load_data_from_args(args)
+    for note in data.notes:
+        print(f"note: {note}", file=sys.stderr)
+    inputs = [name.strip() for name in args.inputs.split(",") if name.strip()]
+    command = shlex.join(["compd", *sys.argv[1:]]) if sys.argv[1:] else None
+    with progress_reporter() as progress:
+        result = fit_data(
+            data,
+            output=args.output,
+            inputs=inputs,
+            method=args.method,
+            order=order,
+            phase_gate=args.phase_gate,
+            name=args.name,
+            command=command,
+            progress=progress,
+        )
+    args.out.write_text(result.yaml_text, encoding="utf-8")
+    _report(result, args)
+    return 0
+
+
+def _report(result: FitResult, args: argparse.Namespace) -> None:
+    identification = result.identification
+    sample_s = identification.sample_time_s
+    table = Table(
+        "sub-model",
+        "input",
+        "gate",
+        "nb",
+        "order",
+        "nk",
+        "time constants (s)",
+        "static gain (um/unit)",
+        title=f"{result.model.name}: {identification.method} on {args.data} "
+        f"({len(identification.simulated_um)} samples, {sample_s:g} s)",
+    )
+    for sub, channel in zip(
+        result.model.outputs[0].submodels, identification.channels, strict=True
+    ):
+        tf = channel.tf
+        table.add_row(
+            sub.name,
+            channel.input_name,
+            sub.gate.describe() if sub.gate else "always",
+            str(len(tf.num)),
+            str(tf.order),
+            str(tf.nk),
+            ", ".join(f"{t:.0f}" for t in tf.time_constants_s(sample_s)) or "-",
+            f"{tf.static_gain():.5g}",
+        )
+    out = console()
+    out.print(table)
+    residue = result.comparison.residue
+    line = (
+        f"free-run simulation fit {fmt(identification.fit_percent, 2)} % on the calibration data "
+        f"(residue RMS {fmt(residue.rms_um, 3)} um)"
+    )
+    if identification.validation_fit_percent is not None:
+        line += (
+            f"; orders chosen on held-back data: fit {fmt(identification.validation_fit_percent, 2)}"
+            " % on the last third"
+        )
+    out.print(line)
+    out.print(f"wrote {args.out}")

@@ -1,0 +1,85 @@
+"""``compd report``: one self-contained HTML file of a model (or two) on a data file."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from compd.analysis import DEFAULT_WINDOW_S
+from compd.cli.common import data_options, load_data_from_args
+from compd.evaluate import evaluate
+from compd.modelfile import load_model
+
+
+def register(commands: Any) -> None:
+    report = commands.add_parser(
+        "report",
+        help="one HTML file: measured vs simulated, residue, failing windows, contributions, "
+        "candidates, conditions",
+    )
+    report.add_argument("model", type=Path, metavar="MODEL.yaml")
+    report.add_argument("data", type=Path, metavar="DATA.csv")
+    report.add_argument("--out", type=Path, required=True, metavar="REPORT.html")
+    report.add_argument(
+        "--compare",
+        type=Path,
+        metavar="OTHER.yaml",
+        help="a second model on the same data, shown side by side with the change in each figure",
+    )
+    report.add_argument(
+        "--output",
+        metavar="COLUMN",
+        help="measured column to compare (default: columns named like the model's outputs)",
+    )
+    report.add_argument(
+        "--tolerance-um",
+        type=_positive,
+        help="residue RMS above which a window fails, um (default: twice the model's "
+        "calibration residue RMS; without a calibration record twice this record's)",
+    )
+    report.add_argument(
+        "--window-s",
+        type=_positive,
+        default=DEFAULT_WINDOW_S,
+        help=f"length of the windows the residue is judged in, s (default {DEFAULT_WINDOW_S:g})",
+    )
+    data_options(report)
+    report.set_defaults(handler=_report)
+
+
+def _positive(text: str) -> float:
+    """An argparse ``type``: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
+    return value
+
+
+def _report(args: argparse.Namespace) -> int:
+    # plotly is imported only by the command that draws: every other command
+    # (and the 1 Hz service) starts without it.
+    from compd.report import write_report
+
+    data = load_data_from_args(args)
+    evaluation = evaluate(load_model(args.model), data, init=args.init)
+    other = (
+        None if args.compare is None else evaluate(load_model(args.compare), data, init=args.init)
+    )
+    path = write_report(
+        args.out,
+        evaluation,
+        other=other,
+        column=args.output,
+        tolerance_um=args.tolerance_um,
+        window_s=args.window_s,
+    )
+    notes = [*data.notes, *evaluation.notes, *(other.notes if other is not None else ())]
+    for note in dict.fromkeys(notes):
+        print(f"note: {note}", file=sys.stderr)
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    return 0

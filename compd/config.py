@@ -1,0 +1,328 @@
+"""The daemon's configuration file: parsed and validated once, into frozen objects, before any I/O.
+
+One YAML file (``schema: compd.config/1``) wires the machine to the model:
+drivers (bus connections), signals (name -> driver address, scaling, checks),
+outputs (axis -> model output, driver address, encoding, limits), the status
+word and heartbeat, the model path, the period, directories and safety
+options. Unknown keys, wrong types and dangling references (a signal naming
+an undefined driver, a model input without a signal) are errors reading
+``FILE: line N (signals.T_spindle.driver): what is wrong. fix``; any of them
+stops ``compd run`` before the first write to a machine, and
+``compd check-config`` runs exactly the same validation.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from compd.errors import ConfigFileError
+from compd.model.compiled import CompiledModel
+from compd.modelfile import ModelFile
+from compd.yamlplace import FIXES, describe, resolve_path, where
+
+SCHEMA = "compd.config/1"
+#: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31).
+MAX_SIGNALS = 24
+
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ChecksDoc(_Strict):
+    """Per-signal plausibility checks (see :mod:`compd.signals`), in the signal's unit."""
+
+    min: FiniteFloat | None = None
+    max: FiniteFloat | None = None
+    stale_s: Positive = 10.0
+    stuck_s: Positive | None = None
+    stuck_tolerance: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    max_jump: Positive | None = None
+    hold_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 30.0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ChecksDoc:
+        if self.min is not None and self.max is not None and self.min >= self.max:
+            raise ValueError(f"'min' ({self.min}) must be below 'max' ({self.max})")
+        return self
+
+
+class SignalDoc(_Strict):
+    """``value = raw * scale + offset`` in ``unit``."""
+
+    driver: str
+    address: str = Field(min_length=1)
+    type: Literal["float", "int", "bool"] = "float"
+    scale: FiniteFloat = 1.0
+    offset: FiniteFloat = 0.0
+    unit: str
+    description: str = ""
+    checks: ChecksDoc = ChecksDoc()
+
+
+class EncodingDoc(_Strict):
+    """How an offset in um is written: ``round(offset_um * scale)`` for ``int``."""
+
+    type: Literal["float", "int"] = "float"
+    scale: Positive = 1.0
+
+
+class OutputDoc(_Strict):
+    """One compensated axis: ``offset_um = sign * model_output`` after the safety stage."""
+
+    model_output: str
+    driver: str
+    address: str = Field(min_length=1)
+    encoding: EncodingDoc = EncodingDoc()
+    sign: Literal[-1, 1] = -1
+    max_offset_um: Positive
+    max_rate_um_per_s: Positive
+
+
+class StatusDoc(_Strict):
+    """Where the status word and the heartbeat counter go, for the PLC's supervision."""
+
+    driver: str
+    status_address: str = Field(min_length=1)
+    heartbeat_address: str = Field(min_length=1)
+
+
+class DriverDoc(_Strict):
+    type: str
+    settings: dict[str, Any] = Field(default_factory=dict)
+    timeout_s: Positive = 0.5
+    reconnect_min_s: Positive = 1.0
+    reconnect_max_s: Positive = 60.0
+
+
+class SafetyDoc(_Strict):
+    on_fault: Literal["ramp", "freeze"] = "ramp"
+    fault_ramp_after_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
+
+
+class StateDoc(_Strict):
+    directory: str | None = None
+    save_every_ticks: int = Field(default=60, ge=1)
+    resume_max_age_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 900.0
+
+
+class RecorderDoc(_Strict):
+    enabled: bool = True
+    directory: str | None = None
+    max_file_bytes: int = Field(default=20_000_000, ge=1024)
+    max_file_age_s: Positive = 86_400.0
+    max_total_bytes: int = Field(default=2_000_000_000, ge=1024)
+
+
+class EffectDoc(_Strict):
+    """An entry of the effect catalogue: a physical effect and the signals that excite it."""
+
+    description: str = ""
+    signals: list[str] = Field(default_factory=list)
+
+
+class ConfigDoc(_Strict):
+    schema_: Literal["compd.config/1"] = Field(alias="schema")
+    model: str
+    period_s: Positive = 1.0
+    blend_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
+    live_every_ticks: int = Field(default=60, ge=1)
+    control_socket: str | None = None
+    drivers: dict[str, DriverDoc] = Field(min_length=1)
+    signals: dict[str, SignalDoc] = Field(min_length=1, max_length=MAX_SIGNALS)
+    outputs: dict[str, OutputDoc] = Field(min_length=1)
+    status: StatusDoc | None = None
+    safety: SafetyDoc = SafetyDoc()
+    state: StateDoc = StateDoc()
+    recorder: RecorderDoc = RecorderDoc()
+    effects: dict[str, EffectDoc] = Field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Config:
+    """A validated configuration with every path resolved and every driver's settings parsed."""
+
+    path: Path
+    doc: ConfigDoc
+    model_path: Path
+    state_dir: Path
+    recorder_dir: Path | None
+    control_socket: Path
+    driver_settings: dict[str, BaseModel]
+
+    @property
+    def base_dir(self) -> Path:
+        return self.path.parent
+
+    @property
+    def signal_names(self) -> tuple[str, ...]:
+        return tuple(self.doc.signals)
+
+
+def default_state_dir() -> Path:
+    """``$XDG_STATE_HOME/compd``, else ``~/.local/state/compd``."""
+    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(base) / "compd"
+
+
+def load_config(path: str | Path) -> Config:
+    """Read and validate a config file (schema and references; see :func:`check_model`)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise ConfigFileError(path, f"cannot read the file ({exc.strerror})") from exc
+    return parse_config(text, path)
+
+
+def parse_config(text: str, path: Path) -> Config:
+    try:
+        data = yaml.safe_load(text)
+        root = yaml.compose(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        place = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ConfigFileError(path, f"not valid YAML: {problem}", where=place) from exc
+    if not isinstance(data, dict) or data.get("schema") != SCHEMA:
+        shown = data.get("schema") if isinstance(data, dict) else None
+        raise ConfigFileError(
+            path,
+            f"unsupported or missing schema {shown!r}",
+            where="schema",
+            fix=f"Start the file with 'schema: {SCHEMA}' (see config/compd.example.yaml)",
+        )
+    try:
+        doc = ConfigDoc.model_validate(data)
+    except ValidationError as exc:
+        raise _from_validation(exc, path, root, ()) from exc
+
+    def error(location: tuple[str | int, ...], message: str, fix: str) -> ConfigFileError:
+        return ConfigFileError(path, message, where=where(root, location), fix=fix)
+
+    from compd.drivers.base import driver_types  # the registry imports every driver
+
+    types = driver_types()
+    settings: dict[str, BaseModel] = {}
+    for name, driver in doc.drivers.items():
+        if driver.type not in types:
+            raise error(
+                ("drivers", name, "type"),
+                f"unknown driver type {driver.type!r}",
+                f"Use one of {sorted(types)}",
+            )
+        try:
+            settings[name] = types[driver.type].settings_model.model_validate(driver.settings)
+        except ValidationError as exc:
+            raise _from_validation(exc, path, root, ("drivers", name, "settings")) from exc
+    drivers = sorted(doc.drivers)
+    references: list[tuple[tuple[str | int, ...], str]] = [
+        (("signals", n, "driver"), s.driver) for n, s in doc.signals.items()
+    ]
+    references += [(("outputs", n, "driver"), o.driver) for n, o in doc.outputs.items()]
+    if doc.status is not None:
+        references.append((("status", "driver"), doc.status.driver))
+    for location, driver_name in references:
+        if driver_name not in doc.drivers:
+            raise error(
+                location,
+                f"driver {driver_name!r} is not defined under 'drivers'",
+                f"Define it or use one of {drivers}",
+            )
+    for name, effect in doc.effects.items():
+        for i, signal in enumerate(effect.signals):
+            if signal not in doc.signals:
+                raise error(
+                    ("effects", name, "signals", i),
+                    f"signal {signal!r} is not defined under 'signals'",
+                    f"Define it or use one of {sorted(doc.signals)}",
+                )
+    addresses: dict[tuple[str, str], str] = {}
+    written: list[tuple[tuple[str | int, ...], str, str]] = [
+        (("outputs", n, "address"), o.driver, o.address) for n, o in doc.outputs.items()
+    ]
+    if doc.status is not None:
+        written += [
+            (("status", "status_address"), doc.status.driver, doc.status.status_address),
+            (("status", "heartbeat_address"), doc.status.driver, doc.status.heartbeat_address),
+        ]
+    for location, driver_name, address in written:
+        key = (driver_name, address)
+        if key in addresses:
+            raise error(
+                location,
+                f"address {address!r} on driver {driver_name!r} is already written by "
+                f"{addresses[key]}",
+                "Give every written value its own address",
+            )
+        addresses[key] = ".".join(map(str, location[:2]))
+
+    state_dir = (
+        resolve_path(doc.state.directory, path.parent)
+        if doc.state.directory
+        else default_state_dir()
+    )
+    recorder_dir = None
+    if doc.recorder.enabled:
+        recorder_dir = (
+            resolve_path(doc.recorder.directory, path.parent)
+            if doc.recorder.directory
+            else state_dir / "records"
+        )
+    socket = (
+        resolve_path(doc.control_socket, path.parent)
+        if doc.control_socket
+        else state_dir / "control.sock"
+    )
+    return Config(
+        path=path,
+        doc=doc,
+        model_path=resolve_path(doc.model, path.parent),
+        state_dir=state_dir,
+        recorder_dir=recorder_dir,
+        control_socket=socket,
+        driver_settings=settings,
+    )
+
+
+def check_model(config: Config, model_file: ModelFile, compiled: CompiledModel) -> None:
+    """Refuse a model this config cannot run: an input without a signal, an axis without an output."""
+    missing = [s for s in compiled.signals if s not in config.doc.signals]
+    if missing:
+        raise ConfigFileError(
+            config.path,
+            f"model {model_file.path} reads signal(s) {missing} that are not defined",
+            where="signals",
+            fix=f"Add them under 'signals' (defined: {sorted(config.doc.signals)})",
+        )
+    for axis, output in config.doc.outputs.items():
+        if output.model_output not in compiled.output_names:
+            raise ConfigFileError(
+                config.path,
+                f"model {model_file.path} has no output {output.model_output!r}",
+                where=f"outputs.{axis}.model_output",
+                fix=f"Use one of {list(compiled.output_names)}",
+            )
+
+
+def _from_validation(
+    exc: ValidationError, path: Path, root: yaml.Node | None, prefix: tuple[str | int, ...]
+) -> ConfigFileError:
+    # A misspelt key shows up as "unknown key" plus "missing key"; the
+    # unknown one is the more useful to report.
+    errors = sorted(exc.errors(), key=lambda e: e["type"] != "extra_forbidden")
+    first = errors[0]
+    location = (*prefix, *first["loc"])
+    fix = FIXES.get(first["type"], "")
+    if first["type"] == "extra_forbidden":
+        fix += " (see config/compd.example.yaml for every key)"
+    return ConfigFileError(path, describe(first), where=where(root, location), fix=fix)

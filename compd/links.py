@@ -1,0 +1,136 @@
+"""Driver supervision: one :class:`DriverLink` per configured driver.
+
+A link runs reads and writes under a timeout and never raises into the loop:
+a failed read returns no values, a failed write returns ``False``, and the
+link goes down. While down, it reconnects in the background with
+exponential backoff while the loop goes on. The first failure of an episode
+logs ERROR, repeats log DEBUG, the recovery logs INFO.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Mapping, Sequence
+
+import structlog
+
+from compd.clock import Clock
+from compd.drivers.base import Driver
+from compd.errors import DriverError
+
+log = structlog.get_logger("compd.links")
+
+
+class DriverLink:
+    """One supervised driver: timeouts, failure accounting, reconnect with exponential backoff.
+
+    Backoff after the n-th consecutive failure: ``min(backoff_max_s, backoff_min_s * 2**(n-1))``.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        driver: Driver,
+        clock: Clock,
+        *,
+        timeout_s: float,
+        backoff_min_s: float = 1.0,
+        backoff_max_s: float = 60.0,
+    ) -> None:
+        self.name = name
+        self.driver = driver
+        self.clock = clock
+        self.timeout_s = timeout_s
+        self.backoff_min_s = backoff_min_s
+        self.backoff_max_s = backoff_max_s
+        self.up = False
+        self.failures = 0  # consecutive
+        self.faults = 0  # fault episodes (up -> down)
+        self.reconnects = 0
+        self.next_attempt_s = -math.inf
+        self._connecting: asyncio.Task[None] | None = None
+        self._ever_up = False
+
+    async def open(self) -> None:
+        """First connection attempt; a failure is logged and retried by :meth:`poll`."""
+        await self._connect()
+
+    def poll(self) -> None:
+        """While down, start a reconnect in the background when its backoff has passed."""
+        if self.up or self._connecting is not None or self.clock.now() < self.next_attempt_s:
+            return
+        self._connecting = asyncio.get_running_loop().create_task(self._connect())
+        self._connecting.add_done_callback(self._connected)
+
+    def _connected(self, _: asyncio.Task[None]) -> None:
+        self._connecting = None
+
+    async def _connect(self) -> None:
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                await self.driver.open()
+        except (DriverError, TimeoutError, OSError) as exc:
+            self._failed("open", exc)
+            return
+        if self._ever_up:
+            self.reconnects += 1
+        log.info(
+            "driver connected" if not self._ever_up else "driver reconnected",
+            driver=self.name,
+            after_failures=self.failures,
+        )
+        self.up, self.failures, self._ever_up = True, 0, True
+
+    async def read(self, points: Sequence[str]) -> dict[str, float]:
+        """Values by address; empty when the link is down or the read failed (never raises)."""
+        if not self.up:
+            self.poll()
+            return {}
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                values: dict[str, float] = await self.driver.read(points)
+                return values
+        except (DriverError, TimeoutError, OSError) as exc:
+            self._failed("read", exc)
+            return {}
+
+    async def write(self, values: Mapping[str, float]) -> bool:
+        """Write; ``False`` when the link is down or the write failed (never raises)."""
+        if not self.up:
+            self.poll()
+            return False
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                await self.driver.write(values)
+        except (DriverError, TimeoutError, OSError) as exc:
+            self._failed("write", exc)
+            return False
+        return True
+
+    async def close(self) -> None:
+        if self._connecting is not None:
+            self._connecting.cancel()
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                await self.driver.close()
+        except (DriverError, TimeoutError, OSError) as exc:
+            log.debug("driver close failed", driver=self.name, error=repr(exc))
+        self.up = False
+
+    def _failed(self, action: str, exc: BaseException) -> None:
+        if self.up or (self.failures == 0 and not self._ever_up):
+            self.faults += 1
+            log.error(f"driver {action} failed", driver=self.name, error=_text(exc))
+        else:
+            log.debug(f"driver {action} failed again", driver=self.name, error=_text(exc))
+        self.up = False
+        self.failures += 1
+        backoff_s = min(self.backoff_max_s, self.backoff_min_s * 2 ** (self.failures - 1))
+        self.next_attempt_s = self.clock.now() + backoff_s
+
+
+def _text(exc: BaseException) -> str:
+    if isinstance(exc, TimeoutError):
+        return "timed out"
+    return f"{type(exc).__name__}: {exc}"

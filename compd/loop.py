@@ -1,0 +1,380 @@
+"""The 1 Hz loop: an absolute-deadline scheduler on an injectable clock, and driver supervision.
+
+The scheduler (:func:`run_periodic`) wakes at ``t0 + k * period_s`` -- the
+next deadline is the last one plus the period, never "now plus the period",
+so the loop does not drift. A tick that ends after the next deadline is an
+overrun: the missed deadlines are counted, logged and skipped (a late tick
+is not made up by a burst of ticks).
+
+The clock is injected (:mod:`compd.clock`): real time, optionally scaled, or
+virtual time that jumps straight to each deadline, so tests replay an
+8-hour shift in seconds through exactly the code a machine runs.
+
+:class:`Compensator` is the per-tick function itself: read, check, step,
+limit, write, in that order, with every I/O through a
+:class:`~compd.links.DriverLink` so that no I/O error can end the loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Awaitable, Callable, Coroutine, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+import numpy as np
+import structlog
+
+from compd.clock import Clock, RealClock, VirtualClock
+from compd.links import DriverLink
+from compd.model.compiled import CompiledModel, ModelState, qualified_names
+from compd.model.run import TickRunner
+from compd.modelfile import ModelFile
+from compd.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
+from compd.signals import Health, SignalMonitor
+
+__all__ = ["Clock", "Compensator", "RealClock", "TickTiming", "VirtualClock", "run_periodic"]
+
+log = structlog.get_logger("compd.loop")
+T = TypeVar("T")
+
+
+@dataclass
+class TickTiming:
+    """Scheduler counters: ticks run, deadlines missed, lateness of the wake-ups (s)."""
+
+    ticks: int = 0
+    overruns: int = 0
+    last_lateness_s: float = 0.0
+    max_lateness_s: float = 0.0
+
+
+async def run_periodic(
+    clock: Clock,
+    period_s: float,
+    tick: Callable[[float], Awaitable[None]],
+    *,
+    stop: asyncio.Event,
+    duration_s: float | None = None,
+    timing: TickTiming | None = None,
+) -> TickTiming:
+    """Call ``tick(deadline)`` at ``deadline = t0 + k * period_s`` until ``stop`` is set.
+
+    With ``duration_s``, the last tick is the last deadline within
+    ``t0 + duration_s`` (so ``duration_s / period_s + 1`` ticks when nothing
+    overruns). Returns the counters (also updated live in ``timing``).
+    """
+    timing = timing or TickTiming()
+    deadline = clock.now()
+    until_s = None if duration_s is None else deadline + duration_s
+    while not stop.is_set() and (until_s is None or deadline <= until_s + 1e-9):
+        await clock.sleep_until(deadline)
+        if stop.is_set():
+            break
+        lateness_s = clock.now() - deadline
+        timing.last_lateness_s = lateness_s
+        timing.max_lateness_s = max(timing.max_lateness_s, lateness_s)
+        await tick(deadline)
+        timing.ticks += 1
+        deadline += period_s
+        behind_s = clock.now() - deadline
+        if behind_s > 0:
+            missed = math.floor(behind_s / period_s) + 1
+            timing.overruns += missed
+            deadline += missed * period_s
+            log.warning("overrun", missed_deadlines=missed, behind_s=round(behind_s, 4))
+    return timing
+
+
+@dataclass(frozen=True)
+class SignalPoint:
+    """Where a signal is read: ``value = convert(raw) * scale + offset``.
+
+    ``kind`` converts the raw reading first: ``int`` rounds it (a register
+    count), ``bool`` makes it 1.0 when non-zero, else 0.0.
+    """
+
+    name: str
+    driver: str
+    address: str
+    scale: float = 1.0
+    offset: float = 0.0
+    kind: str = "float"
+
+    def convert(self, raw: float) -> float:
+        if self.kind != "float" and math.isfinite(raw):
+            raw = float(round(raw)) if self.kind == "int" else float(raw != 0)
+        return raw * self.scale + self.offset
+
+
+@dataclass(frozen=True)
+class AxisPoint:
+    """Where an axis offset is written: ``round?(offset_um * scale)`` with ``offset_um = sign * output``."""
+
+    name: str
+    model_output: str
+    driver: str
+    address: str
+    sign: float = -1.0
+    scale: float = 1.0
+    integer: bool = False
+
+    def encode(self, offset_um: float) -> float:
+        value = offset_um * self.scale
+        return float(round(value)) if self.integer else value
+
+
+@dataclass(frozen=True)
+class StatusPoint:
+    driver: str
+    status_address: str
+    heartbeat_address: str
+
+
+class ModelSlot:
+    """A loaded model: its file, compiled form, and once started, its runner."""
+
+    def __init__(self, model_file: ModelFile, compiled: CompiledModel, loaded_at_unix_s: float):
+        self.model_file = model_file
+        self.compiled = compiled
+        self.loaded_at_unix_s = loaded_at_unix_s
+        self.runner: TickRunner | None = None
+        self.outputs = np.full(len(compiled.output_names), np.nan)
+        self.names = list(qualified_names(compiled))
+        owners = compiled.output_matrix.argmax(axis=0)
+        #: Signals each output depends on (inputs, minus signals and gates of its sub-models).
+        self.depends: dict[str, set[str]] = {name: set() for name in compiled.output_names}
+        for owner, sub in zip(owners, compiled.submodels, strict=True):
+            used = {sub.input.signal, sub.input.minus, sub.gate.signal if sub.gate else None}
+            self.depends[compiled.output_names[owner]] |= {u for u in used if u}
+
+    @property
+    def sha256(self) -> str:
+        return self.model_file.sha256
+
+    def start(self, state: ModelState) -> None:
+        self.runner = TickRunner(self.compiled, state)
+
+    def output(self, name: str) -> float:
+        return float(self.outputs[self.compiled.output_names.index(name)])
+
+
+@dataclass
+class TickRecord:
+    """Everything one tick saw and did, for the recorder, the status and the tests."""
+
+    t_s: float
+    wall_unix_s: float
+    values: dict[str, float]
+    health: dict[str, Health]
+    reasons: dict[str, str]
+    model_outputs: dict[str, float]
+    contributions: dict[str, float]
+    targets_um: dict[str, float]
+    offsets_um: dict[str, float]
+    status: int
+    heartbeat: int
+    written: bool
+
+
+@dataclass
+class Counters:
+    ticks: int = 0
+    signal_faults: int = 0
+    write_failures: int = 0
+    model_loads: int = 0
+
+
+class Compensator:
+    """The per-tick function: read, check, step the model, limit, write; no I/O error escapes.
+
+    One tick at time ``t_s``:
+
+    1. read every signal, all drivers concurrently, each under its timeout;
+    2. check each value (:class:`~compd.signals.SignalMonitor`): good, held, or faulted;
+    3. step the model with the checked values (started at steady state with the first
+       complete set of values, or from a resumed state); during a model switch, step
+       both and blend ``w * new + (1 - w) * old`` with ``w`` rising 0 -> 1 over ``blend_s``;
+    4. per axis ``target = sign * output``, through the safety stage, frozen while an
+       input the axis depends on is faulted;
+    5. write offsets, status word and heartbeat, all drivers concurrently.
+    """
+
+    def __init__(
+        self,
+        *,
+        signals: Sequence[SignalPoint],
+        monitors: Mapping[str, SignalMonitor],
+        axes: Sequence[AxisPoint],
+        safety: Mapping[str, AxisSafety],
+        links: Mapping[str, DriverLink],
+        model: ModelSlot,
+        status: StatusPoint | None = None,
+        blend_s: float = 60.0,
+        wall: Callable[[], float] = time.time,
+        initial_state: ModelState | None = None,
+    ) -> None:
+        self.signals = list(signals)
+        self.monitors = dict(monitors)
+        self.axes = list(axes)
+        self.safety = dict(safety)
+        self.links = dict(links)
+        self.status_point = status
+        self.blend_s = blend_s
+        self.wall = wall
+        self.active = model
+        self.previous: ModelSlot | None = None
+        self.pending: ModelSlot | None = None
+        self.blend_start_s = -math.inf
+        self.heartbeat = 0
+        self.counters = Counters()
+        self.last: TickRecord | None = None
+        self._reads: dict[str, list[SignalPoint]] = {}
+        for point in self.signals:
+            self._reads.setdefault(point.driver, []).append(point)
+        if initial_state is not None:
+            model.start(initial_state)
+        #: The offset each axis's device last acknowledged (um); the safety stage is
+        #: re-seeded from it after a failed write, so the first write after a
+        #: reconnect is within one slew step of what the machine holds.
+        self.written_um = {name: stage.offset_um for name, stage in self.safety.items()}
+
+    def load(self, slot: ModelSlot) -> None:
+        """Switch to ``slot`` at the next tick whose inputs are complete, blending bumplessly."""
+        self.pending = slot
+
+    async def tick(self, t_s: float) -> TickRecord:
+        values = await self._read()
+        readings = {}
+        for point in self.signals:
+            monitor = self.monitors[point.name]
+            was = monitor.reading.health
+            readings[point.name] = reading = monitor.update(t_s, values.get(point.name))
+            if reading.health is Health.FAULTED and was is not Health.FAULTED:
+                self.counters.signal_faults += 1
+        checked = {name: r.value for name, r in readings.items()}
+        self._step_models(t_s, checked)
+
+        weight = min(1.0, (t_s - self.blend_start_s) / self.blend_s) if self.blend_s else 1.0
+        if weight >= 1.0:
+            self.previous = None
+        targets, offsets, flags = {}, {}, set()
+        any_frozen = False
+        for axis in self.axes:
+            output = self.active.output(axis.model_output)
+            if self.previous is not None:
+                output = weight * output + (1 - weight) * self.previous.output(axis.model_output)
+                flags.add(Flag.BLENDING)
+            depends = self.active.depends[axis.model_output]
+            faulted = any(readings[s].health is Health.FAULTED for s in depends)
+            targets[axis.name] = target = axis.sign * output
+            result = self.safety[axis.name].step(target, t_s, faulted=faulted)
+            offsets[axis.name] = result.offset_um
+            any_frozen |= faulted
+            flags |= {Flag.CLAMPED} if result.clamped else set()
+            flags |= {Flag.SLEWING} if result.slewed else set()
+        if self.active.runner is None:
+            flags.add(Flag.STARTING)
+        if not all(link.up for link in self.links.values()):
+            flags.add(Flag.DRIVER_DOWN)
+        bad = [r.health is not Health.OK for r in readings.values()]
+        level = Level.FAULTED if any_frozen else Level.DEGRADED if any(bad) else Level.OK
+        if Flag.DRIVER_DOWN in flags and level is Level.OK:
+            level = Level.DEGRADED
+        word = status_word(level, flags, bad)
+        self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
+        written = await self._write(offsets, word)
+        self.counters.ticks += 1
+        runner = self.active.runner
+        contributions = (
+            dict(zip(self.active.names, runner.contributions.tolist(), strict=True))
+            if runner is not None
+            else {name: math.nan for name in self.active.names}
+        )
+        self.last = TickRecord(
+            t_s=t_s,
+            wall_unix_s=self.wall(),
+            values=checked,
+            health={name: r.health for name, r in readings.items()},
+            reasons={name: r.reason for name, r in readings.items() if r.reason},
+            model_outputs=dict(
+                zip(self.active.compiled.output_names, self.active.outputs.tolist(), strict=True)
+            ),
+            contributions=contributions,
+            targets_um=targets,
+            offsets_um=offsets,
+            status=word,
+            heartbeat=self.heartbeat,
+            written=written,
+        )
+        return self.last
+
+    async def write_stopped(self) -> bool:
+        """The last status word at shutdown (``STOPPED``, offsets unchanged), for the PLC."""
+        offsets = {name: safety.offset_um for name, safety in self.safety.items()}
+        level = self.last.status & 0b11 if self.last is not None else 0
+        return await self._write(offsets, status_word(Level(level), [Flag.STOPPED], []))
+
+    def _step_models(self, t_s: float, checked: Mapping[str, float]) -> None:
+        pending = self.pending
+        if pending is not None and self._complete(pending, checked):
+            pending.start(pending.compiled.steady_state(checked))
+            if self.active.runner is not None:
+                self.previous, self.blend_start_s = self.active, t_s
+            self.active, self.pending = pending, None
+            self.counters.model_loads += 1
+        for slot in (self.active, self.previous):
+            if slot is None:
+                continue
+            if not self._complete(slot, checked):
+                slot.outputs[:] = np.nan
+                continue
+            if slot.runner is None:
+                slot.start(slot.compiled.steady_state(checked))
+            assert slot.runner is not None
+            slot.outputs = slot.runner.step(checked)
+
+    @staticmethod
+    def _complete(slot: ModelSlot, checked: Mapping[str, float]) -> bool:
+        return all(math.isfinite(checked[s]) for s in slot.compiled.signals)
+
+    async def _read(self) -> dict[str, float]:
+        drivers = list(self._reads)
+        results = await _all(
+            [self.links[d].read([p.address for p in self._reads[d]]) for d in drivers]
+        )
+        values: dict[str, float] = {}
+        for driver, raw in zip(drivers, results, strict=True):
+            for point in self._reads[driver]:
+                if point.address in raw:
+                    values[point.name] = point.convert(raw[point.address])
+        return values
+
+    async def _write(self, offsets: Mapping[str, float], word: int) -> bool:
+        batches: dict[str, dict[str, float]] = {}
+        for axis in self.axes:
+            batches.setdefault(axis.driver, {})[axis.address] = axis.encode(offsets[axis.name])
+        if self.status_point is not None:
+            batch = batches.setdefault(self.status_point.driver, {})
+            batch[self.status_point.status_address] = float(word)
+            batch[self.status_point.heartbeat_address] = float(self.heartbeat)
+        drivers = list(batches)
+        results = await _all([self.links[d].write(batches[d]) for d in drivers])
+        ok = dict(zip(drivers, results, strict=True))
+        for axis in self.axes:
+            if ok[axis.driver]:
+                self.written_um[axis.name] = offsets[axis.name]
+            else:
+                self.safety[axis.name].load(self.written_um[axis.name])
+        if not all(results):
+            self.counters.write_failures += 1
+        return all(results)
+
+
+async def _all(calls: list[Coroutine[Any, Any, T]]) -> list[T]:
+    """``asyncio.gather``, without its task per call when there is only one (the usual case)."""
+    if len(calls) == 1:
+        return [await calls[0]]
+    return list(await asyncio.gather(*calls))

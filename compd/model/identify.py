@@ -1,0 +1,364 @@
+"""Identification: transfer functions from logged inputs to a measured displacement.
+
+The public entry point is :func:`identify`. Three methods:
+
+``mlr``
+    The static multiple linear regression CNC controllers ship (seed 000
+    eq. 1, seed 003 eq. 1): ``y(k) = sum_i k_i u_i(k)`` by least squares. No
+    intercept: inputs and output are changes from the start of the record,
+    so a model that starts at zero needs none (and ``compd compare`` starts
+    every model at zero). The baseline to beat.
+``arx``
+    MISO ARX with one common denominator (seed 001 eq. 1, seed 003 eq. 4),
+    :mod:`compd.model.arx`; orders and delays chosen on held-back data by
+    free-run simulation fit (:mod:`compd.model.orders`) unless given.
+``oe``
+    MISO output-error, one denominator per input (:mod:`compd.model.oe`),
+    started from ARX refined by Steiglitz-McBride and fitted on the free-run
+    simulation error, because the daemon runs the model in simulation. With
+    ``order="auto"`` the common order ``nf_i = nb_i = n`` is chosen by OE's
+    own fit on held-back data (orders 1, 2, 3 until one buys nothing), with
+    ``nk_i = 1``, then refitted on the whole record.
+
+Phase gate (seed 002 eq. 5): with ``gate`` (True while the spindle turns),
+every input ``u_i`` gets two channels: the cooling channel on ``u_i`` (always
+on) and the heating-difference channel on ``g(k) u_i(k)``. Seed 002 switches
+the heating-difference TF's *output* with ``g_n``; compd switches its
+*input* instead: the regression stays linear in the parameters (an output
+gate multiplies a filtered signal by ``g``, which ARX cannot express), and
+when the spindle stops the extra heating contribution decays with the TF's
+own time constants instead of dropping to zero in one sample, which a steel
+structure cannot do. The model file records it as ``applies_to: input``.
+
+Every fit reported is the seed 001 eq. 2 fit of the free-run simulation from
+rest (inputs as changes from start, as ``compd compare`` runs the model), never
+a one-step prediction.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.signal
+
+from compd.errors import ModelError
+from compd.model.arx import ArxParameters, fit_arx, solve_arx
+from compd.model.metrics import fit_percent
+from compd.model.oe import OeParameters, fit_oe, oe_from_arx, simulate_oe, steiglitz_mcbride
+from compd.model.orders import (
+    TOLERANCE_POINTS,
+    TOLERANCE_RELATIVE,
+    choose,
+    search_arx,
+    split_index,
+)
+from compd.model.transfer import DiscreteTF
+
+Method = Literal["arx", "oe", "mlr"]
+METHODS: tuple[Method, ...] = ("arx", "oe", "mlr")
+#: Called with a stage name ("ARX order search", "OE order 2", ...) and the fraction of
+#: that stage done (0..1); a new name starts a new stage (one progress bar each).
+Progress = Callable[[str, float], None]
+#: Largest order tried by ``order="auto"`` (and accepted as a fixed order).
+MAX_ORDER = 3
+#: Iteration budget of each OE candidate in the automatic order search (the
+#: chosen one is refined to convergence on the whole record afterwards).
+CANDIDATE_ITERATIONS = 25
+#: Fewest samples an identification accepts: a few per parameter is not enough to validate.
+MIN_SAMPLES = 50
+
+
+@dataclass(frozen=True)
+class IdentifiedTF:
+    """One channel's TF, ``B(z^-1) / A(z^-1)`` with delay ``nk`` in ascending powers of ``z^-1``."""
+
+    input_name: str
+    tf: DiscreteTF
+    gated: bool  # True for the heating-difference channel of a phase gate
+
+
+@dataclass(frozen=True)
+class Orders:
+    """Orders per channel: ``nb`` numerator taps, ``nf`` denominator order, ``nk`` delay (samples).
+
+    For ARX every ``nf_i`` is ``na``, the shared denominator's order; for MLR
+    every order is 0 (static gains).
+    """
+
+    na: int
+    nb: tuple[int, ...]
+    nf: tuple[int, ...]
+    nk: tuple[int, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class Identification:
+    """An identified model: one TF per channel, and how well it simulates the data (fit %, seed 001 eq. 2)."""
+
+    method: Method
+    channels: tuple[IdentifiedTF, ...]
+    sample_time_s: float
+    fit_percent: float  # free-run simulation fit on the whole record it was fitted on
+    validation_fit_percent: float | None  # on the held-back part when orders were chosen
+    orders: Orders
+    simulated_um: np.ndarray = field(repr=False)  # the free-run output over the record
+
+
+def _channels(
+    inputs: Mapping[str, np.ndarray], gate: np.ndarray | None, n: int
+) -> tuple[list[tuple[str, bool]], np.ndarray]:
+    """Channel names and an (n, n_channels) Fortran-ordered array: each channel contiguous."""
+    if not inputs:
+        raise ModelError("no inputs given: name at least one input signal")
+    names: list[tuple[str, bool]] = []
+    for name in inputs:
+        names.append((name, False))
+        if gate is not None:
+            names.append((name, True))
+    u = np.empty((n, len(names)), order="F")
+    column = 0
+    for name, values in inputs.items():
+        values = np.asarray(values, dtype=float)
+        if values.shape != (n,):
+            raise ModelError(f"input {name!r} has shape {values.shape}, the output has ({n},)")
+        low, high = values.min(), values.max()  # NaN or inf shows in one of them
+        if not (np.isfinite(low) and np.isfinite(high)):
+            raise ModelError(f"input {name!r} contains NaN or inf")
+        if low == high:
+            raise ModelError(
+                f"input {name!r} never changes, so its effect cannot be identified; "
+                "leave it out or use data in which it varies"
+            )
+        u[:, column] = values
+        column += 1
+        if gate is not None:
+            np.multiply(values, gate, out=u[:, column])
+            column += 1
+    return names, u
+
+
+def _check_gate(gate: np.ndarray | None, n: int) -> np.ndarray | None:
+    if gate is None:
+        return None
+    g = np.asarray(gate)
+    if g.shape != (n,):
+        raise ModelError(f"gate has shape {g.shape}, the output has ({n},)")
+    g = g.astype(bool)
+    if g.all() or not g.any():
+        state = "always" if g.all() else "never"
+        raise ModelError(
+            f"the phase-gate signal is {state} > 0 in this record, so heating and cooling "
+            "cannot be told apart; use data with both phases or drop the phase gate"
+        )
+    return g.astype(float)
+
+
+def identify(
+    y: np.ndarray,
+    inputs: Mapping[str, np.ndarray],
+    *,
+    sample_time_s: float,
+    method: Method = "oe",
+    order: int | Literal["auto"] = "auto",
+    gate: np.ndarray | None = None,
+    progress: Progress | None = None,
+) -> Identification:
+    """Identify TFs from ``inputs`` (changes from start) to ``y`` (um), sampled every ``sample_time_s``.
+
+    ``order``: ``"auto"`` (chosen on held-back data) or ``N`` in 1..3
+    (``na = nb_i = N``, ``nk_i = 1`` for ARX; ``nf_i = nb_i = N``, ``nk_i = 1`` for
+    OE; ignored by MLR). ``gate``: True while the phase-gate signal is > 0.
+    Raises :class:`ModelError` on bad arguments and on a fixed-order fit that
+    is unstable.
+    """
+    y = np.asarray(y, dtype=float)
+    if y.ndim != 1 or y.size < MIN_SAMPLES:
+        raise ModelError(f"the output needs at least {MIN_SAMPLES} samples, got {y.size}")
+    if not np.all(np.isfinite(y)):
+        raise ModelError("the output contains NaN or inf")
+    if not (np.isfinite(sample_time_s) and sample_time_s > 0):
+        raise ModelError(f"sample time must be > 0 s, got {sample_time_s}")
+    if method not in METHODS:
+        raise ModelError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
+    if order != "auto" and (
+        isinstance(order, bool) or int(order) != order or not 1 <= int(order) <= MAX_ORDER
+    ):
+        raise ModelError(f"order must be 'auto' or a whole number 1..{MAX_ORDER}, got {order!r}")
+    names, u = _channels(inputs, _check_gate(gate, y.size), y.size)
+
+    def report(message: str, fraction: float) -> None:
+        if progress is not None:
+            progress(message, fraction)
+
+    validation: float | None = None
+    if method == "mlr":
+        gains = np.linalg.lstsq(u, y, rcond=None)[0]
+        tfs = [DiscreteTF.from_coefficients([k], [1.0], 0) for k in gains]
+        orders = Orders(0, (1,) * len(names), (0,) * len(names), (0,) * len(names))
+    elif method == "arx":
+        arx, orders, validation = _arx(y, u, order, report)
+        tfs = [
+            DiscreteTF.from_coefficients(b, arx.a, nk) for b, nk in zip(arx.b, arx.nk, strict=True)
+        ]
+    else:
+        oe, orders, validation = _oe(y, u, order, report)
+        tfs = [
+            DiscreteTF.from_coefficients(b, f, nk)
+            for b, f, nk in zip(oe.b, oe.f, oe.nk, strict=True)
+        ]
+    simulated = simulate_channels(tfs, u)
+    return Identification(
+        method=method,
+        channels=tuple(
+            IdentifiedTF(name, tf, gated) for (name, gated), tf in zip(names, tfs, strict=True)
+        ),
+        sample_time_s=float(sample_time_s),
+        fit_percent=fit_percent(y, simulated),
+        validation_fit_percent=validation,
+        orders=orders,
+        simulated_um=simulated,
+    )
+
+
+def simulate_channels(tfs: list[DiscreteTF], inputs: np.ndarray) -> np.ndarray:
+    """``sum_i TF_i(u_i)`` from rest: one ``lfilter`` per channel, exactly as ``compd compare`` runs it."""
+    total = np.zeros(inputs.shape[0])
+    for i, tf in enumerate(tfs):
+        total += scipy.signal.lfilter(tf.b, tf.a, inputs[:, i])
+    return total
+
+
+def _arx(
+    y: np.ndarray, u: np.ndarray, order: int | Literal["auto"], report: Progress
+) -> tuple[ArxParameters, Orders, float | None]:
+    n_channels = u.shape[1]
+    if order != "auto":
+        n = int(order)
+        report(f"ARX least squares, order {n}", 0.0)
+        arx = fit_arx(y, u, n, [n] * n_channels, [1] * n_channels)
+        report(f"ARX least squares, order {n}", 1.0)
+        return arx, Orders(n, (n,) * n_channels, (n,) * n_channels, (1,) * n_channels), None
+    search = search_arx(y, u, na_max=MAX_ORDER, nb_max=MAX_ORDER, progress=report)
+    best = search.best
+    if best.parameters is None:
+        raise ModelError(
+            "every ARX order up to 3 gave an unstable model on this data: it does not show "
+            "how the output responds to the inputs. Use a longer record with more excitation"
+        )
+    assert search.validation is not None  # search_arx always holds data back
+    # The whole record: the sum of both parts' normal equations.
+    arx = solve_arx(search.estimation + search.validation, best.na, best.nb, best.nk)
+    if not arx.stable():
+        arx = best.parameters  # the estimation-part model is stable; keep it rather than flip poles
+    orders = Orders(best.na, best.nb, (best.na,) * n_channels, best.nk)
+    return arx, orders, best.validation_fit_percent
+
+
+def _oe_run(
+    y: np.ndarray,
+    u: np.ndarray,
+    n: int,
+    nk: tuple[int, ...],
+    report: Progress,
+    stage: str,
+    max_iterations: int = 50,
+) -> OeParameters:
+    """ARX of order ``n``, refined by Steiglitz-McBride, then the output-error fit."""
+    n_channels = u.shape[1]
+    report(stage, 0.0)
+    try:
+        arx = fit_arx(y, u, n, [n] * n_channels, list(nk))
+    except ModelError:
+        if n == 1:
+            raise
+        # A noisy record can make the higher-order ARX start unstable: repeat
+        # the order-1 pole instead, a valid (if crude) start that OE refines.
+        first = fit_arx(y, u, 1, [n] * n_channels, list(nk))
+        a = np.poly(np.repeat(np.roots(first.a), n))
+        arx = ArxParameters(a, first.b, first.nk)
+    report(stage, 0.05)
+    start = steiglitz_mcbride(y, u, arx)
+    report(stage, 0.2)
+    initial = oe_from_arx(start.a, start.b, start.nk, [n] * n_channels)
+
+    def on_iteration(iteration: int, fraction: float, cost: float) -> None:
+        report(stage, 0.2 + 0.8 * fraction)
+
+    result = fit_oe(y, u, initial, max_iterations=max_iterations, progress=on_iteration).parameters
+    report(stage, 1.0)
+    return result
+
+
+def _oe(
+    y: np.ndarray, u: np.ndarray, order: int | Literal["auto"], report: Progress
+) -> tuple[OeParameters, Orders, float | None]:
+    n_channels = u.shape[1]
+    if order != "auto":
+        n = int(order)
+        params = _oe_run(y, u, n, (1,) * n_channels, report, f"OE order {n}")
+        return params, Orders(0, (n,) * n_channels, (n,) * n_channels, (1,) * n_channels), None
+    # The common order by OE's own validation fit, stopping once an order buys
+    # nothing. Delays stay at the ZOH sample (nk = 1): ARX's delay search
+    # (0..2 samples) is immaterial next to time constants of minutes, and its
+    # choice is biased by output noise like its poles.
+    nk = (1,) * n_channels
+    split = split_index(y.size)
+    candidates: list[_OeCandidate] = []
+    for n in range(1, MAX_ORDER + 1):
+        stage = f"OE order {n} (first two thirds)"
+        try:
+            params = _oe_run(y[:split], u[:split], n, nk, report, stage, CANDIDATE_ITERATIONS)
+        except ModelError:
+            report(stage, 1.0)
+            continue
+        score = fit_percent(y[split:], simulate_oe(params, u)[split:])
+        candidate = _OeCandidate(n, params, score)
+        if candidates and candidate.usable:
+            best_error = min(c.error for c in candidates if c.usable)
+            if candidate.error > best_error - TOLERANCE_POINTS - TOLERANCE_RELATIVE * best_error:
+                candidates.append(candidate)
+                break
+        candidates.append(candidate)
+    if not candidates:
+        raise ModelError(
+            "no output-error model of order 1..3 could be fitted to this data; use a longer "
+            "record with more excitation"
+        )
+    best = choose(candidates)
+    n = best.order
+    stage = f"OE order {n}, whole record"
+    report(stage, 0.0)
+
+    def on_iteration(iteration: int, fraction: float, cost: float) -> None:
+        report(stage, fraction)
+
+    whole = fit_oe(y, u, best.parameters, progress=on_iteration).parameters
+    report(stage, 1.0)
+    orders = Orders(0, (n,) * n_channels, (n,) * n_channels, nk)
+    return whole, orders, best.validation_fit_percent
+
+
+@dataclass(frozen=True)
+class _OeCandidate:
+    """An OE fit of one common order on the estimation part, scored on the held-back part."""
+
+    order: int
+    parameters: OeParameters
+    validation_fit_percent: float
+
+    @property
+    def size(self) -> int:
+        return sum(
+            b.size + f.size - 1 for b, f in zip(self.parameters.b, self.parameters.f, strict=True)
+        )
+
+    @property
+    def error(self) -> float:
+        return 100.0 - self.validation_fit_percent
+
+    @property
+    def usable(self) -> bool:
+        return bool(np.isfinite(self.validation_fit_percent))

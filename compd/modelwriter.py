@@ -1,0 +1,159 @@
+"""Writing a model as a ``compd.model/1`` YAML file that :func:`compd.modelfile.parse_model` reads back unchanged.
+
+Written by hand rather than with ``yaml.dump`` so the file reads like the
+annotated examples in ``config/``: one flow mapping per TF, comments naming
+the convention (ascending powers of ``z^-1``, gate semantics), and every
+coefficient printed with ``repr`` precision, so a model fitted to 1e-7 um of
+static gain is not rounded on its way to the machine. Numbers are always
+written in a form YAML 1.1 (PyYAML) reads as floats: ``1.0e-05``, not
+``1e-05``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Mapping
+
+import yaml
+
+from compd.model.structure import Gate, InputSpec, Model, SubModel
+from compd.model.transfer import ContinuousTF, DiscreteTF
+from compd.modelfile import SCHEMA, ProvenanceDoc
+
+
+def yaml_float(value: float) -> str:
+    """``repr`` precision, spelt so PyYAML's float resolver accepts it (a dot, a signed exponent)."""
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"model files hold finite numbers only, got {value}")
+    text = repr(value)
+    if "e" in text:
+        mantissa, exponent = text.split("e")
+        if "." not in mantissa:
+            mantissa += ".0"
+        if exponent[0] not in "+-":
+            exponent = "+" + exponent
+        text = f"{mantissa}e{exponent}"
+    return text
+
+
+def _string(text: str) -> str:
+    """A YAML scalar that reads back as exactly ``text`` (a JSON string is a YAML double-quoted scalar)."""
+    return json.dumps(text, ensure_ascii=False)
+
+
+def _numbers(values: Iterable[float]) -> str:
+    return "[" + ", ".join(yaml_float(v) for v in values) + "]"
+
+
+def _input(spec: InputSpec) -> str:
+    parts = [f"signal: {_string(spec.signal)}"]
+    if spec.minus is not None:
+        parts.append(f"minus: {_string(spec.minus)}")
+    reference = "start" if spec.reference is None else yaml_float(spec.reference)
+    parts.append(f"reference: {reference}")
+    return "{" + ", ".join(parts) + "}"
+
+
+def _tf(tf: DiscreteTF | ContinuousTF) -> str:
+    if isinstance(tf, DiscreteTF):
+        return (
+            f"{{form: discrete, power_order: ascending, nk: {tf.nk},\n"
+            f"             num: {_numbers(tf.num)},\n"
+            f"             den: {_numbers(tf.den)}}}"
+        )
+    return (
+        f"{{form: continuous, power_order: ascending, delay_s: {yaml_float(tf.delay_s)},\n"
+        f"             num: {_numbers(tf.num)},\n"
+        f"             den: {_numbers(tf.den)}}}"
+    )
+
+
+def _gate(gate: Gate) -> str:
+    side = "above" if gate.above else "below"
+    return (
+        f"{{signal: {_string(gate.signal)}, {side}: {yaml_float(gate.threshold)}, "
+        f"applies_to: {gate.target.value}}}"
+    )
+
+
+def _submodel(sub: SubModel) -> list[str]:
+    lines = [
+        f"      - name: {_string(sub.name)}",
+        f"        effect: {_string(sub.effect)}",
+        f"        input: {_input(sub.input)}",
+        f"        tf: {_tf(sub.tf)}",
+    ]
+    if sub.gain != 1.0:
+        lines.append(f"        gain: {yaml_float(sub.gain)}")
+    if sub.gate is not None:
+        lines.append(f"        gate: {_gate(sub.gate)}")
+    return lines
+
+
+def _provenance(provenance: ProvenanceDoc) -> list[str]:
+    data = provenance.model_dump(mode="json", exclude_defaults=True)
+    if not data:
+        return []
+    text = str(yaml.safe_dump({"provenance": data}, sort_keys=False, allow_unicode=True, width=100))
+    return text.rstrip("\n").splitlines()
+
+
+def model_to_yaml(
+    model: Model,
+    *,
+    description: str = "",
+    signals: Mapping[str, str] | None = None,
+    provenance: ProvenanceDoc | None = None,
+) -> str:
+    """The model file text for ``model``; ``signals`` maps each signal name to its unit.
+
+    When ``signals`` is given it must name every signal the model reads (the
+    schema requires declared signals to cover all uses).
+    """
+    if signals is not None:
+        missing = [name for name in model.signals() if name not in signals]
+        if missing:
+            raise ValueError(f"signals {missing} are used by the model but have no unit")
+    has_discrete = any(
+        isinstance(sub.tf, DiscreteTF) for output in model.outputs for sub in output.submodels
+    )
+    lines = [
+        "# compd model file (see config/README.md for the schema).",
+    ]
+    if has_discrete:
+        lines += [
+            "# Discrete TFs: coefficients in ascending powers of z^-1 (seed 001 eq. 1),",
+            "#   a0 y(k) = b0 u(k-nk) + b1 u(k-nk-1) + ... - a1 y(k-1) - ...",
+            "# printed at full precision: slow poles make the static gain B(1)/A(1)",
+            "# sensitive to the last digits, so do not round them.",
+        ]
+    lines += [
+        f"schema: {SCHEMA}",
+        f"name: {_string(model.name)}",
+    ]
+    if description:
+        lines.append(f"description: {_string(description)}")
+    lines.append(f"sample_time_s: {yaml_float(model.sample_time_s)}")
+    if signals is not None:
+        lines.append("signals:")
+        for name, unit in signals.items():
+            lines.append(f"  {_string(name)}: {{unit: {_string(unit)}}}")
+    lines.append("outputs:")
+    for output in model.outputs:
+        lines += [
+            f"  {_string(output.name)}:",
+            "    unit: um",
+            "    submodels:",
+        ]
+        for sub in output.submodels:
+            if sub.gate is not None and sub.gate.target.value == "input":
+                lines.append(
+                    "      # gated input: when the gate closes this contribution decays "
+                    "with the TF's time constants"
+                )
+            lines += _submodel(sub)
+    if provenance is not None:
+        lines += _provenance(provenance)
+    return "\n".join(lines) + "\n"

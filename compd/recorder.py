@@ -1,0 +1,303 @@
+"""Recorder: the service's signals and offsets, one CSV row per tick, in rotating files.
+
+What the loop read and wrote is the evidence for every later question (did
+the model drift? what did the machine see when the part was out of
+tolerance?), and it is the input of ``compd compare`` and re-identification.
+So the files are exactly what :func:`compd.data.load_data` reads: a header,
+a ``timestamp`` column first with UTC ISO-8601 times carrying their offset
+(``2026-11-23T10:15:00.000+00:00``), then one column per key of the row.
+
+Files are named by their first row's UTC time (``compd-20261123T101500Z.csv``)
+and rotated when they reach ``max_file_bytes`` or ``max_file_age_s``, when
+the row's keys change (a new model with other outputs: a file has one
+header), and when the time does not increase (the clock was set back: the
+loader refuses times that go backwards). The oldest files are deleted so that the directory never holds more
+than ``max_total_bytes`` of recordings, the open file included: an edge PC's
+disk must not fill up over months of unattended running. Only files with
+this naming pattern are ever deleted.
+
+Every row is written to the file with one ``write(2)`` of whole lines (every
+``flush_every_rows`` rows; default each row), so a crash loses at most the
+unwritten rows and a file never ends in half a row: when a write fails part
+way (disk full), the file is truncated back to its last complete line. OS
+errors become :class:`~compd.errors.RecorderError`, which the loop logs
+while it keeps compensating. A row costs a few microseconds (one timestamp,
+one join, one system call).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import re
+import time
+from collections.abc import Callable, Mapping
+from datetime import UTC, datetime
+from pathlib import Path
+
+from compd.data import TIME_NAMES
+from compd.errors import RecorderError
+
+log = logging.getLogger(__name__)
+
+TIME_COLUMN = "timestamp"
+PREFIX = "compd"
+_NAME = re.compile(rf"^{PREFIX}-(\d{{8}}T\d{{6}}Z)(?:-(\d+))?\.csv$")
+_QUOTED = re.compile(r'[,"\r\n]')
+
+Cell = float | int | str
+
+
+class Recorder:
+    """Write rows to rotating CSV files in ``directory``.
+
+    Parameters
+    ----------
+    directory:
+        Created on the first row if missing.
+    max_file_bytes:
+        A file is closed before a row would take it past this size (a single
+        row larger than this still gets a file of its own).
+    max_file_age_s:
+        A file is closed before a row written this long (s) after its first row.
+    max_total_bytes:
+        Recordings in ``directory`` (closed files plus the open file's limit,
+        ``max_file_bytes``) are kept under this by deleting the oldest files.
+    flush_every_rows:
+        Rows gathered before they are written with one system call; 1 (the
+        default) loses nothing but the row being written on a crash.
+    clock:
+        Seconds since the epoch, UTC (``time.time``); tests pass a fake.
+    """
+
+    def __init__(
+        self,
+        directory: Path,
+        *,
+        max_file_bytes: int,
+        max_file_age_s: float,
+        max_total_bytes: int,
+        flush_every_rows: int = 1,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        if max_file_bytes <= 0 or max_file_age_s <= 0 or flush_every_rows < 1:
+            raise ValueError(
+                "max_file_bytes and max_file_age_s must be above 0, flush_every_rows at least 1"
+            )
+        if max_total_bytes < max_file_bytes:
+            raise ValueError(
+                f"max_total_bytes ({max_total_bytes}) must be at least "
+                f"max_file_bytes ({max_file_bytes}): the open file alone may reach that size"
+            )
+        self.directory = Path(directory)
+        self.max_file_bytes = max_file_bytes
+        self.max_file_age_s = max_file_age_s
+        self.max_total_bytes = max_total_bytes
+        self.flush_every_rows = flush_every_rows
+        self._clock = clock
+        self._columns: tuple[str, ...] = ()
+        self._fd: int | None = None
+        self._path: Path | None = None
+        self._opened_s = 0.0
+        self._last_s = -math.inf
+        self._size = 0  # bytes of the open file, pending lines included
+        self._written = 0  # bytes of complete lines known to be in the open file
+        self._pending: list[bytes] = []
+        self._rows_in_file = 0
+
+    @property
+    def path(self) -> Path | None:
+        """The file being written, or None before the first row and after :meth:`close`."""
+        return self._path
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The open file's columns after ``timestamp``, in order."""
+        return self._columns
+
+    def record(self, row: Mapping[str, Cell], *, at_s: float | None = None) -> None:
+        """Append one row, stamped ``at_s`` (s since the epoch, default the clock's now).
+
+        Cells are written as ``str(value)`` (floats round-trip exactly), bools
+        as 1/0, NaN as ``nan`` (a gap to :func:`~compd.data.load_data`), text
+        quoted when it holds a comma, quote or newline. Raises
+        :class:`~compd.errors.RecorderError` when the files cannot be written.
+        """
+        now_s = self._clock() if at_s is None else at_s
+        try:
+            values = [row[name] for name in self._columns]
+            same = len(row) == len(values)
+        except KeyError:
+            same = False
+        if not same or not values:
+            self._start_columns(row)
+            values = [row[name] for name in self._columns]
+        stamp = datetime.fromtimestamp(now_s, UTC).isoformat(timespec="milliseconds")
+        line = (stamp + "," + ",".join(map(_cell, values)) + "\n").encode()
+        if self._fd is None or (
+            self._rows_in_file
+            and (
+                self._size + len(line) > self.max_file_bytes
+                or now_s - self._opened_s >= self.max_file_age_s
+                or now_s <= self._last_s  # the clock stepped back: times must increase in a file
+            )
+        ):
+            self._open(now_s)
+        self._last_s = now_s
+        self._pending.append(line)
+        self._size += len(line)
+        self._rows_in_file += 1
+        if len(self._pending) >= self.flush_every_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the gathered rows now, as whole lines, or none of them."""
+        if not self._pending or self._fd is None:
+            return
+        data = b"".join(self._pending)
+        self._pending.clear()
+        try:
+            _write_all(self._fd, data)
+        except OSError as exc:
+            path = self._path
+            self._abandon()
+            raise _error(f"cannot write to {path}", exc) from exc
+        self._written += len(data)
+
+    def close(self) -> None:
+        """Write what is gathered, sync and close the file; the next row opens a new one."""
+        try:
+            self.flush()
+        finally:
+            self._close_file()
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def _start_columns(self, row: Mapping[str, Cell]) -> None:
+        columns = tuple(row)
+        if not columns:
+            raise RecorderError("cannot record an empty row: a data file needs a signal column")
+        clash = [name for name in columns if name in TIME_NAMES]
+        if clash:
+            raise RecorderError(
+                f"cannot record a signal named {clash[0]!r}: "
+                f"{', '.join(TIME_NAMES)} name the time column of a data file. "
+                "Rename the signal in the configuration"
+            )
+        self.close()  # a file has one header: new columns, new file
+        self._columns = columns
+
+    def _open(self, now_s: float) -> None:
+        self.close()
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            path, fd = _create(self.directory, now_s)
+        except OSError as exc:
+            raise _error(f"cannot create a recording in {self.directory}", exc) from exc
+        self._fd, self._path, self._opened_s = fd, path, now_s
+        self._rows_in_file = 0
+        header = ",".join(map(_cell, (TIME_COLUMN, *self._columns))) + "\n"
+        self._pending = [header.encode()]
+        self._size = len(self._pending[0])
+        self._written = 0
+        self._delete_oldest()
+
+    def _close_file(self) -> None:
+        if self._fd is None:
+            return
+        fd, self._fd, self._path = self._fd, None, None
+        self._pending.clear()
+        try:
+            os.fsync(fd)  # on rotation only: rows survive a power cut without wearing the disk
+        except OSError as exc:
+            log.debug("cannot sync a recording: %s", exc)
+        finally:
+            os.close(fd)
+
+    def _abandon(self) -> None:
+        """After a failed write: cut the file back to its last whole line and close it.
+
+        The next row starts a new file (with its header), so recording
+        resumes by itself once the disk has room again.
+        """
+        assert self._fd is not None and self._path is not None
+        path, written = self._path, self._written
+        try:
+            if written:
+                os.ftruncate(self._fd, written)
+        except OSError as exc:  # the half line stays; load_data would name its line
+            log.debug("cannot truncate %s after a failed write: %s", path, exc)
+        self._close_file()
+        if not written:  # not even the header made it: leave no empty file behind
+            try:
+                path.unlink()
+            except OSError as exc:
+                log.debug("cannot remove the empty recording %s: %s", path, exc)
+
+    def _delete_oldest(self) -> None:
+        """Delete the oldest recordings until closed files plus one full file fit the budget."""
+        try:
+            found = [
+                (_order(match), entry.path, entry.stat().st_size)
+                for entry in os.scandir(self.directory)
+                if (match := _NAME.match(entry.name)) and entry.path != str(self._path)
+            ]
+        except OSError as exc:
+            raise _error(f"cannot list the recordings in {self.directory}", exc) from exc
+        found.sort()
+        total = sum(size for _, _, size in found) + self.max_file_bytes
+        for _, path, size in found:
+            if total <= self.max_total_bytes:
+                break
+            try:
+                os.unlink(path)
+            except FileNotFoundError:
+                pass
+            except OSError as exc:
+                raise _error(f"cannot delete the old recording {path}", exc) from exc
+            total -= size
+            log.info(
+                "deleted the oldest recording %s (%d bytes) to stay under the limit", path, size
+            )
+
+
+def _create(directory: Path, now_s: float) -> tuple[Path, int]:
+    """A new file named by ``now_s`` in UTC; ``-1``, ``-2``... if that second is taken."""
+    stem = f"{PREFIX}-{datetime.fromtimestamp(now_s, UTC):%Y%m%dT%H%M%SZ}"
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND | os.O_CLOEXEC
+    for n in range(1000):
+        path = directory / (f"{stem}.csv" if n == 0 else f"{stem}-{n}.csv")
+        try:
+            return path, os.open(path, flags, 0o644)
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{directory / stem}-*.csv: 1000 files in one second")
+
+
+def _order(match: re.Match[str]) -> tuple[str, int]:
+    """Sort key of a recording's name: start time, then sequence number within the second."""
+    return match[1], int(match[2] or 0)
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
+
+
+def _cell(value: Cell) -> str:
+    if value is True or value is False:
+        return "1" if value else "0"
+    text = str(value)
+    if isinstance(value, str) and _QUOTED.search(text):
+        return '"' + text.replace('"', '""') + '"'
+    return text
+
+
+def _error(what: str, exc: OSError) -> RecorderError:
+    return RecorderError(f"{what}: {exc.strerror or exc}; recording is paused until it succeeds")

@@ -1,0 +1,290 @@
+"""The report's HTML tables: metrics, failing windows, candidates, models and provenance.
+
+Metric cells are formatted from the ``compare --json`` summary with the
+rounding ``compd compare`` uses on screen (fit % and reductions to 0.1,
+micrometres to 0.01), and carry ``data-model``/``data-output``/``data-key``
+attributes so a script or a test can read each one back.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from fnmatch import fnmatchcase
+from html import escape
+
+from compd.analysis import CONDITION_PATTERNS
+from compd.cli.common import fmt
+from compd.report import analysis_view as view
+from compd.report.gather import ModelRun, ReportData
+
+#: (compare --json key, label, digits): the metrics table's rows, in order.
+METRICS: tuple[tuple[str, str, int], ...] = (
+    ("fit_percent", "fit (%)", 1),
+    ("rms_um", "residue RMS (um)", 2),
+    ("peak_to_peak_um", "residue peak-to-peak (um)", 2),
+    ("max_abs_um", "max |residue| (um)", 2),
+    ("mean_um", "mean residue (um)", 2),
+    ("uncompensated_rms_um", "uncompensated RMS (um)", 2),
+    ("uncompensated_peak_to_peak_um", "uncompensated peak-to-peak (um)", 2),
+    ("rms_reduction_percent", "RMS reduction (%)", 1),
+    ("peak_to_peak_reduction_percent", "peak-to-peak reduction (%)", 1),
+)
+#: Metrics where the second model doing better means a higher / a lower value.
+HIGHER_IS_BETTER = ("fit_percent", "rms_reduction_percent", "peak_to_peak_reduction_percent")
+LOWER_IS_BETTER = ("rms_um", "peak_to_peak_um", "max_abs_um")
+
+
+def table(head: Sequence[str], rows: Iterable[Sequence[str]], *, cls: str = "") -> str:
+    """An HTML table; cells are already-escaped HTML."""
+    attr = f' class="{cls}"' if cls else ""
+    header = "".join(f"<th>{h}</th>" for h in head)
+    body = "\n".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table{attr}><thead><tr>{header}</tr></thead><tbody>\n{body}\n</tbody></table>"
+
+
+def clock(seconds: float) -> str:
+    """Seconds from the record's start as ``H:MM`` (as ``compd compare`` prints window spans)."""
+    minutes = round(seconds / 60.0)
+    return f"{minutes // 60}:{minutes % 60:02d}"
+
+
+def metrics_table(report: ReportData, output: str) -> str:
+    """fit %, residue and uncompensated figures per model; with two models, the change between them."""
+    runs = [(i, r) for i, r in enumerate(report.runs) if output in r.outputs]
+    values = [_output_summary(r, output) for _, r in runs]
+    head = ["metric", *(f'<span class="swatch m{i}"></span>{escape(r.name)}' for i, r in runs)]
+    both = len(runs) == 2
+    if both:
+        head.append('<span title="second model minus first">change (2nd − 1st)</span>')
+    rows = []
+    for key, label, digits in METRICS:
+        cells = [escape(label)]
+        for (i, _), summary in zip(runs, values, strict=True):
+            cells.append(
+                f'<span data-model="{i}" data-output="{escape(output)}" data-key="{key}">'
+                f"{fmt(summary.get(key), digits)}</span>"
+            )
+        if both:
+            cells.append(change_cell(values[0].get(key), values[1].get(key), digits, key))
+        rows.append(cells)
+    return table(head, rows, cls="metrics")
+
+
+def _output_summary(run: ModelRun, output: str) -> Mapping[str, float | None]:
+    outputs = run.summary["outputs"]
+    assert isinstance(outputs, Mapping)
+    summary = outputs[output]
+    assert isinstance(summary, Mapping)
+    return summary
+
+
+def change_cell(before: float | None, after: float | None, digits: int, key: str) -> str:
+    """``after - before`` to ``digits`` decimals, classed better / worse / same for the metric ``key``."""
+    if before is None or after is None:
+        return "n/a"
+    change = after - before
+    text = f"{change:+.{digits}f}"
+    if abs(change) < 0.5 * 10.0**-digits or key not in (*HIGHER_IS_BETTER, *LOWER_IS_BETTER):
+        return f'<span class="same">{text}</span>'
+    better = change > 0 if key in HIGHER_IS_BETTER else change < 0
+    return f'<span class="{"better" if better else "worse"}">{text}</span>'
+
+
+_TOLERANCE_SOURCES = {
+    "given": "given with --tolerance-um",
+    "calibration": "twice the calibration residue RMS",
+    "record": "twice this record's residue RMS: the model has no calibration record",
+}
+
+
+def windows_table(run: ModelRun, output: str) -> str:
+    """The failing windows of ``run`` on ``output``: span, residue RMS, mean conditions, outside calibration."""
+    result = run.outputs[output].windows
+    found = view.windows(result)
+    source = _TOLERANCE_SOURCES.get(result.tolerance_source, result.tolerance_source)
+    caption = (
+        f"<p><b>{escape(run.name)}</b>: {len(found)} of {result.window_count} windows of "
+        f"{result.window_s / 60:g} min fail: residue RMS above {result.tolerance_um:.2f} um "
+        f"({escape(source)}).</p>"
+    )
+    if not found:
+        return caption.replace("</p>", ' <span class="ok">No failing window.</span></p>')
+    rows = []
+    for k, w in enumerate(found, start=1):
+        # The operating conditions compare's table shows (spindle, feed, door,
+        # coolant), plus any signal outside the calibration range.
+        shown = [
+            n
+            for n in w.conditions
+            if n in w.outside_calibration
+            or any(fnmatchcase(n.lower(), p) for p in CONDITION_PATTERNS)
+        ]
+        conditions = ", ".join(
+            f'<span class="worse">{escape(n)} {w.conditions[n]:.4g}</span>'
+            if n in w.outside_calibration
+            else f"{escape(n)} {w.conditions[n]:.4g}"
+            for n in shown
+        )
+        outside = ", ".join(escape(s) for s in w.outside_calibration) or "—"
+        rows.append(
+            [
+                str(k),
+                f"{clock(w.start_s)} – {clock(w.end_s)}",
+                f"{w.rms_um:.2f}",
+                conditions,
+                outside,
+            ]
+        )
+    head = ["#", "span (h:mm)", "residue RMS (um)", "mean conditions", "outside calibration"]
+    return caption + collapsed(table(head, rows, cls="windows"), f"{len(rows)} failing windows")
+
+
+def collapsed(html: str, label: str, *, limit: int = 10) -> str:
+    """``html`` folded into a ``<details>`` element when it has more than ``limit`` body rows."""
+    if html.count("<tr>") - 1 <= limit:
+        return html
+    return f"<details><summary>{escape(label)}</summary>{html}</details>"
+
+
+def candidates_table(run: ModelRun, output: str) -> str:
+    """Candidate signals for what the residue still holds, best first, and the verdict."""
+    result = run.outputs[output].diagnosis
+    rows = [
+        [
+            str(k),
+            escape(c.signal),
+            escape(c.effect) or "—",
+            f"{c.explained_percent:.1f}",
+            f"{c.time_constant_s / 60:.1f}",
+            f"{c.lag_s / 60:.1f}",
+            "+" if c.sign > 0 else "−",
+            f"{c.gain_um_per_unit:.3g}",
+            f"{c.xcorr_peak:.2f} / {c.xcorr_bound:.2f}",
+            "yes" if c.significant else "no",
+        ]
+        for k, c in enumerate(view.candidates(result), start=1)
+    ]
+    white = view.residue_white(result)
+    parts = [
+        f'<p class="{"verdict ok" if white else "verdict"}">{escape(view.verdict(result))}</p>'
+    ]
+    if rows:
+        head = [
+            "#",
+            "signal",
+            "effect",
+            "explained (%)",
+            "time constant (min)",
+            "lag (min)",
+            "sign",
+            "gain (um/unit)",
+            "xcorr peak / 99 % bound",
+            "significant",
+        ]
+        parts.append(table(head, rows, cls="candidates"))
+    parts += [f'<p class="muted">{escape(n)}</p>' for n in view.notes(result)]
+    return "\n".join(parts)
+
+
+def model_card(run: ModelRun, index: int) -> str:
+    """Name, file, sha256, sub-models and provenance (calibration, extensions) of one model."""
+    mf = run.evaluation.model_file
+    compiled = run.evaluation.compiled
+    doc = mf.doc
+    parts = [
+        f'<h3><span class="swatch m{index}"></span>{escape(compiled.name)}</h3>',
+        f"<p>{escape(doc.description)}</p>" if doc.description else "",
+        f'<p><code>{escape(mf.path)}</code> · sha256 <code title="{mf.sha256}">'
+        f"{mf.sha256[:12]}</code></p>",
+    ]
+    subs = [
+        [
+            escape(f"{out}/{sub.name}"),
+            escape(sub.effect),
+            escape(sub.input.describe()),
+            f"{sub.gain:g}",
+            escape(sub.gate.describe()) if sub.gate else "always",
+        ]
+        for out, sub in zip(
+            (compiled.output_names[o] for o in compiled.output_matrix.argmax(axis=0)),
+            compiled.submodels,
+            strict=True,
+        )
+    ]
+    parts.append(table(["sub-model", "effect", "input", "gain", "gate"], subs))
+    parts.append(provenance(run))
+    return '<div class="model">' + "\n".join(p for p in parts if p) + "</div>"
+
+
+def provenance(run: ModelRun) -> str:
+    """Where the model came from: its fit on calibration data and its extension history."""
+    prov = run.evaluation.model_file.doc.provenance
+    lines = []
+    for label, value in (
+        ("data", prov.data),
+        ("command", prov.command),
+        ("method", prov.method),
+        ("created", prov.created),
+        ("compd", prov.compd_version),
+    ):
+        if value:
+            lines.append(f"<li>{label}: {escape(str(value))}</li>")
+    if prov.fit_percent:
+        lines.append(f"<li>fit at identification: {_per_output(prov.fit_percent, '%')}</li>")
+    cal = prov.calibration
+    if cal is not None:
+        lines.append(
+            f"<li>calibrated on <code>{escape(cal.data)}</code> ({cal.samples} samples at "
+            f"{cal.sample_time_s:g} s): fit {_per_output(cal.fit_percent, '%')}; residue RMS "
+            f"{_per_output(cal.rms_um, 'um', 2)}</li>"
+        )
+        ranges = {k: v for k, v in cal.ranges.items() if not k.lower().endswith("_um")}
+        if ranges:
+            listed = ", ".join(f"{escape(k)} {lo:.4g}…{hi:.4g}" for k, (lo, hi) in ranges.items())
+            lines.append(
+                f"<li><details><summary>calibration ranges of {len(ranges)} signals</summary>"
+                f"{listed}</details></li>"
+            )
+    if prov.notes:
+        lines.append(f"<li>notes: {escape(prov.notes)}</li>")
+    parts = [f'<ul class="provenance">{"".join(lines)}</ul>'] if lines else []
+    if prov.extensions:
+        rows = [
+            [
+                str(k),
+                escape(ext.effect_signal),
+                escape(", ".join(ext.submodels)) or "—",
+                f"<code>{escape(ext.data)}</code>",
+                _before_after(ext.fit_percent_before, ext.fit_percent_after),
+                (f"<code>{escape(ext.verify_data)}</code>: " if ext.verify_data else "")
+                + _before_after(ext.verify_fit_percent_before, ext.verify_fit_percent_after),
+                escape(ext.created or "—"),
+            ]
+            for k, ext in enumerate(prov.extensions, start=1)
+        ]
+        head = [
+            "#",
+            "effect signal",
+            "sub-models added",
+            "data",
+            "fit % before → after",
+            "verified on",
+            "created",
+        ]
+        parts.append("<h4>Extensions</h4>" + table(head, rows, cls="extensions"))
+    if not parts:
+        return '<p class="muted">No provenance recorded in the model file.</p>'
+    return "\n".join(parts)
+
+
+def _per_output(values: Mapping[str, float], unit: str, digits: int = 1) -> str:
+    if not values:
+        return "n/a"
+    return ", ".join(f"{escape(k)} {v:.{digits}f} {unit}" for k, v in values.items())
+
+
+def _before_after(before: Mapping[str, float], after: Mapping[str, float]) -> str:
+    keys = list(dict.fromkeys([*before, *after]))
+    if not keys:
+        return "—"
+    return "; ".join(f"{escape(k)} {fmt(before.get(k), 1)} → {fmt(after.get(k), 1)}" for k in keys)

@@ -1,0 +1,137 @@
+"""The offset safety stage: the last thing between the model and the machine, per axis.
+
+After LinuxCNC's ``limit2`` (clamp, then slew-limit against the last output,
+with a ``load`` to re-seed), SINUMERIK's rate limit on temperature
+compensation and Heidenhain's 1 um/s follow-up. Each tick, for an axis with
+limits ``M = max_offset_um`` and ``R = max_rate_um_per_s`` at period ``T``::
+
+    target  = last                   if the target is NaN/inf, or an input is faulted
+                                     (for fault_ramp_after_s, then 0 when on_fault = ramp)
+    clamped = clip(target, -M, +M)
+    offset  = last + clip(clamped - last, -R*T, +R*T)
+
+so no written offset is ever NaN or inf, and no two consecutive offsets
+differ by more than ``R*T`` -- at start (``last = 0``), at a model change, on
+recovery, always. An offset loaded outside ``±M`` (saved under a larger
+limit) walks into range at the slew rate rather than jumping.
+
+The status word written beside the offsets lets the PLC supervise compd:
+
+- bits 0-1: ``0`` ok, ``1`` degraded (an input held), ``2`` faulted (an axis frozen or ramping);
+- bit 2 clamped, bit 3 slew-limited, bit 4 starting (no model output yet),
+  bit 5 stopped (the last word written at shutdown), bit 6 a driver link down,
+  bit 7 blending to a newly loaded model;
+- bits 8-31: one per configured signal, in config order, set while it is not OK.
+
+The heartbeat counts ticks modulo 32768 (fits a PLC INT): when it stops
+changing, the PLC knows compd is gone and falls back on its own.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from enum import IntEnum, StrEnum
+
+HEARTBEAT_MODULO = 32_768
+SIGNAL_BIT0 = 8
+
+
+class Level(IntEnum):
+    OK = 0
+    DEGRADED = 1
+    FAULTED = 2
+
+
+class Flag(IntEnum):
+    CLAMPED = 1 << 2
+    SLEWING = 1 << 3
+    STARTING = 1 << 4
+    STOPPED = 1 << 5
+    DRIVER_DOWN = 1 << 6
+    BLENDING = 1 << 7
+
+
+class FaultMode(StrEnum):
+    """What an axis does while an input it depends on is faulted."""
+
+    RAMP = "ramp"  # freeze, then ramp to zero at the slew limit after fault_ramp_after_s
+    FREEZE = "freeze"  # hold the last offset until the input recovers
+
+
+@dataclass(frozen=True)
+class AxisLimits:
+    max_offset_um: float
+    max_rate_um_per_s: float
+
+
+@dataclass(frozen=True)
+class AxisOutput:
+    """One axis's offset this tick and what the stage did to it."""
+
+    offset_um: float
+    clamped: bool = False
+    slewed: bool = False
+    frozen: bool = False
+
+
+class AxisSafety:
+    """Clamp, slew limit, NaN guard and fault freeze/ramp for one axis (see the module docstring)."""
+
+    def __init__(
+        self,
+        limits: AxisLimits,
+        period_s: float,
+        *,
+        on_fault: FaultMode = FaultMode.RAMP,
+        fault_ramp_after_s: float = 60.0,
+        offset_um: float = 0.0,
+    ) -> None:
+        self.limits = limits
+        self.max_step_um = limits.max_rate_um_per_s * period_s
+        self.on_fault = FaultMode(on_fault)
+        self.fault_ramp_after_s = fault_ramp_after_s
+        self.offset_um = 0.0
+        self.fault_since: float | None = None
+        self.load(offset_um)
+
+    def load(self, offset_um: float) -> None:
+        """Re-seed the last output (the offset the machine already holds), e.g. on resume."""
+        self.offset_um = offset_um if math.isfinite(offset_um) else 0.0
+
+    def step(self, target_um: float, now_s: float, *, faulted: bool = False) -> AxisOutput:
+        """The offset to write for model target ``target_um`` at time ``now_s`` (s)."""
+        last = self.offset_um
+        frozen = faulted or not math.isfinite(target_um)
+        if faulted:
+            if self.fault_since is None:
+                self.fault_since = now_s
+            ramping = (
+                self.on_fault is FaultMode.RAMP
+                and now_s - self.fault_since >= self.fault_ramp_after_s
+            )
+            target_um = 0.0 if ramping else last
+        else:
+            self.fault_since = None
+            if not math.isfinite(target_um):
+                target_um = last
+        m = self.limits.max_offset_um
+        clamped = min(max(target_um, -m), m)
+        step = clamped - last
+        slewed = abs(step) > self.max_step_um
+        # Within the slew limit the clamped target is written exactly (not last + step,
+        # which rounds): an unlimited offset is the model's value to the last bit.
+        self.offset_um = last + math.copysign(self.max_step_um, step) if slewed else clamped
+        return AxisOutput(self.offset_um, clamped != target_um, slewed, frozen)
+
+
+def status_word(level: Level, flags: Iterable[Flag], signal_bad: Iterable[bool]) -> int:
+    """Pack the level (bits 0-1), flags (bits 2-7) and per-signal bits (8-31) into one word."""
+    word = int(level)
+    for flag in flags:
+        word |= int(flag)
+    for i, bad in enumerate(signal_bad):
+        if bad:
+            word |= 1 << (SIGNAL_BIT0 + i)
+    return word

@@ -1,0 +1,176 @@
+"""Persistence of the running model's state, and the installed model, in the state directory.
+
+The daemon saves its model state (TF delay lines and input references, see
+:class:`~compd.model.compiled.ModelState`), the offsets it last wrote and the
+model's sha256 every N ticks and at shutdown. Every file is written
+atomically: a temporary file in the same directory, ``fsync``, ``rename``
+over the old one, ``fsync`` of the directory. A crash leaves the old file or
+the new one, never half of either.
+
+Resume policy (:func:`resume_decision`): a saved state is used only if it
+belongs to the same model (same sha256) and is younger than
+``resume_max_age_s``. Otherwise the model starts at steady state with the
+first good inputs, so a cold machine starts with zero offsets rather than a
+transient, and a warm one with its equilibrium offsets.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from compd.errors import CompdError, ModelError
+from compd.model.compiled import CompiledModel, ModelState
+
+STATE_FILE = "state.json"
+MODELS_DIR = "models"
+CURRENT_MODEL = "current-model"
+FORMAT = "compd.state/1"
+
+
+class StateError(CompdError):
+    """A state file that cannot be used (malformed, other format); the daemon starts fresh."""
+
+
+@dataclass(frozen=True, eq=False)
+class SavedState:
+    """What survives a restart: model identity, model state, written offsets, tick counter."""
+
+    model_sha256: str
+    model_name: str
+    saved_at_unix_s: float
+    model_state: ModelState
+    offsets_um: Mapping[str, float]
+    ticks: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "format": FORMAT,
+            "model_sha256": self.model_sha256,
+            "model_name": self.model_name,
+            "saved_at_unix_s": self.saved_at_unix_s,
+            "model_state": self.model_state.to_dict(),
+            "offsets_um": dict(self.offsets_um),
+            "ticks": self.ticks,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> SavedState:
+        if data.get("format") != FORMAT:
+            raise StateError(f"state format {data.get('format')!r} is not {FORMAT!r}")
+        try:
+            return cls(
+                model_sha256=str(data["model_sha256"]),
+                model_name=str(data["model_name"]),
+                saved_at_unix_s=float(data["saved_at_unix_s"]),
+                model_state=ModelState.from_dict(data["model_state"]),
+                offsets_um={str(k): float(v) for k, v in data["offsets_um"].items()},
+                ticks=int(data["ticks"]),
+            )
+        except (KeyError, TypeError, ValueError, AttributeError, ModelError) as exc:
+            raise StateError(f"state is malformed ({exc})") from exc
+
+
+@dataclass(frozen=True)
+class Resume:
+    """Whether to resume a saved state, and why (logged at start)."""
+
+    resume: bool
+    reason: str
+
+
+def write_atomic(path: Path, content: bytes) -> None:
+    """Replace ``path`` with ``content``: temp file in the same directory, fsync, rename, fsync dir."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(content)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    directory = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(directory)
+    finally:
+        os.close(directory)
+
+
+def save_state(state_dir: Path, saved: SavedState) -> Path:
+    path = state_dir / STATE_FILE
+    write_atomic(path, json.dumps(saved.to_dict(), allow_nan=False).encode())
+    return path
+
+
+def load_state(state_dir: Path) -> SavedState | None:
+    """The saved state, or ``None`` if there is none; :class:`StateError` if it is unusable."""
+    path = state_dir / STATE_FILE
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise StateError(f"{path}: cannot read ({exc.strerror})") from exc
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise StateError(f"{path}: not JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise StateError(f"{path}: expected a JSON object")
+    return SavedState.from_dict(data)
+
+
+def resume_decision(
+    saved: SavedState | None,
+    model_sha256: str,
+    compiled: CompiledModel,
+    now_unix_s: float,
+    max_age_s: float,
+) -> Resume:
+    """Resume ``saved`` only if it is this model's (sha256 and shape) and younger than ``max_age_s``."""
+    if saved is None:
+        return Resume(False, "no saved state")
+    if saved.model_sha256 != model_sha256:
+        return Resume(False, f"saved state belongs to model {saved.model_sha256[:12]}")
+    age_s = now_unix_s - saved.saved_at_unix_s
+    if not 0 <= age_s <= max_age_s:
+        return Resume(False, f"saved state is {age_s:.0f} s old (limit {max_age_s:g} s)")
+    try:
+        compiled.check_state(saved.model_state)
+    except ModelError as exc:
+        return Resume(False, f"saved state does not fit the model: {exc}")
+    return Resume(True, f"saved state is {age_s:.0f} s old")
+
+
+def install_model(state_dir: Path, source: Path) -> Path:
+    """Copy a model file into ``state_dir/models/<sha256>.yaml`` and point ``current-model`` at it.
+
+    Both writes are atomic, so a daemon (re)starting meanwhile sees the old
+    model or the new one. Returns the installed path.
+    """
+    content = source.read_bytes()
+    sha256 = hashlib.sha256(content).hexdigest()
+    installed = state_dir / MODELS_DIR / f"{sha256}.yaml"
+    if not installed.exists():
+        write_atomic(installed, content)
+    write_atomic(state_dir / CURRENT_MODEL, f"{MODELS_DIR}/{installed.name}\n".encode())
+    return installed
+
+
+def installed_model(state_dir: Path) -> Path | None:
+    """The model last installed with ``compd model load``, if any."""
+    try:
+        name = (state_dir / CURRENT_MODEL).read_text().strip()
+    except FileNotFoundError:
+        return None
+    path = state_dir / name
+    return path if path.is_file() else None

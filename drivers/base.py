@@ -1,0 +1,70 @@
+"""The driver interface: how compd reads signals from and writes offsets to a machine.
+
+A driver is the smallest thing that can talk to one bus or controller: four
+coroutines (:class:`Driver`), a pydantic settings model it owns, and a
+constructor taking those settings. The loop never sees a protocol library's
+exceptions: drivers raise only compd's :class:`~compd.errors.DriverError`
+family (timeout / disconnected / protocol), and the loop reconnects.
+
+Driver types are looked up by name in :data:`DRIVERS`, a plain dict, plus
+the ``compd.drivers`` entry-point group so a third-party package can ship a
+driver without touching compd::
+
+    [project.entry-points."compd.drivers"]
+    mybus = "mypackage.driver:MyBusDriver"
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+from compd.drivers.simulated import SimulatedDriver
+from pydantic import BaseModel
+
+#: Entry-point group for third-party drivers.
+ENTRY_POINT_GROUP = "compd.drivers"
+
+
+@runtime_checkable
+class Driver(Protocol):
+    """One connection to a machine. Addresses (``points``) are driver-specific strings."""
+
+    async def open(self) -> None:
+        """Connect; raise :class:`~compd.errors.DriverError` if the device cannot be reached."""
+
+    async def read(self, points: Sequence[str]) -> dict[str, float]:
+        """Current value per address; a missing key means no new value for that address."""
+        ...
+
+    async def write(self, values: Mapping[str, float]) -> None:
+        """Write every value (already encoded: scaled and rounded as the device expects)."""
+
+    async def close(self) -> None:
+        """Release the connection; never raises."""
+
+
+class DriverType(Protocol):
+    """A driver class: its settings schema and a constructor taking validated settings.
+
+    ``now`` is the service's clock (seconds, monotonic); ``base_dir`` is the
+    directory of the config file, for settings naming files.
+    """
+
+    settings_model: type[BaseModel]
+
+    def __call__(self, settings: Any, *, now: Callable[[], float], base_dir: Path) -> Driver: ...
+
+
+#: Built-in driver types by the name a config's ``drivers.<name>.type`` gives.
+DRIVERS: dict[str, DriverType] = {"simulated": SimulatedDriver}
+
+
+def driver_types() -> dict[str, DriverType]:
+    """Built-in drivers and those installed under the ``compd.drivers`` entry-point group."""
+    found = dict(DRIVERS)
+    for entry in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        found.setdefault(entry.name, entry.load())
+    return found

@@ -1,0 +1,97 @@
+"""The contract every driver passes: one suite, run against every backend.
+
+A driver's test module subclasses :class:`DriverContract` and provides the
+``setup`` fixture: a fresh driver (not yet open), addresses it can read, one
+it can write, one that does not exist, and a ``break_connection()`` callable
+that makes the device unreachable (a stopped server, a dropped link).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import pytest
+from compd.drivers.base import Driver
+
+from compd.errors import DriverDisconnectedError, DriverError, DriverTimeoutError
+
+
+@dataclass
+class ContractSetup:
+    driver: Driver
+    readable: Sequence[str]
+    writable: str
+    missing: str
+    break_connection: Callable[[], None]
+
+
+class DriverContract:
+    """Subclass and define a ``setup`` fixture returning :class:`ContractSetup`."""
+
+    def test_is_a_driver(self, setup: ContractSetup) -> None:
+        """The driver satisfies the Driver protocol."""
+        assert isinstance(setup.driver, Driver)
+
+    def test_reads_floats_for_the_requested_addresses(self, setup: ContractSetup) -> None:
+        """After open, a read returns a float for each requested address and nothing else."""
+
+        async def scenario() -> dict[str, float]:
+            await setup.driver.open()
+            return await setup.driver.read(list(setup.readable))
+
+        values = asyncio.run(scenario())
+        assert set(values) <= set(setup.readable) and values
+        assert all(isinstance(v, float) and math.isfinite(v) for v in values.values())
+
+    def test_write_is_accepted(self, setup: ContractSetup) -> None:
+        """After open, writing a value to a writable address succeeds."""
+
+        async def scenario() -> None:
+            await setup.driver.open()
+            await setup.driver.write({setup.writable: 1.25})
+
+        asyncio.run(scenario())
+
+    def test_unknown_address_is_a_driver_error(self, setup: ContractSetup) -> None:
+        """Reading an address the device does not have raises a DriverError, not the library's exception."""
+
+        async def scenario() -> None:
+            await setup.driver.open()
+            await setup.driver.read([setup.missing])
+
+        with pytest.raises(DriverError):
+            asyncio.run(scenario())
+
+    def test_lost_connection_is_disconnected_or_timeout(self, setup: ContractSetup) -> None:
+        """When the device is unreachable, read and write raise DriverDisconnectedError or DriverTimeoutError."""
+
+        async def scenario() -> list[BaseException]:
+            await setup.driver.open()
+            setup.break_connection()
+            raised = []
+            for call in (
+                setup.driver.read(list(setup.readable)),
+                setup.driver.write({setup.writable: 0.0}),
+            ):
+                try:
+                    await asyncio.wait_for(call, 10.0)
+                except BaseException as exc:
+                    raised.append(exc)
+            return raised
+
+        raised = asyncio.run(scenario())
+        assert len(raised) == 2
+        assert all(isinstance(e, DriverDisconnectedError | DriverTimeoutError) for e in raised)
+
+    def test_close_never_raises(self, setup: ContractSetup) -> None:
+        """close() after open, and a second close(), never raise."""
+
+        async def scenario() -> None:
+            await setup.driver.open()
+            await setup.driver.close()
+            await setup.driver.close()
+
+        asyncio.run(scenario())

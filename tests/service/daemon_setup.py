@@ -1,0 +1,70 @@
+"""Shared set-up for the daemon's tests: the bundled simulated config in a temporary directory, run on virtual time."""
+
+from __future__ import annotations
+
+import asyncio
+import copy
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from compd.clock import VirtualClock
+from compd.config import Config, load_config
+from compd.loop import TickRecord
+from compd.service import Service
+from compd.yamlplace import resolve_path
+
+BUNDLED_SIMULATED = resolve_path("bundled:simulated.yaml", Path("."))
+
+
+def simulated_doc() -> dict[str, Any]:
+    """The bundled ``simulated.yaml`` as a dict, to be edited by a test."""
+    doc: dict[str, Any] = yaml.safe_load(BUNDLED_SIMULATED.read_text())
+    return doc
+
+
+def merge(base: dict[str, Any], changes: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``changes`` merged in, nested dicts key by key."""
+    out = copy.deepcopy(base)
+    for key, value in changes.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), dict):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def write_config(
+    directory: Path, changes: Mapping[str, Any] | None = None, *, doc: dict[str, Any] | None = None
+) -> Config:
+    """``doc`` (default: the bundled simulated config) with state under ``directory``, plus ``changes``."""
+    doc = merge(
+        simulated_doc() if doc is None else doc,
+        {"state": {"directory": str(directory / "state")}, "recorder": {"enabled": False}},
+    )
+    doc = merge(doc, changes or {})
+    path = directory / "compd.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return load_config(path)
+
+
+def run(
+    config: Config,
+    duration_s: float,
+    *,
+    clock: VirtualClock | None = None,
+    service: Service | None = None,
+    control: bool = False,
+) -> tuple[Service, list[TickRecord]]:
+    """Run a service on virtual time for ``duration_s``; returns it and every tick's record."""
+    records: list[TickRecord] = []
+    if service is None:
+        service = Service(
+            config, clock=clock or VirtualClock(), control=control, on_tick=records.append
+        )
+    else:
+        service.on_tick = records.append
+    asyncio.run(service.run(duration_s=duration_s))
+    return service, records

@@ -1,0 +1,127 @@
+"""The daemon's commands: run, check-config, status, model load."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from compd.cli import main
+from compd.state import installed_model
+
+from .daemon_setup import write_config
+
+RUN = [sys.executable, "-m", "compd.cli", "run", "--config"]
+
+
+def short_socket() -> str:
+    """A control socket path short enough for AF_UNIX (pytest's tmp_path can exceed 108 bytes)."""
+    return str(Path(tempfile.mkdtemp(prefix="compd-", dir="/tmp")) / "c.sock")
+
+
+def test_check_config_accepts_the_bundled_simulated_config(capsys):
+    """check-config on bundled:simulated.yaml prints ok and the wiring."""
+    assert main(["check-config", "bundled:simulated.yaml"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("ok: ") and "axis Y: -1 x disp_y_um -> machine:comp_y_um" in out
+
+
+def test_check_config_error_exits_2_naming_the_place(tmp_path, capsys):
+    """A config error ends check-config with exit status 2 and the file, line and place."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("schema: compd.config/1\nmodel: m.yaml\nperiod_s: fast\n")
+    assert main(["check-config", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: line 3 (period_s): Input should be a valid number" in err
+
+
+def test_run_stops_after_duration_and_saves_state(tmp_path):
+    """compd run --time-scale --duration-s exits 0 after the given clock time, logging JSON lines and saving state."""
+    config = write_config(
+        tmp_path, {"control_socket": short_socket(), "recorder": {"enabled": True}}
+    )
+    done = subprocess.run(
+        [
+            *RUN,
+            str(config.path),
+            "--time-scale",
+            "200",
+            "--duration-s",
+            "60",
+            "--log-format",
+            "json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    events = [json.loads(line)["event"] for line in done.stdout.splitlines()]
+    assert events[0] == "model" and events[-1] == "stopped"
+    assert (config.state_dir / "state.json").is_file()
+    assert list((config.state_dir / "records").glob("compd-*.csv"))
+
+
+def test_model_load_without_a_daemon_installs_for_the_next_start(tmp_path, capsys):
+    """model load validates and installs the model even when no daemon runs, and says so."""
+    config = write_config(tmp_path, {"control_socket": short_socket()})
+    assert main(["model", "load", str(config.model_path), "--config", str(config.path)]) == 0
+    captured = capsys.readouterr()
+    assert "installed example-gated-arx-y" in captured.out
+    assert "it will start with this model" in captured.err
+    assert installed_model(config.state_dir) is not None
+
+
+def test_model_load_refuses_a_bad_model(tmp_path, capsys):
+    """A model that does not compile is refused with exit 2 and nothing is installed."""
+    config = write_config(tmp_path, {"control_socket": short_socket()})
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(config.model_path.read_text().replace("-0.998889505944279", "-1.5"))
+    assert main(["model", "load", str(bad), "--config", str(config.path)]) == 2
+    assert "unstable" in capsys.readouterr().err
+    assert installed_model(config.state_dir) is None
+
+
+def test_status_without_a_daemon(tmp_path, capsys):
+    """status with no daemon running exits 2 asking whether compd runs."""
+    config = write_config(tmp_path, {"control_socket": short_socket()})
+    assert main(["status", "--config", str(config.path)]) == 2
+    assert "is compd running?" in capsys.readouterr().err
+
+
+def test_status_model_load_and_sigterm_on_a_running_daemon(tmp_path, capsys):
+    """Against a running daemon: status shows it, model load switches it, SIGTERM stops it cleanly with state saved."""
+    config = write_config(tmp_path, {"control_socket": short_socket(), "blend_s": 5})
+    daemon = subprocess.Popen(
+        [*RUN, str(config.path), "--time-scale", "10", "--log-format", "json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not config.control_socket.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)  # a few ticks
+        assert main(["status", "--config", str(config.path)]) == 0
+        out = capsys.readouterr().out
+        assert "example-gated-arx-y" in out and "T_spindle_degC" in out and "ticks" in out
+
+        retuned = tmp_path / "retuned.yaml"
+        retuned.write_text(config.model_path.read_text().replace("example-gated-arx-y", "retuned"))
+        assert main(["model", "load", str(retuned), "--config", str(config.path)]) == 0
+        assert "the daemon is switching to it" in capsys.readouterr().out
+        time.sleep(0.5)
+        assert main(["status", "--config", str(config.path), "--json"]) == 0
+        status = json.loads(capsys.readouterr().out)
+        assert status["model"]["name"] == "retuned" and status["counters"]["model_loads"] == 1
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        stdout, stderr = daemon.communicate(timeout=30)
+    assert daemon.returncode == 0, stderr
+    assert json.loads(stdout.splitlines()[-1])["event"] == "stopped"
+    assert (config.state_dir / "state.json").is_file()

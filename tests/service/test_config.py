@@ -1,0 +1,126 @@
+"""The daemon config: the bundled configs validate; every error names file, line, place and fix."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from compd.config import check_model, load_config, parse_config
+from compd.errors import ConfigFileError
+from compd.modelfile import load_model
+from compd.yamlplace import resolve_path
+
+from .daemon_setup import BUNDLED_SIMULATED, simulated_doc, write_config
+
+EXAMPLE = resolve_path("bundled:compd.example.yaml", Path("."))
+
+
+@pytest.mark.parametrize("path", [BUNDLED_SIMULATED, EXAMPLE], ids=["simulated", "example"])
+def test_bundled_configs_validate_with_their_models(path):
+    """config/simulated.yaml and config/compd.example.yaml pass the same checks as compd run makes."""
+    config = load_config(path)
+    model_file = load_model(config.model_path)
+    check_model(config, model_file, model_file.compile(config.doc.period_s))
+    assert config.doc.drivers and config.doc.outputs
+
+
+def test_config_objects_are_frozen(tmp_path):
+    """A validated config cannot be changed afterwards."""
+    config = write_config(tmp_path)
+    with pytest.raises(ValueError, match="frozen"):
+        config.doc.signals["T_spindle_degC"].scale = 2.0
+
+
+def error_for(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "bad.yaml"
+    with pytest.raises(ConfigFileError) as info:
+        parse_config(text, path)
+    return str(info.value)
+
+
+def bundled_text_with(old: str, new: str) -> str:
+    text = BUNDLED_SIMULATED.read_text()
+    assert old in text
+    return text.replace(old, new, 1)
+
+
+def test_unknown_key_names_line_place_and_fix(tmp_path):
+    """A misspelt key is reported with its file, line, dotted place and a fix."""
+    text = bundled_text_with("    unit: degC\n", "    unti: degC\n")
+    line = text.splitlines().index("    unti: degC") + 1
+    message = error_for(tmp_path, text)
+    assert message.startswith(
+        f"{tmp_path / 'bad.yaml'}: line {line} (signals.T_spindle_degC.unti): "
+    )
+    assert "unknown key 'unti'" in message and "Remove the key or fix its spelling" in message
+
+
+def test_signal_naming_an_undefined_driver(tmp_path):
+    """A signal whose driver is not defined names the place and the defined drivers."""
+    text = bundled_text_with(
+        "    driver: machine\n    address: T_spindle_degC",
+        "    driver: plc\n    address: T_spindle_degC",
+    )
+    message = error_for(tmp_path, text)
+    assert "(signals.T_spindle_degC.driver): driver 'plc' is not defined under 'drivers'" in message
+    assert "Define it or use one of ['machine']" in message
+
+
+def test_wrong_type_is_refused(tmp_path):
+    """A value of the wrong type names its place and asks for a number."""
+    message = error_for(tmp_path, bundled_text_with("max_offset_um: 50", "max_offset_um: lots"))
+    assert "(outputs.Y.max_offset_um)" in message and "Give a number" in message
+
+
+def test_driver_settings_are_validated_by_the_driver(tmp_path):
+    """A driver's own settings schema is applied at load, with the place under drivers.<name>.settings."""
+    message = error_for(
+        tmp_path, bundled_text_with("      loop: true", "      loop: true\n      speed: 3")
+    )
+    assert "(drivers.machine.settings.speed): unknown key 'speed'" in message
+
+
+def test_unknown_driver_type(tmp_path):
+    """A driver type that is neither built in nor installed is refused with the known types."""
+    message = error_for(tmp_path, bundled_text_with("type: simulated", "type: modbus-ascii"))
+    assert "(drivers.machine.type): unknown driver type 'modbus-ascii'" in message
+    assert "'simulated'" in message
+
+
+def test_two_values_written_to_one_address(tmp_path):
+    """The status word cannot share an address with an axis offset."""
+    message = error_for(
+        tmp_path, bundled_text_with("status_address: compd_status", "status_address: comp_y_um")
+    )
+    assert (
+        "(status.status_address): address 'comp_y_um' on driver 'machine' is already written"
+        in message
+    )
+
+
+def test_missing_schema(tmp_path):
+    """A file without the schema line says which schema to write."""
+    assert "Start the file with 'schema: compd.config/1'" in error_for(tmp_path, "model: x.yaml\n")
+
+
+def test_model_input_without_a_signal(tmp_path):
+    """A model reading a signal the config does not define is refused before start-up."""
+    doc = simulated_doc()
+    doc["signals"]["spindle_rpm"] = doc["signals"].pop("spindle_speed_rpm")
+    config = write_config(tmp_path, doc=doc)
+    model_file = load_model(config.model_path)
+    with pytest.raises(
+        ConfigFileError, match=r"reads signal\(s\) \['spindle_speed_rpm'\] that are not defined"
+    ):
+        check_model(config, model_file, model_file.compile(1.0))
+
+
+def test_axis_naming_a_missing_model_output(tmp_path):
+    """An axis mapped to an output the model does not have is refused, listing the model's outputs."""
+    config = write_config(tmp_path, {"outputs": {"Y": {"model_output": "disp_q_um"}}})
+    model_file = load_model(config.model_path)
+    with pytest.raises(
+        ConfigFileError, match=r"outputs.Y.model_output.*Use one of \['disp_y_um'\]"
+    ):
+        check_model(config, model_file, model_file.compile(1.0))

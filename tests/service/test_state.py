@@ -1,0 +1,95 @@
+"""State persistence: atomic files, the resume policy, model installation."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from compd.modelfile import load_model
+from compd.state import (
+    STATE_FILE,
+    SavedState,
+    StateError,
+    install_model,
+    installed_model,
+    load_state,
+    resume_decision,
+    save_state,
+)
+from compd.yamlplace import resolve_path
+
+MODEL = resolve_path("bundled:example_gated_arx.yaml", Path("."))
+
+
+@pytest.fixture(scope="module")
+def model():
+    model_file = load_model(MODEL)
+    return model_file, model_file.compile()
+
+
+def saved_for(model, *, sha256=None, saved_at=1000.0) -> SavedState:
+    model_file, compiled = model
+    state = compiled.steady_state(
+        {"T_spindle_degC": 25.0, "T_shopfloor_degC": 20.0, "spindle_speed_rpm": 0.0}
+    )
+    return SavedState(sha256 or model_file.sha256, compiled.name, saved_at, state, {"Y": -1.5}, 42)
+
+
+def test_round_trip(tmp_path, model):
+    """A saved state loads back equal, model state to the last bit."""
+    saved = saved_for(model)
+    save_state(tmp_path, saved)
+    loaded = load_state(tmp_path)
+    assert loaded is not None
+    np.testing.assert_array_equal(loaded.model_state.z, saved.model_state.z)
+    np.testing.assert_array_equal(loaded.model_state.reference, saved.model_state.reference)
+    assert (loaded.offsets_um, loaded.ticks, loaded.model_sha256) == (
+        {"Y": -1.5},
+        42,
+        saved.model_sha256,
+    )
+
+
+def test_save_leaves_no_temporary_files(tmp_path, model):
+    """Saving twice leaves exactly one state file and no temporary file."""
+    save_state(tmp_path, saved_for(model))
+    save_state(tmp_path, saved_for(model, saved_at=2000.0))
+    assert [p.name for p in tmp_path.iterdir()] == [STATE_FILE]
+
+
+def test_missing_and_malformed_state(tmp_path):
+    """No file means no state; a malformed file is a StateError naming what is wrong."""
+    assert load_state(tmp_path) is None
+    (tmp_path / STATE_FILE).write_text(json.dumps({"format": "compd.state/1", "model_sha256": "x"}))
+    with pytest.raises(StateError, match="malformed"):
+        load_state(tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("sha256", "now", "resume", "reason"),
+    [
+        (None, 1500.0, True, "500 s old"),
+        ("0" * 64, 1500.0, False, "belongs to model 000000000000"),
+        (None, 1000.0 + 901.0, False, "901 s old (limit 900 s)"),
+        (None, 900.0, False, "-100 s old"),
+    ],
+    ids=["fresh", "other-model", "too-old", "from-the-future"],
+)
+def test_resume_policy(model, sha256, now, resume, reason):
+    """Resume only this model's state, younger than resume_max_age_s (and not from the future)."""
+    decision = resume_decision(
+        saved_for(model, sha256=sha256), model[0].sha256, model[1], now, 900.0
+    )
+    assert decision.resume is resume and reason in decision.reason
+
+
+def test_install_model_points_current_at_the_copy(tmp_path):
+    """An installed model is stored under its sha256 and becomes the current one."""
+    assert installed_model(tmp_path) is None
+    installed = install_model(tmp_path, MODEL)
+    assert installed.name == f"{load_model(MODEL).sha256}.yaml"
+    assert installed_model(tmp_path) == installed
+    assert installed.read_bytes() == MODEL.read_bytes()

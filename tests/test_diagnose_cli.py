@@ -1,0 +1,120 @@
+"""compd diagnose: which effect the model misses, end to end on a record with a known missing effect."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from compd.cli import main
+from tests.residue_case import POWER_GAIN_UM_PER_KW, POWER_TAU_S, signals, write_case, zoh_lag
+
+
+@pytest.fixture(scope="module")
+def case(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    return write_case(tmp_path_factory.mktemp("residue_case"))
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def diagnose_json(capsys: pytest.CaptureFixture[str], *argv: object) -> dict:
+    code, out, err = run(capsys, "diagnose", *argv, "--json")
+    assert code == 0, err
+    return json.loads(out)
+
+
+def test_json_ranks_spindle_power_first_as_cutting_process_heat(case, capsys) -> None:
+    """The missing cutting-process effect is found: spindle power first, its effect, gain and time constant."""
+    report = diagnose_json(capsys, *case)
+    best = report["candidates"][0]
+    assert best["signal"] == "spindle_power_kw"
+    assert "cutting process heat" in best["effect"]
+    assert best["explained_percent"] > 80.0
+    assert best["sign"] == 1 and best["significant"] is True
+    assert best["gain_um_per_unit"] == pytest.approx(POWER_GAIN_UM_PER_KW, rel=0.1)
+    assert best["time_constant_s"] == pytest.approx(POWER_TAU_S, rel=0.15)
+    assert report["missing_effect"] == "spindle_power_kw" and report["residue_white"] is False
+    assert report["verdict"].startswith("most likely missing effect: cutting process heat")
+
+
+def test_json_candidates_have_the_contract_keys_and_default_set(case, capsys) -> None:
+    """Each candidate has signal, effect, explained_percent; defaults exclude outputs, *_um columns and model inputs."""
+    report = diagnose_json(capsys, *case)
+    signals_ = [c["signal"] for c in report["candidates"]]
+    assert set(signals_) == {
+        "spindle_speed_rpm",
+        "spindle_power_kw",
+        "feed_x_mm_per_min",
+        "door_open",
+        "T_coolant_degC",
+        "T_ambient_degC",
+    }
+    shares = [c["explained_percent"] for c in report["candidates"]]
+    assert shares == sorted(shares, reverse=True)
+    for c in report["candidates"]:
+        assert {
+            "signal",
+            "effect",
+            "explained_percent",
+            "time_constant_s",
+            "lag_s",
+            "xcorr_bound",
+        } <= set(c)
+
+
+def test_without_the_causing_signal_no_effect_is_invented(case, capsys) -> None:
+    """--candidates without spindle power (or its coolant echo): the verdict says the effect is not among them."""
+    report = diagnose_json(
+        capsys, *case, "--candidates", "door_open,T_ambient_degC,feed_x_mm_per_min"
+    )
+    assert [c["signal"] for c in report["candidates"]].count("spindle_power_kw") == 0
+    assert report["missing_effect"] is None
+    assert "not among the candidates" in report["verdict"]
+
+
+def test_white_residue_says_so(tmp_path: Path, capsys) -> None:
+    """A record the model explains up to white noise: the verdict says the residue is white."""
+    model, _ = write_case(tmp_path)
+    frame = signals()
+    exact = 4.0 * zoh_lag(frame["T_spindle_degC"].to_numpy(), 600.0)  # the model, exactly
+    frame["disp_z_um"] = exact + np.random.default_rng(1).normal(0.0, 0.1, len(frame))
+    frame.to_csv(tmp_path / "white.csv", index=False, float_format="%.6f")
+    report = diagnose_json(capsys, model, tmp_path / "white.csv")
+    assert report["residue_white"] is True and report["missing_effect"] is None
+    assert report["verdict"] == "residue is white: no missing effect stands out"
+
+
+def test_table_shows_rank_effect_and_verdict(case, capsys) -> None:
+    """The human output is a table of the top N candidates with their effects, then a one-line verdict."""
+    code, out, err = run(capsys, "diagnose", *case, "--top", "3")
+    assert code == 0, err
+    assert "explained %" in out and "cutting process heat" in out
+    ranks = [line.split("│")[1].strip() for line in out.splitlines() if line.startswith("│")]
+    assert [r for r in ranks if r] == ["1", "2", "3"]  # (a long cell may wrap onto a second line)
+    assert (
+        out.strip().splitlines()[-1].startswith("most likely missing effect: cutting process heat")
+    )
+
+
+def test_user_catalogue_renames_the_effect(case, tmp_path: Path, capsys) -> None:
+    """--catalogue entries take precedence over the bundled ones in the report."""
+    catalogue = tmp_path / "mine.yaml"
+    catalogue.write_text(
+        "schema: compd.effects/1\neffects:\n  - match: spindle_power*\n    effect: roughing heat of head 2\n"
+    )
+    report = diagnose_json(capsys, *case, "--catalogue", catalogue)
+    assert report["candidates"][0]["effect"] == "roughing heat of head 2"
+
+
+def test_bad_catalogue_or_unknown_candidate_exits_2(case, tmp_path: Path, capsys) -> None:
+    """A malformed catalogue or a candidate the file lacks ends with exit status 2 and a message naming it."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("schema: compd.effects/1\neffects:\n  - match: x\n")
+    code, _, err = run(capsys, "diagnose", *case, "--catalogue", bad)
+    assert code == 2 and "bad.yaml: line 3" in err
+    code, _, err = run(capsys, "diagnose", *case, "--candidates", "no_such_column")
+    assert code == 2 and "no_such_column" in err

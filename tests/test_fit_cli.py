@@ -1,0 +1,152 @@
+"""``compd fit``: writes a model file that ``compd compare`` reproduces, and refuses bad input with exit 2."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+import scipy.signal
+
+from compd.cli import main
+from compd.data import load_data
+from compd.evaluate import compare, evaluate
+from compd.modelfile import load_model
+from tests.model.thermal_cases import held_levels, thermal_second_order
+
+TS = 10.0
+
+
+@pytest.fixture(scope="module")
+def calibration_csv(tmp_path_factory):
+    """24 h at 10 s: spindle and ambient temperatures, spindle on/off, z displacement with 1 % noise."""
+    rng = np.random.default_rng(21)
+    n = int(24 * 3600 / TS)
+    spindle = 22.0 + held_levels(rng, n, TS)
+    ambient = 20.0 + 0.3 * held_levels(rng, n, TS, lag_s=3600.0)
+    speed = np.where(np.arange(n) % 1080 < 600, 6000.0, 0.0)
+    heat_b, heat_a = thermal_second_order((1200.0, 4800.0), 3.0, 0.4, TS)
+    amb_b, amb_a = thermal_second_order((2400.0, 7200.0), -2.0, 0.5, TS)
+    z = scipy.signal.lfilter(heat_b, heat_a, spindle - spindle[0]) + scipy.signal.lfilter(
+        amb_b, amb_a, ambient - ambient[0]
+    )
+    z += 0.01 * np.std(z) * rng.standard_normal(n)
+    path = tmp_path_factory.mktemp("fit") / "calib.csv"
+    pd.DataFrame(
+        {
+            "time_s": np.arange(n) * TS,
+            "T_spindle_degC": spindle,
+            "T_ambient_degC": ambient,
+            "T_const_degC": np.full(n, 20.0),
+            "spindle_speed_rpm": speed,
+            "disp_z_um": z,
+        }
+    ).to_csv(path, index=False, float_format="%.9g")
+    return path
+
+
+def _fit(csv, out, *extra):
+    return main(
+        [
+            "fit",
+            "--data",
+            str(csv),
+            "--output",
+            "disp_z_um",
+            "--inputs",
+            "T_spindle_degC,T_ambient_degC",
+            "--out",
+            str(out),
+            *extra,
+        ]
+    )
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        ("--method", "arx"),
+        ("--method", "oe", "--order", "2"),
+        ("--method", "mlr"),
+        ("--method", "arx", "--order", "2", "--phase-gate", "spindle_speed_rpm"),
+    ],
+    ids=["arx-auto", "oe-2", "mlr", "arx-gated"],
+)
+def test_compare_reproduces_the_fit_printed_by_fit(calibration_csv, tmp_path, capsys, options):
+    """The model file's fit % (the one fit prints) is what compare computes on the same data, to 1e-6."""
+    out = tmp_path / "model.yaml"
+    assert _fit(calibration_csv, out, *options) == 0
+    printed = capsys.readouterr().out
+    assert "free-run simulation fit" in printed
+    model_file = load_model(out)
+    fitted = model_file.doc.provenance.fit_percent["disp_z_um"]
+    assert f"{fitted:.2f} %" in printed
+    (comparison,) = compare(evaluate(model_file, load_data(calibration_csv)))
+    assert abs(comparison.fit_percent - fitted) < 1e-6
+
+
+def test_provenance_records_the_calibration(calibration_csv, tmp_path):
+    """Provenance names method, data, command, time and version, and the range of every data column."""
+    out = tmp_path / "model.yaml"
+    assert _fit(calibration_csv, out, "--method", "oe", "--order", "1") == 0
+    provenance = load_model(out).doc.provenance
+    data = load_data(calibration_csv)
+    assert provenance.method == "oe"
+    assert provenance.created is not None and provenance.created.endswith("Z")
+    assert provenance.compd_version
+    calibration = provenance.calibration
+    assert calibration is not None
+    assert calibration.samples == len(data) and calibration.sample_time_s == TS
+    assert set(calibration.ranges) == set(data.columns)
+    low, high = calibration.ranges["spindle_speed_rpm"]
+    assert (low, high) == (0.0, 6000.0)
+    assert calibration.rms_um["disp_z_um"] > 0.0
+
+
+def test_gated_model_switches_the_heating_tf_input(calibration_csv, tmp_path):
+    """--phase-gate gives each input a cooling sub-model and a heating one gated on its input by SIGNAL > 0."""
+    out = tmp_path / "model.yaml"
+    assert _fit(calibration_csv, out, "--method", "mlr", "--phase-gate", "spindle_speed_rpm") == 0
+    submodels = load_model(out).model.outputs[0].submodels
+    assert [s.name for s in submodels] == [
+        "T_spindle_degC",
+        "T_spindle_degC_heating",
+        "T_ambient_degC",
+        "T_ambient_degC_heating",
+    ]
+    gate = submodels[1].gate
+    assert gate is not None and gate.signal == "spindle_speed_rpm" and gate.threshold == 0.0
+    assert gate.above and gate.target.value == "input"
+    assert submodels[0].gate is None
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (("--inputs", "T_nowhere_degC"), "no column 'T_nowhere_degC'"),
+        (("--inputs", " , "), "--inputs: no inputs given"),
+        (("--inputs", "T_spindle_degC,disp_z_um"), "output column 'disp_z_um' is also among"),
+        (("--order", "0"), "--order: order must be"),
+        (("--order", "two"), "--order: order 'two' is not a number"),
+        (
+            ("--inputs", "T_const_degC"),
+            "column 'T_const_degC': input column 'T_const_degC' is constant",
+        ),
+        (
+            ("--phase-gate", "T_const_degC"),
+            "--phase-gate T_const_degC: the phase-gate signal is always > 0",
+        ),
+    ],
+)
+def test_bad_input_exits_2_naming_file_place_and_fix(
+    calibration_csv, tmp_path, capsys, options, message
+):
+    """Unknown or constant columns, no inputs, the output among the inputs and bad orders end with exit 2."""
+    out = tmp_path / "model.yaml"
+    arguments = ["--data", str(calibration_csv), "--output", "disp_z_um", "--out", str(out)]
+    if "--inputs" not in options:
+        arguments += ["--inputs", "T_spindle_degC"]
+    assert main(["fit", *arguments, *options]) == 2
+    error = capsys.readouterr().err
+    assert str(calibration_csv) in error
+    assert message in error
+    assert not out.exists()
