@@ -23,6 +23,10 @@ class Clock(Protocol):
 
     def wall(self) -> float: ...
 
+    def wall_at(self, t: float) -> float:
+        """The UTC epoch time (s) of clock time ``t``: ticks are stamped with their deadline."""
+        ...
+
     async def sleep_until(self, t: float) -> None: ...
 
 
@@ -42,6 +46,9 @@ class RealClock:
     def wall(self) -> float:
         return self._wall0 + self.now()
 
+    def wall_at(self, t: float) -> float:
+        return self._wall0 + t
+
     async def sleep_until(self, t: float) -> None:
         delay_s = (t - self.now()) / self.time_scale
         if delay_s > 0:
@@ -60,6 +67,9 @@ class VirtualClock:
 
     def wall(self) -> float:
         return self.wall0_unix_s + self.t
+
+    def wall_at(self, t: float) -> float:
+        return self.wall0_unix_s + t
 
     def advance(self, seconds: float) -> None:
         self.t += seconds

@@ -45,7 +45,8 @@ def signal_matrix(compiled: CompiledModel, data: DataSet) -> np.ndarray:
             f"model {compiled.name!r} reads column(s) {missing}, which the file does not have",
             fix=f"Add them, or rename the model's signals to columns the file has: {sorted(data.columns)}",
         )
-    return np.column_stack([data.column(name) for name in compiled.signals])
+    # Column-major, so simulate() reads each signal as one contiguous row without a copy.
+    return np.vstack([data.column(name) for name in compiled.signals]).T
 
 
 def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "steady") -> Evaluation:

@@ -24,11 +24,12 @@ import numpy as np
 
 from compd import __version__
 from compd.data import DataSet
-from compd.errors import DataFileError
+from compd.errors import DataFileError, ModelError
 from compd.evaluate import Evaluation, compare, evaluate, measured_columns
 from compd.model.identify import Identification, identify
 from compd.model.metrics import fit_percent
 from compd.model.structure import InputSpec, Model, Output, SubModel
+from compd.model.transfer import DiscreteTF, resample_discrete
 from compd.modelfile import (
     CalibrationDoc,
     ExtensionDoc,
@@ -100,13 +101,14 @@ def extend_model(
         progress=progress,
     )
     (channel,) = identification.channels
+    tf = _at_model_rate(channel.tf, data, parent)
     taken = {s.name for o in parent.model.outputs for s in o.submodels}
     name = _unique(f"{signal}_effect", taken)
     submodel = SubModel(
         name=name,
         effect=effect,
         input=InputSpec(signal),
-        tf=channel.tf,
+        tf=tf,
         gain=1.0,
     )
     model = _with_submodel(parent.model, output, submodel)
@@ -194,6 +196,26 @@ def _one_output(evaluation: Evaluation, column: str | None) -> tuple[str, str]:
         )
     ((output, measured),) = pairs.items()
     return output, measured
+
+
+def _at_model_rate(tf: DiscreteTF, data: DataSet, parent: ModelFile) -> DiscreteTF:
+    """The new TF at the parent model's sample time, where every discrete TF of a file lives.
+
+    Identified at the data's rate, it is converted exactly (ZOH d2c, c2d); a
+    TF without a continuous equivalent is refused rather than misapplied.
+    """
+    model_s = parent.model.sample_time_s
+    if np.isclose(model_s, data.sample_time_s, rtol=1e-9, atol=0.0):
+        return tf
+    try:
+        return resample_discrete(tf, data.sample_time_s, model_s)
+    except ModelError as exc:
+        raise DataFileError(
+            data.path,
+            f"the sub-model identified at the data's {data.sample_time_s:g} s cannot be brought "
+            f"to the model's {model_s:g} s ({exc.message})",
+            fix="Use --method oe, or data at the model's sample time",
+        ) from exc
 
 
 def _with_submodel(model: Model, output: str, submodel: SubModel) -> Model:

@@ -1,4 +1,4 @@
-"""The 1 Hz loop: an absolute-deadline scheduler on an injectable clock, and driver supervision.
+"""The 1 Hz loop: an absolute-deadline scheduler on an injectable clock, and the per-tick function.
 
 The scheduler (:func:`run_periodic`) wakes at ``t0 + k * period_s`` -- the
 next deadline is the last one plus the period, never "now plus the period",
@@ -27,15 +27,13 @@ from typing import Any, TypeVar
 import numpy as np
 import structlog
 
-from compd.clock import Clock, RealClock, VirtualClock
+from compd.clock import Clock
 from compd.links import DriverLink
 from compd.model.compiled import CompiledModel, ModelState, qualified_names
 from compd.model.run import TickRunner
 from compd.modelfile import ModelFile
 from compd.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
 from compd.signals import Health, SignalMonitor
-
-__all__ = ["Clock", "Compensator", "RealClock", "TickTiming", "VirtualClock", "run_periodic"]
 
 log = structlog.get_logger("compd.loop")
 T = TypeVar("T")
@@ -213,7 +211,7 @@ class Compensator:
         model: ModelSlot,
         status: StatusPoint | None = None,
         blend_s: float = 60.0,
-        wall: Callable[[], float] = time.time,
+        wall_at: Callable[[float], float] = lambda t_s: time.time(),
         initial_state: ModelState | None = None,
     ) -> None:
         self.signals = list(signals)
@@ -223,7 +221,7 @@ class Compensator:
         self.links = dict(links)
         self.status_point = status
         self.blend_s = blend_s
-        self.wall = wall
+        self.wall_at = wall_at
         self.active = model
         self.previous: ModelSlot | None = None
         self.pending: ModelSlot | None = None
@@ -295,7 +293,7 @@ class Compensator:
         )
         self.last = TickRecord(
             t_s=t_s,
-            wall_unix_s=self.wall(),
+            wall_unix_s=self.wall_at(t_s),
             values=checked,
             health={name: r.health for name, r in readings.items()},
             reasons={name: r.reason for name, r in readings.items() if r.reason},

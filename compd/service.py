@@ -95,7 +95,9 @@ class Service:
 
     ``drivers`` may be given (tests keep a handle on the simulated machine);
     by default they are built from the config. Nothing is opened or written
-    before :meth:`run`.
+    before :meth:`run`. ``background_saves=False`` writes the periodic state
+    saves inside the tick instead of a worker thread: deterministic on a
+    virtual clock, where a thousand ticks pass during one real fsync.
     """
 
     def __init__(
@@ -107,8 +109,10 @@ class Service:
         notifier: SystemdNotifier | None = None,
         control: bool = True,
         on_tick: Callable[[TickRecord], None] | None = None,
+        background_saves: bool = True,
     ) -> None:
         self.config = config
+        self.background_saves = background_saves
         self.clock = clock
         self.notifier = notifier or SystemdNotifier(environ={})
         self.on_tick = on_tick
@@ -184,7 +188,7 @@ class Service:
             if status
             else None,
             blend_s=doc.blend_s,
-            wall=clock.wall,
+            wall_at=clock.wall_at,
             initial_state=saved.model_state if saved is not None and decision.resume else None,
         )
         if saved is not None and decision.resume:
@@ -262,7 +266,9 @@ class Service:
         if self._saving is not None and not self._saving.done():
             return
         saved = self.snapshot()
-        if saved is not None:
+        if saved is not None and not self.background_saves:
+            self._write_state(saved)
+        elif saved is not None:
             self._saving = asyncio.ensure_future(asyncio.to_thread(self._write_state, saved))
 
     def _write_state(self, saved: SavedState) -> None:

@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "compd.cli.evaluate",
     "compd.cli.fit",
     "compd.cli.diagnose",
+    "compd.cli.extend",
     "compd.cli.report",
     "compd.cli.service",
     "compd.cli.twin",

@@ -23,9 +23,10 @@ def register(commands: Any) -> None:
     diag = commands.add_parser(
         "diagnose",
         help="which logged signal (physical effect) explains the model's residue",
-        description="Rank candidate signals by the share of the residue RMS a first-order "
-        "lag of each explains on held-out data (blocked cross-validation), with the "
-        "residue/input cross-correlation against its 99 %% Bartlett bound as evidence.",
+        description="Rank candidate signals by the share of the residue RMS that one or two "
+        "first-order lags of each explain on held-out data (blocked cross-validation), against "
+        "the share reached by chance (the signal shifted in time), with the residue/input "
+        "cross-correlation against its 99 % Bartlett bound as evidence.",
     )
     diag.add_argument("model", type=Path, metavar="MODEL.yaml")
     diag.add_argument("data", type=Path, metavar="DATA.csv")

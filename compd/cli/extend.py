@@ -104,7 +104,7 @@ def _extend(args: argparse.Namespace) -> int:
         "method": extension.identification.method,
         "order": tf.order,
         "nk": tf.nk,
-        "time_constants_s": [float(t) for t in tf.time_constants_s(data.sample_time_s)],
+        "time_constants_s": [float(t) for t in tf.time_constants_s(parent.model.sample_time_s)],
         "static_gain_um_per_unit": float(tf.static_gain()),
         "residue_fit_percent": json_clean(extension.residue_fit),
         "fit_percent_before": json_clean(extension.fit_before),
@@ -125,7 +125,7 @@ def _extend(args: argparse.Namespace) -> int:
         f"added [bold]{extension.submodel.name}[/bold] to {extension.output}: {effect} "
         f"(input {args.effect} as a change from start; {extension.identification.method}, "
         f"order {tf.order}, nk {tf.nk}, time constants "
-        f"{', '.join(f'{t:.0f}' for t in tf.time_constants_s(data.sample_time_s)) or '-'} s, "
+        f"{', '.join(f'{t:.0f}' for t in tf.time_constants_s(parent.model.sample_time_s)) or '-'} s, "
         f"static gain {tf.static_gain():.4g} um/unit)"
     )
     out.print(

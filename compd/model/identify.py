@@ -45,7 +45,7 @@ import numpy as np
 import scipy.signal
 
 from compd.errors import ModelError
-from compd.model.arx import ArxParameters, fit_arx, solve_arx
+from compd.model.arx import ArxParameters, fit_arx, simulate_arx, solve_arx
 from compd.model.metrics import fit_percent
 from compd.model.oe import OeParameters, fit_oe, oe_from_arx, simulate_oe, steiglitz_mcbride
 from compd.model.orders import (
@@ -198,18 +198,22 @@ def identify(
         gains = np.linalg.lstsq(u, y, rcond=None)[0]
         tfs = [DiscreteTF.from_coefficients([k], [1.0], 0) for k in gains]
         orders = Orders(0, (1,) * len(names), (0,) * len(names), (0,) * len(names))
+        simulated = u @ gains
     elif method == "arx":
         arx, orders, validation = _arx(y, u, order, report)
         tfs = [
             DiscreteTF.from_coefficients(b, arx.a, nk) for b, nk in zip(arx.b, arx.nk, strict=True)
         ]
+        # One recursion for the shared denominator: the same output as one
+        # lfilter per channel (what compare runs) to rounding, in half the time.
+        simulated = simulate_arx(arx, u)
     else:
         oe, orders, validation = _oe(y, u, order, report)
         tfs = [
             DiscreteTF.from_coefficients(b, f, nk)
             for b, f, nk in zip(oe.b, oe.f, oe.nk, strict=True)
         ]
-    simulated = simulate_channels(tfs, u)
+        simulated = simulate_channels(tfs, u)
     return Identification(
         method=method,
         channels=tuple(

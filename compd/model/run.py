@@ -128,20 +128,30 @@ def simulate(compiled: CompiledModel, signals: np.ndarray, state: ModelState) ->
             f"signals must be an (N, {len(compiled.signals)}) array in the order "
             f"{list(compiled.signals)}, got shape {signals.shape}"
         )
-    if not np.all(np.isfinite(signals)):
+    # A sum is finite when every term is (short of overflow, which the full test settles),
+    # and costs no whole-record temporary.
+    if not (np.isfinite(signals.sum()) or np.all(np.isfinite(signals))):
         raise ModelError("signals contain NaN or inf; repair the data before simulating")
     # One sub-model at a time from contiguous signal rows: the whole-record
     # (N, S) intermediates of a vectorised gather would triple peak memory.
-    rows = compiled.extended(signals).T.copy()
+    # The constant 0 / 1 slots of the extended vector are never materialised.
+    rows = signals.T  # a view: each row is read once, strided or not, into a contiguous buffer
+    n_signals = len(compiled.signals)
     n_samples = signals.shape[0]
     contributions = np.empty((compiled.n_submodels, n_samples))
     final_z = np.empty_like(state.z)
+    u = np.empty(n_samples)
     for s in range(compiled.n_submodels):
-        u = rows[compiled.plus_index[s]] - rows[compiled.minus_index[s]]
-        u -= state.reference[s]
+        np.subtract(rows[compiled.plus_index[s]], state.reference[s], out=u)
+        if compiled.minus_index[s] < n_signals:
+            u -= rows[compiled.minus_index[s]]
         # CompiledModel.gates_open's test, on one sub-model's row of the record.
-        gate = rows[compiled.gate_index[s]] * compiled.gate_sign[s] > compiled.signed_threshold[s]
-        if compiled.gate_on_input[s]:
+        gate = (
+            None
+            if compiled.gate_index[s] >= n_signals
+            else rows[compiled.gate_index[s]] * compiled.gate_sign[s] > compiled.signed_threshold[s]
+        )
+        if gate is not None and compiled.gate_on_input[s]:
             u *= gate
         if compiled.n_states:
             response, final_z[s] = scipy.signal.lfilter(
@@ -149,9 +159,9 @@ def simulate(compiled: CompiledModel, signals: np.ndarray, state: ModelState) ->
             )
         else:
             response = compiled.b[s, 0] * u
-        if not compiled.gate_on_input[s]:
+        if gate is not None and not compiled.gate_on_input[s]:
             response *= gate
-        contributions[s] = response * compiled.gain[s]
+        np.multiply(response, compiled.gain[s], out=contributions[s])
     outputs = (compiled.output_matrix @ contributions).T
     contributions = contributions.T
     return SimulationResult(outputs, contributions, ModelState(final_z, state.reference.copy()))

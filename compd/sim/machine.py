@@ -13,7 +13,8 @@ constants span ~10 min (spindle bearings) to several hours (bed, column), as
 measured on such machines (seed 000 and seed 001), and so that each
 "hidden" effect (cutting heat, feed-drive heat, door openings, coolant
 temperature) acts through a part that none of the machine's temperature
-sensors sees: the table/workpiece, the ball screws and the enclosure air.
+sensors sees: the table/workpiece, the ball screws, the spindle shaft and
+the enclosure air.
 """
 
 from __future__ import annotations
@@ -76,7 +77,8 @@ class HeatLaws:
     - cutting heat ``P_cut`` split: ``cut_to_shaft`` into the tool and spindle nose,
       ``cut_to_table`` into workpiece, fixture and table; the rest leaves with chips and coolant
     - ball-screw nuts ``q = k_feed * |feed|`` per axis (feed in mm/min)
-    - ``q_aux`` into the enclosure air: coolant pump, chip conveyor, lights
+    - ``q_aux`` into the enclosure air: coolant pump, chip conveyor, hydraulics, lights;
+      it keeps the enclosure air about 5 degC above the shop, which an open door loses
     """
 
     k_bearing_w: float = 4.0
@@ -149,14 +151,13 @@ class MachineParameters:
         Link("table", "air", 8.0),
         Link("nut_x", "air", 0.8),
         Link("nut_x", "bed", 4.0),  # screw bearings and guideway on the bed
-        Link("nut_z", "air", 7.0),
+        Link("nut_z", "air", 7.0),  # the Z screw runs in the enclosure air
         Link("nut_z", "column_front", 1.0),
         Link("air", "ambient", 60.0, g_door=600.0),  # leaks and mist extractor; open door
         Link("air", "coolant", 10.0),
     )
     heat: HeatLaws = field(default_factory=HeatLaws)
     geometry: Geometry = field(default_factory=Geometry)
-    max_speed_rpm: float = 12000.0
 
     def __post_init__(self) -> None:
         if len(self.capacity_j_per_k) != N_NODES or min(self.capacity_j_per_k) <= 0:

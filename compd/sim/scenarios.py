@@ -8,6 +8,18 @@ run at any sample time. The hidden-effect scenarios (``cutting``, ``feed``,
 speeds and keep everything else as in ``calibration`` (door shut, no feed, no
 cutting, constant coolant), so each effect can be identified on its own;
 ``shift`` mixes them all as in a real 8-hour shift.
+
+Where each hidden effect shows, and why no temperature sensor sees it:
+
+=========  ======================  =============  ================================================
+scenario   signal                  axis           path (unsensed nodes)
+=========  ======================  =============  ================================================
+cutting    ``spindle_power_kw``    ``disp_z_um``  workpiece/table growth, tool heat into the shaft
+feed       ``feed_z_mm_per_min``   ``disp_z_um``  Z ball-screw nut and shaft
+feed       ``feed_x_mm_per_min``   ``disp_x_um``  X ball-screw nut and shaft
+door       ``door_open``           ``disp_z_um``  enclosure air -> Z screw, shaft, table
+coolant    ``T_coolant_degC``      ``disp_z_um``  table and workpiece in the coolant flood
+=========  ======================  =============  ================================================
 """
 
 from __future__ import annotations
@@ -65,7 +77,7 @@ class _Steps:
 def _ambient(rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
     """Shop-floor temperature: 19–23 degC, a daily-ish swing of ±1–2 degC, and HVAC wander.
 
-    The wander (three sines of 0.2–0.5 degC, periods 1.5–6 h) makes the ambient
+    The wander (three sines of 0.3–0.7 degC, periods 1–4 h) makes the ambient
     move independently of the machine within a few hours.
     """
     t0 = rng.uniform(19.0, 23.0)
@@ -74,8 +86,8 @@ def _ambient(rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
     phase = rng.uniform(0, 2 * np.pi)
     wander = np.zeros_like(t)
     for _ in range(3):
-        wander += rng.uniform(0.2, 0.5) * np.sin(
-            2 * np.pi * t / (rng.uniform(1.5, 6.0) * 3600) + rng.uniform(0, 2 * np.pi)
+        wander += rng.uniform(0.3, 0.7) * np.sin(
+            2 * np.pi * t / (rng.uniform(1.0, 4.0) * 3600) + rng.uniform(0, 2 * np.pi)
         )
     return np.asarray(t0 + amp * np.sin(2 * np.pi * t / period_s + phase) + wander)
 
