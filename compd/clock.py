@@ -15,6 +15,9 @@ import asyncio
 import time
 from typing import Protocol
 
+#: The last part of a real sleep taken with ``time.sleep`` for a precise wake-up (s).
+FINE_S = 0.002
+
 
 class Clock(Protocol):
     """Seconds: ``now()`` monotonic, ``wall()`` UTC epoch, ``sleep_until(t)`` in ``now()`` time."""
@@ -50,9 +53,20 @@ class RealClock:
         return self._wall0 + t
 
     async def sleep_until(self, t: float) -> None:
+        """Sleep on the event loop until ``FINE_S`` before ``t``, then the rest in ``time.sleep``.
+
+        The event loop waits in ``epoll``, whose timeout has 1 ms resolution
+        and is rounded up: ticks would start 0.5-1 ms late on average. The
+        last ``FINE_S`` are slept with ``time.sleep`` (``clock_nanosleep``,
+        tens of microseconds of slack), blocking the loop for at most that
+        long a tick, which nothing else on the loop needs then.
+        """
         delay_s = (t - self.now()) / self.time_scale
-        if delay_s > 0:
-            await asyncio.sleep(delay_s)
+        if delay_s > FINE_S:
+            await asyncio.sleep(delay_s - FINE_S)
+        remaining_s = (t - self.now()) / self.time_scale
+        if remaining_s > 0:
+            time.sleep(remaining_s)
 
 
 class VirtualClock:

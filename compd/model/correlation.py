@@ -99,15 +99,11 @@ def correlate(residue: Array, inputs: Array, max_lag: int, *, z: float = Z99) ->
     norm = np.sqrt(np.where(squares > 0.0, squares, np.nan))
     spectra = scipy.fft.rfft(padded, axis=1)  # (overwrite_x measured slower here)
     del padded
-    # |X|^2 of each input (the spectra of their autocovariances), read as (re, im) pairs.
-    pairs = spectra[1:].view(np.float64)
-    # X conj(E): its inverse is c(k) = sum_t x(t + k) e(t), so r_ee at +k and r_eu at -k.
-    raw = scipy.fft.irfft(spectra * spectra[0].conj(), n=size, axis=1)
+    residue_spectrum = spectra[0].copy()
     with np.errstate(invalid="ignore"):
-        auto = np.nan_to_num(raw[0, : max_lag + 1] / squares[0])
-        reversed_lags = (-np.arange(max_lag + 1)) % size
-        cross = np.nan_to_num(raw[1:, reversed_lags] / (norm[0] * norm[1:, None]))
-    del raw
+        # r_ee(k) = irfft(|E|^2)(k) / sum e^2
+        power = residue_spectrum.real**2 + residue_spectrum.imag**2
+        auto = np.nan_to_num(scipy.fft.irfft(power, n=size)[: max_lag + 1] / squares[0])
 
     # Autocorrelation bound: Bartlett's MA(k-1) formula, cumulative over lags.
     cumulative = np.concatenate([[0.0], np.cumsum(auto[1:max_lag] ** 2)])
@@ -115,17 +111,26 @@ def correlate(residue: Array, inputs: Array, max_lag: int, *, z: float = Z99) ->
     auto_bound[1:] = z * np.sqrt((1.0 + 2.0 * cumulative) / n)
 
     # Cross bound: sum over |m| <= M of r_ee(m) r_uu(m), as the frequency-domain
-    # inner product of the windowed (two-sided) r_ee with each input's spectrum.
+    # inner product of the windowed (two-sided) r_ee with each input's |U|^2.
     window = np.zeros(size)
     window[: max_lag + 1] = auto
     window[size - max_lag :] = auto[1:][::-1]
     weights = scipy.fft.rfft(window).real  # real: the windowed r_ee is even
     weights[1 : (size + 1) // 2] *= 2.0  # half spectrum: interior bins count twice
     per_value = np.repeat(weights, 2)  # the same weight for re and im
+    pairs = spectra[1:].view(np.float64)  # (re, im) of each input's spectrum
     with np.errstate(invalid="ignore"):
         # sum_m r_ee(m) r_uu(m) = (1/size) sum_f W(f) |U(f)|^2 / sum u^2   (Parseval)
         bartlett = np.einsum("ij,ij,j->i", pairs, pairs, per_value) / (size * squares[1:])
         cross_bound = z * np.sqrt(np.maximum(bartlett, 0.0) / n)
+
+    # U conj(E), in place: its inverse is c(k) = sum_t u(t + k) e(t), so r_eu(k) at -k.
+    inputs_spectra = spectra[1:]
+    inputs_spectra *= residue_spectrum.conj()
+    raw = scipy.fft.irfft(inputs_spectra, n=size, axis=1)
+    with np.errstate(invalid="ignore"):
+        reversed_lags = (-np.arange(max_lag + 1)) % size
+        cross = np.nan_to_num(raw[:, reversed_lags] / (norm[0] * norm[1:, None]))
     return Correlations(
         autocorrelation=auto,
         autocorrelation_bound=auto_bound,

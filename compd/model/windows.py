@@ -37,7 +37,7 @@ class FailingWindow:
     conditions: Mapping[str, float] = field(default_factory=dict)
     """Mean of each condition signal over the window."""
     outside_calibration: tuple[str, ...] = ()
-    """Condition signals whose values in the window leave the calibration ``[min, max]``."""
+    """Condition signals whose mean over the window lies outside the calibration ``[min, max]``."""
 
 
 def failing_windows(
@@ -66,9 +66,10 @@ def failing_windows(
         their means.
     ranges
         Signal name -> ``(min, max)`` seen in the calibration data. A
-        condition whose minimum or maximum in a failing window leaves its
-        range is named in ``outside_calibration``; signals without a range
-        are not judged.
+        condition whose mean over a failing window lies outside its range is
+        named in ``outside_calibration`` (the mean, not single samples: a
+        constant signal's sensor noise must not put it "outside" a range that
+        is itself only noise wide); signals without a range are not judged.
     """
     time_s = np.asarray(time_s, dtype=float)
     residue = np.asarray(residue_um, dtype=float)
@@ -90,16 +91,12 @@ def failing_windows(
         n: np.add.reduceat(np.asarray(conditions[n], dtype=float), starts) / counts for n in names
     }
     judged = [n for n in names if n in ranges]
-    lows = {n: np.minimum.reduceat(np.asarray(conditions[n], dtype=float), starts) for n in judged}
-    highs = {n: np.maximum.reduceat(np.asarray(conditions[n], dtype=float), starts) for n in judged}
     windows = []
     for w in failing:
         start = time_s[0] + index[starts[w]] * window_s
         last = w == len(starts) - 1
         end = float(time_s[-1]) if last and time_s[-1] < start + window_s else start + window_s
-        outside = tuple(
-            n for n in judged if lows[n][w] < ranges[n][0] or highs[n][w] > ranges[n][1]
-        )
+        outside = tuple(n for n in judged if not ranges[n][0] <= means[n][w] <= ranges[n][1])
         windows.append(
             FailingWindow(
                 start_s=float(start),

@@ -90,3 +90,17 @@ def test_non_positive_tolerance_or_window_is_refused(
         failing_windows(
             record["time_s"], record["residue_um"], tolerance_um=tolerance_um, window_s=window_s
         )
+
+
+def test_sensor_noise_beyond_a_narrow_range_is_not_outside_calibration(record: dict) -> None:
+    """A constant signal whose noise pokes past its noise-wide calibration range stays inside: its mean is judged."""
+    rng = np.random.default_rng(4)
+    coolant = 21.5 + rng.normal(0.0, 0.03, len(record["time_s"]))
+    windows = failing_windows(
+        record["time_s"],
+        record["residue_um"],
+        tolerance_um=1.0,
+        conditions={"T_coolant_degC": coolant},
+        ranges={"T_coolant_degC": (21.45, 21.55)},  # narrower than the noise
+    )
+    assert windows and all(w.outside_calibration == () for w in windows)
