@@ -17,7 +17,13 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-SCRIPTS = ("bench_step.py", "bench_simulate.py", "bench_identify.py", "bench_tick.py", "bench_diagnose.py")
+SCRIPTS = (
+    "bench_step.py",
+    "bench_simulate.py",
+    "bench_identify.py",
+    "bench_tick.py",
+    "bench_diagnose.py",
+)
 #: Arguments per script: the tick benchmark's quick run (600 ticks at 0.1 s, 1 minute);
 #: its full run (600 real 1 Hz ticks, 10 minutes) is ``python benchmarks/bench_tick.py``.
 ARGS = {"bench_tick.py": ["--ticks", "600", "--period-s", "0.1"]}

@@ -90,3 +90,7 @@ class DriverDisconnectedError(DriverError):
 
 class DriverProtocolError(DriverError):
     """The device answered, but not as expected (unknown address, bad reply, wrong type)."""
+
+
+class ScenarioError(CompdError, ValueError):
+    """A twin scenario that cannot be generated: unknown name, bad duration or sample time."""

@@ -85,6 +85,7 @@ class SubModelDoc(_Strict):
     input: InputDoc
     tf: TFDoc
     gain: FiniteFloat = 1.0
+    gain_name: str | None = Field(default=None, min_length=1, pattern=r"^[A-Za-z_][A-Za-z0-9_.-]*$")
     gate: GateDoc | None = None
 
 
@@ -137,6 +138,39 @@ class ExtensionDoc(_Strict):
     created: str | None = None
 
 
+class CharacteristicDoc(_Strict):
+    """Seed 002 eq. 7: gain bounds from per-segment optima on a continuously measured run."""
+
+    data: str
+    segment_signal: str
+    segments: int = Field(ge=0)
+    bounds: dict[str, tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=dict)
+
+
+class UpdateDoc(_Strict):
+    """One ``compd update`` step: named gains re-optimised on sparse probe measurements (seed 002 eq. 8).
+
+    ``probe_values_um`` holds one list per probed output, aligned with
+    ``probe_times_s``; ``null`` where that axis was not probed at that instant.
+    """
+
+    parent_sha256: str
+    data: str
+    probes: str
+    probe_times_s: list[FiniteFloat] = Field(default_factory=list)
+    probe_values_um: dict[str, list[FiniteFloat | None]] = Field(default_factory=dict)
+    bounds: dict[str, tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=dict)
+    characteristic: CharacteristicDoc | None = None
+    gains_before: dict[str, FiniteFloat] = Field(default_factory=dict)
+    gains_after: dict[str, FiniteFloat] = Field(default_factory=dict)
+    probe_rms_before_um: FiniteFloat | None = None
+    probe_rms_after_um: FiniteFloat | None = None
+    fit_percent_before: dict[str, FiniteFloat] = Field(default_factory=dict)
+    fit_percent_after: dict[str, FiniteFloat] = Field(default_factory=dict)
+    seed: int | None = None
+    created: str | None = None
+
+
 class ProvenanceDoc(_Strict):
     data: str | None = None
     command: str | None = None
@@ -146,6 +180,7 @@ class ProvenanceDoc(_Strict):
     fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
     calibration: CalibrationDoc | None = None
     extensions: list[ExtensionDoc] = Field(default_factory=list)
+    updates: list[UpdateDoc] = Field(default_factory=list)
     notes: str = ""
 
 
@@ -259,6 +294,7 @@ def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
                     tf=tf,
                     gain=sub.gain,
                     gate=_gate(sub.gate),
+                    gain_name=sub.gain_name,
                 )
             )
         outputs.append(Output(out_name, tuple(subs)))

@@ -87,6 +87,8 @@ def _submodel(sub: SubModel) -> list[str]:
     ]
     if sub.gain != 1.0:
         lines.append(f"        gain: {yaml_float(sub.gain)}")
+    if sub.gain_name is not None:
+        lines.append(f"        gain_name: {_string(sub.gain_name)}")
     if sub.gate is not None:
         lines.append(f"        gate: {_gate(sub.gate)}")
     return lines

@@ -24,7 +24,9 @@ def figures(report: dict) -> dict:
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_golden_case(case: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+def test_golden_case(
+    case: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The command's JSON output equals the stored expected.json (figures to 1e-7 relative, across BLAS builds)."""
     monkeypatch.chdir(ROOT)
     assert main(shlex.split((case / "command").read_text())) == 0

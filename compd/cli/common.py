@@ -54,30 +54,9 @@ def fmt(value: float | None, digits: int = 2) -> str:
     return "n/a" if value is None or math.isnan(value) else f"{value:.{digits}f}"
 
 
-def json_clean(value: object) -> object:
-    """NaN becomes ``null`` (JSON has no NaN; scripts read undefined values as null)."""
-    return None if isinstance(value, float) and math.isnan(value) else value
-
-
 def print_notes(evaluation: Evaluation) -> None:
     for note in (*evaluation.data.notes, *evaluation.notes):
         print(f"note: {note}", file=sys.stderr)
-
-
-def compare_json(evaluation: Evaluation, comparisons: list[Comparison]) -> dict[str, object]:
-    """The ``compare --json`` object (key names are a contract, see the README)."""
-    return {
-        "model": evaluation.compiled.name,
-        "model_sha256": evaluation.model_file.sha256,
-        "data": evaluation.data.path,
-        "samples": len(evaluation.data),
-        "sample_time_s": evaluation.data.sample_time_s,
-        "notes": [*evaluation.data.notes, *evaluation.notes],
-        "outputs": {
-            c.output: {k: json_clean(v) for k, v in c.as_dict().items() if k != "output"}
-            for c in comparisons
-        },
-    }
 
 
 def comparison_table(evaluation: Evaluation, comparisons: list[Comparison]) -> Table:

@@ -30,7 +30,6 @@ from compd.analysis import (
     find_failing_windows,
 )
 from compd.cli.common import (
-    compare_json,
     comparison_table,
     console,
     data_options,
@@ -41,6 +40,7 @@ from compd.cli.service import register_model_load
 from compd.evaluate import compare, evaluate, measured_columns
 from compd.model.compiled import qualified_names
 from compd.modelfile import load_model
+from compd.summary import compare_summary
 
 
 def register(commands: Any) -> None:
@@ -74,6 +74,12 @@ def register(commands: Any) -> None:
     )
     cmp_.add_argument(
         "--json", action="store_true", help="print one JSON object instead of a table"
+    )
+    cmp_.add_argument(
+        "--report",
+        type=Path,
+        metavar="OUT.html",
+        help="also write the HTML report (as compd report does)",
     )
     cmp_.add_argument(
         "--window-s",
@@ -168,13 +174,19 @@ def _compare(args: argparse.Namespace) -> int:
         )
         for output, measured in measured_columns(evaluation, args.output).items()
     ]
+    if args.report:
+        from compd.report import write_report  # plotly is imported only when a report is asked for
+
+        write_report(
+            args.report,
+            evaluation,
+            column=args.output,
+            tolerance_um=args.tolerance_um,
+            window_s=args.window_s,
+        )
     if args.json:
-        report: dict[str, Any] = compare_json(evaluation, comparisons)
-        report["notes"] = [*report["notes"], *(n for w in windows for n in w.notes)]
-        report.update(windows_json(windows))
-        for w in windows:
-            report["outputs"][w.output]["window_tolerance_um"] = w.tolerance_um
-        print(json.dumps(report, indent=2, allow_nan=False))
+        summary = compare_summary(evaluation, comparisons, windows)
+        print(json.dumps(summary, indent=2, allow_nan=False))
         return 0
     print_notes(evaluation)
     for note in (n for w in windows for n in w.notes):
@@ -186,27 +198,6 @@ def _compare(args: argparse.Namespace) -> int:
         if result.windows:
             out.print(windows_table(result))
     return 0
-
-
-def windows_json(results: list[WindowsResult]) -> dict[str, object]:
-    """Top-level ``window_s``, ``window_tolerance_sources`` and ``failing_windows`` (a contract)."""
-    return {
-        "window_s": results[0].window_s if results else DEFAULT_WINDOW_S,
-        "window_tolerance_sources": {r.output: r.tolerance_source for r in results},
-        "failing_windows": [
-            {
-                "output": r.output,
-                "start_s": w.start_s,
-                "end_s": w.end_s,
-                # Rounded (to 1 nm and 6 decimals): figures, not bit patterns, across BLAS builds.
-                "rms_um": round(w.rms_um, 6),
-                "outside_calibration": list(w.outside_calibration),
-                "conditions": {k: round(v, 6) for k, v in w.conditions.items()},
-            }
-            for r in results
-            for w in r.windows
-        ],
-    }
 
 
 _SOURCES = {

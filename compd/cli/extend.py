@@ -15,7 +15,6 @@ from compd.cli.common import (
     console,
     data_options,
     fmt,
-    json_clean,
     load_data_from_args,
     order_arg,
 )
@@ -23,6 +22,7 @@ from compd.cli.progress import progress_reporter
 from compd.effects import load_catalogue
 from compd.extend import extend_model, verify_extension, with_verification
 from compd.modelfile import load_model
+from compd.summary import json_clean
 
 
 def register(commands: Any) -> None:

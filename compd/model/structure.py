@@ -70,6 +70,9 @@ class SubModel:
     tf: DiscreteTF | ContinuousTF
     gain: float = 1.0
     gate: Gate | None = None
+    #: The post-process gain this sub-model's ``gain`` is (seed 002 eq. 6: ``g1``, ``g2``);
+    #: sub-models sharing a name share the value. None: a fixed gain.
+    gain_name: str | None = None
 
 
 @dataclass(frozen=True)

@@ -23,14 +23,13 @@ from compd.analysis import (
     diagnose_evaluation,
     find_failing_windows,
 )
-from compd.cli.common import compare_json
-from compd.cli.evaluate import windows_json
 from compd.data import DataSet
 from compd.errors import DataFileError
 from compd.evaluate import Evaluation, measured_columns
 from compd.evaluate import compare as compare_outputs
 from compd.model.compiled import qualified_names
 from compd.model.metrics import Comparison
+from compd.summary import compare_summary
 
 
 @dataclass(frozen=True)
@@ -163,18 +162,6 @@ def _run(
         for c, w in zip(comparisons, windows, strict=True)
     }
     return ModelRun(evaluation, outputs, compare_summary(evaluation, comparisons, windows))
-
-
-def compare_summary(
-    evaluation: Evaluation, comparisons: list[Comparison], windows: list[WindowsResult]
-) -> dict[str, Any]:
-    """The object ``compd compare --json`` prints for the same evaluation and windows."""
-    summary: dict[str, Any] = compare_json(evaluation, comparisons)
-    summary["notes"] = [*summary["notes"], *(n for w in windows for n in w.notes)]
-    summary.update(windows_json(windows))
-    for w in windows:
-        summary["outputs"][w.output]["window_tolerance_um"] = w.tolerance_um
-    return summary
 
 
 def _diagnose(evaluation: Evaluation, output: str, measured: str) -> DiagnosisResult | str:

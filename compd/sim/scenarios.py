@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from compd.errors import CompdError
+from compd.errors import ScenarioError
 from compd.sim.machine import MachineParameters
 from compd.sim.sensors import (
     COLUMNS,
@@ -45,10 +45,6 @@ from compd.sim.thermal import InputRecord, simulate_record
 MAX_HOURS = 24.0 * 14
 MAX_SAMPLE_TIME_S = 60.0
 _MIN = 60.0
-
-
-class ScenarioError(CompdError, ValueError):
-    """A scenario that cannot be generated: unknown name, bad duration or sample time."""
 
 
 class _Steps:

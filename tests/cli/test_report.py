@@ -53,3 +53,13 @@ def test_report_on_a_missing_column_is_an_input_error(
     assert code == 2
     assert "example_spectrum.csv" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_compare_writes_the_same_report_beside_its_json(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``compare --json --report OUT`` prints the object the report embeds, figure for figure."""
+    out = tmp_path / "compare.html"
+    assert main(["compare", str(GATED), str(DATA), "--json", "--report", str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert summary(out.read_text(encoding="utf-8")) == printed
