@@ -222,7 +222,8 @@ def _with_submodel(model: Model, output: str, submodel: SubModel) -> Model:
     outputs = tuple(
         Output(o.name, (*o.submodels, submodel)) if o.name == output else o for o in model.outputs
     )
-    return Model(model.name, model.sample_time_s, outputs)
+    # A new name, so reports and logs can tell the extended model from its parent.
+    return Model(f"{model.name}+{submodel.input.signal}", model.sample_time_s, outputs)
 
 
 def _unique(name: str, taken: set[str]) -> str:
