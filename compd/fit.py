@@ -60,7 +60,10 @@ def identification_to_model(
     """One output ``output`` whose sub-models are the identified channels (inputs referenced to start).
 
     Gated channels get ``gate: {signal: gate_signal, above: 0, applies_to: input}``
-    (see :mod:`compd.model.identify` for why the input, not the output).
+    (see :mod:`compd.model.identify` for why the input, not the output). With a
+    phase gate the cooling sub-models share the gain ``g1`` and the
+    heating-difference ones ``g2`` (seed 002 eq. 6), so ``compd update`` can
+    re-weigh the two phases from probe measurements.
     """
     method = identification.method
     subs = []
@@ -76,6 +79,7 @@ def identification_to_model(
                     input=InputSpec(channel.input_name),
                     tf=channel.tf,
                     gate=Gate(gate_signal, 0.0, True, GateTarget.INPUT),
+                    gain_name="g2",
                 )
             )
         else:
@@ -90,6 +94,7 @@ def identification_to_model(
                     effect=effect,
                     input=InputSpec(channel.input_name),
                     tf=channel.tf,
+                    gain_name=None if gate_signal is None else "g1",
                 )
             )
     return Model(name, identification.sample_time_s, (Output(output, tuple(subs)),))

@@ -145,6 +145,8 @@ class CharacteristicDoc(_Strict):
     segment_signal: str
     segments: int = Field(ge=0)
     bounds: dict[str, tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=dict)
+    fit_percent_before: FiniteFloat | None = None
+    fit_percent_after: FiniteFloat | None = None
 
 
 class UpdateDoc(_Strict):

@@ -17,6 +17,7 @@ import pandas as pd
 from compd.cli.common import console
 from compd.errors import CompdError
 from compd.sim import SCENARIOS, simulate_scenario
+from compd.sim.variants import VARIANTS, machine_variant
 
 #: Decimals written per column kind: below each signal's noise, so nothing is lost.
 _DECIMALS = {"T_": 4, "disp_": 3, "spindle_power_kw": 4, "feed_": 1}
@@ -42,12 +43,23 @@ def register(commands: Any) -> None:
     twin.add_argument(
         "--sample-time-s", type=float, default=1.0, help="sample time, in s (default 1)"
     )
+    twin.add_argument(
+        "--variant",
+        default="reference",
+        choices=tuple(VARIANTS),
+        help="machine configuration: "
+        + "; ".join(f"{name}: {text}" for name, (_, text) in VARIANTS.items()),
+    )
     twin.set_defaults(handler=_twin)
 
 
 def _twin(args: argparse.Namespace) -> int:
     frame = simulate_scenario(
-        args.scenario, args.hours, seed=args.seed, sample_time_s=args.sample_time_s
+        args.scenario,
+        args.hours,
+        seed=args.seed,
+        sample_time_s=args.sample_time_s,
+        params=machine_variant(args.variant),
     )
     _write(_rounded(frame), args.out)
     out = console()
@@ -57,7 +69,8 @@ def _twin(args: argparse.Namespace) -> int:
     )
     out.print(
         f"wrote {len(frame)} samples x {len(frame.columns) - 1} signals ({args.scenario}, "
-        f"{args.hours:g} h at {args.sample_time_s:g} s, seed {args.seed}) to {args.out}; "
+        f"{args.hours:g} h at {args.sample_time_s:g} s, seed {args.seed}, {args.variant} machine) "
+        f"to {args.out}; "
         f"displacement range (um): {disp}"
     )
     return 0
