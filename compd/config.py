@@ -122,6 +122,15 @@ class RecorderDoc(_Strict):
     max_file_age_s: Positive = 86_400.0
     max_total_bytes: int = Field(default=2_000_000_000, ge=1024)
 
+    @model_validator(mode="after")
+    def _total_holds_a_file(self) -> RecorderDoc:
+        if self.max_total_bytes < self.max_file_bytes:
+            raise ValueError(
+                f"'max_total_bytes' ({self.max_total_bytes}) must be at least 'max_file_bytes' "
+                f"({self.max_file_bytes}): the open file alone may reach that size"
+            )
+        return self
+
 
 class EffectDoc(_Strict):
     """An entry of the effect catalogue: a physical effect and the signals that excite it."""

@@ -6,7 +6,9 @@ the named columns as changes from their first value (the convention
 compare reproduces), turns the phase-gate column into a gate, builds the
 :class:`~compd.model.structure.Model` and its provenance (the calibration
 data's fit, residue RMS and the range of every column, which compare uses to
-flag operating conditions the model never saw).
+flag operating conditions the model never saw). With a position column
+(seed 003 eq. 5) every input also gets a slope sub-model whose contribution
+is multiplied by ``position - reference_mm``.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from compd.data import DataSet
 from compd.errors import DataFileError, ModelError
 from compd.model.identify import MAX_ORDER, METHODS, Identification, Method, Progress, identify
 from compd.model.metrics import Comparison
-from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, SubModel
+from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
 from compd.modelfile import CalibrationDoc, ProvenanceDoc
 from compd.modelwriter import model_to_yaml
 
@@ -56,6 +58,7 @@ def identification_to_model(
     output: str,
     name: str,
     gate_signal: str | None = None,
+    position: Position | None = None,
 ) -> Model:
     """One output ``output`` whose sub-models are the identified channels (inputs referenced to start).
 
@@ -63,12 +66,26 @@ def identification_to_model(
     (see :mod:`compd.model.identify` for why the input, not the output). With a
     phase gate the cooling sub-models share the gain ``g1`` and the
     heating-difference ones ``g2`` (seed 002 eq. 6), so ``compd update`` can
-    re-weigh the two phases from probe measurements.
+    re-weigh the two phases from probe measurements. Slope channels (seed
+    003 ``m1``) get ``position`` and are named ``INPUT_slope``.
     """
     method = identification.method
     subs = []
     for channel in identification.channels:
-        if channel.gated:
+        if channel.sloped:
+            if position is None:
+                raise ModelError("a slope channel needs the position signal")
+            subs.append(
+                SubModel(
+                    name=f"{channel.input_name}_slope",
+                    effect=f"{channel.input_name}: slope in um per mm, times "
+                    f"({position.signal} - {position.reference_mm:g} mm) ({method})",
+                    input=InputSpec(channel.input_name),
+                    tf=channel.tf,
+                    position=position,
+                )
+            )
+        elif channel.gated:
             if gate_signal is None:
                 raise ModelError("a gated channel needs the gate signal's name")
             subs.append(
@@ -86,6 +103,8 @@ def identification_to_model(
             effect = (
                 f"{channel.input_name}: cooling, always on ({method})"
                 if gate_signal is not None
+                else f"{channel.input_name}: offset at every position ({method})"
+                if position is not None
                 else f"{channel.input_name} ({method})"
             )
             subs.append(
@@ -146,6 +165,50 @@ def _check_arguments(
             )
 
 
+def _check_position(
+    data: DataSet,
+    position: str,
+    reference_mm: float,
+    output: str,
+    inputs: Sequence[str],
+    phase_gate: str | None,
+) -> None:
+    """Refuse a position column the slope cannot be identified from (file, place, fix)."""
+    where = f"--position {position}"
+    if position == output or position in inputs:
+        raise DataFileError(
+            data.path,
+            f"the position column {position!r} is also the output or an input",
+            where=where,
+            fix="The position multiplies the slope sub-models; do not list it in --inputs",
+        )
+    if phase_gate is not None:
+        raise DataFileError(
+            data.path,
+            "--position and --phase-gate together are not supported",
+            where=where,
+            fix="Fit the feed axis with --position only (its screw heats while it moves)",
+        )
+    if not np.isfinite(reference_mm):
+        raise DataFileError(
+            data.path,
+            f"the reference position {reference_mm} is not a finite number",
+            where="--position-reference-mm",
+            fix="Give the position in mm at which the slope term is zero (e.g. 0)",
+        )
+    values = data.column(position)  # an unknown column names the file's columns
+    distinct = np.unique(values)
+    if distinct.size < 2:
+        raise DataFileError(
+            data.path,
+            f"column {position!r} holds one position ({distinct[0]:g} mm) over the whole record, "
+            "so the slope (um per mm) cannot be told from the offset",
+            where=f"column {position!r}",
+            fix="Calibrate with measurements at two or more positions along the axis (seed "
+            "003: e.g. both ends and the middle), or fit without --position",
+        )
+
+
 def fit_data(
     data: DataSet,
     *,
@@ -154,11 +217,16 @@ def fit_data(
     method: Method = "oe",
     order: int | str = "auto",
     phase_gate: str | None = None,
+    position: str | None = None,
+    position_reference_mm: float = 0.0,
     name: str | None = None,
     command: str | None = None,
     progress: Progress | None = None,
 ) -> FitResult:
     """Identify ``output`` from ``inputs`` (columns of ``data``) and build the model file.
+
+    ``position``: an axis-position column (mm); every input then also gets a
+    slope sub-model multiplied by ``position - position_reference_mm``.
 
     Raises :class:`~compd.errors.DataFileError` (naming the file, the option or
     column, and the fix) for bad arguments and for data the method cannot fit.
@@ -169,6 +237,10 @@ def fit_data(
     gate = None
     if phase_gate is not None:
         gate = data.column(phase_gate) > 0.0
+    slope = None
+    if position is not None:
+        _check_position(data, position, position_reference_mm, output, inputs, phase_gate)
+        slope = Position(position, float(position_reference_mm))
     try:
         identification = identify(
             y,
@@ -177,19 +249,22 @@ def fit_data(
             method=method,
             order="auto" if order == "auto" else int(order),
             gate=gate,
+            position=None if slope is None else data.column(position) - slope.reference_mm,
             progress=progress,
         )
     except ModelError as exc:
         where = f"--phase-gate {phase_gate}" if "phase-gate" in exc.message else ""
+        where = f"--position {position}" if "position" in exc.message else where
         raise DataFileError(data.path, exc.message, where=where) from exc
     model = identification_to_model(
         identification,
         output=output,
         name=name or f"{output}-{method}",
         gate_signal=phase_gate,
+        position=slope,
     )
     comparison = Comparison.of(output, y, identification.simulated_um)
-    provenance = _provenance(data, identification, comparison, command, phase_gate)
+    provenance = _provenance(data, identification, comparison, command, phase_gate, slope)
     signals = {signal: unit_of(signal) for signal in model.signals()}
     text = model_to_yaml(
         model,
@@ -206,6 +281,7 @@ def _provenance(
     comparison: Comparison,
     command: str | None,
     phase_gate: str | None,
+    position: Position | None = None,
 ) -> ProvenanceDoc:
     output = comparison.output
     orders = identification.orders
@@ -225,6 +301,12 @@ def _provenance(
         notes.append(
             f"phase gate {phase_gate} > 0 switches the heating-difference TFs' inputs "
             "(seed 002 eq. 5 switches their outputs; see compd.model.identify)"
+        )
+    if position is not None:
+        notes.append(
+            f"slope sub-models are multiplied by ({position.signal} - {position.reference_mm:g} "
+            "mm) after their TF; their numerators were refitted in that form (see "
+            "compd.model.position)"
         )
     ranges = {
         column: (float(np.min(values)), float(np.max(values)))

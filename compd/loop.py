@@ -141,6 +141,7 @@ class ModelSlot:
         self.runner: TickRunner | None = None
         self.outputs = np.full(len(compiled.output_names), np.nan)
         self.names = list(qualified_names(compiled))
+        self._index = {name: i for i, name in enumerate(compiled.output_names)}
         owners = compiled.output_matrix.argmax(axis=0)
         #: Signals each output depends on (inputs, minus signals and gates of its sub-models).
         self.depends: dict[str, set[str]] = {name: set() for name in compiled.output_names}
@@ -156,7 +157,7 @@ class ModelSlot:
         self.runner = TickRunner(self.compiled, state)
 
     def output(self, name: str) -> float:
-        return float(self.outputs[self.compiled.output_names.index(name)])
+        return float(self.outputs[self._index[name]])
 
 
 @dataclass
@@ -258,7 +259,9 @@ class Compensator:
         weight = min(1.0, (t_s - self.blend_start_s) / self.blend_s) if self.blend_s else 1.0
         if weight >= 1.0:
             self.previous = None
-        targets, offsets, flags = {}, {}, set()
+        targets: dict[str, float] = {}
+        offsets: dict[str, float] = {}
+        flags: set[Flag] = set()
         any_frozen = False
         for axis in self.axes:
             output = self.active.output(axis.model_output)
@@ -271,8 +274,10 @@ class Compensator:
             result = self.safety[axis.name].step(target, t_s, faulted=faulted)
             offsets[axis.name] = result.offset_um
             any_frozen |= faulted
-            flags |= {Flag.CLAMPED} if result.clamped else set()
-            flags |= {Flag.SLEWING} if result.slewed else set()
+            if result.clamped:
+                flags.add(Flag.CLAMPED)
+            if result.slewed:
+                flags.add(Flag.SLEWING)
         if self.active.runner is None:
             flags.add(Flag.STARTING)
         if not all(link.up for link in self.links.values()):

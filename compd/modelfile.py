@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from compd.errors import ModelError, ModelFileError
 from compd.model.compiled import CompiledModel, compile_model
-from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, SubModel
+from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
 from compd.yamlplace import describe as _describe
 from compd.yamlplace import where as _where
@@ -58,6 +58,13 @@ class GateDoc(_Strict):
         return self
 
 
+class PositionDoc(_Strict):
+    """Seed 003's slope term: the sub-model's contribution times ``(signal - reference_mm)``."""
+
+    signal: str = Field(min_length=1)
+    reference_mm: FiniteFloat = 0.0
+
+
 class TFDoc(_Strict):
     form: Literal["continuous", "discrete"]
     power_order: Literal["ascending", "descending"]
@@ -87,6 +94,7 @@ class SubModelDoc(_Strict):
     gain: FiniteFloat = 1.0
     gain_name: str | None = Field(default=None, min_length=1, pattern=r"^[A-Za-z_][A-Za-z0-9_.-]*$")
     gate: GateDoc | None = None
+    position: PositionDoc | None = None
 
 
 class OutputDoc(_Strict):
@@ -269,7 +277,12 @@ def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
         subs = []
         for i, sub in enumerate(out_doc.submodels):
             location: tuple[str | int, ...] = ("outputs", out_name, "submodels", i)
-            used = [sub.input.signal, sub.input.minus, sub.gate.signal if sub.gate else None]
+            used = [
+                sub.input.signal,
+                sub.input.minus,
+                sub.gate.signal if sub.gate else None,
+                sub.position.signal if sub.position else None,
+            ]
             undeclared = [s for s in used if s and declared is not None and s not in declared]
             if undeclared:
                 raise ModelFileError(
@@ -297,6 +310,11 @@ def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
                     gain=sub.gain,
                     gate=_gate(sub.gate),
                     gain_name=sub.gain_name,
+                    position=(
+                        None
+                        if sub.position is None
+                        else Position(sub.position.signal, sub.position.reference_mm)
+                    ),
                 )
             )
         outputs.append(Output(out_name, tuple(subs)))

@@ -91,6 +91,11 @@ def _submodel(sub: SubModel) -> list[str]:
         lines.append(f"        gain_name: {_string(sub.gain_name)}")
     if sub.gate is not None:
         lines.append(f"        gate: {_gate(sub.gate)}")
+    if sub.position is not None:
+        lines.append(
+            f"        position: {{signal: {_string(sub.position.signal)}, "
+            f"reference_mm: {yaml_float(sub.position.reference_mm)}}}"
+        )
     return lines
 
 
@@ -150,6 +155,11 @@ def model_to_yaml(
             "    submodels:",
         ]
         for sub in output.submodels:
+            if sub.position is not None:
+                lines.append(
+                    "      # slope term (seed 003 m1(T) * P): this TF is in um per mm, multiplied by "
+                    "the position minus reference_mm"
+                )
             if sub.gate is not None and sub.gate.target.value == "input":
                 lines.append(
                     "      # gated input: when the gate closes this contribution decays "

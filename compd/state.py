@@ -142,7 +142,11 @@ def resume_decision(
     if saved.model_sha256 != model_sha256:
         return Resume(False, f"saved state belongs to model {saved.model_sha256[:12]}")
     age_s = now_unix_s - saved.saved_at_unix_s
-    if not 0 <= age_s <= max_age_s:
+    if age_s < 0:
+        # The wall clock was set back, or the state was saved by a time-scaled run
+        # (``compd run --time-scale``), whose clock runs ahead of real time.
+        return Resume(False, f"saved state is stamped {-age_s:.0f} s in the future")
+    if age_s > max_age_s:
         return Resume(False, f"saved state is {age_s:.0f} s old (limit {max_age_s:g} s)")
     try:
         compiled.check_state(saved.model_state)

@@ -114,7 +114,7 @@ def _model_check(args: argparse.Namespace) -> int:
         "time constants (s)",
         "static gain (um/unit)",
         "gain",
-        "gate",
+        "gate, position",
     )
     table.columns.insert(0, Column("sub-model", no_wrap=True))
     for name, sub, tf in zip(
@@ -130,7 +130,7 @@ def _model_check(args: argparse.Namespace) -> int:
             ", ".join(f"{t:.1f}" for t in tf.time_constants_s(compiled.sample_time_s)) or "-",
             f"{tf.static_gain():.4g}",
             f"{sub.gain:g}",
-            sub.gate.describe() if sub.gate else "always",
+            sub.describe_factors(),
         )
     out.print(table)
     out.print("[green]ok[/green]: compiles, causal and stable")

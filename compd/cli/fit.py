@@ -41,6 +41,20 @@ def register(commands: Any) -> None:
         "and a heating-difference TF whose input is switched on while SIGNAL > 0",
     )
     parser.add_argument(
+        "--position",
+        metavar="SIGNAL",
+        help="position-dependent feed-axis error (seed 003: m1(T)*P + m2(T)): per input an "
+        "offset TF and a slope TF (um per mm) multiplied by SIGNAL minus the reference; the data "
+        "must hold measurements at two or more positions",
+    )
+    parser.add_argument(
+        "--position-reference-mm",
+        type=float,
+        default=0.0,
+        metavar="MM",
+        help="position at which the slope term is zero, in mm (default 0)",
+    )
+    parser.add_argument(
         "--order",
         default="auto",
         metavar="auto|N",
@@ -99,6 +113,8 @@ def _fit(args: argparse.Namespace) -> int:
             method=args.method,
             order=order,
             phase_gate=args.phase_gate,
+            position=args.position,
+            position_reference_mm=args.position_reference_mm,
             name=args.name,
             command=command,
             progress=progress,
@@ -130,7 +146,7 @@ def _report(result: FitResult, args: argparse.Namespace) -> None:
         table.add_row(
             sub.name,
             channel.input_name,
-            sub.gate.describe() if sub.gate else "always",
+            sub.describe_factors(),
             str(len(tf.num)),
             str(tf.order),
             str(tf.nk),

@@ -24,6 +24,7 @@ from compd.notify import SystemdNotifier
 from compd.safety import Level
 from compd.service import Service, install_and_announce
 from compd.signals import Health
+from compd.state import installed_model
 from compd.yamlplace import resolve_path
 
 DEFAULT_CONFIG = Path("/etc/compd/compd.yaml")
@@ -101,7 +102,9 @@ def _config(text: str) -> Config:
 
 def _check_config(args: argparse.Namespace) -> int:
     config = _config(args.config)
-    model_path = config.model_path
+    # The model `compd run` would start with: the installed one, else the config's.
+    installed = installed_model(config.state_dir)
+    model_path = installed or config.model_path
     model_file = load_model(model_path)
     compiled = model_file.compile(config.doc.period_s)
     check_model(config, model_file, compiled)
@@ -111,6 +114,7 @@ def _check_config(args: argparse.Namespace) -> int:
     out.print(
         f"  model {compiled.name} ({model_path}, sha256 {model_file.sha256[:12]}) at "
         f"{doc.period_s:g} s; outputs {', '.join(compiled.output_names)}"
+        + (" (installed with 'compd model load')" if installed else "")
     )
     out.print(f"  drivers: {', '.join(f'{n} ({d.type})' for n, d in doc.drivers.items())}")
     out.print(f"  signals: {', '.join(doc.signals)}")
@@ -189,9 +193,9 @@ def _status(args: argparse.Namespace) -> int:
         f"heartbeat {reply['heartbeat']}"
     )
     for axis, value in reply["offsets_um"].items():
-        out.print(
-            f"  offset {axis}: {value:+.3f} um (model {reply['targets_um'].get(axis, 0):+.3f})"
-        )
+        target = reply["targets_um"].get(axis)
+        model = "not started" if target is None else f"{target:+.3f} um"
+        out.print(f"  offset {axis}: {value:+.3f} um (model {model})")
     for name, info in reply["inputs"].items():
         value = "n/a" if info["value"] is None else f"{info['value']:.3f}"
         reason = f"  {info['reason']}" if info["reason"] else ""

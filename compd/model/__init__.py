@@ -9,7 +9,15 @@ from compd.model.diagnose import CandidateScore, Diagnosis, diagnose_residue
 from compd.model.identify import Identification, IdentifiedTF, identify
 from compd.model.metrics import Comparison, ErrorStats, fit_percent
 from compd.model.run import SimulationResult, TickRunner, simulate
-from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, SubModel
+from compd.model.structure import (
+    Gate,
+    GateTarget,
+    InputSpec,
+    Model,
+    Output,
+    Position,
+    SubModel,
+)
 from compd.model.transfer import ContinuousTF, DiscreteTF
 from compd.model.windows import FailingWindow, failing_windows
 
@@ -30,6 +38,7 @@ __all__ = [
     "Model",
     "ModelState",
     "Output",
+    "Position",
     "SimulationResult",
     "SubModel",
     "TickRunner",

@@ -10,7 +10,12 @@ length ``L`` so all sub-models advance together in transposed direct form II
     z_i(k)     = b_{i+1} u(k) - a_{i+1} y(k) + z_{i+1}(k-1)
 
 Signals are gathered by index into an extended signal vector whose last two
-slots hold the constants 0 (for "no minus signal") and 1 (for "no gate").
+slots hold the constants 0 (for "no minus signal") and 1 (for "no gate",
+"no position"). A position multiplier (seed 003 eq. 5, ``m1(T) * P``)
+scales each sub-model's output by ``extended[position_index] -
+position_reference_mm``, which is ``1 - 0`` for sub-models without one; it
+scales the output, never the TF's state, so steady and rest states do not
+depend on it.
 """
 
 from __future__ import annotations
@@ -75,6 +80,8 @@ class CompiledModel:
     gate_sign: np.ndarray  # (S,) +1 active above threshold, -1 active below
     gate_on_input: np.ndarray  # (S,) bool
     gain: np.ndarray  # (S,)
+    position_index: np.ndarray  # (S,) index of the position signal, or the constant-1 slot
+    position_reference_mm: np.ndarray  # (S,) subtracted from the position; 0 without one
     output_matrix: np.ndarray  # (n_outputs, S) 0/1: which sub-models sum into which output
 
     @cached_property
@@ -122,6 +129,13 @@ class CompiledModel:
             extended.take(self.gate_index, axis=-1) * self.gate_sign > self.signed_threshold
         )
         return opened
+
+    def position_factors(self, extended: np.ndarray) -> np.ndarray:
+        """``position - reference_mm`` per sub-model (mm), 1 for sub-models without a position."""
+        factors: np.ndarray = (
+            extended.take(self.position_index, axis=-1) - self.position_reference_mm
+        )
+        return factors
 
     def check_state(self, state: ModelState) -> None:
         """Refuse a state that belongs to a different model structure."""
@@ -240,6 +254,13 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
             [s.gate is not None and s.gate.target is GateTarget.INPUT for s in subs]
         ),
         gain=np.array([s.gain for s in subs], dtype=float),
+        position_index=np.array(
+            [one_slot if s.position is None else index[s.position.signal] for s in subs],
+            dtype=np.intp,
+        ),
+        position_reference_mm=np.array(
+            [0.0 if s.position is None else s.position.reference_mm for s in subs], dtype=float
+        ),
         output_matrix=output_matrix,
     )
 

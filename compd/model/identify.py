@@ -30,6 +30,12 @@ when the spindle stops the extra heating contribution decays with the TF's
 own time constants instead of dropping to zero in one sample, which a steel
 structure cannot do. The model file records it as ``applies_to: input``.
 
+Position (seed 003 eq. 5): with ``position`` (``P - P_ref``, mm), every
+input gets an offset channel on ``u_i`` and a slope channel whose TF output is
+multiplied by the position; see :mod:`compd.model.position` for how they are
+fitted (as input channels ``u_i * P``, then numerators refitted with ``P``
+after the TF).
+
 Every fit reported is the seed 001 eq. 2 fit of the free-run simulation from
 rest (inputs as changes from start, as ``compd compare`` runs the model), never
 a one-step prediction.
@@ -55,6 +61,13 @@ from compd.model.orders import (
     search_arx,
     split_index,
 )
+from compd.model.position import (
+    channel_scales,
+    check_position,
+    refine_scaled,
+    refit_numerators,
+    simulate_scaled,
+)
 from compd.model.transfer import DiscreteTF
 
 Method = Literal["arx", "oe", "mlr"]
@@ -78,6 +91,7 @@ class IdentifiedTF:
     input_name: str
     tf: DiscreteTF
     gated: bool  # True for the heating-difference channel of a phase gate
+    sloped: bool = False  # True for a slope channel (seed 003 m1): output times the position
 
 
 @dataclass(frozen=True)
@@ -108,16 +122,25 @@ class Identification:
 
 
 def _channels(
-    inputs: Mapping[str, np.ndarray], gate: np.ndarray | None, n: int
-) -> tuple[list[tuple[str, bool]], np.ndarray]:
-    """Channel names and an (n, n_channels) Fortran-ordered array: each channel contiguous."""
+    inputs: Mapping[str, np.ndarray],
+    gate: np.ndarray | None,
+    n: int,
+    position: np.ndarray | None = None,
+) -> tuple[list[tuple[str, bool, bool]], np.ndarray]:
+    """Channels ``(name, gated, sloped)`` and an (n, n_channels) Fortran-ordered array.
+
+    A gated channel is ``u_i * gate``, a slope channel ``u_i * position``
+    (step 1 of :mod:`compd.model.position`); each channel is contiguous.
+    """
     if not inputs:
         raise ModelError("no inputs given: name at least one input signal")
-    names: list[tuple[str, bool]] = []
+    names: list[tuple[str, bool, bool]] = []
     for name in inputs:
-        names.append((name, False))
+        names.append((name, False, False))
         if gate is not None:
-            names.append((name, True))
+            names.append((name, True, False))
+        if position is not None:
+            names.append((name, False, True))
     u = np.empty((n, len(names)), order="F")
     column = 0
     for name, values in inputs.items():
@@ -134,9 +157,10 @@ def _channels(
             )
         u[:, column] = values
         column += 1
-        if gate is not None:
-            np.multiply(values, gate, out=u[:, column])
-            column += 1
+        for scale in (gate, position):
+            if scale is not None:
+                np.multiply(values, scale, out=u[:, column])
+                column += 1
     return names, u
 
 
@@ -164,6 +188,7 @@ def identify(
     method: Method = "oe",
     order: int | Literal["auto"] = "auto",
     gate: np.ndarray | None = None,
+    position: np.ndarray | None = None,
     progress: Progress | None = None,
 ) -> Identification:
     """Identify TFs from ``inputs`` (changes from start) to ``y`` (um), sampled every ``sample_time_s``.
@@ -171,6 +196,8 @@ def identify(
     ``order``: ``"auto"`` (chosen on held-back data) or ``N`` in 1..3
     (``na = nb_i = N``, ``nk_i = 1`` for ARX; ``nf_i = nb_i = N``, ``nk_i = 1`` for
     OE; ignored by MLR). ``gate``: True while the phase-gate signal is > 0.
+    ``position``: ``P - P_ref`` in mm (seed 003 slope channels), at two or
+    more distinct values; not together with ``gate``.
     Raises :class:`ModelError` on bad arguments and on a fixed-order fit that
     is unstable.
     """
@@ -187,7 +214,12 @@ def identify(
         isinstance(order, bool) or int(order) != order or not 1 <= int(order) <= MAX_ORDER
     ):
         raise ModelError(f"order must be 'auto' or a whole number 1..{MAX_ORDER}, got {order!r}")
-    names, u = _channels(inputs, _check_gate(gate, y.size), y.size)
+    if gate is not None and position is not None:
+        raise ModelError(
+            "a phase gate and a position together are not supported; fit the axis with one"
+        )
+    scale = None if position is None else check_position(position, y.size)
+    names, u = _channels(inputs, _check_gate(gate, y.size), y.size, scale)
 
     def report(message: str, fraction: float) -> None:
         if progress is not None:
@@ -214,10 +246,17 @@ def identify(
             for b, f, nk in zip(oe.b, oe.f, oe.nk, strict=True)
         ]
         simulated = simulate_channels(tfs, u)
+    if scale is not None:
+        sloped = [slope for _, _, slope in names]
+        unscaled = np.column_stack([np.asarray(inputs[name], dtype=float) for name, _, _ in names])
+        scales = channel_scales(sloped, scale)
+        tfs = refine_scaled(y, unscaled, refit_numerators(y, unscaled, tfs, scales), scales)
+        simulated = simulate_scaled(tfs, unscaled, scales)
     return Identification(
         method=method,
         channels=tuple(
-            IdentifiedTF(name, tf, gated) for (name, gated), tf in zip(names, tfs, strict=True)
+            IdentifiedTF(name, tf, gated, sloped)
+            for (name, gated, sloped), tf in zip(names, tfs, strict=True)
         ),
         sample_time_s=float(sample_time_s),
         fit_percent=fit_percent(y, simulated),

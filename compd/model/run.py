@@ -46,6 +46,10 @@ def df2t_matrix(b: np.ndarray, a: np.ndarray) -> np.ndarray:
 class TickRunner:
     """Stateful per-tick evaluation: ``step(signals) -> outputs`` (um, one per axis output).
 
+    Position signals (seed 003's slope terms) are read like any other signal,
+    so a daemon that feeds the model its :attr:`CompiledModel.signals` each
+    tick reads the axis position each tick with no change of its own.
+
     All sub-models advance together as one matrix-vector product
     (:func:`df2t_matrix`), so a tick costs a few small numpy operations
     whatever the number of sub-models, and no allocation of the state.
@@ -63,6 +67,8 @@ class TickRunner:
         self._extended = compiled.extended(np.zeros(self._n_signals))
         self._input_ungated = ~compiled.gate_on_input
         self._weighted_outputs = compiled.output_matrix * compiled.gain
+        # Models without slope terms skip the (all-ones) position factors.
+        self._positioned = bool(np.any(compiled.position_index < self._n_signals))
         #: Each sub-model's contribution (um) at the last tick, gain and gate applied.
         self.contributions = np.zeros(n_subs)
 
@@ -98,6 +104,8 @@ class TickRunner:
         x[: self._n_z] = advanced[: self._n_z]
         y = advanced[self._n_z :]
         y *= opened | compiled.gate_on_input
+        if self._positioned:
+            y *= compiled.position_factors(extended)
         self.contributions = y * compiled.gain
         outputs: np.ndarray = self._weighted_outputs @ y
         return outputs
@@ -108,7 +116,7 @@ class SimulationResult:
     """Model outputs over a whole record.
 
     ``outputs``: (N, n_outputs) in um; ``contributions``: (N, n_submodels) in
-    um, gain and gate applied; ``final_state``: the state after the last sample.
+    um, gain, gate and position factor applied; ``final_state``: the state after the last sample.
     """
 
     outputs: np.ndarray
@@ -161,6 +169,9 @@ def simulate(compiled: CompiledModel, signals: np.ndarray, state: ModelState) ->
             response = compiled.b[s, 0] * u
         if gate is not None and not compiled.gate_on_input[s]:
             response *= gate
+        # CompiledModel.position_factors on one row (seed 003's m1(T) * (P - P_ref)).
+        if compiled.position_index[s] < n_signals:
+            response *= rows[compiled.position_index[s]] - compiled.position_reference_mm[s]
         np.multiply(response, compiled.gain[s], out=contributions[s])
     outputs = (compiled.output_matrix @ contributions).T
     contributions = contributions.T

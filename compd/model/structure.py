@@ -3,10 +3,15 @@
 Seed 001 superposes one TF per physical effect; seed 002 eq. 5/6 adds a gate
 (``g_n = 1`` while the spindle turns) and post-process gains ``g1, g2``::
 
-    disp_z = sum_i  gain_i * gate_i(k) * TF_i( input_i(k) )
+    disp_z = sum_i  gain_i * gate_i(k) * (P_i(k) - P_ref,i) * TF_i( input_i(k) )
 
 where ``input_i`` is a signal, or the difference of two signals, taken as a
-change from a reference (its value at start, or a fixed value).
+change from a reference (its value at start, or a fixed value). Seed 003
+eq. 5 adds position-dependent feed-axis errors ``m1(T) * P + m2(T)``: a
+sub-model with a ``position`` has its contribution multiplied by the axis
+position minus a reference (its TF then gives a slope in um per mm, ``m1``,
+as SINUMERIK's TEMP_COMP_SLOPE with its reference position); sub-models
+without one (factor 1) give the offset ``m2``.
 
 These are plain frozen values; the model file layer builds them, the
 compiler turns them into flat arrays.
@@ -61,6 +66,17 @@ class Gate:
 
 
 @dataclass(frozen=True)
+class Position:
+    """Multiply a contribution by ``signal - reference_mm`` (an axis position in mm, seed 003 eq. 5)."""
+
+    signal: str
+    reference_mm: float = 0.0
+
+    def describe(self) -> str:
+        return f"x ({self.signal} - {self.reference_mm:g} mm)"
+
+
+@dataclass(frozen=True)
 class SubModel:
     """One physical effect's contribution to one axis output."""
 
@@ -73,6 +89,23 @@ class SubModel:
     #: The post-process gain this sub-model's ``gain`` is (seed 002 eq. 6: ``g1``, ``g2``);
     #: sub-models sharing a name share the value. None: a fixed gain.
     gain_name: str | None = None
+    #: Seed 003's slope term: the contribution times ``(position - reference_mm)``. None: factor 1.
+    position: Position | None = None
+
+    def signals(self) -> tuple[str, ...]:
+        """The signals this sub-model reads: input, minus, gate and position, in that order."""
+        names = (
+            self.input.signal,
+            self.input.minus,
+            self.gate and self.gate.signal,
+            self.position and self.position.signal,
+        )
+        return tuple(name for name in names if name)
+
+    def describe_factors(self) -> str:
+        """When and by what the contribution is multiplied: gate and position, or ``always``."""
+        factors = [f.describe() for f in (self.gate, self.position) if f is not None]
+        return "; ".join(factors) or "always"
 
 
 @dataclass(frozen=True)
@@ -96,7 +129,6 @@ class Model:
         seen: dict[str, None] = {}
         for output in self.outputs:
             for sub in output.submodels:
-                for name in (sub.input.signal, sub.input.minus, sub.gate and sub.gate.signal):
-                    if name:
-                        seen.setdefault(name, None)
+                for name in sub.signals():
+                    seen.setdefault(name, None)
         return tuple(seen)

@@ -203,7 +203,7 @@ def model_card(run: ModelRun, index: int) -> str:
             escape(sub.effect),
             escape(sub.input.describe()),
             f"{sub.gain:g}",
-            escape(sub.gate.describe()) if sub.gate else "always",
+            escape(sub.describe_factors()),
         ]
         for out, sub in zip(
             (compiled.output_names[o] for o in compiled.output_matrix.argmax(axis=0)),

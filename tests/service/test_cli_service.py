@@ -115,9 +115,13 @@ def test_status_model_load_and_sigterm_on_a_running_daemon(tmp_path, capsys):
         retuned.write_text(config.model_path.read_text().replace("example-gated-arx-y", "retuned"))
         assert main(["model", "load", str(retuned), "--config", str(config.path)]) == 0
         assert "the daemon is switching to it" in capsys.readouterr().out
-        time.sleep(0.5)
-        assert main(["status", "--config", str(config.path), "--json"]) == 0
-        status = json.loads(capsys.readouterr().out)
+        deadline = time.monotonic() + 30
+        while True:  # the switch happens at the next tick with complete inputs
+            assert main(["status", "--config", str(config.path), "--json"]) == 0
+            status = json.loads(capsys.readouterr().out)
+            if status["model"]["name"] == "retuned" or time.monotonic() > deadline:
+                break
+            time.sleep(0.1)
         assert status["model"]["name"] == "retuned" and status["counters"]["model_loads"] == 1
     finally:
         daemon.send_signal(signal.SIGTERM)

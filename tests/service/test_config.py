@@ -124,3 +124,13 @@ def test_axis_naming_a_missing_model_output(tmp_path):
         ConfigFileError, match=r"outputs.Y.model_output.*Use one of \['disp_y_um'\]"
     ):
         check_model(config, model_file, model_file.compile(1.0))
+
+
+def test_recorder_total_must_hold_one_file(tmp_path):
+    """A recorder total limit below one file's limit is refused at load, naming the recorder section."""
+    text = (
+        BUNDLED_SIMULATED.read_text()
+        + "recorder: {max_file_bytes: 100000, max_total_bytes: 50000}\n"
+    )
+    message = error_for(tmp_path, text)
+    assert "(recorder)" in message and "must be at least 'max_file_bytes'" in message

@@ -12,6 +12,7 @@ from numpy.testing import assert_allclose
 
 from compd.clock import VirtualClock
 from compd.control import request
+from compd.data import load_data
 from compd.model.run import simulate
 from compd.modelfile import load_model
 from compd.safety import SIGNAL_BIT0, Flag, Level
@@ -214,3 +215,15 @@ def test_first_write_after_a_drop_is_within_one_slew_step(tmp_path):
     assert np.all(np.abs(np.diff(written)) <= 0.1 + 1e-12)
     # The target ran far ahead of the last written offset during the drop.
     assert abs(records[180].targets_um["Y"] - records[149].offsets_um["Y"]) > 5
+
+
+def test_recordings_load_as_data_on_the_tick_grid(tmp_path):
+    """The recorder's files load with compd's data loader at the period, with inputs, contributions and offsets."""
+    config = write_config(tmp_path, {"recorder": {"enabled": True}})
+    _, records = run(config, 600.0)
+    (path,) = (config.state_dir / "records").glob("compd-*.csv")
+    data = load_data(path)
+    assert data.sample_time_s == 1.0 and len(data) == len(records) and not data.notes
+    assert_allclose(data.column("offset.Y_um"), offsets(records))
+    for column in ("T_spindle_degC", "model.disp_y_um.heating_difference", "status", "heartbeat"):
+        assert data.has(column)

@@ -74,7 +74,7 @@ def test_missing_and_malformed_state(tmp_path):
         (None, 1500.0, True, "500 s old"),
         ("0" * 64, 1500.0, False, "belongs to model 000000000000"),
         (None, 1000.0 + 901.0, False, "901 s old (limit 900 s)"),
-        (None, 900.0, False, "-100 s old"),
+        (None, 900.0, False, "100 s in the future"),
     ],
     ids=["fresh", "other-model", "too-old", "from-the-future"],
 )

@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from compd.cli import main
@@ -64,3 +65,14 @@ def test_an_unwritable_output_exits_2(tmp_path: Path, capsys: pytest.CaptureFixt
     )
     assert code == 2
     assert str(out) in capsys.readouterr().err
+
+
+def test_feed_positions_run_is_written_with_axis_positions(tmp_path: Path) -> None:
+    """`--scenario feed_positions` writes the feed run plus the X/Z positions and screw temperatures."""
+    out = tmp_path / "positions.csv"
+    assert main(["twin", "--scenario", "feed_positions", "--hours", "1", "--sample-time-s", "10",
+                 "--out", str(out)]) == 0  # fmt: skip
+    data = load_data(out)
+    for column in ("X_position_mm", "Z_position_mm", "T_x_screw_degC", "T_z_screw_degC"):
+        assert data.has(column)
+    assert len(np.unique(data.column("X_position_mm"))) >= 2
