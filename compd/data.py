@@ -341,11 +341,10 @@ def _is_number_dtype(cells: pd.Series) -> bool:
 
 def _as_float(cells: pd.Series) -> np.ndarray:
     """Numbers as float64, NaN for missing cells and for text that is not a number."""
-    if _is_number_dtype(cells):
-        return cells.to_numpy(dtype=float, na_value=np.nan)
-    return pd.to_numeric(cells.astype(str).str.strip(), errors="coerce").to_numpy(
-        dtype=float, na_value=np.nan
-    )
+    if not _is_number_dtype(cells):
+        cells = pd.to_numeric(cells.astype(str).str.strip(), errors="coerce")
+    numbers: np.ndarray = cells.to_numpy(dtype=float, na_value=np.nan)
+    return numbers
 
 
 def _numbers(cells: pd.Series, rows: checks.Rows) -> np.ndarray:

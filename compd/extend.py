@@ -49,6 +49,8 @@ class Extension:
     output: str
     measured_column: str
     submodel: SubModel
+    #: The new sub-model's TF, at the model's sample time.
+    tf: DiscreteTF
     identification: Identification
     fit_before: float
     fit_after: float
@@ -138,6 +140,7 @@ def extend_model(
         output=output,
         measured_column=measured_name,
         submodel=submodel,
+        tf=tf,
         identification=identification,
         fit_before=fit_before,
         fit_after=fit_after,

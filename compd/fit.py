@@ -249,7 +249,7 @@ def fit_data(
             method=method,
             order="auto" if order == "auto" else int(order),
             gate=gate,
-            position=None if slope is None else data.column(position) - slope.reference_mm,
+            position=None if slope is None else data.column(slope.signal) - slope.reference_mm,
             progress=progress,
         )
     except ModelError as exc:

@@ -143,11 +143,10 @@ class ModelSlot:
         self.names = list(qualified_names(compiled))
         self._index = {name: i for i, name in enumerate(compiled.output_names)}
         owners = compiled.output_matrix.argmax(axis=0)
-        #: Signals each output depends on (inputs, minus signals and gates of its sub-models).
+        #: Signals each output depends on (inputs, minus signals, gates and positions of its sub-models).
         self.depends: dict[str, set[str]] = {name: set() for name in compiled.output_names}
         for owner, sub in zip(owners, compiled.submodels, strict=True):
-            used = {sub.input.signal, sub.input.minus, sub.gate.signal if sub.gate else None}
-            self.depends[compiled.output_names[owner]] |= {u for u in used if u}
+            self.depends[compiled.output_names[owner]] |= set(sub.signals())
 
     @property
     def sha256(self) -> str:

@@ -28,6 +28,7 @@ from typing import Any
 
 import structlog
 
+from compd.clock import Clock
 from compd.config import Config, check_model
 from compd.control import ControlServer
 from compd.drivers.base import Driver, driver_types
@@ -35,7 +36,6 @@ from compd.errors import CompdError, RecorderError
 from compd.links import DriverLink
 from compd.loop import (
     AxisPoint,
-    Clock,
     Compensator,
     ModelSlot,
     SignalPoint,
@@ -284,11 +284,18 @@ class Service:
             log.error("cannot save state", error=str(exc), directory=str(self.config.state_dir))
 
     async def _tick(self, t_s: float) -> None:
+        started_s = self.clock.now()
         record = await self.compensator.tick(t_s)
         ticks = self.compensator.counters.ticks
         if ticks == 1:
             self.notifier.ready(f"compensating with {self.compensator.active.compiled.name}")
-        self.notifier.watchdog()
+        # systemd's watchdog restarts a daemon whose loop has stalled or hangs in I/O: ping
+        # only for a tick that finished within its period, so a loop that can no longer keep
+        # its deadlines stops pinging. A machine that is merely unreachable (PLC off at
+        # night) still gets healthy ticks: freezing the offsets is the right behaviour
+        # there, and restarting would not help.
+        if self.clock.now() - started_s < self.config.doc.period_s:
+            self.notifier.watchdog()
         if ticks % self.config.doc.live_every_ticks == 0:
             self.notifier.status(_summary(record))
         if self.recorder is not None:

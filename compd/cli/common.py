@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 
 from rich.console import Console
@@ -37,7 +38,9 @@ def data_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def load_data_from_args(args: argparse.Namespace, path: object = None) -> DataSet:
+def load_data_from_args(
+    args: argparse.Namespace, path: str | os.PathLike[str] | None = None
+) -> DataSet:
     """Load ``path`` (default ``args.data``) with the options of :func:`data_options`."""
     return load_data(
         args.data if path is None else path, max_gap_s=args.max_gap_s, resample=args.resample

@@ -92,7 +92,7 @@ def _extend(args: argparse.Namespace) -> int:
         yaml_text = with_verification(extension, verify_data.path, *verified)
     args.out.write_text(yaml_text)
 
-    tf = extension.submodel.tf
+    tf = extension.tf
     summary: dict[str, object] = {
         "model": str(args.model),
         "model_sha256": parent.sha256,

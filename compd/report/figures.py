@@ -9,8 +9,8 @@ not WebGL): they render on any shop-floor PC, GPU or not.
 from __future__ import annotations
 
 import numpy as np
-import plotly.graph_objects as go  # type: ignore[import-untyped]
-from plotly.subplots import make_subplots  # type: ignore[import-untyped]
+import plotly.graph_objects as go
+from plotly.subplots import make_subplots
 
 from compd.report import analysis_view as view
 from compd.report.decimate import DEFAULT_BUCKETS, minmax_indices

@@ -16,9 +16,9 @@ from html import escape
 from pathlib import Path
 from string import Template
 
-import plotly.graph_objects as go  # type: ignore[import-untyped]
-import plotly.io as pio  # type: ignore[import-untyped]
-from plotly.offline import get_plotlyjs  # type: ignore[import-untyped]
+import plotly.graph_objects as go
+import plotly.io as pio
+from plotly.offline import get_plotlyjs
 
 from compd import __version__
 from compd.evaluate import Evaluation

@@ -5,10 +5,10 @@ columns of :data:`COLUMNS`); :class:`MachineTwin` advances the same machine
 one sample at a time, for closed-loop use.
 """
 
+from compd.errors import ScenarioError
 from compd.sim.machine import NODES, Geometry, HeatLaws, Link, MachineParameters
 from compd.sim.scenarios import (
     SCENARIOS,
-    ScenarioError,
     scenario_inputs,
     simulate_scenario,
 )

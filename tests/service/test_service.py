@@ -227,3 +227,43 @@ def test_recordings_load_as_data_on_the_tick_grid(tmp_path):
     assert_allclose(data.column("offset.Y_um"), offsets(records))
     for column in ("T_spindle_degC", "model.disp_y_um.heating_difference", "status", "heartbeat"):
         assert data.has(column)
+
+
+class _Watchdog:
+    """Counts the sd_notify calls the service makes (the real notifier is tested on a socket)."""
+
+    def __init__(self) -> None:
+        self.pings = 0
+
+    def watchdog(self) -> bool:
+        self.pings += 1
+        return True
+
+    def ready(self, status: str | None = None) -> bool:
+        return True
+
+    def status(self, text: str) -> bool:
+        return True
+
+    def stopping(self, status: str | None = None) -> bool:
+        return True
+
+
+def test_watchdog_is_pinged_only_for_ticks_that_keep_their_period(tmp_path):
+    """A tick that takes longer than the period (a stalled loop) does not ping systemd's watchdog."""
+    config = write_config(tmp_path)
+    clock = VirtualClock()
+    notifier = _Watchdog()
+    service = Service(config, clock=clock, control=False, notifier=notifier)
+    tick = service.compensator.tick
+
+    async def slow_every_tenth(t_s: float):
+        record = await tick(t_s)
+        if service.compensator.counters.ticks % 10 == 0:
+            clock.advance(1.5)  # this tick overran its 1 s period
+        return record
+
+    service.compensator.tick = slow_every_tenth
+    run(config, 99.0, service=service)
+    ticks = service.compensator.counters.ticks
+    assert 0 < notifier.pings == ticks - ticks // 10
