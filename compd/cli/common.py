@@ -10,6 +10,7 @@ import sys
 from rich.console import Console
 from rich.table import Table
 
+from compd.analysis import DEFAULT_WINDOW_S
 from compd.data import DataSet, load_data
 from compd.evaluate import Evaluation
 from compd.model.metrics import Comparison
@@ -17,14 +18,15 @@ from compd.model.metrics import Comparison
 EXIT_INPUT_ERROR = 2
 
 
-def data_options(parser: argparse.ArgumentParser) -> None:
-    """``--init``, ``--max-gap-s`` and ``--resample``, for every command that reads a data file."""
-    parser.add_argument(
-        "--init",
-        choices=("steady", "rest"),
-        default="steady",
-        help="initial model state: in equilibrium with the first sample (default) or all zero",
-    )
+def data_options(parser: argparse.ArgumentParser, *, initial_state: bool = True) -> None:
+    """``--max-gap-s`` and ``--resample`` (and ``--init``), for every command that reads a data file."""
+    if initial_state:
+        parser.add_argument(
+            "--init",
+            choices=("steady", "rest"),
+            default="steady",
+            help="initial model state: in equilibrium with the first sample (default) or all zero",
+        )
     parser.add_argument(
         "--max-gap-s",
         type=float,
@@ -36,6 +38,38 @@ def data_options(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="interpolate irregularly sampled data onto a uniform grid instead of refusing it",
     )
+
+
+def window_options(parser: argparse.ArgumentParser) -> None:
+    """``--output``, ``--window-s`` and ``--tolerance-um``: which output, and how failing windows are judged."""
+    parser.add_argument(
+        "--output",
+        metavar="COLUMN",
+        help="measured column to compare (default: columns named like the model's outputs)",
+    )
+    parser.add_argument(
+        "--window-s",
+        type=positive_float,
+        default=DEFAULT_WINDOW_S,
+        help=f"length of the windows the residue is judged in, s (default {DEFAULT_WINDOW_S:g})",
+    )
+    parser.add_argument(
+        "--tolerance-um",
+        type=positive_float,
+        help="residue RMS above which a window fails, um (default: twice the model's "
+        "calibration residue RMS; without a calibration record twice this record's)",
+    )
+
+
+def positive_float(text: str) -> float:
+    """An argparse ``type``: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
+    return value
 
 
 def load_data_from_args(

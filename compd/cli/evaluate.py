@@ -25,7 +25,6 @@ from rich.table import Column, Table
 
 from compd.analysis import (
     CONDITION_PATTERNS,
-    DEFAULT_WINDOW_S,
     WindowsResult,
     find_failing_windows,
 )
@@ -35,6 +34,7 @@ from compd.cli.common import (
     data_options,
     load_data_from_args,
     print_notes,
+    window_options,
 )
 from compd.cli.service import register_model_load
 from compd.evaluate import compare, evaluate, measured_columns
@@ -68,11 +68,6 @@ def register(commands: Any) -> None:
     cmp_.add_argument("model", type=Path, metavar="MODEL.yaml")
     cmp_.add_argument("data", type=Path, metavar="DATA.csv")
     cmp_.add_argument(
-        "--output",
-        metavar="COLUMN",
-        help="measured column to compare (default: columns named like the model's outputs)",
-    )
-    cmp_.add_argument(
         "--json", action="store_true", help="print one JSON object instead of a table"
     )
     cmp_.add_argument(
@@ -81,18 +76,7 @@ def register(commands: Any) -> None:
         metavar="OUT.html",
         help="also write the HTML report (as compd report does)",
     )
-    cmp_.add_argument(
-        "--window-s",
-        type=_positive,
-        default=DEFAULT_WINDOW_S,
-        help=f"length of the windows the residue is judged in, s (default {DEFAULT_WINDOW_S:g})",
-    )
-    cmp_.add_argument(
-        "--tolerance-um",
-        type=_positive,
-        help="residue RMS above which a window fails, um (default: twice the model's "
-        "calibration residue RMS; without a calibration record twice this record's)",
-    )
+    window_options(cmp_)
     data_options(cmp_)
     cmp_.set_defaults(handler=_compare)
 
@@ -148,17 +132,6 @@ def _simulate(args: argparse.Namespace) -> int:
     print_notes(evaluation)
     print(f"wrote {len(evaluation.data)} samples x {len(columns) - 1} columns to {args.out}")
     return 0
-
-
-def _positive(text: str) -> float:
-    """An argparse ``type``: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0.0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
-    return value
 
 
 def _compare(args: argparse.Namespace) -> int:

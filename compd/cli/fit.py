@@ -10,7 +10,7 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import console, fmt, load_data_from_args
+from compd.cli.common import console, data_options, fmt, load_data_from_args
 from compd.cli.progress import progress_reporter
 from compd.errors import DataFileError
 from compd.fit import FitResult, fit_data
@@ -69,17 +69,7 @@ def register(commands: Any) -> None:
     )
     parser.add_argument("--out", type=Path, required=True, metavar="MODEL.yaml")
     parser.add_argument("--name", help="model name (default OUTPUT-METHOD)")
-    parser.add_argument(
-        "--max-gap-s",
-        type=float,
-        default=60.0,
-        help="longest run of missing samples to interpolate, in s (default 60)",
-    )
-    parser.add_argument(
-        "--resample",
-        action="store_true",
-        help="interpolate irregularly sampled data onto a uniform grid instead of refusing it",
-    )
+    data_options(parser, initial_state=False)
     parser.set_defaults(handler=_fit)
 
 

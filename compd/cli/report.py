@@ -7,8 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from compd.analysis import DEFAULT_WINDOW_S
-from compd.cli.common import data_options, load_data_from_args
+from compd.cli.common import data_options, load_data_from_args, window_options
 from compd.evaluate import evaluate
 from compd.modelfile import load_model
 
@@ -28,36 +27,9 @@ def register(commands: Any) -> None:
         metavar="OTHER.yaml",
         help="a second model on the same data, shown side by side with the change in each figure",
     )
-    report.add_argument(
-        "--output",
-        metavar="COLUMN",
-        help="measured column to compare (default: columns named like the model's outputs)",
-    )
-    report.add_argument(
-        "--tolerance-um",
-        type=_positive,
-        help="residue RMS above which a window fails, um (default: twice the model's "
-        "calibration residue RMS; without a calibration record twice this record's)",
-    )
-    report.add_argument(
-        "--window-s",
-        type=_positive,
-        default=DEFAULT_WINDOW_S,
-        help=f"length of the windows the residue is judged in, s (default {DEFAULT_WINDOW_S:g})",
-    )
+    window_options(report)
     data_options(report)
     report.set_defaults(handler=_report)
-
-
-def _positive(text: str) -> float:
-    """An argparse ``type``: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0.0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
-    return value
 
 
 def _report(args: argparse.Namespace) -> int:
