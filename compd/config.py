@@ -274,6 +274,24 @@ def parse_config(text: str, path: Path) -> Config:
                 "Give every written value its own address",
             )
         addresses[key] = ".".join(map(str, location[:2]))
+    # A driver type may check its own address grammar (optional hook
+    # ``validate_address(address, *, writable)`` raising ValueError, and an
+    # ``address_syntax`` text for the fix).
+    read = [(("signals", n, "address"), s.driver, s.address) for n, s in doc.signals.items()]
+    for locations, writable in ((read, False), (written, True)):
+        for location, driver_name, address in locations:
+            check = getattr(types[doc.drivers[driver_name].type], "validate_address", None)
+            try:
+                if check is not None:
+                    check(address, writable=writable)
+            except ValueError as exc:
+                kind = types[doc.drivers[driver_name].type]
+                syntax = getattr(kind, "address_syntax", "as config/compd.example.yaml shows")
+                raise error(
+                    location,
+                    f"address {address!r} for driver {driver_name!r}: {exc}",
+                    f"Write it {syntax}",
+                ) from exc
 
     state_dir = (
         resolve_path(doc.state.directory, path.parent)

@@ -22,6 +22,7 @@ import numpy as np
 
 from compd import __version__
 from compd.data import DataSet
+from compd.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.errors import DataFileError, ModelError
 from compd.model.identify import MAX_ORDER, METHODS, Identification, Method, Progress, identify
 from compd.model.metrics import Comparison
@@ -219,6 +220,8 @@ def fit_data(
     phase_gate: str | None = None,
     position: str | None = None,
     position_reference_mm: float = 0.0,
+    denoise: Sequence[str] = (),
+    denoise_imfs: int = 1,
     name: str | None = None,
     command: str | None = None,
     progress: Progress | None = None,
@@ -227,13 +230,29 @@ def fit_data(
 
     ``position``: an axis-position column (mm); every input then also gets a
     slope sub-model multiplied by ``position - position_reference_mm``.
+    ``denoise``: inputs identified with their first EMD mode removed and run
+    through a matched causal low-pass baked into their TFs (:mod:`compd.denoise`);
+    ``denoise_imfs`` modes are removed (seed 004: 1).
 
     Raises :class:`~compd.errors.DataFileError` (naming the file, the option or
     column, and the fix) for bad arguments and for data the method cannot fit.
     """
     _check_arguments(data, output, inputs, order, method)
     y = data.column(output)
-    changes = {column: data.column(column) - data.column(column)[0] for column in inputs}
+    if denoise and phase_gate is not None:
+        raise DataFileError(
+            data.path,
+            "--denoise and --phase-gate together are not supported (the gate switches the input "
+            "before the TF, so a low-pass baked into the TF would filter the switching too)",
+            where="--denoise",
+            fix="Fit without --phase-gate, or denoise the column before fitting",
+        )
+    denoised = denoise_columns(data, denoise, inputs, denoise_imfs) if denoise else {}
+    changes = {
+        column: (denoised[column].emd if column in denoised else data.column(column))
+        - data.column(column)[0]
+        for column in inputs
+    }
     gate = None
     if phase_gate is not None:
         gate = data.column(phase_gate) > 0.0
@@ -263,8 +282,16 @@ def fit_data(
         gate_signal=phase_gate,
         position=slope,
     )
+    denoise_doc = None
+    if denoised:
+        units = {column: unit_of(column) for column in denoised}
+        baked = bake_lowpasses(model, identification, data, denoised, units)
+        model, identification, denoise_doc = baked.model, baked.identification, baked.doc
     comparison = Comparison.of(output, y, identification.simulated_um)
     provenance = _provenance(data, identification, comparison, command, phase_gate, slope)
+    if denoise_doc is not None:
+        notes = f"{provenance.notes}; {denoise_note(denoise_doc)}"
+        provenance = provenance.model_copy(update={"denoise": denoise_doc, "notes": notes})
     signals = {signal: unit_of(signal) for signal in model.signals()}
     text = model_to_yaml(
         model,

@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from compd.errors import ModelError, ModelFileError
 from compd.model.compiled import CompiledModel, compile_model
+from compd.model.residual import DoorFeatures, ResidualModel
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
 from compd.yamlplace import describe as _describe
@@ -97,10 +98,32 @@ class SubModelDoc(_Strict):
     position: PositionDoc | None = None
 
 
+class ResidualFiguresDoc(_Strict):
+    peak_to_peak_um: FiniteFloat
+    rms_um: FiniteFloat
+
+
+class ResidualDoc(_Strict):
+    """Seed 004's stacked term: a random forest on smoothed door features, arrays in a sidecar."""
+
+    kind: Literal["random_forest"] = "random_forest"
+    signal: str = Field(min_length=1)
+    threshold: FiniteFloat = 0.5
+    time_constants_s: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]] = Field(min_length=1)
+    file: str = Field(min_length=1)
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    trees: int | None = Field(default=None, ge=1)
+    max_depth: int | None = Field(default=None, ge=1)
+    seed: int | None = None
+    calibration_tf_alone: ResidualFiguresDoc | None = None
+    calibration_stacked: ResidualFiguresDoc | None = None
+
+
 class OutputDoc(_Strict):
     unit: Literal["um"] = "um"
     description: str = ""
     submodels: list[SubModelDoc] = Field(min_length=1)
+    residual: ResidualDoc | None = None
 
     @field_validator("submodels")
     @classmethod
@@ -181,6 +204,29 @@ class UpdateDoc(_Strict):
     created: str | None = None
 
 
+class DenoisedInputDoc(_Strict):
+    """One input denoised by ``compd fit --denoise``; RMS values are in the input's ``unit``."""
+
+    input: str
+    unit: str = "-"
+    imfs_removed: int = Field(default=1, ge=1)  # the first N EMD modes (seed 004: 1)
+    lowpass_tau_s: FiniteFloat = Field(gt=0)
+    lowpass_stages: int = Field(ge=1, le=2)
+    lowpass_vs_emd_rms: FiniteFloat = Field(ge=0)  # matched causal low-pass minus EMD-denoised
+    raw_vs_emd_rms: FiniteFloat = Field(ge=0)  # raw sensor minus EMD-denoised (the noise removed)
+
+
+class DenoiseDoc(_Strict):
+    """Seed 004 denoising: identified on EMD-denoised inputs, run with matched low-passes baked in."""
+
+    method: str
+    inputs: list[DenoisedInputDoc] = Field(default_factory=list)
+    fit_percent_emd: dict[str, FiniteFloat] = Field(default_factory=dict)
+    rms_um_emd: dict[str, FiniteFloat] = Field(default_factory=dict)
+    fit_percent_lowpass: dict[str, FiniteFloat] = Field(default_factory=dict)
+    rms_um_lowpass: dict[str, FiniteFloat] = Field(default_factory=dict)
+
+
 class ProvenanceDoc(_Strict):
     data: str | None = None
     command: str | None = None
@@ -191,6 +237,7 @@ class ProvenanceDoc(_Strict):
     calibration: CalibrationDoc | None = None
     extensions: list[ExtensionDoc] = Field(default_factory=list)
     updates: list[UpdateDoc] = Field(default_factory=list)
+    denoise: DenoiseDoc | None = None
     notes: str = ""
 
 
@@ -317,8 +364,31 @@ def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
                     ),
                 )
             )
-        outputs.append(Output(out_name, tuple(subs)))
+        residual = out_doc.residual
+        if residual is not None and declared is not None and residual.signal not in declared:
+            raise ModelFileError(
+                path,
+                f"residual signal {residual.signal!r} is not declared under 'signals'",
+                where=_where(root, ("outputs", out_name, "residual", "signal")),
+                fix=f"Declare it with its unit, or use one of {sorted(declared)}",
+            )
+        outputs.append(Output(out_name, tuple(subs), _residual(residual, out_name, path)))
     return Model(doc.name, doc.sample_time_s, tuple(outputs))
+
+
+def _residual(doc: ResidualDoc | None, output: str, path: str | Path) -> ResidualModel | None:
+    if doc is None:
+        return None
+    from compd.residual import load_sidecar  # the sidecar reader; imports compd.model only
+
+    forest = load_sidecar(path, doc.file, doc.sha256, output)
+    try:
+        features = DoorFeatures(doc.signal, tuple(doc.time_constants_s), doc.threshold)
+        return ResidualModel(features, forest)
+    except ModelError as exc:
+        raise ModelFileError(
+            path, exc.message, where=f"outputs.{output}.residual", fix="Refit the residual model"
+        ) from exc
 
 
 def _tf(doc: TFDoc) -> DiscreteTF | ContinuousTF:

@@ -19,7 +19,7 @@ import yaml
 
 from compd.model.structure import Gate, InputSpec, Model, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
-from compd.modelfile import SCHEMA, ProvenanceDoc
+from compd.modelfile import SCHEMA, ProvenanceDoc, ResidualDoc
 
 
 def yaml_float(value: float) -> str:
@@ -99,6 +99,17 @@ def _submodel(sub: SubModel) -> list[str]:
     return lines
 
 
+def _residual(doc: ResidualDoc) -> list[str]:
+    data = doc.model_dump(mode="json", exclude_none=True)
+    text = str(yaml.safe_dump({"residual": data}, sort_keys=False, width=100))
+    return [
+        "    # seed 004: a random forest on the smoothed door signal, added to the sub-models' "
+        "sum; its trees",
+        "    # are plain arrays in the .npz named below (checked against sha256 at load)",
+        *("    " + line for line in text.rstrip("\n").splitlines()),
+    ]
+
+
 def _provenance(provenance: ProvenanceDoc) -> list[str]:
     data = provenance.model_dump(mode="json", exclude_defaults=True)
     if not data:
@@ -113,12 +124,18 @@ def model_to_yaml(
     description: str = "",
     signals: Mapping[str, str] | None = None,
     provenance: ProvenanceDoc | None = None,
+    residuals: Mapping[str, ResidualDoc] | None = None,
 ) -> str:
     """The model file text for ``model``; ``signals`` maps each signal name to its unit.
 
     When ``signals`` is given it must name every signal the model reads (the
-    schema requires declared signals to cover all uses).
+    schema requires declared signals to cover all uses). ``residuals`` gives,
+    per output with a residual model, its block (sidecar file and sha256).
     """
+    residuals = residuals or {}
+    for output in model.outputs:
+        if (output.residual is None) != (output.name not in residuals):
+            raise ValueError(f"output {output.name!r}: residual model and its block must match")
     if signals is not None:
         missing = [name for name in model.signals() if name not in signals]
         if missing:
@@ -166,6 +183,8 @@ def model_to_yaml(
                     "with the TF's time constants"
                 )
             lines += _submodel(sub)
+        if output.name in residuals:
+            lines += _residual(residuals[output.name])
     if provenance is not None:
         lines += _provenance(provenance)
     return "\n".join(lines) + "\n"

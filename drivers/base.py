@@ -21,6 +21,9 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.opcua import OpcUaDriver
+from compd.drivers.serial_sensor import SerialSensorDriver
 from compd.drivers.simulated import SimulatedDriver
 from pydantic import BaseModel
 
@@ -59,7 +62,12 @@ class DriverType(Protocol):
 
 
 #: Built-in driver types by the name a config's ``drivers.<name>.type`` gives.
-DRIVERS: dict[str, DriverType] = {"simulated": SimulatedDriver}
+DRIVERS: dict[str, DriverType] = {
+    "modbus": ModbusDriver,
+    "opcua": OpcUaDriver,
+    "serial_sensor": SerialSensorDriver,
+    "simulated": SimulatedDriver,
+}
 
 
 def driver_types() -> dict[str, DriverType]:

@@ -25,6 +25,7 @@ COMMAND_MODULES = (
     "compd.cli.fit",
     "compd.cli.diagnose",
     "compd.cli.extend",
+    "compd.cli.residual",
     "compd.cli.report",
     "compd.cli.service",
     "compd.cli.twin",

@@ -128,6 +128,9 @@ def _simulate(args: argparse.Namespace) -> int:
         columns[name] = evaluation.result.outputs[:, i]
     for i, name in enumerate(qualified_names(evaluation.compiled)):
         columns[name.replace("/", ".")] = evaluation.result.contributions[:, i]
+    for r, (out_i, _) in enumerate(evaluation.compiled.residuals):  # seed 004's forest terms
+        name = f"{evaluation.compiled.output_names[out_i]}.residual"
+        columns[name] = evaluation.result.residuals[:, r]  # type: ignore[index]
     pd.DataFrame(columns).to_csv(args.out, index=False, float_format="%.6f")
     print_notes(evaluation)
     print(f"wrote {len(evaluation.data)} samples x {len(columns) - 1} columns to {args.out}")

@@ -12,6 +12,7 @@ from rich.table import Table
 
 from compd.cli.common import console, data_options, fmt, load_data_from_args
 from compd.cli.progress import progress_reporter
+from compd.cli.residual_options import add_residual_options, write_fit
 from compd.errors import DataFileError
 from compd.fit import FitResult, fit_data
 from compd.model.identify import METHODS
@@ -55,6 +56,21 @@ def register(commands: Any) -> None:
         help="position at which the slope term is zero, in mm (default 0)",
     )
     parser.add_argument(
+        "--denoise",
+        metavar="A,B",
+        help="inputs to denoise (seed 004): identified with their first EMD mode removed, then "
+        "run through a causal low-pass matched to the EMD result and baked into their TFs (the "
+        "service cannot run EMD); the figures of both are kept in the provenance",
+    )
+    parser.add_argument(
+        "--denoise-imfs",
+        type=int,
+        default=1,
+        metavar="N",
+        help="how many of the fastest EMD modes --denoise removes (default 1, seed 004; on a "
+        "finely sampled sensor the first modes are its white noise, so an AC cycle needs more)",
+    )
+    parser.add_argument(
         "--order",
         default="auto",
         metavar="auto|N",
@@ -70,6 +86,7 @@ def register(commands: Any) -> None:
     parser.add_argument("--out", type=Path, required=True, metavar="MODEL.yaml")
     parser.add_argument("--name", help="model name (default OUTPUT-METHOD)")
     data_options(parser, initial_state=False)
+    add_residual_options(parser)
     parser.set_defaults(handler=_fit)
 
 
@@ -105,11 +122,13 @@ def _fit(args: argparse.Namespace) -> int:
             phase_gate=args.phase_gate,
             position=args.position,
             position_reference_mm=args.position_reference_mm,
+            denoise=[n.strip() for n in (args.denoise or "").split(",") if n.strip()],
+            denoise_imfs=args.denoise_imfs,
             name=args.name,
             command=command,
             progress=progress,
         )
-    args.out.write_text(result.yaml_text, encoding="utf-8")
+    write_fit(result, data, args)
     _report(result, args)
     return 0
 
@@ -156,4 +175,20 @@ def _report(result: FitResult, args: argparse.Namespace) -> None:
             " % on the last third"
         )
     out.print(line)
+    denoise = result.provenance.denoise
+    if denoise is not None:
+        for entry in denoise.inputs:
+            out.print(
+                f"denoised {entry.input}: first {entry.imfs_removed} EMD mode(s) removed for the "
+                f"fit; in the file a causal "
+                f"low-pass of {entry.lowpass_stages} x {entry.lowpass_tau_s:.0f} s, "
+                f"{fmt(entry.lowpass_vs_emd_rms, 4)} {entry.unit} RMS from the EMD result (raw: "
+                f"{fmt(entry.raw_vs_emd_rms, 4)} {entry.unit})"
+            )
+        for name, emd_fit in denoise.fit_percent_emd.items():
+            out.print(
+                f"{name}: fit {fmt(emd_fit, 2)} % (RMS {fmt(denoise.rms_um_emd[name], 3)} um) on "
+                f"the EMD-denoised inputs, {fmt(denoise.fit_percent_lowpass[name], 2)} % (RMS "
+                f"{fmt(denoise.rms_um_lowpass[name], 3)} um) as written, on the raw inputs"
+            )
     out.print(f"wrote {args.out}")

@@ -21,12 +21,13 @@ depend on it.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
 
 from compd.errors import ModelError
+from compd.model.residual import ResidualModel
 from compd.model.structure import GateTarget, Model, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF, resample_discrete
 
@@ -37,26 +38,36 @@ class ModelState:
 
     ``z`` has one row per sub-model (DF2T delay line, ``lfilter``'s ``zi``);
     ``reference`` is each sub-model's input reference (for "value at start"
-    sub-models, the value captured when the model started).
+    sub-models, the value captured when the model started); ``residual`` the
+    door-feature states of the outputs' residual models (seed 004), end to
+    end in output order (empty without them).
     """
 
     z: np.ndarray
     reference: np.ndarray
+    residual: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def to_dict(self) -> dict[str, list[list[float]] | list[float]]:
-        """Plain lists, for JSON/YAML persistence."""
-        return {"z": self.z.tolist(), "reference": self.reference.tolist()}
+        """Plain lists, for JSON/YAML persistence (``residual`` only when there is one)."""
+        data: dict[str, list[list[float]] | list[float]] = {
+            "z": self.z.tolist(),
+            "reference": self.reference.tolist(),
+        }
+        if self.residual.size:
+            data["residual"] = self.residual.tolist()
+        return data
 
     @classmethod
     def from_dict(cls, data: Mapping[str, object]) -> ModelState:
         try:
             z = np.asarray(data["z"], dtype=float)
             reference = np.asarray(data["reference"], dtype=float)
+            residual = np.asarray(data.get("residual", []), dtype=float).reshape(-1)
         except (KeyError, TypeError, ValueError) as exc:
             raise ModelError(
                 f"saved model state is malformed ({exc}); expected keys z, reference"
             ) from exc
-        return cls(z=z, reference=reference)
+        return cls(z=z, reference=reference, residual=residual)
 
 
 @dataclass(frozen=True, eq=False)
@@ -83,6 +94,27 @@ class CompiledModel:
     position_index: np.ndarray  # (S,) index of the position signal, or the constant-1 slot
     position_reference_mm: np.ndarray  # (S,) subtracted from the position; 0 without one
     output_matrix: np.ndarray  # (n_outputs, S) 0/1: which sub-models sum into which output
+    #: Seed 004 residual models: (output index, model), added to that output's TF sum.
+    residuals: tuple[tuple[int, ResidualModel], ...] = ()
+
+    @property
+    def residual_state_size(self) -> int:
+        return sum(r.features.state_size for _, r in self.residuals)
+
+    def residual_slices(self) -> list[tuple[int, ResidualModel, slice, int]]:
+        """Per residual: output index, model, its slice of ``ModelState.residual``, signal index."""
+        found, start = [], 0
+        for out_i, residual in self.residuals:
+            size = residual.features.state_size
+            found.append(
+                (out_i, residual, slice(start, start + size), self.signals.index(residual.signal))
+            )
+            start += size
+        return found
+
+    def _residual_state(self, vector: np.ndarray) -> np.ndarray:
+        parts = [r.features.initial_state(vector[i]) for _, r, _, i in self.residual_slices()]
+        return np.concatenate(parts) if parts else np.zeros(0)
 
     @cached_property
     def signed_threshold(self) -> np.ndarray:
@@ -146,13 +178,20 @@ class CompiledModel:
                 f"{self.name!r} needs z{expected}/reference({self.n_submodels},): it was saved "
                 "by a different model"
             )
-        if not (np.all(np.isfinite(state.z)) and np.all(np.isfinite(state.reference))):
+        if state.residual.shape != (self.residual_state_size,):
+            raise ModelError(
+                f"state has {state.residual.size} residual-feature values but model "
+                f"{self.name!r} needs {self.residual_state_size}: it was saved by a different model"
+            )
+        finite = (np.all(np.isfinite(a)) for a in (state.z, state.reference, state.residual))
+        if not all(finite):
             raise ModelError("state contains NaN or inf")
 
     def rest_state(self, signals: np.ndarray | Mapping[str, float]) -> ModelState:
         """All TF states zero; "value at start" references taken from ``signals``."""
         reference = self._references(signals)
-        return ModelState(np.zeros((self.n_submodels, self.n_states)), reference)
+        residual = self._residual_state(self._vector(signals))
+        return ModelState(np.zeros((self.n_submodels, self.n_states)), reference, residual)
 
     def steady_state(self, signals: np.ndarray | Mapping[str, float]) -> ModelState:
         """The state in equilibrium with ``signals`` held constant: no start-up transient.
@@ -168,7 +207,7 @@ class CompiledModel:
         y = u * self.b.sum(axis=1) / self.a.sum(axis=1)
         terms = self.b[:, 1:] * u[:, None] - self.a[:, 1:] * y[:, None]
         z = np.cumsum(terms[:, ::-1], axis=1)[:, ::-1]
-        return ModelState(np.ascontiguousarray(z), reference)
+        return ModelState(np.ascontiguousarray(z), reference, self._residual_state(vector))
 
     def _vector(self, signals: np.ndarray | Mapping[str, float]) -> np.ndarray:
         vector = (
@@ -262,6 +301,11 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
             [0.0 if s.position is None else s.position.reference_mm for s in subs], dtype=float
         ),
         output_matrix=output_matrix,
+        residuals=tuple(
+            (out_i, output.residual)
+            for out_i, output in enumerate(model.outputs)
+            if output.residual is not None
+        ),
     )
 
 

@@ -71,13 +71,18 @@ class TickRunner:
         self._positioned = bool(np.any(compiled.position_index < self._n_signals))
         #: Each sub-model's contribution (um) at the last tick, gain and gate applied.
         self.contributions = np.zeros(n_subs)
+        # Seed 004 residual models: their door-feature state advances with each tick.
+        self._residual = state.residual.copy()
+        self._residuals = compiled.residual_slices()
+        #: Each residual model's term (um) at the last tick, in ``compiled.residuals`` order.
+        self.residual_terms = np.zeros(len(self._residuals))
 
     @property
     def state(self) -> ModelState:
         """A snapshot of the current state (safe to persist while stepping goes on)."""
         compiled = self.compiled
         z = self._x[: self._n_z].reshape(compiled.n_submodels, compiled.n_states)
-        return ModelState(z.copy(), self._reference.copy())
+        return ModelState(z.copy(), self._reference.copy(), self._residual.copy())
 
     def step(self, signals: np.ndarray | Mapping[str, float]) -> np.ndarray:
         """Advance one sample and return the outputs in ``compiled.output_names`` order.
@@ -108,6 +113,11 @@ class TickRunner:
             y *= compiled.position_factors(extended)
         self.contributions = y * compiled.gain
         outputs: np.ndarray = self._weighted_outputs @ y
+        dt_s = compiled.sample_time_s
+        for r, (out_i, residual, part, signal_i) in enumerate(self._residuals):
+            term = residual.step(self._residual[part], extended[signal_i], dt_s)
+            self.residual_terms[r] = term
+            outputs[out_i] += term
         return outputs
 
 
@@ -115,13 +125,16 @@ class TickRunner:
 class SimulationResult:
     """Model outputs over a whole record.
 
-    ``outputs``: (N, n_outputs) in um; ``contributions``: (N, n_submodels) in
-    um, gain, gate and position factor applied; ``final_state``: the state after the last sample.
+    ``outputs``: (N, n_outputs) in um, residual models included;
+    ``contributions``: (N, n_submodels) in um, gain, gate and position factor
+    applied; ``residuals``: (N, n_residuals) in um, each residual model's term
+    (seed 004); ``final_state``: the state after the last sample.
     """
 
     outputs: np.ndarray
     contributions: np.ndarray
     final_state: ModelState
+    residuals: np.ndarray | None = None
 
     def output(self, compiled: CompiledModel, name: str) -> np.ndarray:
         return self.outputs[:, compiled.output_names.index(name)]
@@ -175,4 +188,14 @@ def simulate(compiled: CompiledModel, signals: np.ndarray, state: ModelState) ->
         np.multiply(response, compiled.gain[s], out=contributions[s])
     outputs = (compiled.output_matrix @ contributions).T
     contributions = contributions.T
-    return SimulationResult(outputs, contributions, ModelState(final_z, state.reference.copy()))
+    # Seed 004: each output's residual model on its door signal, added to the TF sum.
+    slices = compiled.residual_slices()
+    terms = np.empty((n_samples, len(slices)))
+    final_residual = state.residual.copy()
+    for r, (out_i, residual, part, signal_i) in enumerate(slices):
+        terms[:, r], final_residual[part] = residual.simulate(
+            rows[signal_i], compiled.sample_time_s, state.residual[part]
+        )
+        outputs[:, out_i] += terms[:, r]
+    final = ModelState(final_z, state.reference.copy(), final_residual)
+    return SimulationResult(outputs, contributions, final, terms if slices else None)

@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import StrEnum
 
+from compd.model.residual import ResidualModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
 
 
@@ -110,10 +111,14 @@ class SubModel:
 
 @dataclass(frozen=True)
 class Output:
-    """One axis output (e.g. ``disp_z_um``): the sum of its sub-models, in um."""
+    """One axis output (e.g. ``disp_z_um``): the sum of its sub-models, in um.
+
+    ``residual`` (seed 004): a forest on smoothed door features added to that sum.
+    """
 
     name: str
     submodels: tuple[SubModel, ...]
+    residual: ResidualModel | None = None
 
 
 @dataclass(frozen=True)
@@ -131,4 +136,7 @@ class Model:
             for sub in output.submodels:
                 for name in sub.signals():
                     seen.setdefault(name, None)
+        for output in self.outputs:
+            if output.residual is not None:
+                seen.setdefault(output.residual.signal, None)
         return tuple(seen)

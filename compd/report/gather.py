@@ -62,10 +62,15 @@ class ModelRun:
         compiled = self.evaluation.compiled
         row = compiled.output_matrix[compiled.output_names.index(output)]
         names = qualified_names(compiled)
-        return {
+        parts = {
             names[int(i)].split("/", 1)[1]: self.evaluation.result.contributions[:, i]
             for i in np.flatnonzero(row)
         }
+        result = self.evaluation.result
+        for r, (out_i, residual) in enumerate(compiled.residuals):  # seed 004's forest term
+            if compiled.output_names[out_i] == output and result.residuals is not None:
+                parts[f"residual forest on {residual.signal}"] = result.residuals[:, r]
+        return parts
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,124 @@
+"""``compd residual``: stack seed 004's door residual forest on an existing model, TF alone vs stacked.
+
+Seed 004 keeps its calibrated ARX model and adds a random forest fitted on
+that model's residue against the smoothed door signal. This is that step for
+any compd model file: the sub-models are kept, the forest is fitted on the
+free-run residue over DATA.csv (the one ``compd compare`` shows), the
+sidecar ``.npz`` and the new model file are written, and the residue's
+peak-to-peak and RMS are printed for the model alone and stacked, on
+DATA.csv and, with ``--verify``, on a record not used for fitting (both
+figures from the written files, as ``compd compare`` would give them).
+``compd fit --residual-model`` does the same right after fitting the TFs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from rich.table import Table
+
+from compd.cli.common import console, data_options, fmt, load_data_from_args
+from compd.data import DataSet
+from compd.evaluate import evaluate, measured_columns
+from compd.modelfile import ModelFile, load_model
+from compd.residual import ResidueFigures, sidecar_path, stack_on_model
+
+
+def register(commands: Any) -> None:
+    parser = commands.add_parser(
+        "residual",
+        help="stack a random forest on a model's residue against the smoothed door signal "
+        "(seed 004) and show the residue before and after",
+    )
+    parser.add_argument("model", type=Path, metavar="MODEL.yaml")
+    parser.add_argument("data", type=Path, metavar="DATA.csv", help="a record with door openings")
+    parser.add_argument(
+        "--signal", default="door_open", help="the door status column (default door_open)"
+    )
+    parser.add_argument("--out", type=Path, required=True, metavar="NEW.yaml")
+    parser.add_argument(
+        "--output", metavar="COLUMN", help="the measured column, when the model has several outputs"
+    )
+    parser.add_argument("--trees", type=int, default=100, metavar="N", help="default 100")
+    parser.add_argument("--max-depth", type=int, default=10, metavar="D", help="default 10")
+    parser.add_argument("--forest-seed", type=int, default=0, metavar="N", help="default 0")
+    parser.add_argument(
+        "--verify", type=Path, metavar="OTHER.csv", help="also judge both on this record"
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    data_options(parser, initial_state=False)
+    parser.set_defaults(handler=_residual)
+
+
+def _figures(model_file: ModelFile, data: DataSet, column: str | None) -> ResidueFigures:
+    evaluation = evaluate(model_file, data)
+    ((predicted, measured),) = measured_columns(evaluation, column).items()
+    return ResidueFigures.of(data.column(measured) - evaluation.predicted(predicted))
+
+
+def _residual(args: argparse.Namespace) -> int:
+    parent = load_model(args.model)
+    data = load_data_from_args(args)
+    verify = load_data_from_args(args, args.verify) if args.verify else None
+    stacked = stack_on_model(
+        parent,
+        data,
+        args.out,
+        signal=args.signal,
+        output=args.output,
+        trees=args.trees,
+        max_depth=args.max_depth,
+        seed=args.forest_seed,
+    )
+    sidecar_path(args.out).write_bytes(stacked.sidecar)
+    args.out.write_text(stacked.yaml_text, encoding="utf-8")
+    written = load_model(args.out)  # the figures are those of the files as written
+    records = [("data", data)] + ([("verify", verify)] if verify is not None else [])
+    figures = {
+        label: (_figures(parent, record, args.output), _figures(written, record, args.output))
+        for label, record in records
+    }
+    if args.json:
+        summary = {
+            "model": str(args.model),
+            "out": str(args.out),
+            "sidecar": stacked.sidecar_name,
+            "signal": args.signal,
+            **{
+                label: {
+                    "path": str(record.path),
+                    "model_alone": vars(figures[label][0]),
+                    "stacked": vars(figures[label][1]),
+                }
+                for label, record in records
+            },
+        }
+        print(json.dumps(summary, indent=2, allow_nan=False))
+        return 0
+    forest = stacked.fit.residual.forest
+    table = Table(
+        "record",
+        "p-p alone (um)",
+        "p-p stacked (um)",
+        "RMS alone (um)",
+        "RMS stacked (um)",
+        title=f"residue of {args.model} alone and with the {args.signal} forest ({forest.n_trees} "
+        f"trees, depth {forest.depth})",
+    )
+    for label, record in records:
+        alone, both = figures[label]
+        name = str(record.path) + (" (not used for fitting)" if label == "verify" else "")
+        table.add_row(
+            name,
+            fmt(alone.peak_to_peak_um, 2),
+            fmt(both.peak_to_peak_um, 2),
+            fmt(alone.rms_um, 3),
+            fmt(both.rms_um, 3),
+        )
+    out = console()
+    out.print(table)
+    out.print(f"wrote {args.out} and {stacked.sidecar_name}")
+    return 0

@@ -1,0 +1,397 @@
+"""Modbus TCP and RTU: read signals from, and write offsets to, a PLC or sensor over Modbus.
+
+Modbus is what most CNC PLCs and temperature scanners speak. One driver
+instance is one bus (a TCP connection or a serial line) with one asyncio
+lock, so that a tick's requests never interleave with each other.
+
+Addresses are compact strings a PLC engineer can read at a glance::
+
+    TABLE:ADDRESS[:TYPE][:byte=big|little][:word=big|little][:device=N]
+
+    holding:100:int32              holding register 100-101, int32, ABCD
+    input:10:float32:word=little   input registers 10-11, float32, CDAB
+    coil:3                         coil 3 (bool)
+    discrete:0:device=7            discrete input 0 of device 7 on the bus
+
+``TABLE`` is ``holding``, ``input``, ``coil`` or ``discrete``; ``ADDRESS``
+is the 0-based protocol address (as on the wire: register number 40101 or
+``mbpoll -r 101`` is ``holding:100``). ``TYPE`` defaults to ``uint16`` for
+registers and is always ``bool`` for coils and discrete inputs; the byte and
+word orders are those of :mod:`compd.drivers.points`. Scaling to
+engineering units stays where it is for every driver: a signal's
+``scale``/``offset`` and an output's ``encoding.scale`` in the config
+(e.g. ``int32`` offsets in 0.1 um: ``encoding: {type: int, scale: 10}``).
+
+Per tick, the points of one table on one device are sorted and contiguous
+(or overlapping) ranges are merged into one request of at most
+``max_registers_per_request`` registers; writes of contiguous holding
+registers likewise go out as one "write multiple registers". Every value is
+encoded and range-checked before the first byte is sent, so a batch with a
+value that does not fit writes nothing. pymodbus exceptions and Modbus
+exception responses become compd's DriverError family here.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import struct
+from collections.abc import Awaitable, Callable, Mapping, Sequence
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from typing import Any, Literal, cast
+
+from compd.drivers.points import ORDERS, POINT_TYPES, Order, PointCodec, PointType
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
+from compd.errors import (
+    DriverDisconnectedError,
+    DriverError,
+    DriverProtocolError,
+    DriverTimeoutError,
+)
+
+Table = Literal["holding", "input", "coil", "discrete"]
+TABLES: tuple[str, ...] = ("holding", "input", "coil", "discrete")
+WRITABLE_TABLES = ("holding", "coil")
+_BIT_TABLES = ("coil", "discrete")
+_MAX_BITS_PER_REQUEST = 2000  # Modbus limit for read coils / discrete inputs
+_MAX_WRITE_REGISTERS = 123  # Modbus limit for write multiple registers
+
+
+class ModbusSettings(BaseModel):
+    """``drivers.<name>.settings`` of a ``type: modbus`` driver."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    transport: Literal["tcp", "rtu"] = "tcp"
+    host: str | None = Field(default=None, description="tcp: PLC host name or IP")
+    port: int = Field(default=502, ge=1, le=65535, description="tcp: port")
+    serial_port: str | None = Field(default=None, description="rtu: e.g. /dev/ttyUSB0")
+    baudrate: int = Field(default=19200, gt=0)
+    parity: Literal["N", "E", "O"] = "N"
+    stopbits: Literal[1, 2] = 1
+    bytesize: Literal[7, 8] = 8
+    device_id: int = Field(default=1, ge=0, le=247, description="default device (unit) id")
+    request_timeout_s: float = Field(default=0.5, gt=0, description="per request")
+    max_registers_per_request: int = Field(default=125, ge=1, le=125)
+
+    @model_validator(mode="after")
+    def _transport_needs(self) -> ModbusSettings:
+        if self.transport == "tcp" and not self.host:
+            raise ValueError("transport 'tcp' needs 'host'")
+        if self.transport == "rtu" and not self.serial_port:
+            raise ValueError("transport 'rtu' needs 'serial_port'")
+        return self
+
+
+@dataclass(frozen=True)
+class ModbusPoint:
+    """One parsed address: where the value lives and how it is encoded."""
+
+    table: Table
+    address: int
+    codec: PointCodec
+    device_id: int | None  # None: the driver's default
+
+    @property
+    def count(self) -> int:
+        """Registers (or bits) the value spans."""
+        return 1 if self.table in _BIT_TABLES else self.codec.words
+
+
+@cache
+def parse_address(text: str) -> ModbusPoint:
+    """Parse ``TABLE:ADDRESS[:TYPE][:byte=..][:word=..][:device=N]``; ValueError says what is wrong."""
+    parts = [p.strip() for p in text.split(":")]
+    if len(parts) < 2:
+        raise ValueError(f"{text!r} is not TABLE:ADDRESS (e.g. 'holding:100:int32')")
+    table, number, *rest = parts
+    if table not in TABLES:
+        raise ValueError(f"unknown Modbus table {table!r}; use one of {TABLES}")
+    if not number.isdigit() or not 0 <= int(number) <= 65535:
+        raise ValueError(f"address {number!r} must be an integer 0..65535 (0-based, on the wire)")
+    kind = "bool" if table in _BIT_TABLES else "uint16"
+    options: dict[str, str] = {}
+    for i, part in enumerate(rest):
+        if "=" not in part:
+            if i != 0:
+                raise ValueError(f"the type must come right after the address in {text!r}")
+            kind = part
+            continue
+        key, _, value = part.partition("=")
+        if key not in ("byte", "word", "device") or key in options:
+            raise ValueError(f"unknown or repeated option {key!r}; use byte=, word=, device=")
+        options[key] = value
+    if kind not in POINT_TYPES:
+        raise ValueError(f"unknown type {kind!r}; use one of {POINT_TYPES}")
+    if table in _BIT_TABLES and kind != "bool":
+        raise ValueError(f"a {table} is a single bit: its type can only be bool")
+    for key in ("byte", "word"):
+        if options.get(key, "big") not in ORDERS:
+            raise ValueError(f"{key}= must be 'big' or 'little'")
+    device = options.get("device")
+    if device is not None and not (device.isdigit() and int(device) <= 247):
+        raise ValueError("device= must be an integer 0..247")
+    # PointCodec checks type and orders again; the messages above are the friendlier ones.
+    codec = PointCodec(
+        type=cast(PointType, kind),
+        byte_order=cast(Order, options.get("byte", "big")),
+        word_order=cast(Order, options.get("word", "big")),
+    )
+    if int(number) + codec.words > 65536:
+        raise ValueError(f"{kind} at {number} runs past register 65535")
+    return ModbusPoint(
+        cast(Table, table), int(number), codec, None if device is None else int(device)
+    )
+
+
+def _spans(
+    points: list[tuple[str, ModbusPoint]], limit: int
+) -> list[list[tuple[str, ModbusPoint]]]:
+    """Group points (one table, one device) into runs of contiguous or overlapping ranges.
+
+    A run spans at most ``limit`` registers (or bits); a gap starts a new run,
+    since a device may refuse to read addresses it does not have.
+    """
+    runs: list[list[tuple[str, ModbusPoint]]] = []
+    start = end = -1
+    for name, point in sorted(points, key=lambda item: item[1].address):
+        new_end = max(end, point.address + point.count)
+        if runs and point.address <= end and new_end - start <= limit:
+            runs[-1].append((name, point))
+            end = new_end
+        else:
+            runs.append([(name, point)])
+            start, end = point.address, point.address + point.count
+    return runs
+
+
+class ModbusDriver:
+    """Modbus TCP or RTU client; see the module docstring for addresses and batching."""
+
+    settings_model = ModbusSettings
+    #: Shown in config errors as the fix for a bad address.
+    address_syntax = (
+        "as TABLE:ADDRESS[:TYPE][:byte=big|little][:word=big|little][:device=N], "
+        "e.g. holding:100:int32 (TABLE holding|input|coil|discrete, ADDRESS 0-based)"
+    )
+
+    def __init__(
+        self, settings: ModbusSettings, *, now: Callable[[], float], base_dir: Path
+    ) -> None:
+        self.settings = settings
+        self._client: AsyncModbusTcpClient | AsyncModbusSerialClient | None = None
+        self._lock: asyncio.Lock | None = None
+        #: Requests sent, for tests and benchmarks (one per merged span).
+        self.requests = 0
+
+    @staticmethod
+    def validate_address(address: str, *, writable: bool) -> None:
+        """Config-time check of one address; ValueError names what is wrong."""
+        point = parse_address(address)
+        if writable and point.table not in WRITABLE_TABLES:
+            raise ValueError(f"a {point.table} cannot be written; use holding or coil")
+
+    async def open(self) -> None:
+        await self.close()
+        s = self.settings
+        # reconnect_delay=0: compd's link supervisor owns reconnects (with
+        # backoff), so pymodbus must not reconnect behind its back.
+        common: dict[str, Any] = {
+            "timeout": s.request_timeout_s,
+            "retries": 0,
+            "reconnect_delay": 0,
+        }
+        if s.transport == "tcp":
+            assert s.host is not None  # checked by ModbusSettings
+            client: AsyncModbusTcpClient | AsyncModbusSerialClient = AsyncModbusTcpClient(
+                s.host, port=s.port, **common
+            )
+        else:
+            assert s.serial_port is not None
+            client = AsyncModbusSerialClient(
+                s.serial_port,
+                baudrate=s.baudrate,
+                parity=s.parity,
+                stopbits=s.stopbits,
+                bytesize=s.bytesize,
+                **common,
+            )
+        self._lock = asyncio.Lock()
+        where = self._where()
+        try:
+            connected = await client.connect()
+        except (ModbusException, OSError) as exc:
+            client.close()
+            raise DriverDisconnectedError(f"Modbus {where}: cannot connect: {exc}") from exc
+        if not connected:
+            client.close()
+            raise DriverDisconnectedError(f"Modbus {where}: cannot connect")
+        self._client = client
+
+    async def read(self, points: Sequence[str]) -> dict[str, float]:
+        client, lock = self._connection()
+        groups: dict[tuple[int, str], list[tuple[str, ModbusPoint]]] = {}
+        for name in points:
+            point = self._parse(name)
+            device = self.settings.device_id if point.device_id is None else point.device_id
+            groups.setdefault((device, point.table), []).append((name, point))
+        values: dict[str, float] = {}
+        async with lock:
+            for (device, table), members in groups.items():
+                limit = (
+                    _MAX_BITS_PER_REQUEST
+                    if table in _BIT_TABLES
+                    else self.settings.max_registers_per_request
+                )
+                for run in _spans(members, limit):
+                    start = run[0][1].address
+                    count = max(p.address + p.count for _, p in run) - start
+                    words = await self._read_span(client, table, start, count, device)
+                    for name, point in run:
+                        offset = point.address - start
+                        if table in _BIT_TABLES:
+                            values[name] = 1.0 if words[offset] else 0.0
+                        else:
+                            values[name] = point.codec.decode_registers(
+                                words[offset : offset + point.count]
+                            )
+        return values
+
+    async def write(self, values: Mapping[str, float]) -> None:
+        client, lock = self._connection()
+        # Encode (and range-check) everything before sending anything.
+        registers: dict[int, list[tuple[int, list[int]]]] = {}
+        coils: dict[int, list[tuple[int, bool]]] = {}
+        for name, value in values.items():
+            point = self._parse(name)
+            device = self.settings.device_id if point.device_id is None else point.device_id
+            if point.table == "holding":
+                try:
+                    encoded = point.codec.encode_registers(value)
+                except DriverProtocolError as exc:
+                    raise DriverProtocolError(f"{name}: {exc}") from exc
+                registers.setdefault(device, []).append((point.address, encoded))
+            elif point.table == "coil":
+                if value not in (0.0, 1.0):
+                    raise DriverProtocolError(f"{name}: a coil takes 0 or 1, not {value}")
+                coils.setdefault(device, []).append((point.address, bool(value)))
+            else:
+                raise DriverProtocolError(f"{name}: a {point.table} cannot be written")
+        async with lock:
+            for device, items in registers.items():
+                for start, block in _merge_writes(items):
+                    await self._call(
+                        client.write_registers(start, block, device_id=device),
+                        f"write holding {start}..{start + len(block) - 1} of device {device}",
+                    )
+            for device, bits in coils.items():
+                for address, bit in bits:
+                    await self._call(
+                        client.write_coil(address, bit, device_id=device),
+                        f"write coil {address} of device {device}",
+                    )
+
+    async def close(self) -> None:
+        client, self._client = self._client, None
+        if client is not None:
+            with contextlib.suppress(Exception):  # close() never raises (Driver contract)
+                client.close()
+
+    # -- internals ----------------------------------------------------------
+
+    def _connection(self) -> tuple[AsyncModbusTcpClient | AsyncModbusSerialClient, asyncio.Lock]:
+        if self._client is None or self._lock is None:
+            raise DriverDisconnectedError("Modbus driver is not open")
+        if not self._client.connected:
+            raise DriverDisconnectedError(f"Modbus {self._where()}: connection lost")
+        return self._client, self._lock
+
+    def _where(self) -> str:
+        s = self.settings
+        return f"{s.host}:{s.port}" if s.transport == "tcp" else str(s.serial_port)
+
+    @staticmethod
+    def _parse(address: str) -> ModbusPoint:
+        try:
+            return parse_address(address)
+        except ValueError as exc:
+            raise DriverProtocolError(f"bad Modbus address {address!r}: {exc}") from exc
+
+    async def _read_span(
+        self,
+        client: AsyncModbusTcpClient | AsyncModbusSerialClient,
+        table: str,
+        start: int,
+        count: int,
+        device: int,
+    ) -> list[int] | list[bool]:
+        calls: dict[str, Callable[..., Awaitable[Any]]] = {
+            "holding": client.read_holding_registers,
+            "input": client.read_input_registers,
+            "coil": client.read_coils,
+            "discrete": client.read_discrete_inputs,
+        }
+        what = f"read {table} {start}..{start + count - 1} of device {device}"
+        reply = await self._call(calls[table](start, count=count, device_id=device), what)
+        words: list[int] | list[bool] = reply.bits if table in _BIT_TABLES else reply.registers
+        if len(words) < count:
+            raise DriverProtocolError(
+                f"Modbus {self._where()}: {what}: short reply ({len(words)} of {count})"
+            )
+        return words
+
+    async def _call(self, request: Awaitable[Any], what: str) -> Any:
+        """Await one pymodbus request, translating its failures into DriverError."""
+        self.requests += 1
+        try:
+            reply = await request
+        except ConnectionException as exc:
+            raise DriverDisconnectedError(f"Modbus {self._where()}: {what}: {exc}") from exc
+        except ModbusIOException as exc:
+            if self._client is None or not self._client.connected:
+                raise DriverDisconnectedError(f"Modbus {self._where()}: {what}: {exc}") from exc
+            raise DriverTimeoutError(f"Modbus {self._where()}: {what}: no reply") from exc
+        except TimeoutError as exc:
+            raise DriverTimeoutError(f"Modbus {self._where()}: {what}: no reply") from exc
+        except (ModbusException, ValueError, struct.error) as exc:
+            raise DriverProtocolError(f"Modbus {self._where()}: {what}: {exc}") from exc
+        except OSError as exc:
+            raise DriverDisconnectedError(f"Modbus {self._where()}: {what}: {exc}") from exc
+        except DriverError:
+            raise
+        if reply is None or reply.isError():
+            code = getattr(reply, "exception_code", None)
+            raise DriverProtocolError(
+                f"Modbus {self._where()}: {what}: the device refused "
+                f"(exception code {code}{_EXCEPTION_NAMES.get(code or 0, '')})"
+            )
+        return reply
+
+
+def _merge_writes(items: list[tuple[int, list[int]]]) -> list[tuple[int, list[int]]]:
+    """Merge (address, registers) writes that follow each other into blocks of <= 123 registers."""
+    blocks: list[tuple[int, list[int]]] = []
+    for address, words in sorted(items):
+        if blocks:
+            start, block = blocks[-1]
+            if start + len(block) == address and len(block) + len(words) <= _MAX_WRITE_REGISTERS:
+                block.extend(words)
+                continue
+        blocks.append((address, list(words)))
+    return blocks
+
+
+_EXCEPTION_NAMES = {
+    1: ": illegal function",
+    2: ": illegal data address",
+    3: ": illegal data value",
+    4: ": device failure",
+    6: ": device busy",
+    10: ": gateway path unavailable",
+    11: ": gateway target did not respond",
+}

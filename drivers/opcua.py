@@ -1,0 +1,379 @@
+"""OPC UA driver: polls variables of an OPC UA server and writes offsets to it (asyncua).
+
+A point's address is a NodeId string (``ns=2;s=Machine.T_spindle``,
+``i=2258``) or a browse path from the root node
+(``0:Objects/2:Machine/2:T_spindle``). Addresses are resolved once per
+connection, together with each node's data type, in one TranslateBrowsePaths
+and one Read call; after that every tick is ONE Read service call for all
+requested nodes (the loop polls; a 1 s subscription would add up to a period
+of latency and its own reconnect logic).
+
+Values are typed by the server (:mod:`compd.drivers.opcua_values`): reads
+give floats, writes go out with each node's own variant type, integers
+range-checked and never wrapped.
+
+Security follows the settings: ``Basic256Sha256`` with ``SignAndEncrypt``
+(or ``Sign``), the client's application certificate and key, the server
+certificate the client trusts (any other server certificate is refused),
+and a username whose password comes from a file or an environment variable.
+Secrets are never logged or put into error messages
+(:mod:`compd.drivers.opcua_security`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Literal
+
+import structlog
+from asyncua import ua
+from asyncua.client.client import Client
+from asyncua.common.node import Node
+from asyncua.crypto import security_policies
+from asyncua.ua.attribute_ids import AttributeIds
+from asyncua.ua.status_codes import StatusCodes
+from asyncua.ua.uaerrors import UaError, UaStatusCodeError, UaStringParsingError
+from compd.drivers.opcua_security import REFUSALS, certificate_der, certificate_uri
+from compd.drivers.opcua_values import NUMERIC_TYPES, to_float, to_variant, variant_type
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from compd.errors import (
+    DriverDisconnectedError,
+    DriverError,
+    DriverProtocolError,
+    DriverTimeoutError,
+)
+from compd.yamlplace import resolve_path
+
+log = structlog.get_logger("compd.drivers.opcua")
+
+
+#: Status codes that mean the session or channel is gone: reconnect.
+_GONE = {
+    StatusCodes.BadSessionClosed,
+    StatusCodes.BadSessionIdInvalid,
+    StatusCodes.BadSecureChannelClosed,
+    StatusCodes.BadSecureChannelIdInvalid,
+    StatusCodes.BadConnectionClosed,
+    StatusCodes.BadServerNotConnected,
+    StatusCodes.BadShutdown,
+    StatusCodes.BadCommunicationError,
+}
+
+
+class OpcUaSecurity(BaseModel):
+    """``settings.security``: the secure channel and the client's own certificate."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    policy: Literal["Basic256Sha256"] = "Basic256Sha256"
+    mode: Literal["SignAndEncrypt", "Sign"] = "SignAndEncrypt"
+    certificate: str = Field(min_length=1, description="client certificate, PEM or DER")
+    private_key: str = Field(min_length=1, description="client private key, PEM or DER")
+    server_certificate: str = Field(
+        min_length=1, description="the one server certificate trusted, PEM or DER"
+    )
+    application_uri: str | None = Field(
+        default=None, description="client application URI; default: the certificate's URI"
+    )
+
+
+class OpcUaSettings(BaseModel):
+    """``drivers.<name>.settings`` of a ``type: opcua`` driver."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    url: str = Field(pattern=r"^opc\.tcp://[^@/]+(/.*)?$", description="opc.tcp://host:port/path")
+    security: OpcUaSecurity | None = None
+    username: str | None = None
+    password_file: str | None = Field(default=None, description="file holding the password")
+    password_env: str | None = Field(default=None, description="environment variable")
+    request_timeout_s: float = Field(default=2.0, gt=0, description="per OPC UA request")
+
+    @model_validator(mode="after")
+    def _one_password_source(self) -> OpcUaSettings:
+        sources = [s for s in (self.password_file, self.password_env) if s]
+        if len(sources) > 1:
+            raise ValueError("give password_file or password_env, not both")
+        if sources and not self.username:
+            raise ValueError("a password needs a username")
+        return self
+
+
+def _node_id(address: str) -> ua.NodeId | None:
+    """The NodeId an address names directly, or None when it is a browse path."""
+    if "/" in address:
+        return None
+    try:
+        return ua.NodeId.from_string(address)
+    except (ValueError, UaError) as exc:
+        raise DriverProtocolError(
+            f"OPC UA address {address!r} is neither a NodeId (ns=2;s=Name) nor a "
+            f"browse path (0:Objects/2:Machine/2:Name): {exc}"
+        ) from exc
+
+
+def _status_name(code: int) -> str:
+    return ua.StatusCode(ua.UInt32(code)).name
+
+
+def _good(status: ua.StatusCode | None) -> bool:
+    """An absent status code means Good (OPC UA Part 6, DataValue encoding)."""
+    return status is None or status.is_good()
+
+
+def _name(status: ua.StatusCode | None) -> str:
+    return "Good" if status is None else status.name
+
+
+class OpcUaDriver:
+    """One client session to one OPC UA server; see the module docstring."""
+
+    settings_model = OpcUaSettings
+
+    def __init__(
+        self, settings: OpcUaSettings, *, now: Callable[[], float], base_dir: Path
+    ) -> None:
+        self.settings = settings
+        self._now = now
+        self._base_dir = base_dir
+        self._client: Client | None = None
+        self._lock = asyncio.Lock()
+        #: Resolved per connection: address -> (node, variant type).
+        self._nodes: dict[str, tuple[Node, ua.VariantType]] = {}
+
+    # -- lifecycle ---------------------------------------------------------
+
+    async def open(self) -> None:
+        async with self._lock:
+            await self._drop_client()
+            client = Client(self.settings.url, timeout=self.settings.request_timeout_s)
+            try:
+                await self._configure(client)
+                await client.connect()
+            except asyncio.CancelledError:
+                await _disconnect_quietly(client)
+                raise
+            except Exception as exc:
+                await _disconnect_quietly(client)
+                error = self._translate(exc, "connect")
+                if isinstance(error, DriverTimeoutError | DriverDisconnectedError):
+                    error = await self._diagnose_server_certificate() or error
+                raise error from exc
+            self._client = client
+            log.debug("opcua connected", url=self.settings.url)
+
+    async def close(self) -> None:
+        async with self._lock:
+            await self._drop_client()
+
+    async def _drop_client(self) -> None:
+        client, self._client = self._client, None
+        self._nodes.clear()
+        if client is not None:
+            await _disconnect_quietly(client)
+
+    async def _configure(self, client: Client) -> None:
+        security = self.settings.security
+        if security is not None:
+            cert_path = self._path(security.certificate)
+            client.application_uri = security.application_uri or certificate_uri(cert_path)
+            await client.set_security(
+                security_policies.SecurityPolicyBasic256Sha256,
+                certificate=str(cert_path),
+                private_key=str(self._path(security.private_key)),
+                server_certificate=str(self._path(security.server_certificate)),
+                mode=getattr(ua.MessageSecurityMode, security.mode),
+            )
+        if self.settings.username:
+            client.set_user(self.settings.username)
+            client.set_password(self._password())
+
+    async def _diagnose_server_certificate(self) -> DriverError | None:
+        """Why a secured connect got no answer: the server's certificate is not the trusted one?
+
+        A server whose certificate differs from ``security.server_certificate``
+        cannot decrypt our OpenSecureChannel and just drops it, which looks
+        like a timeout. Its endpoints (readable without security) tell.
+        """
+        if self.settings.security is None:
+            return None
+        trusted = certificate_der(self._path(self.settings.security.server_certificate))
+        probe = Client(self.settings.url, timeout=self.settings.request_timeout_s)
+        try:
+            async with asyncio.timeout(2 * self.settings.request_timeout_s):
+                endpoints = await probe.connect_and_get_server_endpoints()
+        except Exception as exc:  # the server is really unreachable: keep the first error
+            log.debug("opcua endpoint probe failed", error=type(exc).__name__)
+            return None
+        finally:
+            probe.disconnect_socket()
+        presented = {bytes(e.ServerCertificate) for e in endpoints if e.ServerCertificate}
+        if presented and not any(p.startswith(trusted) for p in presented):
+            return DriverProtocolError(
+                f"OPC UA server {self.settings.url} presented a certificate that is not "
+                "security.server_certificate: server not trusted, refusing to connect"
+            )
+        return None
+
+    def _path(self, name: str) -> Path:
+        path = resolve_path(name, self._base_dir)
+        if not path.is_file():
+            raise DriverError(f"OPC UA driver: file {path} does not exist")
+        return path
+
+    def _password(self) -> str:
+        """The password from ``password_file`` or ``password_env`` (never logged)."""
+        if self.settings.password_file:
+            path = self._path(self.settings.password_file)
+            try:
+                return path.read_text(encoding="utf-8").rstrip("\r\n")
+            except (OSError, UnicodeDecodeError) as exc:  # the message names the file, not its text
+                raise DriverError(
+                    f"OPC UA driver: cannot read password_file {path} ({type(exc).__name__})"
+                ) from None
+        if self.settings.password_env:
+            value = os.environ.get(self.settings.password_env)
+            if value is None:
+                raise DriverError(
+                    f"OPC UA driver: environment variable {self.settings.password_env} "
+                    "(password_env) is not set"
+                )
+            return value
+        return ""
+
+    # -- read and write ----------------------------------------------------
+
+    async def read(self, points: Sequence[str]) -> dict[str, float]:
+        async with self._lock:
+            client = self._connected()
+            try:
+                await self._resolve(client, points)
+                nodes = [self._nodes[p][0].nodeid for p in points]
+                results = await client.uaclient.read_attributes(nodes, AttributeIds.Value)
+            except (DriverError, asyncio.CancelledError):
+                raise
+            except Exception as exc:
+                raise self._translate(exc, "read") from exc
+        values: dict[str, float] = {}
+        for point, result in zip(points, results, strict=True):
+            if not _good(result.StatusCode):
+                # A bad quality (sensor fault, out of service) is no new value:
+                # the signal goes stale, the rest of the batch is still good.
+                log.debug("opcua bad quality", address=point, status=_name(result.StatusCode))
+                continue
+            values[point] = to_float(point, None if result.Value is None else result.Value.Value)
+        return values
+
+    async def write(self, values: Mapping[str, float]) -> None:
+        if not values:
+            return
+        async with self._lock:
+            client = self._connected()
+            points = list(values)
+            try:
+                await self._resolve(client, points)
+                # Encode every value before sending any: one bad value sends nothing.
+                data = [ua.DataValue(to_variant(p, values[p], self._nodes[p][1])) for p in points]
+                nodes = [self._nodes[p][0].nodeid for p in points]
+                results = await client.uaclient.write_attributes(nodes, data, AttributeIds.Value)
+            except (DriverError, asyncio.CancelledError):
+                raise
+            except Exception as exc:
+                raise self._translate(exc, "write") from exc
+        refused = [
+            f"{p}: {status.name}"
+            for p, status in zip(points, results, strict=True)
+            if not status.is_good()
+        ]
+        if refused:
+            raise DriverProtocolError(
+                f"OPC UA server {self.settings.url} refused writes ({'; '.join(refused)})"
+            )
+
+    def _connected(self) -> Client:
+        if self._client is None:
+            raise DriverDisconnectedError(f"OPC UA driver for {self.settings.url} is not connected")
+        return self._client
+
+    async def _resolve(self, client: Client, points: Sequence[str]) -> None:
+        """Find the node and data type of every new address: one call each for paths and types."""
+        new = [p for p in dict.fromkeys(points) if p not in self._nodes]
+        if not new:
+            return
+        ids: dict[str, ua.NodeId] = {}
+        paths = []
+        for point in new:
+            node_id = _node_id(point)
+            if node_id is None:
+                paths.append(point)
+            else:
+                ids[point] = node_id
+        if paths:
+            relative = ["/" + p.lstrip("/") for p in paths]
+            try:
+                found = await client.translate_browsepaths(client.nodes.root.nodeid, relative)
+            except UaStringParsingError as exc:
+                raise DriverProtocolError(f"OPC UA browse path not understood: {exc}") from exc
+            for point, result in zip(paths, found, strict=True):
+                if not result.StatusCode.is_good() or not result.Targets:
+                    raise DriverProtocolError(
+                        f"OPC UA server {self.settings.url} has no node at browse path "
+                        f"{point!r} ({result.StatusCode.name})"
+                    )
+                ids[point] = result.Targets[0].TargetId
+        types = await client.uaclient.read_attributes([ids[p] for p in new], AttributeIds.DataType)
+        for point, typed in zip(new, types, strict=True):
+            if not _good(typed.StatusCode) or typed.Value is None:
+                raise DriverProtocolError(
+                    f"OPC UA server {self.settings.url} has no variable {point!r} "
+                    f"({_name(typed.StatusCode)})"
+                )
+            data_type = typed.Value.Value
+            vtype = variant_type(data_type)
+            if vtype not in NUMERIC_TYPES:
+                raise DriverProtocolError(
+                    f"OPC UA variable {point!r} has data type {data_type.to_string()}, "
+                    "not a number or Boolean"
+                )
+            self._nodes[point] = (client.get_node(ids[point]), vtype)
+
+    def _translate(self, exc: BaseException, action: str) -> DriverError:
+        """A compd DriverError for any library or socket failure (secrets never in the text)."""
+        where = f"OPC UA server {self.settings.url}"
+        if isinstance(exc, DriverError):
+            return exc
+        if isinstance(exc, TimeoutError | asyncio.TimeoutError):
+            return DriverTimeoutError(f"{where}: no answer to {action} within the request timeout")
+        if isinstance(exc, UaStatusCodeError):
+            code = exc.code
+            if code in REFUSALS:
+                return DriverProtocolError(f"{where} {REFUSALS[code]} ({_status_name(code)})")
+            if code in _GONE:
+                return DriverDisconnectedError(
+                    f"{where}: connection lost on {action} ({_status_name(code)})"
+                )
+            if code == StatusCodes.BadTimeout:
+                return DriverTimeoutError(f"{where}: {action} timed out (BadTimeout)")
+            return DriverProtocolError(f"{where}: {action} failed ({_status_name(code)})")
+        if isinstance(exc, ConnectionError | OSError | asyncio.IncompleteReadError | EOFError):
+            return DriverDisconnectedError(f"{where}: {action} failed, connection down ({exc})")
+        if isinstance(exc, UaError) and "certificate mismatch" in str(exc).lower():
+            return DriverProtocolError(
+                f"{where} presented a certificate other than security.server_certificate: not trusted"
+            )
+        return DriverProtocolError(f"{where}: {action} failed ({type(exc).__name__}: {exc})")
+
+
+async def _disconnect_quietly(client: Client) -> None:
+    """Close session, channel and socket, bounded in time; a dead server is not an error."""
+    try:
+        async with asyncio.timeout(1.0):
+            await client.disconnect()
+    except Exception as exc:  # close never raises: the connection may already be gone
+        log.debug("opcua disconnect failed", error=type(exc).__name__)
+    # disconnect() may stop before the socket when the server is gone.
+    client.disconnect_socket()

@@ -1,0 +1,92 @@
+"""OPC UA security material for the driver: certificates, the password's secrecy, refusals explained.
+
+OPC UA ties a client's identity to its application certificate: the
+application URI the client announces must be the URI in that certificate's
+subjectAltName, so it is read from there. The driver's error messages turn
+the server's refusal codes into the fix an operator needs. And asyncua's
+DEBUG log of the requests it sends would show the password: a filter on
+that logger blanks it, because compd never logs a secret.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+
+from asyncua.ua.status_codes import StatusCodes
+from cryptography import x509
+from cryptography.hazmat.primitives.serialization import Encoding
+
+from compd.errors import DriverError
+
+
+class _RedactPasswords(logging.Filter):
+    """Blank the password in asyncua's DEBUG dump of every request it sends.
+
+    asyncua logs ``Sending: <request>`` with the whole ActivateSessionRequest,
+    whose UserNameIdentityToken holds the password (in clear when the server's
+    token policy leaves encryption to the secure channel). compd never logs a
+    secret, so the record is rewritten before any handler sees it.
+    """
+
+    _PASSWORD = re.compile(r"Password=.*?(?=, EncryptionAlgorithm=)", re.DOTALL)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        if "Password=" in message:
+            record.msg, record.args = self._PASSWORD.sub("Password=<redacted>", message), ()
+        return True
+
+
+logging.getLogger("asyncua.client.ua_client.UASocketProtocol").addFilter(_RedactPasswords())
+
+#: Status codes that mean the server refused who we are, with the fix to name.
+REFUSALS: dict[int, str] = {
+    StatusCodes.BadUserAccessDenied: "refused the user: wrong username or password",
+    StatusCodes.BadIdentityTokenInvalid: "refused the user: wrong username or password",
+    StatusCodes.BadIdentityTokenRejected: "does not accept username logins on this endpoint",
+    StatusCodes.BadCertificateUntrusted: (
+        "does not trust the client certificate: add it to the server's trusted certificates"
+    ),
+    StatusCodes.BadSecurityChecksFailed: (
+        "refused the secure channel: client certificate not trusted or not valid"
+    ),
+    StatusCodes.BadCertificateUriInvalid: (
+        "refused the client certificate: its URI does not match application_uri"
+    ),
+    StatusCodes.BadCertificateTimeInvalid: "refused the client certificate: expired or not yet valid",
+    StatusCodes.BadCertificateUseNotAllowed: (
+        "refused the client certificate: wrong key usage for a client"
+    ),
+    StatusCodes.BadSecurityPolicyRejected: "does not offer this security policy",
+}
+
+
+def load_certificate(path: Path) -> x509.Certificate:
+    data = path.read_bytes()
+    try:
+        if data.lstrip().startswith(b"-----"):
+            return x509.load_pem_x509_certificate(data)
+        return x509.load_der_x509_certificate(data)
+    except ValueError as exc:
+        raise DriverError(f"OPC UA driver: {path} is not a PEM or DER certificate") from exc
+
+
+def certificate_der(path: Path) -> bytes:
+    return load_certificate(path).public_bytes(Encoding.DER)
+
+
+def certificate_uri(path: Path) -> str:
+    """The application URI in a certificate's subjectAltName (OPC UA requires it to match)."""
+    cert = load_certificate(path)
+    try:
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound as exc:
+        raise DriverError(f"OPC UA client certificate {path} has no subjectAltName URI") from exc
+    uris = san.get_values_for_type(x509.UniformResourceIdentifier)
+    if not uris:
+        raise DriverError(
+            f"OPC UA client certificate {path} has no URI; set security.application_uri"
+        )
+    return str(uris[0])

@@ -1,0 +1,409 @@
+"""The OPC UA driver against a real, secured asyncua server started by the tests.
+
+One server per test session (Basic256Sha256/SignAndEncrypt, username
+tokens only, one trusted client certificate); the contract suite reaches it
+through a TCP proxy that each test can cut. The restart test has its own
+server, stopped and started again on the same port.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import structlog
+import yaml
+from compd.drivers.base import DRIVERS, driver_types
+from compd.drivers.opcua import OpcUaDriver, OpcUaSettings
+from pydantic import ValidationError
+
+from compd.clock import RealClock
+from compd.errors import (
+    DriverDisconnectedError,
+    DriverError,
+    DriverProtocolError,
+    DriverTimeoutError,
+)
+from compd.links import DriverLink
+
+from .contract import ContractSetup, DriverContract
+from .opcua_server import (
+    PASSWORD,
+    USERNAME,
+    Certificates,
+    OpcUaTestServer,
+    make_certificates,
+)
+
+
+@pytest.fixture(scope="session")
+def certs(tmp_path_factory: pytest.TempPathFactory) -> Certificates:
+    directory = tmp_path_factory.mktemp("opcua_pki")
+    certs = make_certificates(directory)
+    (directory / "password.txt").write_text(PASSWORD + "\n")
+    return certs
+
+
+@pytest.fixture(scope="session")
+def server(certs: Certificates) -> Iterator[OpcUaTestServer]:
+    server = OpcUaTestServer(certs)
+    server.start()
+    yield server
+    server.shutdown()
+
+
+def make_driver(
+    certs: Certificates, url: str, *, security: dict[str, str] | None = None, **settings: object
+) -> OpcUaDriver:
+    """A driver with the trusted client certificate and the password from a file, unless overridden."""
+    sec = {
+        "certificate": str(certs.client_cert),
+        "private_key": str(certs.client_key),
+        "server_certificate": str(certs.server_cert),
+    }
+    sec.update(security or {})
+    values: dict[str, object] = {
+        "url": url,
+        "security": sec,
+        "username": USERNAME,
+        "password_file": "password.txt",
+        "request_timeout_s": 1.0,
+    }
+    values.update(settings)
+    return OpcUaDriver(
+        OpcUaSettings.model_validate(values), now=time.monotonic, base_dir=certs.server_cert.parent
+    )
+
+
+async def opened(driver: OpcUaDriver) -> OpcUaDriver:
+    await driver.open()
+    return driver
+
+
+def refused(driver: OpcUaDriver) -> DriverError:
+    """The error open() raises (the test fails if it connects)."""
+
+    async def scenario() -> None:
+        try:
+            await driver.open()
+        finally:
+            await driver.close()
+
+    with pytest.raises(DriverError) as info:
+        asyncio.run(scenario())
+    return info.value
+
+
+def test_registered_with_its_settings():
+    """The opcua driver is in the registry under 'opcua' and owns its settings model."""
+    assert DRIVERS["opcua"] is OpcUaDriver and "opcua" in driver_types()
+    assert OpcUaDriver.settings_model is OpcUaSettings
+
+
+def test_settings_are_validated():
+    """Two password sources, a password without a user, and credentials in the URL are config errors."""
+    url = "opc.tcp://plc:4840"
+    for bad in (
+        {"url": url, "username": "u", "password_file": "f", "password_env": "E"},
+        {"url": url, "password_env": "E"},
+        {"url": "opc.tcp://u:secret@plc:4840"},
+        {"url": "http://plc:4840"},
+        {"url": url, "timeout": 1},
+    ):
+        with pytest.raises(ValidationError):
+            OpcUaSettings.model_validate(bad)
+
+
+def test_the_commented_example_config_is_valid():
+    """The commented-out OPC UA driver in config/compd.example.yaml validates once uncommented."""
+    text = (Path(__file__).parents[2] / "config" / "compd.example.yaml").read_text()
+    block = text[text.index("  # cnc:") : text.index("  # OPC UA addresses")]
+    doc = yaml.safe_load("\n".join(line.replace("  # ", "  ", 1) for line in block.splitlines()))
+    assert doc["cnc"]["type"] == "opcua"
+    settings = OpcUaSettings.model_validate(doc["cnc"]["settings"])
+    assert settings.security is not None and settings.security.mode == "SignAndEncrypt"
+
+
+def test_reads_every_numeric_type_by_node_id_and_browse_path(certs, server):
+    """Double, Float, UInt16, Int32 and Boolean nodes read as floats, by NodeId or by browse path."""
+    ns = server.namespace_index
+    path = f"0:Objects/{ns}:Machine/{ns}:T_spindle_degC"
+    ids = {n: server.node_id(n) for n in ("T_bed_degC", "spindle_rpm", "power_w", "running")}
+
+    async def scenario() -> dict[str, float]:
+        driver = await opened(make_driver(certs, server.url))
+        try:
+            return await driver.read([path, *ids.values()])
+        finally:
+            await driver.close()
+
+    values = asyncio.run(scenario())
+    assert values == {
+        path: 31.25,
+        ids["T_bed_degC"]: 22.5,
+        ids["spindle_rpm"]: 12000.0,
+        ids["power_w"]: -1500.0,
+        ids["running"]: 1.0,
+    }
+
+
+def test_one_read_request_per_tick(certs, server):
+    """After the first read resolves the nodes, each read is a single OPC UA Read of all nodes."""
+    points = [server.node_id(n) for n in ("T_spindle_degC", "T_bed_degC", "spindle_rpm")]
+    calls = []
+
+    async def scenario() -> None:
+        driver = await opened(make_driver(certs, server.url))
+        await driver.read(points)
+        client = driver._client
+        assert client is not None
+        original = client.uaclient.read_attributes
+
+        async def counting(nodes, attr):  # counts the real call, changes nothing
+            calls.append(len(nodes))
+            return await original(nodes, attr)
+
+        client.uaclient.read_attributes = counting  # type: ignore[method-assign]
+        for _ in range(5):
+            await driver.read(points)
+        await driver.close()
+
+    asyncio.run(scenario())
+    assert calls == [3] * 5
+
+
+def test_bad_quality_is_no_value(certs, server):
+    """A node whose status is Bad is left out of the result; the good nodes of the batch still read."""
+    faulty, good = server.node_id("T_faulty_degC"), server.node_id("T_spindle_degC")
+
+    async def scenario() -> dict[str, float]:
+        driver = await opened(make_driver(certs, server.url))
+        try:
+            return await driver.read([faulty, good])
+        finally:
+            await driver.close()
+
+    assert asyncio.run(scenario()) == {good: 31.25}
+
+
+def test_writes_use_the_node_type(certs, server):
+    """Writes reach the server with each node's own type: Int16/Int32 rounded, Double, UInt16, Boolean."""
+    names = ("comp_x_um", "comp_y_0p1um", "comp_z_0p1um", "status_word", "heartbeat")
+    values = dict(zip(names, (-12.75, -123.0, 70000.4, 5.0, 1.0), strict=True))
+
+    async def scenario() -> None:
+        driver = await opened(make_driver(certs, server.url))
+        try:
+            await driver.write({server.node_id(n): v for n, v in values.items()})
+        finally:
+            await driver.close()
+
+    asyncio.run(scenario())
+    held = {n: server.value(n) for n in names}
+    assert held == {
+        "comp_x_um": -12.75,
+        "comp_y_0p1um": -123,
+        "comp_z_0p1um": 70000,
+        "status_word": 5,
+        "heartbeat": True,
+    }
+    assert isinstance(held["comp_y_0p1um"], int) and isinstance(held["heartbeat"], bool)
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("comp_y_0p1um", 32767.6),  # rounds to 32768: one past Int16
+        ("comp_y_0p1um", -40000.0),
+        ("status_word", -1.0),  # UInt16
+        ("comp_z_0p1um", float("nan")),
+        ("heartbeat", 0.5),
+    ],
+)
+def test_out_of_range_writes_send_nothing(certs, server, name, value):
+    """A value that does not fit the node's type is a DriverProtocolError and no value of the batch is sent."""
+    server.set_value("comp_x_um", 0.0)
+    before = server.value(name)
+
+    async def scenario() -> None:
+        driver = await opened(make_driver(certs, server.url))
+        try:
+            await driver.write({server.node_id("comp_x_um"): 7.0, server.node_id(name): value})
+        finally:
+            await driver.close()
+
+    with pytest.raises(DriverProtocolError, match=r"does not fit|not 0 or 1|not finite"):
+        asyncio.run(scenario())
+    assert server.value(name) == before and server.value("comp_x_um") == 0.0
+
+
+def test_rejected_write_names_the_node_and_status(certs, server):
+    """A write the server refuses (read-only node) raises DriverProtocolError with the node and status."""
+    node = server.node_id("T_spindle_degC")
+
+    async def scenario() -> None:
+        driver = await opened(make_driver(certs, server.url))
+        try:
+            await driver.write({node: 1.0})
+        finally:
+            await driver.close()
+
+    with pytest.raises(DriverProtocolError, match=r"refused writes .*T_spindle_degC: Bad"):
+        asyncio.run(scenario())
+    assert server.value("T_spindle_degC") == 31.25
+
+
+@pytest.mark.parametrize(
+    ("address", "message"),
+    [
+        ("label", "not a number"),
+        ("ns=2;s=Machine.nope", "no variable"),
+        ("0:Objects/2:Nope", "no node at browse path"),
+        ("ns=x;q=", "neither a NodeId"),
+    ],
+)
+def test_unusable_addresses_are_protocol_errors(certs, server, address, message):
+    """Strings, unknown NodeIds, unknown browse paths and unparsable addresses raise DriverProtocolError."""
+    if address == "label":
+        address = server.node_id("label")
+
+    async def scenario() -> None:
+        driver = await opened(make_driver(certs, server.url))
+        try:
+            await driver.read([address])
+        finally:
+            await driver.close()
+
+    with pytest.raises(DriverProtocolError, match=message):
+        asyncio.run(scenario())
+
+
+def test_password_from_environment(certs, server, monkeypatch):
+    """password_env supplies the password; a good user connects and reads."""
+    monkeypatch.setenv("COMPD_TEST_OPCUA_PW", PASSWORD)
+
+    async def scenario() -> dict[str, float]:
+        driver = make_driver(
+            certs, server.url, password_file=None, password_env="COMPD_TEST_OPCUA_PW"
+        )
+        await driver.open()
+        try:
+            return await driver.read([server.node_id("spindle_rpm")])
+        finally:
+            await driver.close()
+
+    assert asyncio.run(scenario()) == {server.node_id("spindle_rpm"): 12000.0}
+
+
+def test_wrong_password_is_refused_and_never_shown(certs, server, monkeypatch, caplog):
+    """A wrong password is refused with a message saying so, and the password appears in no log or error."""
+    wrong = "wrong-password-1234"
+    monkeypatch.setenv("COMPD_TEST_OPCUA_PW", wrong)
+    driver = make_driver(certs, server.url, password_file=None, password_env="COMPD_TEST_OPCUA_PW")
+    with caplog.at_level(logging.DEBUG), structlog.testing.capture_logs() as events:
+        error = refused(driver)
+    assert isinstance(error, DriverProtocolError)
+    assert "wrong username or password" in str(error)
+    text = f"{error!r} {error.__cause__!r} {caplog.text} {events!r}"
+    assert wrong not in text and PASSWORD not in text
+
+
+def test_missing_password_variable_is_named(certs, server, monkeypatch):
+    """An unset password_env is a DriverError naming the variable."""
+    monkeypatch.delenv("COMPD_TEST_OPCUA_UNSET", raising=False)
+    driver = make_driver(
+        certs, server.url, password_file=None, password_env="COMPD_TEST_OPCUA_UNSET"
+    )
+    assert "COMPD_TEST_OPCUA_UNSET" in str(refused(driver))
+
+
+def test_untrusted_client_certificate_is_refused(certs, server):
+    """A client certificate the server does not trust is refused with a message that says so."""
+    driver = make_driver(
+        certs,
+        server.url,
+        security={"certificate": str(certs.rogue_cert), "private_key": str(certs.rogue_key)},
+    )
+    error = refused(driver)
+    assert isinstance(error, DriverProtocolError)
+    assert "does not trust the client certificate" in str(error)
+
+
+def test_untrusted_server_certificate_is_refused(certs, server):
+    """A server whose certificate is not security.server_certificate is refused as not trusted."""
+    driver = make_driver(
+        certs,
+        server.url,
+        security={"server_certificate": str(certs.client_cert)},
+        request_timeout_s=0.3,
+    )
+    error = refused(driver)
+    assert isinstance(error, DriverProtocolError)
+    assert "not security.server_certificate" in str(error)
+
+
+def test_garbage_replies_are_driver_errors(certs, server):
+    """A peer answering bytes that are not OPC UA gives a bounded DriverError, not a library exception."""
+    url = f"opc.tcp://127.0.0.1:{server.garbage_port()}/compd/"
+    started = time.monotonic()
+    error = refused(make_driver(certs, url, request_timeout_s=0.5))
+    # asyncua drops the socket on an unparsable reply but leaves the request
+    # pending: it ends as a timeout (then the endpoint probe fails the same way).
+    assert isinstance(error, DriverTimeoutError | DriverDisconnectedError | DriverProtocolError)
+    assert time.monotonic() - started < 3.0
+
+
+class TestOpcUaContract(DriverContract):
+    """The OPC UA driver passes the driver contract against the secured server, through a cuttable proxy."""
+
+    @pytest.fixture
+    def setup(self, certs: Certificates, server: OpcUaTestServer) -> ContractSetup:
+        proxy = server.proxy()
+        return ContractSetup(
+            driver=make_driver(certs, proxy.url),
+            readable=(server.node_id("T_spindle_degC"), server.node_id("spindle_rpm")),
+            writable=server.node_id("comp_x_um"),
+            missing=server.node_id("no_such_node"),
+            break_connection=proxy.cut,
+        )
+
+
+@pytest.fixture(scope="module")
+def restart_server(certs: Certificates) -> Iterator[OpcUaTestServer]:
+    server = OpcUaTestServer(certs)
+    server.start()
+    yield server
+    server.shutdown()
+
+
+def test_server_stopped_and_restarted(certs, restart_server: OpcUaTestServer):
+    """Server gone: reads raise DriverDisconnectedError and the link never raises; back: reconnected within 5 s."""
+    point = restart_server.node_id("T_spindle_degC")
+    driver = make_driver(certs, restart_server.url, request_timeout_s=0.5)
+    link = DriverLink(
+        "opcua", driver, RealClock(), timeout_s=1.0, backoff_min_s=0.1, backoff_max_s=0.4
+    )
+
+    async def scenario() -> tuple[float, list[dict[str, float]]]:
+        await link.open()
+        assert await link.read([point]) == {point: 31.25}
+        await asyncio.to_thread(restart_server.stop)
+        with pytest.raises(DriverDisconnectedError):
+            await driver.read([point])
+        down = [await link.read([point]) for _ in range(3)]
+        assert await link.write({restart_server.node_id("comp_x_um"): 1.0}) is False
+        await asyncio.to_thread(restart_server.start)
+        back_at = time.monotonic()
+        while not (values := await link.read([point])):
+            assert time.monotonic() - back_at < 5.0, "no reconnect within 5 s"
+            await asyncio.sleep(0.05)
+        await link.close()
+        assert values == {point: 31.25}
+        return time.monotonic() - back_at, down
+
+    reconnect_s, down = asyncio.run(scenario())
+    assert down == [{}, {}, {}] and reconnect_s < 5.0 and link.reconnects == 1
