@@ -103,11 +103,12 @@ def test_restart_resumes_the_door_features(setup, tmp_path) -> None:
     model, data = setup
     door = load_data(data).column("door_open")
     change = int(np.flatnonzero(np.diff(door) != 0)[0]) + 1  # the door's first change
-    first = Service(config_for(tmp_path, model, data), clock=VirtualClock(), control=False)
+    config = config_for(tmp_path, model, data)
+    first = Service(config, clock=VirtualClock(), control=False, background_saves=False)
     first.save_state = lambda: None  # killed: only the periodic saves
     run(first.config, change + 300.0, service=first)  # killed 5 min into the transition
     saved = load_state(tmp_path / "state")
-    assert saved is not None
+    assert saved is not None and saved.ticks > change  # saved mid-transition
     config = config_for(tmp_path, model, data, start_s=saved.ticks)
     second, after = run(config, 60.0, clock=VirtualClock(wall0_unix_s=saved.saved_at_unix_s))
     assert second.resumed
