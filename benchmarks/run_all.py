@@ -23,6 +23,10 @@ SCRIPTS = (
     "bench_identify.py",
     "bench_tick.py",
     "bench_diagnose.py",
+    "bench_residual.py",
+    "bench_modbus.py",
+    "bench_opcua.py",
+    "bench_serial.py",
 )
 #: Arguments per script: the tick benchmark's quick run (600 ticks at 0.1 s, 1 minute);
 #: its full run (600 real 1 Hz ticks, 10 minutes) is ``python benchmarks/bench_tick.py``.

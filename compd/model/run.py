@@ -10,7 +10,9 @@ polynomial form, and there the two agree to about 1e-4 relative.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -157,35 +159,21 @@ def simulate(compiled: CompiledModel, signals: np.ndarray, state: ModelState) ->
     # (N, S) intermediates of a vectorised gather would triple peak memory.
     # The constant 0 / 1 slots of the extended vector are never materialised.
     rows = signals.T  # a view: each row is read once, strided or not, into a contiguous buffer
-    n_signals = len(compiled.signals)
     n_samples = signals.shape[0]
     contributions = np.empty((compiled.n_submodels, n_samples))
     final_z = np.empty_like(state.z)
-    u = np.empty(n_samples)
-    for s in range(compiled.n_submodels):
-        np.subtract(rows[compiled.plus_index[s]], state.reference[s], out=u)
-        if compiled.minus_index[s] < n_signals:
-            u -= rows[compiled.minus_index[s]]
-        # CompiledModel.gates_open's test, on one sub-model's row of the record.
-        gate = (
-            None
-            if compiled.gate_index[s] >= n_signals
-            else rows[compiled.gate_index[s]] * compiled.gate_sign[s] > compiled.signed_threshold[s]
-        )
-        if gate is not None and compiled.gate_on_input[s]:
-            u *= gate
-        if compiled.n_states:
-            response, final_z[s] = scipy.signal.lfilter(
-                compiled.b[s], compiled.a[s], u, zi=state.z[s]
-            )
-        else:
-            response = compiled.b[s, 0] * u
-        if gate is not None and not compiled.gate_on_input[s]:
-            response *= gate
-        # CompiledModel.position_factors on one row (seed 003's m1(T) * (P - P_ref)).
-        if compiled.position_index[s] < n_signals:
-            response *= rows[compiled.position_index[s]] - compiled.position_reference_mm[s]
-        np.multiply(response, compiled.gain[s], out=contributions[s])
+
+    def run_submodel(s: int) -> None:
+        contributions[s], final_z[s] = _submodel_response(compiled, rows, state, s)
+
+    # lfilter releases the GIL: long records run their sub-models on every core.
+    workers = min(compiled.n_submodels, os.cpu_count() or 1)
+    if workers > 1 and n_samples * compiled.n_submodels >= _PARALLEL_MIN_SAMPLES:
+        with ThreadPoolExecutor(workers) as pool:
+            list(pool.map(run_submodel, range(compiled.n_submodels)))
+    else:
+        for s in range(compiled.n_submodels):
+            run_submodel(s)
     outputs = (compiled.output_matrix @ contributions).T
     contributions = contributions.T
     # Seed 004: each output's residual model on its door signal, added to the TF sum.
@@ -199,3 +187,41 @@ def simulate(compiled: CompiledModel, signals: np.ndarray, state: ModelState) ->
         outputs[:, out_i] += terms[:, r]
     final = ModelState(final_z, state.reference.copy(), final_residual)
     return SimulationResult(outputs, contributions, final, terms if slices else None)
+
+
+#: Below this many samples x sub-models, threads cost more than they save.
+_PARALLEL_MIN_SAMPLES = 200_000
+
+
+def _submodel_response(
+    compiled: CompiledModel, rows: np.ndarray, state: ModelState, s: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """One sub-model's contribution over the record (um) and its final TF state.
+
+    The constant 0 / 1 slots of the extended signal vector are never
+    materialised: a sub-model without a minus signal, gate or position skips
+    that step.
+    """
+    n_signals = len(compiled.signals)
+    u = rows[compiled.plus_index[s]] - state.reference[s]
+    if compiled.minus_index[s] < n_signals:
+        u -= rows[compiled.minus_index[s]]
+    # CompiledModel.gates_open's test, on one sub-model's row of the record.
+    gate = (
+        None
+        if compiled.gate_index[s] >= n_signals
+        else rows[compiled.gate_index[s]] * compiled.gate_sign[s] > compiled.signed_threshold[s]
+    )
+    if gate is not None and compiled.gate_on_input[s]:
+        u *= gate
+    if compiled.n_states:
+        response, final_z = scipy.signal.lfilter(compiled.b[s], compiled.a[s], u, zi=state.z[s])
+    else:
+        response, final_z = compiled.b[s, 0] * u, state.z[s].copy()
+    if gate is not None and not compiled.gate_on_input[s]:
+        response *= gate
+    # CompiledModel.position_factors on one row (seed 003's m1(T) * (P - P_ref)).
+    if compiled.position_index[s] < n_signals:
+        response *= rows[compiled.position_index[s]] - compiled.position_reference_mm[s]
+    response *= compiled.gain[s]
+    return response, final_z
