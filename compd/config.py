@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from compd.errors import ConfigFileError
 from compd.model.compiled import CompiledModel
 from compd.modelfile import ModelFile
-from compd.yamlplace import FIXES, describe, resolve_path, where
+from compd.yamlplace import FIXES, describe, parse_yaml, resolve_path, where
 
 SCHEMA = "compd.config/1"
 #: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31).
@@ -194,14 +194,7 @@ def load_config(path: str | Path) -> Config:
 
 
 def parse_config(text: str, path: Path) -> Config:
-    try:
-        data = yaml.safe_load(text)
-        root = yaml.compose(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        place = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ConfigFileError(path, f"not valid YAML: {problem}", where=place) from exc
+    data, root = parse_yaml(text, path, ConfigFileError)
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         shown = data.get("schema") if isinstance(data, dict) else None
         raise ConfigFileError(

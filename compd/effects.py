@@ -27,11 +27,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from compd.errors import InputFileError
-from compd.yamlplace import FIXES, describe, where
+from compd.yamlplace import FIXES, describe, parse_yaml, where
 
 SCHEMA = "compd.effects/1"
 BUNDLED_NAME = "effects.yaml"
@@ -111,14 +110,7 @@ def load_catalogue(extra: Path | None = None) -> EffectCatalogue:
 
 def parse_catalogue(text: str, path: str | Path = "<catalogue>") -> tuple[EffectEntry, ...]:
     """Validate catalogue text (schema ``compd.effects/1``); ``path`` is only used in messages."""
-    try:
-        data = yaml.safe_load(text)
-        root = yaml.compose(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        place = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise InputFileError(path, f"not valid YAML: {problem}", where=place) from exc
+    data, root = parse_yaml(text, path, InputFileError)
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         raise InputFileError(
             path,

@@ -26,6 +26,7 @@ from compd import __version__
 from compd.data import DataSet
 from compd.errors import DataFileError, ModelError
 from compd.evaluate import Evaluation, compare, evaluate, measured_columns
+from compd.fit import unit_of
 from compd.model.identify import Identification, identify
 from compd.model.metrics import fit_percent
 from compd.model.structure import InputSpec, Model, Output, SubModel
@@ -177,7 +178,7 @@ def with_verification(extension: Extension, verify_path: str, before: float, aft
     return model_to_yaml(
         extension.extended.model,
         description=doc.description,
-        signals=_units(extension.extended),
+        signals=extension.extended.signal_units(),
         provenance=provenance,
     )
 
@@ -252,11 +253,6 @@ def _contribution(evaluation: Evaluation, output: str, name: str) -> np.ndarray:
     return contribution
 
 
-def _units(model_file: ModelFile) -> dict[str, str] | None:
-    signals = model_file.doc.signals
-    return None if signals is None else {name: doc.unit for name, doc in signals.items()}
-
-
 def _write(
     parent: ModelFile,
     model: Model,
@@ -271,9 +267,9 @@ def _write(
     output: str = "",
 ) -> str:
     doc = parent.doc
-    units = _units(parent)
+    units = parent.signal_units()
     if units is not None and signal not in units:
-        units = {**units, signal: _guess_unit(signal)}
+        units = {**units, signal: unit_of(signal)}
     calibration = doc.provenance.calibration
     if calibration is not None and calibration_rms_um is not None:
         calibration = _widened(calibration, data, output, calibration_rms_um)
@@ -316,21 +312,3 @@ def _widened(
     rms = dict(calibration.rms_um)
     rms[output] = max(rms.get(output, 0.0), rms_um)
     return calibration.model_copy(update={"ranges": ranges, "rms_um": rms})
-
-
-def _guess_unit(signal: str) -> str:
-    """The unit in a signal's name (``spindle_power_kw`` -> ``kW``), as compd names signals."""
-    suffixes = {
-        "_degC": "degC",
-        "_rpm": "rpm",
-        "_kw": "kW",
-        "_um": "um",
-        "_mm_per_min": "mm/min",
-        "_s": "s",
-        "_mm": "mm",
-        "_percent": "%",
-    }
-    for suffix, unit in suffixes.items():
-        if signal.endswith(suffix):
-            return unit
-    return "1"

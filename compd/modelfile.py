@@ -24,6 +24,7 @@ from compd.model.residual import DoorFeatures, ResidualModel
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
 from compd.yamlplace import describe as _describe
+from compd.yamlplace import parse_yaml
 from compd.yamlplace import where as _where
 
 SCHEMA = "compd.model/1"
@@ -260,6 +261,11 @@ class ModelFile:
     model: Model
     doc: ModelDoc
 
+    def signal_units(self) -> dict[str, str] | None:
+        """Each declared signal's unit, or None when the file declares no ``signals``."""
+        signals = self.doc.signals
+        return None if signals is None else {name: s.unit for name, s in signals.items()}
+
     def compile(self, sample_time_s: float | None = None) -> CompiledModel:
         """Compile for running; a refusal names this file and the sub-model."""
         try:
@@ -281,14 +287,7 @@ def load_model(path: str | Path) -> ModelFile:
 def parse_model(text: str, path: str | Path = "<model>", sha256: str | None = None) -> ModelFile:
     """Validate model-file text; ``path`` is only used in messages."""
     sha256 = sha256 or hashlib.sha256(text.encode()).hexdigest()
-    try:
-        data = yaml.safe_load(text)
-        root = yaml.compose(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ModelFileError(path, f"not valid YAML: {problem}", where=where) from exc
+    data, root = parse_yaml(text, path, ModelFileError)
     if not isinstance(data, dict):
         raise ModelFileError(
             path, "expected a mapping with keys schema, name, sample_time_s, outputs"

@@ -285,7 +285,7 @@ def stack_on_model(
             f"the model runs at {base.sample_time_s:g} s and the data at {data.sample_time_s:g} s",
             fix="Resample the data to the model's sample time (compd fit writes it at the data's)",
         )
-    units = {name: doc.unit for name, doc in (model_file.doc.signals or {}).items()}
+    units = model_file.signal_units() or {}
     return _stack(
         base,
         model_file.doc.provenance,

@@ -232,8 +232,9 @@ def update_model(
             "command": command or doc.provenance.command,
         }
     )
-    signals = None if doc.signals is None else {n: s.unit for n, s in doc.signals.items()}
-    text = model_to_yaml(model, description=doc.description, signals=signals, provenance=provenance)
+    text = model_to_yaml(
+        model, description=doc.description, signals=parent.signal_units(), provenance=provenance
+    )
     updated = parse_model(text, "<updated model>")
     return Update(
         parent=parent,

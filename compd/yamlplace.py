@@ -17,6 +17,26 @@ from typing import Any
 
 import yaml
 
+from compd.errors import InputFileError
+
+
+def parse_yaml(
+    text: str, path: object, error: type[InputFileError]
+) -> tuple[Any, yaml.Node | None]:
+    """The document and its node tree (for line numbers); a syntax error names the file and line.
+
+    The one place compd reads YAML text, so every loader (model, config,
+    effect catalogue) words a syntax error the same way.
+    """
+    try:
+        return yaml.safe_load(text), yaml.compose(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise error(path, f"not valid YAML: {problem}", where=where) from exc
+
+
 #: The fix to suggest per pydantic error type.
 FIXES = {
     "extra_forbidden": "Remove the key or fix its spelling",

@@ -10,26 +10,10 @@ signal): then the reason is shown instead.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 from compd.analysis import DiagnosisResult, WindowsResult
+from compd.model.diagnose import CandidateScore
 from compd.model.windows import FailingWindow
-
-
-@dataclass(frozen=True)
-class CandidateRow:
-    """One candidate signal as the report shows it."""
-
-    signal: str
-    effect: str
-    explained_percent: float
-    time_constant_s: float
-    gain_um_per_unit: float
-    sign: int
-    lag_s: float
-    xcorr_peak: float
-    xcorr_bound: float
-    significant: bool
 
 
 def windows(result: WindowsResult) -> Sequence[FailingWindow]:
@@ -42,25 +26,14 @@ def tolerance_um(result: WindowsResult) -> float:
     return result.tolerance_um
 
 
-def candidates(result: DiagnosisResult | str) -> list[CandidateRow]:
+def candidates(result: DiagnosisResult | str) -> Sequence[CandidateScore]:
     """Candidates best first; none when the diagnosis could not be made."""
-    if isinstance(result, str):
-        return []
-    return [
-        CandidateRow(
-            signal=c.signal,
-            effect=result.effects.get(c.signal, ""),
-            explained_percent=c.explained_percent,
-            time_constant_s=c.time_constant_s,
-            gain_um_per_unit=c.gain_um_per_unit,
-            sign=c.sign,
-            lag_s=c.lag_s,
-            xcorr_peak=c.xcorr_peak,
-            xcorr_bound=c.xcorr_bound,
-            significant=c.significant,
-        )
-        for c in result.diagnosis.candidates
-    ]
+    return () if isinstance(result, str) else result.diagnosis.candidates
+
+
+def effect(result: DiagnosisResult | str, signal: str) -> str:
+    """The physical effect the catalogue names for ``signal`` ("" when none)."""
+    return "" if isinstance(result, str) else result.effects.get(signal, "")
 
 
 def residue_white(result: DiagnosisResult | str) -> bool:

@@ -153,7 +153,7 @@ def candidates_table(run: ModelRun, output: str) -> str:
         [
             str(k),
             escape(c.signal),
-            escape(c.effect) or "—",
+            escape(view.effect(result, c.signal)) or "—",
             f"{c.explained_percent:.1f}",
             f"{c.time_constant_s / 60:.1f}",
             f"{c.lag_s / 60:.1f}",
