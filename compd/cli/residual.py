@@ -21,6 +21,7 @@ from typing import Any
 from rich.table import Table
 
 from compd.cli.common import console, data_options, fmt, load_data_from_args
+from compd.cli.residual_options import add_forest_options
 from compd.data import DataSet
 from compd.evaluate import evaluate, measured_columns
 from compd.modelfile import ModelFile, load_model
@@ -42,9 +43,7 @@ def register(commands: Any) -> None:
     parser.add_argument(
         "--output", metavar="COLUMN", help="the measured column, when the model has several outputs"
     )
-    parser.add_argument("--trees", type=int, default=100, metavar="N", help="default 100")
-    parser.add_argument("--max-depth", type=int, default=10, metavar="D", help="default 10")
-    parser.add_argument("--forest-seed", type=int, default=0, metavar="N", help="default 0")
+    add_forest_options(parser)
     parser.add_argument(
         "--verify", type=Path, metavar="OTHER.csv", help="also judge both on this record"
     )

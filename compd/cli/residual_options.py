@@ -28,6 +28,11 @@ def add_residual_options(parser: Any) -> None:
         help="stack a random forest on the TF model's residue, fed the door signal smoothed at "
         "several time scales (seed 004); the calibration data must contain door openings",
     )
+    add_forest_options(parser)
+
+
+def add_forest_options(parser: Any) -> None:
+    """``--trees``, ``--max-depth`` and ``--forest-seed``: the forest's size and seed."""
     parser.add_argument(
         "--trees", type=int, default=100, metavar="N", help="forest size (default 100)"
     )
