@@ -13,17 +13,27 @@ stops ``compd run`` before the first write to a machine, and
 
 from __future__ import annotations
 
+import inspect
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictInt,
+    ValidationError,
+    model_validator,
+)
 
 from compd.errors import ConfigFileError
 from compd.model.compiled import CompiledModel
 from compd.modelfile import ModelFile
+from compd.schedule import GainRow, GainTable, first_overlap, model_gains
+from compd.sim.plc.settings import SimulationDoc
 from compd.yamlplace import FIXES, describe, parse_yaml, resolve_path, where
 
 SCHEMA = "compd.config/1"
@@ -139,6 +149,63 @@ class EffectDoc(_Strict):
     signals: list[str] = Field(default_factory=list)
 
 
+class WhenDoc(_Strict):
+    """A gain-table key: ``when: 2`` (a whole number) or ``when: {min: 0, max: 250}`` (``min <= key < max``)."""
+
+    value: StrictInt | None = None
+    min: FiniteFloat | None = None
+    max: FiniteFloat | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _whole_or_range(cls, data: object) -> object:
+        if isinstance(data, int) and not isinstance(data, bool):
+            return {"value": data}
+        if not isinstance(data, dict) or "value" in data:
+            raise ValueError(
+                "'when' must be a whole number (a head or program number, e.g. 'when: 2') "
+                f"or a range (e.g. 'when: {{min: 0, max: 250}}'), got {data!r}"
+            )
+        return data
+
+    @model_validator(mode="after")
+    def _ordered(self) -> WhenDoc:
+        if self.value is None and self.min is None and self.max is None:
+            raise ValueError("a range needs 'min', 'max' or both")
+        if self.min is not None and self.max is not None and self.min >= self.max:
+            raise ValueError(f"'min' ({self.min}) must be below 'max' ({self.max})")
+        return self
+
+
+class GainRowDoc(_Strict):
+    """A row of the gain table: ``gains`` (gain_name -> value) while the key matches ``when``."""
+
+    when: WhenDoc
+    gains: dict[str, FiniteFloat] = Field(min_length=1)
+
+    def row(self) -> GainRow:
+        when = self.when
+        return GainRow(
+            dict(self.gains),
+            value=when.value,
+            low=float("-inf") if when.min is None else when.min,
+            high=float("inf") if when.max is None else when.max,
+        )
+
+
+class GainScheduleDoc(_Strict):
+    """Gains by operating condition (see :mod:`compd.schedule`)."""
+
+    signal: str
+    table: list[GainRowDoc] = Field(min_length=1)
+    default: dict[str, FiniteFloat] | None = None
+    ramp_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 30.0
+
+    def gain_table(self) -> GainTable:
+        default = None if self.default is None else dict(self.default)
+        return GainTable(self.signal, tuple(r.row() for r in self.table), default, self.ramp_s)
+
+
 class ConfigDoc(_Strict):
     schema_: Literal["compd.config/1"] = Field(alias="schema")
     model: str
@@ -154,6 +221,9 @@ class ConfigDoc(_Strict):
     state: StateDoc = StateDoc()
     recorder: RecorderDoc = RecorderDoc()
     effects: dict[str, EffectDoc] = Field(default_factory=dict)
+    gain_schedule: GainScheduleDoc | None = None
+    #: The simulated machine this config runs against (:mod:`compd.sim.plc.settings`).
+    simulation: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -167,6 +237,9 @@ class Config:
     recorder_dir: Path | None
     control_socket: Path
     driver_settings: dict[str, BaseModel]
+    simulation: SimulationDoc | None = None
+    #: The YAML node tree, for the line numbers of errors found later (:func:`check_model`).
+    root: yaml.Node | None = field(default=None, repr=False, compare=False)
 
     @property
     def base_dir(self) -> Path:
@@ -248,6 +321,24 @@ def parse_config(text: str, path: Path) -> Config:
                     f"signal {signal!r} is not defined under 'signals'",
                     f"Define it or use one of {sorted(doc.signals)}",
                 )
+    schedule = doc.gain_schedule
+    if schedule is not None:
+        if schedule.signal not in doc.signals:
+            raise error(
+                ("gain_schedule", "signal"),
+                f"signal {schedule.signal!r} is not defined under 'signals'",
+                f"Define it (e.g. the spindle head number, type: int) or use one of "
+                f"{sorted(doc.signals)}",
+            )
+        overlap = first_overlap([r.row() for r in schedule.table])
+        if overlap is not None:
+            i, j = overlap
+            raise error(
+                ("gain_schedule", "table", j, "when"),
+                f"row {j} overlaps row {i}: some value of {schedule.signal!r} would match both",
+                "Make the rows disjoint (ranges are min <= value < max, so [0, 250) and "
+                "[250, 500) do not overlap)",
+            )
     addresses: dict[tuple[str, str], str] = {}
     written: list[tuple[tuple[str | int, ...], str, str]] = [
         (("outputs", n, "address"), o.driver, o.address) for n, o in doc.outputs.items()
@@ -269,13 +360,16 @@ def parse_config(text: str, path: Path) -> Config:
         addresses[key] = ".".join(map(str, location[:2]))
     # A driver type may check its own address grammar (optional hook
     # ``validate_address(address, *, writable)`` raising ValueError, and an
-    # ``address_syntax`` text for the fix).
+    # ``address_syntax`` text for the fix); a hook with a ``settings`` keyword
+    # also gets the instance's settings, to check e.g. area sizes.
     read = [(("signals", n, "address"), s.driver, s.address) for n, s in doc.signals.items()]
     for locations, writable in ((read, False), (written, True)):
         for location, driver_name, address in locations:
             check = getattr(types[doc.drivers[driver_name].type], "validate_address", None)
             try:
-                if check is not None:
+                if check is not None and "settings" in inspect.signature(check).parameters:
+                    check(address, writable=writable, settings=settings[driver_name])
+                elif check is not None:
                     check(address, writable=writable)
             except ValueError as exc:
                 kind = types[doc.drivers[driver_name].type]
@@ -286,6 +380,12 @@ def parse_config(text: str, path: Path) -> Config:
                     f"Write it {syntax}",
                 ) from exc
 
+    simulation = None
+    if doc.simulation is not None:
+        try:
+            simulation = SimulationDoc.model_validate(doc.simulation)
+        except ValidationError as exc:
+            raise _from_validation(exc, path, root, ("simulation",)) from exc
     state_dir = (
         resolve_path(doc.state.directory, path.parent)
         if doc.state.directory
@@ -311,6 +411,8 @@ def parse_config(text: str, path: Path) -> Config:
         recorder_dir=recorder_dir,
         control_socket=socket,
         driver_settings=settings,
+        simulation=simulation,
+        root=root,
     )
 
 
@@ -332,6 +434,35 @@ def check_model(config: Config, model_file: ModelFile, compiled: CompiledModel) 
                 where=f"outputs.{axis}.model_output",
                 fix=f"Use one of {list(compiled.output_names)}",
             )
+    if config.doc.gain_schedule is not None:
+        _check_gain_names(config, config.doc.gain_schedule, model_file, compiled)
+
+
+def _check_gain_names(
+    config: Config, schedule: GainScheduleDoc, model_file: ModelFile, compiled: CompiledModel
+) -> None:
+    """Every gain the schedule sets must be a ``gain_name`` of the model."""
+    known = model_gains(compiled)
+    places: list[tuple[tuple[str | int, ...], dict[str, float]]] = [
+        (("gain_schedule", "table", i, "gains"), row.gains) for i, row in enumerate(schedule.table)
+    ]
+    if schedule.default is not None:
+        places.append((("gain_schedule", "default"), schedule.default))
+    for location, gains in places:
+        for name in gains:
+            if name not in known:
+                fix = (
+                    f"Use one of {sorted(known)}"
+                    if known
+                    else "Name the gains in the model file ('gain_name: g1' on the sub-models "
+                    "they scale, seed 002 eq. 6), or remove 'gain_schedule'"
+                )
+                raise ConfigFileError(
+                    config.path,
+                    f"model {model_file.path} has no gain named {name!r}",
+                    where=where(config.root, (*location, name)),
+                    fix=fix,
+                )
 
 
 def _from_validation(

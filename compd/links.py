@@ -52,6 +52,11 @@ class DriverLink:
         self._connecting: asyncio.Task[None] | None = None
         self._ever_up = False
 
+    @property
+    def connecting(self) -> bool:
+        """A reconnect is under way in the background."""
+        return self._connecting is not None
+
     async def open(self) -> None:
         """First connection attempt; a failure is logged and retried by :meth:`poll`."""
         await self._connect()

@@ -21,7 +21,7 @@ import asyncio
 import math
 import time
 from collections.abc import Awaitable, Callable, Coroutine, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
@@ -30,9 +30,11 @@ import structlog
 from compd.clock import Clock
 from compd.links import DriverLink
 from compd.model.compiled import CompiledModel, ModelState, qualified_names
+from compd.model.handover import SignalHistory, handover_state
 from compd.model.run import TickRunner
 from compd.modelfile import ModelFile
 from compd.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
+from compd.schedule import GainScheduler
 from compd.signals import Health, SignalMonitor
 
 log = structlog.get_logger("compd.loop")
@@ -177,6 +179,8 @@ class TickRecord:
     status: int
     heartbeat: int
     written: bool
+    #: The scheduled gains in use (gain_name -> value); empty without a gain schedule.
+    gains: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -195,8 +199,9 @@ class Compensator:
     1. read every signal, all drivers concurrently, each under its timeout;
     2. check each value (:class:`~compd.signals.SignalMonitor`): good, held, or faulted;
     3. step the model with the checked values (started at steady state with the first
-       complete set of values, or from a resumed state); during a model switch, step
-       both and blend ``w * new + (1 - w) * old`` with ``w`` rising 0 -> 1 over ``blend_s``;
+       complete set of values, or from a resumed state); a model switched in starts warm
+       from the recent inputs (:mod:`compd.model.handover`), then both run and blend
+       ``w * new + (1 - w) * old`` with ``w`` rising 0 -> 1 over ``blend_s``;
     4. per axis ``target = sign * output``, through the safety stage, frozen while an
        input the axis depends on is faulted;
     5. write offsets, status word and heartbeat, all drivers concurrently.
@@ -215,6 +220,8 @@ class Compensator:
         blend_s: float = 60.0,
         wall_at: Callable[[float], float] = lambda t_s: time.time(),
         initial_state: ModelState | None = None,
+        schedule: GainScheduler | None = None,
+        history_ticks: int = 28_800,
     ) -> None:
         self.signals = list(signals)
         self.monitors = dict(monitors)
@@ -228,9 +235,13 @@ class Compensator:
         self.previous: ModelSlot | None = None
         self.pending: ModelSlot | None = None
         self.blend_start_s = -math.inf
+        #: Gains by operating condition (:mod:`compd.schedule`), applied before each step.
+        self.schedule = schedule
         self.heartbeat = 0
         self.counters = Counters()
         self.last: TickRecord | None = None
+        #: The inputs of the last ``history_ticks`` ticks, to start a newly loaded model warm.
+        self.history = SignalHistory([p.name for p in self.signals], history_ticks)
         self._reads: dict[str, list[SignalPoint]] = {}
         for point in self.signals:
             self._reads.setdefault(point.driver, []).append(point)
@@ -255,6 +266,9 @@ class Compensator:
             if reading.health is Health.FAULTED and was is not Health.FAULTED:
                 self.counters.signal_faults += 1
         checked = {name: r.value for name, r in readings.items()}
+        if self.schedule is not None:
+            key = readings[self.schedule.table.signal]
+            self.schedule.update(t_s, key.value, usable=key.health is not Health.FAULTED)
         self._step_models(t_s, checked)
 
         weight = min(1.0, (t_s - self.blend_start_s) / self.blend_s) if self.blend_s else 1.0
@@ -312,6 +326,7 @@ class Compensator:
             status=word,
             heartbeat=self.heartbeat,
             written=written,
+            gains=dict(self.schedule.applied) if self.schedule is not None else {},
         )
         return self.last
 
@@ -322,9 +337,10 @@ class Compensator:
         return await self._write(offsets, status_word(Level(level), [Flag.STOPPED], []))
 
     def _step_models(self, t_s: float, checked: Mapping[str, float]) -> None:
+        self.history.append(checked)
         pending = self.pending
         if pending is not None and self._complete(pending, checked):
-            pending.start(pending.compiled.steady_state(checked))
+            pending.start(self._handover(pending, checked))
             if self.active.runner is not None:
                 self.previous, self.blend_start_s = self.active, t_s
             self.active, self.pending = pending, None
@@ -338,7 +354,17 @@ class Compensator:
             if slot.runner is None:
                 slot.start(slot.compiled.steady_state(checked))
             assert slot.runner is not None
+            if self.schedule is not None:
+                self.schedule.apply(slot.runner)
             slot.outputs = slot.runner.step(checked)
+
+    def _handover(self, pending: ModelSlot, checked: Mapping[str, float]) -> ModelState:
+        """A model switched in while another runs starts warm (:mod:`compd.model.handover`)."""
+        running = self.active
+        history = self.history.matrix(pending.compiled.signals)
+        if running.runner is None or len(history) < 2:
+            return pending.compiled.steady_state(checked)
+        return handover_state(pending.compiled, history, running.compiled, running.runner.state)
 
     @staticmethod
     def _complete(slot: ModelSlot, checked: Mapping[str, float]) -> bool:

@@ -48,6 +48,7 @@ from compd.modelfile import load_model
 from compd.notify import SystemdNotifier
 from compd.recorder import Recorder
 from compd.safety import HEARTBEAT_MODULO, AxisLimits, AxisSafety, FaultMode
+from compd.schedule import GainScheduler
 from compd.signals import Checks, SignalMonitor
 from compd.state import (
     SavedState,
@@ -60,6 +61,9 @@ from compd.state import (
 )
 
 log = structlog.get_logger("compd.service")
+
+#: Input history kept for starting a newly loaded model warm (s): hours, as the machine's time constants.
+HISTORY_S = 8 * 3600.0
 
 
 def load_slot(config: Config, path: Path, loaded_at_unix_s: float) -> ModelSlot:
@@ -191,6 +195,8 @@ class Service:
             blend_s=doc.blend_s,
             wall_at=clock.wall_at,
             initial_state=saved.model_state if saved is not None and decision.resume else None,
+            history_ticks=round(HISTORY_S / doc.period_s),
+            schedule=GainScheduler(doc.gain_schedule.gain_table()) if doc.gain_schedule else None,
         )
         if saved is not None and decision.resume:
             self.compensator.heartbeat = saved.ticks % HEARTBEAT_MODULO
@@ -313,6 +319,7 @@ class Service:
         row |= {f"model.{k}": v for k, v in record.model_outputs.items()}
         row |= {f"model.{k.replace('/', '.')}": v for k, v in record.contributions.items()}
         row |= {f"offset.{k}_um": v for k, v in record.offsets_um.items()}
+        row |= {f"gain.{k}": v for k, v in record.gains.items()}
         row |= {"status": record.status, "heartbeat": record.heartbeat}
         try:
             self.recorder.record(row, at_s=record.wall_unix_s)
@@ -376,6 +383,7 @@ class Service:
                 "pending": comp.pending.compiled.name if comp.pending else None,
                 "blending_from": comp.previous.compiled.name if comp.previous else None,
             },
+            "gain_schedule": comp.schedule.status() if comp.schedule is not None else None,
             "resumed": self.resumed,
             "started": _iso(self.started_unix_s),
             "last_tick": None if last is None else _iso(last.wall_unix_s),

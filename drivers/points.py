@@ -59,7 +59,7 @@ _FORMATS: dict[str, str] = {
     "float64": ">d",
 }
 # Inclusive raw range of the integer types.
-_INT_RANGES: dict[str, tuple[int, int]] = {
+INT_RANGES: dict[str, tuple[int, int]] = {
     "bool": (0, 1),
     "int16": (-(2**15), 2**15 - 1),
     "uint16": (0, 2**16 - 1),
@@ -151,7 +151,7 @@ class PointCodec:
         if not math.isfinite(raw):
             raise DriverProtocolError(f"{value} scales to {raw} for {self.type}")
         rounded = round(raw)
-        low, high = _INT_RANGES[self.type]
+        low, high = INT_RANGES[self.type]
         if not low <= rounded <= high:
             raise DriverProtocolError(
                 f"{value} (raw {rounded} at scale {self.scale:g}, offset {self.offset:g}) "

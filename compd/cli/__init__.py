@@ -28,6 +28,7 @@ COMMAND_MODULES = (
     "compd.cli.residual",
     "compd.cli.report",
     "compd.cli.service",
+    "compd.cli.simulate",
     "compd.cli.twin",
     "compd.cli.update",
 )

@@ -14,9 +14,10 @@ from typing import Any
 import structlog
 
 from compd.cli.common import console
+from compd.cli.simulate import run_simulated, time_scale_arg
 from compd.clock import RealClock
 from compd.config import Config, check_model, load_config
-from compd.control import request_sync
+from compd.control import request, request_sync
 from compd.errors import CompdError, ControlError
 from compd.loop import TickRecord
 from compd.modelfile import load_model
@@ -24,6 +25,7 @@ from compd.notify import SystemdNotifier
 from compd.safety import Level
 from compd.service import Service, install_and_announce
 from compd.signals import Health
+from compd.sim.plc.build import build_machine
 from compd.state import installed_model
 from compd.yamlplace import resolve_path
 
@@ -37,10 +39,11 @@ def register(commands: Any) -> None:
     run.add_argument("--config", required=True, metavar="FILE.yaml", help="path or bundled:NAME")
     run.add_argument(
         "--time-scale",
-        type=float,
+        type=time_scale_arg,
         default=1.0,
-        metavar="X",
-        help="run the clock X times faster than real time (simulated machines; default 1)",
+        metavar="X|max",
+        help="run the clock X times faster than real time, or 'max': virtual time, as fast as "
+        "the I/O allows (simulated machines only; default 1)",
     )
     run.add_argument(
         "--duration-s",
@@ -123,6 +126,12 @@ def _check_config(args: argparse.Namespace) -> int:
             f"  axis {axis}: {o.sign:+d} x {o.model_output} -> {o.driver}:{o.address}, "
             f"|offset| <= {o.max_offset_um:g} um, <= {o.max_rate_um_per_s:g} um/s"
         )
+    if config.simulation is not None:
+        sim = build_machine(config)  # checks the mapping; starts nothing
+        out.print(
+            f"  simulated machine: {sim.doc.scenario}, {sim.doc.hours:g} h, seed {sim.doc.seed}; "
+            f"controllers {', '.join(f'{n} ({doc.drivers[n].type})' for n in sim.servers)}"
+        )
     out.print(f"  state {config.state_dir}, recorder {config.recorder_dir or 'off'}")
     out.print(f"  control socket {config.control_socket}")
     return 0
@@ -133,6 +142,13 @@ def _run(args: argparse.Namespace) -> int:
     json_lines = {"auto": None, "json": True, "console": False}[args.log_format]
     configure_logging(json_lines=json_lines)
     live_every = args.live_every
+    if config.simulation is not None:
+        return run_simulated(config, args.time_scale, args.duration_s, live_every)
+    if args.time_scale is None:
+        raise CompdError(
+            f"--time-scale max runs on virtual time: only for a simulated machine, and "
+            f"{config.path} has no 'simulation' section; give a factor such as 600"
+        )
     if live_every is None and sys.stdout.isatty():
         live_every = config.doc.live_every_ticks
     return asyncio.run(_serve(config, args.time_scale, args.duration_s, live_every))
@@ -210,11 +226,15 @@ def _status(args: argparse.Namespace) -> int:
 
 
 def _model_load(args: argparse.Namespace) -> int:
-    config = _config(args.config)
-    slot, installed = install_and_announce(config, args.model)
+    return asyncio.run(model_load(_config(args.config), args.model))
+
+
+async def model_load(config: Config, model_path: Path) -> int:
+    """``compd model load``: validate and install the model, then tell the running daemon."""
+    slot, installed = install_and_announce(config, model_path)
     print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {installed}")
     try:
-        reply = request_sync(config.control_socket, {"cmd": "load", "path": str(installed)})
+        reply = await request(config.control_socket, {"cmd": "load", "path": str(installed)})
     except ControlError as exc:
         print(f"the daemon was not told ({exc}); it will start with this model", file=sys.stderr)
         return 0

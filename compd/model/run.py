@@ -68,7 +68,17 @@ class TickRunner:
         self._n_signals = len(compiled.signals)
         self._extended = compiled.extended(np.zeros(self._n_signals))
         self._input_ungated = ~compiled.gate_on_input
-        self._weighted_outputs = compiled.output_matrix * compiled.gain
+        self._gain = compiled.gain.copy()
+        self._weighted_outputs = compiled.output_matrix * self._gain
+        self._gain_members: dict[str, np.ndarray] = {}
+        for s, sub in enumerate(compiled.submodels):
+            if sub.gain_name is not None:
+                members = self._gain_members.get(sub.gain_name, np.zeros(0, dtype=np.intp))
+                self._gain_members[sub.gain_name] = np.append(members, s)
+        #: The named gains (``gain_name``) in use, the model file's own until :meth:`set_gains`.
+        self.gains: dict[str, float] = {
+            name: float(self._gain[members[0]]) for name, members in self._gain_members.items()
+        }
         # Models without slope terms skip the (all-ones) position factors.
         self._positioned = bool(np.any(compiled.position_index < self._n_signals))
         #: Each sub-model's contribution (um) at the last tick, gain and gate applied.
@@ -85,6 +95,29 @@ class TickRunner:
         compiled = self.compiled
         z = self._x[: self._n_z].reshape(compiled.n_submodels, compiled.n_states)
         return ModelState(z.copy(), self._reference.copy(), self._residual.copy())
+
+    def set_gains(self, gains: Mapping[str, float]) -> None:
+        """Set named gains (``gain_name`` -> value) from the next :meth:`step` on.
+
+        The filter states are left as they are: a gain weighs a sub-model's
+        output (``y = W diag(g) y_sub``) and never enters its recursion, so a
+        gain change moves the outputs by ``W diag(dg) y_sub`` at once and
+        nothing else (ramp the gains to make that bumpless). Names not given
+        keep their value. Costs one (n_outputs, S) product.
+        """
+        for name, value in gains.items():
+            members = self._gain_members.get(name)
+            if members is None:
+                raise ModelError(
+                    f"model {self.compiled.name!r} has no gain named {name!r}; its gains are "
+                    f"{sorted(self._gain_members) or 'none (no sub-model has a gain_name)'}"
+                )
+            if not np.isfinite(value):
+                raise ModelError(f"gain {name!r} must be finite, got {value!r}")
+        for name, value in gains.items():
+            self._gain[self._gain_members[name]] = value
+            self.gains[name] = float(value)
+        self._weighted_outputs = self.compiled.output_matrix * self._gain
 
     def step(self, signals: np.ndarray | Mapping[str, float]) -> np.ndarray:
         """Advance one sample and return the outputs in ``compiled.output_names`` order.
@@ -113,7 +146,7 @@ class TickRunner:
         y *= opened | compiled.gate_on_input
         if self._positioned:
             y *= compiled.position_factors(extended)
-        self.contributions = y * compiled.gain
+        self.contributions = y * self._gain
         outputs: np.ndarray = self._weighted_outputs @ y
         dt_s = compiled.sample_time_s
         for r, (out_i, residual, part, signal_i) in enumerate(self._residuals):

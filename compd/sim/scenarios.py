@@ -188,6 +188,10 @@ SCENARIOS: dict[str, tuple[_Effects, str]] = {
         "ISO 230-3 heating at constant speeds and cooling, ambient swing, nothing else",
     ),
     "speed_spectrum": (_Effects(speeds=_spectrum_speeds), "ISO 230-3 speed spectrum"),
+    "production": (
+        _Effects(),
+        "production speeds with light (air) cutting, door shut: no hidden effect",
+    ),
     "cutting": (_Effects(cutting=True), "production speeds with heavy cutting (2-10 kW)"),
     "feed": (_Effects(feed=True), "production speeds with long phases of rapid X/Z motion"),
     "door": (_Effects(door=True), "production speeds with door openings"),

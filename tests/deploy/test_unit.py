@@ -209,7 +209,7 @@ def receive(sock: socket.socket, daemon: subprocess.Popen[bytes], timeout_s: int
 
 def daemon_config(directory: Path) -> Path:
     """The bundled simulated config with state, recordings and the socket under ``directory``."""
-    doc = yaml.safe_load((Path(__file__).parents[2] / "config" / "simulated.yaml").read_text())
+    doc = yaml.safe_load((Path(__file__).parents[2] / "config" / "replay.yaml").read_text())
     doc["state"]["directory"] = str(directory / "state")
     doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
     doc["control_socket"] = str(directory / "control.sock")

@@ -16,11 +16,11 @@ from compd.loop import TickRecord
 from compd.service import Service
 from compd.yamlplace import resolve_path
 
-BUNDLED_SIMULATED = resolve_path("bundled:simulated.yaml", Path("."))
+BUNDLED_SIMULATED = resolve_path("bundled:replay.yaml", Path("."))
 
 
 def simulated_doc() -> dict[str, Any]:
-    """The bundled ``simulated.yaml`` as a dict, to be edited by a test."""
+    """The bundled ``replay.yaml`` as a dict, to be edited by a test."""
     doc: dict[str, Any] = yaml.safe_load(BUNDLED_SIMULATED.read_text())
     return doc
 

@@ -27,7 +27,7 @@ def test_check_config_accepts_the_bundled_simulated_config(capsys):
     """check-config on bundled:simulated.yaml prints ok and the wiring."""
     assert main(["check-config", "bundled:simulated.yaml"]) == 0
     out = capsys.readouterr().out
-    assert out.startswith("ok: ") and "axis Y: -1 x disp_y_um -> machine:comp_y_um" in out
+    assert out.startswith("ok: ") and "axis Z: -1 x disp_z_um -> plc:holding:100:int32" in out
 
 
 def test_check_config_error_exits_2_naming_the_place(tmp_path, capsys):

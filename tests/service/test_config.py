@@ -16,9 +16,13 @@ from .daemon_setup import BUNDLED_SIMULATED, simulated_doc, write_config
 EXAMPLE = resolve_path("bundled:compd.example.yaml", Path("."))
 
 
-@pytest.mark.parametrize("path", [BUNDLED_SIMULATED, EXAMPLE], ids=["simulated", "example"])
+@pytest.mark.parametrize(
+    "path",
+    [BUNDLED_SIMULATED, EXAMPLE, resolve_path("bundled:simulated.yaml", Path("."))],
+    ids=["replay", "example", "simulated"],
+)
 def test_bundled_configs_validate_with_their_models(path):
-    """config/simulated.yaml and config/compd.example.yaml pass the same checks as compd run makes."""
+    """The bundled service configs pass the same checks as compd run makes."""
     config = load_config(path)
     model_file = load_model(config.model_path)
     check_model(config, model_file, model_file.compile(config.doc.period_s))

@@ -129,7 +129,7 @@ def test_bad_hours_are_a_clear_error(hours: float) -> None:
 
 def test_an_unknown_scenario_lists_the_known_ones() -> None:
     """A misspelt scenario name is a CompdError naming every scenario there is."""
-    with pytest.raises(CompdError, match="calibration, speed_spectrum, cutting"):
+    with pytest.raises(CompdError, match="calibration, speed_spectrum, production, cutting"):
         simulate_scenario("calibraton", 1)
 
 

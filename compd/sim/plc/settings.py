@@ -1,0 +1,72 @@
+"""The ``simulation:`` section of a compd config: the simulated machine the config runs against.
+
+With it, ``compd run`` starts the machine in the same process before the
+service, and ``compd simulate-machine`` starts the machine alone. The rest of
+the config is unchanged: the drivers connect to the simulated controllers as
+they would to a real machine (a ``type: modbus`` driver to a simulated Modbus
+TCP server at its host and port, and so on).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+FaultKind = Literal["stuck", "nan", "value", "drop", "restart"]
+TwinAxis = Literal["x", "y", "z"]
+Seconds = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class SimFaultDoc(_Strict):
+    """A fault at ``at_s`` (simulated seconds from the start) lasting ``duration_s``.
+
+    - ``stuck`` / ``nan`` / ``value``: the sensor behind ``signal`` reads its value at
+      ``at_s`` / NaN (a float point; an integer point reads its type's minimum, a
+      wire-break code) / ``value`` (in the signal's unit, e.g. out of range);
+    - ``drop``: the controller behind ``driver`` is unreachable for ``duration_s``;
+    - ``restart``: the controller behind ``driver`` restarts (connections drop) at ``at_s``.
+    """
+
+    kind: FaultKind
+    at_s: Seconds
+    duration_s: Seconds = 0.0
+    signal: str | None = None
+    driver: str | None = None
+    value: float | None = None
+
+    @model_validator(mode="after")
+    def _target(self) -> SimFaultDoc:
+        on_driver = self.kind in ("drop", "restart")
+        if on_driver and not self.driver:
+            raise ValueError(f"a {self.kind!r} fault needs 'driver': the controller it hits")
+        if not on_driver and not self.signal:
+            raise ValueError(f"a {self.kind!r} fault needs 'signal': the sensor it hits")
+        if self.kind == "value" and self.value is None:
+            raise ValueError("a 'value' fault needs 'value', in the signal's unit")
+        if self.kind != "restart" and not self.duration_s > 0:
+            raise ValueError(f"a {self.kind!r} fault needs 'duration_s' above 0")
+        return self
+
+
+class SimulationDoc(_Strict):
+    """The simulated machine: which run of the twin, and how the config's names map onto it."""
+
+    scenario: str = Field(default="production", description="a twin scenario (compd twin --list)")
+    hours: Annotated[float, Field(gt=0, le=24 * 14, allow_inf_nan=False)] = 8.0
+    seed: int = Field(default=0, ge=0)
+    variant: str = Field(default="reference", description="a twin machine variant")
+    sample_time_s: Annotated[float, Field(gt=0, le=10, allow_inf_nan=False)] = 1.0
+    #: Config signal -> twin data column (default: the same name).
+    signals: dict[str, str] = Field(default_factory=dict)
+    #: Config output axis -> twin axis (default: from the model output, disp_<axis>_um).
+    axes: dict[str, TwinAxis] = Field(default_factory=dict)
+    #: The PLC's supervision: no new heartbeat for this long counts a heartbeat timeout.
+    heartbeat_timeout_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 5.0
+    faults: tuple[SimFaultDoc, ...] = ()
+    #: ``compd run`` stops at the end of the scenario (unless --duration-s says otherwise).
+    stop_at_end: bool = True

@@ -1,0 +1,46 @@
+"""Acceptance 1: a model calibrated on the twin compensates an 8-hour shift through Modbus TCP."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tests.acceptance.conftest import (
+    axis,
+    compd,
+    machine_doc,
+    offset_steps_um,
+    simulate,
+    write_config,
+)
+
+#: The offset is written as int32 in 0.1 um: one count of rounding on top of the slew limit.
+RESOLUTION_UM = 0.1
+
+
+def test_calibrated_model_cuts_the_shifts_error_by_85_percent_over_modbus(
+    calibrated_model: Path, short_dir: Path
+) -> None:
+    """Fit, `compd model load`, 8 h over Modbus TCP: RMS down >= 85 %, no step above the slew, heartbeat every tick."""
+    doc = machine_doc(
+        short_dir, calibrated_model, simulation={"scenario": "production", "hours": 8, "seed": 5}
+    )
+    config = write_config(short_dir, doc)
+    compd("model", "load", calibrated_model, "--config", config.path)
+
+    result = simulate(config)
+
+    z = axis(result)
+    assert z.rms_uncompensated_um > 20, "the shift heats the machine noticeably"
+    assert z.rms_compensated_um <= 0.15 * z.rms_uncompensated_um, z
+    rate = doc["outputs"]["Z"]["max_rate_um_per_s"]
+    assert offset_steps_um(result).max() <= rate * doc["period_s"] + RESOLUTION_UM
+    assert result.status["model"]["path"].startswith(str(short_dir / "state")), (
+        "the loaded model runs"
+    )
+    ticks = result.timing.ticks
+    plc = result.machine.plc
+    assert ticks == 8 * 3600 + 1 and result.simulated_s == 8 * 3600
+    assert plc.heartbeat_changes == ticks, "a new heartbeat reached the PLC every tick"
+    assert plc.heartbeat_repeats <= 1, "only the last status word at shutdown repeats it"
+    assert plc.heartbeat_timeouts == 0
+    assert result.status["counters"]["write_failures"] == 0
