@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import gc
 import math
+import time
 from collections.abc import Callable, Mapping
 from datetime import UTC, datetime
 from pathlib import Path
@@ -131,7 +132,13 @@ class Service:
             log.warning("saved state ignored", reason=str(exc))
             saved = None
         decision = resume_decision(
-            saved, slot.sha256, slot.compiled, now_unix, doc.state.resume_max_age_s
+            saved,
+            slot.sha256,
+            slot.compiled,
+            now_unix,
+            doc.state.resume_max_age_s,
+            real_now_unix_s=time.time(),
+            time_scale=getattr(clock, "time_scale", 1.0),
         )
         log.info(
             "model",
@@ -263,6 +270,7 @@ class Service:
             model_state=slot.runner.state,
             offsets_um={axis: s.offset_um for axis, s in self.compensator.safety.items()},
             ticks=self.compensator.counters.ticks,
+            saved_real_unix_s=time.time(),
         )
 
     def save_state(self) -> None:

@@ -48,9 +48,12 @@ class SavedState:
     model_state: ModelState
     offsets_um: Mapping[str, float]
     ticks: int
+    #: Real (unscaled) time of the save: a time-scaled run's clock runs ahead of it.
+    saved_real_unix_s: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            "saved_real_unix_s": self.saved_real_unix_s,
             "format": FORMAT,
             "model_sha256": self.model_sha256,
             "model_name": self.model_name,
@@ -72,6 +75,9 @@ class SavedState:
                 model_state=ModelState.from_dict(data["model_state"]),
                 offsets_um={str(k): float(v) for k, v in data["offsets_um"].items()},
                 ticks=int(data["ticks"]),
+                saved_real_unix_s=None
+                if data.get("saved_real_unix_s") is None
+                else float(data["saved_real_unix_s"]),
             )
         except (KeyError, TypeError, ValueError, AttributeError, ModelError) as exc:
             raise StateError(f"state is malformed ({exc})") from exc
@@ -135,13 +141,22 @@ def resume_decision(
     compiled: CompiledModel,
     now_unix_s: float,
     max_age_s: float,
+    *,
+    real_now_unix_s: float | None = None,
+    time_scale: float = 1.0,
 ) -> Resume:
-    """Resume ``saved`` only if it is this model's (sha256 and shape) and younger than ``max_age_s``."""
+    """Resume ``saved`` only if it is this model's (sha256 and shape) and younger than ``max_age_s``.
+
+    The age is machine time: on a clock ``time_scale`` times faster than real
+    time (a simulated machine), the real time since the save times the scale.
+    """
     if saved is None:
         return Resume(False, "no saved state")
     if saved.model_sha256 != model_sha256:
         return Resume(False, f"saved state belongs to model {saved.model_sha256[:12]}")
     age_s = now_unix_s - saved.saved_at_unix_s
+    if time_scale != 1.0 and real_now_unix_s is not None and saved.saved_real_unix_s is not None:
+        age_s = (real_now_unix_s - saved.saved_real_unix_s) * time_scale
     if age_s < 0:
         # The wall clock was set back, or the state was saved by a time-scaled run
         # (``compd run --time-scale``), whose clock runs ahead of real time.

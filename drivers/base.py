@@ -21,6 +21,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
+from compd.drivers.gateway import GatewayDriver
 from compd.drivers.modbus import ModbusDriver
 from compd.drivers.opcua import OpcUaDriver
 from compd.drivers.serial_sensor import SerialSensorDriver
@@ -65,6 +66,7 @@ class DriverType(Protocol):
 DRIVERS: dict[str, DriverType] = {
     "modbus": ModbusDriver,
     "opcua": OpcUaDriver,
+    "profibus_gateway": GatewayDriver,
     "serial_sensor": SerialSensorDriver,
     "simulated": SimulatedDriver,
 }

@@ -88,4 +88,6 @@ def test_faults_during_a_shift_degrade_safely_and_recover(
     # After the sensor is back the model compensates again.
     assert axis(result).reduction_pct > 70
     late = result.machine.summary(from_s=back_s + 600)[0]
+    print(f"faults: whole run {axis(result).reduction_pct:.1f} %, after {late.reduction_pct:.1f} %; "
+          f"{counters}")  # fmt: skip
     assert late.reduction_pct > 85, late

@@ -64,8 +64,9 @@ async def run_simulation(
 
     ``duration_s`` defaults to the scenario's length when ``simulation.stop_at_end``
     (else: until the service is stopped). The machine starts cold, so a model state
-    saved by an earlier run is discarded (a model installed by ``compd model load`` stays). ``on_tick`` sees every tick with the
-    machine's truth; ``service_hook`` gets the service before it runs (signal handlers).
+    saved by an earlier run is discarded (a model installed by ``compd model load``
+    stays). ``on_tick`` sees every tick with the machine's truth; ``service_hook`` gets
+    the service before it runs (signal handlers).
     """
     machine = build_machine(config)
     # The machine starts cold: a model state saved by an earlier run describes another machine.
