@@ -56,6 +56,8 @@ class SerialSensorSettings(BaseModel):
     checksum_skip: str = Field(default="", description="leading characters not summed, e.g. $")
     request_checksum: bool = False
     reply_timeout_s: float = Field(default=0.2, gt=0, allow_inf_nan=False)
+    #: Missed replies in a row that leave the values stale before the port counts as lost.
+    max_missed_replies: int = Field(default=3, ge=1)
     channels: tuple[str, ...] = Field(default=(), description="the channels the device has")
     range: Range | None = Field(default=None, description="[min, max] of every sensor")
     channel_ranges: dict[str, Range] = Field(default_factory=dict)

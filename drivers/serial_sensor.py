@@ -149,6 +149,7 @@ class SerialSensorDriver:
         #: Background mode: values polled since the last read, and the last poll's error.
         self._fresh: dict[str, float] = {}
         self._poll_error: DriverError | None = None
+        self._missed = 0  # replies missed in a row
         #: Why each channel's last value was left out (out of range), until it recovers.
         self.rejected: dict[str, str] = {}
         #: Number of successful ``open`` calls.
@@ -201,7 +202,32 @@ class SerialSensorDriver:
         if self.settings.poll == "background":
             return self._take_fresh(channels)
         self._connected()
-        return self._in_range(await self._poll(channels)) if channels else {}
+        return self._in_range(await self._tolerate_misses(channels)) if channels else {}
+
+    async def _tolerate_misses(self, channels: list[str]) -> dict[str, float]:
+        """One missed reply leaves the values stale for a tick; ``max_missed_replies`` in a row raise."""
+        try:
+            raw = await self._poll(channels)
+        except DriverTimeoutError:
+            self._missed += 1
+            if self._missed >= self.settings.max_missed_replies:
+                self._missed = 0
+                raise
+            log.warning("missed reply", port=self.settings.port, in_a_row=self._missed)
+            return {}
+        self._missed = 0
+        return raw
+
+    address_syntax = "as a channel of a signal; put outputs and status on a writable driver"
+
+    @staticmethod
+    def validate_address(address: str, *, writable: bool) -> None:
+        """A scanner's channels can be read, never written (``compd check-config`` refuses it)."""
+        if writable:
+            raise ValueError(
+                "a serial sensor is read-only: offsets, status word and heartbeat "
+                "must go to the controller's driver"
+            )
 
     async def write(self, values: Mapping[str, float]) -> None:
         """Refuse: a scanner is read-only (offsets and status go to the controller's driver)."""
@@ -262,7 +288,7 @@ class SerialSensorDriver:
             # A poll longer than the period skips the missed deadlines instead of bunching up.
             next_s = max(next_s + self.settings.poll_period_s, loop.time())
             try:
-                self._fresh |= await self._poll(channels)
+                self._fresh |= await self._tolerate_misses(channels)
             except DriverDisconnectedError as exc:
                 self._poll_error = exc
                 return

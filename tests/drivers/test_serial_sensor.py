@@ -136,9 +136,28 @@ def fault_then_recover(
 )
 def test_bad_replies_raise_and_the_next_poll_is_clean(scanner, mode, error, message):
     """A garbled, badly summed, half or missing reply raises and returns no value; the next poll reads correctly."""
-    raised, after = fault_then_recover(scanner, mode, checked(scanner.port))
+    driver = checked(scanner.port, max_missed_replies=1)
+    raised, after = fault_then_recover(scanner, mode, driver)
     assert isinstance(raised, error) and message in str(raised)
     assert after == {"1": 23.456, "2": 24.101}
+
+
+def test_a_missed_reply_leaves_the_values_stale_and_only_repeated_misses_raise(scanner):
+    """One or two silent replies read as no values (stale for that tick); the third in a row is a timeout."""
+
+    async def body(d: SerialSensorDriver) -> tuple[list[dict[str, float]], BaseException | None]:
+        seen = []
+        with scanner.fault("silent"):
+            seen += [await d.read(["1"]), await d.read(["1"])]
+            try:
+                await d.read(["1"])
+            except DriverError as exc:
+                return seen, exc
+        return seen, None
+
+    seen, raised = run(checked(scanner.port, max_missed_replies=3), body)
+    assert seen == [{}, {}]
+    assert isinstance(raised, DriverTimeoutError)
 
 
 def test_reply_without_checksum_is_refused(scanner):
