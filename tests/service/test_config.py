@@ -143,7 +143,10 @@ def test_recorder_total_must_hold_one_file(tmp_path):
 def test_an_offset_on_a_read_only_sensor_driver_is_refused(tmp_path):
     """check-config refuses an axis written through a serial scanner, naming the place and the fix."""
     scanner = {"type": "serial_sensor", "settings": {"port": "/dev/ttyUSB0", "channels": ["1"]}}
-    changes = {"drivers": {"scanner": scanner}, "outputs": {"Y": {"driver": "scanner", "address": "1"}}}
+    changes = {
+        "drivers": {"scanner": scanner},
+        "outputs": {"Y": {"driver": "scanner", "address": "1"}},
+    }
     with pytest.raises(ConfigFileError) as caught:
         write_config(tmp_path, changes)
     text = str(caught.value)
