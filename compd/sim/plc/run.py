@@ -21,6 +21,7 @@ from typing import Any
 
 from compd.clock import Clock, RealClock, VirtualClock
 from compd.config import Config
+from compd.errors import CompdError
 from compd.links import DriverLink
 from compd.loop import TickRecord, TickTiming, run_periodic
 from compd.service import Service
@@ -71,7 +72,7 @@ async def run_simulation(
     machine = build_machine(config)
     # The machine starts cold: a model state saved by an earlier run describes another machine.
     (config.state_dir / STATE_FILE).unlink(missing_ok=True)
-    await machine.start()
+    await start_machine(config, machine)
     started = time.perf_counter()
     try:
         base = base_clock(time_scale)
@@ -103,6 +104,18 @@ async def run_simulation(
     )
 
 
+async def start_machine(config: Config, machine: SimulatedMachine) -> None:
+    """Start the machine's controllers; a port in use or a bad address is a CompdError naming the config."""
+    try:
+        await machine.start()
+    except (OSError, RuntimeError, ValueError) as exc:
+        await machine.stop()
+        raise CompdError(
+            f"{config.path}: the simulated machine cannot start its controllers: {exc}. "
+            "Free the port or give the driver another one (drivers.<name>.settings)"
+        ) from exc
+
+
 async def settle(links: Mapping[str, DriverLink]) -> None:
     """Wait (real time, bounded) until no link is reconnecting: time stands still meanwhile."""
     deadline = time.monotonic() + SETTLE_MAX_S
@@ -127,7 +140,7 @@ async def serve_machine(
         if on_step is not None:
             on_step(machine)
 
-    await machine.start()
+    await start_machine(config, machine)
     try:
         await run_periodic(
             clock, machine.sample_time_s, step, stop=stop, duration_s=machine.duration_s
