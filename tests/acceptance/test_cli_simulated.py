@@ -54,7 +54,9 @@ def test_a_port_in_use_is_a_clear_error_not_a_traceback(
     calibrated_model: Path, short_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """Another program on the simulated PLC's port: exit 2, naming the config and the fix."""
-    doc = machine_doc(short_dir, calibrated_model, simulation={"scenario": "production", "hours": 1})
+    doc = machine_doc(
+        short_dir, calibrated_model, simulation={"scenario": "production", "hours": 1}
+    )
     config = write_config(short_dir, doc)
     port = doc["drivers"]["plc"]["settings"]["port"]
     with socket.socket() as taken:
