@@ -17,7 +17,7 @@ import inspect
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import yaml
 from pydantic import (
@@ -33,8 +33,10 @@ from compd.errors import ConfigFileError
 from compd.model.compiled import CompiledModel
 from compd.modelfile import ModelFile
 from compd.schedule import GainRow, GainTable, first_overlap, model_gains
-from compd.sim.plc.settings import SimulationDoc
 from compd.yamlplace import FIXES, describe, parse_yaml, resolve_path, where
+
+if TYPE_CHECKING:
+    from compd.sim.plc.settings import SimulationDoc
 
 SCHEMA = "compd.config/1"
 #: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31).
@@ -382,6 +384,9 @@ def parse_config(text: str, path: Path) -> Config:
 
     simulation = None
     if doc.simulation is not None:
+        # Imported here: the twin (and pandas) stay out of a real machine's daemon.
+        from compd.sim.plc.settings import SimulationDoc
+
         try:
             simulation = SimulationDoc.model_validate(doc.simulation)
         except ValidationError as exc:

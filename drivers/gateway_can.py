@@ -191,13 +191,7 @@ class CanTransport:
     async def close(self) -> None:
         notifier, bus = self._notifier, self._bus
         self._notifier = self._bus = None
-        if notifier is not None:
-            # Joining a reader thread blocks for up to its timeout: not on the loop.
-            with contextlib.suppress(Exception):
-                await asyncio.to_thread(notifier.stop, 1.0)
-        if bus is not None:
-            with contextlib.suppress(Exception):
-                bus.shutdown()
+        await close_bus(notifier, bus)
 
     # -- internals ----------------------------------------------------------
 
@@ -243,3 +237,14 @@ class CanTransport:
 
     def _ids_text(self) -> str:
         return "(" + ", ".join(f"0x{i:03X}" for i in self.in_ids) + ")"
+
+
+async def close_bus(notifier: can.Notifier | None, bus: can.BusABC | None) -> None:
+    """Stop the reader, then leave the bus; never raises (driver and simulated gateway)."""
+    if notifier is not None:
+        # Joining a reader thread blocks for up to its timeout: not on the loop.
+        with contextlib.suppress(Exception):
+            await asyncio.to_thread(notifier.stop, 1.0)
+    if bus is not None:
+        with contextlib.suppress(Exception):
+            bus.shutdown()

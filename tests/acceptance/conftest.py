@@ -8,8 +8,6 @@ process; only the daemon-restart test runs ``compd run`` as a child process.
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import io
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -20,25 +18,16 @@ import numpy as np
 import pytest
 import yaml
 
-from compd.cli import main
 from compd.config import Config, load_config
 from compd.sim.plc.machine import AxisSummary
 from compd.sim.plc.run import SimulationResult, run_simulation
 from compd.yamlplace import resolve_path
+from tests.clirun import compd
 
 CALIBRATION_HOURS = 24
 CALIBRATION_SAMPLE_S = 10
 BASE_INPUTS = "T_spindle_degC,T_headstock_degC,T_column_front_degC,T_ambient_degC"
 SIMULATED = resolve_path("bundled:simulated.yaml", Path("."))
-
-
-def compd(*argv: object) -> str:
-    """Run one compd command in-process; its stdout, or a failure showing what it printed."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    assert code == 0, f"compd {' '.join(map(str, argv))} exited {code}:\n{err.getvalue()}"
-    return out.getvalue()
 
 
 @pytest.fixture(scope="session")

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from compd.cli import main
-from tests.acceptance.conftest import compd, machine_doc, write_config
+from tests.acceptance.conftest import machine_doc, write_config
+from tests.clirun import compd
 
 
 def test_compd_run_on_the_simulated_machine_prints_the_summary(

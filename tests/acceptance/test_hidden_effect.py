@@ -17,7 +17,8 @@ from compd.cli.service import model_load
 from compd.loop import TickRecord
 from compd.service import Service
 from compd.sim.plc.machine import SimulatedMachine
-from tests.acceptance.conftest import compd, machine_doc, offset_steps_um, simulate, write_config
+from tests.acceptance.conftest import machine_doc, offset_steps_um, simulate, write_config
+from tests.clirun import compd
 
 FOUND_AT_S = 4 * 3600.0
 SHIFT_S = 8 * 3600.0

@@ -11,8 +11,6 @@ methods are the same at 1 s.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -22,7 +20,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from compd.cli import main
+from tests.clirun import compd
 
 SAMPLE_TIME_S = 10
 CALIBRATION_HOURS = 24
@@ -52,15 +50,6 @@ EFFECTS = (
         lambda d: (d.T_coolant_degC - d.T_coolant_degC.iloc[0]).abs() > 0.5,
     ),
 )
-
-
-def compd(*argv: object) -> str:
-    """Run one compd command in-process; its stdout, or a failure showing what it printed."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    assert code == 0, f"compd {' '.join(map(str, argv))} exited {code}:\n{err.getvalue()}"
-    return out.getvalue()
 
 
 def compd_json(*argv: object) -> dict:

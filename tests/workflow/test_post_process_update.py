@@ -13,29 +13,18 @@ the fit rises by at least 25 points (seed 002 reports 40 % -> 78 %).
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-from compd.cli import main
 from compd.modelfile import load_model
+from tests.clirun import compd
 
 SAMPLE_TIME_S = 10
 RUN_HOURS = 16
 PROBE_EVERY_S = 1800
-
-
-def compd(*argv: object) -> str:
-    """Run one compd command in-process; its stdout, or a failure showing what it printed."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    assert code == 0, f"compd {' '.join(map(str, argv))} exited {code}:\n{err.getvalue()}"
-    return out.getvalue()
 
 
 def fit_on(model: Path, data: Path) -> float:

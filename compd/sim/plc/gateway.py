@@ -39,10 +39,10 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simcore import SimCore
 
 from compd.drivers.gateway import FRAME_BYTES, GatewayDriver, GatewaySettings
-from compd.drivers.gateway_can import SYNC_ID, frame_sizes, listen, open_bus
+from compd.drivers.gateway_can import SYNC_ID, close_bus, frame_sizes, listen, open_bus
 from compd.drivers.gateway_image import ImagePoint, parse_address
 from compd.errors import DriverError
-from compd.sim.plc.server import WriteSink
+from compd.sim.plc.server import WriteSink, servable
 
 __all__ = ["GatewayServer"]
 
@@ -116,12 +116,7 @@ class GatewayServer:
                 await task
         notifier, bus = self._notifier, self._bus
         self._notifier = self._bus = None
-        if notifier is not None:
-            with contextlib.suppress(Exception):
-                await asyncio.to_thread(notifier.stop, 1.0)
-        if bus is not None:
-            with contextlib.suppress(Exception):
-                bus.shutdown()
+        await close_bus(notifier, bus)
 
     def publish(self, values: Mapping[str, float]) -> None:
         """Serve these raw values from now on; all or none (ValueError names the bad one)."""
@@ -317,6 +312,8 @@ def _encode(address: str, point: ImagePoint, raw: float) -> bytes:
         # codec, made to check compd's own writes, refuses them.
         data: bytes = codec._reorder(struct.pack(">f" if codec.type == "float32" else ">d", raw))
         return data
+    if codec is not None:
+        raw = servable(codec, raw)  # an integer input saturates; a broken sensor reads its minimum
     try:
         data = point.encode(raw)
         return data
