@@ -21,13 +21,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from compd import __version__
+from compd.candidates import (
+    FIT_METHODS,
+    Selection,
+    describe_lag_bank,
+    folds_of,
+    lag_bank_identification,
+    operating_signal,
+    select,
+)
 from compd.data import DataSet
 from compd.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.errors import DataFileError, ModelError
-from compd.model.identify import MAX_ORDER, METHODS, Identification, Method, Progress, identify
+from compd.model.identify import MAX_ORDER, Identification, Progress, identify
 from compd.model.metrics import Comparison
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
-from compd.modelfile import CalibrationDoc, ProvenanceDoc
+from compd.modelfile import CalibrationDoc, CrossValidationDoc, ProvenanceDoc
 from compd.modelwriter import model_to_yaml
 
 #: Unit suffixes of compd's signal naming convention (``T_spindle_degC``, ``spindle_power_kw``).
@@ -43,6 +52,8 @@ class FitResult:
     provenance: ProvenanceDoc
     comparison: Comparison
     yaml_text: str
+    #: The candidates' calibration and cross-validated fits, and which was kept.
+    selection: Selection | None = None
 
 
 def unit_of(name: str) -> str:
@@ -100,6 +111,20 @@ def identification_to_model(
                     gain_name="g2",
                 )
             )
+        elif channel.time_constant_s is not None:
+            tau = channel.time_constant_s
+            subs.append(
+                SubModel(
+                    name=f"{channel.input_name}_lag_{tau:g}s"
+                    if tau
+                    else f"{channel.input_name}_gain",
+                    effect=f"{channel.input_name}: first-order lag of {tau:g} s (lagbank)"
+                    if tau
+                    else f"{channel.input_name}: static gain (lagbank)",
+                    input=InputSpec(channel.input_name),
+                    tf=channel.tf,
+                )
+            )
         else:
             effect = (
                 f"{channel.input_name}: cooling, always on ({method})"
@@ -151,9 +176,12 @@ def _check_arguments(
             where="--order",
             fix="Use --order auto to choose it on held-back data",
         )
-    if method not in METHODS:
+    if method not in FIT_METHODS:
         raise DataFileError(
-            data.path, f"unknown method {method!r}", where="--method", fix=f"Use one of {METHODS}"
+            data.path,
+            f"unknown method {method!r}",
+            where="--method",
+            fix=f"Use one of {', '.join(FIT_METHODS)}",
         )
     for column in inputs:
         if np.ptp(data.column(column)) == 0.0:
@@ -215,8 +243,10 @@ def fit_data(
     *,
     output: str,
     inputs: Sequence[str],
-    method: Method = "oe",
+    method: str = "auto",
     order: int | str = "auto",
+    cycles: str | None = None,
+    force: bool = False,
     phase_gate: str | None = None,
     position: str | None = None,
     position_reference_mm: float = 0.0,
@@ -233,6 +263,11 @@ def fit_data(
     ``denoise``: inputs identified with their first EMD mode removed and run
     through a matched causal low-pass baked into their TFs (:mod:`compd.denoise`);
     ``denoise_imfs`` modes are removed (seed 004: 1).
+    ``method="auto"`` keeps whichever of the lag bank and the static
+    regression fits held-out operating cycles (``cycles``: the column whose
+    rising edges start them) best; a lag bank that holds worse than the
+    regression is refused unless ``force``. With a phase gate, a position or
+    denoising, ``auto`` is ``oe`` (the lag bank has none of them yet).
 
     Raises :class:`~compd.errors.DataFileError` (naming the file, the option or
     column, and the fix) for bad arguments and for data the method cannot fit.
@@ -260,17 +295,42 @@ def fit_data(
     if position is not None:
         _check_position(data, position, position_reference_mm, output, inputs, phase_gate)
         slope = Position(position, float(position_reference_mm))
-    try:
-        identification = identify(
-            y,
-            changes,
-            sample_time_s=data.sample_time_s,
-            method=method,
-            order="auto" if order == "auto" else int(order),
-            gate=gate,
-            position=None if slope is None else data.column(slope.signal) - slope.reference_mm,
-            progress=progress,
+    structured = phase_gate is not None or position is not None or bool(denoise)
+    if method == "lagbank" and structured:
+        raise DataFileError(
+            data.path,
+            "the lag bank does not take --phase-gate, --position or --denoise",
+            where="--method lagbank",
+            fix="Use --method oe or arx for those structures, or drop them",
         )
+    folds = folds_of(data, operating_signal(data, cycles, phase_gate))
+    candidates = ("mlr",) if structured or method in ("oe", "arx") else ("lagbank", "mlr")
+    if method == "mlr":
+        candidates = ("mlr",)
+    selection = select(
+        y, changes, sample_time_s=data.sample_time_s, folds=folds, candidates=candidates
+    )
+    chosen = method
+    if method == "auto":
+        chosen = "oe" if structured else selection.kept
+    _check_against_regression(data, selection, chosen, force)
+    try:
+        if chosen == "lagbank":
+            assert selection.lag_bank is not None
+            identification = lag_bank_identification(
+                selection.lag_bank, list(changes), data.sample_time_s
+            )
+        else:
+            identification = identify(
+                y,
+                changes,
+                sample_time_s=data.sample_time_s,
+                method=chosen,
+                order="auto" if order == "auto" else int(order),
+                gate=gate,
+                position=None if slope is None else data.column(slope.signal) - slope.reference_mm,
+                progress=progress,
+            )
     except ModelError as exc:
         where = f"--phase-gate {phase_gate}" if "phase-gate" in exc.message else ""
         where = f"--position {position}" if "position" in exc.message else where
@@ -278,7 +338,7 @@ def fit_data(
     model = identification_to_model(
         identification,
         output=output,
-        name=name or f"{output}-{method}",
+        name=name or f"{output}-{chosen}",
         gate_signal=phase_gate,
         position=slope,
     )
@@ -289,17 +349,54 @@ def fit_data(
         model, identification, denoise_doc = baked.model, baked.identification, baked.doc
     comparison = Comparison.of(output, y, identification.simulated_um)
     provenance = _provenance(data, identification, comparison, command, phase_gate, slope)
+    provenance = provenance.model_copy(update={"cross_validation": _cv_doc(output, selection)})
+    if selection.lag_bank is not None and chosen == "lagbank":
+        notes = f"{provenance.notes}; {describe_lag_bank(selection.lag_bank)}"
+        provenance = provenance.model_copy(update={"notes": notes})
     if denoise_doc is not None:
         notes = f"{provenance.notes}; {denoise_note(denoise_doc)}"
         provenance = provenance.model_copy(update={"denoise": denoise_doc, "notes": notes})
     signals = {signal: unit_of(signal) for signal in model.signals()}
     text = model_to_yaml(
         model,
-        description=f"{output} from {', '.join(inputs)}, identified by compd fit --method {method}",
+        description=f"{output} from {', '.join(inputs)}, identified by compd fit --method {chosen}",
         signals=signals,
         provenance=provenance,
     )
-    return FitResult(identification, model, provenance, comparison, text)
+    return FitResult(identification, model, provenance, comparison, text, selection)
+
+
+def _check_against_regression(
+    data: DataSet, selection: Selection, chosen: str, force: bool
+) -> None:
+    """Refuse a model that holds worse on held-out cycles than the static regression (unless forced)."""
+    score, regression = selection.score(chosen), selection.score("mlr")
+    if force or score is None or regression is None or chosen == "mlr":
+        return
+    if score.cv_fit_percent is None or regression.cv_fit_percent is None:
+        return
+    if score.cv_fit_percent < regression.cv_fit_percent:
+        raise DataFileError(
+            data.path,
+            f"the {chosen} model fits held-out operating cycles worse than the static regression "
+            f"on the same inputs ({score.cv_fit_percent:.1f} % vs {regression.cv_fit_percent:.1f} "
+            f"%; {selection.folds.describe()}): it would compensate worse than the controller's "
+            "built-in regression",
+            where=f"--method {chosen}",
+            fix="Use --method auto (keeps the better), select fewer inputs, or --force to write it",
+        )
+
+
+def _cv_doc(output: str, selection: Selection) -> CrossValidationDoc:
+    return CrossValidationDoc(
+        folds=selection.folds.describe(),
+        kept=selection.kept,
+        fit_percent={
+            s.method: s.cv_fit_percent for s in selection.scores if s.cv_fit_percent is not None
+        },
+        calibration_fit_percent={s.method: s.calibration_fit_percent for s in selection.scores},
+        output=output,
+    )
 
 
 def _provenance(

@@ -228,6 +228,21 @@ class DenoiseDoc(_Strict):
     rms_um_lowpass: dict[str, FiniteFloat] = Field(default_factory=dict)
 
 
+class CrossValidationDoc(_Strict):
+    """How the candidates held on operating cycles they were not fitted on (``compd fit``).
+
+    ``fit_percent``: pooled held-out fit % per candidate method (``mlr`` is
+    the static regression on the same inputs); ``calibration_fit_percent``
+    the same candidates' fit on all the data they were fitted on.
+    """
+
+    output: str
+    folds: str
+    kept: str
+    fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+    calibration_fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+
+
 class ProvenanceDoc(_Strict):
     data: str | None = None
     command: str | None = None
@@ -239,6 +254,7 @@ class ProvenanceDoc(_Strict):
     extensions: list[ExtensionDoc] = Field(default_factory=list)
     updates: list[UpdateDoc] = Field(default_factory=list)
     denoise: DenoiseDoc | None = None
+    cross_validation: CrossValidationDoc | None = None
     notes: str = ""
 
 

@@ -10,12 +10,12 @@ from typing import Any
 
 from rich.table import Table
 
+from compd.candidates import FIT_METHODS
 from compd.cli.common import console, data_options, fmt, load_data_from_args
 from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
 from compd.errors import DataFileError
 from compd.fit import FitResult, fit_data
-from compd.model.identify import METHODS
 
 
 def register(commands: Any) -> None:
@@ -78,10 +78,25 @@ def register(commands: Any) -> None:
     )
     parser.add_argument(
         "--method",
-        choices=METHODS,
-        default="oe",
-        help="oe (default): a denominator per input, fitted on the simulation error; arx: least "
-        "squares with a common denominator; mlr: static linear regression (the baseline)",
+        choices=FIT_METHODS,
+        default="auto",
+        help="auto (default): the lag bank or the static regression, whichever fits held-out "
+        "operating cycles better; lagbank: first-order lags at fixed time constants on the "
+        "inputs' principal directions, ridge-regularised, settings chosen by leave-one-cycle-out "
+        "cross-validation; oe: a denominator per input, fitted on the simulation error; arx: "
+        "least squares with a common denominator; mlr: static linear regression (the baseline)",
+    )
+    parser.add_argument(
+        "--cycles",
+        metavar="SIGNAL",
+        help="column whose rising edges start an operating cycle, for leave-one-cycle-out "
+        "cross-validation (default: the phase gate, else a spindle speed or power column, else "
+        "four contiguous blocks)",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="write the model even if it holds worse on held-out cycles than the static regression",
     )
     parser.add_argument("--out", type=Path, required=True, metavar="MODEL.yaml")
     parser.add_argument("--name", help="model name (default OUTPUT-METHOD)")
@@ -119,6 +134,8 @@ def _fit(args: argparse.Namespace) -> int:
             inputs=inputs,
             method=args.method,
             order=order,
+            cycles=args.cycles,
+            force=args.force,
             phase_gate=args.phase_gate,
             position=args.position,
             position_reference_mm=args.position_reference_mm,
@@ -131,6 +148,30 @@ def _fit(args: argparse.Namespace) -> int:
     write_fit(result, data, args)
     _report(result, args)
     return 0
+
+
+def _candidates_table(result: FitResult) -> Table:
+    """Each candidate's fit on its calibration data beside its fit on held-out cycles."""
+    selection = result.selection
+    assert selection is not None
+    kept = result.identification.method
+    table = Table(
+        "method",
+        "calibration fit %",
+        "cross-validated fit %",
+        "",
+        title=f"judged by {selection.folds.describe()} (fit on the others, run through the whole "
+        "record)",
+    )
+    for score in selection.scores:
+        cv = "-" if score.cv_fit_percent is None else fmt(score.cv_fit_percent, 1)
+        note = "kept" if score.method == kept else ""
+        if score.method == "mlr" and kept != "mlr":
+            note = "static regression, the baseline"
+        table.add_row(score.method, fmt(score.calibration_fit_percent, 1), cv, note)
+    if kept not in {s.method for s in selection.scores}:
+        table.add_row(kept, fmt(result.identification.fit_percent, 1), "not judged", "kept")
+    return table
 
 
 def _report(result: FitResult, args: argparse.Namespace) -> None:
@@ -175,6 +216,8 @@ def _report(result: FitResult, args: argparse.Namespace) -> None:
             " % on the last third"
         )
     out.print(line)
+    if result.selection is not None:
+        out.print(_candidates_table(result))
     denoise = result.provenance.denoise
     if denoise is not None:
         for entry in denoise.inputs:

@@ -70,7 +70,8 @@ from compd.model.position import (
 )
 from compd.model.transfer import DiscreteTF
 
-Method = Literal["arx", "oe", "mlr"]
+Method = Literal["arx", "oe", "mlr", "lagbank"]
+#: The methods :func:`identify` runs; ``lagbank`` is :mod:`compd.model.lagbank`'s (it needs folds).
 METHODS: tuple[Method, ...] = ("arx", "oe", "mlr")
 #: Called with a stage name ("ARX order search", "OE order 2", ...) and the fraction of
 #: that stage done (0..1); a new name starts a new stage (one progress bar each).
@@ -92,6 +93,7 @@ class IdentifiedTF:
     tf: DiscreteTF
     gated: bool  # True for the heating-difference channel of a phase gate
     sloped: bool = False  # True for a slope channel (seed 003 m1): output times the position
+    time_constant_s: float | None = None  # a lag-bank channel's fixed time constant (0: a gain)
 
 
 @dataclass(frozen=True)
