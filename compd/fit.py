@@ -34,6 +34,7 @@ from compd.data import DataSet
 from compd.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.errors import DataFileError, ModelError
 from compd.model.identify import MAX_ORDER, Identification, Progress, identify
+from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 from compd.model.metrics import Comparison
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
 from compd.modelfile import CalibrationDoc, CrossValidationDoc, ProvenanceDoc
@@ -247,6 +248,7 @@ def fit_data(
     order: int | str = "auto",
     cycles: str | None = None,
     force: bool = False,
+    time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S,
     phase_gate: str | None = None,
     position: str | None = None,
     position_reference_mm: float = 0.0,
@@ -307,9 +309,17 @@ def fit_data(
     candidates = ("mlr",) if structured or method in ("oe", "arx") else ("lagbank", "mlr")
     if method == "mlr":
         candidates = ("mlr",)
-    selection = select(
-        y, changes, sample_time_s=data.sample_time_s, folds=folds, candidates=candidates
-    )
+    try:
+        selection = select(
+            y,
+            changes,
+            sample_time_s=data.sample_time_s,
+            folds=folds,
+            candidates=candidates,
+            time_constants_s=time_constants_s,
+        )
+    except ModelError as exc:
+        raise DataFileError(data.path, exc.message, where="--time-constants-s") from exc
     chosen = method
     if method == "auto":
         chosen = "oe" if structured else selection.kept

@@ -16,6 +16,7 @@ from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
 from compd.errors import DataFileError
 from compd.fit import FitResult, fit_data
+from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 
 
 def register(commands: Any) -> None:
@@ -94,6 +95,14 @@ def register(commands: Any) -> None:
         "four contiguous blocks)",
     )
     parser.add_argument(
+        "--time-constants-s",
+        type=_seconds_list,
+        default=DEFAULT_TIME_CONSTANTS_S,
+        metavar="T0,T1,..",
+        help="the lag bank's time constants in s, comma-separated, 0 for the input itself "
+        f"(default {','.join(f'{t:g}' for t in DEFAULT_TIME_CONSTANTS_S)})",
+    )
+    parser.add_argument(
         "--force",
         action="store_true",
         help="write the model even if it holds worse on held-out cycles than the static regression",
@@ -103,6 +112,15 @@ def register(commands: Any) -> None:
     data_options(parser, initial_state=False)
     add_residual_options(parser)
     parser.set_defaults(handler=_fit)
+
+
+def _seconds_list(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a comma-separated list of seconds (e.g. 0,300,1200,3600,10800)"
+        ) from None
 
 
 def _order(args: argparse.Namespace) -> int | str:
@@ -135,6 +153,7 @@ def _fit(args: argparse.Namespace) -> int:
             method=args.method,
             order=order,
             cycles=args.cycles,
+            time_constants_s=args.time_constants_s,
             force=args.force,
             phase_gate=args.phase_gate,
             position=args.position,

@@ -105,11 +105,12 @@ def _principal_directions(u: np.ndarray, fitted: np.ndarray) -> np.ndarray:
 
 
 class _Design:
-    """Lag features of the leading modes of the inputs over some fitted samples, ready to solve."""
+    """Lag features of the inputs' modes over some fitted samples, with their Gram matrix, ready to solve."""
 
     def __init__(
         self,
         u: np.ndarray,
+        y: np.ndarray,
         fitted: np.ndarray,
         time_constants_s: Sequence[float],
         sample_time_s: float,
@@ -121,24 +122,28 @@ class _Design:
         scale = features[fitted].std(axis=0)
         self.scale = np.where(scale > 0.0, scale, 1.0)
         self.features = features / self.scale
-        self.fitted = fitted
+        block = self.features[fitted]
+        # One Gram matrix for all modes: each setting solves on a sub-block of it.
+        self.gram = block.T @ block
+        self.rhs = block.T @ y[fitted]
+        self.n_fitted = int(fitted.sum())
 
     def columns(self, n_modes: int) -> np.ndarray:
         """Indices of the feature columns of the leading ``n_modes`` modes, at every time constant."""
         return np.concatenate([np.arange(n_modes) + j * self.max_modes for j in range(self.n_taus)])
 
-    def solve(self, y: np.ndarray, n_modes: int, weights: Sequence[float]) -> list[np.ndarray]:
+    def solve(self, n_modes: int, weights: Sequence[float]) -> list[np.ndarray]:
         """Ridge weights (standardised) for each ridge weight, via one eigendecomposition."""
-        x = self.features[self.fitted][:, self.columns(n_modes)]
-        gram = x.T @ x
-        rhs = x.T @ y[self.fitted]
-        eigenvalues, vectors = np.linalg.eigh(gram)
-        projected = vectors.T @ rhs
-        n = x.shape[0]
-        return [vectors @ (projected / (eigenvalues + w * n)) for w in weights]
+        cols = self.columns(n_modes)
+        eigenvalues, vectors = np.linalg.eigh(self.gram[np.ix_(cols, cols)])
+        projected = vectors.T @ self.rhs[cols]
+        return [vectors @ (projected / (eigenvalues + w * self.n_fitted)) for w in weights]
 
-    def predict(self, n_modes: int, coefficients: np.ndarray) -> np.ndarray:
-        return np.asarray(self.features[:, self.columns(n_modes)] @ coefficients)
+    def predict(
+        self, n_modes: int, coefficients: np.ndarray, rows: np.ndarray | None = None
+    ) -> np.ndarray:
+        features = self.features if rows is None else self.features[rows]
+        return np.asarray(features[:, self.columns(n_modes)] @ coefficients)
 
     def gains(self, n_modes: int, coefficients: np.ndarray) -> np.ndarray:
         """Per-input gains ``(p, n_tau)``: the mode weights mapped back through the directions."""
@@ -188,10 +193,10 @@ def fit_lag_bank(
         train = fitted & (folds.labels != fold)
         if not held.any() or train.sum() < 2:
             continue
-        design = _Design(u, train, taus, sample_time_s)
+        design = _Design(u, y, train, taus, sample_time_s)
         for m in modes:
-            for w, coefficients in zip(weights, design.solve(y, m, weights), strict=True):
-                held_out[(m, w)][held] = design.predict(m, coefficients)[held]
+            for w, coefficients in zip(weights, design.solve(m, weights), strict=True):
+                held_out[(m, w)][held] = design.predict(m, coefficients, held)
     scores = {key: pooled_fit_percent(y, pred) for key, pred in held_out.items()}
     best = max(scores.values())
     # Simplest within tolerance: fewest modes, then the largest ridge weight.
@@ -199,8 +204,8 @@ def fit_lag_bank(
         (key for key, score in scores.items() if score >= best - SELECTION_TOLERANCE_POINTS),
         key=lambda key: (key[0], -key[1]),
     )
-    design = _Design(u, fitted, taus, sample_time_s)
-    coefficients = design.solve(y, n_modes, [weight])[0]
+    design = _Design(u, y, fitted, taus, sample_time_s)
+    coefficients = design.solve(n_modes, [weight])[0]
     predicted = design.predict(n_modes, coefficients)
     return LagBankFit(
         time_constants_s=taus,
