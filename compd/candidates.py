@@ -24,7 +24,9 @@ from threadpoolctl import threadpool_limits
 
 from compd.data import DataSet
 from compd.errors import DataFileError, ModelError
+from compd.model.compiled import compile_model, qualified_names
 from compd.model.crossval import Folds, blocked_folds, cycle_folds
+from compd.model.guards import Finding, check_model
 from compd.model.identify import Identification, IdentifiedTF, Orders
 from compd.model.lagbank import (
     DEFAULT_TIME_CONSTANTS_S,
@@ -33,6 +35,9 @@ from compd.model.lagbank import (
     regression_cv,
 )
 from compd.model.metrics import fit_percent
+from compd.model.run import simulate
+from compd.model.structure import Model
+from compd.modelfile import CrossValidationDoc
 
 #: What ``compd fit --method`` accepts; ``auto`` compares lagbank and mlr by cross-validation.
 FIT_METHODS = ("auto", "lagbank", "oe", "arx", "mlr")
@@ -159,4 +164,57 @@ def describe_lag_bank(fit: LagBankFit) -> str:
     return (
         f"lag bank at time constants [{taus}] s on the inputs' {fit.n_modes} leading principal "
         f"direction(s), ridge weight {fit.ridge_weight:.1e}"
+    )
+
+
+def guard_findings(data: DataSet, model: Model) -> list[Finding]:
+    """The guard rails (:mod:`compd.model.guards`) on ``model`` over the record it was fitted on."""
+    compiled = compile_model(model, data.sample_time_s)
+    signals = np.column_stack([data.column(name) for name in compiled.signals])
+    result = simulate(compiled, signals, compiled.rest_state(signals[0]))
+    names = qualified_names(compiled)
+    contributions: dict[str, dict[str, np.ndarray]] = {}
+    for index, qualified in enumerate(names):
+        output, _, sub = qualified.partition("/")
+        contributions.setdefault(output, {})[sub] = result.contributions[:, index]
+    ranges = {
+        column: (float(np.min(values)), float(np.max(values)))
+        for column, values in data.columns.items()
+    }
+    return check_model(
+        model,
+        ranges=ranges,
+        record_s=len(data) * data.sample_time_s,
+        contributions=contributions,
+    )
+
+
+def check_against_regression(data: DataSet, selection: Selection, chosen: str, force: bool) -> None:
+    """Refuse a model that holds worse on held-out cycles than the static regression (unless forced)."""
+    score, regression = selection.score(chosen), selection.score("mlr")
+    if force or score is None or regression is None or chosen == "mlr":
+        return
+    if score.cv_fit_percent is None or regression.cv_fit_percent is None:
+        return
+    if score.cv_fit_percent < regression.cv_fit_percent:
+        raise DataFileError(
+            data.path,
+            f"the {chosen} model fits held-out operating cycles worse than the static regression "
+            f"on the same inputs ({score.cv_fit_percent:.1f} % vs {regression.cv_fit_percent:.1f} "
+            f"%; {selection.folds.describe()}): it would compensate worse than the controller's "
+            "built-in regression",
+            where=f"--method {chosen}",
+            fix="Use --method auto (keeps the better), select fewer inputs, or --force to write it",
+        )
+
+
+def cross_validation_doc(output: str, selection: Selection) -> CrossValidationDoc:
+    return CrossValidationDoc(
+        folds=selection.folds.describe(),
+        kept=selection.kept,
+        fit_percent={
+            s.method: s.cv_fit_percent for s in selection.scores if s.cv_fit_percent is not None
+        },
+        calibration_fit_percent={s.method: s.calibration_fit_percent for s in selection.scores},
+        output=output,
     )

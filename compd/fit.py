@@ -16,7 +16,7 @@ from __future__ import annotations
 import datetime as dt
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -24,8 +24,11 @@ from compd import __version__
 from compd.candidates import (
     FIT_METHODS,
     Selection,
+    check_against_regression,
+    cross_validation_doc,
     describe_lag_bank,
     folds_of,
+    guard_findings,
     lag_bank_identification,
     operating_signal,
     select,
@@ -33,11 +36,12 @@ from compd.candidates import (
 from compd.data import DataSet
 from compd.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.errors import DataFileError, ModelError
+from compd.model.guards import Finding, Severity
 from compd.model.identify import MAX_ORDER, Identification, Progress, identify
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 from compd.model.metrics import Comparison
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
-from compd.modelfile import CalibrationDoc, CrossValidationDoc, ProvenanceDoc
+from compd.modelfile import CalibrationDoc, ProvenanceDoc
 from compd.modelwriter import model_to_yaml
 
 #: Unit suffixes of compd's signal naming convention (``T_spindle_degC``, ``spindle_power_kw``).
@@ -55,6 +59,8 @@ class FitResult:
     yaml_text: str
     #: The candidates' calibration and cross-validated fits, and which was kept.
     selection: Selection | None = None
+    #: Guard-rail findings on the written model (warnings; errors refuse it unless forced).
+    findings: list[Finding] = field(default_factory=list)
 
 
 def unit_of(name: str) -> str:
@@ -297,6 +303,15 @@ def fit_data(
     if position is not None:
         _check_position(data, position, position_reference_mm, output, inputs, phase_gate)
         slope = Position(position, float(position_reference_mm))
+    if phase_gate is not None and phase_gate in inputs:
+        raise DataFileError(
+            data.path,
+            f"the phase gate {phase_gate!r} is also an input: while it is open the gated input "
+            "equals the input, so the heating and cooling sub-models are one regressor and take "
+            "cancelling gains (seen: +-154 um/rpm, -1,274,349 % on the next run)",
+            where=f"--phase-gate {phase_gate}",
+            fix="Gate temperature inputs on the spindle speed, or fit the speed without a gate",
+        )
     structured = phase_gate is not None or position is not None or bool(denoise)
     if method == "lagbank" and structured:
         raise DataFileError(
@@ -323,7 +338,7 @@ def fit_data(
     chosen = method
     if method == "auto":
         chosen = "oe" if structured else selection.kept
-    _check_against_regression(data, selection, chosen, force)
+    check_against_regression(data, selection, chosen, force)
     try:
         if chosen == "lagbank":
             assert selection.lag_bank is not None
@@ -358,8 +373,20 @@ def fit_data(
         baked = bake_lowpasses(model, identification, data, denoised, units)
         model, identification, denoise_doc = baked.model, baked.identification, baked.doc
     comparison = Comparison.of(output, y, identification.simulated_um)
+    findings = guard_findings(data, model)
+    errors = [f for f in findings if f.severity is Severity.ERROR]
+    if errors and not force:
+        raise DataFileError(
+            data.path,
+            "the fitted model is implausible for its own calibration data:\n  "
+            + "\n  ".join(f.describe() for f in errors),
+            where=f"--method {chosen}",
+            fix="Follow the fixes above, or --force to write the model anyway",
+        )
     provenance = _provenance(data, identification, comparison, command, phase_gate, slope)
-    provenance = provenance.model_copy(update={"cross_validation": _cv_doc(output, selection)})
+    provenance = provenance.model_copy(
+        update={"cross_validation": cross_validation_doc(output, selection)}
+    )
     if selection.lag_bank is not None and chosen == "lagbank":
         notes = f"{provenance.notes}; {describe_lag_bank(selection.lag_bank)}"
         provenance = provenance.model_copy(update={"notes": notes})
@@ -373,40 +400,7 @@ def fit_data(
         signals=signals,
         provenance=provenance,
     )
-    return FitResult(identification, model, provenance, comparison, text, selection)
-
-
-def _check_against_regression(
-    data: DataSet, selection: Selection, chosen: str, force: bool
-) -> None:
-    """Refuse a model that holds worse on held-out cycles than the static regression (unless forced)."""
-    score, regression = selection.score(chosen), selection.score("mlr")
-    if force or score is None or regression is None or chosen == "mlr":
-        return
-    if score.cv_fit_percent is None or regression.cv_fit_percent is None:
-        return
-    if score.cv_fit_percent < regression.cv_fit_percent:
-        raise DataFileError(
-            data.path,
-            f"the {chosen} model fits held-out operating cycles worse than the static regression "
-            f"on the same inputs ({score.cv_fit_percent:.1f} % vs {regression.cv_fit_percent:.1f} "
-            f"%; {selection.folds.describe()}): it would compensate worse than the controller's "
-            "built-in regression",
-            where=f"--method {chosen}",
-            fix="Use --method auto (keeps the better), select fewer inputs, or --force to write it",
-        )
-
-
-def _cv_doc(output: str, selection: Selection) -> CrossValidationDoc:
-    return CrossValidationDoc(
-        folds=selection.folds.describe(),
-        kept=selection.kept,
-        fit_percent={
-            s.method: s.cv_fit_percent for s in selection.scores if s.cv_fit_percent is not None
-        },
-        calibration_fit_percent={s.method: s.calibration_fit_percent for s in selection.scores},
-        output=output,
-    )
+    return FitResult(identification, model, provenance, comparison, text, selection, findings)
 
 
 def _provenance(

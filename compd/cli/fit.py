@@ -237,6 +237,8 @@ def _report(result: FitResult, args: argparse.Namespace) -> None:
     out.print(line)
     if result.selection is not None:
         out.print(_candidates_table(result))
+    for finding in result.findings:
+        print(finding.describe(), file=sys.stderr)
     denoise = result.provenance.denoise
     if denoise is not None:
         for entry in denoise.inputs:

@@ -68,3 +68,13 @@ def test_a_model_that_holds_worse_than_the_regression_is_written_only_when_force
     assert "worse than the static regression" in err.getvalue() and not model.exists()
     compd(*argv, "--force")
     assert model.exists()
+
+
+def test_a_phase_gate_on_its_own_input_is_refused_before_fitting() -> None:
+    """Gating the spindle speed on itself gave two cancelling +-154 um/rpm sub-models: refused, with the fix."""
+    argv = ["fit", "--data", RECORD, "--output", "disp_ch3_um", "--inputs", "spindle_speed_rpm"]
+    argv += ["--phase-gate", "spindle_speed_rpm", "--method", "oe", "--out", "never.yaml"]
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main([str(a) for a in argv]) != 0
+    assert "is also an input" in err.getvalue() and "Gate temperature inputs" in err.getvalue()
