@@ -21,13 +21,17 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from compd import __version__
+from compd.candidates import folds_of, guard_findings, operating_signal
 from compd.data import DataSet
 from compd.errors import DataFileError, ModelError
 from compd.evaluate import Evaluation, compare, evaluate, measured_columns
 from compd.fit import unit_of
+from compd.model.guards import Finding, Severity
 from compd.model.identify import Identification, identify
+from compd.model.lagbank import fit_lag_bank
 from compd.model.metrics import fit_percent
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF, resample_discrete
@@ -38,6 +42,9 @@ from compd.modelfile import (
     parse_model,
 )
 from compd.modelwriter import model_to_yaml
+
+#: An extension must raise the held-out fit by this many points, or it is not added.
+EXTEND_MARGIN_POINTS = 2.0
 
 
 @dataclass(frozen=True)
@@ -57,6 +64,23 @@ class Extension:
     fit_after: float
     #: Free-run fit of the new sub-model alone on the residue (seed 001: 86 % on rough cutting).
     residue_fit: float
+    #: The model's fit on held-out parts of the record without and with a sub-model on the signal.
+    held_out: HeldOut
+    #: Guard-rail findings on the new sub-model (warnings; errors refuse it unless forced).
+    findings: list[Finding]
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """Fit % on held-out cycles before and after adding a (regularised) sub-model on the signal."""
+
+    folds: str
+    before: float
+    after: float
+
+    @property
+    def rise_points(self) -> float:
+        return self.after - self.before
 
 
 def extend_model(
@@ -69,10 +93,15 @@ def extend_model(
     order: int | str = "auto",
     method: str = "oe",
     command: str = "",
+    force: bool = False,
     progress: Callable[[str, float], None] | None = None,
 ) -> Extension:
     """Identify a sub-model from ``signal`` to ``parent``'s residue on ``data`` and add it.
 
+    The signal must first earn its place: a regularised sub-model on it must
+    raise the fit on held-out cycles of ``data`` by :data:`EXTEND_MARGIN_POINTS`
+    (:func:`judge_signal`), and the new sub-model must pass the guard rails;
+    otherwise nothing is added unless ``force``.
     ``column`` names the measured displacement when the data does not name
     it after the model output (see :func:`compd.evaluate.measured_columns`);
     with several outputs it selects the one to extend.
@@ -94,6 +123,17 @@ def extend_model(
             data.path,
             f"column {signal!r} is constant, so it cannot explain anything in this record",
             fix="Extend on a record in which the effect varies",
+        )
+    held_out = judge_signal(data, measured, before.predicted(output), residue, excitation)
+    if held_out.rise_points < EXTEND_MARGIN_POINTS and not force:
+        raise DataFileError(
+            data.path,
+            f"{signal!r} does not help: a sub-model on it raises the fit on held-out parts of this "
+            f"record from {held_out.before:.1f} % to {held_out.after:.1f} % "
+            f"({held_out.rise_points:+.1f} points; {held_out.folds}), less than the "
+            f"{EXTEND_MARGIN_POINTS:g} points an extension must add. Nothing was written",
+            where=f"--effect {signal}",
+            fix="Try the next candidate of compd diagnose, or --force to add it anyway",
         )
     identification = identify(
         residue,
@@ -134,6 +174,16 @@ def extend_model(
         output=output,
     )
     extended = parse_model(yaml_text, "<extended model>")
+    findings = [f for f in guard_findings(data, model) if name in f.submodel.split(" + ")]
+    errors = [f for f in findings if f.severity is Severity.ERROR]
+    if errors and not force:
+        raise DataFileError(
+            data.path,
+            "the new sub-model is implausible for this record:\n  "
+            + "\n  ".join(f.describe() for f in errors),
+            where=f"--effect {signal}",
+            fix="Follow the fixes above, or --force to add it anyway",
+        )
     return Extension(
         parent=parent,
         extended=extended,
@@ -146,7 +196,34 @@ def extend_model(
         fit_before=fit_before,
         fit_after=fit_after,
         residue_fit=residue_fit,
+        held_out=held_out,
+        findings=findings,
     )
+
+
+def judge_signal(
+    data: DataSet,
+    measured: np.ndarray,
+    predicted: np.ndarray,
+    residue: np.ndarray,
+    excitation: np.ndarray,
+) -> HeldOut:
+    """How much a regularised sub-model on ``excitation`` raises the fit on parts of ``data`` it never saw.
+
+    The residue is fitted by a lag bank on the signal (:mod:`compd.model.lagbank`)
+    on all but one operating cycle (or block) at a time, and each held-out
+    part predicted; the rise is the fit % of the model plus those held-out
+    predictions over the model alone.
+    """
+    folds = folds_of(data, operating_signal(data, None, None))
+    u = (excitation - excitation[0])[:, None]
+    with threadpool_limits(limits=1, user_api="blas"):
+        bank = fit_lag_bank(residue, u, sample_time_s=data.sample_time_s, folds=folds)
+    assert bank.cv_predicted_um is not None
+    held = np.isfinite(bank.cv_predicted_um)
+    before = fit_percent(measured[held], predicted[held])
+    after = fit_percent(measured[held], predicted[held] + bank.cv_predicted_um[held])
+    return HeldOut(folds.describe(), float(before), float(after))
 
 
 def verify_extension(extension: Extension, data: DataSet) -> tuple[float, float]:

@@ -109,10 +109,12 @@ def test_verify_reports_and_records_fit_on_other_data(
 def test_extending_twice_keeps_both_records(
     extended: tuple[Path, dict], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A second extension chains: both records, and sub-model names stay unique."""
+    """A second extension chains (forced here): both records, and sub-model names stay unique."""
     first, _ = extended
     out = tmp_path / "twice.yaml"
-    code, _ = extend(capsys, first, DATA, "--effect", "spindle_speed_rpm", "--out", out, "--json")
+    code, _ = extend(
+        capsys, first, DATA, "--effect", "spindle_speed_rpm", "--out", out, "--json", "--force"
+    )
     assert code == 0
     model_file = load_model(out)
     assert [e.effect_signal for e in model_file.doc.provenance.extensions] == [
@@ -183,3 +185,14 @@ def test_fixed_order_is_used(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     tf = load_model(out).model.outputs[0].submodels[-1].tf
     assert np.size(tf.a) == 3
     assert_allclose(tf.a[0], 1.0)
+
+
+def test_an_effect_already_in_the_model_does_not_help_and_nothing_is_written(
+    extended: tuple[Path, dict], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Extending again with the same signal adds nothing on held-out cycles: refused, no file."""
+    first, _ = extended
+    out = tmp_path / "twice.yaml"
+    code, err = extend(capsys, first, DATA, "--effect", "spindle_speed_rpm", "--out", out)
+    assert code != 0 and not out.exists()
+    assert "does not help" in str(err)

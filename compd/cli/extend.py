@@ -60,6 +60,12 @@ def register(commands: Any) -> None:
         metavar="FILE",
         help="extra effect catalogue (see config/effects.yaml)",
     )
+    extend.add_argument(
+        "--force",
+        action="store_true",
+        help="add the sub-model even if it does not raise the fit on held-out cycles by "
+        "2 points, or the guard rails flag it",
+    )
     extend.add_argument("--json", action="store_true", help="print one JSON object")
     data_options(extend)
     extend.set_defaults(handler=_extend)
@@ -84,6 +90,7 @@ def _extend(args: argparse.Namespace) -> int:
             method=args.method,
             command=command,
             progress=progress,
+            force=args.force,
         )
     yaml_text = extension.yaml_text
     verified: tuple[float, float] | None = None
@@ -109,6 +116,12 @@ def _extend(args: argparse.Namespace) -> int:
         "residue_fit_percent": json_clean(extension.residue_fit),
         "fit_percent_before": json_clean(extension.fit_before),
         "fit_percent_after": json_clean(extension.fit_after),
+        "held_out": {
+            "folds": extension.held_out.folds,
+            "fit_percent_before": json_clean(extension.held_out.before),
+            "fit_percent_after": json_clean(extension.held_out.after),
+        },
+        "findings": [f.describe() for f in extension.findings],
         "verify": None
         if verified is None
         else {
@@ -134,11 +147,17 @@ def _extend(args: argparse.Namespace) -> int:
     table = Table(
         "data", "fit % before", "fit % after", "change (points)", title="free-run simulation fit"
     )
-    rows = [(str(args.data), extension.fit_before, extension.fit_after)]
+    held = extension.held_out
+    rows = [
+        (str(args.data), extension.fit_before, extension.fit_after),
+        (f"held-out parts of it ({held.folds}; regularised)", held.before, held.after),
+    ]
     if verified is not None:
         rows.append((f"{args.verify} (not used for fitting)", *verified))
     for name, before, after in rows:
         table.add_row(name, fmt(before, 1), fmt(after, 1), fmt(after - before, 1))
     out.print(table)
+    for finding in extension.findings:
+        print(finding.describe(), file=sys.stderr)
     out.print(f"wrote {args.out}")
     return 0

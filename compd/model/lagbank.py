@@ -48,6 +48,9 @@ DEFAULT_RIDGE_WEIGHTS: tuple[float, ...] = tuple(float(w) for w in np.logspace(-
 #: simplest (fewest modes, then the strongest ridge) is kept: selection noise on a few
 #: cycles is about this size, and the simpler model travels better.
 SELECTION_TOLERANCE_POINTS = 0.5
+#: An input may move the output by at most this many times the output's range over the
+#: fitted samples (the guard rails' warning level, :mod:`compd.model.guards`).
+MAX_REACH_RATIO = 3.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,6 +166,7 @@ def fit_lag_bank(
     time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S,
     ridge_weights: Sequence[float] = DEFAULT_RIDGE_WEIGHTS,
     max_modes: int | None = None,
+    max_reach_ratio: float = MAX_REACH_RATIO,
 ) -> LagBankFit:
     """Fit ``y`` (um) from the columns of ``u`` (changes from the record's start), settings chosen by CV.
 
@@ -170,7 +174,12 @@ def fit_lag_bank(
     model always runs through the whole record. The number of modes (1 ..
     ``max_modes``, default all) and the ridge weight are those of the best
     pooled leave-one-fold-out fit (within :data:`SELECTION_TOLERANCE_POINTS`,
-    the simplest); the model is then refitted on every fitted sample.
+    the simplest); the model is then refitted on every fitted sample. Only
+    settings whose every input's static gain, times that input's range over the
+    fitted samples, stays within ``max_reach_ratio`` times the output's range
+    are eligible: beyond it, inputs balance each other with large opposite
+    gains, which held-out cycles of the same programme do not expose but the
+    next programme does.
     """
     y = np.asarray(y, dtype=float)
     u = np.asarray(u, dtype=float)
@@ -197,15 +206,25 @@ def fit_lag_bank(
         for m in modes:
             for w, coefficients in zip(weights, design.solve(m, weights), strict=True):
                 held_out[(m, w)][held] = design.predict(m, coefficients, held)
-    scores = {key: pooled_fit_percent(y, pred) for key, pred in held_out.items()}
+    design = _Design(u, y, fitted, taus, sample_time_s)
+    solutions = {
+        (m, w): c for m in modes for w, c in zip(weights, design.solve(m, weights), strict=True)
+    }
+    reach = {
+        key: _reach_ratio(design.gains(key[0], c), u[fitted], y[fitted])
+        for key, c in solutions.items()
+    }
+    plausible = [key for key in solutions if reach[key] <= max_reach_ratio]
+    if not plausible:  # even the strongest ridge leans on cancelling gains: the least of them
+        plausible = [min(reach, key=reach.__getitem__)]
+    scores = {key: pooled_fit_percent(y, held_out[key]) for key in plausible}
     best = max(scores.values())
     # Simplest within tolerance: fewest modes, then the largest ridge weight.
     n_modes, weight = min(
         (key for key, score in scores.items() if score >= best - SELECTION_TOLERANCE_POINTS),
         key=lambda key: (key[0], -key[1]),
     )
-    design = _Design(u, y, fitted, taus, sample_time_s)
-    coefficients = design.solve(n_modes, [weight])[0]
+    coefficients = solutions[(n_modes, weight)]
     predicted = design.predict(n_modes, coefficients)
     return LagBankFit(
         time_constants_s=taus,
@@ -217,6 +236,13 @@ def fit_lag_bank(
         predicted_um=predicted,
         cv_predicted_um=held_out[(n_modes, weight)],
     )
+
+
+def _reach_ratio(gains: np.ndarray, u: np.ndarray, y: np.ndarray) -> float:
+    """The largest ``|static gain| x input range`` over the output's range (inf for a flat output)."""
+    output_range = float(np.ptp(y))
+    reach = float(np.max(np.abs(gains.sum(axis=1)) * np.ptp(u, axis=0)))
+    return reach / output_range if output_range > 0.0 else float("inf")
 
 
 def regression_cv(
