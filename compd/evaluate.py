@@ -31,6 +31,10 @@ class Evaluation:
     data: DataSet
     result: SimulationResult
     notes: tuple[str, ...]
+    #: When this is the scored part of a longer run (``--from``, :mod:`compd.span`):
+    #: that run, from the record's first sample, and where this part starts in it.
+    whole: Evaluation | None = None
+    first_sample: int = 0
 
     def predicted(self, output: str) -> np.ndarray:
         return self.result.output(self.compiled, output)

@@ -1,4 +1,4 @@
-"""What the command modules share: data-file options, console, number formatting, compare output."""
+"""What the command modules share: data-file and time-span options, console, number formatting, compare output."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from compd.analysis import DEFAULT_WINDOW_S
 from compd.data import DataSet, load_data
 from compd.evaluate import Evaluation
 from compd.model.metrics import Comparison
+from compd.span import Span, parse_time_s, resolve_span
 
 EXIT_INPUT_ERROR = 2
 
@@ -38,6 +39,48 @@ def data_options(parser: argparse.ArgumentParser, *, initial_state: bool = True)
         action="store_true",
         help="interpolate irregularly sampled data onto a uniform grid instead of refusing it",
     )
+
+
+def span_options(parser: argparse.ArgumentParser, *, scored: str, detail: str = "") -> None:
+    """``--from`` and ``--until``: the part of one continuous record that is ``scored``.
+
+    The model still runs from the file's start, with every input's reference
+    (its first value) and the model state of the whole record
+    (:mod:`compd.span`); ``detail`` adds what the command does with it.
+    """
+    what = (
+        f"only samples from TIME on are {scored}; the model still runs from the file's "
+        "start (inputs as changes from the file's first values, measured displacement as "
+        "logged), so this is not the same as splitting the file"
+    )
+    parser.add_argument(
+        "--from",
+        dest="from_s",
+        type=time_arg,
+        metavar="TIME",
+        help=f"{what}. TIME: seconds from the record's first sample or h:m[:s] (e.g. 32:06)"
+        + (f". {detail}" if detail else ""),
+    )
+    parser.add_argument(
+        "--until",
+        dest="until_s",
+        type=time_arg,
+        metavar="TIME",
+        help=f"only samples before TIME are {scored} (nothing later is read); same TIME forms",
+    )
+
+
+def time_arg(text: str) -> float:
+    """An argparse ``type``: :func:`compd.span.parse_time_s`."""
+    try:
+        return parse_time_s(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def span_from_args(args: argparse.Namespace, data: DataSet, *, min_samples: int = 2) -> Span:
+    """The samples ``--from``/``--until`` (of :func:`span_options`) select in ``data``."""
+    return resolve_span(data, args.from_s, args.until_s, min_samples=min_samples)
 
 
 def window_options(parser: argparse.ArgumentParser) -> None:

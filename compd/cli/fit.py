@@ -10,12 +10,20 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import console, data_options, fmt, load_data_from_args
+from compd.cli.common import (
+    console,
+    data_options,
+    fmt,
+    load_data_from_args,
+    span_from_args,
+    span_options,
+)
 from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
 from compd.errors import DataFileError
 from compd.fit import FitResult, fit_data
-from compd.model.identify import METHODS
+from compd.model.identify import METHODS, MIN_SAMPLES
+from compd.selection import select_columns
 
 
 def register(commands: Any) -> None:
@@ -33,7 +41,11 @@ def register(commands: Any) -> None:
         "--output", required=True, metavar="COLUMN", help="measured displacement (um)"
     )
     parser.add_argument(
-        "--inputs", required=True, metavar="A,B,C", help="input columns, comma-separated"
+        "--inputs",
+        required=True,
+        metavar="A,B,C",
+        help="input columns, comma-separated: names, globs ('T*', 'spindle_*') or all (every "
+        "column but the output, displacements (disp_*, *_um) and the --position column)",
     )
     parser.add_argument(
         "--phase-gate",
@@ -86,6 +98,14 @@ def register(commands: Any) -> None:
     parser.add_argument("--out", type=Path, required=True, metavar="MODEL.yaml")
     parser.add_argument("--name", help="model name (default OUTPUT-METHOD)")
     data_options(parser, initial_state=False)
+    span_options(
+        parser,
+        scored="fitted (and the fit % printed is on them)",
+        detail="Every method honours it: mlr regresses only those samples; arx fits their "
+        "equation errors (earlier samples serve as lags); oe fits their free-run simulation "
+        "error, simulated from the file's start; the held-back third for --order auto is the "
+        "last third of them. Not with --denoise or --residual-model",
+    )
     add_residual_options(parser)
     parser.set_defaults(handler=_fit)
 
@@ -110,7 +130,16 @@ def _fit(args: argparse.Namespace) -> int:
     data = load_data_from_args(args)
     for note in data.notes:
         print(f"note: {note}", file=sys.stderr)
-    inputs = [name.strip() for name in args.inputs.split(",") if name.strip()]
+    span = span_from_args(args, data, min_samples=MIN_SAMPLES)
+    if args.residual_model and not span.whole:
+        raise DataFileError(
+            args.data,
+            "--residual-model with --from/--until is not supported",
+            where="--residual-model",
+            fix="Fit the residual forest on a whole record",
+        )
+    taken = [args.output, *([args.position] if args.position else [])]
+    inputs = select_columns(data, args.inputs, option="--inputs", exclude=taken)
     command = shlex.join(["compd", *sys.argv[1:]]) if sys.argv[1:] else None
     with progress_reporter() as progress:
         result = fit_data(
@@ -127,9 +156,12 @@ def _fit(args: argparse.Namespace) -> int:
             name=args.name,
             command=command,
             progress=progress,
+            span=span,
         )
     write_fit(result, data, args)
     _report(result, args)
+    if not span.whole:
+        console().print(span.describe("fitted"))
     return 0
 
 
