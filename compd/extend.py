@@ -38,6 +38,7 @@ from compd.modelfile import (
     parse_model,
 )
 from compd.modelwriter import model_to_yaml
+from compd.span import Span, span_data, until_stop
 
 
 @dataclass(frozen=True)
@@ -70,13 +71,19 @@ def extend_model(
     method: str = "oe",
     command: str = "",
     progress: Callable[[str, float], None] | None = None,
+    span: Span | None = None,
 ) -> Extension:
     """Identify a sub-model from ``signal`` to ``parent``'s residue on ``data`` and add it.
 
     ``column`` names the measured displacement when the data does not name
     it after the model output (see :func:`compd.evaluate.measured_columns`);
-    with several outputs it selects the one to extend.
+    with several outputs it selects the one to extend. ``span``
+    (``--from``/``--until``): the models run from the record's start, the new
+    sub-model is fitted and every fit % taken on the span's samples only.
     """
+    first = 0
+    if span is not None:
+        data, first = until_stop(data, span), span.start
     before = evaluate(parent, data)
     output, measured_name = _one_output(before, column)
     if signal == measured_name or signal not in data.columns:
@@ -102,6 +109,7 @@ def extend_model(
         method=method,  # type: ignore[arg-type]
         order=order,  # type: ignore[arg-type]
         progress=progress,
+        first_sample=first,
     )
     (channel,) = identification.channels
     tf = _at_model_rate(channel.tf, data, parent)
@@ -118,19 +126,19 @@ def extend_model(
 
     provisional = _write(parent, model, data, signal, name, {}, {}, command)
     after = evaluate(parse_model(provisional, parent.path), data)
-    fit_before = fit_percent(measured, before.predicted(output))
-    fit_after = fit_percent(measured, after.predicted(output))
-    residue_fit = fit_percent(residue, _contribution(after, output, name))
+    fit_before = fit_percent(measured[first:], before.predicted(output)[first:])
+    fit_after = fit_percent(measured[first:], after.predicted(output)[first:])
+    residue_fit = fit_percent(residue[first:], _contribution(after, output, name)[first:])
     yaml_text = _write(
         parent,
         model,
-        data,
+        data if span is None else span_data(data, span),
         signal,
         name,
         {output: fit_before},
         {output: fit_after},
         command,
-        calibration_rms_um=_rms(measured - after.predicted(output)),
+        calibration_rms_um=_rms((measured - after.predicted(output))[first:]),
         output=output,
     )
     extended = parse_model(yaml_text, "<extended model>")

@@ -23,7 +23,8 @@ import numpy as np
 
 from compd.data import DataSet
 from compd.errors import DataFileError
-from compd.evaluate import Evaluation
+from compd.evaluate import Evaluation, InitialState, evaluate
+from compd.modelfile import ModelFile
 
 _CLOCK = re.compile(r"^\s*(\d+):([0-5]?\d)(?::([0-5]?\d(?:\.\d*)?))?\s*$")
 
@@ -146,34 +147,51 @@ def until_stop(data: DataSet, span: Span) -> DataSet:
     return data if span.stop == len(data) else _rows(data, 0, span.stop)
 
 
+def evaluate_span(
+    model_file: ModelFile, data: DataSet, span: Span, *, init: InitialState = "steady"
+) -> Evaluation:
+    """``model_file`` run over ``data`` from its first sample; the part of the run ``span`` selects."""
+    return scored_part(evaluate(model_file, until_stop(data, span), init=init), span)
+
+
+def span_data(data: DataSet, span: Span) -> DataSet:
+    """The span's samples of ``data`` (times from the record's start): what was fitted or judged."""
+    return data if (span.start, span.stop) == (0, len(data)) else _rows(data, span.start, span.stop)
+
+
 def scored_part(evaluation: Evaluation, span: Span) -> Evaluation:
     """The span's samples of a run over :func:`until_stop` data, remembering the whole run.
 
     Every sample keeps its time from the record's start; the measured
-    columns are as logged (not re-zeroed). ``whole`` and ``first_sample`` let
-    a consumer that filters signals (``diagnose``) start its filters at the
-    record's start too.
+    columns are as logged (not re-zeroed). ``whole`` lets a consumer that
+    filters signals (``diagnose``) start its filters at the record's start too.
     """
-    if span.start == 0:
+    if span.whole:
         return evaluation
+    if span.start == 0:
+        return dataclasses.replace(evaluation, span=span)
     result = evaluation.result
     cut = slice(span.start, None)
     return dataclasses.replace(
         evaluation,
-        data=_rows(evaluation.data, span.start, len(evaluation.data)),
+        data=span_data(evaluation.data, span),
         result=dataclasses.replace(
             result,
             outputs=result.outputs[cut],
             contributions=result.contributions[cut],
             residuals=None if result.residuals is None else result.residuals[cut],
         ),
+        span=span,
         whole=evaluation,
-        first_sample=span.start,
     )
 
 
 def _rows(data: DataSet, start: int, stop: int) -> DataSet:
-    """Samples ``start .. stop - 1`` of ``data``: read-only views, times unchanged."""
+    """Samples ``start .. stop - 1`` of ``data``: read-only views, times unchanged.
+
+    So ``time_s[0]`` is the span's start, not 0: every time shown stays a time
+    of the record a user can find in the file.
+    """
     columns = {name: values[start:stop] for name, values in data.columns.items()}
     return dataclasses.replace(
         data, time_s=data.time_s[start:stop], columns=MappingProxyType(columns)

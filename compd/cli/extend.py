@@ -17,10 +17,13 @@ from compd.cli.common import (
     fmt,
     load_data_from_args,
     order_arg,
+    span_from_args,
+    span_options,
 )
 from compd.cli.progress import progress_reporter
 from compd.effects import load_catalogue
 from compd.extend import extend_model, verify_extension, with_verification
+from compd.model.identify import MIN_SAMPLES
 from compd.modelfile import load_model
 from compd.summary import json_clean
 
@@ -61,6 +64,10 @@ def register(commands: Any) -> None:
         help="extra effect catalogue (see config/effects.yaml)",
     )
     extend.add_argument("--json", action="store_true", help="print one JSON object")
+    span_options(
+        extend,
+        scored="fitted and scored (the residue is that of the model run from the file's start)",
+    )
     data_options(extend)
     extend.set_defaults(handler=_extend)
 
@@ -68,6 +75,7 @@ def register(commands: Any) -> None:
 def _extend(args: argparse.Namespace) -> int:
     parent = load_model(args.model)
     data = load_data_from_args(args)
+    span = span_from_args(args, data, min_samples=MIN_SAMPLES)
     verify_data = load_data_from_args(args, args.verify) if args.verify else None
     effect = load_catalogue(args.catalogue).effect_for(args.effect)
     command = (
@@ -84,6 +92,7 @@ def _extend(args: argparse.Namespace) -> int:
             method=args.method,
             command=command,
             progress=progress,
+            span=span,
         )
     yaml_text = extension.yaml_text
     verified: tuple[float, float] | None = None
@@ -116,6 +125,7 @@ def _extend(args: argparse.Namespace) -> int:
             "fit_percent_before": json_clean(verified[0]),
             "fit_percent_after": json_clean(verified[1]),
         },
+        **span.json(),
     }
     if args.json:
         print(json.dumps(summary, indent=2, allow_nan=False))
@@ -140,5 +150,7 @@ def _extend(args: argparse.Namespace) -> int:
     for name, before, after in rows:
         table.add_row(name, fmt(before, 1), fmt(after, 1), fmt(after - before, 1))
     out.print(table)
+    if not span.whole:
+        out.print(span.describe("fitted"))
     out.print(f"wrote {args.out}")
     return 0

@@ -100,7 +100,7 @@ def register(commands: Any) -> None:
     data_options(parser, initial_state=False)
     span_options(
         parser,
-        scored="fitted (and the fit % printed is on them)",
+        scored="fitted (and the fit %% printed is on them)",
         detail="Every method honours it: mlr regresses only those samples; arx fits their "
         "equation errors (earlier samples serve as lags); oe fits their free-run simulation "
         "error, simulated from the file's start; the held-back third for --order auto is the "
