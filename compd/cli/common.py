@@ -141,6 +141,9 @@ def print_notes(evaluation: Evaluation) -> None:
 
 def comparison_table(evaluation: Evaluation, comparisons: list[Comparison]) -> Table:
     data = evaluation.data
+    hours = f"{data.time_s[-1] / 3600:.2f} h"
+    if data.time_s[0] > 0.0:  # a later part of a run (--from): its hours in the record
+        hours = f"{data.time_s[0] / 3600:.2f} .. {hours}"
     table = Table(
         "output",
         "fit %",
@@ -152,7 +155,7 @@ def comparison_table(evaluation: Evaluation, comparisons: list[Comparison]) -> T
         "RMS reduction",
         "p-p reduction",
         title=f"{evaluation.compiled.name} vs {data.path} ({len(data)} samples, "
-        f"{data.sample_time_s:g} s, {data.time_s[-1] / 3600:.2f} h); errors in um",
+        f"{data.sample_time_s:g} s, {hours}); errors in um",
     )
     for c in comparisons:
         table.add_row(
