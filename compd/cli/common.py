@@ -19,8 +19,18 @@ from compd.span import Span, parse_time_s, resolve_span
 EXIT_INPUT_ERROR = 2
 
 
-def data_options(parser: argparse.ArgumentParser, *, initial_state: bool = True) -> None:
-    """``--max-gap-s`` and ``--resample`` (and ``--init``), for every command that reads a data file."""
+def data_options(
+    parser: argparse.ArgumentParser,
+    *,
+    initial_state: bool = True,
+    scored: str | None = None,
+    detail: str = "",
+) -> None:
+    """``--max-gap-s`` and ``--resample`` (and ``--init``), for every command that reads a data file.
+
+    With ``scored`` (what the command does with the samples: "judged",
+    "fitted") also ``--from`` and ``--until`` (:func:`span_options`).
+    """
     if initial_state:
         parser.add_argument(
             "--init",
@@ -39,6 +49,8 @@ def data_options(parser: argparse.ArgumentParser, *, initial_state: bool = True)
         action="store_true",
         help="interpolate irregularly sampled data onto a uniform grid instead of refusing it",
     )
+    if scored is not None:
+        span_options(parser, scored=scored, detail=detail)
 
 
 def span_options(parser: argparse.ArgumentParser, *, scored: str, detail: str = "") -> None:

@@ -17,7 +17,6 @@ from compd.cli.common import (
     fmt,
     load_data_from_args,
     span_from_args,
-    span_options,
 )
 from compd.effects import load_catalogue
 from compd.evaluate import measured_columns
@@ -66,12 +65,11 @@ def register(commands: Any) -> None:
     diag.add_argument(
         "--json", action="store_true", help="print one JSON object instead of a table"
     )
-    span_options(
+    data_options(
         diag,
         scored="diagnosed",
         detail="The candidates' lags are filtered from the file's start too",
     )
-    data_options(diag)
     diag.set_defaults(handler=_diagnose)
 
 

@@ -35,7 +35,6 @@ from compd.cli.common import (
     load_data_from_args,
     print_notes,
     span_from_args,
-    span_options,
     window_options,
 )
 from compd.cli.service import register_model_load
@@ -80,8 +79,7 @@ def register(commands: Any) -> None:
         help="also write the HTML report (as compd report does)",
     )
     window_options(cmp_)
-    span_options(cmp_, scored="judged (fit %%, RMS, windows; JSON from_s/until_s)")
-    data_options(cmp_)
+    data_options(cmp_, scored="judged (fit %%, RMS, windows; JSON from_s/until_s)")
     cmp_.set_defaults(handler=_compare)
 
 

@@ -18,7 +18,6 @@ from compd.cli.common import (
     load_data_from_args,
     order_arg,
     span_from_args,
-    span_options,
 )
 from compd.cli.progress import progress_reporter
 from compd.effects import load_catalogue
@@ -64,11 +63,10 @@ def register(commands: Any) -> None:
         help="extra effect catalogue (see config/effects.yaml)",
     )
     extend.add_argument("--json", action="store_true", help="print one JSON object")
-    span_options(
+    data_options(
         extend,
         scored="fitted and scored (the residue is that of the model run from the file's start)",
     )
-    data_options(extend)
     extend.set_defaults(handler=_extend)
 
 

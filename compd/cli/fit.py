@@ -16,7 +16,6 @@ from compd.cli.common import (
     fmt,
     load_data_from_args,
     span_from_args,
-    span_options,
 )
 from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
@@ -97,14 +96,14 @@ def register(commands: Any) -> None:
     )
     parser.add_argument("--out", type=Path, required=True, metavar="MODEL.yaml")
     parser.add_argument("--name", help="model name (default OUTPUT-METHOD)")
-    data_options(parser, initial_state=False)
-    span_options(
+    data_options(
         parser,
+        initial_state=False,
         scored="fitted (and the fit %% printed is on them)",
         detail="Every method honours it: mlr regresses only those samples; arx fits their "
         "equation errors (earlier samples serve as lags); oe fits their free-run simulation "
         "error, simulated from the file's start; the held-back third for --order auto is the "
-        "last third of them. Not with --denoise or --residual-model",
+        "last third of them; --residual-model fits its forest on them too. Not with --denoise",
     )
     add_residual_options(parser)
     parser.set_defaults(handler=_fit)
@@ -131,13 +130,6 @@ def _fit(args: argparse.Namespace) -> int:
     for note in data.notes:
         print(f"note: {note}", file=sys.stderr)
     span = span_from_args(args, data, min_samples=MIN_SAMPLES)
-    if args.residual_model and not span.whole:
-        raise DataFileError(
-            args.data,
-            "--residual-model with --from/--until is not supported",
-            where="--residual-model",
-            fix="Fit the residual forest on a whole record",
-        )
     taken = [args.output, *([args.position] if args.position else [])]
     inputs = select_columns(data, args.inputs, option="--inputs", exclude=taken)
     command = shlex.join(["compd", *sys.argv[1:]]) if sys.argv[1:] else None
@@ -158,7 +150,7 @@ def _fit(args: argparse.Namespace) -> int:
             progress=progress,
             span=span,
         )
-    write_fit(result, data, args)
+    write_fit(result, data, args, span)
     _report(result, args)
     if not span.whole:
         console().print(span.describe("fitted"))

@@ -11,7 +11,6 @@ from compd.cli.common import (
     data_options,
     load_data_from_args,
     span_from_args,
-    span_options,
     window_options,
 )
 from compd.modelfile import load_model
@@ -34,8 +33,7 @@ def register(commands: Any) -> None:
         help="a second model on the same data, shown side by side with the change in each figure",
     )
     window_options(report)
-    span_options(report, scored="shown and judged")
-    data_options(report)
+    data_options(report, scored="shown and judged")
     report.set_defaults(handler=_report)
 
 

@@ -348,3 +348,31 @@ def test_a_pattern_matching_nothing_is_an_error(
     assert "'temp_*' matches no column" in err
     assert "--inputs" in err
     assert "spindle_speed_rpm" in err
+
+
+def test_residual_from_fits_the_forest_on_the_window(model: Path, tmp_path: Path) -> None:
+    """``residual --from`` judges the model alone on the window of a run from the file's start."""
+    frame = _record()
+    frame["door_open"] = ((frame.time_s % 5400.0) < 600.0).astype(float)
+    data = _write(frame, tmp_path / "door.csv")
+    summary = json.loads(
+        compd(
+            "residual",
+            model,
+            data,
+            "--from",
+            "32:00",
+            "--trees",
+            5,
+            "--out",
+            tmp_path / "stacked.yaml",
+            "--json",
+        )
+    )
+    loaded = load_data(data)
+    start = int(CUT_S / TS)
+    residue = loaded.column(OUTPUT) - evaluate(load_model(model), loaded).predicted(OUTPUT)
+    assert summary["from_s"] == CUT_S
+    assert summary["data"]["model_alone"]["rms_um"] == pytest.approx(
+        float(np.sqrt(np.mean(residue[start:] ** 2))), rel=1e-12
+    )
