@@ -60,10 +60,11 @@ def clock(seconds: float) -> str:
 
 @dataclass(frozen=True)
 class Span:
-    """Samples ``start .. stop - 1`` of a record: those at ``from_s <= time_s < until_s``.
+    """Samples ``start .. stop - 1`` of a record: ``[from_s, until_s)`` on its sample grid.
 
     ``from_s`` / ``until_s`` are as given (``None``: the record's start / end),
-    in seconds from the record's first sample.
+    in seconds from the record's first sample; each selects the sample nearest
+    to it (``until_s``'s is the first one left out).
     """
 
     path: str
@@ -87,7 +88,7 @@ class Span:
         return (self.stop - 1) * self.sample_time_s
 
     def describe(self, verb: str) -> str:
-        """E.g. ``judged on 32.10 h .. 46.00 h (3336 samples) of FILE, model run from the file's start``."""
+        """E.g. ``judged on 32.10 h .. 46.00 h (3336 samples) of FILE, model run from the ...``."""
         return (
             f"{verb} on {self.first_s / 3600:.2f} h .. {self.last_s / 3600:.2f} h "
             f"({self.stop - self.start} samples) of {self.path}, model run from the file's start"
@@ -101,7 +102,7 @@ class Span:
 def resolve_span(
     data: DataSet, from_s: float | None, until_s: float | None, *, min_samples: int = 2
 ) -> Span:
-    """The samples of ``data`` in ``[from_s, until_s)``; a bad window names the option and the record's span.
+    """The samples of ``data`` in ``[from_s, until_s)``, or an error naming the option and the span.
 
     ``min_samples``: fewest samples the caller can work with (a fit, a
     cross-validation); fewer is an error.
@@ -143,14 +144,14 @@ def resolve_span(
 
 
 def until_stop(data: DataSet, span: Span) -> DataSet:
-    """``data`` from its first sample up to the span's end: what a model runs over (references kept)."""
+    """``data`` from its first sample up to the span's end: what a model runs over."""
     return data if span.stop == len(data) else _rows(data, 0, span.stop)
 
 
 def evaluate_span(
     model_file: ModelFile, data: DataSet, span: Span, *, init: InitialState = "steady"
 ) -> Evaluation:
-    """``model_file`` run over ``data`` from its first sample; the part of the run ``span`` selects."""
+    """``model_file`` run over ``data`` from its first sample; the part ``span`` selects."""
     return scored_part(evaluate(model_file, until_stop(data, span), init=init), span)
 
 

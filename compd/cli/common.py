@@ -1,4 +1,4 @@
-"""What the command modules share: data-file and time-span options, console, number formatting, compare output."""
+"""What the command modules share: data and span options, console, formatting, compare output."""
 
 from __future__ import annotations
 

@@ -11,13 +11,7 @@ from typing import Any
 from rich.table import Table
 
 from compd.analysis import DiagnosisResult, diagnose_evaluation
-from compd.cli.common import (
-    console,
-    data_options,
-    fmt,
-    load_data_from_args,
-    span_from_args,
-)
+from compd.cli.common import console, data_options, fmt, load_data_from_args, span_from_args
 from compd.effects import load_catalogue
 from compd.evaluate import measured_columns
 from compd.modelfile import load_model

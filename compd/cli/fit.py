@@ -10,13 +10,7 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import (
-    console,
-    data_options,
-    fmt,
-    load_data_from_args,
-    span_from_args,
-)
+from compd.cli.common import console, data_options, fmt, load_data_from_args, span_from_args
 from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
 from compd.errors import DataFileError

@@ -7,12 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from compd.cli.common import (
-    data_options,
-    load_data_from_args,
-    span_from_args,
-    window_options,
-)
+from compd.cli.common import data_options, load_data_from_args, span_from_args, window_options
 from compd.modelfile import load_model
 from compd.span import evaluate_span
 

@@ -20,13 +20,7 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import (
-    console,
-    data_options,
-    fmt,
-    load_data_from_args,
-    span_from_args,
-)
+from compd.cli.common import console, data_options, fmt, load_data_from_args, span_from_args
 from compd.cli.residual_options import add_forest_options
 from compd.data import DataSet
 from compd.evaluate import evaluate, measured_columns
