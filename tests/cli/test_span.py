@@ -376,3 +376,12 @@ def test_residual_from_fits_the_forest_on_the_window(model: Path, tmp_path: Path
     assert summary["data"]["model_alone"]["rms_um"] == pytest.approx(
         float(np.sqrt(np.mean(residue[start:] ** 2))), rel=1e-12
     )
+
+
+def test_diagnose_candidates_all_is_every_signal_but_displacements(
+    model: Path, record: Path
+) -> None:
+    """``diagnose --candidates all`` tests the model's inputs too, never a displacement column."""
+    diagnosis = json.loads(compd("diagnose", model, record, "--candidates", "all", "--json"))
+    assert {c["signal"] for c in diagnosis["candidates"]} == {"T1", "T2", "spindle_speed_rpm"}
+    assert (diagnosis["from_s"], diagnosis["until_s"]) == (None, None)
