@@ -204,12 +204,15 @@ def diagnose_evaluation(
 
     ``candidates`` default to :func:`default_candidates`; each is taken as a
     change from its first value. Constant columns are left out with a note
-    (they cannot explain anything). ``options`` go to
+    (they cannot explain anything). The scored part of a longer run
+    (``evaluation.whole``, ``--from``) is diagnosed with its candidates' lags
+    filtered from the record's start. ``options`` go to
     :func:`compd.model.diagnose.diagnose_residue` (``folds``, ``max_lag_s``,
     ``min_explained_percent``, ...).
     """
-    data = evaluation.data
     names = default_candidates(evaluation, measured_column) if candidates is None else candidates
+    source = evaluation.whole or evaluation
+    data = source.data
     notes = []
     signals = {}
     for name in names:
@@ -221,7 +224,11 @@ def diagnose_evaluation(
     catalogue = load_catalogue() if catalogue is None else catalogue
     try:
         diagnosis = diagnose_residue(
-            residue_of(evaluation, output, measured_column), signals, data.sample_time_s, **options
+            residue_of(source, output, measured_column),
+            signals,
+            data.sample_time_s,
+            first_sample=evaluation.first_sample,
+            **options,
         )
     except ValueError as exc:  # too short a record to cross-validate
         raise DataFileError(

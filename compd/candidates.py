@@ -99,12 +99,17 @@ def select(
     folds: Folds,
     candidates: Sequence[str],
     time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S,
+    first_sample: int = 0,
 ) -> Selection:
-    """Score ``candidates`` (of ``lagbank``, ``mlr``) by cross-validation; keep the best held-out fit."""
+    """Score ``candidates`` (of ``lagbank``, ``mlr``) by cross-validation; keep the best held-out fit.
+
+    Only samples from ``first_sample`` on are fitted and scored; the models run from the record's start.
+    """
     # Hundreds of small (80 x 80) solves: BLAS threads only spin against each other there,
     # and on a busy 2-core PC they made the search 15x slower (0.25 s -> 3.4 s CPU).
     with threadpool_limits(limits=1, user_api="blas"):
-        return _select(y, changes, sample_time_s, folds, candidates, time_constants_s)
+        fitted = np.arange(len(y)) >= first_sample
+        return _select(y, changes, sample_time_s, folds, candidates, time_constants_s, fitted)
 
 
 def _select(
@@ -114,17 +119,23 @@ def _select(
     folds: Folds,
     candidates: Sequence[str],
     time_constants_s: Sequence[float],
+    fitted: np.ndarray,
 ) -> Selection:
     u = np.column_stack([np.asarray(v, dtype=float) for v in changes.values()])
     scores = []
     lag_bank = None
     if "lagbank" in candidates:
         lag_bank = fit_lag_bank(
-            y, u, sample_time_s=sample_time_s, folds=folds, time_constants_s=time_constants_s
+            y,
+            u,
+            sample_time_s=sample_time_s,
+            folds=folds,
+            fitted=fitted,
+            time_constants_s=time_constants_s,
         )
         scores.append(CandidateScore("lagbank", lag_bank.fit_percent, lag_bank.cv_fit_percent))
-    gains, regression_cv_percent = regression_cv(y, u, folds)
-    regression_fit = float(fit_percent(y, u @ gains))
+    gains, regression_cv_percent = regression_cv(y, u, folds, fitted)
+    regression_fit = float(fit_percent(y[fitted], (u @ gains)[fitted]))
     scores.append(CandidateScore("mlr", regression_fit, regression_cv_percent))
     judged = [s for s in scores if s.method in candidates]
     kept = max(judged, key=lambda s: s.cv_fit_percent or -np.inf).method

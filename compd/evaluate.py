@@ -8,7 +8,7 @@ pairs model outputs with measured columns for comparison.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -18,6 +18,9 @@ from compd.model.compiled import CompiledModel, ModelState
 from compd.model.metrics import Comparison
 from compd.model.run import SimulationResult, simulate
 from compd.modelfile import ModelFile
+
+if TYPE_CHECKING:  # compd.span builds on this module
+    from compd.span import Span
 
 InitialState = Literal["steady", "rest"]
 
@@ -31,6 +34,15 @@ class Evaluation:
     data: DataSet
     result: SimulationResult
     notes: tuple[str, ...]
+    #: The part of the record judged (``--from``/``--until``, :mod:`compd.span`), if one was asked.
+    span: Span | None = None
+    #: When this is a later part of a run: that run, from the record's first sample.
+    whole: Evaluation | None = None
+
+    @property
+    def first_sample(self) -> int:
+        """Where this part starts in :attr:`whole` (0 without one)."""
+        return 0 if self.whole is None or self.span is None else self.span.start
 
     def predicted(self, output: str) -> np.ndarray:
         return self.result.output(self.compiled, output)

@@ -42,6 +42,7 @@ from compd.modelfile import (
     parse_model,
 )
 from compd.modelwriter import model_to_yaml
+from compd.span import Span, span_data, until_stop
 
 #: An extension must raise the held-out fit by this many points, or it is not added.
 EXTEND_MARGIN_POINTS = 2.0
@@ -95,6 +96,7 @@ def extend_model(
     command: str = "",
     force: bool = False,
     progress: Callable[[str, float], None] | None = None,
+    span: Span | None = None,
 ) -> Extension:
     """Identify a sub-model from ``signal`` to ``parent``'s residue on ``data`` and add it.
 
@@ -104,8 +106,13 @@ def extend_model(
     otherwise nothing is added unless ``force``.
     ``column`` names the measured displacement when the data does not name
     it after the model output (see :func:`compd.evaluate.measured_columns`);
-    with several outputs it selects the one to extend.
+    with several outputs it selects the one to extend. ``span``
+    (``--from``/``--until``): the models run from the record's start, the new
+    sub-model is fitted and every fit % taken on the span's samples only.
     """
+    first = 0
+    if span is not None:
+        data, first = until_stop(data, span), span.start
     before = evaluate(parent, data)
     output, measured_name = _one_output(before, column)
     if signal == measured_name or signal not in data.columns:
@@ -124,7 +131,7 @@ def extend_model(
             f"column {signal!r} is constant, so it cannot explain anything in this record",
             fix="Extend on a record in which the effect varies",
         )
-    held_out = judge_signal(data, measured, before.predicted(output), residue, excitation)
+    held_out = judge_signal(data, measured, before.predicted(output), residue, excitation, first)
     if held_out.rise_points < EXTEND_MARGIN_POINTS and not force:
         raise DataFileError(
             data.path,
@@ -142,6 +149,7 @@ def extend_model(
         method=method,  # type: ignore[arg-type]
         order=order,  # type: ignore[arg-type]
         progress=progress,
+        first_sample=first,
     )
     (channel,) = identification.channels
     tf = _at_model_rate(channel.tf, data, parent)
@@ -158,19 +166,19 @@ def extend_model(
 
     provisional = _write(parent, model, data, signal, name, {}, {}, command)
     after = evaluate(parse_model(provisional, parent.path), data)
-    fit_before = fit_percent(measured, before.predicted(output))
-    fit_after = fit_percent(measured, after.predicted(output))
-    residue_fit = fit_percent(residue, _contribution(after, output, name))
+    fit_before = fit_percent(measured[first:], before.predicted(output)[first:])
+    fit_after = fit_percent(measured[first:], after.predicted(output)[first:])
+    residue_fit = fit_percent(residue[first:], _contribution(after, output, name)[first:])
     yaml_text = _write(
         parent,
         model,
-        data,
+        data if span is None else span_data(data, span),
         signal,
         name,
         {output: fit_before},
         {output: fit_after},
         command,
-        calibration_rms_um=_rms(measured - after.predicted(output)),
+        calibration_rms_um=_rms((measured - after.predicted(output))[first:]),
         output=output,
     )
     extended = parse_model(yaml_text, "<extended model>")
@@ -207,6 +215,7 @@ def judge_signal(
     predicted: np.ndarray,
     residue: np.ndarray,
     excitation: np.ndarray,
+    first_sample: int = 0,
 ) -> HeldOut:
     """How much a regularised sub-model on ``excitation`` raises the fit on parts of ``data`` it never saw.
 
@@ -218,7 +227,13 @@ def judge_signal(
     folds = folds_of(data, operating_signal(data, None, None))
     u = (excitation - excitation[0])[:, None]
     with threadpool_limits(limits=1, user_api="blas"):
-        bank = fit_lag_bank(residue, u, sample_time_s=data.sample_time_s, folds=folds)
+        bank = fit_lag_bank(
+            residue,
+            u,
+            sample_time_s=data.sample_time_s,
+            folds=folds,
+            fitted=np.arange(len(residue)) >= first_sample,
+        )
     assert bank.cv_predicted_um is not None
     held = np.isfinite(bank.cv_predicted_um)
     before = fit_percent(measured[held], predicted[held])

@@ -8,7 +8,9 @@ compare reproduces), turns the phase-gate column into a gate, builds the
 data's fit, residue RMS and the range of every column, which compare uses to
 flag operating conditions the model never saw). With a position column
 (seed 003 eq. 5) every input also gets a slope sub-model whose contribution
-is multiplied by ``position - reference_mm``.
+is multiplied by ``position - reference_mm``. With a :class:`~compd.span.Span`
+(``--from``/``--until``) only the span's samples are fitted and scored; the
+model still runs from the record's first sample (see :mod:`compd.model.identify`).
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from compd.model.metrics import Comparison
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
 from compd.modelfile import CalibrationDoc, ProvenanceDoc
 from compd.modelwriter import model_to_yaml
+from compd.span import Span, until_stop
 
 #: Unit suffixes of compd's signal naming convention (``T_spindle_degC``, ``spindle_power_kw``).
 _UNIT_SUFFIX = re.compile(r"_(degC|K|rpm|kw|kW|W|um|mm|s|bar|percent|pct)$")
@@ -263,6 +266,7 @@ def fit_data(
     name: str | None = None,
     command: str | None = None,
     progress: Progress | None = None,
+    span: Span | None = None,
 ) -> FitResult:
     """Identify ``output`` from ``inputs`` (columns of ``data``) and build the model file.
 
@@ -270,7 +274,8 @@ def fit_data(
     slope sub-model multiplied by ``position - position_reference_mm``.
     ``denoise``: inputs identified with their first EMD mode removed and run
     through a matched causal low-pass baked into their TFs (:mod:`compd.denoise`);
-    ``denoise_imfs`` modes are removed (seed 004: 1).
+    ``denoise_imfs`` modes are removed (seed 004: 1). ``span``: fit only its
+    samples, the model run from the record's start (nothing after it is read).
     ``method="auto"`` keeps whichever of the lag bank and the static
     regression fits held-out operating cycles (``cycles``: the column whose
     rising edges start them) best; a lag bank that holds worse than the
@@ -280,6 +285,17 @@ def fit_data(
     Raises :class:`~compd.errors.DataFileError` (naming the file, the option or
     column, and the fix) for bad arguments and for data the method cannot fit.
     """
+    first = 0
+    if span is not None:
+        data, first = until_stop(data, span), span.start
+        if denoise and first:
+            raise DataFileError(
+                data.path,
+                "--denoise with --from is not supported (the denoised fit is measured over "
+                "the whole record)",
+                where="--from",
+                fix="Fit with --denoise and --until only, or without --denoise",
+            )
     _check_arguments(data, output, inputs, order, method)
     y = data.column(output)
     if denoise and phase_gate is not None:
@@ -332,6 +348,7 @@ def fit_data(
             folds=folds,
             candidates=candidates,
             time_constants_s=time_constants_s,
+            first_sample=first,
         )
     except ModelError as exc:
         raise DataFileError(data.path, exc.message, where="--time-constants-s") from exc
@@ -355,6 +372,7 @@ def fit_data(
                 gate=gate,
                 position=None if slope is None else data.column(slope.signal) - slope.reference_mm,
                 progress=progress,
+                first_sample=first,
             )
     except ModelError as exc:
         where = f"--phase-gate {phase_gate}" if "phase-gate" in exc.message else ""
@@ -372,7 +390,7 @@ def fit_data(
         units = {column: unit_of(column) for column in denoised}
         baked = bake_lowpasses(model, identification, data, denoised, units)
         model, identification, denoise_doc = baked.model, baked.identification, baked.doc
-    comparison = Comparison.of(output, y, identification.simulated_um)
+    comparison = Comparison.of(output, y[first:], identification.simulated_um[first:])
     findings = guard_findings(data, model)
     errors = [f for f in findings if f.severity is Severity.ERROR]
     if errors and not force:
@@ -383,7 +401,7 @@ def fit_data(
             where=f"--method {chosen}",
             fix="Follow the fixes above, or --force to write the model anyway",
         )
-    provenance = _provenance(data, identification, comparison, command, phase_gate, slope)
+    provenance = _provenance(data, identification, comparison, command, phase_gate, slope, span)
     provenance = provenance.model_copy(
         update={"cross_validation": cross_validation_doc(output, selection)}
     )
@@ -410,12 +428,18 @@ def _provenance(
     command: str | None,
     phase_gate: str | None,
     position: Position | None = None,
+    span: Span | None = None,
 ) -> ProvenanceDoc:
     output = comparison.output
     orders = identification.orders
+    first = 0 if span is None else span.start
     notes = [
         f"free-run simulation fit {identification.fit_percent:.4f} % on the whole calibration "
-        "record (inputs as changes from start, model started at rest)",
+        "record (inputs as changes from start, model started at rest)"
+        if span is None or span.whole
+        else f"free-run simulation fit {identification.fit_percent:.4f} % "
+        f"{span.describe('fitted')} (inputs as changes from the file's first values, model "
+        "started at rest there)",
     ]
     if identification.validation_fit_percent is not None:
         notes.append(
@@ -436,8 +460,8 @@ def _provenance(
             "mm) after their TF; their numerators were refitted in that form (see "
             "compd.model.position)"
         )
-    ranges = {
-        column: (float(np.min(values)), float(np.max(values)))
+    ranges = {  # of the samples fitted: the conditions the model was fitted for
+        column: (float(np.min(values[first:])), float(np.max(values[first:])))
         for column, values in data.columns.items()
     }
     return ProvenanceDoc(
@@ -449,7 +473,7 @@ def _provenance(
         fit_percent={output: identification.fit_percent},
         calibration=CalibrationDoc(
             data=data.path,
-            samples=len(data),
+            samples=len(data) - first,
             sample_time_s=data.sample_time_s,
             fit_percent={output: identification.fit_percent},
             rms_um={output: comparison.residue.rms_um},

@@ -35,6 +35,7 @@ from compd.modelfile import (
     parse_model,
 )
 from compd.modelwriter import model_to_yaml
+from compd.span import Span, until_stop
 
 if TYPE_CHECKING:  # compd.fit imports the data and identification stack; only its types here
     from compd.data import DataSet
@@ -116,11 +117,13 @@ def fit_residual(
     seed: int = 0,
     time_constants_s: tuple[float, ...] = DEFAULT_TIME_CONSTANTS_S,
     min_samples_leaf: int = 5,
+    first_sample: int = 0,
 ) -> ResidualFit:
     """Fit ``RandomForestRegressor(trees, max_depth)`` of ``residue_um`` on the door features.
 
     The features are computed causally from a settled door at the first
-    sample, as the model runs them from a steady start.
+    sample, as the model runs them from a steady start; only samples from
+    ``first_sample`` on are fitted and judged (``--from``).
     """
     # scikit-learn only to fit, never to run; it ships no type information.
     from sklearn.ensemble import RandomForestRegressor  # type: ignore[import-untyped]
@@ -129,6 +132,7 @@ def fit_residual(
         raise ModelError(f"--trees and --max-depth must be >= 1, got {trees} and {max_depth}")
     features = DoorFeatures(signal, tuple(float(t) for t in time_constants_s))
     x, _ = features.record(door, sample_time_s, features.initial_state(door[0]))
+    x, residue_um = x[first_sample:], residue_um[first_sample:]
     regressor = RandomForestRegressor(
         n_estimators=trees,
         max_depth=max_depth,
@@ -224,6 +228,7 @@ def stack_residual(
     trees: int = 100,
     max_depth: int = 10,
     seed: int = 0,
+    span: Span | None = None,
 ) -> StackedFit:
     """Fit a door residual forest on ``result``'s calibration residue and build the stacked model file.
 
@@ -242,6 +247,7 @@ def stack_residual(
         trees=trees,
         max_depth=max_depth,
         seed=seed,
+        span=span,
     )
 
 
@@ -255,12 +261,17 @@ def stack_on_model(
     trees: int = 100,
     max_depth: int = 10,
     seed: int = 0,
+    span: Span | None = None,
 ) -> StackedFit:
     """Stack a door residual forest on an existing model, fitted on its free-run residue over ``data``.
 
     The model's sub-models are kept as they are (seed 004 keeps its ARX and
-    adds the forest); the residue is the one ``compd compare`` shows.
+    adds the forest); the residue is the one ``compd compare`` shows. With
+    ``span`` the model and the door features run from the record's start and
+    the forest is fitted on the span's samples.
     """
+    if span is not None:
+        data = until_stop(data, span)
     evaluation = evaluate(model_file, data)
     (predicted, measured), *others = measured_columns(evaluation, output).items()
     if others:
@@ -296,6 +307,7 @@ def stack_on_model(
         description=model_file.doc.description or base.name,
         units=units,
         options=(signal, trees, max_depth, seed),
+        span=span,
     )
 
 
@@ -310,6 +322,7 @@ def _stack(
     description: str,
     units: Mapping[str, str],
     options: tuple[str, int, int, int],
+    span: Span | None = None,
 ) -> StackedFit:
     from compd.fit import unit_of
 
@@ -324,6 +337,7 @@ def _stack(
         trees=trees,
         max_depth=max_depth,
         seed=seed,
+        first_sample=0 if span is None else span.start,
     )
     outputs = tuple(
         replace(o, residual=fit.residual) if o.name == output else o for o in base.outputs
@@ -344,8 +358,9 @@ def _stack(
         calibration_tf_alone=ResidualFiguresDoc(**vars(fit.tf_alone)),
         calibration_stacked=ResidualFiguresDoc(**vars(fit.stacked)),
     )
+    fitted_on = f"fitted on {data.path}" if span is None or span.whole else span.describe("fitted")
     note = (
-        f"residual model (seed 004) fitted on {data.path}: random forest of {trees} trees, "
+        f"residual model (seed 004) {fitted_on}: random forest of {trees} trees, "
         f"depth <= {max_depth}, seed {seed}, on {signal} smoothed at "
         f"{list(features.time_constants_s)} s; residue peak-to-peak "
         f"{fit.tf_alone.peak_to_peak_um:.3f} -> {fit.stacked.peak_to_peak_um:.3f} um, RMS "

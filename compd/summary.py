@@ -65,4 +65,7 @@ def compare_summary(
     summary.update(windows_json(windows))
     for w in windows:
         summary["outputs"][w.output]["window_tolerance_um"] = w.tolerance_um
+    span = evaluation.span
+    summary["from_s"] = None if span is None else span.from_s  # as given; null: from the start
+    summary["until_s"] = None if span is None else span.until_s
     return summary

@@ -96,3 +96,17 @@ def test_door_that_never_changes_is_refused() -> None:
     with pytest.raises(DataFileError, match=r"never changes state.*always shut"):
         check_door_signal("calib.csv", np.zeros(100), "door_open", 0.5)
     check_door_signal("calib.csv", np.r_[np.zeros(50), np.ones(5)], "door_open", 0.5)
+
+
+def test_a_later_part_is_fitted_with_features_run_from_the_start() -> None:
+    """With ``first_sample`` the residue before it is never read; the figures are those after it."""
+    door = (np.arange(2000) % 200 >= 150).astype(float)
+    residue = -3.0 * door + np.random.default_rng(0).normal(0, 0.2, door.size)
+    spoiled = residue.copy()
+    spoiled[:500] = 1e3
+    fits = [
+        fit_residual(r, door, signal="door_open", sample_time_s=DT_S, trees=5, first_sample=500)
+        for r in (residue, spoiled)
+    ]
+    assert_array_equal(fits[0].residual.forest.value, fits[1].residual.forest.value)
+    assert fits[1].tf_alone.rms_um == pytest.approx(float(np.sqrt(np.mean(residue[500:] ** 2))))

@@ -1,4 +1,4 @@
-"""What the command modules share: data-file options, console, number formatting, compare output."""
+"""What the command modules share: data and span options, console, formatting, compare output."""
 
 from __future__ import annotations
 
@@ -14,12 +14,23 @@ from compd.analysis import DEFAULT_WINDOW_S
 from compd.data import DataSet, load_data
 from compd.evaluate import Evaluation
 from compd.model.metrics import Comparison
+from compd.span import Span, parse_time_s, resolve_span
 
 EXIT_INPUT_ERROR = 2
 
 
-def data_options(parser: argparse.ArgumentParser, *, initial_state: bool = True) -> None:
-    """``--max-gap-s`` and ``--resample`` (and ``--init``), for every command that reads a data file."""
+def data_options(
+    parser: argparse.ArgumentParser,
+    *,
+    initial_state: bool = True,
+    scored: str | None = None,
+    detail: str = "",
+) -> None:
+    """``--max-gap-s`` and ``--resample`` (and ``--init``), for every command that reads a data file.
+
+    With ``scored`` (what the command does with the samples: "judged",
+    "fitted") also ``--from`` and ``--until`` (:func:`span_options`).
+    """
     if initial_state:
         parser.add_argument(
             "--init",
@@ -38,6 +49,50 @@ def data_options(parser: argparse.ArgumentParser, *, initial_state: bool = True)
         action="store_true",
         help="interpolate irregularly sampled data onto a uniform grid instead of refusing it",
     )
+    if scored is not None:
+        span_options(parser, scored=scored, detail=detail)
+
+
+def span_options(parser: argparse.ArgumentParser, *, scored: str, detail: str = "") -> None:
+    """``--from`` and ``--until``: the part of one continuous record that is ``scored``.
+
+    The model still runs from the file's start, with every input's reference
+    (its first value) and the model state of the whole record
+    (:mod:`compd.span`); ``detail`` adds what the command does with it.
+    """
+    what = (
+        f"only samples from TIME on are {scored}; the model still runs from the file's "
+        "start (inputs as changes from the file's first values, measured displacement as "
+        "logged), so this is not the same as splitting the file"
+    )
+    parser.add_argument(
+        "--from",
+        dest="from_s",
+        type=time_arg,
+        metavar="TIME",
+        help=f"{what}. TIME: seconds from the record's first sample or h:m[:s] (e.g. 32:06)"
+        + (f". {detail}" if detail else ""),
+    )
+    parser.add_argument(
+        "--until",
+        dest="until_s",
+        type=time_arg,
+        metavar="TIME",
+        help=f"only samples before TIME are {scored} (nothing later is read); same TIME forms",
+    )
+
+
+def time_arg(text: str) -> float:
+    """An argparse ``type``: :func:`compd.span.parse_time_s`."""
+    try:
+        return parse_time_s(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def span_from_args(args: argparse.Namespace, data: DataSet, *, min_samples: int = 2) -> Span:
+    """The samples ``--from``/``--until`` (of :func:`span_options`) select in ``data``."""
+    return resolve_span(data, args.from_s, args.until_s, min_samples=min_samples)
 
 
 def window_options(parser: argparse.ArgumentParser) -> None:
@@ -98,6 +153,9 @@ def print_notes(evaluation: Evaluation) -> None:
 
 def comparison_table(evaluation: Evaluation, comparisons: list[Comparison]) -> Table:
     data = evaluation.data
+    hours = f"{data.time_s[-1] / 3600:.2f} h"
+    if data.time_s[0] > 0.0:  # a later part of a run (--from): its hours in the record
+        hours = f"{data.time_s[0] / 3600:.2f} .. {hours}"
     table = Table(
         "output",
         "fit %",
@@ -109,7 +167,7 @@ def comparison_table(evaluation: Evaluation, comparisons: list[Comparison]) -> T
         "RMS reduction",
         "p-p reduction",
         title=f"{evaluation.compiled.name} vs {data.path} ({len(data)} samples, "
-        f"{data.sample_time_s:g} s, {data.time_s[-1] / 3600:.2f} h); errors in um",
+        f"{data.sample_time_s:g} s, {hours}); errors in um",
     )
     for c in comparisons:
         table.add_row(

@@ -11,13 +11,17 @@ from typing import Any
 from rich.table import Table
 
 from compd.analysis import DiagnosisResult, diagnose_evaluation
-from compd.cli.common import console, data_options, fmt, load_data_from_args
+from compd.cli.common import console, data_options, fmt, load_data_from_args, span_from_args
 from compd.effects import load_catalogue
-from compd.evaluate import evaluate, measured_columns
+from compd.evaluate import measured_columns
 from compd.modelfile import load_model
+from compd.selection import select_columns
+from compd.span import evaluate_span
 from compd.summary import json_clean
 
 DEFAULT_TOP = 5
+#: Fewest samples diagnosed: the default 5 cross-validation blocks of 20.
+MIN_SAMPLES = 100
 
 
 def register(commands: Any) -> None:
@@ -39,8 +43,9 @@ def register(commands: Any) -> None:
     diag.add_argument(
         "--candidates",
         metavar="A,B,...",
-        help="signals to test (default: every column that is not an output, a displacement "
-        "(*_um), the time or a model input)",
+        help="signals to test: names, globs ('T*') or all (every column but the model's outputs, "
+        "the measured one and displacements, disp_* and *_um; model inputs included); default: "
+        "every column that is not an output, a displacement (*_um), the time or a model input",
     )
     diag.add_argument(
         "--catalogue",
@@ -54,24 +59,36 @@ def register(commands: Any) -> None:
     diag.add_argument(
         "--json", action="store_true", help="print one JSON object instead of a table"
     )
-    data_options(diag)
+    data_options(
+        diag,
+        scored="diagnosed",
+        detail="The candidates' lags are filtered from the file's start too",
+    )
     diag.set_defaults(handler=_diagnose)
 
 
 def _diagnose(args: argparse.Namespace) -> int:
     catalogue = load_catalogue(args.catalogue)  # a bad catalogue fails before the long work
-    evaluation = evaluate(load_model(args.model), load_data_from_args(args), init=args.init)
+    data = load_data_from_args(args)
+    span = span_from_args(args, data, min_samples=MIN_SAMPLES)
+    evaluation = evaluate_span(load_model(args.model), data, span, init=args.init)
     output, measured = next(iter(measured_columns(evaluation, args.output).items()))
     candidates = (
         None
         if args.candidates is None
-        else [c.strip() for c in args.candidates.split(",") if c.strip()]
+        else select_columns(
+            data,
+            args.candidates,
+            option="--candidates",
+            exclude=[*evaluation.compiled.output_names, measured],
+        )
     )
     result = diagnose_evaluation(
         evaluation, output, measured, candidates=candidates, catalogue=catalogue
     )
     if args.json:
-        print(json.dumps(diagnosis_json(evaluation.compiled.name, result), indent=2))
+        summary = {**diagnosis_json(evaluation.compiled.name, result), **span.json()}
+        print(json.dumps(summary, indent=2))
         return 0
     for note in (*evaluation.data.notes, *evaluation.notes, *result.notes):
         print(f"note: {note}", file=sys.stderr)
@@ -85,6 +102,8 @@ def _diagnose(args: argparse.Namespace) -> int:
     )
     colour = "green" if d.missing_effect is not None else "yellow"
     out.print(f"[bold {colour}]{result.verdict}[/bold {colour}]")
+    if not span.whole:
+        out.print(span.describe("diagnosed"))
     return 0
 
 

@@ -34,12 +34,14 @@ from compd.cli.common import (
     data_options,
     load_data_from_args,
     print_notes,
+    span_from_args,
     window_options,
 )
 from compd.cli.service import register_model_load
 from compd.evaluate import compare, evaluate, measured_columns
 from compd.model.compiled import qualified_names
 from compd.modelfile import load_model
+from compd.span import evaluate_span
 from compd.summary import compare_summary
 
 
@@ -77,7 +79,7 @@ def register(commands: Any) -> None:
         help="also write the HTML report (as compd report does)",
     )
     window_options(cmp_)
-    data_options(cmp_)
+    data_options(cmp_, scored="judged (fit %%, RMS, windows; JSON from_s/until_s)")
     cmp_.set_defaults(handler=_compare)
 
 
@@ -138,7 +140,9 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    evaluation = evaluate(load_model(args.model), load_data_from_args(args), init=args.init)
+    data = load_data_from_args(args)
+    span = span_from_args(args, data)
+    evaluation = evaluate_span(load_model(args.model), data, span, init=args.init)
     comparisons = compare(evaluation, args.output)
     windows = [
         find_failing_windows(
@@ -173,6 +177,8 @@ def _compare(args: argparse.Namespace) -> int:
         out.print(windows_summary(result))
         if result.windows:
             out.print(windows_table(result))
+    if not span.whole:
+        out.print(span.describe("judged"))
     return 0
 
 

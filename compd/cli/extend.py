@@ -17,10 +17,12 @@ from compd.cli.common import (
     fmt,
     load_data_from_args,
     order_arg,
+    span_from_args,
 )
 from compd.cli.progress import progress_reporter
 from compd.effects import load_catalogue
 from compd.extend import extend_model, verify_extension, with_verification
+from compd.model.identify import MIN_SAMPLES
 from compd.modelfile import load_model
 from compd.summary import json_clean
 
@@ -67,13 +69,17 @@ def register(commands: Any) -> None:
         "2 points, or the guard rails flag it",
     )
     extend.add_argument("--json", action="store_true", help="print one JSON object")
-    data_options(extend)
+    data_options(
+        extend,
+        scored="fitted and scored (the residue is that of the model run from the file's start)",
+    )
     extend.set_defaults(handler=_extend)
 
 
 def _extend(args: argparse.Namespace) -> int:
     parent = load_model(args.model)
     data = load_data_from_args(args)
+    span = span_from_args(args, data, min_samples=MIN_SAMPLES)
     verify_data = load_data_from_args(args, args.verify) if args.verify else None
     effect = load_catalogue(args.catalogue).effect_for(args.effect)
     command = (
@@ -91,6 +97,7 @@ def _extend(args: argparse.Namespace) -> int:
             command=command,
             progress=progress,
             force=args.force,
+            span=span,
         )
     yaml_text = extension.yaml_text
     verified: tuple[float, float] | None = None
@@ -129,6 +136,7 @@ def _extend(args: argparse.Namespace) -> int:
             "fit_percent_before": json_clean(verified[0]),
             "fit_percent_after": json_clean(verified[1]),
         },
+        **span.json(),
     }
     if args.json:
         print(json.dumps(summary, indent=2, allow_nan=False))
@@ -159,5 +167,7 @@ def _extend(args: argparse.Namespace) -> int:
     out.print(table)
     for finding in extension.findings:
         print(finding.describe(), file=sys.stderr)
+    if not span.whole:
+        out.print(span.describe("fitted"))
     out.print(f"wrote {args.out}")
     return 0

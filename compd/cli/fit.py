@@ -11,12 +11,14 @@ from typing import Any
 from rich.table import Table
 
 from compd.candidates import FIT_METHODS
-from compd.cli.common import console, data_options, fmt, load_data_from_args
+from compd.cli.common import console, data_options, fmt, load_data_from_args, span_from_args
 from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
 from compd.errors import DataFileError
 from compd.fit import FitResult, fit_data
+from compd.model.identify import MIN_SAMPLES
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
+from compd.selection import select_columns
 
 
 def register(commands: Any) -> None:
@@ -34,7 +36,11 @@ def register(commands: Any) -> None:
         "--output", required=True, metavar="COLUMN", help="measured displacement (um)"
     )
     parser.add_argument(
-        "--inputs", required=True, metavar="A,B,C", help="input columns, comma-separated"
+        "--inputs",
+        required=True,
+        metavar="A,B,C",
+        help="input columns, comma-separated: names, globs ('T*', 'spindle_*') or all (every "
+        "column but the output, displacements (disp_*, *_um) and the --position column)",
     )
     parser.add_argument(
         "--phase-gate",
@@ -109,7 +115,15 @@ def register(commands: Any) -> None:
     )
     parser.add_argument("--out", type=Path, required=True, metavar="MODEL.yaml")
     parser.add_argument("--name", help="model name (default OUTPUT-METHOD)")
-    data_options(parser, initial_state=False)
+    data_options(
+        parser,
+        initial_state=False,
+        scored="fitted (and the fit %% printed is on them)",
+        detail="Every method honours it: mlr regresses only those samples; arx fits their "
+        "equation errors (earlier samples serve as lags); oe fits their free-run simulation "
+        "error, simulated from the file's start; the held-back third for --order auto is the "
+        "last third of them; --residual-model fits its forest on them too. Not with --denoise",
+    )
     add_residual_options(parser)
     parser.set_defaults(handler=_fit)
 
@@ -143,7 +157,9 @@ def _fit(args: argparse.Namespace) -> int:
     data = load_data_from_args(args)
     for note in data.notes:
         print(f"note: {note}", file=sys.stderr)
-    inputs = [name.strip() for name in args.inputs.split(",") if name.strip()]
+    span = span_from_args(args, data, min_samples=MIN_SAMPLES)
+    taken = [args.output, *([args.position] if args.position else [])]
+    inputs = select_columns(data, args.inputs, option="--inputs", exclude=taken)
     command = shlex.join(["compd", *sys.argv[1:]]) if sys.argv[1:] else None
     with progress_reporter() as progress:
         result = fit_data(
@@ -163,9 +179,12 @@ def _fit(args: argparse.Namespace) -> int:
             name=args.name,
             command=command,
             progress=progress,
+            span=span,
         )
-    write_fit(result, data, args)
+    write_fit(result, data, args, span)
     _report(result, args)
+    if not span.whole:
+        console().print(span.describe("fitted"))
     return 0
 
 

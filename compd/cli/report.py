@@ -7,9 +7,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from compd.cli.common import data_options, load_data_from_args, window_options
-from compd.evaluate import evaluate
+from compd.cli.common import data_options, load_data_from_args, span_from_args, window_options
 from compd.modelfile import load_model
+from compd.span import evaluate_span
 
 
 def register(commands: Any) -> None:
@@ -28,7 +28,7 @@ def register(commands: Any) -> None:
         help="a second model on the same data, shown side by side with the change in each figure",
     )
     window_options(report)
-    data_options(report)
+    data_options(report, scored="shown and judged")
     report.set_defaults(handler=_report)
 
 
@@ -38,9 +38,12 @@ def _report(args: argparse.Namespace) -> int:
     from compd.report import write_report
 
     data = load_data_from_args(args)
-    evaluation = evaluate(load_model(args.model), data, init=args.init)
+    span = span_from_args(args, data)
+    evaluation = evaluate_span(load_model(args.model), data, span, init=args.init)
     other = (
-        None if args.compare is None else evaluate(load_model(args.compare), data, init=args.init)
+        None
+        if args.compare is None
+        else evaluate_span(load_model(args.compare), data, span, init=args.init)
     )
     path = write_report(
         args.out,
@@ -53,5 +56,7 @@ def _report(args: argparse.Namespace) -> int:
     notes = [*data.notes, *evaluation.notes, *(other.notes if other is not None else ())]
     for note in dict.fromkeys(notes):
         print(f"note: {note}", file=sys.stderr)
+    if not span.whole:
+        print(span.describe("shown and judged"))
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
     return 0

@@ -20,12 +20,13 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import console, data_options, fmt, load_data_from_args
+from compd.cli.common import console, data_options, fmt, load_data_from_args, span_from_args
 from compd.cli.residual_options import add_forest_options
 from compd.data import DataSet
 from compd.evaluate import evaluate, measured_columns
 from compd.modelfile import ModelFile, load_model
 from compd.residual import ResidueFigures, sidecar_path, stack_on_model
+from compd.span import Span, evaluate_span
 
 
 def register(commands: Any) -> None:
@@ -48,19 +49,29 @@ def register(commands: Any) -> None:
         "--verify", type=Path, metavar="OTHER.csv", help="also judge both on this record"
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    data_options(parser, initial_state=False)
+    data_options(
+        parser,
+        initial_state=False,
+        scored="fitted and judged (the forest's door features, like the model, run from the "
+        "file's start)",
+    )
     parser.set_defaults(handler=_residual)
 
 
-def _figures(model_file: ModelFile, data: DataSet, column: str | None) -> ResidueFigures:
-    evaluation = evaluate(model_file, data)
+def _figures(
+    model_file: ModelFile, data: DataSet, column: str | None, span: Span | None = None
+) -> ResidueFigures:
+    evaluation = (
+        evaluate(model_file, data) if span is None else evaluate_span(model_file, data, span)
+    )
     ((predicted, measured),) = measured_columns(evaluation, column).items()
-    return ResidueFigures.of(data.column(measured) - evaluation.predicted(predicted))
+    return ResidueFigures.of(evaluation.data.column(measured) - evaluation.predicted(predicted))
 
 
 def _residual(args: argparse.Namespace) -> int:
     parent = load_model(args.model)
     data = load_data_from_args(args)
+    span = span_from_args(args, data)
     verify = load_data_from_args(args, args.verify) if args.verify else None
     stacked = stack_on_model(
         parent,
@@ -71,13 +82,18 @@ def _residual(args: argparse.Namespace) -> int:
         trees=args.trees,
         max_depth=args.max_depth,
         seed=args.forest_seed,
+        span=span,
     )
     sidecar_path(args.out).write_bytes(stacked.sidecar)
     args.out.write_text(stacked.yaml_text, encoding="utf-8")
     written = load_model(args.out)  # the figures are those of the files as written
     records = [("data", data)] + ([("verify", verify)] if verify is not None else [])
+    spans = {"data": span, "verify": None}
     figures = {
-        label: (_figures(parent, record, args.output), _figures(written, record, args.output))
+        label: (
+            _figures(parent, record, args.output, spans[label]),
+            _figures(written, record, args.output, spans[label]),
+        )
         for label, record in records
     }
     if args.json:
@@ -94,6 +110,7 @@ def _residual(args: argparse.Namespace) -> int:
                 }
                 for label, record in records
             },
+            **span.json(),
         }
         print(json.dumps(summary, indent=2, allow_nan=False))
         return 0
@@ -119,5 +136,7 @@ def _residual(args: argparse.Namespace) -> int:
         )
     out = console()
     out.print(table)
+    if not span.whole:
+        out.print(span.describe("fitted and judged"))
     out.print(f"wrote {args.out} and {stacked.sidecar_name}")
     return 0

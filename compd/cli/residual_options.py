@@ -18,6 +18,7 @@ from compd.cli.common import console, fmt
 from compd.data import DataSet
 from compd.fit import FitResult
 from compd.residual import sidecar_path, stack_residual
+from compd.span import Span
 
 
 def add_residual_options(parser: Any) -> None:
@@ -44,8 +45,13 @@ def add_forest_options(parser: Any) -> None:
     )
 
 
-def write_fit(result: FitResult, data: DataSet, args: argparse.Namespace) -> None:
-    """Write the model file (and with ``--residual-model`` its sidecar first), then report."""
+def write_fit(
+    result: FitResult, data: DataSet, args: argparse.Namespace, span: Span | None = None
+) -> None:
+    """Write the model file (and with ``--residual-model`` its sidecar first), then report.
+
+    ``span`` (``--from``/``--until``): the forest is fitted on the samples the TFs were.
+    """
     if not getattr(args, "residual_model", None):
         args.out.write_text(result.yaml_text, encoding="utf-8")
         return
@@ -57,6 +63,7 @@ def write_fit(result: FitResult, data: DataSet, args: argparse.Namespace) -> Non
         trees=args.trees,
         max_depth=args.max_depth,
         seed=args.forest_seed,
+        span=span,
     )
     sidecar_path(args.out).write_bytes(stacked.sidecar)
     args.out.write_text(stacked.yaml_text, encoding="utf-8")

@@ -161,14 +161,17 @@ def build_regression(
     nb_max: int,
     delays: Sequence[int],
     split: int | None = None,
+    first_sample: int = 0,
 ) -> tuple[Regression, Regression | None]:
     """Normal equations for samples before ``split`` and (if given) from ``split`` on.
 
     Without ``split`` the first value covers the whole record and the second
-    is None. Accumulated block by block (:data:`BLOCK_ROWS`).
+    is None. Rows before ``first_sample`` are left out of both (their samples
+    still serve as the lags of later rows: the fit of a later part of a
+    record). Accumulated block by block (:data:`BLOCK_ROWS`).
     """
     delays_t = tuple(delays)
-    first = first_row_for(na_max, nb_max, delays_t)
+    first = max(first_row_for(na_max, nb_max, delays_t), first_sample)
     if y.size <= first + 1:
         raise ModelError(f"{y.size} samples are too few for orders up to {max(na_max, nb_max)}")
 
@@ -274,9 +277,15 @@ def solve_arx(
 
 
 def fit_arx(
-    y: np.ndarray, inputs: np.ndarray, na: int, nb: Sequence[int], nk: Sequence[int]
+    y: np.ndarray,
+    inputs: np.ndarray,
+    na: int,
+    nb: Sequence[int],
+    nk: Sequence[int],
+    *,
+    first_sample: int = 0,
 ) -> ArxParameters:
-    """MISO ARX at fixed orders over the whole record (rows where every lag exists).
+    """MISO ARX at fixed orders over the record's rows from ``first_sample`` on (where every lag exists).
 
     ``inputs`` is (N, n_inputs). Raises :class:`ModelError` with advice when
     the estimated denominator is unstable, rather than flipping poles.
@@ -288,6 +297,7 @@ def fit_arx(
         na_max=na,
         nb_max=max(nb),
         delays=sorted(set(nk)),
+        first_sample=first_sample,
     )
     parameters = solve_arx(regression, na, nb, nk)
     if not parameters.stable():

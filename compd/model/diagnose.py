@@ -231,24 +231,28 @@ def fit_candidate(
     folds: int = 5,
     pair_margin_percent: float = 2.0,
     refine: bool = True,
+    first_sample: int = 0,
 ) -> _Fit:
     """Best one- or two-lag model of the residue from ``u`` by blocked cross-validation.
+
+    The lags are filtered from sample 0; only samples from ``first_sample`` on
+    are fitted and scored (a later part of a record, its filters warm).
 
     With ``refine`` the one-lag time constant is searched again on a grid 8
     times finer between the bank's neighbours of the best one (steps of
     about 5 % in ``tau`` for the default bank) before the two-lag models are
     compared with it.
     """
-    bank = lag_bank(u, time_constants_s, sample_time_s)
+    residue_um = residue_um[first_sample:]
+    bank = lag_bank(u, time_constants_s, sample_time_s)[:, first_sample:]
     single, pair = _best_of_bank(residue_um, bank, time_constants_s, folds)
     if refine:
         logs = np.log(time_constants_s)
         j = int(np.argmin(np.abs(logs - np.log(single.time_constants_s[0]))))
         low, high = logs[max(j - 1, 0)], logs[min(j + 1, len(logs) - 1)]
         finer_taus = np.exp(np.linspace(low, high, 17))
-        finer, _ = _best_of_bank(
-            residue_um, lag_bank(u, finer_taus, sample_time_s), finer_taus, folds, pairs=False
-        )
+        finer_bank = lag_bank(u, finer_taus, sample_time_s)[:, first_sample:]
+        finer, _ = _best_of_bank(residue_um, finer_bank, finer_taus, folds, pairs=False)
         if finer.explained_percent > single.explained_percent:
             single = finer
     if pair is not None and pair.explained_percent > single.explained_percent + pair_margin_percent:
@@ -297,6 +301,7 @@ def diagnose_residue(
     time_constants_s: Array | None = None,
     pair_margin_percent: float = 2.0,
     min_explained_percent: float = MIN_EXPLAINED_PERCENT,
+    first_sample: int = 0,
 ) -> Diagnosis:
     """Rank ``candidates`` by how much of ``residue_um`` each explains on held-out data.
 
@@ -322,14 +327,18 @@ def diagnose_residue(
     min_explained_percent
         Points above chance a candidate must explain to be named
         (:attr:`Diagnosis.missing_effect`).
+    first_sample
+        Only the residue from this sample on is diagnosed; the candidates'
+        changes and lags still start at sample 0 (a later part of a record).
     """
-    e = np.asarray(residue_um, dtype=float)
+    whole = np.asarray(residue_um, dtype=float)
+    e = whole[first_sample:]
     n = len(e)
     if n < 20 * folds:
         raise ValueError(f"{n} samples are too few to cross-validate on {folds} blocks")
     names = list(candidates)
     raw = np.array([np.asarray(candidates[name], dtype=float) for name in names]).reshape(
-        len(names), n
+        len(names), len(whole)
     )
     change = raw - raw[:, :1]
     spread = change.std(axis=1)
@@ -342,24 +351,31 @@ def diagnose_residue(
         else np.asarray(time_constants_s, dtype=float)
     )
     max_lag = int(min(max(1, round(max_lag_s / sample_time_s)), max(1, n // 4)))
-    corr: Correlations = correlate(e, change, max_lag)
+    corr: Correlations = correlate(e, change[:, first_sample:], max_lag)
     outside, allowed = whiteness_exceedances(corr)
 
     scores = []
     for i, name in enumerate(names):
         scaled = change[i] / spread[i]  # unit spread: a well-conditioned regression
         fit = fit_candidate(
-            e, scaled, taus, sample_time_s, folds=folds, pair_margin_percent=pair_margin_percent
+            whole,
+            scaled,
+            taus,
+            sample_time_s,
+            folds=folds,
+            pair_margin_percent=pair_margin_percent,
+            first_sample=first_sample,
         )
         chance = max(
             fit_candidate(
-                e,
+                whole,
                 np.roll(scaled, shift),
                 taus,
                 sample_time_s,
                 folds=folds,
                 pair_margin_percent=pair_margin_percent,
                 refine=False,
+                first_sample=first_sample,
             ).explained_percent
             for shift in (n // 3, n // 2, (2 * n) // 3)
         )

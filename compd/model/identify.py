@@ -39,6 +39,15 @@ after the TF).
 Every fit reported is the seed 001 eq. 2 fit of the free-run simulation from
 rest (inputs as changes from start, as ``compd compare`` runs the model), never
 a one-step prediction.
+
+A later part of a record (``first_sample``): every method runs its model
+from rest at sample 0 and counts only the samples from ``first_sample`` on,
+in its loss and in every fit it reports: MLR regresses those rows; ARX's
+equation error takes those rows (earlier samples serve as their lags); OE,
+Steiglitz-McBride and the position refinement filter from sample 0 and sum
+the simulation error over those rows; the held-back third for the order
+choice is the last third of those rows. So a fit on hours 10..32 of a log
+holds the model's state and the inputs' references of the whole log.
 """
 
 from __future__ import annotations
@@ -192,6 +201,7 @@ def identify(
     gate: np.ndarray | None = None,
     position: np.ndarray | None = None,
     progress: Progress | None = None,
+    first_sample: int = 0,
 ) -> Identification:
     """Identify TFs from ``inputs`` (changes from start) to ``y`` (um), sampled every ``sample_time_s``.
 
@@ -199,13 +209,18 @@ def identify(
     (``na = nb_i = N``, ``nk_i = 1`` for ARX; ``nf_i = nb_i = N``, ``nk_i = 1`` for
     OE; ignored by MLR). ``gate``: True while the phase-gate signal is > 0.
     ``position``: ``P - P_ref`` in mm (seed 003 slope channels), at two or
-    more distinct values; not together with ``gate``.
+    more distinct values; not together with ``gate``. ``first_sample``: the
+    first sample fitted and scored (see the module docstring); the model
+    still runs from rest at sample 0.
     Raises :class:`ModelError` on bad arguments and on a fixed-order fit that
     is unstable.
     """
     y = np.asarray(y, dtype=float)
-    if y.ndim != 1 or y.size < MIN_SAMPLES:
-        raise ModelError(f"the output needs at least {MIN_SAMPLES} samples, got {y.size}")
+    if y.ndim != 1 or not 0 <= first_sample <= y.size - MIN_SAMPLES:
+        raise ModelError(
+            f"the output needs at least {MIN_SAMPLES} samples to fit, got "
+            f"{y.size - first_sample if y.ndim == 1 else y.shape}"
+        )
     if not np.all(np.isfinite(y)):
         raise ModelError("the output contains NaN or inf")
     if not (np.isfinite(sample_time_s) and sample_time_s > 0):
@@ -229,12 +244,12 @@ def identify(
 
     validation: float | None = None
     if method == "mlr":
-        gains = np.linalg.lstsq(u, y, rcond=None)[0]
+        gains = np.linalg.lstsq(u[first_sample:], y[first_sample:], rcond=None)[0]
         tfs = [DiscreteTF.from_coefficients([k], [1.0], 0) for k in gains]
         orders = Orders(0, (1,) * len(names), (0,) * len(names), (0,) * len(names))
         simulated = u @ gains
     elif method == "arx":
-        arx, orders, validation = _arx(y, u, order, report)
+        arx, orders, validation = _arx(y, u, order, report, first_sample)
         tfs = [
             DiscreteTF.from_coefficients(b, arx.a, nk) for b, nk in zip(arx.b, arx.nk, strict=True)
         ]
@@ -242,7 +257,7 @@ def identify(
         # lfilter per channel (what compare runs) to rounding, in half the time.
         simulated = simulate_arx(arx, u)
     else:
-        oe, orders, validation = _oe(y, u, order, report)
+        oe, orders, validation = _oe(y, u, order, report, first_sample)
         tfs = [
             DiscreteTF.from_coefficients(b, f, nk)
             for b, f, nk in zip(oe.b, oe.f, oe.nk, strict=True)
@@ -252,7 +267,8 @@ def identify(
         sloped = [slope for _, _, slope in names]
         unscaled = np.column_stack([np.asarray(inputs[name], dtype=float) for name, _, _ in names])
         scales = channel_scales(sloped, scale)
-        tfs = refine_scaled(y, unscaled, refit_numerators(y, unscaled, tfs, scales), scales)
+        refitted = refit_numerators(y, unscaled, tfs, scales, first_sample=first_sample)
+        tfs = refine_scaled(y, unscaled, refitted, scales, first_sample=first_sample)
         simulated = simulate_scaled(tfs, unscaled, scales)
     return Identification(
         method=method,
@@ -261,7 +277,7 @@ def identify(
             for (name, gated, sloped), tf in zip(names, tfs, strict=True)
         ),
         sample_time_s=float(sample_time_s),
-        fit_percent=fit_percent(y, simulated),
+        fit_percent=fit_percent(y[first_sample:], simulated[first_sample:]),
         validation_fit_percent=validation,
         orders=orders,
         simulated_um=simulated,
@@ -277,16 +293,18 @@ def simulate_channels(tfs: list[DiscreteTF], inputs: np.ndarray) -> np.ndarray:
 
 
 def _arx(
-    y: np.ndarray, u: np.ndarray, order: int | Literal["auto"], report: Progress
+    y: np.ndarray, u: np.ndarray, order: int | Literal["auto"], report: Progress, first: int
 ) -> tuple[ArxParameters, Orders, float | None]:
     n_channels = u.shape[1]
     if order != "auto":
         n = int(order)
         report(f"ARX least squares, order {n}", 0.0)
-        arx = fit_arx(y, u, n, [n] * n_channels, [1] * n_channels)
+        arx = fit_arx(y, u, n, [n] * n_channels, [1] * n_channels, first_sample=first)
         report(f"ARX least squares, order {n}", 1.0)
         return arx, Orders(n, (n,) * n_channels, (n,) * n_channels, (1,) * n_channels), None
-    search = search_arx(y, u, na_max=MAX_ORDER, nb_max=MAX_ORDER, progress=report)
+    search = search_arx(
+        y, u, na_max=MAX_ORDER, nb_max=MAX_ORDER, progress=report, first_sample=first
+    )
     best = search.best
     if best.parameters is None:
         raise ModelError(
@@ -310,52 +328,57 @@ def _oe_run(
     report: Progress,
     stage: str,
     max_iterations: int = 50,
+    first: int = 0,
 ) -> OeParameters:
     """ARX of order ``n``, refined by Steiglitz-McBride, then the output-error fit."""
     n_channels = u.shape[1]
     report(stage, 0.0)
     try:
-        arx = fit_arx(y, u, n, [n] * n_channels, list(nk))
+        arx = fit_arx(y, u, n, [n] * n_channels, list(nk), first_sample=first)
     except ModelError:
         if n == 1:
             raise
         # A noisy record can make the higher-order ARX start unstable: repeat
         # the order-1 pole instead, a valid (if crude) start that OE refines.
-        first = fit_arx(y, u, 1, [n] * n_channels, list(nk))
-        a = np.poly(np.repeat(np.roots(first.a), n))
-        arx = ArxParameters(a, first.b, first.nk)
+        crude = fit_arx(y, u, 1, [n] * n_channels, list(nk), first_sample=first)
+        a = np.poly(np.repeat(np.roots(crude.a), n))
+        arx = ArxParameters(a, crude.b, crude.nk)
     report(stage, 0.05)
-    start = steiglitz_mcbride(y, u, arx)
+    start = steiglitz_mcbride(y, u, arx, first_sample=first)
     report(stage, 0.2)
     initial = oe_from_arx(start.a, start.b, start.nk, [n] * n_channels)
 
     def on_iteration(iteration: int, fraction: float, cost: float) -> None:
         report(stage, 0.2 + 0.8 * fraction)
 
-    result = fit_oe(y, u, initial, max_iterations=max_iterations, progress=on_iteration).parameters
+    result = fit_oe(
+        y, u, initial, max_iterations=max_iterations, progress=on_iteration, first_sample=first
+    ).parameters
     report(stage, 1.0)
     return result
 
 
 def _oe(
-    y: np.ndarray, u: np.ndarray, order: int | Literal["auto"], report: Progress
+    y: np.ndarray, u: np.ndarray, order: int | Literal["auto"], report: Progress, first: int
 ) -> tuple[OeParameters, Orders, float | None]:
     n_channels = u.shape[1]
     if order != "auto":
         n = int(order)
-        params = _oe_run(y, u, n, (1,) * n_channels, report, f"OE order {n}")
+        params = _oe_run(y, u, n, (1,) * n_channels, report, f"OE order {n}", first=first)
         return params, Orders(0, (n,) * n_channels, (n,) * n_channels, (1,) * n_channels), None
     # The common order by OE's own validation fit, stopping once an order buys
     # nothing. Delays stay at the ZOH sample (nk = 1): ARX's delay search
     # (0..2 samples) is immaterial next to time constants of minutes, and its
     # choice is biased by output noise like its poles.
     nk = (1,) * n_channels
-    split = split_index(y.size)
+    split = first + split_index(y.size - first)
     candidates: list[_OeCandidate] = []
     for n in range(1, MAX_ORDER + 1):
         stage = f"OE order {n} (first two thirds)"
         try:
-            params = _oe_run(y[:split], u[:split], n, nk, report, stage, CANDIDATE_ITERATIONS)
+            params = _oe_run(
+                y[:split], u[:split], n, nk, report, stage, CANDIDATE_ITERATIONS, first
+            )
         except ModelError:
             report(stage, 1.0)
             continue
@@ -380,7 +403,7 @@ def _oe(
     def on_iteration(iteration: int, fraction: float, cost: float) -> None:
         report(stage, fraction)
 
-    whole = fit_oe(y, u, best.parameters, progress=on_iteration).parameters
+    whole = fit_oe(y, u, best.parameters, progress=on_iteration, first_sample=first).parameters
     report(stage, 1.0)
     orders = Orders(0, (n,) * n_channels, (n,) * n_channels, nk)
     return whole, orders, best.validation_fit_percent

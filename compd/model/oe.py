@@ -112,25 +112,29 @@ class _Evaluation:
         nk: Sequence[int],
         y: np.ndarray,
         inputs: np.ndarray,
+        first_sample: int = 0,
     ) -> None:
         self.denominators = denominators
+        self.first_sample = first_sample
         n_columns = sum(nb)
-        self.regressors = np.empty((y.size, n_columns), order="F")
+        regressors = np.empty((y.size, n_columns), order="F")
         self.filtered: list[np.ndarray] = []
         column = 0
         for i, (f, count, delay) in enumerate(zip(denominators, nb, nk, strict=True)):
             w = scipy.signal.lfilter([1.0], f, inputs[:, i])
             self.filtered.append(w)
-            _difference_columns(w, delay, count, self.regressors[:, column : column + count])
+            _difference_columns(w, delay, count, regressors[:, column : column + count])
             column += count
+        # Filtered from sample 0 (the model runs from rest there); only later rows are fitted.
+        self.regressors = regressors[first_sample:]
         self.gram = self.regressors.T @ self.regressors
-        theta = solve_scaled(self.gram, self.regressors.T @ y)
+        theta = solve_scaled(self.gram, self.regressors.T @ y[first_sample:])
         numerators, column = [], 0
         for count in nb:
             numerators.append(difference_matrix(count) @ theta[column : column + count])
             column += count
         self.parameters = OeParameters(tuple(numerators), denominators, tuple(nk))
-        self.residual = y - self.regressors @ theta
+        self.residual = y[first_sample:] - self.regressors @ theta
         self.cost = float(self.residual @ self.residual)
 
     def projected_normal_equations(self) -> tuple[np.ndarray, np.ndarray]:
@@ -142,7 +146,7 @@ class _Evaluation:
         """
         p = self.parameters
         n_f = sum(f.size - 1 for f in p.f)
-        sensitivity = np.empty((self.residual.size, n_f), order="F")
+        sensitivity = np.empty((self.residual.size + self.first_sample, n_f), order="F")
         column = 0
         for b, f, nk, w in zip(p.b, p.f, p.nk, self.filtered, strict=True):
             nf = f.size - 1
@@ -151,7 +155,7 @@ class _Evaluation:
                 v = scipy.signal.lfilter([1.0], f, x)
                 _difference_columns(v, 1, nf, sensitivity[:, column : column + nf])
                 column += nf
-        sensitivity *= -1.0
+        sensitivity = -sensitivity[self.first_sample :]
         cross = self.regressors.T @ sensitivity
         projected = sensitivity.T @ sensitivity - cross.T @ solve_scaled(self.gram, cross)
         return projected, sensitivity.T @ self.residual
@@ -223,8 +227,12 @@ def fit_oe(
     max_iterations: int = 50,
     tolerance: float = 1e-6,
     progress: OeProgress | None = None,
+    first_sample: int = 0,
 ) -> OeResult:
     """Refine ``initial``'s denominators (stable) by Levenberg-Marquardt on the free-run error.
+
+    The free-run output is simulated from rest at sample 0; only its errors
+    from ``first_sample`` on count (the fit of a later part of a record).
 
     The numerators are solved exactly for every trial (variable projection);
     ``initial.b`` only fixes their sizes. Every accepted denominator is
@@ -243,7 +251,7 @@ def fit_oe(
         )
     nb = [b.size for b in initial.b]
     start = tuple(_sampled_continuous(f) for f in initial.f)
-    current = _Evaluation(start, nb, initial.nk, y, inputs)
+    current = _Evaluation(start, nb, initial.nk, y, inputs, first_sample)
     to_raw = _basis_map(initial.f)
     damping = 1e-4
     converged = False
@@ -260,7 +268,7 @@ def fit_oe(
             denominators = _stepped(current.denominators, step)
             denominators = tuple(_sampled_continuous(f) for f in denominators)
             if all(admissible(f) for f in denominators):
-                trial = _Evaluation(denominators, nb, initial.nk, y, inputs)
+                trial = _Evaluation(denominators, nb, initial.nk, y, inputs, first_sample)
                 if trial.cost < current.cost:
                     relative_gain = (current.cost - trial.cost) / max(current.cost, 1e-300)
                     current = trial
@@ -306,6 +314,7 @@ def steiglitz_mcbride(
     start: ArxParameters,
     *,
     iterations: int = 5,
+    first_sample: int = 0,
 ) -> ArxParameters:
     """A common-denominator output-error estimate by Steiglitz-McBride iteration, from ``start``.
 
@@ -313,25 +322,32 @@ def steiglitz_mcbride(
     fit ARX of the same orders to the filtered data. At a fixed point the
     equation error is the simulation error, so unlike ARX it is not biased by
     output noise; it gives :func:`fit_oe` a start close to the optimum (the
-    remaining step is separating the denominators). Stops early when an
+    remaining step is separating the denominators). Samples before
+    ``first_sample`` are filtered and simulated but not fitted. Stops early when an
     iterate is unstable or stops improving the free-run fit; returns the best.
     """
     y = np.asarray(y, dtype=float)
     inputs = np.asarray(inputs, dtype=float).reshape(y.size, -1)
     na = start.a.size - 1
     nb = [b.size for b in start.b]
-    best, best_fit = start, fit_percent(y, simulate_arx(start, inputs))
+    scored = y[first_sample:]
+    best, best_fit = start, fit_percent(scored, simulate_arx(start, inputs)[first_sample:])
     current = start
     for _ in range(iterations):
         filtered_y = scipy.signal.lfilter([1.0], current.a, y)
         filtered_u = scipy.signal.lfilter([1.0], current.a, inputs, axis=0)
         regression, _ = build_regression(
-            filtered_y, filtered_u, na_max=na, nb_max=max(nb), delays=sorted(set(start.nk))
+            filtered_y,
+            filtered_u,
+            na_max=na,
+            nb_max=max(nb),
+            delays=sorted(set(start.nk)),
+            first_sample=first_sample,
         )
         current = solve_arx(regression, na, nb, start.nk)
         if not current.stable():
             break
-        fit = fit_percent(y, simulate_arx(current, inputs))
+        fit = fit_percent(scored, simulate_arx(current, inputs)[first_sample:])
         if not fit > best_fit + 1e-6:
             if fit > best_fit:
                 best = current

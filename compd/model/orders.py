@@ -114,14 +114,25 @@ def search_arx(
     nb_max: int = 3,
     delays: Sequence[int] = (0, 1, 2),
     progress: SearchProgress | None = None,
+    first_sample: int = 0,
 ) -> OrderSearch:
-    """Choose ``na``, ``nb_i``, ``nk_i`` by validation simulation fit (see the module docstring)."""
+    """Choose ``na``, ``nb_i``, ``nk_i`` by validation simulation fit (see the module docstring).
+
+    Only samples from ``first_sample`` on are split into estimation and
+    validation parts; every candidate is still simulated from sample 0.
+    """
     y = np.asarray(y, dtype=float)
     inputs = np.asarray(inputs, dtype=float).reshape(y.size, -1)
     n_inputs = inputs.shape[1]
-    split = split_index(y.size)
+    split = first_sample + split_index(y.size - first_sample)
     estimation, validation = build_regression(
-        y, inputs, na_max=na_max, nb_max=nb_max, delays=delays, split=split
+        y,
+        inputs,
+        na_max=na_max,
+        nb_max=nb_max,
+        delays=delays,
+        split=split,
+        first_sample=first_sample,
     )
     held_back = y[split:]
     tried: list[ArxCandidate] = []

@@ -89,13 +89,20 @@ def simulate_scaled(
 
 
 def refit_numerators(
-    y: np.ndarray, inputs: np.ndarray, tfs: Sequence[DiscreteTF], scales: np.ndarray
+    y: np.ndarray,
+    inputs: np.ndarray,
+    tfs: Sequence[DiscreteTF],
+    scales: np.ndarray,
+    *,
+    first_sample: int = 0,
 ) -> list[DiscreteTF]:
     """Every channel's numerator by least squares with its output scaled (step 2 above).
 
     ``inputs``: (n, n_channels) *unscaled* inputs ``u_i`` (changes from start);
     ``tfs``: the step-1 TFs, whose denominators and delays are kept;
-    ``scales``: :func:`channel_scales`. Returns new TFs, one per channel.
+    ``scales``: :func:`channel_scales`; only samples from ``first_sample`` on
+    are fitted (the channels are filtered from sample 0). Returns new TFs,
+    one per channel.
     """
     columns: list[np.ndarray] = []
     sizes: list[int] = []
@@ -109,8 +116,8 @@ def refit_numerators(
                 delayed[shift:] = filtered[: filtered.size - shift]
             columns.append(scales[:, i] * delayed)
         sizes.append(taps)
-    regressors = np.column_stack(columns)
-    theta = np.linalg.lstsq(regressors, y, rcond=None)[0]
+    regressors = np.column_stack(columns)[first_sample:]
+    theta = np.linalg.lstsq(regressors, y[first_sample:], rcond=None)[0]
     refitted = []
     start = 0
     for tf, taps in zip(tfs, sizes, strict=True):
@@ -134,6 +141,7 @@ def refine_scaled(
     scales: np.ndarray,
     *,
     max_evaluations: int = 60,
+    first_sample: int = 0,
 ) -> list[DiscreteTF]:
     """Numerators and denominators together by least squares on the free-run error (step 3 above).
 
@@ -143,6 +151,7 @@ def refine_scaled(
         d/d b_ij = s_i q^-(nk_i + j) / F_i u_i
         d/d f_ij = -s_i q^-j / F_i (B_i/F_i u_i)
 
+    The sum runs over ``k >= first_sample``; the simulation starts at sample 0.
     Returns ``tfs`` unchanged when the optimum found is unstable or no better.
     """
     layout = [(len(tf.num), len(tf.den) - 1, tf.nk) for tf in tfs]
@@ -161,7 +170,7 @@ def refine_scaled(
         total = -np.asarray(y, dtype=float)
         for i, (b, f, nk) in enumerate(split(theta)):
             total = total + scales[:, i] * _shifted(scipy.signal.lfilter(b, f, inputs[:, i]), nk)
-        return total
+        return total[first_sample:]
 
     def jacobian(theta: np.ndarray) -> np.ndarray:
         columns = []
@@ -171,7 +180,7 @@ def refine_scaled(
             twice = scipy.signal.lfilter([1.0], f, response)
             columns += [scales[:, i] * _shifted(filtered, j) for j in range(b.size)]
             columns += [-scales[:, i] * _shifted(twice, j) for j in range(1, f.size)]
-        return np.column_stack(columns)
+        return np.column_stack(columns)[first_sample:]
 
     with np.errstate(over="ignore", invalid="ignore"):
         result = scipy.optimize.least_squares(

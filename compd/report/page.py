@@ -109,9 +109,16 @@ def build_html(report: ReportData) -> str:
     title = "compd report: " + " vs ".join(escape(n) for n in names)
     duration_h = data.time_s[-1] / 3600.0 if len(data) else 0.0
     start = f", starting {data.start_time.isoformat()}" if data.start_time else ""
+    span = ""
+    if len(data) and data.time_s[0] > 0.0:  # the scored part of a run (--from): say so
+        duration_h -= data.time_s[0] / 3600.0
+        span = (
+            f", judged on {data.time_s[0] / 3600:.2f} h .. {data.time_s[-1] / 3600:.2f} h of the "
+            "record, model run from the file's start"
+        )
     meta = (
         f"data <code>{escape(data.path)}</code>: {len(data)} samples at {data.sample_time_s:g} s, "
-        f"{duration_h:.2f} h{escape(start)}"
+        f"{duration_h:.2f} h{escape(start)}{span}"
     )
     nav = ['<a href="#models">models</a>']
     nav += [f'<a href="#output-{escape(o)}">{escape(o)}</a>' for o in report.primary.outputs]

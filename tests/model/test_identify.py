@@ -143,3 +143,22 @@ def test_bad_arguments_are_errors_that_say_what_to_do(kwargs, message):
     } | kwargs
     with pytest.raises(ModelError, match=message):
         identify(rng.normal(size=200), **arguments)
+
+
+@pytest.mark.parametrize(("method", "lags"), [("mlr", 0), ("arx", 2), ("oe", 0)])
+def test_a_later_part_is_fitted_on_a_run_from_the_records_start(arx_case, method, lags):
+    """With ``first_sample`` only later outputs (and ARX's lags of them) are read; fit % is on them."""
+    first = arx_case.y.size // 3
+    spoiled = arx_case.y.copy()
+    spoiled[: first - lags] = 1e3
+    results = [
+        identify(y, arx_case.named(), sample_time_s=TS, method=method, order=2, first_sample=first)
+        for y in (arx_case.y, spoiled)
+    ]
+    for clean, other in zip(results[0].channels, results[1].channels, strict=True):
+        assert_allclose(other.tf.b, clean.tf.b, rtol=1e-9, atol=1e-15)
+        assert_allclose(other.tf.a, clean.tf.a, rtol=1e-9)
+    simulated = simulate_channels([c.tf for c in results[1].channels], arx_case.inputs)
+    assert results[1].fit_percent == pytest.approx(
+        fit_percent(arx_case.y[first:], simulated[first:]), rel=1e-9
+    )
