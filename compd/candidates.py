@@ -24,6 +24,7 @@ from threadpoolctl import threadpool_limits
 
 from compd.data import DataSet
 from compd.errors import DataFileError, ModelError
+from compd.model.collinear import contribution_shares
 from compd.model.compiled import compile_model, qualified_names
 from compd.model.crossval import Folds, blocked_folds, cycle_folds
 from compd.model.guards import Finding, check_model
@@ -142,6 +143,63 @@ def _select(
     return Selection(folds, tuple(scores), kept, lag_bank)
 
 
+#: Forward selection stops when the next input adds less than this to the held-out fit (points).
+SELECTION_MIN_GAIN_POINTS = 1.0
+
+
+@dataclass(frozen=True)
+class SelectionStep:
+    """One forward-selection step: the input added and the held-out fit with it."""
+
+    input: str
+    cv_fit_percent: float
+
+
+def select_inputs(
+    y: np.ndarray,
+    changes: Mapping[str, np.ndarray],
+    *,
+    sample_time_s: float,
+    folds: Folds,
+    time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S,
+    first_sample: int = 0,
+    min_gain_points: float = SELECTION_MIN_GAIN_POINTS,
+) -> list[SelectionStep]:
+    """Inputs added one at a time, each the one that raises the lag bank's held-out fit most.
+
+    Stops when the best next input adds less than ``min_gain_points``. The
+    choice is made with the same folds that score it, so its figure is
+    optimistic: it says which sensors carry the information, and the
+    cross-validated fit of the final model is reported beside the regression's.
+    """
+    names = list(changes)
+    u = np.column_stack([np.asarray(changes[n], dtype=float) for n in names])
+    fitted = np.arange(len(y)) >= first_sample
+    steps: list[SelectionStep] = []
+    chosen: list[int] = []
+    best = -np.inf
+    with threadpool_limits(limits=1, user_api="blas"):
+        while len(chosen) < len(names):
+            trials = {}
+            for j in (j for j in range(len(names)) if j not in chosen):
+                bank = fit_lag_bank(
+                    y,
+                    u[:, [*chosen, j]],
+                    sample_time_s=sample_time_s,
+                    folds=folds,
+                    fitted=fitted,
+                    time_constants_s=time_constants_s,
+                )
+                trials[j] = bank.cv_fit_percent if bank.cv_fit_percent is not None else -np.inf
+            j = max(trials, key=trials.__getitem__)
+            if trials[j] < best + min_gain_points:
+                break
+            best = trials[j]
+            chosen.append(j)
+            steps.append(SelectionStep(names[j], float(best)))
+    return steps
+
+
 def lag_bank_identification(
     fit: LagBankFit, inputs: Sequence[str], sample_time_s: float
 ) -> Identification:
@@ -178,16 +236,41 @@ def describe_lag_bank(fit: LagBankFit) -> str:
     )
 
 
-def guard_findings(data: DataSet, model: Model) -> list[Finding]:
-    """The guard rails (:mod:`compd.model.guards`) on ``model`` over the record it was fitted on."""
+Contributions = dict[str, dict[str, np.ndarray]]
+
+
+def contributions_of(data: DataSet, model: Model) -> Contributions:
+    """Each sub-model's contribution (um) over ``data``, run from rest at the record's start."""
     compiled = compile_model(model, data.sample_time_s)
     signals = np.column_stack([data.column(name) for name in compiled.signals])
     result = simulate(compiled, signals, compiled.rest_state(signals[0]))
-    names = qualified_names(compiled)
-    contributions: dict[str, dict[str, np.ndarray]] = {}
-    for index, qualified in enumerate(names):
+    contributions: Contributions = {}
+    for index, qualified in enumerate(qualified_names(compiled)):
         output, _, sub = qualified.partition("/")
         contributions.setdefault(output, {})[sub] = result.contributions[:, index]
+    return contributions
+
+
+def input_shares(model: Model, contributions: Contributions) -> dict[str, float]:
+    """Each input signal's share of the model's contribution RMS (its sub-models summed), largest first."""
+    per_input: dict[str, np.ndarray] = {}
+    for output in model.outputs:
+        for sub in output.submodels:
+            term = contributions.get(output.name, {}).get(sub.name)
+            if term is not None:
+                per_input[sub.input.signal] = per_input.get(sub.input.signal, 0.0) + term
+    if not per_input:
+        return {}
+    shares = contribution_shares(np.column_stack(list(per_input.values())))
+    return dict(sorted(zip(per_input, map(float, shares), strict=True), key=lambda kv: -kv[1]))
+
+
+def guard_findings(
+    data: DataSet, model: Model, contributions: Contributions | None = None
+) -> list[Finding]:
+    """The guard rails (:mod:`compd.model.guards`) on ``model`` over the record it was fitted on."""
+    if contributions is None:
+        contributions = contributions_of(data, model)
     ranges = {
         column: (float(np.min(values)), float(np.max(values)))
         for column, values in data.columns.items()

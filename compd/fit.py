@@ -26,18 +26,23 @@ from compd import __version__
 from compd.candidates import (
     FIT_METHODS,
     Selection,
+    SelectionStep,
     check_against_regression,
+    contributions_of,
     cross_validation_doc,
     describe_lag_bank,
     folds_of,
     guard_findings,
+    input_shares,
     lag_bank_identification,
     operating_signal,
-    select,
+    select_inputs,
 )
+from compd.candidates import select as choose
 from compd.data import DataSet
 from compd.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.errors import DataFileError, ModelError
+from compd.model.collinear import collinear_groups
 from compd.model.guards import Finding, Severity
 from compd.model.identify import MAX_ORDER, Identification, Progress, identify
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
@@ -64,6 +69,12 @@ class FitResult:
     selection: Selection | None = None
     #: Guard-rail findings on the written model (warnings; errors refuse it unless forced).
     findings: list[Finding] = field(default_factory=list)
+    #: Groups of inputs that move together (one piece of information each).
+    collinear: list[tuple[str, ...]] = field(default_factory=list)
+    #: Each input's share of the model's contribution RMS, largest first.
+    input_shares: dict[str, float] = field(default_factory=dict)
+    #: With ``select``: the inputs in the order forward selection added them.
+    selection_steps: list[SelectionStep] = field(default_factory=list)
 
 
 def unit_of(name: str) -> str:
@@ -258,6 +269,7 @@ def fit_data(
     cycles: str | None = None,
     force: bool = False,
     time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S,
+    select: bool = False,
     phase_gate: str | None = None,
     position: str | None = None,
     position_reference_mm: float = 0.0,
@@ -337,11 +349,30 @@ def fit_data(
             fix="Use --method oe or arx for those structures, or drop them",
         )
     folds = folds_of(data, operating_signal(data, cycles, phase_gate))
+    steps: list[SelectionStep] = []
+    if select:
+        if structured or method not in ("auto", "lagbank"):
+            raise DataFileError(
+                data.path,
+                "--select-inputs chooses inputs for the lag bank",
+                where="--select-inputs",
+                fix="Use it with --method auto or lagbank, without --phase-gate/--position/--denoise",
+            )
+        steps = select_inputs(
+            y,
+            changes,
+            sample_time_s=data.sample_time_s,
+            folds=folds,
+            time_constants_s=time_constants_s,
+            first_sample=first,
+        )
+        changes = {step.input: changes[step.input] for step in steps}
+        inputs = list(changes)
     candidates = ("mlr",) if structured or method in ("oe", "arx") else ("lagbank", "mlr")
     if method == "mlr":
         candidates = ("mlr",)
     try:
-        selection = select(
+        selection = choose(
             y,
             changes,
             sample_time_s=data.sample_time_s,
@@ -391,7 +422,8 @@ def fit_data(
         baked = bake_lowpasses(model, identification, data, denoised, units)
         model, identification, denoise_doc = baked.model, baked.identification, baked.doc
     comparison = Comparison.of(output, y[first:], identification.simulated_um[first:])
-    findings = guard_findings(data, model)
+    contributions = contributions_of(data, model)
+    findings = guard_findings(data, model, contributions)
     errors = [f for f in findings if f.severity is Severity.ERROR]
     if errors and not force:
         raise DataFileError(
@@ -418,7 +450,18 @@ def fit_data(
         signals=signals,
         provenance=provenance,
     )
-    return FitResult(identification, model, provenance, comparison, text, selection, findings)
+    return FitResult(
+        identification,
+        model,
+        provenance,
+        comparison,
+        text,
+        selection,
+        findings,
+        collinear=collinear_groups(np.column_stack(list(changes.values()))[first:], list(changes)),
+        input_shares=input_shares(model, contributions),
+        selection_steps=steps,
+    )
 
 
 def _provenance(

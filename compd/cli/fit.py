@@ -16,6 +16,7 @@ from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
 from compd.errors import DataFileError
 from compd.fit import FitResult, fit_data
+from compd.model.collinear import MIN_ABS_CORRELATION
 from compd.model.identify import MIN_SAMPLES
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 from compd.selection import select_columns
@@ -109,6 +110,12 @@ def register(commands: Any) -> None:
         f"(default {','.join(f'{t:g}' for t in DEFAULT_TIME_CONSTANTS_S)})",
     )
     parser.add_argument(
+        "--select-inputs",
+        action="store_true",
+        help="forward selection: add inputs one at a time, each the one that raises the lag "
+        "bank's cross-validated fit most, until the next adds less than 1 point; prints the path",
+    )
+    parser.add_argument(
         "--force",
         action="store_true",
         help="write the model even if it holds worse on held-out cycles than the static regression",
@@ -170,6 +177,7 @@ def _fit(args: argparse.Namespace) -> int:
             order=order,
             cycles=args.cycles,
             time_constants_s=args.time_constants_s,
+            select=args.select_inputs,
             force=args.force,
             phase_gate=args.phase_gate,
             position=args.position,
@@ -256,6 +264,23 @@ def _report(result: FitResult, args: argparse.Namespace) -> None:
     out.print(line)
     if result.selection is not None:
         out.print(_candidates_table(result))
+    if result.selection_steps:
+        path = " -> ".join(
+            f"+{s.input} {fmt(s.cv_fit_percent, 1)} %" for s in result.selection_steps
+        )
+        out.print(
+            f"inputs selected by held-out fit ({result.selection.folds.describe() if result.selection else ''}): "
+            f"{path}; the next would add < 1 point"
+        )
+    if result.collinear:
+        groups = "; ".join(" ~ ".join(group) for group in result.collinear)
+        out.print(
+            f"inputs that move together (|r| >= {MIN_ABS_CORRELATION}, one piece of information "
+            f"per group): {groups}"
+        )
+    if len(result.input_shares) > 1:
+        carried = ", ".join(f"{name} {share:.0%}" for name, share in result.input_shares.items())
+        out.print(f"share of the model's output carried by each input: {carried}")
     for finding in result.findings:
         print(finding.describe(), file=sys.stderr)
     denoise = result.provenance.denoise

@@ -78,3 +78,16 @@ def test_a_phase_gate_on_its_own_input_is_refused_before_fitting() -> None:
     with contextlib.redirect_stderr(err):
         assert main([str(a) for a in argv]) != 0
     assert "is also an input" in err.getvalue() and "Gate temperature inputs" in err.getvalue()
+
+
+def test_input_selection_keeps_a_few_sensors_that_hold_on_held_out_cycles(tmp_path: Path) -> None:
+    """--select-inputs names a handful of the 16 sensors, in order, and the model still holds."""
+    printed = compd(
+        "fit", "--data", RECORD, "--output", "disp_ch4_um", "--inputs", "T*", "--select-inputs",
+        "--out", tmp_path / "few.yaml",
+    )  # fmt: skip
+    assert "inputs selected by held-out fit" in printed
+    cv = yaml.safe_load((tmp_path / "few.yaml").read_text())["provenance"]["cross_validation"]
+    used = yaml.safe_load((tmp_path / "few.yaml").read_text())["signals"]
+    assert 2 <= len(used) <= 8
+    assert cv["fit_percent"]["lagbank"] > 80.0
