@@ -21,6 +21,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from compd.candidates import EXTEND_MARGIN_POINTS
 from compd.data import DataSet
 from compd.effects import EffectCatalogue, load_catalogue
 from compd.errors import DataFileError
@@ -67,6 +68,16 @@ class DiagnosisResult:
     effects: Mapping[str, str]
     """Candidate signal -> physical effect, from the catalogue."""
     notes: tuple[str, ...] = ()
+    measured_spread_um: float | None = None
+    """RMS of the measured output about its mean on the diagnosed part (the fit %'s denominator)."""
+
+    @property
+    def fit_rise_points(self) -> float | None:
+        """The fit % the best candidate would add if its held-out share of the residue came off it."""
+        found = self.diagnosis.missing_effect
+        if found is None or not self.measured_spread_um:
+            return None
+        return found.explained_percent * self.diagnosis.residue_rms_um / self.measured_spread_um
 
     @property
     def verdict(self) -> str:
@@ -85,11 +96,18 @@ class DiagnosisResult:
                 f"{max(best.chance_percent, 0.0):.0f} % by chance ({d.min_explained_percent:.0f} "
                 "points above chance needed); the missing effect is not among the candidates"
             )
-        return (
+        verdict = (
             f"most likely missing effect: {self.effects[found.signal]} ({found.signal}) explains "
             f"{found.explained_percent:.0f} % of the residue RMS on held-out data "
             f"(chance level {max(found.chance_percent, 0.0):.0f} %)"
         )
+        rise = self.fit_rise_points
+        if rise is not None and rise < EXTEND_MARGIN_POINTS:
+            verdict += (
+                f"; but it would raise the fit by only about {rise:.1f} points, below the "
+                f"{EXTEND_MARGIN_POINTS:g} that compd extend requires: it would not survive"
+            )
+        return verdict
 
 
 def residue_of(evaluation: Evaluation, output: str, measured_column: str) -> np.ndarray:
@@ -235,10 +253,12 @@ def diagnose_evaluation(
             data.path, str(exc), fix="Diagnose a longer record (hours of data, not minutes)"
         ) from exc
     effects = {name: catalogue.effect_for(name) for name in signals}
+    measured = data.column(measured_column)[evaluation.first_sample :]
     return DiagnosisResult(
         output=output,
         measured_column=measured_column,
         diagnosis=diagnosis,
         effects=MappingProxyType(effects),
         notes=tuple(notes),
+        measured_spread_um=float(np.std(measured)),
     )

@@ -143,6 +143,8 @@ def _select(
     return Selection(folds, tuple(scores), kept, lag_bank)
 
 
+#: An extension must raise the held-out fit by this many points, or ``compd extend`` does not add it.
+EXTEND_MARGIN_POINTS = 2.0
 #: Forward selection stops when the next input adds less than this to the held-out fit (points).
 SELECTION_MIN_GAIN_POINTS = 1.0
 

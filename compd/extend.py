@@ -24,7 +24,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from compd import __version__
-from compd.candidates import folds_of, guard_findings, operating_signal
+from compd.candidates import EXTEND_MARGIN_POINTS, folds_of, guard_findings, operating_signal
 from compd.data import DataSet
 from compd.errors import DataFileError, ModelError
 from compd.evaluate import Evaluation, compare, evaluate, measured_columns
@@ -43,9 +43,6 @@ from compd.modelfile import (
 )
 from compd.modelwriter import model_to_yaml
 from compd.span import Span, span_data, until_stop
-
-#: An extension must raise the held-out fit by this many points, or it is not added.
-EXTEND_MARGIN_POINTS = 2.0
 
 
 @dataclass(frozen=True)

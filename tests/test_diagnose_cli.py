@@ -118,3 +118,27 @@ def test_bad_catalogue_or_unknown_candidate_exits_2(case, tmp_path: Path, capsys
     assert code == 2 and "bad.yaml: line 3" in err
     code, _, err = run(capsys, "diagnose", *case, "--candidates", "no_such_column")
     assert code == 2 and "no_such_column" in err
+
+
+def test_a_found_effect_too_small_to_matter_is_said_not_to_survive() -> None:
+    """A signal that explains most of a tiny residue would add < 2 fit points: the verdict says so."""
+    from types import MappingProxyType
+
+    import numpy as np
+    import scipy.signal
+
+    from compd.analysis import DiagnosisResult
+    from compd.model.diagnose import diagnose_residue
+
+    rng = np.random.default_rng(0)
+    n = 6 * 3600 // 10
+    door = (rng.random(n) < 0.02).astype(float)
+    effect = scipy.signal.lfilter([0.05], [1, -0.95], door)
+    residue = 0.05 * effect + rng.normal(0, 0.001, n)  # um: a model that already fits well
+    diagnosis = diagnose_residue(residue, {"door_open": door}, 10.0)
+    assert diagnosis.missing_effect is not None
+    effects = MappingProxyType({"door_open": "door openings"})
+    small = DiagnosisResult("z", "z", diagnosis, effects, measured_spread_um=30.0)
+    assert "would not survive" in small.verdict
+    large = DiagnosisResult("z", "z", diagnosis, effects, measured_spread_um=0.01)
+    assert "would not survive" not in large.verdict
