@@ -76,7 +76,7 @@ def calibration(folder: Path) -> Path:
     return twin(folder, "calibration", CALIBRATION_HOURS, seed=1)
 
 
-def base_model(folder: Path, calibration: Path, output: str, method: str = "oe") -> Path:
+def base_model(folder: Path, calibration: Path, output: str, method: str = "auto") -> Path:
     path = folder / f"base-{output}-{method}.yaml"
     if not path.exists():
         compd(
