@@ -21,6 +21,7 @@ SCRIPTS = (
     "bench_step.py",
     "bench_simulate.py",
     "bench_identify.py",
+    "bench_real_identify.py",
     "bench_tick.py",
     "bench_diagnose.py",
     "bench_residual.py",
