@@ -131,6 +131,17 @@ class _Design:
         self.rhs = block.T @ y[fitted]
         self.n_fitted = int(fitted.sum())
 
+    def release(self) -> None:
+        """Drop the feature matrix (the Gram matrix stays): it is the design's only large part."""
+        self.features = np.zeros((0, self.scale.size))
+
+    def restore(
+        self, u: np.ndarray, time_constants_s: Sequence[float], sample_time_s: float
+    ) -> None:
+        """Rebuild the feature matrix dropped by :meth:`release`."""
+        features = lag_features(u @ self.directions, time_constants_s, sample_time_s)
+        self.features = features / self.scale
+
     def columns(self, n_modes: int) -> np.ndarray:
         """Indices of the feature columns of the leading ``n_modes`` modes, at every time constant."""
         return np.concatenate([np.arange(n_modes) + j * self.max_modes for j in range(self.n_taus)])
@@ -195,17 +206,29 @@ def fit_lag_bank(
     modes = range(1, min(max_modes or n_inputs, n_inputs) + 1)
     weights = tuple(float(w) for w in ridge_weights)
 
-    # Held-out predictions of every (modes, weight) setting, fold by fold.
-    held_out = {(m, w): np.full(y.size, np.nan) for m in modes for w in weights}
+    # Held-out squared errors of every (modes, weight) setting, fold by fold: sums, not
+    # whole-record predictions, so memory stays one design's worth on week-long 1 Hz records.
+    squared_error = {(m, w): 0.0 for m in modes for w in weights}
+    scored = np.zeros(y.size, dtype=bool)
+    designs = []
     for fold in range(folds.n_folds):
         held = fitted & (folds.labels == fold)
         train = fitted & (folds.labels != fold)
         if not held.any() or train.sum() < 2:
             continue
+        scored |= held
         design = _Design(u, y, train, taus, sample_time_s)
+        designs.append((held, design))
         for m in modes:
             for w, coefficients in zip(weights, design.solve(m, weights), strict=True):
-                held_out[(m, w)][held] = design.predict(m, coefficients, held)
+                residue = y[held] - design.predict(m, coefficients, held)
+                squared_error[(m, w)] += float(residue @ residue)
+        design.release()
+    if not scored.any():
+        raise ModelError("no fold has both held-out and fitted samples: cannot cross-validate")
+    spread = float(np.linalg.norm(y[scored] - y[scored].mean()))
+    if spread == 0.0:
+        raise ModelError("the output does not vary on the held-out samples")
     design = _Design(u, y, fitted, taus, sample_time_s)
     solutions = {
         (m, w): c for m in modes for w, c in zip(weights, design.solve(m, weights), strict=True)
@@ -217,7 +240,7 @@ def fit_lag_bank(
     plausible = [key for key in solutions if reach[key] <= max_reach_ratio]
     if not plausible:  # even the strongest ridge leans on cancelling gains: the least of them
         plausible = [min(reach, key=reach.__getitem__)]
-    scores = {key: pooled_fit_percent(y, held_out[key]) for key in plausible}
+    scores = {key: 100.0 * (1.0 - np.sqrt(squared_error[key]) / spread) for key in plausible}
     best = max(scores.values())
     # Simplest within tolerance: fewest modes, then the largest ridge weight.
     n_modes, weight = min(
@@ -225,6 +248,12 @@ def fit_lag_bank(
         key=lambda key: (key[0], -key[1]),
     )
     coefficients = solutions[(n_modes, weight)]
+    cv_predicted = np.full(y.size, np.nan)
+    for held, fold_design in designs:  # the chosen setting's held-out predictions, again
+        fold_design.restore(u, taus, sample_time_s)
+        fold_coefficients = fold_design.solve(n_modes, [weight])[0]
+        cv_predicted[held] = fold_design.predict(n_modes, fold_coefficients, held)
+        fold_design.release()
     predicted = design.predict(n_modes, coefficients)
     return LagBankFit(
         time_constants_s=taus,
@@ -234,7 +263,7 @@ def fit_lag_bank(
         fit_percent=float(fit_percent(y[fitted], predicted[fitted])),
         cv_fit_percent=scores[(n_modes, weight)],
         predicted_um=predicted,
-        cv_predicted_um=held_out[(n_modes, weight)],
+        cv_predicted_um=cv_predicted,
     )
 
 
