@@ -12,12 +12,17 @@ Values are typed by the server (:mod:`compd.drivers.opcua_values`): reads
 give floats, writes go out with each node's own variant type, integers
 range-checked and never wrapped.
 
-Security follows the settings: ``Basic256Sha256`` with ``SignAndEncrypt``
-(or ``Sign``), the client's application certificate and key, the server
-certificate the client trusts (any other server certificate is refused),
-and a username whose password comes from a file or an environment variable.
-Secrets are never logged or put into error messages
-(:mod:`compd.drivers.opcua_security`).
+Security follows the settings and is on unless switched off in words:
+``security`` is required, its mode defaults to ``SignAndEncrypt`` (or
+``Sign``) with ``Basic256Sha256`` (or ``Aes256_Sha256_RsaPss``), the client's
+application certificate and key, and the server certificate the client
+trusts. ``security: none`` must be written out, and is refused with a
+password (it would cross the wire in clear). Before each secured connect
+the server's endpoints (readable without security) are checked: a server
+presenting another certificate is refused at once as "not trusted", where
+the secured handshake alone would only time out. A username's password
+comes from a file or an environment variable; secrets are never logged or
+put into error messages (:mod:`compd.drivers.opcua_security`).
 """
 
 from __future__ import annotations
@@ -64,12 +69,25 @@ _GONE = {
 }
 
 
+#: Security policies offered in ``security.policy``, by their OPC UA names.
+POLICIES: dict[str, type[security_policies.SecurityPolicy]] = {
+    "Basic256Sha256": security_policies.SecurityPolicyBasic256Sha256,
+    "Aes256_Sha256_RsaPss": security_policies.SecurityPolicyAes256Sha256RsaPss,
+}
+#: The fix named when ``security`` is missing, or ``none`` with a password.
+_SECURITY_FIX = (
+    "give security.certificate, security.private_key and security.server_certificate "
+    "(mode SignAndEncrypt by default), or write 'security: none' for a server without "
+    "security, which cannot be combined with a password"
+)
+
+
 class OpcUaSecurity(BaseModel):
     """``settings.security``: the secure channel and the client's own certificate."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    policy: Literal["Basic256Sha256"] = "Basic256Sha256"
+    policy: Literal["Basic256Sha256", "Aes256_Sha256_RsaPss"] = "Basic256Sha256"
     mode: Literal["SignAndEncrypt", "Sign"] = "SignAndEncrypt"
     certificate: str = Field(min_length=1, description="client certificate, PEM or DER")
     private_key: str = Field(min_length=1, description="client private key, PEM or DER")
@@ -87,11 +105,24 @@ class OpcUaSettings(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     url: str = Field(pattern=r"^opc\.tcp://[^@/]+(/.*)?$", description="opc.tcp://host:port/path")
-    security: OpcUaSecurity | None = None
+    #: Required: a block, or ``none`` written out (stored as None).
+    security: OpcUaSecurity | None
     username: str | None = None
     password_file: str | None = Field(default=None, description="file holding the password")
     password_env: str | None = Field(default=None, description="environment variable")
     request_timeout_s: float = Field(default=2.0, gt=0, description="per OPC UA request")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _security_is_explicit(cls, data: object) -> object:
+        """No security only when written out: ``security: none`` (an absent block is an error)."""
+        if not isinstance(data, dict):
+            return data
+        if data.get("security") is None:
+            raise ValueError(f"'security' is missing: {_SECURITY_FIX}")
+        if data["security"] == "none":
+            return {**data, "security": None}
+        return data
 
     @model_validator(mode="after")
     def _one_password_source(self) -> OpcUaSettings:
@@ -100,6 +131,11 @@ class OpcUaSettings(BaseModel):
             raise ValueError("give password_file or password_env, not both")
         if sources and not self.username:
             raise ValueError("a password needs a username")
+        if sources and self.security is None:
+            raise ValueError(
+                "'security: none' with a password would send the password in clear; "
+                + _SECURITY_FIX
+            )
         return self
 
 
@@ -150,6 +186,8 @@ class OpcUaDriver:
     async def open(self) -> None:
         async with self._lock:
             await self._drop_client()
+            if self.settings.security is not None:
+                await self._check_server_endpoint(self.settings.security)
             client = Client(self.settings.url, timeout=self.settings.request_timeout_s)
             try:
                 await self._configure(client)
@@ -159,10 +197,7 @@ class OpcUaDriver:
                 raise
             except Exception as exc:
                 await _disconnect_quietly(client)
-                error = self._translate(exc, "connect")
-                if isinstance(error, DriverTimeoutError | DriverDisconnectedError):
-                    error = await self._diagnose_server_certificate() or error
-                raise error from exc
+                raise self._translate(exc, "connect") from exc
             self._client = client
             log.debug("opcua connected", url=self.settings.url)
 
@@ -182,7 +217,7 @@ class OpcUaDriver:
             cert_path = self._path(security.certificate)
             client.application_uri = security.application_uri or certificate_uri(cert_path)
             await client.set_security(
-                security_policies.SecurityPolicyBasic256Sha256,
+                POLICIES[security.policy],
                 certificate=str(cert_path),
                 private_key=str(self._path(security.private_key)),
                 server_certificate=str(self._path(security.server_certificate)),
@@ -192,32 +227,42 @@ class OpcUaDriver:
             client.set_user(self.settings.username)
             client.set_password(self._password())
 
-    async def _diagnose_server_certificate(self) -> DriverError | None:
-        """Why a secured connect got no answer: the server's certificate is not the trusted one?
+    async def _check_server_endpoint(self, security: OpcUaSecurity) -> None:
+        """Refuse a server that is not the trusted one, or lacks our policy, before the handshake.
 
         A server whose certificate differs from ``security.server_certificate``
         cannot decrypt our OpenSecureChannel and just drops it, which looks
-        like a timeout. Its endpoints (readable without security) tell.
+        like a timeout (and the link's own timeout would cut any diagnosis
+        made afterwards). Its endpoints, readable without security in one
+        short exchange, tell at once.
         """
-        if self.settings.security is None:
-            return None
-        trusted = certificate_der(self._path(self.settings.security.server_certificate))
+        trusted = certificate_der(self._path(security.server_certificate))
         probe = Client(self.settings.url, timeout=self.settings.request_timeout_s)
         try:
-            async with asyncio.timeout(2 * self.settings.request_timeout_s):
+            async with asyncio.timeout(self.settings.request_timeout_s):
                 endpoints = await probe.connect_and_get_server_endpoints()
-        except Exception as exc:  # the server is really unreachable: keep the first error
-            log.debug("opcua endpoint probe failed", error=type(exc).__name__)
-            return None
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            raise self._translate(exc, "connect (endpoints)") from exc
         finally:
             probe.disconnect_socket()
         presented = {bytes(e.ServerCertificate) for e in endpoints if e.ServerCertificate}
         if presented and not any(p.startswith(trusted) for p in presented):
-            return DriverProtocolError(
+            raise DriverProtocolError(
                 f"OPC UA server {self.settings.url} presented a certificate that is not "
-                "security.server_certificate: server not trusted, refusing to connect"
+                "security.server_certificate: server not trusted, refusing to connect "
+                "(if it is the right machine, put its certificate in security.server_certificate)"
             )
-        return None
+        uri, mode = POLICIES[security.policy].URI, getattr(ua.MessageSecurityMode, security.mode)
+        offered = {(e.SecurityPolicyUri, e.SecurityMode) for e in endpoints}
+        if (uri, mode) not in offered:
+            names = sorted(f"{u.rsplit('#', 1)[-1]}/{m.name}" for u, m in offered)
+            raise DriverProtocolError(
+                f"OPC UA server {self.settings.url} does not offer "
+                f"{security.policy}/{security.mode}; it offers {', '.join(names)}: "
+                "set security.policy and security.mode to one it offers"
+            )
 
     def _path(self, name: str) -> Path:
         path = resolve_path(name, self._base_dir)
