@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -15,7 +14,7 @@ from compd.cli.common import console, data_options, fmt, load_data_from_args
 from compd.effects import load_catalogue
 from compd.evaluate import evaluate, measured_columns
 from compd.modelfile import load_model
-from compd.summary import json_clean
+from compd.summary import json_clean, json_text
 
 DEFAULT_TOP = 5
 
@@ -71,7 +70,7 @@ def _diagnose(args: argparse.Namespace) -> int:
         evaluation, output, measured, candidates=candidates, catalogue=catalogue
     )
     if args.json:
-        print(json.dumps(diagnosis_json(evaluation.compiled.name, result), indent=2))
+        print(json_text(diagnosis_json(evaluation.compiled.name, result)))
         return 0
     for note in (*evaluation.data.notes, *evaluation.notes, *result.notes):
         print(f"note: {note}", file=sys.stderr)
