@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any, Literal, cast
 
 from compd.drivers.points import ORDERS, POINT_TYPES, Order, PointCodec, PointType
+from compd.drivers.pymodbus_log import quiet_pymodbus
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
@@ -53,6 +54,8 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
+
+quiet_pymodbus()  # before any client or server exists: see compd.drivers.pymodbus_log
 
 Table = Literal["holding", "input", "coil", "discrete"]
 TABLES: tuple[str, ...] = ("holding", "input", "coil", "discrete")
