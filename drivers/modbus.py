@@ -42,8 +42,8 @@ from functools import cache
 from pathlib import Path
 from typing import Any, Literal, cast
 
+from compd.drivers.library_logs import quiet_library
 from compd.drivers.points import ORDERS, POINT_TYPES, Order, PointCodec, PointType
-from compd.drivers.pymodbus_log import quiet_pymodbus
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
@@ -55,7 +55,7 @@ from compd.errors import (
     DriverTimeoutError,
 )
 
-quiet_pymodbus()  # before any client or server exists: see compd.drivers.pymodbus_log
+quiet_library("pymodbus")  # its per-attempt errors and hex dumps: see compd.drivers.library_logs
 
 Table = Literal["holding", "input", "coil", "discrete"]
 TABLES: tuple[str, ...] = ("holding", "input", "coil", "discrete")

@@ -41,6 +41,7 @@ from asyncua.crypto import security_policies
 from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.status_codes import StatusCodes
 from asyncua.ua.uaerrors import UaError, UaStatusCodeError, UaStringParsingError
+from compd.drivers.library_logs import quiet_library
 from compd.drivers.opcua_security import REFUSALS, certificate_der, certificate_uri
 from compd.drivers.opcua_values import NUMERIC_TYPES, to_float, to_variant, variant_type
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -54,6 +55,7 @@ from compd.errors import (
 from compd.yamlplace import resolve_path
 
 log = structlog.get_logger("compd.drivers.opcua")
+quiet_library("asyncua")  # a line per read at INFO, per dropped session at WARNING
 
 
 #: Status codes that mean the session or channel is gone: reconnect.

@@ -505,3 +505,18 @@ def test_server_stopped_and_restarted(certs, restart_server: OpcUaTestServer):
 
     reconnect_s, down = asyncio.run(scenario())
     assert down == [{}, {}, {}] and reconnect_s < 5.0 and link.reconnects == 1
+
+
+def test_asyncua_logs_nothing_above_debug(certs, server, caplog):
+    """Connecting, 5 reads and a close leave no asyncua record in the log (it logs each read at INFO)."""
+
+    async def scenario() -> None:
+        driver = await opened(make_driver(certs, server.url))
+        for _ in range(5):
+            await driver.read([server.node_id("T_spindle_degC")])
+        await driver.close()
+
+    with caplog.at_level(logging.INFO), structlog.testing.capture_logs() as events:
+        asyncio.run(scenario())
+    assert [r.getMessage() for r in caplog.records if r.name.startswith("asyncua")] == []
+    assert all(e["log_level"] == "debug" for e in events)
