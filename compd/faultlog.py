@@ -14,10 +14,15 @@ from typing import Any
 
 
 class FaultLog:
-    """The log lines of one kind of fault; ``context`` is added to each (e.g. ``driver="plc"``)."""
+    """The log lines of one kind of fault; ``context`` is added to each (e.g. ``driver="plc"``).
 
-    def __init__(self, logger: Any, **context: Any) -> None:
+    ``level`` is the level of an episode's first line: ``error``, or
+    ``warning`` for a fault the caller still tolerates (a missed reply).
+    """
+
+    def __init__(self, logger: Any, *, level: str = "error", **context: Any) -> None:
         self._log = logger
+        self._start = getattr(logger, level)
         self._context = context
         #: A fault episode is under way: it failed and has not cleared since.
         self.active = False
@@ -25,13 +30,13 @@ class FaultLog:
         self.episodes = 0
 
     def failed(self, event: str, **details: Any) -> None:
-        """A failure: ERROR ``event`` if it starts an episode, else DEBUG ``event`` + " again"."""
+        """A failure: ERROR (``level``) ``event`` if it starts an episode, else DEBUG ``event`` + " again"."""
         if self.active:
             self._log.debug(f"{event} again", **self._context, **details)
             return
         self.active = True
         self.episodes += 1
-        self._log.error(event, **self._context, **details)
+        self._start(event, **self._context, **details)
 
     def cleared(self, event: str, **details: Any) -> None:
         """A success: INFO ``event`` if it ends an episode, nothing otherwise."""
