@@ -31,20 +31,23 @@ import asyncio
 import os
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Literal
 
 import structlog
 from asyncua import ua
 from asyncua.client.client import Client
 from asyncua.common.node import Node
-from asyncua.crypto import security_policies
 from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.status_codes import StatusCodes
 from asyncua.ua.uaerrors import UaError, UaStatusCodeError, UaStringParsingError
 from compd.drivers.library_logs import quiet_library
-from compd.drivers.opcua_security import REFUSALS, certificate_der, certificate_uri
+from compd.drivers.opcua_security import (
+    REFUSALS,
+    certificate_der,
+    certificate_uri,
+    check_endpoints,
+)
+from compd.drivers.opcua_settings import POLICIES, OpcUaSecurity, OpcUaSettings
 from compd.drivers.opcua_values import NUMERIC_TYPES, to_float, to_variant, variant_type
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from compd.errors import (
     DriverDisconnectedError,
@@ -69,76 +72,6 @@ _GONE = {
     StatusCodes.BadShutdown,
     StatusCodes.BadCommunicationError,
 }
-
-
-#: Security policies offered in ``security.policy``, by their OPC UA names.
-POLICIES: dict[str, type[security_policies.SecurityPolicy]] = {
-    "Basic256Sha256": security_policies.SecurityPolicyBasic256Sha256,
-    "Aes256_Sha256_RsaPss": security_policies.SecurityPolicyAes256Sha256RsaPss,
-}
-#: The fix named when ``security`` is missing, or ``none`` with a password.
-_SECURITY_FIX = (
-    "give security.certificate, security.private_key and security.server_certificate "
-    "(mode SignAndEncrypt by default), or write 'security: none' for a server without "
-    "security, which cannot be combined with a password"
-)
-
-
-class OpcUaSecurity(BaseModel):
-    """``settings.security``: the secure channel and the client's own certificate."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    policy: Literal["Basic256Sha256", "Aes256_Sha256_RsaPss"] = "Basic256Sha256"
-    mode: Literal["SignAndEncrypt", "Sign"] = "SignAndEncrypt"
-    certificate: str = Field(min_length=1, description="client certificate, PEM or DER")
-    private_key: str = Field(min_length=1, description="client private key, PEM or DER")
-    server_certificate: str = Field(
-        min_length=1, description="the one server certificate trusted, PEM or DER"
-    )
-    application_uri: str | None = Field(
-        default=None, description="client application URI; default: the certificate's URI"
-    )
-
-
-class OpcUaSettings(BaseModel):
-    """``drivers.<name>.settings`` of a ``type: opcua`` driver."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    url: str = Field(pattern=r"^opc\.tcp://[^@/]+(/.*)?$", description="opc.tcp://host:port/path")
-    #: Required: a block, or ``none`` written out (stored as None).
-    security: OpcUaSecurity | None
-    username: str | None = None
-    password_file: str | None = Field(default=None, description="file holding the password")
-    password_env: str | None = Field(default=None, description="environment variable")
-    request_timeout_s: float = Field(default=2.0, gt=0, description="per OPC UA request")
-
-    @model_validator(mode="before")
-    @classmethod
-    def _security_is_explicit(cls, data: object) -> object:
-        """No security only when written out: ``security: none`` (an absent block is an error)."""
-        if not isinstance(data, dict):
-            return data
-        if data.get("security") is None:
-            raise ValueError(f"'security' is missing: {_SECURITY_FIX}")
-        if data["security"] == "none":
-            return {**data, "security": None}
-        return data
-
-    @model_validator(mode="after")
-    def _one_password_source(self) -> OpcUaSettings:
-        sources = [s for s in (self.password_file, self.password_env) if s]
-        if len(sources) > 1:
-            raise ValueError("give password_file or password_env, not both")
-        if sources and not self.username:
-            raise ValueError("a password needs a username")
-        if sources and self.security is None:
-            raise ValueError(
-                "'security: none' with a password would send the password in clear; "
-                + _SECURITY_FIX
-            )
-        return self
 
 
 def _node_id(address: str) -> ua.NodeId | None:
@@ -236,7 +169,7 @@ class OpcUaDriver:
         cannot decrypt our OpenSecureChannel and just drops it, which looks
         like a timeout (and the link's own timeout would cut any diagnosis
         made afterwards). Its endpoints, readable without security in one
-        short exchange, tell at once.
+        short exchange, tell at once (:func:`check_endpoints`).
         """
         trusted = certificate_der(self._path(security.server_certificate))
         probe = Client(self.settings.url, timeout=self.settings.request_timeout_s)
@@ -249,22 +182,8 @@ class OpcUaDriver:
             raise self._translate(exc, "connect (endpoints)") from exc
         finally:
             probe.disconnect_socket()
-        presented = {bytes(e.ServerCertificate) for e in endpoints if e.ServerCertificate}
-        if presented and not any(p.startswith(trusted) for p in presented):
-            raise DriverProtocolError(
-                f"OPC UA server {self.settings.url} presented a certificate that is not "
-                "security.server_certificate: server not trusted, refusing to connect "
-                "(if it is the right machine, put its certificate in security.server_certificate)"
-            )
-        uri, mode = POLICIES[security.policy].URI, getattr(ua.MessageSecurityMode, security.mode)
-        offered = {(e.SecurityPolicyUri, e.SecurityMode) for e in endpoints}
-        if (uri, mode) not in offered:
-            names = sorted(f"{u.rsplit('#', 1)[-1]}/{m.name}" for u, m in offered)
-            raise DriverProtocolError(
-                f"OPC UA server {self.settings.url} does not offer "
-                f"{security.policy}/{security.mode}; it offers {', '.join(names)}: "
-                "set security.policy and security.mode to one it offers"
-            )
+        mode = getattr(ua.MessageSecurityMode, security.mode)
+        check_endpoints(self.settings.url, endpoints, trusted, POLICIES[security.policy].URI, mode)
 
     def _path(self, name: str) -> Path:
         path = resolve_path(name, self._base_dir)
