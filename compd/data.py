@@ -20,6 +20,7 @@ parsed, and the grid's size before it is made (:mod:`compd.data_checks`).
 from __future__ import annotations
 
 import csv
+import itertools
 import math
 import os
 import re
@@ -45,6 +46,8 @@ PARQUET_SUFFIXES = (".parquet", ".pq")
 MAX_FILE_BYTES = 2**30
 """Largest data file read, 1 GiB: about 20 million rows of 5 signals at 1 Hz."""
 MAX_COLUMNS = 1000
+MAX_HEADER_CHARS = 1_000_000
+"""Longest header line: 1,000 names of up to 1,000 characters."""
 """Most columns (time included) in a data file: a machine logs tens of signals, not thousands."""
 SAMPLE_TIME_RANGE_S = (1e-6, 86_400.0)
 """The sample times a data file may have: from 1 us to one sample a day."""
@@ -156,7 +159,17 @@ def _check_file_size(path: str) -> None:
 def _read_csv(path: str) -> tuple[pd.DataFrame, checks.Rows]:
     try:
         with open(path, encoding="utf-8-sig", newline="") as handle:
-            header = [name.strip() for name in next(csv.reader(handle), [])]
+            # Bounded: a header of 10^8 short names would be a list of 10^8 strings.
+            first = handle.readline(MAX_HEADER_CHARS + 1)
+            if len(first) > MAX_HEADER_CHARS:
+                raise DataFileError(
+                    path,
+                    f"the header line is longer than {MAX_HEADER_CHARS:,} characters",
+                    where="line 1",
+                    fix=_HEADER_FIX,
+                )
+            lines = itertools.chain([first], handle)  # a quoted name may span lines
+            header = [name.strip() for name in next(csv.reader(lines), [])]
     except OSError as exc:
         raise DataFileError(path, f"cannot read the file ({exc.strerror})") from exc
     except UnicodeDecodeError as exc:

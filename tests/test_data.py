@@ -543,6 +543,12 @@ def test_too_many_columns_are_refused_from_the_header(tmp_path: Path) -> None:
     assert "line 1: the header names 100,001 columns, more than the limit of 1,000" in message
 
 
+def test_a_header_line_beyond_the_limit_is_refused_unsplit(tmp_path: Path) -> None:
+    """A header of 10^6 one-letter names (2 MB) is refused by its length before it is split."""
+    path = write(tmp_path, "time_s" + ",x" * 1_000_000 + "\n0,1\n")
+    assert "line 1: the header line is longer than 1,000,000 characters" in refusal(path)
+
+
 def test_a_file_beyond_the_size_limit_is_refused_unread(tmp_path: Path) -> None:
     """A data file of more than 1 GiB (sparse here) is refused by its size, with the fix."""
     path = write(tmp_path, "time_s,x\n0,1\n1,2\n")
