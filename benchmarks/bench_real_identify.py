@@ -153,7 +153,8 @@ def main() -> int:
         )
     fast = slowest < FIT_MAX_S
     print(
-        f"slowest 16-input lag-bank fit with its cross-validation: {slowest:.2f} s (target < {FIT_MAX_S:g} s): {verdict(fast)}"
+        f"slowest 16-input lag-bank fit with its cross-validation: {slowest:.2f} s "
+        f"(target < {FIT_MAX_S:g} s): {verdict(fast)}"
     )
     return 0 if ok and fast else 1
 

@@ -25,6 +25,7 @@ SCRIPTS = (
     "bench_tick.py",
     "bench_diagnose.py",
     "bench_residual.py",
+    "bench_report.py",
     "bench_modbus.py",
     "bench_gateway.py",
     "bench_opcua.py",

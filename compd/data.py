@@ -11,11 +11,16 @@ checked on silently patched data would be trusted for the wrong reasons.
 Parsing is vectorised (pandas' C parser, ``pd.to_numeric``), so a week at
 1 Hz (604,800 rows) loads in a second or two; bad cells are located by
 comparing arrays, never by looping over rows.
+
+The work is bounded by the input: a file larger than :data:`MAX_FILE_BYTES`
+or with more than :data:`MAX_COLUMNS` columns is refused before it is
+parsed, and the grid's size before it is made (:mod:`compd.data_checks`).
 """
 
 from __future__ import annotations
 
 import csv
+import itertools
 import math
 import os
 import re
@@ -38,9 +43,22 @@ GAP_TEXTS = ("", "NaN", "nan")
 
 PARQUET_SUFFIXES = (".parquet", ".pq")
 
+MAX_FILE_BYTES = 2**30
+"""Largest data file read, 1 GiB: about 20 million rows of 5 signals at 1 Hz."""
+MAX_COLUMNS = 1000
+MAX_HEADER_CHARS = 1_000_000
+"""Longest header line: 1,000 names of up to 1,000 characters."""
+"""Most columns (time included) in a data file: a machine logs tens of signals, not thousands."""
+SAMPLE_TIME_RANGE_S = (1e-6, 86_400.0)
+"""The sample times a data file may have: from 1 us to one sample a day."""
+MAX_ABS_VALUE = 1e15
+"""Largest magnitude of a logged value: no sensor logs more, and squares of larger
+values (in fits and RMS figures) overflow or lose every digit of the signal."""
+
 _OFFSET = r"(Z|[+-]\d{2}(?::?\d{2})?)\s*$"  # a UTC offset ending an ISO-8601 time of day
 _CELL_FIX = "Fix the cell or leave it empty to mark a gap"
 _TIME_FIX = "Every row needs a time: fill it in or delete the row"
+_HEADER_FIX = "Start with a header row of short names, e.g. time_s,T_spindle_degC"
 
 
 @dataclass(frozen=True, eq=False)  # eq=False: arrays have no single truth value
@@ -70,7 +88,7 @@ class DataSet:
         except KeyError:
             raise DataFileError(
                 self.path,
-                f"there is no column {name!r}",
+                f"there is no column {checks.quote(name)}",
                 fix=f"Use one of the file's columns: {', '.join(map(repr, self.columns))}",
             ) from None
 
@@ -97,12 +115,21 @@ def load_data(
             f"max_gap_s = {max_gap_s} is not a duration",
             fix="Give --max-gap-s (max_gap_s) as a number of seconds >= 0",
         )
+    _check_file_size(path_text)
     reader = _read_parquet if path_text.lower().endswith(PARQUET_SUFFIXES) else _read_csv
     frame, rows = reader(path_text)
     signals = [name for name in frame.columns if name != rows.time_name]
     time_s, start_time, notes = _times(frame, rows)
     values = np.vstack([_numbers(frame[name], rows) for name in signals])
     sample_time_s = checks.median_step_s(time_s)
+    low_s, high_s = SAMPLE_TIME_RANGE_S
+    if not low_s <= sample_time_s <= high_s:
+        raise rows.error(
+            f"column {checks.quote(rows.time_name)}",
+            f"the median time step is {checks.fmt_s(sample_time_s)} s, outside "
+            f"{low_s:g}-{high_s:g} s",
+            "Check the time column's unit: time_s is in seconds",
+        )
     grid, row_s, grid_notes = checks.to_grid(
         rows, time_s, values, sample_time_s, max_gap_s=max_gap_s, resample=resample
     )
@@ -115,15 +142,43 @@ def load_data(
     return DataSet(path_text, grid_s, sample_time_s, columns, start_time, tuple(notes))
 
 
+def _check_file_size(path: str) -> None:
+    """Refuse a file beyond :data:`MAX_FILE_BYTES` before reading it (a missing one fails later)."""
+    try:
+        size = os.stat(path).st_size
+    except OSError:
+        return
+    if size > MAX_FILE_BYTES:
+        raise DataFileError(
+            path,
+            f"the file has {size:,} bytes, more than the limit of {MAX_FILE_BYTES:,} (1 GiB)",
+            fix="Split it into shorter records (e.g. one file per day)",
+        )
+
+
 def _read_csv(path: str) -> tuple[pd.DataFrame, checks.Rows]:
     try:
         with open(path, encoding="utf-8-sig", newline="") as handle:
-            header = [name.strip() for name in next(csv.reader(handle), [])]
+            # Bounded: a header of 10^8 short names would be a list of 10^8 strings.
+            first = handle.readline(MAX_HEADER_CHARS + 1)
+            if len(first) > MAX_HEADER_CHARS:
+                raise DataFileError(
+                    path,
+                    f"the header line is longer than {MAX_HEADER_CHARS:,} characters",
+                    where="line 1",
+                    fix=_HEADER_FIX,
+                )
+            lines = itertools.chain([first], handle)  # a quoted name may span lines
+            header = [name.strip() for name in next(csv.reader(lines), [])]
     except OSError as exc:
         raise DataFileError(path, f"cannot read the file ({exc.strerror})") from exc
-    except (UnicodeDecodeError, csv.Error) as exc:
+    except UnicodeDecodeError as exc:
         raise DataFileError(
             path, f"is not a UTF-8 text CSV file ({exc})", fix="Export it as CSV in UTF-8"
+        ) from exc
+    except csv.Error as exc:  # e.g. a header cell longer than the csv module's field limit
+        raise DataFileError(
+            path, f"the header is not a CSV row ({exc})", where="line 1", fix=_HEADER_FIX
         ) from exc
     time_name = _check_header(path, header, "line 1")
     gap_texts = {name: [""] if name == time_name else list(GAP_TEXTS) for name in header}
@@ -191,7 +246,14 @@ def _read_parquet(path: str) -> tuple[pd.DataFrame, checks.Rows]:
 
 
 def _check_header(path: str, header: list[str], where: str) -> str:
-    """Refuse unnamed and repeated columns; return the name of the time column."""
+    """Refuse unnamed, repeated and too many columns; return the name of the time column."""
+    if len(header) > MAX_COLUMNS:
+        raise DataFileError(
+            path,
+            f"the header names {len(header):,} columns, more than the limit of {MAX_COLUMNS:,}",
+            where=where,
+            fix="Keep the time and the signals a model needs (a file per group of signals)",
+        )
     if not any(header):
         raise DataFileError(
             path,
@@ -211,7 +273,7 @@ def _check_header(path: str, header: list[str], where: str) -> str:
         if first != i:
             raise DataFileError(
                 path,
-                f"column {name!r} appears twice (columns {first + 1} and {i + 1})",
+                f"column {checks.quote(name)} appears twice (columns {first + 1} and {i + 1})",
                 where=where,
                 fix="Rename or remove one of them: every column needs a unique name",
             )
@@ -220,7 +282,8 @@ def _check_header(path: str, header: list[str], where: str) -> str:
         raise DataFileError(
             path,
             f"no time column: expected one named {' or '.join(map(repr, TIME_NAMES))}; "
-            f"the file has {header}",
+            f"the file has [{', '.join(map(checks.quote, header[:10]))}"
+            + (f", and {len(header) - 10} more]" if len(header) > 10 else "]"),
             where=where,
             fix=f"Name the time column {TIME_SECONDS!r} (seconds) or one of "
             f"{', '.join(map(repr, TIMESTAMP_NAMES))} (ISO-8601 timestamps)",
@@ -273,10 +336,20 @@ def _times(frame: pd.DataFrame, rows: checks.Rows) -> tuple[np.ndarray, datetime
         bad = ~np.isfinite(seconds)
         if bad.any():
             i = int(np.argmax(bad))
-            cell = str(cells.iloc[i])
-            raise rows.error(rows.where(i, name), f"{cell!r} is not a time in seconds", _TIME_FIX)
+            cell = checks.quote(cells.iloc[i])
+            raise rows.error(rows.where(i, name), f"{cell} is not a time in seconds", _TIME_FIX)
         start_time = None
-        time_s = seconds - seconds[0]
+        with np.errstate(over="ignore"):
+            time_s = seconds - seconds[0]
+        far = ~np.isfinite(time_s)
+        if far.any():
+            i = int(np.argmax(far))
+            raise rows.error(
+                rows.where(i, name),
+                f"time {rows.label(i)} is too far from the first time {rows.label(0)} "
+                "(the difference is beyond the range of a float)",
+                "Give times in seconds from a nearby origin",
+            )
     else:
         stamps, start_time, notes = _timestamps(rows, cells)
         time_s = (stamps - stamps.iloc[0]).dt.total_seconds().to_numpy(dtype=float)
@@ -303,8 +376,8 @@ def _timestamps(rows: checks.Rows, cells: pd.Series) -> tuple[pd.Series, datetim
         i = int(np.argmax(aware != aware[0]))
         raise rows.error(
             rows.where(i, name),
-            f"timestamp {text.iloc[i]!r} {'has' if aware[i] else 'has no'} "
-            f"UTC offset, unlike {text.iloc[0]!r} on {rows.where(0)}: mixed time zones",
+            f"timestamp {checks.quote(text.iloc[i])} {'has' if aware[i] else 'has no'} "
+            f"UTC offset, unlike {checks.quote(text.iloc[0])} on {rows.where(0)}: mixed time zones",
             "Write every timestamp with its UTC offset (e.g. +01:00), or none",
         )
     stamps = pd.to_datetime(text, format="ISO8601", utc=bool(aware[0]), errors="coerce")
@@ -317,7 +390,9 @@ def _timestamps(rows: checks.Rows, cells: pd.Series) -> tuple[pd.Series, datetim
             if seconds
             else "Write times as ISO-8601, e.g. 2024-03-05T14:30:00 or 2024-03-05T14:30:00+01:00"
         )
-        raise rows.error(rows.where(i, name), f"{text.iloc[i]!r} is not an ISO-8601 timestamp", fix)
+        raise rows.error(
+            rows.where(i, name), f"{checks.quote(text.iloc[i])} is not an ISO-8601 timestamp", fix
+        )
     notes = []
     distinct = sorted({_utc_offset(o) for o in offsets.dropna().unique()})
     if len(distinct) > 1:
@@ -350,16 +425,23 @@ def _as_float(cells: pd.Series) -> np.ndarray:
 def _numbers(cells: pd.Series, rows: checks.Rows) -> np.ndarray:
     """A signal column as float64 with NaN for gaps; a bad or infinite cell is refused."""
     values = _as_float(cells)
+    huge = np.abs(values) > MAX_ABS_VALUE  # inf included; NaN compares False
     if _is_number_dtype(cells):  # the parser already turned the gap texts into NaN
-        bad = np.isinf(values)
+        bad = huge
     else:  # NaN is a gap only if the text says so (not for '1,5' or 'NA')
         gap = (cells.isna() | cells.astype(str).str.strip().isin(GAP_TEXTS)).to_numpy()
-        bad = ~np.isfinite(values) & ~gap
+        bad = (np.isnan(values) | huge) & ~gap
         values = np.where(gap, np.nan, values)
     if bad.any():
         i = int(np.argmax(bad))
         more = f" ({bad.sum() - 1} more bad cells in this column)" if bad.sum() > 1 else ""
-        what = "not a finite number" if np.isinf(values[i]) else "not a number"
-        cell = str(cells.iloc[i]).strip()
-        raise rows.error(rows.where(i, str(cells.name)), f"{cell!r} is {what}{more}", _CELL_FIX)
+        what = (
+            "not a finite number"
+            if np.isinf(values[i])
+            else f"beyond +-{MAX_ABS_VALUE:g}"
+            if huge[i]
+            else "not a number"
+        )
+        cell = checks.quote(str(cells.iloc[i]).strip())
+        raise rows.error(rows.where(i, str(cells.name)), f"{cell} is {what}{more}", _CELL_FIX)
     return values

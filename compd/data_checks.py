@@ -5,6 +5,11 @@ signals laid out as ``(n_columns, n_rows)``; this module puts them on the grid
 ``t_k = k * Ts`` and applies the gap rule, turning every refusal into a
 message that names the file, the lines and the column (:class:`Rows` knows
 where each row came from). The numerics are plain numpy functions.
+
+The grid is sized before it is made: a few rows can imply billions of samples
+(a 1e-9 s step and a 2 s span), so the implied sample count and the values it
+would hold are checked against :data:`MAX_SAMPLES` and :data:`MAX_VALUES`
+first, and every message quotes file text cut to :data:`QUOTE_CHARS`.
 """
 
 from __future__ import annotations
@@ -23,6 +28,21 @@ MAX_GAP_NOTES_PER_COLUMN = 5  # beyond this, a column's gaps are summarised in o
 
 _REL_TOL = 1e-9  # float noise in comparisons of times against limits
 
+MAX_SAMPLES = 20_000_000
+"""Samples on the grid, at most: 231 days at 1 Hz, 23 days at 10 Hz."""
+MAX_VALUES = 200_000_000
+"""Samples times signal columns on the grid, at most: 1.6 GB of float64."""
+QUOTE_CHARS = 40
+"""Longest file text (a cell, a column name, a time) quoted whole in a message."""
+
+
+def quote(text: object) -> str:
+    """``repr`` of file text for a message, cut to :data:`QUOTE_CHARS` characters (a 5 MB cell is not echoed)."""
+    text = str(text)
+    if len(text) <= QUOTE_CHARS:
+        return repr(text)
+    return f"{text[:QUOTE_CHARS]!r}... ({len(text):,} characters)"
+
 
 @dataclass(frozen=True)
 class Rows:
@@ -36,7 +56,7 @@ class Rows:
 
     def where(self, i: int, column: str | None = None) -> str:
         place = f"{self.unit} {self.places[i]}"
-        return f"{place}, column {column!r}" if column else place
+        return f"{place}, column {quote(column)}" if column else place
 
     def span(self, rows: slice) -> str:
         """The lines of ``rows`` (``lines 9-14``), or the two around an empty range."""
@@ -49,8 +69,10 @@ class Rows:
 
     def label(self, i: int) -> str:
         """Row ``i``'s time as written (with its unit for ``time_s``)."""
-        cell = self.time_cells.iloc[i]
-        return f"{cell} s" if self.time_name == "time_s" else str(cell)
+        cell = str(self.time_cells.iloc[i])
+        if len(cell) > QUOTE_CHARS:
+            cell = quote(cell)
+        return f"{cell} s" if self.time_name == "time_s" else cell
 
     def error(self, where: str, message: str, fix: str = "") -> DataFileError:
         return DataFileError(self.path, message, where=where, fix=fix)
@@ -83,6 +105,7 @@ def to_grid(
     grid point as the row before) makes the sampling irregular: refused, or
     with ``resample`` every column is interpolated onto the grid.
     """
+    _check_grid_size(rows, time_s, sample_time_s, values.shape[0])
     k = np.rint(time_s / sample_time_s).astype(np.int64)
     off = np.abs(time_s - k * sample_time_s) > JITTER_FRACTION * sample_time_s * (1 + _REL_TOL)
     off[1:] |= np.diff(k) == 0
@@ -123,6 +146,30 @@ def to_grid(
         f"{sample_time_s:g} s grid ({grid.shape[1]} samples)"
     )
     return grid, time_s, [note]
+
+
+def _check_grid_size(rows: Rows, time_s: np.ndarray, sample_time_s: float, n_columns: int) -> None:
+    """Refuse a grid of more than :data:`MAX_SAMPLES` samples or :data:`MAX_VALUES` values before making it."""
+    samples = float(time_s[-1]) / sample_time_s + 1.0  # a float: it may be far beyond int64
+    if samples <= MAX_SAMPLES and samples * n_columns <= MAX_VALUES:
+        return
+    limit = (
+        f"more than the limit of {MAX_SAMPLES:,} samples"
+        if samples > MAX_SAMPLES
+        else f"{_count(samples * n_columns)} values with {n_columns} columns, more than the limit "
+        f"of {MAX_VALUES:,}"
+    )
+    raise rows.error(
+        rows.where(len(time_s) - 1, rows.time_name),
+        f"{fmt_s(time_s[-1])} s of data at a sample time of {fmt_s(sample_time_s)} s "
+        f"(the median step) make {_count(samples)} samples on a uniform grid: {limit}",
+        "Check the time column's unit (seconds), or split the file into shorter records",
+    )
+
+
+def _count(n: float) -> str:
+    """A count for messages: ``2,000,000,001``, or ``1e+308`` when digits would not help."""
+    return f"{n:,.0f}" if n < 1e15 else f"{n:.3g}"
 
 
 def resample_linear(time_s: np.ndarray, values: np.ndarray, sample_time_s: float) -> np.ndarray:
@@ -166,7 +213,9 @@ def fill_gaps(
             continue
         if missing.all():
             raise rows.error(
-                f"column {name!r}", "the column has no values", "Fill it in, or delete the column"
+                f"column {quote(name)}",
+                "the column has no values",
+                "Fill it in, or delete the column",
             )
         starts, ends = gap_runs(missing)
         lengths = ends - starts
@@ -232,8 +281,15 @@ def interpolate_gaps(values: np.ndarray) -> np.ndarray:
 
 
 def fmt_s(seconds: float) -> str:
-    """Seconds for messages: ``150``, ``0.3``, never ``0.30000000000000004`` or ``1.5e+05``."""
-    return np.format_float_positional(round(float(seconds), 6), trim="-")
+    """Seconds for messages: ``150``, ``0.3``, ``1e-09``, ``1e+308``; never ``0.30000000000000004``.
+
+    Positional up to 10^9 s (``1.5e+05`` reads worse than ``150000``), powers of
+    ten beyond and below 1 us, so a time of 1e308 s is not 309 digits long.
+    """
+    value = float(seconds)
+    if value != 0 and not 1e-6 <= abs(value) < 1e9:
+        return f"{value:.6g}"
+    return np.format_float_positional(round(value, 6), trim="-")
 
 
 def _longer_than(duration_s: np.ndarray, limit_s: float) -> np.ndarray:
@@ -255,7 +311,7 @@ def _gap_error(
     low = int(np.searchsorted(row_s, (start - 1) * sample_time_s, side="right"))
     high = int(np.searchsorted(row_s, end * sample_time_s, side="left"))
     return rows.error(
-        f"{rows.span(slice(low, high))}, column {name!r}",
+        f"{rows.span(slice(low, high))}, column {quote(name)}",
         f"a gap of {_samples(start, end, sample_time_s)} {what}",
         fix,
     )

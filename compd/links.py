@@ -4,7 +4,11 @@ A link runs reads and writes under a timeout and never raises into the loop:
 a failed read returns no values, a failed write returns ``False``, and the
 link goes down. While down, it reconnects in the background with
 exponential backoff while the loop goes on. The first failure of an episode
-logs ERROR, repeats log DEBUG, the recovery logs INFO.
+logs ERROR, repeats log DEBUG, the recovery logs INFO
+(:class:`compd.faultlog.FaultLog`). A reconnect is not yet a recovery: the
+episode ends with the first read or write that succeeds after it, so a peer
+that accepts connections but never answers is one fault, not one per
+reconnect, and its reconnects keep backing off.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import structlog
 from compd.clock import Clock
 from compd.drivers.base import Driver
 from compd.errors import DriverError
+from compd.faultlog import FaultLog
 
 log = structlog.get_logger("compd.links")
 
@@ -45,12 +50,17 @@ class DriverLink:
         self.backoff_min_s = backoff_min_s
         self.backoff_max_s = backoff_max_s
         self.up = False
-        self.failures = 0  # consecutive
-        self.faults = 0  # fault episodes (up -> down)
+        self.failures = 0  # consecutive, until a read or write succeeds
         self.reconnects = 0
+        self._fault = FaultLog(log, driver=name)
         self.next_attempt_s = -math.inf
         self._connecting: asyncio.Task[None] | None = None
         self._ever_up = False
+
+    @property
+    def faults(self) -> int:
+        """Fault episodes so far: from a first failure to the next successful read or write."""
+        return self._fault.episodes
 
     @property
     def connecting(self) -> bool:
@@ -80,12 +90,12 @@ class DriverLink:
             return
         if self._ever_up:
             self.reconnects += 1
-        log.info(
-            "driver connected" if not self._ever_up else "driver reconnected",
-            driver=self.name,
-            after_failures=self.failures,
-        )
-        self.up, self.failures, self._ever_up = True, 0, True
+        self.up = True
+        if self._fault.active:  # recovered only once a read or write succeeds
+            log.debug("driver connection reopened", driver=self.name, after_failures=self.failures)
+        else:
+            log.info("driver connected", driver=self.name)
+            self._ever_up = True
 
     async def read(self, points: Sequence[str]) -> dict[str, float]:
         """Values by address; empty when the link is down or the read failed (never raises)."""
@@ -95,10 +105,11 @@ class DriverLink:
         try:
             async with asyncio.timeout(self.timeout_s):
                 values: dict[str, float] = await self.driver.read(points)
-                return values
         except (DriverError, TimeoutError, OSError) as exc:
             self._failed("read", exc)
             return {}
+        self._succeeded()
+        return values
 
     async def write(self, values: Mapping[str, float]) -> bool:
         """Write; ``False`` when the link is down or the write failed (never raises)."""
@@ -111,6 +122,7 @@ class DriverLink:
         except (DriverError, TimeoutError, OSError) as exc:
             self._failed("write", exc)
             return False
+        self._succeeded()
         return True
 
     async def close(self) -> None:
@@ -123,12 +135,14 @@ class DriverLink:
             log.debug("driver close failed", driver=self.name, error=repr(exc))
         self.up = False
 
+    def _succeeded(self) -> None:
+        if self._fault.active:
+            event = "driver reconnected" if self._ever_up else "driver connected"
+            self._fault.cleared(event, after_failures=self.failures)
+            self.failures, self._ever_up = 0, True
+
     def _failed(self, action: str, exc: BaseException) -> None:
-        if self.up or (self.failures == 0 and not self._ever_up):
-            self.faults += 1
-            log.error(f"driver {action} failed", driver=self.name, error=_text(exc))
-        else:
-            log.debug(f"driver {action} failed again", driver=self.name, error=_text(exc))
+        self._fault.failed(f"driver {action} failed", error=_text(exc))
         self.up = False
         self.failures += 1
         backoff_s = min(self.backoff_max_s, self.backoff_min_s * 2 ** (self.failures - 1))

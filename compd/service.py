@@ -34,6 +34,7 @@ from compd.config import Config, check_model
 from compd.control import ControlServer
 from compd.drivers.base import Driver, driver_types
 from compd.errors import CompdError, RecorderError
+from compd.faultlog import FaultLog
 from compd.links import DriverLink
 from compd.loop import (
     AxisPoint,
@@ -225,7 +226,8 @@ class Service:
             if config.recorder_dir is not None
             else None
         )
-        self._recorder_failing = False
+        self._recorder_fault = FaultLog(log)
+        self._save_fault = FaultLog(log)  # saves fail every save_every_ticks: log once
         self._saving: asyncio.Future[None] | None = None
 
     async def run(self, *, duration_s: float | None = None) -> TickTiming:
@@ -292,10 +294,13 @@ class Service:
             self._saving = asyncio.ensure_future(asyncio.to_thread(self._write_state, saved))
 
     def _write_state(self, saved: SavedState) -> None:
+        directory = str(self.config.state_dir)
         try:
             save_state(self.config.state_dir, saved)
         except OSError as exc:
-            log.error("cannot save state", error=str(exc), directory=str(self.config.state_dir))
+            self._save_fault.failed("cannot save state", error=str(exc), directory=directory)
+        else:
+            self._save_fault.cleared("state saved again", directory=directory)
 
     async def _tick(self, t_s: float) -> None:
         started_s = self.clock.now()
@@ -332,13 +337,9 @@ class Service:
         try:
             self.recorder.record(row, at_s=record.wall_unix_s)
         except RecorderError as exc:
-            if not self._recorder_failing:
-                log.error("recorder failed", error=str(exc))
-            self._recorder_failing = True
+            self._recorder_fault.failed("recorder failed", error=str(exc))
         else:
-            if self._recorder_failing:
-                log.info("recorder works again")
-            self._recorder_failing = False
+            self._recorder_fault.cleared("recorder works again")
 
     async def _shutdown(self) -> None:
         self.notifier.stopping("saving state")

@@ -6,6 +6,7 @@ and anything else that quotes compare's figures cannot drift apart.
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -15,8 +16,26 @@ from compd.model.metrics import Comparison
 
 
 def json_clean(value: object) -> object:
-    """NaN becomes ``null`` (JSON has no NaN; scripts read undefined values as null)."""
-    return None if isinstance(value, float) and math.isnan(value) else value
+    """NaN and +-inf become ``null`` (JSON has neither; scripts read undefined values as null).
+
+    Infinite figures come from data near the float range (values of 1e300
+    overflow in a model's output): the figure is undefined, not an error.
+    """
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def json_finite(value: object) -> object:
+    """``value`` with :func:`json_clean` applied to every float at any depth of dicts and lists."""
+    if isinstance(value, dict):
+        return {k: json_finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_finite(v) for v in value]
+    return json_clean(value)
+
+
+def json_text(value: object) -> str:
+    """The text every ``--json`` option prints: indented, strict JSON, non-finite numbers null."""
+    return json.dumps(json_finite(value), indent=2, allow_nan=False)
 
 
 def compare_json(evaluation: Evaluation, comparisons: list[Comparison]) -> dict[str, object]:

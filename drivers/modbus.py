@@ -42,6 +42,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any, Literal, cast
 
+from compd.drivers.library_logs import quiet_library
 from compd.drivers.points import ORDERS, POINT_TYPES, Order, PointCodec, PointType
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
@@ -53,6 +54,8 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
+
+quiet_library("pymodbus")  # its per-attempt errors and hex dumps: see compd.drivers.library_logs
 
 Table = Literal["holding", "input", "coil", "discrete"]
 TABLES: tuple[str, ...] = ("holding", "input", "coil", "discrete")

@@ -12,12 +12,17 @@ Values are typed by the server (:mod:`compd.drivers.opcua_values`): reads
 give floats, writes go out with each node's own variant type, integers
 range-checked and never wrapped.
 
-Security follows the settings: ``Basic256Sha256`` with ``SignAndEncrypt``
-(or ``Sign``), the client's application certificate and key, the server
-certificate the client trusts (any other server certificate is refused),
-and a username whose password comes from a file or an environment variable.
-Secrets are never logged or put into error messages
-(:mod:`compd.drivers.opcua_security`).
+Security follows the settings and is on unless switched off in words:
+``security`` is required, its mode defaults to ``SignAndEncrypt`` (or
+``Sign``) with ``Basic256Sha256`` (or ``Aes256_Sha256_RsaPss``), the client's
+application certificate and key, and the server certificate the client
+trusts. ``security: none`` must be written out, and is refused with a
+password (it would cross the wire in clear). Before each secured connect
+the server's endpoints (readable without security) are checked: a server
+presenting another certificate is refused at once as "not trusted", where
+the secured handshake alone would only time out. A username's password
+comes from a file or an environment variable; secrets are never logged or
+put into error messages (:mod:`compd.drivers.opcua_security`).
 """
 
 from __future__ import annotations
@@ -26,19 +31,23 @@ import asyncio
 import os
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Literal
 
 import structlog
 from asyncua import ua
 from asyncua.client.client import Client
 from asyncua.common.node import Node
-from asyncua.crypto import security_policies
 from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.status_codes import StatusCodes
 from asyncua.ua.uaerrors import UaError, UaStatusCodeError, UaStringParsingError
-from compd.drivers.opcua_security import REFUSALS, certificate_der, certificate_uri
+from compd.drivers.library_logs import quiet_library
+from compd.drivers.opcua_security import (
+    REFUSALS,
+    certificate_der,
+    certificate_uri,
+    check_endpoints,
+)
+from compd.drivers.opcua_settings import POLICIES, OpcUaSecurity, OpcUaSettings
 from compd.drivers.opcua_values import NUMERIC_TYPES, to_float, to_variant, variant_type
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from compd.errors import (
     DriverDisconnectedError,
@@ -49,6 +58,7 @@ from compd.errors import (
 from compd.yamlplace import resolve_path
 
 log = structlog.get_logger("compd.drivers.opcua")
+quiet_library("asyncua")  # a line per read at INFO, per dropped session at WARNING
 
 
 #: Status codes that mean the session or channel is gone: reconnect.
@@ -62,45 +72,6 @@ _GONE = {
     StatusCodes.BadShutdown,
     StatusCodes.BadCommunicationError,
 }
-
-
-class OpcUaSecurity(BaseModel):
-    """``settings.security``: the secure channel and the client's own certificate."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    policy: Literal["Basic256Sha256"] = "Basic256Sha256"
-    mode: Literal["SignAndEncrypt", "Sign"] = "SignAndEncrypt"
-    certificate: str = Field(min_length=1, description="client certificate, PEM or DER")
-    private_key: str = Field(min_length=1, description="client private key, PEM or DER")
-    server_certificate: str = Field(
-        min_length=1, description="the one server certificate trusted, PEM or DER"
-    )
-    application_uri: str | None = Field(
-        default=None, description="client application URI; default: the certificate's URI"
-    )
-
-
-class OpcUaSettings(BaseModel):
-    """``drivers.<name>.settings`` of a ``type: opcua`` driver."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    url: str = Field(pattern=r"^opc\.tcp://[^@/]+(/.*)?$", description="opc.tcp://host:port/path")
-    security: OpcUaSecurity | None = None
-    username: str | None = None
-    password_file: str | None = Field(default=None, description="file holding the password")
-    password_env: str | None = Field(default=None, description="environment variable")
-    request_timeout_s: float = Field(default=2.0, gt=0, description="per OPC UA request")
-
-    @model_validator(mode="after")
-    def _one_password_source(self) -> OpcUaSettings:
-        sources = [s for s in (self.password_file, self.password_env) if s]
-        if len(sources) > 1:
-            raise ValueError("give password_file or password_env, not both")
-        if sources and not self.username:
-            raise ValueError("a password needs a username")
-        return self
 
 
 def _node_id(address: str) -> ua.NodeId | None:
@@ -150,6 +121,8 @@ class OpcUaDriver:
     async def open(self) -> None:
         async with self._lock:
             await self._drop_client()
+            if self.settings.security is not None:
+                await self._check_server_endpoint(self.settings.security)
             client = Client(self.settings.url, timeout=self.settings.request_timeout_s)
             try:
                 await self._configure(client)
@@ -159,10 +132,7 @@ class OpcUaDriver:
                 raise
             except Exception as exc:
                 await _disconnect_quietly(client)
-                error = self._translate(exc, "connect")
-                if isinstance(error, DriverTimeoutError | DriverDisconnectedError):
-                    error = await self._diagnose_server_certificate() or error
-                raise error from exc
+                raise self._translate(exc, "connect") from exc
             self._client = client
             log.debug("opcua connected", url=self.settings.url)
 
@@ -182,7 +152,7 @@ class OpcUaDriver:
             cert_path = self._path(security.certificate)
             client.application_uri = security.application_uri or certificate_uri(cert_path)
             await client.set_security(
-                security_policies.SecurityPolicyBasic256Sha256,
+                POLICIES[security.policy],
                 certificate=str(cert_path),
                 private_key=str(self._path(security.private_key)),
                 server_certificate=str(self._path(security.server_certificate)),
@@ -192,32 +162,28 @@ class OpcUaDriver:
             client.set_user(self.settings.username)
             client.set_password(self._password())
 
-    async def _diagnose_server_certificate(self) -> DriverError | None:
-        """Why a secured connect got no answer: the server's certificate is not the trusted one?
+    async def _check_server_endpoint(self, security: OpcUaSecurity) -> None:
+        """Refuse a server that is not the trusted one, or lacks our policy, before the handshake.
 
         A server whose certificate differs from ``security.server_certificate``
         cannot decrypt our OpenSecureChannel and just drops it, which looks
-        like a timeout. Its endpoints (readable without security) tell.
+        like a timeout (and the link's own timeout would cut any diagnosis
+        made afterwards). Its endpoints, readable without security in one
+        short exchange, tell at once (:func:`check_endpoints`).
         """
-        if self.settings.security is None:
-            return None
-        trusted = certificate_der(self._path(self.settings.security.server_certificate))
+        trusted = certificate_der(self._path(security.server_certificate))
         probe = Client(self.settings.url, timeout=self.settings.request_timeout_s)
         try:
-            async with asyncio.timeout(2 * self.settings.request_timeout_s):
+            async with asyncio.timeout(self.settings.request_timeout_s):
                 endpoints = await probe.connect_and_get_server_endpoints()
-        except Exception as exc:  # the server is really unreachable: keep the first error
-            log.debug("opcua endpoint probe failed", error=type(exc).__name__)
-            return None
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            raise self._translate(exc, "connect (endpoints)") from exc
         finally:
             probe.disconnect_socket()
-        presented = {bytes(e.ServerCertificate) for e in endpoints if e.ServerCertificate}
-        if presented and not any(p.startswith(trusted) for p in presented):
-            return DriverProtocolError(
-                f"OPC UA server {self.settings.url} presented a certificate that is not "
-                "security.server_certificate: server not trusted, refusing to connect"
-            )
-        return None
+        mode = getattr(ua.MessageSecurityMode, security.mode)
+        check_endpoints(self.settings.url, endpoints, trusted, POLICIES[security.policy].URI, mode)
 
     def _path(self, name: str) -> Path:
         path = resolve_path(name, self._base_dir)

@@ -14,11 +14,12 @@ import logging
 import re
 from pathlib import Path
 
+from asyncua import ua
 from asyncua.ua.status_codes import StatusCodes
 from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 
-from compd.errors import DriverError
+from compd.errors import DriverError, DriverProtocolError
 
 
 class _RedactPasswords(logging.Filter):
@@ -90,3 +91,35 @@ def certificate_uri(path: Path) -> str:
             f"OPC UA client certificate {path} has no URI; set security.application_uri"
         )
     return str(uris[0])
+
+
+def check_endpoints(
+    url: str,
+    endpoints: list[ua.EndpointDescription],
+    trusted_der: bytes,
+    policy_uri: str,
+    mode: ua.MessageSecurityMode,
+) -> None:
+    """Refuse a server whose endpoints present another certificate, or lack the policy and mode.
+
+    ``ServerCertificate`` may hold a chain, the server's own certificate first.
+    """
+    presented = {bytes(e.ServerCertificate) for e in endpoints if e.ServerCertificate}
+    if presented and not any(p.startswith(trusted_der) for p in presented):
+        raise DriverProtocolError(
+            f"OPC UA server {url} presented a certificate that is not "
+            "security.server_certificate: server not trusted, refusing to connect "
+            "(if it is the right machine, put its certificate in security.server_certificate)"
+        )
+    offered = {(e.SecurityPolicyUri, e.SecurityMode) for e in endpoints}
+    if (policy_uri, mode) not in offered:
+        names = sorted(f"{_policy_name(u)}/{m.name}" for u, m in offered)
+        raise DriverProtocolError(
+            f"OPC UA server {url} does not offer {_policy_name(policy_uri)}/{mode.name}; "
+            f"it offers {', '.join(names)}: set security.policy and security.mode to one it offers"
+        )
+
+
+def _policy_name(uri: str) -> str:
+    """``Basic256Sha256`` for ``http://opcfoundation.org/UA/SecurityPolicy#Basic256Sha256``."""
+    return uri.rsplit("#", 1)[-1]

@@ -66,6 +66,7 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
+from compd.faultlog import FaultLog
 
 __all__ = ["SerialSensorDriver", "SerialSensorSettings"]
 
@@ -150,6 +151,8 @@ class SerialSensorDriver:
         self._fresh: dict[str, float] = {}
         self._poll_error: DriverError | None = None
         self._missed = 0  # replies missed in a row
+        #: Missed replies are a fault episode until a reply comes: one WARNING, not one per miss.
+        self._misses = FaultLog(log, level="warning", port=settings.port)
         #: Why each channel's last value was left out (out of range), until it recovers.
         self.rejected: dict[str, str] = {}
         #: Number of successful ``open`` calls.
@@ -213,9 +216,10 @@ class SerialSensorDriver:
             if self._missed >= self.settings.max_missed_replies:
                 self._missed = 0
                 raise
-            log.warning("missed reply", port=self.settings.port, in_a_row=self._missed)
+            self._misses.failed("missed reply", in_a_row=self._missed)
             return {}
         self._missed = 0
+        self._misses.cleared("replies again")
         return raw
 
     address_syntax = "as a channel of a signal; put outputs and status on a writable driver"

@@ -245,3 +245,34 @@ def test_compare_without_calibration_record_says_which_tolerance_it_used(
     z = report["outputs"]["disp_z_um"]
     assert z["window_tolerance_um"] == pytest.approx(2 * z["rms_um"])
     assert any("no calibration residue RMS" in note for note in report["notes"])
+
+
+@pytest.mark.parametrize(
+    ("column", "value", "expected"),
+    [
+        ("T_spindle_degC", 1e300, "line 7, column 'T_spindle_degC': '1e+300' is beyond +-1e+15"),
+        ("time_s", 1e308, "line 2881, column 'time_s': 1e+308 s of data"),
+    ],
+    ids=["value_1e300", "time_1e308"],
+)
+def test_json_commands_on_values_near_the_float_range_exit_2_naming_the_cell(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], column: str, value: float, expected: str
+) -> None:
+    """compare and diagnose --json on a cell of 1e300 or a time of 1e308 exit 2 with the place, no traceback."""
+    data = pd.read_csv(DATA)
+    data.loc[5 if column != "time_s" else len(data) - 1, column] = value
+    data.to_csv(tmp_path / "d.csv", index=False)
+    for command in ("compare", "diagnose"):
+        code, out, err = run(capsys, command, SEED000, tmp_path / "d.csv", "--json")
+        assert code == 2 and out == ""
+        assert expected in err and "Traceback" not in err
+
+
+def test_json_output_writes_non_finite_figures_as_null() -> None:
+    """Every --json object prints NaN and +-inf, at any depth, as null: strict JSON a script can parse."""
+    from compd.summary import json_text
+
+    text = json_text(
+        {"fit_percent": float("-inf"), "rms": [1.5, float("nan")], "n": {"x": 1e308 * 10}}
+    )
+    assert json.loads(text) == {"fit_percent": None, "rms": [1.5, None], "n": {"x": None}}

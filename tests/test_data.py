@@ -509,3 +509,83 @@ def test_interpolated_values_lie_between_their_neighbours_and_others_are_unchang
         after = min(j for j in range(i + 1, n) if not gaps[j])
         low, high = sorted((values[before], values[after]))
         assert low - 1e-9 <= y[i] <= high + 1e-9
+
+
+# --- bounded work on any input (issue 14, item 8) ----------------------------------------------
+
+
+def test_a_nanosecond_step_is_refused_before_any_grid_is_made(tmp_path: Path) -> None:
+    """A 59-byte file of 1e-9 s steps (a 15 GiB grid once) is refused for its sample time, naming the column."""
+    path = write(tmp_path, "time_s,x\n0,1\n1e-9,2\n2e-9,3\n3e-9,4\n4e-9,5\n5e-9,4\n6e-9,3\n2,4\n")
+    message = refusal(path)
+    assert "column 'time_s': the median time step is 1e-09 s, outside 1e-06-86400 s" in message
+
+
+@pytest.mark.parametrize("resample", [False, True], ids=["on_grid", "resampled"])
+def test_a_grid_beyond_the_sample_limit_is_refused_before_it_is_made(
+    tmp_path: Path, resample: bool
+) -> None:
+    """Six rows implying 50 million samples (1 us steps over 50 s) are refused naming the last line."""
+    rows = "".join(f"{k}e-6,{k}\n" for k in range(5)) + "50,5\n"
+    path = write(tmp_path, "time_s,x\n" + rows + ("50.0000015,6\n" if resample else ""))
+    message = refusal(path, resample=resample)
+    assert "column 'time_s': 50" in message
+    assert "samples on a uniform grid: more than the limit of 20,000,000 samples" in message
+
+
+def test_too_many_columns_are_refused_from_the_header(tmp_path: Path) -> None:
+    """A header of 100,001 columns is refused on line 1 before the rows are parsed."""
+    names = ",".join(f"c{i}" for i in range(100_000))
+    path = write(
+        tmp_path, f"time_s,{names}\n" + "".join(f"{t}{',1' * 100_000}\n" for t in range(3))
+    )
+    message = refusal(path)
+    assert "line 1: the header names 100,001 columns, more than the limit of 1,000" in message
+
+
+def test_a_header_line_beyond_the_limit_is_refused_unsplit(tmp_path: Path) -> None:
+    """A header of 10^6 one-letter names (2 MB) is refused by its length before it is split."""
+    path = write(tmp_path, "time_s" + ",x" * 1_000_000 + "\n0,1\n")
+    assert "line 1: the header line is longer than 1,000,000 characters" in refusal(path)
+
+
+def test_a_file_beyond_the_size_limit_is_refused_unread(tmp_path: Path) -> None:
+    """A data file of more than 1 GiB (sparse here) is refused by its size, with the fix."""
+    path = write(tmp_path, "time_s,x\n0,1\n1,2\n")
+    with path.open("r+b") as handle:
+        handle.truncate(2**30 + 1)
+    message = refusal(path)
+    assert "1,073,741,825 bytes, more than the limit of 1,073,741,824" in message
+    assert "Split it" in message
+
+
+def test_a_huge_cell_is_quoted_cut(tmp_path: Path) -> None:
+    """A 5 MB bad cell is quoted by its first 40 characters and its length, not echoed whole."""
+    path = write(tmp_path, "time_s,x\n0,1\n1," + "x" * 5_000_000 + "\n2,3\n")
+    message = refusal(path)
+    assert "line 3, column 'x': 'xxxx" in message and "... (5,000,000 characters) is not" in message
+    assert len(message) - len(str(path)) < 250
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("0,1\n1,2\n2,3\n1e308,4\n", "1e+308 samples on a uniform grid"),
+        ("-1e308,1\n0,2\n1e308,3\n", "time 1e308 s is too far from the first time -1e308 s"),
+        ("0,1\n1e300,2\n2e300,3\n", "the median time step is 1e+300 s"),
+    ],
+    ids=["far_end", "beyond_float", "huge_step"],
+)
+def test_times_near_the_float_range_are_refused_in_short_messages(
+    tmp_path: Path, text: str, expected: str
+) -> None:
+    """Times up to 1e308 s give a DataFileError of a few lines, never a traceback or 309 digits."""
+    path = write(tmp_path, "time_s,x\n" + text)
+    message = refusal(path)
+    assert expected in message and len(message) - len(str(path)) < 250
+
+
+def test_values_beyond_the_limit_are_refused_naming_the_cell(tmp_path: Path) -> None:
+    """A value of 1e300 (its square overflows in every fit) is refused naming line and column."""
+    message = refusal(write(tmp_path, series(cells={4: "1e300"})))
+    assert "line 6, column 'T_spindle_degC': '1e+300' is beyond +-1e+15" in message

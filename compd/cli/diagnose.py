@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -17,7 +16,7 @@ from compd.evaluate import measured_columns
 from compd.modelfile import load_model
 from compd.selection import select_columns
 from compd.span import evaluate_span
-from compd.summary import json_clean
+from compd.summary import json_clean, json_text
 
 DEFAULT_TOP = 5
 #: Fewest samples diagnosed: the default 5 cross-validation blocks of 20.
@@ -88,7 +87,7 @@ def _diagnose(args: argparse.Namespace) -> int:
     )
     if args.json:
         summary = {**diagnosis_json(evaluation.compiled.name, result), **span.json()}
-        print(json.dumps(summary, indent=2))
+        print(json_text(summary))
         return 0
     for note in (*evaluation.data.notes, *evaluation.notes, *result.notes):
         print(f"note: {note}", file=sys.stderr)

@@ -14,7 +14,6 @@ the list over every compared output, time-ordered per output, each entry
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from fnmatch import fnmatchcase
 from pathlib import Path
@@ -42,7 +41,7 @@ from compd.evaluate import compare, evaluate, measured_columns
 from compd.model.compiled import qualified_names
 from compd.modelfile import load_model
 from compd.span import evaluate_span
-from compd.summary import compare_summary
+from compd.summary import compare_summary, json_text
 
 
 def register(commands: Any) -> None:
@@ -166,7 +165,7 @@ def _compare(args: argparse.Namespace) -> int:
         )
     if args.json:
         summary = compare_summary(evaluation, comparisons, windows)
-        print(json.dumps(summary, indent=2, allow_nan=False))
+        print(json_text(summary))
         return 0
     print_notes(evaluation)
     for note in (n for w in windows for n in w.notes):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import sys
 from pathlib import Path
@@ -24,7 +23,7 @@ from compd.effects import load_catalogue
 from compd.extend import extend_model, verify_extension, with_verification
 from compd.model.identify import MIN_SAMPLES
 from compd.modelfile import load_model
-from compd.summary import json_clean
+from compd.summary import json_clean, json_text
 
 
 def register(commands: Any) -> None:
@@ -139,7 +138,7 @@ def _extend(args: argparse.Namespace) -> int:
         **span.json(),
     }
     if args.json:
-        print(json.dumps(summary, indent=2, allow_nan=False))
+        print(json_text(summary))
         return 0
     out = console()
     out.print(

@@ -14,7 +14,6 @@ figures from the written files, as ``compd compare`` would give them).
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +26,7 @@ from compd.evaluate import evaluate, measured_columns
 from compd.modelfile import ModelFile, load_model
 from compd.residual import ResidueFigures, sidecar_path, stack_on_model
 from compd.span import Span, evaluate_span
+from compd.summary import json_text
 
 
 def register(commands: Any) -> None:
@@ -112,7 +112,7 @@ def _residual(args: argparse.Namespace) -> int:
             },
             **span.json(),
         }
-        print(json.dumps(summary, indent=2, allow_nan=False))
+        print(json_text(summary))
         return 0
     forest = stacked.fit.residual.forest
     table = Table(

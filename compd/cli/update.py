@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import shlex
 import sys
@@ -17,6 +16,7 @@ from compd.cli.common import console, data_options, fmt, load_data_from_args
 from compd.gainsets import parse_bounds
 from compd.modelfile import load_model
 from compd.probes import load_probes
+from compd.summary import json_text
 from compd.update import Update, update_model
 
 
@@ -100,7 +100,7 @@ def _update(args: argparse.Namespace) -> int:
     args.out.write_text(result.yaml_text, encoding="utf-8")
     summary = _summary(result, args)
     if args.json:
-        print(json.dumps(summary, indent=2, allow_nan=False))
+        print(json_text(summary))
         return 0
     _print(result, args)
     return 0

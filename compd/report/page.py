@@ -24,6 +24,7 @@ from compd import __version__
 from compd.evaluate import Evaluation
 from compd.report import figures, tables
 from compd.report.gather import ReportData, gather
+from compd.summary import json_finite
 
 #: CSS class of every figure's wrapper ``div`` (one per plot).
 FIGURE_CLASS = "compd-figure"
@@ -98,7 +99,7 @@ def figure_html(fig: go.Figure, div_id: str) -> str:
 
 def json_script(element_id: str, value: object) -> str:
     """``value`` as an inline JSON data block; every ``<`` is escaped so no text can end the script."""
-    text = json.dumps(value, indent=1, allow_nan=False).replace("<", "\\u003c")
+    text = json.dumps(json_finite(value), indent=1, allow_nan=False).replace("<", "\\u003c")
     return f'<script type="application/json" id="{element_id}">\n{text}\n</script>'
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import math
 import re
 import shutil
@@ -15,6 +16,7 @@ from pathlib import Path
 import pytest
 from compd.drivers.base import DRIVERS
 from compd.drivers.modbus import ModbusDriver, ModbusSettings
+from structlog.testing import capture_logs
 
 from compd.clock import RealClock
 from compd.config import parse_config
@@ -34,6 +36,7 @@ from .contract import ContractSetup, DriverContract
 from .modbus_server import (
     INPUTS,
     READONLY_START,
+    ServerThread,
     TcpProxy,
     free_port,
     tcp_server,
@@ -226,6 +229,91 @@ def test_link_keeps_ticking_and_reconnects():
         assert link.reconnects == 1 and link.faults == 1
     finally:
         thread.stop()
+
+
+def link_to_new_server(**settings: object) -> tuple[DriverLink, ServerThread]:
+    """A started server on a free port, and a link to it that reconnects within 0.02-0.1 s."""
+    port = free_port()
+    thread = tcp_server(port)
+    thread.start()
+    driver = make_driver(port, **settings)
+    timeout_s = driver.settings.request_timeout_s + 0.2
+    link = DriverLink(
+        "plc", driver, RealClock(), timeout_s=timeout_s, backoff_min_s=0.02, backoff_max_s=0.1
+    )
+    return link, thread
+
+
+def drop_and_restore(
+    link: DriverLink, thread: ServerThread, drops: int
+) -> tuple[list[dict], list[logging.LogRecord]]:
+    """``drops`` times: ticks with the server gone, then until it answers; events and stdlib records."""
+
+    async def scenario() -> None:
+        await link.open()
+        for _ in range(drops):
+            assert await link.read(["input:0:int16"]) == {"input:0:int16": -1234.0}
+            await asyncio.to_thread(thread.stop)
+            for _ in range(4):  # ticks while the server is down: reads, writes, reconnects
+                await link.read(["input:0:int16"])
+                await link.write({"holding:0": 1.0})
+                await asyncio.sleep(0.06)
+            await asyncio.to_thread(thread.start)
+            back = time.monotonic()
+            while not await link.read(["input:0:int16"]):
+                assert time.monotonic() - back < 5.0, "no reconnect within 5 s"
+                await asyncio.sleep(0.02)
+        await link.close()
+
+    records: list[logging.LogRecord] = []
+    handler = logging.Handler(logging.DEBUG)
+    handler.emit = records.append  # type: ignore[method-assign]
+    logging.getLogger().addHandler(handler)
+    try:
+        with capture_logs() as events:
+            asyncio.run(scenario())
+    finally:
+        logging.getLogger().removeHandler(handler)
+        thread.stop()
+    return events, records
+
+
+def test_link_drops_log_one_error_each_and_no_pymodbus_dumps():
+    """6 drops of a real server: 6 ERRORs, DEBUG in between, 6 INFO recoveries; pymodbus adds nothing above DEBUG."""
+    link, thread = link_to_new_server(request_timeout_s=0.2)
+    events, records = drop_and_restore(link, thread, drops=6)
+    levels = [(e["log_level"], e["event"]) for e in events]
+    assert [e for lvl, e in levels if lvl == "error"] == ["driver read failed"] * 6
+    assert [e for lvl, e in levels if lvl == "info"] == ["driver connected"] + [
+        "driver reconnected"
+    ] * 6
+    assert {lvl for lvl, _ in levels} <= {"error", "info", "debug"} and link.faults == 6
+    assert [r for r in records if r.name.startswith("pymodbus") and r.levelno > logging.DEBUG] == []
+    assert not any(">>>>>" in r.getMessage() for r in records)
+    assert logging.getLogger("pymodbus").getEffectiveLevel() == logging.WARNING
+
+
+def test_a_peer_that_connects_but_never_answers_is_one_fault():
+    """A server that connects but never answers (another device id) is one ERROR, however often it reconnects."""
+    link, thread = link_to_new_server(request_timeout_s=0.1, device_id=9)
+
+    async def scenario() -> None:
+        await link.open()
+        started = time.monotonic()
+        while link.reconnects < 4:
+            assert time.monotonic() - started < 10.0, "the link did not reconnect"
+            assert await link.read(["input:0:int16"]) == {}
+            await asyncio.sleep(0.02)
+        await link.close()
+
+    try:
+        with capture_logs() as events:
+            asyncio.run(scenario())
+    finally:
+        thread.stop()
+    levels = [e["log_level"] for e in events]
+    assert levels.count("error") == 1 and levels.count("info") == 1  # "driver connected" at first
+    assert link.faults == 1 and link.reconnects >= 4
 
 
 # Replies of a broken peer to any request (``header``: the request's 7-byte MBAP header).

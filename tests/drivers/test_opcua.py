@@ -22,7 +22,9 @@ from compd.drivers.opcua import OpcUaDriver, OpcUaSettings
 from pydantic import ValidationError
 
 from compd.clock import RealClock
+from compd.config import parse_config
 from compd.errors import (
+    ConfigFileError,
     DriverDisconnectedError,
     DriverError,
     DriverProtocolError,
@@ -116,6 +118,82 @@ def test_settings_are_validated():
     ):
         with pytest.raises(ValidationError):
             OpcUaSettings.model_validate(bad)
+
+
+def test_security_is_required_and_none_must_be_written_out():
+    """No security block is an error naming the fix; 'security: none' is accepted without a password."""
+    with pytest.raises(ValidationError, match=r"'security' is missing: give security\.certificate"):
+        OpcUaSettings.model_validate({"url": "opc.tcp://plc:4840"})
+    with pytest.raises(ValidationError, match="write 'security: none'"):
+        OpcUaSettings.model_validate({"url": "opc.tcp://plc:4840", "security": None})
+    settings = OpcUaSettings.model_validate({"url": "opc.tcp://plc:4840", "security": "none"})
+    assert settings.security is None
+
+
+def test_security_defaults_to_sign_and_encrypt():
+    """A security block naming only the certificates means Basic256Sha256 with SignAndEncrypt."""
+    block = {"certificate": "c.pem", "private_key": "k.pem", "server_certificate": "s.der"}
+    settings = OpcUaSettings.model_validate({"url": "opc.tcp://plc:4840", "security": block})
+    assert settings.security is not None
+    assert (settings.security.policy, settings.security.mode) == (
+        "Basic256Sha256",
+        "SignAndEncrypt",
+    )
+
+
+CONFIG_WITH_OPCUA = """\
+schema: compd.config/1
+model: model.yaml
+drivers:
+  cnc:
+    type: opcua
+    settings:
+      url: opc.tcp://127.0.0.1:4840/
+{security}      username: compd
+      password_env: COMPD_OPCUA_PASSWORD
+signals:
+  T_spindle_degC: {{driver: cnc, address: "ns=2;s=Machine.T_spindle", unit: degC}}
+outputs:
+  Z: {{model_output: disp_z_um, driver: cnc, address: "ns=2;s=Machine.comp_z",
+       max_offset_um: 50, max_rate_um_per_s: 1}}
+"""
+
+
+@pytest.mark.parametrize("security", ["", "      security: none\n"], ids=["absent", "none"])
+def test_a_password_without_security_is_refused_by_check_config(tmp_path, security):
+    """A username and password without security (absent or none) is refused: file, place and fix named."""
+    path = tmp_path / "compd.yaml"
+    with pytest.raises(ConfigFileError) as info:
+        parse_config(CONFIG_WITH_OPCUA.format(security=security), path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: line ") and "(drivers.cnc.settings)" in message
+    assert "security" in message and "security.server_certificate" in message
+
+
+def test_default_security_connects_with_sign_and_encrypt(certs, server):
+    """Certificates alone (no policy, no mode) connect to a server offering only Basic256Sha256/SignAndEncrypt."""
+
+    async def scenario() -> tuple[str, str]:
+        driver = await opened(make_driver(certs, server.url))
+        try:
+            client = driver._client
+            assert client is not None
+            policy = client.security_policy
+            await driver.read([server.node_id("spindle_rpm")])
+            return policy.URI, policy.Mode.name
+        finally:
+            await driver.close()
+
+    uri, mode = asyncio.run(scenario())
+    assert uri.endswith("#Basic256Sha256") and mode == "SignAndEncrypt"
+
+
+def test_a_policy_the_server_lacks_is_named(certs, server):
+    """Asking for Aes256_Sha256_RsaPss of a server without it is refused, naming what the server offers."""
+    error = refused(make_driver(certs, server.url, security={"policy": "Aes256_Sha256_RsaPss"}))
+    assert isinstance(error, DriverProtocolError)
+    assert "does not offer Aes256_Sha256_RsaPss/SignAndEncrypt" in str(error)
+    assert "Basic256Sha256/SignAndEncrypt" in str(error)
 
 
 def test_the_commented_example_config_is_valid():
@@ -333,17 +411,37 @@ def test_untrusted_client_certificate_is_refused(certs, server):
     assert "does not trust the client certificate" in str(error)
 
 
+def trusting_another_server(certs: Certificates, url: str, request_timeout_s: float) -> OpcUaDriver:
+    """A driver whose security.server_certificate is not the server's (the client's own)."""
+    return make_driver(
+        certs,
+        url,
+        security={"server_certificate": str(certs.client_cert)},
+        request_timeout_s=request_timeout_s,
+    )
+
+
 def test_untrusted_server_certificate_is_refused(certs, server):
     """A server whose certificate is not security.server_certificate is refused as not trusted."""
-    driver = make_driver(
-        certs,
-        server.url,
-        security={"server_certificate": str(certs.client_cert)},
-        request_timeout_s=0.3,
-    )
-    error = refused(driver)
+    error = refused(trusting_another_server(certs, server.url, 0.3))
     assert isinstance(error, DriverProtocolError)
-    assert "not security.server_certificate" in str(error)
+    assert "not security.server_certificate" in str(error) and "not trusted" in str(error)
+
+
+def test_untrusted_server_certificate_says_not_trusted_through_the_link(certs, server):
+    """Through a link with the example's timeouts (0.5 s, 0.4 s) the logged error says "not trusted"."""
+    driver = trusting_another_server(certs, server.url, 0.4)
+    link = DriverLink("cnc", driver, RealClock(), timeout_s=0.5)
+
+    async def scenario() -> None:
+        await link.open()
+        await link.close()
+
+    with structlog.testing.capture_logs() as events:
+        asyncio.run(scenario())
+    errors = [e for e in events if e["log_level"] == "error"]
+    assert not link.up and len(errors) == 1
+    assert "not trusted" in errors[0]["error"] and "timed out" not in errors[0]["error"]
 
 
 def test_garbage_replies_are_driver_errors(certs, server):
@@ -407,3 +505,18 @@ def test_server_stopped_and_restarted(certs, restart_server: OpcUaTestServer):
 
     reconnect_s, down = asyncio.run(scenario())
     assert down == [{}, {}, {}] and reconnect_s < 5.0 and link.reconnects == 1
+
+
+def test_asyncua_logs_nothing_above_debug(certs, server, caplog):
+    """Connecting, 5 reads and a close leave no asyncua record in the log (it logs each read at INFO)."""
+
+    async def scenario() -> None:
+        driver = await opened(make_driver(certs, server.url))
+        for _ in range(5):
+            await driver.read([server.node_id("T_spindle_degC")])
+        await driver.close()
+
+    with caplog.at_level(logging.INFO), structlog.testing.capture_logs() as events:
+        asyncio.run(scenario())
+    assert [r.getMessage() for r in caplog.records if r.name.startswith("asyncua")] == []
+    assert all(e["log_level"] == "debug" for e in events)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import re
 import time
 from collections.abc import Awaitable, Callable, Iterator
@@ -13,6 +14,7 @@ import pytest
 from compd.drivers.base import DRIVERS, Driver, driver_types
 from compd.drivers.serial_lines import SerialSensorSettings
 from compd.drivers.serial_sensor import SerialSensorDriver
+from structlog.testing import capture_logs
 
 from compd.clock import RealClock
 from compd.config import Config
@@ -158,6 +160,25 @@ def test_a_missed_reply_leaves_the_values_stale_and_only_repeated_misses_raise(s
     seen, raised = run(checked(scanner.port, max_missed_replies=3), body)
     assert seen == [{}, {}]
     assert isinstance(raised, DriverTimeoutError)
+
+
+def test_missed_replies_warn_once_until_a_reply_comes(scanner):
+    """Nine silent replies (three timeouts raised) log one WARNING, DEBUG after; the next reply logs INFO."""
+
+    async def body(d: SerialSensorDriver) -> dict[str, float]:
+        with scanner.fault("silent"):
+            for _ in range(9):
+                with contextlib.suppress(DriverTimeoutError):
+                    await d.read(["1"])
+        return await d.read(["1"])
+
+    with capture_logs() as events:
+        after = run(checked(scanner.port, max_missed_replies=3), body)
+    misses = [(e["log_level"], e["event"]) for e in events if "repl" in e["event"]]
+    assert misses == [("warning", "missed reply")] + [("debug", "missed reply again")] * 5 + [
+        ("info", "replies again")
+    ]
+    assert after == {"1": 23.456}
 
 
 def test_reply_without_checksum_is_refused(scanner):

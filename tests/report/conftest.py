@@ -6,9 +6,11 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from compd.cli import main
+from compd.data import DataSet
 
 CONFIG = Path(__file__).parent.parent.parent / "config"
 DATA = CONFIG / "example_spectrum.csv"
@@ -37,6 +39,28 @@ provenance:
       fit_percent_after: {disp_z_um: 81.4}
       created: "2026-11-23T05:00:00Z"
 """
+
+
+def day_record() -> DataSet:
+    """24 h at 1 Hz of spindle speed and power, two temperatures and a displacement, in memory.
+
+    Shared with ``benchmarks/bench_report.py``, which times the report of it.
+    """
+    n = 86_400
+    t = np.arange(n, dtype=float)
+    rng = np.random.default_rng(7)
+    speed = np.where((t // 3600) % 3 == 1, 6000.0, 0.0)
+    spindle = 20.0 + np.convolve(speed / 600.0, np.exp(-np.arange(3000) / 900.0) / 900.0)[:n]
+    shop = 20.0 + 0.8 * np.sin(2 * np.pi * t / 86_400.0)
+    disp = 3.0 * (spindle - 20.0) + rng.normal(0.0, 0.3, n)
+    columns = {
+        "T_spindle_degC": spindle,
+        "T_shopfloor_degC": shop,
+        "spindle_speed_rpm": speed,
+        "spindle_power_kw": speed / 1500.0 + rng.normal(0.0, 0.05, n),
+        "disp_y_um": disp,
+    }
+    return DataSet("day.csv", t, 1.0, columns, None, ())
 
 
 @dataclass(frozen=True)

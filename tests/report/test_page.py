@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import json
 import re
-import time
 from html.parser import HTMLParser
 
-import numpy as np
 import pytest
 
 from compd.cli.common import fmt
@@ -17,7 +15,7 @@ from compd.modelfile import load_model
 from compd.report.gather import gather
 from compd.report.page import FIGURE_CLASS, build_html, json_script
 from compd.report.tables import METRICS
-from tests.report.conftest import GATED, Written
+from tests.report.conftest import GATED, Written, day_record
 
 DIGITS = {key: digits for key, _, digits in METRICS}
 
@@ -151,30 +149,15 @@ def test_json_block_cannot_end_its_script() -> None:
 
 @pytest.fixture(scope="module")
 def day_at_1hz() -> DataSet:
-    """24 h at 1 Hz of spindle speed and power, two temperatures and a displacement, in memory."""
-    n = 86_400
-    t = np.arange(n, dtype=float)
-    rng = np.random.default_rng(7)
-    speed = np.where((t // 3600) % 3 == 1, 6000.0, 0.0)
-    spindle = 20.0 + np.convolve(speed / 600.0, np.exp(-np.arange(3000) / 900.0) / 900.0)[:n]
-    shop = 20.0 + 0.8 * np.sin(2 * np.pi * t / 86_400.0)
-    disp = 3.0 * (spindle - 20.0) + rng.normal(0.0, 0.3, n)
-    columns = {
-        "T_spindle_degC": spindle,
-        "T_shopfloor_degC": shop,
-        "spindle_speed_rpm": speed,
-        "spindle_power_kw": speed / 1500.0 + rng.normal(0.0, 0.05, n),
-        "disp_y_um": disp,
-    }
-    return DataSet("day.csv", t, 1.0, columns, None, ())
+    return day_record()
 
 
 def test_day_long_record_gives_a_small_file(day_at_1hz: DataSet) -> None:
-    """A 24 h record at 1 Hz gives a report of a few MB (lines decimated), diagnosis included, in seconds."""
-    started = time.perf_counter()
+    """A 24 h record at 1 Hz gives a report of a few MB (lines decimated), diagnosis included.
+
+    Its time is measured by benchmarks/bench_report.py, not here.
+    """
     html = build_html(gather(evaluate(load_model(GATED), day_at_1hz)))
-    elapsed_s = time.perf_counter() - started
     size_mb = len(html.encode()) / 1e6
     assert 'class="candidates"' in html
     assert size_mb < 8.0, size_mb
-    assert elapsed_s < 20.0, elapsed_s

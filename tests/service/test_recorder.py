@@ -6,7 +6,6 @@ import json
 import math
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
@@ -228,20 +227,6 @@ def test_disk_full_keeps_whole_lines_and_recording_resumes(tmp_path):
         assert text.endswith("\n") and len(text) <= 1000
         assert all(len(line.split(",")) == 3 for line in text.splitlines())
         load_data(path)
-
-
-def test_a_row_costs_well_under_50_us(tmp_path):
-    """Recording a 20-column row, written each row, costs under 50 us of CPU (best of 3 runs of 1000 rows)."""
-    row = {f"signal_{i}_degC": 20.0 + i / 7 for i in range(20)}
-    n, runs_us = 1000, []
-    with make(tmp_path, max_file_age_s=1e9) as rec:
-        for run in range(3):
-            start = time.process_time()  # CPU time: other processes on the machine do not count
-            for k in range(n):
-                rec.record(row, at_s=T0_S + run * n + k)
-            runs_us.append((time.process_time() - start) / n * 1e6)
-    assert min(runs_us) < 50.0, runs_us
-    assert len(pd.read_csv(rec_file(tmp_path))) == 3 * n
 
 
 def rec_file(directory: Path) -> Path:

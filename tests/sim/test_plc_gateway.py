@@ -15,7 +15,6 @@ from pymodbus.client import AsyncModbusTcpClient
 from compd.sim.plc.gateway import GatewayServer
 
 from ..drivers.gateway_setup import (
-    INPUTS,
     can_settings,
     channel_name,
     make_driver,
@@ -23,17 +22,6 @@ from ..drivers.gateway_setup import (
     modbus_settings,
 )
 from ..drivers.modbus_server import free_port
-
-
-def test_publish_is_cheap():
-    """Publishing a machine's worth of values takes well under 50 us (it runs every simulated second)."""
-    server = make_server(modbus_settings(502))
-    values = dict(INPUTS)
-    start = time.perf_counter()
-    for i in range(2000):
-        values["in:0:int16"] = float(i % 1000)
-        server.publish(values)
-    assert (time.perf_counter() - start) / 2000 < 50e-6
 
 
 def test_publish_refuses_unknown_addresses_and_bad_bits_and_changes_nothing():

@@ -10,7 +10,7 @@ registered so every ``ns=N`` named exists.
 
 Security mirrors the settings the driver connects with, so a fresh demo
 machine works with nothing but its config: only ``security.policy`` /
-``security.mode`` are offered (no security when ``security`` is absent);
+``security.mode`` are offered (no security with ``security: none``);
 missing certificates are generated (asyncua's ``cert_gen``); the one
 client certificate named in the settings is trusted, no other; and only
 ``username`` with the password from ``password_file``/``password_env`` logs
@@ -88,6 +88,10 @@ _PATH_REFERENCES = {
 _POLICIES = {
     ("Basic256Sha256", "SignAndEncrypt"): ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
     ("Basic256Sha256", "Sign"): ua.SecurityPolicyType.Basic256Sha256_Sign,
+    ("Aes256_Sha256_RsaPss", "SignAndEncrypt"): (
+        ua.SecurityPolicyType.Aes256Sha256RsaPss_SignAndEncrypt
+    ),
+    ("Aes256_Sha256_RsaPss", "Sign"): ua.SecurityPolicyType.Aes256Sha256RsaPss_Sign,
 }
 
 
