@@ -139,6 +139,7 @@ class Service:
             doc.state.resume_max_age_s,
             real_now_unix_s=time.time(),
             time_scale=getattr(clock, "time_scale", 1.0),
+            max_offsets_um={axis: out.max_offset_um for axis, out in doc.outputs.items()},
         )
         log.info(
             "model",
@@ -190,6 +191,7 @@ class Service:
                     float(o.sign),
                     o.encoding.scale,
                     o.encoding.type == "int",
+                    readback=config.readback.get(axis, False),
                 )
                 for axis, o in doc.outputs.items()
             ],
@@ -268,7 +270,7 @@ class Service:
             model_name=slot.compiled.name,
             saved_at_unix_s=self.clock.wall(),
             model_state=slot.runner.state,
-            offsets_um={axis: s.offset_um for axis, s in self.compensator.safety.items()},
+            offsets_um=self.compensator.held.known_um(),
             ticks=self.compensator.counters.ticks,
             saved_real_unix_s=time.time(),
         )
@@ -326,7 +328,9 @@ class Service:
         row |= {f"health.{k}": int(v) for k, v in record.health.items()}
         row |= {f"model.{k}": v for k, v in record.model_outputs.items()}
         row |= {f"model.{k.replace('/', '.')}": v for k, v in record.contributions.items()}
-        row |= {f"offset.{k}_um": v for k, v in record.offsets_um.items()}
+        # What the devices acknowledged (NaN: not written), and what they held before the write.
+        row |= {f"offset.{k}_um": v for k, v in record.acknowledged_um.items()}
+        row |= {f"readback.{k}_um": v for k, v in record.readback_um.items()}
         row |= {f"gain.{k}": v for k, v in record.gains.items()}
         row |= {"status": record.status, "heartbeat": record.heartbeat}
         try:
@@ -417,6 +421,7 @@ class Service:
                 "reconnects": sum(link.reconnects for link in self.links.values()),
                 "write_failures": counters.write_failures,
                 "model_loads": counters.model_loads,
+                "offset_mismatches": counters.offset_mismatches,
             },
         }
 

@@ -1,0 +1,109 @@
+"""The values compd writes to a machine, checked together: no overlap, a fine enough encoding, readback.
+
+Three rules ``check-config`` (and ``compd run``) apply to the written points
+of a config -- the axis offsets, the status word and the heartbeat:
+
+- no two may share a register, byte, bit or node of one driver (each driver
+  type says which cells an address occupies,
+  :func:`compd.drivers.base.write_footprint`): a status word at
+  ``holding:101`` inside an int32 offset at ``holding:100`` makes the PLC read
+  garbage for both;
+- an integer-encoded offset must resolve one slew step: with a resolution
+  ``1 / scale`` um coarser than ``max_rate_um_per_s * period_s``, the offset
+  moves in steps of a whole count, larger than the slew limit allows;
+- ``readback: true`` needs a driver that can read back what the device holds
+  (:func:`compd.drivers.base.reads_back`); left out, readback is on wherever
+  the driver can.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable, Mapping
+from typing import TYPE_CHECKING
+
+from pydantic import BaseModel
+
+from compd.errors import ConfigFileError
+
+if TYPE_CHECKING:
+    from compd.config import ConfigDoc
+    from compd.drivers.base import DriverType
+
+#: Builds the config error for a place: ``error(location, message, fix)``.
+ErrorAt = Callable[[tuple[str | int, ...], str, str], ConfigFileError]
+
+
+def written_points(doc: ConfigDoc) -> list[tuple[tuple[str | int, ...], str, str]]:
+    """``(location, driver, address)`` of every value compd writes, in config order."""
+    written: list[tuple[tuple[str | int, ...], str, str]] = [
+        (("outputs", n, "address"), o.driver, o.address) for n, o in doc.outputs.items()
+    ]
+    if doc.status is not None:
+        written += [
+            (("status", "status_address"), doc.status.driver, doc.status.status_address),
+            (("status", "heartbeat_address"), doc.status.driver, doc.status.heartbeat_address),
+        ]
+    return written
+
+
+def check_written(
+    doc: ConfigDoc,
+    types: Mapping[str, DriverType],
+    settings: Mapping[str, BaseModel],
+    error: ErrorAt,
+) -> None:
+    """Raise for two written points that overlap, or an integer offset coarser than a slew step."""
+    from compd.drivers.base import write_footprint
+
+    owners: dict[tuple[str, Hashable], tuple[str, str]] = {}
+    for location, driver, address in written_points(doc):
+        cells = write_footprint(types[doc.drivers[driver].type], address, settings[driver])
+        clash = next(
+            (owners[(driver, c)] for c in sorted(cells, key=str) if (driver, c) in owners), None
+        )
+        if clash is not None:
+            owner, other = clash
+            shared = "" if other == address else f" (it overlaps {other!r})"
+            raise error(
+                location,
+                f"address {address!r} on driver {driver!r} is already written by {owner}{shared}",
+                "Give every written value its own registers, bytes or node",
+            )
+        owner = ".".join(map(str, location[:2]))
+        owners.update({(driver, c): (owner, address) for c in cells})
+    for name, output in doc.outputs.items():
+        encoding = output.encoding
+        step_um = output.max_rate_um_per_s * doc.period_s
+        resolution_um = 1.0 / encoding.scale
+        if encoding.type == "int" and resolution_um > step_um * (1 + 1e-9):
+            raise error(
+                ("outputs", name, "encoding", "scale"),
+                f"an integer count of {resolution_um:g} um (scale {encoding.scale:g}) is coarser "
+                f"than one slew step of {step_um:g} um (max_rate_um_per_s x period_s): the "
+                "offset would move in steps larger than the slew limit",
+                f"Use scale >= {1.0 / step_um:g} (a finer unit on the PLC) or raise "
+                "max_rate_um_per_s",
+            )
+
+
+def output_readback(
+    doc: ConfigDoc,
+    types: Mapping[str, DriverType],
+    settings: Mapping[str, BaseModel],
+    error: ErrorAt,
+) -> dict[str, bool]:
+    """Whether each axis reads its offset back: as configured, else wherever the driver can."""
+    from compd.drivers.base import reads_back
+
+    readback = {}
+    for name, output in doc.outputs.items():
+        kind = doc.drivers[output.driver].type
+        can = reads_back(types[kind], settings[output.driver])
+        if output.readback and not can:
+            raise error(
+                ("outputs", name, "readback"),
+                f"driver {output.driver!r} (type {kind}) cannot read back what the device holds",
+                "Remove 'readback: true' (the offset then resumes from the saved state, else 0)",
+            )
+        readback[name] = can if output.readback is None else output.readback
+    return readback
