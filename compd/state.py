@@ -126,6 +126,8 @@ def load_state(state_dir: Path) -> SavedState | None:
         return None
     except OSError as exc:
         raise StateError(f"{path}: cannot read ({exc.strerror})") from exc
+    except UnicodeDecodeError as exc:
+        raise StateError(f"{path}: not text ({exc.reason} at byte {exc.start})") from exc
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:

@@ -93,6 +93,30 @@ def test_a_plain_modbus_master_sees_the_big_endian_image():
     }
 
 
+def test_an_output_address_reads_back_what_the_gateway_holds():
+    """An out: address reads the gateway's output area, not the driver's copy: another master's change shows."""
+    settings = modbus_settings(free_port())
+
+    async def scenario() -> dict[str, float]:
+        server, driver = await served(settings)
+        other = ModbusDriver(
+            ModbusSettings(host="127.0.0.1", port=settings.port),
+            now=time.monotonic,
+            base_dir=Path(),
+        )
+        try:
+            await driver.write({"out:0:int32": -70000.0})
+            await other.open()
+            await other.write({"holding:100:int32": 25.0})  # e.g. the gateway restarted, reset
+            return await driver.read(["out:0:int32", "in:0:int16"])
+        finally:
+            await other.close()
+            await shut(server, driver)
+
+    assert asyncio.run(scenario()) == {"out:0:int32": 25.0, "in:0:int16": -1234.0}
+    assert GatewayDriver.reads_back(settings)
+
+
 def test_dp_side_down_and_frozen_gateway():
     """Over Modbus too: a clear ok bit is a DriverProtocolError, a live bit that stops toggling a DriverTimeoutError."""
     settings = modbus_settings(free_port())
