@@ -154,6 +154,11 @@ def run_against(
                 fault = (before_tick or {}).get(len(records))
                 if fault is not None:
                     await fault()
+                # Virtual time outruns a reconnect's real I/O: let it finish, as a second would.
+                for _ in range(1000):
+                    if not any(link.connecting for link in service.links.values()):
+                        break
+                    await asyncio.sleep(0.001)
                 return await tick(t_s)
 
             service.compensator.tick = tick_with_faults  # type: ignore[method-assign]
@@ -253,11 +258,7 @@ def test_a_start_that_fails_before_its_first_tick_writes_nothing(tmp_path):
     assert plc.received == [(OFFSET, 34.0, False)]
 
 
-@settings(
-    max_examples=12,
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow],
-)
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     held_um=st.floats(-150, 150, allow_nan=False),
     state=st.one_of(
@@ -267,25 +268,32 @@ def test_a_start_that_fails_before_its_first_tick_writes_nothing(tmp_path):
             lambda z: json.dumps({"format": "compd.state/1", "offsets_um": {"Z": z}}).encode()
         ),
     ),
-    resets=st.dictionaries(st.integers(1, 24), st.floats(-150, 150, allow_nan=False), max_size=3),
+    faults=st.dictionaries(
+        st.integers(1, 18),
+        st.tuples(st.floats(-150, 150, allow_nan=False), st.booleans()),
+        max_size=3,
+    ),
 )
-def test_every_value_the_plc_receives_is_one_slew_step_from_what_it_held(held_um, state, resets):
-    """Random held offsets, state files and register resets: no write moves the register by more than a slew step."""
+def test_every_value_the_plc_receives_is_one_slew_step_from_what_it_held(held_um, state, faults):
+    """Random held values, state files, PLC restarts and resets: no write moves the register over a slew step."""
     with tempfile.TemporaryDirectory(prefix="compd-rb-") as directory:
         plc = Plc(plc_config(Path(directory)))
         if state is not None:
             plc.config.state_dir.mkdir(parents=True)
             (plc.config.state_dir / STATE_FILE).write_bytes(state)
 
-        def reset(value_um: float) -> Callable[[], Awaitable[None]]:
-            return lambda: plc.program(value_um)
+        def fault(value_um: float, restart: bool) -> Callable[[], Awaitable[None]]:
+            async def reset() -> None:
+                if restart:
+                    await plc.server.stop()
+                    await plc.server.start()
+                await plc.program(value_um)
+
+            return reset
 
         service, records = run_against(
-            plc,
-            25.0,
-            held_um=held_um,
-            before_tick={k: reset(v) for k, v in resets.items()},
+            plc, 25.0, held_um=held_um, before_tick={k: fault(*f) for k, f in faults.items()}
         )
     assert plc.largest_step_counts() <= STEP_COUNTS
-    assert all(r.written for r in records)
-    assert service.status()["counters"]["offset_mismatches"] <= len(resets)
+    assert records[-1].written  # and compd went on writing after the last fault
+    assert service.status()["counters"]["offset_mismatches"] <= len(faults)
