@@ -13,7 +13,8 @@ model, the last tick, the inputs and their health, and the counters) and
 a bad one refused while the running model goes on untouched; a good one
 blended in bumplessly by the loop). Shutdown (SIGTERM, SIGINT, end of
 ``duration_s``) saves the state, writes a last status word with the STOPPED
-bit, closes the drivers and exits cleanly.
+bit (only after a first tick: a start that failed writes nothing), closes
+the drivers and exits cleanly.
 """
 
 from __future__ import annotations
@@ -36,7 +37,6 @@ from compd.drivers.base import Driver, driver_types
 from compd.errors import CompdError, RecorderError
 from compd.links import DriverLink
 from compd.loop import (
-    AxisPoint,
     Compensator,
     ModelSlot,
     SignalPoint,
@@ -47,6 +47,7 @@ from compd.loop import (
 )
 from compd.modelfile import load_model
 from compd.notify import SystemdNotifier
+from compd.offsets import AxisPoint
 from compd.recorder import Recorder
 from compd.safety import HEARTBEAT_MODULO, AxisLimits, AxisSafety, FaultMode
 from compd.schedule import GainScheduler
