@@ -403,6 +403,8 @@ class Service:
             "status_word": None if last is None else last.status,
             "heartbeat": comp.heartbeat,
             "offsets_um": {a: s.offset_um for a, s in comp.safety.items()},
+            # What the PLC holds as far as compd knows (read back, else acknowledged).
+            "offsets_held_um": comp.held.known_um(),
             "targets_um": {} if last is None else last.targets_um,
             "inputs": {
                 name: {

@@ -179,7 +179,9 @@ def test_a_start_slews_from_what_the_plc_holds_not_from_zero(tmp_path):
     first, _ = plc.offsets()[1]  # [0] is the PLC's own 9.3 um
     assert abs(first - 93) <= STEP_COUNTS
     assert plc.largest_step_counts() <= STEP_COUNTS
-    assert service.status()["counters"]["offset_mismatches"] == 0  # a seed is no mismatch
+    status = service.status()
+    assert status["counters"]["offset_mismatches"] == 0  # a seed is no mismatch
+    assert status["offsets_held_um"]["Z"] == plc.offsets()[-1][0] / 10
 
 
 def test_a_plc_that_clears_its_offset_register_is_followed_from_zero(tmp_path):
