@@ -8,9 +8,14 @@ of a config -- the axis offsets, the status word and the heartbeat:
   :func:`compd.drivers.base.write_footprint`): a status word at
   ``holding:101`` inside an int32 offset at ``holding:100`` makes the PLC read
   garbage for both;
-- an integer-encoded offset must resolve one slew step: with a resolution
-  ``1 / scale`` um coarser than ``max_rate_um_per_s * period_s``, the offset
-  moves in steps of a whole count, larger than the slew limit allows;
+- an integer-encoded offset (or one written to an integer register) must
+  resolve one slew step: with a resolution ``1 / scale`` um coarser than
+  ``max_rate_um_per_s * period_s``, the offset moves in steps of a whole
+  count, larger than the slew limit allows;
+- where a driver knows a point's integer range (:func:`compd.drivers.base.write_range`),
+  ``±max_offset_um`` must fit it, and the status word's highest bit and the
+  heartbeat's highest count must fit theirs: a value that does not fit fails
+  the whole write, offsets, status and heartbeat alike;
 - ``readback: true`` needs a driver that can read back what the device holds
   (:func:`compd.drivers.base.reads_back`); left out, readback is on wherever
   the driver can.
@@ -24,6 +29,7 @@ from typing import TYPE_CHECKING
 from pydantic import BaseModel
 
 from compd.errors import ConfigFileError
+from compd.safety import HEARTBEAT_MODULO, SIGNAL_BIT0, mismatch_bit
 
 if TYPE_CHECKING:
     from compd.config import ConfigDoc
@@ -31,6 +37,8 @@ if TYPE_CHECKING:
 
 #: Builds the config error for a place: ``error(location, message, fix)``.
 ErrorAt = Callable[[tuple[str | int, ...], str, str], ConfigFileError]
+#: The whole numbers a point (driver, address) holds; ``None``: a float or not known.
+Bounds = Callable[[str, str], tuple[int, int] | None]
 
 
 def written_points(doc: ConfigDoc) -> list[tuple[tuple[str | int, ...], str, str]]:
@@ -52,8 +60,14 @@ def check_written(
     settings: Mapping[str, BaseModel],
     error: ErrorAt,
 ) -> None:
-    """Raise for two written points that overlap, or an integer offset coarser than a slew step."""
-    from compd.drivers.base import write_footprint
+    """Raise for written points that overlap, an offset coarser than a slew step, a value that cannot fit."""
+    from compd.drivers.base import write_footprint, write_range
+
+    def bounds(driver: str, address: str) -> tuple[int, int] | None:
+        found: tuple[int, int] | None = write_range(
+            types[doc.drivers[driver].type], address, settings[driver]
+        )
+        return found
 
     owners: dict[tuple[str, Hashable], tuple[str, str]] = {}
     for location, driver, address in written_points(doc):
@@ -71,18 +85,58 @@ def check_written(
             )
         owner = ".".join(map(str, location[:2]))
         owners.update({(driver, c): (owner, address) for c in cells})
+    _check_offsets(doc, bounds, error)
+    if doc.status is not None:
+        _check_status(doc, bounds, error)
+
+
+def _check_offsets(doc: ConfigDoc, bounds_of: Bounds, error: ErrorAt) -> None:
+    """Each offset fits its point at ``±max_offset_um``, and a count resolves a slew step."""
     for name, output in doc.outputs.items():
         encoding = output.encoding
+        bounds = bounds_of(output.driver, output.address)
         step_um = output.max_rate_um_per_s * doc.period_s
         resolution_um = 1.0 / encoding.scale
-        if encoding.type == "int" and resolution_um > step_um * (1 + 1e-9):
+        if (encoding.type == "int" or bounds is not None) and resolution_um > step_um * (1 + 1e-9):
+            counts = "an integer count" if encoding.type == "int" else "a count of the register"
             raise error(
                 ("outputs", name, "encoding", "scale"),
-                f"an integer count of {resolution_um:g} um (scale {encoding.scale:g}) is coarser "
-                f"than one slew step of {step_um:g} um (max_rate_um_per_s x period_s): the "
-                "offset would move in steps larger than the slew limit",
+                f"{counts} of {resolution_um:g} um (scale {encoding.scale:g}) is coarser than one "
+                f"slew step of {step_um:g} um (max_rate_um_per_s x period_s): the offset would "
+                "move in steps larger than the slew limit",
                 f"Use scale >= {1.0 / step_um:g} (a finer unit on the PLC) or raise "
                 "max_rate_um_per_s",
+            )
+        if bounds is None:
+            continue
+        low, high = bounds
+        reach = output.max_offset_um * encoding.scale
+        if round(-reach) < low or round(reach) > high:
+            raise error(
+                ("outputs", name, "address"),
+                f"{output.address!r} holds {low}..{high}, but ±max_offset_um ({output.max_offset_um:g}"
+                f" um) at scale {encoding.scale:g} is ±{reach:g}: such an offset could not be written",
+                "Use a wider (signed) type, a smaller encoding.scale or a smaller max_offset_um",
+            )
+
+
+def _check_status(doc: ConfigDoc, bounds_of: Bounds, error: ErrorAt) -> None:
+    """The status word's highest bit and the heartbeat's highest count fit their points."""
+    status = doc.status
+    assert status is not None
+    top_bit = mismatch_bit(len(doc.signals)) or SIGNAL_BIT0 + len(doc.signals) - 1
+    needs = (
+        ("status_address", status.status_address, (1 << (top_bit + 1)) - 1, f"bits 0..{top_bit}"),
+        ("heartbeat_address", status.heartbeat_address, HEARTBEAT_MODULO - 1, "0..32767"),
+    )
+    for key, address, largest, what in needs:
+        bounds = bounds_of(status.driver, address)
+        if bounds is not None and largest > bounds[1]:
+            raise error(
+                ("status", key),
+                f"{address!r} holds {bounds[0]}..{bounds[1]}, but it must carry {what} "
+                f"(up to {largest}) for {len(doc.signals)} signals",
+                "Use a wider unsigned type (uint16 up to 7 signals, uint32 beyond)",
             )
 
 

@@ -20,6 +20,10 @@ driver type's addresses mean; a type without them gets the cautious answer
 ``footprint(address, settings) -> frozenset``
     the cells (registers, bytes or bits, nodes) a written value occupies,
     so that ``check-config`` refuses two written values sharing one;
+``raw_range(address, settings) -> tuple[int, int] | None``
+    the whole numbers an integer point holds (``None``: a float, or not known
+    before connecting), so that ``check-config`` refuses an offset, status
+    word or heartbeat that cannot fit, and counts its resolution;
 ``reads_back(settings) -> bool``
     whether ``read()`` of a written address returns what the device holds
     *now* (after a PLC restart that cleared it, say), not what this driver
@@ -105,3 +109,12 @@ def reads_back(kind: DriverType, settings: BaseModel) -> bool:
     """Whether reading a written address returns the device's value; without the hook, no."""
     hook = getattr(kind, "reads_back", None)
     return bool(hook(settings)) if hook is not None else False
+
+
+def write_range(kind: DriverType, address: str, settings: BaseModel) -> tuple[int, int] | None:
+    """The whole numbers an integer point holds; ``None`` for a float point or without the hook."""
+    hook = getattr(kind, "raw_range", None)
+    if hook is None:
+        return None
+    bounds: tuple[int, int] | None = hook(address, settings)
+    return bounds

@@ -56,6 +56,7 @@ from pathlib import Path
 from typing import Literal, Protocol
 
 from compd.drivers.gateway_image import (
+    BYTE_TYPES,
     MAX_AREA_BYTES,
     SYNTAX,
     ImagePoint,
@@ -65,7 +66,7 @@ from compd.drivers.gateway_image import (
     parse_address,
 )
 from compd.drivers.modbus import ModbusDriver, ModbusSettings
-from compd.drivers.points import Order
+from compd.drivers.points import INT_RANGES, Order
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from compd.errors import DriverDisconnectedError, DriverProtocolError, DriverTimeoutError
@@ -369,6 +370,12 @@ class GatewayDriver:
         return frozenset(
             (parsed.area, byte, bit) for byte in range(parsed.offset, parsed.end) for bit in bits
         )
+
+    @staticmethod
+    def raw_range(address: str, settings: GatewaySettings) -> tuple[int, int] | None:
+        """The whole numbers an integer value (a bit: 0-1, a byte type) holds; ``None`` for floats."""
+        parsed = parse_address(address)
+        return BYTE_TYPES.get(parsed.type) or INT_RANGES.get(parsed.type)
 
     @staticmethod
     def reads_back(settings: GatewaySettings) -> bool:

@@ -43,7 +43,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any, Literal, cast
 
-from compd.drivers.points import ORDERS, POINT_TYPES, Order, PointCodec, PointType
+from compd.drivers.points import INT_RANGES, ORDERS, POINT_TYPES, Order, PointCodec, PointType
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
@@ -204,6 +204,11 @@ class ModbusDriver:
         device = settings.device_id if point.device_id is None else point.device_id
         span = range(point.address, point.address + point.count)
         return frozenset((device, point.table, a) for a in span)
+
+    @staticmethod
+    def raw_range(address: str, settings: ModbusSettings) -> tuple[int, int] | None:
+        """The whole numbers an integer point (or a coil: 0-1) holds; ``None`` for floats."""
+        return INT_RANGES.get(parse_address(address).codec.type)
 
     @staticmethod
     def reads_back(settings: ModbusSettings) -> bool:

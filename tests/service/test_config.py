@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 import yaml
+from compd.drivers.gateway import GatewayDriver
+from compd.drivers.modbus import ModbusDriver, ModbusSettings
 
 from compd.config import check_model, load_config, parse_config
 from compd.errors import ConfigFileError
@@ -174,15 +176,21 @@ def test_a_status_word_inside_an_int32_offset_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "status",
-    ["holding:102", "coil:101", "holding:101:device=2"],
-    ids=["next-register", "other-table", "other-device"],
+    "status", ["holding:102", "holding:101:device=2"], ids=["next-register", "other-device"]
 )
-def test_written_points_in_other_registers_tables_or_devices_pass(tmp_path, status):
-    """Written points that share no register of one table of one device are accepted."""
+def test_written_points_in_other_registers_or_devices_pass(tmp_path, status):
+    """Written points that share no register of one device are accepted."""
     doc = yaml.safe_load(SIMULATED_MACHINE.read_text())
     config = write_config(tmp_path, {"status": {"status_address": status}}, doc=doc)
     assert config.doc.status.status_address == status
+
+
+def test_modbus_tables_are_separate_areas():
+    """Coil 100 and holding register 100 are different cells; holding 101 is inside an int32 at 100."""
+    settings = ModbusSettings(host="127.0.0.1")
+    int32 = ModbusDriver.footprint("holding:100:int32", settings)
+    assert not ModbusDriver.footprint("coil:100", settings) & int32
+    assert ModbusDriver.footprint("holding:101", settings) <= int32
 
 
 def gateway_doc() -> dict:
@@ -195,19 +203,25 @@ def gateway_doc() -> dict:
     for i, signal in enumerate(doc["signals"].values()):
         signal["address"] = f"in:{2 * i}:int16"
     doc["outputs"]["Z"]["address"] = "out:0:int32"
-    doc["status"] = {"driver": "plc", "status_address": "out:4.0", "heartbeat_address": "out:6"}
+    doc["status"] = {
+        "driver": "plc",
+        "status_address": "out:4:uint16",
+        "heartbeat_address": "out:6:uint16",
+    }
     return doc
 
 
-def test_gateway_bytes_and_bits_overlap_per_area(tmp_path):
-    """On a gateway a bit inside a written value's bytes is refused; bits of one byte and other areas are not."""
+def test_gateway_bytes_overlap_per_area(tmp_path):
+    """On a gateway a value inside another's output bytes is refused; the same offset in the input area is not."""
     doc = gateway_doc()
-    assert write_config(tmp_path, doc=doc).doc.status.status_address == "out:4.0"
-    doc["status"]["heartbeat_address"] = "out:4.1"
-    write_config(tmp_path, doc=doc)  # two bits of one byte
-    doc["status"]["status_address"] = "out:3.7"
+    assert write_config(tmp_path, doc=doc).doc.status.status_address == "out:4:uint16"
+    doc["status"]["status_address"] = "out:2:uint16"
     with pytest.raises(ConfigFileError, match=r"already written by outputs\.Z \(it overlaps"):
         write_config(tmp_path, doc=doc)
+    assert not GatewayDriver.footprint("in:0:int32", doc) & GatewayDriver.footprint(
+        "out:0:int32", doc
+    )
+    assert GatewayDriver.footprint("out:3.7", doc) <= GatewayDriver.footprint("out:0:int32", doc)
 
 
 def test_an_integer_offset_coarser_than_a_slew_step_is_refused(tmp_path):
@@ -220,7 +234,24 @@ def test_an_integer_offset_coarser_than_a_slew_step_is_refused(tmp_path):
     fine = {"encoding": {"type": "int", "scale": 2}, "max_rate_um_per_s": 0.5}
     write_config(tmp_path, {"outputs": {"Z": fine}}, doc=doc)  # one count per step is fine
     floats = {"encoding": {"type": "float", "scale": 1}, "max_rate_um_per_s": 0.01}
+    message = machine_config_error(tmp_path, {"outputs": {"Z": floats}})  # int32 rounds it anyway
+    assert "(outputs.Z.encoding.scale): a count of the register of 1 um" in message
+    floats["address"] = "holding:100:float32"
     write_config(tmp_path, {"outputs": {"Z": floats}}, doc=doc)
+
+
+def test_values_that_cannot_fit_their_registers_are_refused(tmp_path):
+    """An int16 offset in 0.001 um cannot reach 150 um; a coil cannot carry the status word's 15 bits."""
+    message = machine_config_error(
+        tmp_path, {"outputs": {"Z": {"address": "holding:100:int16", "encoding": {"scale": 1000}}}}
+    )
+    assert "(outputs.Z.address): 'holding:100:int16' holds -32768..32767" in message
+    assert "±150000" in message
+    message = machine_config_error(tmp_path, {"status": {"status_address": "coil:110"}})
+    assert (
+        "(status.status_address): 'coil:110' holds 0..1, but it must carry bits 0..14 "
+        "(up to 32767) for 6 signals" in message
+    )
 
 
 def test_readback_is_on_where_the_driver_can_read_back(tmp_path):
