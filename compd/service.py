@@ -191,7 +191,7 @@ class Service:
                     o.address,
                     float(o.sign),
                     o.encoding.scale,
-                    o.encoding.type == "int",
+                    config.whole_counts.get(axis, o.encoding.type == "int"),
                     readback=config.readback.get(axis, False),
                 )
                 for axis, o in doc.outputs.items()

@@ -161,3 +161,19 @@ def output_readback(
             )
         readback[name] = can if output.readback is None else output.readback
     return readback
+
+
+def whole_counts(
+    doc: ConfigDoc, types: Mapping[str, DriverType], settings: Mapping[str, BaseModel]
+) -> dict[str, bool]:
+    """Whether each axis's point holds whole counts: an int encoding, or an integer register."""
+    from compd.drivers.base import write_range
+
+    return {
+        name: output.encoding.type == "int"
+        or write_range(
+            types[doc.drivers[output.driver].type], output.address, settings[output.driver]
+        )
+        is not None
+        for name, output in doc.outputs.items()
+    }

@@ -211,6 +211,17 @@ def test_a_plc_that_clears_its_offset_register_is_followed_from_zero(tmp_path):
     assert [v for v in recorded if math.isfinite(v)] == by_compd
 
 
+def test_a_float_encoding_on_an_integer_register_reads_back_without_mismatches(tmp_path):
+    """A float offset written to an int32 register is rounded as the register would: no false mismatches."""
+    slow = {"encoding": {"type": "float", "scale": 10}, "max_rate_um_per_s": 0.33}
+    plc = Plc(plc_config(tmp_path, **slow))  # steps of 3.3 counts: the register rounds them
+    assert plc.config.whole_counts == {"Z": True}
+    service, records = run_against(plc, 30.0, held_um=20.0)
+    assert service.status()["counters"]["offset_mismatches"] == 0
+    assert all(r.status & MISMATCH_BIT == 0 for r in records)
+    assert plc.largest_step_counts() <= 3
+
+
 def test_an_offset_point_without_readback_resumes_the_saved_offset(tmp_path):
     """With readback off the seed is the saved offset (range-checked), as before readback existed."""
     plc = Plc(plc_config(tmp_path, readback=False))
