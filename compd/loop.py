@@ -177,7 +177,7 @@ class Counters:
     signal_faults: int = 0
     write_failures: int = 0
     model_loads: int = 0
-    #: Ticks on which an offset point read back something other than compd last wrote.
+    #: Offsets read back (per axis and tick) that were not what compd last wrote.
     offset_mismatches: int = 0
 
 
@@ -193,8 +193,7 @@ class Compensator:
        from the recent inputs (:mod:`compd.model.handover`), then both run and blend
        ``w * new + (1 - w) * old`` with ``w`` rising 0 -> 1 over ``blend_s``;
     4. per axis ``target = sign * output``, through the safety stage, frozen while an
-       input the axis depends on is faulted; the stage slews from what the device
-       holds (see below);
+       input the axis depends on is faulted;
     5. write offsets, status word and heartbeat, all drivers concurrently.
 
     The stage slews from what each device holds (:class:`~compd.offsets.HeldOffsets`):
@@ -248,7 +247,6 @@ class Compensator:
             model.start(initial_state)
         #: What each offset point holds, as far as compd knows (:mod:`compd.offsets`).
         self.held = HeldOffsets(self.axes, self.safety)
-        self._last_write_ok = True
 
     def load(self, slot: ModelSlot) -> None:
         """Switch to ``slot`` at the next tick whose inputs are complete, blending bumplessly."""
@@ -304,8 +302,8 @@ class Compensator:
             level = Level.DEGRADED
         word = status_word(level, flags, bad, mismatch=mismatches > 0)
         self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
-        acknowledged = await self._write(offsets, word)
-        written = self._last_write_ok and len(acknowledged) == len(self.axes)
+        ok, acknowledged = await self._write(offsets, word)
+        written = ok and len(acknowledged) == len(self.axes)
         self.counters.ticks += 1
         runner = self.active.runner
         contributions = (
@@ -401,8 +399,10 @@ class Compensator:
                     held[axis.name] = value
         return values, held
 
-    async def _write(self, offsets: Mapping[str, float], word: int) -> dict[str, float]:
-        """Write what is safe to write; returns the offsets (um) the devices acknowledged."""
+    async def _write(
+        self, offsets: Mapping[str, float], word: int
+    ) -> tuple[bool, dict[str, float]]:
+        """Write what is safe to write; whether every write succeeded, and the offsets (um) acknowledged."""
         raws = self.held.to_write(offsets)
         batches: dict[str, dict[str, float]] = {}
         for axis in self.axes:
@@ -414,10 +414,9 @@ class Compensator:
             batch[self.status_point.heartbeat_address] = float(self.heartbeat)
         drivers = list(batches)
         results = await _all([self.links[d].write(batches[d]) for d in drivers])
-        self._last_write_ok = all(results)
-        if not self._last_write_ok:
+        if not all(results):
             self.counters.write_failures += 1
-        return self.held.written(raws, dict(zip(drivers, results, strict=True)))
+        return all(results), self.held.written(raws, dict(zip(drivers, results, strict=True)))
 
 
 def _um(axis: AxisPoint, raw: float | None) -> float:
