@@ -126,9 +126,6 @@ class Plc:
         return largest
 
 
-Hook = Callable[[int], Awaitable[None]]
-
-
 def run_against(
     plc: Plc,
     duration_s: float,
@@ -232,7 +229,7 @@ def test_an_offset_point_without_readback_resumes_the_saved_offset(tmp_path):
 
 
 def test_a_saved_offset_beyond_the_clamp_is_not_resumed(tmp_path):
-    """A state saying Z = 140 um (clamp 150... then 50): refused, so compd never starts from it."""
+    """A saved Z of 140 um or 1e9 um beyond a 50 um clamp is not resumed: every write goes through, a step at a time."""
     plc = Plc(plc_config(tmp_path, readback=False))
     run_against(plc, 10.0)
     state = plc.config.state_dir / STATE_FILE
