@@ -33,7 +33,13 @@ from compd.errors import ConfigFileError
 from compd.model.compiled import CompiledModel
 from compd.modelfile import ModelFile
 from compd.schedule import GainRow, GainTable, first_overlap, model_gains
-from compd.writepoints import check_written, output_readback, whole_counts, written_points
+from compd.writepoints import (
+    check_written,
+    output_readback,
+    status_mismatch_bit,
+    whole_counts,
+    written_points,
+)
 from compd.yamlplace import FIXES, describe, parse_yaml, resolve_path, where
 
 if TYPE_CHECKING:
@@ -247,6 +253,8 @@ class Config:
     readback: dict[str, bool] = field(default_factory=dict)
     #: Per axis: its point holds whole counts (an int encoding, or an integer register).
     whole_counts: dict[str, bool] = field(default_factory=dict)
+    #: The status word's readback-mismatch bit, if the status point holds it.
+    mismatch_bit: int | None = None
     #: The YAML node tree, for the line numbers of errors found later (:func:`check_model`).
     root: yaml.Node | None = field(default=None, repr=False, compare=False)
 
@@ -410,6 +418,7 @@ def parse_config(text: str, path: Path) -> Config:
         simulation=simulation,
         readback=readback,
         whole_counts=whole_counts(doc, types, settings),
+        mismatch_bit=status_mismatch_bit(doc, types, settings),
         root=root,
     )
 

@@ -115,6 +115,8 @@ class StatusPoint:
     driver: str
     status_address: str
     heartbeat_address: str
+    #: Whether the status point holds the readback-mismatch bit (:mod:`compd.safety`).
+    mismatch_bit: bool = True
 
 
 class ModelSlot:
@@ -300,7 +302,8 @@ class Compensator:
         unsure = Flag.DRIVER_DOWN in flags or mismatches or self.held.unknown
         if unsure and level is Level.OK:
             level = Level.DEGRADED
-        word = status_word(level, flags, bad, mismatch=mismatches > 0)
+        has_bit = self.status_point is not None and self.status_point.mismatch_bit
+        word = status_word(level, flags, bad, mismatch=mismatches > 0 and has_bit)
         self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
         ok, acknowledged = await self._write(offsets, word)
         written = ok and len(acknowledged) == len(self.axes)

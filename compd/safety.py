@@ -28,8 +28,9 @@ The status word written beside the offsets lets the PLC supervise compd:
 - the bit after the last signal's (bit ``8 + n`` for ``n`` signals, when ``n < 24``):
   offset readback mismatch -- an axis's offset point did not hold what compd last
   wrote (a PLC restart that cleared it, another writer), and its slew limit was
-  re-seeded from what it did hold. Placed there, not at bit 31, so that it fits
-  whatever register holds the signal bits (a 16-bit word for up to 7 signals).
+  re-seeded from what it did hold. Placed there, not at bit 31, so that a
+  16-bit status register has it for up to 7 signals; where the register has
+  no bit left, the mismatch is only logged and counted.
 
 The heartbeat counts ticks modulo 32768 (fits a PLC INT): when it stops
 changing, the PLC knows compd is gone and falls back on its own.
@@ -138,7 +139,11 @@ class AxisSafety:
 def status_word(
     level: Level, flags: Iterable[Flag], signal_bad: Sequence[bool], *, mismatch: bool = False
 ) -> int:
-    """Pack the level (bits 0-1), flags (bits 2-7), per-signal bits (8-31) and mismatch bit into one word."""
+    """Pack the level (bits 0-1), flags (bits 2-7), per-signal bits (8-31) and mismatch bit into one word.
+
+    The caller passes ``mismatch`` only where the status point holds that bit
+    (:func:`compd.writepoints.status_mismatch_bit`).
+    """
     word = int(level)
     for flag in flags:
         word |= int(flag)

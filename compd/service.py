@@ -199,7 +199,12 @@ class Service:
             safety=safety,
             links=self.links,
             model=slot,
-            status=StatusPoint(status.driver, status.status_address, status.heartbeat_address)
+            status=StatusPoint(
+                status.driver,
+                status.status_address,
+                status.heartbeat_address,
+                mismatch_bit=config.mismatch_bit is not None,
+            )
             if status
             else None,
             blend_s=doc.blend_s,

@@ -13,9 +13,10 @@ of a config -- the axis offsets, the status word and the heartbeat:
   ``max_rate_um_per_s * period_s``, the offset moves in steps of a whole
   count, larger than the slew limit allows;
 - where a driver knows a point's integer range (:func:`compd.drivers.base.write_range`),
-  ``±max_offset_um`` must fit it, and the status word's highest bit and the
+  ``±max_offset_um`` must fit it, and the status word's signal bits and the
   heartbeat's highest count must fit theirs: a value that does not fit fails
-  the whole write, offsets, status and heartbeat alike;
+  the whole write, offsets, status and heartbeat alike (the readback-mismatch
+  bit is used only where it fits, :func:`status_mismatch_bit`);
 - ``readback: true`` needs a driver that can read back what the device holds
   (:func:`compd.drivers.base.reads_back`); left out, readback is on wherever
   the driver can.
@@ -124,7 +125,7 @@ def _check_status(doc: ConfigDoc, bounds_of: Bounds, error: ErrorAt) -> None:
     """The status word's highest bit and the heartbeat's highest count fit their points."""
     status = doc.status
     assert status is not None
-    top_bit = mismatch_bit(len(doc.signals)) or SIGNAL_BIT0 + len(doc.signals) - 1
+    top_bit = SIGNAL_BIT0 + len(doc.signals) - 1
     needs = (
         ("status_address", status.status_address, (1 << (top_bit + 1)) - 1, f"bits 0..{top_bit}"),
         ("heartbeat_address", status.heartbeat_address, HEARTBEAT_MODULO - 1, "0..32767"),
@@ -136,7 +137,7 @@ def _check_status(doc: ConfigDoc, bounds_of: Bounds, error: ErrorAt) -> None:
                 ("status", key),
                 f"{address!r} holds {bounds[0]}..{bounds[1]}, but it must carry {what} "
                 f"(up to {largest}) for {len(doc.signals)} signals",
-                "Use a wider unsigned type (uint16 up to 7 signals, uint32 beyond)",
+                "Use a wider unsigned type (uint16 up to 8 signals, uint32 beyond)",
             )
 
 
@@ -177,3 +178,22 @@ def whole_counts(
         is not None
         for name, output in doc.outputs.items()
     }
+
+
+def status_mismatch_bit(
+    doc: ConfigDoc, types: Mapping[str, DriverType], settings: Mapping[str, BaseModel]
+) -> int | None:
+    """The status word's readback-mismatch bit (:func:`compd.safety.mismatch_bit`), if its point holds it.
+
+    A status word at a 16-bit register with 8 signals has no bit left: the
+    mismatch then shows in the log and the counters only, never in a value
+    the register cannot take (which would fail the whole write).
+    """
+    from compd.drivers.base import write_range
+
+    bit = mismatch_bit(len(doc.signals))
+    if doc.status is None or bit is None:
+        return None
+    kind = types[doc.drivers[doc.status.driver].type]
+    bounds = write_range(kind, doc.status.status_address, settings[doc.status.driver])
+    return bit if bounds is None or (1 << (bit + 1)) - 1 <= bounds[1] else None

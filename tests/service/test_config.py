@@ -249,8 +249,8 @@ def test_values_that_cannot_fit_their_registers_are_refused(tmp_path):
     assert "±150000" in message
     message = machine_config_error(tmp_path, {"status": {"status_address": "coil:110"}})
     assert (
-        "(status.status_address): 'coil:110' holds 0..1, but it must carry bits 0..14 "
-        "(up to 32767) for 6 signals" in message
+        "(status.status_address): 'coil:110' holds 0..1, but it must carry bits 0..13 "
+        "(up to 16383) for 6 signals" in message
     )
 
 
@@ -266,3 +266,15 @@ def test_readback_is_on_where_the_driver_can_read_back(tmp_path):
     assert "(outputs.Y.readback): driver 'machine' (type simulated) cannot read back" in str(
         caught.value
     )
+
+
+def test_the_mismatch_bit_is_used_only_where_the_status_register_holds_it(tmp_path):
+    """Six signals leave bit 14 of a uint16 status word for the mismatch; eight leave none; nine do not fit."""
+    doc = yaml.safe_load(SIMULATED_MACHINE.read_text())
+    assert write_config(tmp_path, doc=doc).mismatch_bit == 14
+    extra = {"driver": "plc", "unit": "degC", "scale": 0.01}
+    doc["signals"] |= {f"T_{i}_degC": {**extra, "address": f"input:{i}:int16"} for i in (6, 7)}
+    assert write_config(tmp_path, doc=doc).mismatch_bit is None
+    doc["signals"]["T_8_degC"] = {**extra, "address": "input:8:int16"}
+    with pytest.raises(ConfigFileError, match=r"must carry bits 0\.\.16"):
+        write_config(tmp_path, doc=doc)
