@@ -113,6 +113,8 @@ def base_doc(directory: Path) -> dict[str, Any]:
     doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
     doc["control_socket"] = str(directory / "c.sock")
     doc["simulation"] = {"scenario": "production", "hours": 2, "seed": 1}
+    # Ten signals' status bits (8..17) need 32 bits: holding 110-111, the heartbeat beside them.
+    doc["status"] |= {"status_address": "holding:110:uint32", "heartbeat_address": "holding:112"}
     return doc
 
 

@@ -33,6 +33,13 @@ from compd.errors import ConfigFileError
 from compd.model.compiled import CompiledModel
 from compd.modelfile import ModelFile
 from compd.schedule import GainRow, GainTable, first_overlap, model_gains
+from compd.writepoints import (
+    check_written,
+    output_readback,
+    status_mismatch_bit,
+    whole_counts,
+    written_points,
+)
 from compd.yamlplace import FIXES, describe, parse_yaml, resolve_path, where
 
 if TYPE_CHECKING:
@@ -98,6 +105,8 @@ class OutputDoc(_Strict):
     sign: Literal[-1, 1] = -1
     max_offset_um: Positive
     max_rate_um_per_s: Positive
+    #: Read the offset back each tick and slew from what the PLC holds; default: where the driver can.
+    readback: bool | None = None
 
 
 class StatusDoc(_Strict):
@@ -240,6 +249,12 @@ class Config:
     control_socket: Path
     driver_settings: dict[str, BaseModel]
     simulation: SimulationDoc | None = None
+    #: Per axis: the offset is read back each tick (:mod:`compd.writepoints`).
+    readback: dict[str, bool] = field(default_factory=dict)
+    #: Per axis: its point holds whole counts (an int encoding, or an integer register).
+    whole_counts: dict[str, bool] = field(default_factory=dict)
+    #: The status word's readback-mismatch bit, if the status point holds it.
+    mismatch_bit: int | None = None
     #: The YAML node tree, for the line numbers of errors found later (:func:`check_model`).
     root: yaml.Node | None = field(default=None, repr=False, compare=False)
 
@@ -341,25 +356,7 @@ def parse_config(text: str, path: Path) -> Config:
                 "Make the rows disjoint (ranges are min <= value < max, so [0, 250) and "
                 "[250, 500) do not overlap)",
             )
-    addresses: dict[tuple[str, str], str] = {}
-    written: list[tuple[tuple[str | int, ...], str, str]] = [
-        (("outputs", n, "address"), o.driver, o.address) for n, o in doc.outputs.items()
-    ]
-    if doc.status is not None:
-        written += [
-            (("status", "status_address"), doc.status.driver, doc.status.status_address),
-            (("status", "heartbeat_address"), doc.status.driver, doc.status.heartbeat_address),
-        ]
-    for location, driver_name, address in written:
-        key = (driver_name, address)
-        if key in addresses:
-            raise error(
-                location,
-                f"address {address!r} on driver {driver_name!r} is already written by "
-                f"{addresses[key]}",
-                "Give every written value its own address",
-            )
-        addresses[key] = ".".join(map(str, location[:2]))
+    written = written_points(doc)
     # A driver type may check its own address grammar (optional hook
     # ``validate_address(address, *, writable)`` raising ValueError, and an
     # ``address_syntax`` text for the fix); a hook with a ``settings`` keyword
@@ -381,6 +378,8 @@ def parse_config(text: str, path: Path) -> Config:
                     f"address {address!r} for driver {driver_name!r}: {exc}",
                     f"Write it {syntax}",
                 ) from exc
+    check_written(doc, types, settings, error)
+    readback = output_readback(doc, types, settings, error)
 
     simulation = None
     if doc.simulation is not None:
@@ -417,6 +416,9 @@ def parse_config(text: str, path: Path) -> Config:
         control_socket=socket,
         driver_settings=settings,
         simulation=simulation,
+        readback=readback,
+        whole_counts=whole_counts(doc, types, settings),
+        mismatch_bit=status_mismatch_bit(doc, types, settings),
         root=root,
     )
 

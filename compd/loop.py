@@ -33,6 +33,7 @@ from compd.model.compiled import CompiledModel, ModelState, qualified_names
 from compd.model.handover import SignalHistory, handover_state
 from compd.model.run import TickRunner
 from compd.modelfile import ModelFile
+from compd.offsets import AxisPoint, HeldOffsets
 from compd.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
 from compd.schedule import GainScheduler
 from compd.signals import Health, SignalMonitor
@@ -110,27 +111,12 @@ class SignalPoint:
 
 
 @dataclass(frozen=True)
-class AxisPoint:
-    """Where an axis offset is written: ``round?(offset_um * scale)`` with ``offset_um = sign * output``."""
-
-    name: str
-    model_output: str
-    driver: str
-    address: str
-    sign: float = -1.0
-    scale: float = 1.0
-    integer: bool = False
-
-    def encode(self, offset_um: float) -> float:
-        value = offset_um * self.scale
-        return float(round(value)) if self.integer else value
-
-
-@dataclass(frozen=True)
 class StatusPoint:
     driver: str
     status_address: str
     heartbeat_address: str
+    #: Whether the status point holds the readback-mismatch bit (:mod:`compd.safety`).
+    mismatch_bit: bool = True
 
 
 class ModelSlot:
@@ -181,6 +167,10 @@ class TickRecord:
     written: bool
     #: The scheduled gains in use (gain_name -> value); empty without a gain schedule.
     gains: dict[str, float] = field(default_factory=dict)
+    #: Per axis, the offset the device acknowledged this tick (NaN: not written this tick).
+    acknowledged_um: dict[str, float] = field(default_factory=dict)
+    #: Per axis with readback, the offset the device held at the start of the tick (NaN: unknown).
+    readback_um: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -189,6 +179,8 @@ class Counters:
     signal_faults: int = 0
     write_failures: int = 0
     model_loads: int = 0
+    #: Offsets read back (per axis and tick) that were not what compd last wrote.
+    offset_mismatches: int = 0
 
 
 class Compensator:
@@ -205,6 +197,9 @@ class Compensator:
     4. per axis ``target = sign * output``, through the safety stage, frozen while an
        input the axis depends on is faulted;
     5. write offsets, status word and heartbeat, all drivers concurrently.
+
+    The stage slews from what each device holds (:class:`~compd.offsets.HeldOffsets`):
+    the offset read back at step 1 where the driver can, else the last acknowledged write.
     """
 
     def __init__(
@@ -245,19 +240,24 @@ class Compensator:
         self._reads: dict[str, list[SignalPoint]] = {}
         for point in self.signals:
             self._reads.setdefault(point.driver, []).append(point)
+        self._readbacks: dict[str, list[AxisPoint]] = {}
+        for axis in self.axes:
+            if axis.readback:
+                self._readbacks.setdefault(axis.driver, []).append(axis)
+                self._reads.setdefault(axis.driver, [])
         if initial_state is not None:
             model.start(initial_state)
-        #: The offset each axis's device last acknowledged (um); the safety stage is
-        #: re-seeded from it after a failed write, so the first write after a
-        #: reconnect is within one slew step of what the machine holds.
-        self.written_um = {name: stage.offset_um for name, stage in self.safety.items()}
+        #: What each offset point holds, as far as compd knows (:mod:`compd.offsets`).
+        self.held = HeldOffsets(self.axes, self.safety)
 
     def load(self, slot: ModelSlot) -> None:
         """Switch to ``slot`` at the next tick whose inputs are complete, blending bumplessly."""
         self.pending = slot
 
     async def tick(self, t_s: float) -> TickRecord:
-        values = await self._read()
+        values, held = await self._read()
+        mismatches = self.held.read_back(held)
+        self.counters.offset_mismatches += mismatches
         readings = {}
         for point in self.signals:
             monitor = self.monitors[point.name]
@@ -299,11 +299,14 @@ class Compensator:
             flags.add(Flag.DRIVER_DOWN)
         bad = [r.health is not Health.OK for r in readings.values()]
         level = Level.FAULTED if any_frozen else Level.DEGRADED if any(bad) else Level.OK
-        if Flag.DRIVER_DOWN in flags and level is Level.OK:
+        unsure = Flag.DRIVER_DOWN in flags or mismatches or self.held.unknown
+        if unsure and level is Level.OK:
             level = Level.DEGRADED
-        word = status_word(level, flags, bad)
+        has_bit = self.status_point is not None and self.status_point.mismatch_bit
+        word = status_word(level, flags, bad, mismatch=mismatches > 0 and has_bit)
         self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
-        written = await self._write(offsets, word)
+        ok, acknowledged = await self._write(offsets, word)
+        written = ok and len(acknowledged) == len(self.axes)
         self.counters.ticks += 1
         runner = self.active.runner
         contributions = (
@@ -327,14 +330,23 @@ class Compensator:
             heartbeat=self.heartbeat,
             written=written,
             gains=dict(self.schedule.applied) if self.schedule is not None else {},
+            acknowledged_um={a.name: acknowledged.get(a.name, math.nan) for a in self.axes},
+            readback_um={a.name: _um(a, held.get(a.name)) for a in self.axes if a.readback},
         )
         return self.last
 
     async def write_stopped(self) -> bool:
-        """The last status word at shutdown (``STOPPED``, offsets unchanged), for the PLC."""
-        offsets = {name: safety.offset_um for name, safety in self.safety.items()}
-        level = self.last.status & 0b11 if self.last is not None else 0
-        return await self._write(offsets, status_word(Level(level), [Flag.STOPPED], []))
+        """The last status word at shutdown (``STOPPED``), for the PLC; offsets are left as they are.
+
+        Nothing at all before the first tick: a start that failed knows nothing
+        the machine should be told, least of all an offset.
+        """
+        point = self.status_point
+        if self.last is None or point is None:
+            return False
+        word = status_word(Level(self.last.status & 0b11), [Flag.STOPPED], [])
+        batch = {point.status_address: float(word), point.heartbeat_address: float(self.heartbeat)}
+        return await self.links[point.driver].write(batch)
 
     def _step_models(self, t_s: float, checked: Mapping[str, float]) -> None:
         self.history.append(checked)
@@ -370,37 +382,48 @@ class Compensator:
     def _complete(slot: ModelSlot, checked: Mapping[str, float]) -> bool:
         return all(math.isfinite(checked[s]) for s in slot.compiled.signals)
 
-    async def _read(self) -> dict[str, float]:
+    async def _read(self) -> tuple[dict[str, float], dict[str, float]]:
+        """Signal values by name, and the raw offsets read back by axis name."""
         drivers = list(self._reads)
-        results = await _all(
-            [self.links[d].read([p.address for p in self._reads[d]]) for d in drivers]
-        )
+        addresses = {
+            d: [p.address for p in self._reads[d]] + [a.address for a in self._readbacks.get(d, [])]
+            for d in drivers
+        }
+        results = await _all([self.links[d].read(addresses[d]) for d in drivers])
         values: dict[str, float] = {}
+        held: dict[str, float] = {}
         for driver, raw in zip(drivers, results, strict=True):
             for point in self._reads[driver]:
                 if point.address in raw:
                     values[point.name] = point.convert(raw[point.address])
-        return values
+            for axis in self._readbacks.get(driver, []):
+                value = raw.get(axis.address)
+                if value is not None and math.isfinite(value):
+                    held[axis.name] = value
+        return values, held
 
-    async def _write(self, offsets: Mapping[str, float], word: int) -> bool:
+    async def _write(
+        self, offsets: Mapping[str, float], word: int
+    ) -> tuple[bool, dict[str, float]]:
+        """Write what is safe to write; whether every write succeeded, and the offsets (um) acknowledged."""
+        raws = self.held.to_write(offsets)
         batches: dict[str, dict[str, float]] = {}
         for axis in self.axes:
-            batches.setdefault(axis.driver, {})[axis.address] = axis.encode(offsets[axis.name])
+            if axis.name in raws:
+                batches.setdefault(axis.driver, {})[axis.address] = raws[axis.name]
         if self.status_point is not None:
             batch = batches.setdefault(self.status_point.driver, {})
             batch[self.status_point.status_address] = float(word)
             batch[self.status_point.heartbeat_address] = float(self.heartbeat)
         drivers = list(batches)
         results = await _all([self.links[d].write(batches[d]) for d in drivers])
-        ok = dict(zip(drivers, results, strict=True))
-        for axis in self.axes:
-            if ok[axis.driver]:
-                self.written_um[axis.name] = offsets[axis.name]
-            else:
-                self.safety[axis.name].load(self.written_um[axis.name])
         if not all(results):
             self.counters.write_failures += 1
-        return all(results)
+        return all(results), self.held.written(raws, dict(zip(drivers, results, strict=True)))
+
+
+def _um(axis: AxisPoint, raw: float | None) -> float:
+    return math.nan if raw is None else axis.decode(raw)
 
 
 async def _all(calls: list[Coroutine[Any, Any, T]]) -> list[T]:

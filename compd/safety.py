@@ -11,9 +11,12 @@ limits ``M = max_offset_um`` and ``R = max_rate_um_per_s`` at period ``T``::
     offset  = last + clip(clamped - last, -R*T, +R*T)
 
 so no written offset is ever NaN or inf, and no two consecutive offsets
-differ by more than ``R*T`` -- at start (``last = 0``), at a model change, on
-recovery, always. An offset loaded outside ``±M`` (saved under a larger
-limit) walks into range at the slew rate rather than jumping.
+differ by more than ``R*T`` -- at start, at a model change, on recovery,
+always. ``last`` is what the machine holds: :meth:`AxisSafety.load` re-seeds
+it at start and whenever the offset point reads back something else (the
+service, :mod:`compd.loop`). An offset loaded outside ``±M`` (held by the PLC,
+or saved under a larger limit) walks into range at the slew rate rather than
+jumping.
 
 The status word written beside the offsets lets the PLC supervise compd:
 
@@ -21,7 +24,13 @@ The status word written beside the offsets lets the PLC supervise compd:
 - bit 2 clamped, bit 3 slew-limited, bit 4 starting (no model output yet),
   bit 5 stopped (the last word written at shutdown), bit 6 a driver link down,
   bit 7 blending to a newly loaded model;
-- bits 8-31: one per configured signal, in config order, set while it is not OK.
+- bits 8-31: one per configured signal, in config order, set while it is not OK;
+- the bit after the last signal's (bit ``8 + n`` for ``n`` signals, when ``n < 24``):
+  offset readback mismatch -- an axis's offset point did not hold what compd last
+  wrote (a PLC restart that cleared it, another writer), and its slew limit was
+  re-seeded from what it did hold. Placed there, not at bit 31, so that a
+  16-bit status register has it for up to 7 signals; where the register has
+  no bit left, the mismatch is only logged and counted.
 
 The heartbeat counts ticks modulo 32768 (fits a PLC INT): when it stops
 changing, the PLC knows compd is gone and falls back on its own.
@@ -30,12 +39,13 @@ changing, the PLC knows compd is gone and falls back on its own.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 
 HEARTBEAT_MODULO = 32_768
 SIGNAL_BIT0 = 8
+STATUS_BITS = 32
 
 
 class Level(IntEnum):
@@ -126,12 +136,26 @@ class AxisSafety:
         return AxisOutput(self.offset_um, clamped != target_um, slewed, frozen)
 
 
-def status_word(level: Level, flags: Iterable[Flag], signal_bad: Iterable[bool]) -> int:
-    """Pack the level (bits 0-1), flags (bits 2-7) and per-signal bits (8-31) into one word."""
+def status_word(
+    level: Level, flags: Iterable[Flag], signal_bad: Sequence[bool], *, mismatch: bool = False
+) -> int:
+    """Pack the level (bits 0-1), flags (bits 2-7), per-signal bits (8-31) and mismatch bit into one word.
+
+    The caller passes ``mismatch`` only where the status point holds that bit
+    (:func:`compd.writepoints.status_mismatch_bit`).
+    """
     word = int(level)
     for flag in flags:
         word |= int(flag)
     for i, bad in enumerate(signal_bad):
         if bad:
             word |= 1 << (SIGNAL_BIT0 + i)
+    if mismatch and (bit := mismatch_bit(len(signal_bad))) is not None:
+        word |= 1 << bit
     return word
+
+
+def mismatch_bit(n_signals: int) -> int | None:
+    """The offset-readback-mismatch bit for ``n_signals`` signals: the next after theirs, if any is left."""
+    bit = SIGNAL_BIT0 + n_signals
+    return bit if bit < STATUS_BITS else None

@@ -13,7 +13,8 @@ model, the last tick, the inputs and their health, and the counters) and
 a bad one refused while the running model goes on untouched; a good one
 blended in bumplessly by the loop). Shutdown (SIGTERM, SIGINT, end of
 ``duration_s``) saves the state, writes a last status word with the STOPPED
-bit, closes the drivers and exits cleanly.
+bit (only after a first tick: a start that failed writes nothing), closes
+the drivers and exits cleanly.
 """
 
 from __future__ import annotations
@@ -37,7 +38,6 @@ from compd.errors import CompdError, RecorderError
 from compd.faultlog import FaultLog
 from compd.links import DriverLink
 from compd.loop import (
-    AxisPoint,
     Compensator,
     ModelSlot,
     SignalPoint,
@@ -48,6 +48,7 @@ from compd.loop import (
 )
 from compd.modelfile import load_model
 from compd.notify import SystemdNotifier
+from compd.offsets import AxisPoint
 from compd.recorder import Recorder
 from compd.safety import HEARTBEAT_MODULO, AxisLimits, AxisSafety, FaultMode
 from compd.schedule import GainScheduler
@@ -140,6 +141,7 @@ class Service:
             doc.state.resume_max_age_s,
             real_now_unix_s=time.time(),
             time_scale=getattr(clock, "time_scale", 1.0),
+            max_offsets_um={axis: out.max_offset_um for axis, out in doc.outputs.items()},
         )
         log.info(
             "model",
@@ -190,14 +192,20 @@ class Service:
                     o.address,
                     float(o.sign),
                     o.encoding.scale,
-                    o.encoding.type == "int",
+                    config.whole_counts.get(axis, o.encoding.type == "int"),
+                    readback=config.readback.get(axis, False),
                 )
                 for axis, o in doc.outputs.items()
             ],
             safety=safety,
             links=self.links,
             model=slot,
-            status=StatusPoint(status.driver, status.status_address, status.heartbeat_address)
+            status=StatusPoint(
+                status.driver,
+                status.status_address,
+                status.heartbeat_address,
+                mismatch_bit=config.mismatch_bit is not None,
+            )
             if status
             else None,
             blend_s=doc.blend_s,
@@ -270,7 +278,7 @@ class Service:
             model_name=slot.compiled.name,
             saved_at_unix_s=self.clock.wall(),
             model_state=slot.runner.state,
-            offsets_um={axis: s.offset_um for axis, s in self.compensator.safety.items()},
+            offsets_um=self.compensator.held.known_um(),
             ticks=self.compensator.counters.ticks,
             saved_real_unix_s=time.time(),
         )
@@ -331,7 +339,9 @@ class Service:
         row |= {f"health.{k}": int(v) for k, v in record.health.items()}
         row |= {f"model.{k}": v for k, v in record.model_outputs.items()}
         row |= {f"model.{k.replace('/', '.')}": v for k, v in record.contributions.items()}
-        row |= {f"offset.{k}_um": v for k, v in record.offsets_um.items()}
+        # What the devices acknowledged (NaN: not written), and what they held before the write.
+        row |= {f"offset.{k}_um": v for k, v in record.acknowledged_um.items()}
+        row |= {f"readback.{k}_um": v for k, v in record.readback_um.items()}
         row |= {f"gain.{k}": v for k, v in record.gains.items()}
         row |= {"status": record.status, "heartbeat": record.heartbeat}
         try:
@@ -399,6 +409,8 @@ class Service:
             "status_word": None if last is None else last.status,
             "heartbeat": comp.heartbeat,
             "offsets_um": {a: s.offset_um for a, s in comp.safety.items()},
+            # What the PLC holds as far as compd knows (read back, else acknowledged).
+            "offsets_held_um": comp.held.known_um(),
             "targets_um": {} if last is None else last.targets_um,
             "inputs": {
                 name: {
@@ -418,6 +430,7 @@ class Service:
                 "reconnects": sum(link.reconnects for link in self.links.values()),
                 "write_failures": counters.write_failures,
                 "model_loads": counters.model_loads,
+                "offset_mismatches": counters.offset_mismatches,
             },
         }
 

@@ -126,6 +126,8 @@ def load_state(state_dir: Path) -> SavedState | None:
         return None
     except OSError as exc:
         raise StateError(f"{path}: cannot read ({exc.strerror})") from exc
+    except UnicodeDecodeError as exc:
+        raise StateError(f"{path}: not text ({exc.reason} at byte {exc.start})") from exc
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -144,11 +146,14 @@ def resume_decision(
     *,
     real_now_unix_s: float | None = None,
     time_scale: float = 1.0,
+    max_offsets_um: Mapping[str, float] | None = None,
 ) -> Resume:
     """Resume ``saved`` only if it is this model's (sha256 and shape) and younger than ``max_age_s``.
 
     The age is machine time: on a clock ``time_scale`` times faster than real
     time (a simulated machine), the real time since the save times the scale.
+    With ``max_offsets_um`` (axis -> clamp), a saved offset that is not finite
+    or lies beyond its axis's clamp makes the whole state suspect: not resumed.
     """
     if saved is None:
         return Resume(False, "no saved state")
@@ -167,6 +172,12 @@ def resume_decision(
         compiled.check_state(saved.model_state)
     except ModelError as exc:
         return Resume(False, f"saved state does not fit the model: {exc}")
+    for axis, limit_um in (max_offsets_um or {}).items():
+        offset_um = saved.offsets_um.get(axis, 0.0)
+        if not abs(offset_um) <= limit_um:  # NaN too
+            return Resume(
+                False, f"saved offset {axis} = {offset_um:g} um is beyond ±{limit_um:g} um"
+            )
     return Resume(True, f"saved state is {age_s:.0f} s old")
 
 

@@ -12,11 +12,27 @@ driver without touching compd::
 
     [project.entry-points."compd.drivers"]
     mybus = "mypackage.driver:MyBusDriver"
+
+Two optional class-level hooks tell the config checks and the service what a
+driver type's addresses mean; a type without them gets the cautious answer
+(:func:`write_footprint`, :func:`reads_back`):
+
+``footprint(address, settings) -> frozenset``
+    the cells (registers, bytes or bits, nodes) a written value occupies,
+    so that ``check-config`` refuses two written values sharing one;
+``raw_range(address, settings) -> tuple[int, int] | None``
+    the whole numbers an integer point holds (``None``: a float, or not known
+    before connecting), so that ``check-config`` refuses an offset, status
+    word or heartbeat that cannot fit, and counts its resolution;
+``reads_back(settings) -> bool``
+    whether ``read()`` of a written address returns what the device holds
+    *now* (after a PLC restart that cleared it, say), not what this driver
+    last sent; the service then re-seeds each offset's slew limit from it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -78,3 +94,27 @@ def driver_types() -> dict[str, DriverType]:
     for entry in metadata.entry_points(group=ENTRY_POINT_GROUP):
         found.setdefault(entry.name, entry.load())
     return found
+
+
+def write_footprint(kind: DriverType, address: str, settings: BaseModel) -> frozenset[Hashable]:
+    """The cells a value written at ``address`` occupies; without the hook, the address itself."""
+    footprint = getattr(kind, "footprint", None)
+    if footprint is None:
+        return frozenset({address})
+    cells: frozenset[Hashable] = footprint(address, settings)
+    return cells
+
+
+def reads_back(kind: DriverType, settings: BaseModel) -> bool:
+    """Whether reading a written address returns the device's value; without the hook, no."""
+    hook = getattr(kind, "reads_back", None)
+    return bool(hook(settings)) if hook is not None else False
+
+
+def write_range(kind: DriverType, address: str, settings: BaseModel) -> tuple[int, int] | None:
+    """The whole numbers an integer point holds; ``None`` for a float point or without the hook."""
+    hook = getattr(kind, "raw_range", None)
+    if hook is None:
+        return None
+    bounds: tuple[int, int] | None = hook(address, settings)
+    return bounds

@@ -11,7 +11,8 @@ into the DP output area. Two kinds of other side are supported
     ``output_register`` on (two bytes a register, first byte high). One
     request reads the whole input area per tick and one request writes the
     whole output area, so every value of a tick comes from one gateway cycle
-    and the PLC sees one consistent output image.
+    and the PLC sees one consistent output image. Reading an ``out:``
+    address reads the output area back from the gateway.
 ``can``
     python-can on any interface (``socketcan``, ``virtual``, ...). With
     ``protocol: canopen`` (e.g. an Anybus X-gateway) the input area travels
@@ -25,7 +26,9 @@ into the DP output area. Two kinds of other side are supported
     addresses are left out, i.e. stale) and raises DriverTimeoutError when
     no frame at all came for ``frame_timeout_s``. A write sends every
     output frame (CAN has no reply: a write to a gateway silent for
-    ``frame_timeout_s`` raises DriverTimeoutError instead).
+    ``frame_timeout_s`` raises DriverTimeoutError instead). An ``out:``
+    address reads the image this driver last sent: an RPDO cannot be read
+    back, so the service does not take it for the PLC's value.
 
 Addresses are byte offsets into the image (:mod:`compd.drivers.gateway_image`),
 e.g. ``in:4:int32`` or ``in:12.3``. **32-bit consistency:** a CAN frame is
@@ -53,6 +56,7 @@ from pathlib import Path
 from typing import Literal, Protocol
 
 from compd.drivers.gateway_image import (
+    BYTE_TYPES,
     MAX_AREA_BYTES,
     SYNTAX,
     ImagePoint,
@@ -62,7 +66,7 @@ from compd.drivers.gateway_image import (
     parse_address,
 )
 from compd.drivers.modbus import ModbusDriver, ModbusSettings
-from compd.drivers.points import Order
+from compd.drivers.points import INT_RANGES, Order
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from compd.errors import DriverDisconnectedError, DriverProtocolError, DriverTimeoutError
@@ -293,6 +297,15 @@ class ModbusTransport:
             self.watch.observe(image[s.status.offset], time.monotonic())
         return image, None
 
+    async def read_output(self) -> bytes:
+        """The output area as the gateway holds it now (its holding registers)."""
+        s = self.settings
+        client, _ = self._modbus._connection()
+        registers = await self._modbus._read_span(
+            client, "holding", s.output_register, s.output_bytes // 2, s.device_id
+        )
+        return b"".join(int(r).to_bytes(2, "big") for r in registers[: s.output_bytes // 2])
+
     async def write_output(self, image: bytes) -> None:
         s = self.settings
         client, _ = self._modbus._connection()
@@ -349,6 +362,26 @@ class GatewayDriver:
                 f"it overlaps compd's live bit out:{live.offset}.{live.bit} (output_live)"
             )
 
+    @staticmethod
+    def footprint(address: str, settings: GatewaySettings) -> frozenset[tuple[str, int, int]]:
+        """The ``(area, byte, bit)`` cells of a value: its one bit, or every bit of its bytes."""
+        parsed = parse_address(address)
+        bits = range(8) if parsed.bit is None else (parsed.bit,)
+        return frozenset(
+            (parsed.area, byte, bit) for byte in range(parsed.offset, parsed.end) for bit in bits
+        )
+
+    @staticmethod
+    def raw_range(address: str, settings: GatewaySettings) -> tuple[int, int] | None:
+        """The whole numbers an integer value (a bit: 0-1, a byte type) holds; ``None`` for floats."""
+        parsed = parse_address(address)
+        return BYTE_TYPES.get(parsed.type) or INT_RANGES.get(parsed.type)
+
+    @staticmethod
+    def reads_back(settings: GatewaySettings) -> bool:
+        """Over Modbus TCP the output area is read from the gateway; a CAN RPDO cannot be read."""
+        return settings.transport == "modbus_tcp"
+
     async def open(self) -> None:
         await self.close()
         if self.settings.transport == "modbus_tcp":
@@ -375,9 +408,14 @@ class GatewayDriver:
                     fresh is None or frame_of(point.offset, FRAME_BYTES) in fresh
                 ):
                     values[name] = point.read(image)
-        for name, point in parsed:
-            if point.address.area == "out":
-                values[name] = point.read(self.output_image)
+        if any(p.address.area == "out" for _, p in parsed):
+            output = self.output_image
+            if isinstance(transport, ModbusTransport):  # the gateway's image, not our copy
+                async with lock:
+                    output = await transport.read_output()
+            for name, point in parsed:
+                if point.address.area == "out":
+                    values[name] = point.read(output)
         return values
 
     async def write(self, values: Mapping[str, float]) -> None:

@@ -25,7 +25,8 @@ engineering units stays where it is for every driver: a signal's
 Per tick, the points of one table on one device are sorted and contiguous
 (or overlapping) ranges are merged into one request of at most
 ``max_registers_per_request`` registers; writes of contiguous holding
-registers likewise go out as one "write multiple registers". Every value is
+registers likewise go out as one "write multiple registers"; a written
+holding register or coil reads back what the PLC holds. Every value is
 encoded and range-checked before the first byte is sent, so a batch with a
 value that does not fit writes nothing. pymodbus exceptions and Modbus
 exception responses become compd's DriverError family here.
@@ -43,7 +44,7 @@ from pathlib import Path
 from typing import Any, Literal, cast
 
 from compd.drivers.library_logs import quiet_library
-from compd.drivers.points import ORDERS, POINT_TYPES, Order, PointCodec, PointType
+from compd.drivers.points import INT_RANGES, ORDERS, POINT_TYPES, Order, PointCodec, PointType
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
@@ -198,6 +199,24 @@ class ModbusDriver:
         point = parse_address(address)
         if writable and point.table not in WRITABLE_TABLES:
             raise ValueError(f"a {point.table} cannot be written; use holding or coil")
+
+    @staticmethod
+    def footprint(address: str, settings: ModbusSettings) -> frozenset[tuple[int, str, int]]:
+        """The ``(device, table, register or bit)`` cells a value at ``address`` spans."""
+        point = parse_address(address)
+        device = settings.device_id if point.device_id is None else point.device_id
+        span = range(point.address, point.address + point.count)
+        return frozenset((device, point.table, a) for a in span)
+
+    @staticmethod
+    def raw_range(address: str, settings: ModbusSettings) -> tuple[int, int] | None:
+        """The whole numbers an integer point (or a coil: 0-1) holds; ``None`` for floats."""
+        return INT_RANGES.get(parse_address(address).codec.type)
+
+    @staticmethod
+    def reads_back(settings: ModbusSettings) -> bool:
+        """Holding registers and coils read back what the PLC holds now."""
+        return True
 
     async def open(self) -> None:
         await self.close()

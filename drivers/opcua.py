@@ -105,6 +105,24 @@ class OpcUaDriver:
 
     settings_model = OpcUaSettings
 
+    @staticmethod
+    def footprint(address: str, settings: OpcUaSettings) -> frozenset[str]:
+        """The node: a NodeId in its canonical form (``ns=2;s=X``), else the browse path.
+
+        A NodeId and a browse path naming the same node are told apart only
+        by the server, so only the same spelling counts as the same node here.
+        """
+        try:
+            node_id = _node_id(address)
+        except DriverProtocolError:  # not a NodeId: its text is all there is to compare
+            return frozenset({address})
+        return frozenset({node_id.to_string() if node_id is not None else address.lstrip("/")})
+
+    @staticmethod
+    def reads_back(settings: OpcUaSettings) -> bool:
+        """A written variable reads back the server's current value."""
+        return True
+
     def __init__(
         self, settings: OpcUaSettings, *, now: Callable[[], float], base_dir: Path
     ) -> None:

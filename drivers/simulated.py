@@ -97,6 +97,11 @@ class SimulatedDriver:
         #: Number of successful ``open`` calls.
         self.opens = 0
 
+    @staticmethod
+    def reads_back(settings: SimulatedSettings) -> bool:
+        """No: what it keeps of the writes lives and dies with this driver, not with a machine."""
+        return False
+
     @property
     def columns(self) -> tuple[str, ...]:
         return tuple(self._columns)

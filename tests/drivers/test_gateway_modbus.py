@@ -67,17 +67,20 @@ def test_one_request_reads_the_area_and_one_writes_it():
     }
 
 
+def plain_master(settings: GatewaySettings) -> ModbusDriver:
+    """A plain Modbus master on the gateway's port (not yet open)."""
+    return ModbusDriver(
+        ModbusSettings(host="127.0.0.1", port=settings.port), now=time.monotonic, base_dir=Path()
+    )
+
+
 def test_a_plain_modbus_master_sees_the_big_endian_image():
     """Independent check of the layout: a plain Modbus master reads the output area at holding 100.. (ABCD)."""
     settings = modbus_settings(free_port())
 
     async def scenario() -> dict[str, float]:
         server, driver = await served(settings)
-        plain = ModbusDriver(
-            ModbusSettings(host="127.0.0.1", port=settings.port),
-            now=time.monotonic,
-            base_dir=Path(),
-        )
+        plain = plain_master(settings)
         try:
             await driver.write({"out:0:int32": -70000.0, "out:4:int16": -3.0})
             await plain.open()
@@ -91,6 +94,26 @@ def test_a_plain_modbus_master_sees_the_big_endian_image():
         "holding:102:int16": -3.0,
         "input:10:int16": -1234.0,
     }
+
+
+def test_an_output_address_reads_back_what_the_gateway_holds():
+    """An out: address reads the gateway's output area, not the driver's copy: another master's change shows."""
+    settings = modbus_settings(free_port())
+
+    async def scenario() -> dict[str, float]:
+        server, driver = await served(settings)
+        other = plain_master(settings)
+        try:
+            await driver.write({"out:0:int32": -70000.0})
+            await other.open()
+            await other.write({"holding:100:int32": 25.0})  # e.g. the gateway restarted, reset
+            return await driver.read(["out:0:int32", "in:0:int16"])
+        finally:
+            await other.close()
+            await shut(server, driver)
+
+    assert asyncio.run(scenario()) == {"out:0:int32": 25.0, "in:0:int16": -1234.0}
+    assert GatewayDriver.reads_back(settings)
 
 
 def test_dp_side_down_and_frozen_gateway():

@@ -5,6 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import yaml
+from compd.drivers.gateway import GatewayDriver
+from compd.drivers.modbus import ModbusDriver, ModbusSettings
 
 from compd.config import check_model, load_config, parse_config
 from compd.errors import ConfigFileError
@@ -151,3 +154,127 @@ def test_an_offset_on_a_read_only_sensor_driver_is_refused(tmp_path):
         write_config(tmp_path, changes)
     text = str(caught.value)
     assert "outputs.Y.address" in text and "read-only" in text and "writable driver" in text
+
+
+SIMULATED_MACHINE = resolve_path("bundled:simulated.yaml", Path("."))
+
+
+def machine_config_error(tmp_path: Path, changes: dict) -> str:
+    """The error for the bundled simulated-machine config (Modbus, Z int32 at holding:100) with ``changes``."""
+    with pytest.raises(ConfigFileError) as caught:
+        write_config(tmp_path, changes, doc=yaml.safe_load(SIMULATED_MACHINE.read_text()))
+    return str(caught.value)
+
+
+def test_a_status_word_inside_an_int32_offset_is_refused(tmp_path):
+    """A status word at holding:101 overlaps the int32 offset at holding:100-101: refused, naming both."""
+    message = machine_config_error(tmp_path, {"status": {"status_address": "holding:101"}})
+    assert (
+        "(status.status_address): address 'holding:101' on driver 'plc' is already written "
+        "by outputs.Z (it overlaps 'holding:100:int32')" in message
+    )
+
+
+@pytest.mark.parametrize(
+    "status", ["holding:102", "holding:101:device=2"], ids=["next-register", "other-device"]
+)
+def test_written_points_in_other_registers_or_devices_pass(tmp_path, status):
+    """Written points that share no register of one device are accepted."""
+    doc = yaml.safe_load(SIMULATED_MACHINE.read_text())
+    config = write_config(tmp_path, {"status": {"status_address": status}}, doc=doc)
+    assert config.doc.status.status_address == status
+
+
+def test_modbus_tables_are_separate_areas():
+    """Coil 100 and holding register 100 are different cells; holding 101 is inside an int32 at 100."""
+    settings = ModbusSettings(host="127.0.0.1")
+    int32 = ModbusDriver.footprint("holding:100:int32", settings)
+    assert not ModbusDriver.footprint("coil:100", settings) & int32
+    assert ModbusDriver.footprint("holding:101", settings) <= int32
+
+
+def gateway_doc() -> dict:
+    """The simulated-machine config on a Profibus gateway over Modbus TCP: 16-byte areas."""
+    doc = yaml.safe_load(SIMULATED_MACHINE.read_text())
+    doc["drivers"]["plc"] = {
+        "type": "profibus_gateway",
+        "settings": {"host": "127.0.0.1", "input_bytes": 16, "output_bytes": 16},
+    }
+    for i, signal in enumerate(doc["signals"].values()):
+        signal["address"] = f"in:{2 * i}:int16"
+    doc["outputs"]["Z"]["address"] = "out:0:int32"
+    doc["status"] = {
+        "driver": "plc",
+        "status_address": "out:4:uint16",
+        "heartbeat_address": "out:6:uint16",
+    }
+    return doc
+
+
+def test_gateway_bytes_overlap_per_area(tmp_path):
+    """On a gateway a value inside another's output bytes is refused; the same offset in the input area is not."""
+    doc = gateway_doc()
+    assert write_config(tmp_path, doc=doc).doc.status.status_address == "out:4:uint16"
+    doc["status"]["status_address"] = "out:2:uint16"
+    with pytest.raises(ConfigFileError, match=r"already written by outputs\.Z \(it overlaps"):
+        write_config(tmp_path, doc=doc)
+    assert not GatewayDriver.footprint("in:0:int32", doc) & GatewayDriver.footprint(
+        "out:0:int32", doc
+    )
+    assert GatewayDriver.footprint("out:3.7", doc) <= GatewayDriver.footprint("out:0:int32", doc)
+
+
+def test_an_integer_offset_coarser_than_a_slew_step_is_refused(tmp_path):
+    """Whole micrometres (scale 1) at 0.5 um/s would step 1 um at a time: refused with the scale that works."""
+    slow = {"encoding": {"type": "int", "scale": 1}, "max_rate_um_per_s": 0.5}
+    message = machine_config_error(tmp_path, {"outputs": {"Z": slow}})
+    assert "(outputs.Z.encoding.scale): an integer count of 1 um (scale 1) is coarser" in message
+    assert "Use scale >= 2" in message
+    doc = yaml.safe_load(SIMULATED_MACHINE.read_text())
+    fine = {"encoding": {"type": "int", "scale": 2}, "max_rate_um_per_s": 0.5}
+    write_config(tmp_path, {"outputs": {"Z": fine}}, doc=doc)  # one count per step is fine
+    floats = {"encoding": {"type": "float", "scale": 1}, "max_rate_um_per_s": 0.01}
+    message = machine_config_error(tmp_path, {"outputs": {"Z": floats}})  # int32 rounds it anyway
+    assert "(outputs.Z.encoding.scale): a count of the register of 1 um" in message
+    floats["address"] = "holding:100:float32"
+    write_config(tmp_path, {"outputs": {"Z": floats}}, doc=doc)
+
+
+def test_values_that_cannot_fit_their_registers_are_refused(tmp_path):
+    """An int16 offset in 0.001 um cannot reach 150 um; a coil cannot carry the status word's 15 bits."""
+    message = machine_config_error(
+        tmp_path, {"outputs": {"Z": {"address": "holding:100:int16", "encoding": {"scale": 1000}}}}
+    )
+    assert "(outputs.Z.address): 'holding:100:int16' holds -32768..32767" in message
+    assert "±150000" in message
+    message = machine_config_error(tmp_path, {"status": {"status_address": "coil:110"}})
+    assert (
+        "(status.status_address): 'coil:110' holds 0..1, but it must carry bits 0..13 "
+        "(up to 16383) for 6 signals" in message
+    )
+
+
+def test_readback_is_on_where_the_driver_can_read_back(tmp_path):
+    """Modbus offsets read back by default, unless 'readback: false'; the replay driver cannot, and says so."""
+    doc = yaml.safe_load(SIMULATED_MACHINE.read_text())
+    assert write_config(tmp_path, doc=doc).readback == {"Z": True}
+    off = write_config(tmp_path, {"outputs": {"Z": {"readback": False}}}, doc=doc)
+    assert off.readback == {"Z": False}
+    assert write_config(tmp_path).readback == {"Y": False}  # the replay (simulated) driver
+    with pytest.raises(ConfigFileError) as caught:
+        write_config(tmp_path, {"outputs": {"Y": {"readback": True}}})
+    assert "(outputs.Y.readback): driver 'machine' (type simulated) cannot read back" in str(
+        caught.value
+    )
+
+
+def test_the_mismatch_bit_is_used_only_where_the_status_register_holds_it(tmp_path):
+    """Six signals leave bit 14 of a uint16 status word for the mismatch; eight leave none; nine do not fit."""
+    doc = yaml.safe_load(SIMULATED_MACHINE.read_text())
+    assert write_config(tmp_path, doc=doc).mismatch_bit == 14
+    extra = {"driver": "plc", "unit": "degC", "scale": 0.01}
+    doc["signals"] |= {f"T_{i}_degC": {**extra, "address": f"input:{i}:int16"} for i in (6, 7)}
+    assert write_config(tmp_path, doc=doc).mismatch_bit is None
+    doc["signals"]["T_8_degC"] = {**extra, "address": "input:8:int16"}
+    with pytest.raises(ConfigFileError, match=r"must carry bits 0\.\.16"):
+        write_config(tmp_path, doc=doc)

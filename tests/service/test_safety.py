@@ -95,3 +95,11 @@ def test_status_word_packs_level_flags_and_signal_bits():
     """Level in bits 0-1, flags in 2-7, one bit per signal from bit 8."""
     word = status_word(Level.DEGRADED, [Flag.SLEWING], [False, True])
     assert word == 1 | 8 | (1 << (SIGNAL_BIT0 + 1))
+
+
+def test_the_mismatch_bit_follows_the_signal_bits():
+    """The offset readback mismatch is the bit after the last signal's, and absent when 24 signals fill the word."""
+    word = status_word(Level.DEGRADED, [], [False] * 6, mismatch=True)
+    assert word == 1 | (1 << (SIGNAL_BIT0 + 6)) and word < 1 << 16  # fits a 16-bit register
+    assert status_word(Level.OK, [], [False] * 23, mismatch=True) == 1 << 31
+    assert status_word(Level.OK, [], [False] * 24, mismatch=True) == 0

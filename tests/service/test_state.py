@@ -86,6 +86,30 @@ def test_resume_policy(model, sha256, now, resume, reason):
     assert decision.resume is resume and reason in decision.reason
 
 
+def test_a_state_file_that_is_not_text_is_a_state_error(tmp_path):
+    """Bytes that are not UTF-8 (a corrupted card) are a StateError, so the daemon starts without them."""
+    (tmp_path / STATE_FILE).write_bytes(b"\x80\xff{")
+    with pytest.raises(StateError, match="not text"):
+        load_state(tmp_path)
+
+
+@pytest.mark.parametrize("offset_um", [140.0, -50.5, 1e9, float("nan"), float("inf")])
+def test_a_saved_offset_beyond_its_clamp_is_not_resumed(model, offset_um):
+    """A saved offset that is not finite or lies beyond the axis's clamp makes the state unusable."""
+    saved = saved_for(model)
+    saved = SavedState(
+        saved.model_sha256, saved.model_name, 1000.0, saved.model_state, {"Y": offset_um}, 42
+    )
+    decision = resume_decision(
+        saved, model[0].sha256, model[1], 1500.0, 900.0, max_offsets_um={"Y": 50.0}
+    )
+    assert not decision.resume and "beyond ±50 um" in decision.reason
+    fine = resume_decision(
+        saved_for(model), model[0].sha256, model[1], 1500.0, 900.0, max_offsets_um={"Y": 50.0}
+    )
+    assert fine.resume
+
+
 def test_install_model_points_current_at_the_copy(tmp_path):
     """An installed model is stored under its sha256 and becomes the current one."""
     assert installed_model(tmp_path) is None

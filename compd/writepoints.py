@@ -1,0 +1,199 @@
+"""The values compd writes to a machine, checked together: no overlap, a fine enough encoding, readback.
+
+Three rules ``check-config`` (and ``compd run``) apply to the written points
+of a config -- the axis offsets, the status word and the heartbeat:
+
+- no two may share a register, byte, bit or node of one driver (each driver
+  type says which cells an address occupies,
+  :func:`compd.drivers.base.write_footprint`): a status word at
+  ``holding:101`` inside an int32 offset at ``holding:100`` makes the PLC read
+  garbage for both;
+- an integer-encoded offset (or one written to an integer register) must
+  resolve one slew step: with a resolution ``1 / scale`` um coarser than
+  ``max_rate_um_per_s * period_s``, the offset moves in steps of a whole
+  count, larger than the slew limit allows;
+- where a driver knows a point's integer range (:func:`compd.drivers.base.write_range`),
+  ``±max_offset_um`` must fit it, and the status word's signal bits and the
+  heartbeat's highest count must fit theirs: a value that does not fit fails
+  the whole write, offsets, status and heartbeat alike (the readback-mismatch
+  bit is used only where it fits, :func:`status_mismatch_bit`);
+- ``readback: true`` needs a driver that can read back what the device holds
+  (:func:`compd.drivers.base.reads_back`); left out, readback is on wherever
+  the driver can.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable, Mapping
+from typing import TYPE_CHECKING
+
+from pydantic import BaseModel
+
+from compd.errors import ConfigFileError
+from compd.safety import HEARTBEAT_MODULO, SIGNAL_BIT0, mismatch_bit
+
+if TYPE_CHECKING:
+    from compd.config import ConfigDoc
+    from compd.drivers.base import DriverType
+
+#: Builds the config error for a place: ``error(location, message, fix)``.
+ErrorAt = Callable[[tuple[str | int, ...], str, str], ConfigFileError]
+#: The whole numbers a point (driver, address) holds; ``None``: a float or not known.
+Bounds = Callable[[str, str], tuple[int, int] | None]
+
+
+def written_points(doc: ConfigDoc) -> list[tuple[tuple[str | int, ...], str, str]]:
+    """``(location, driver, address)`` of every value compd writes, in config order."""
+    written: list[tuple[tuple[str | int, ...], str, str]] = [
+        (("outputs", n, "address"), o.driver, o.address) for n, o in doc.outputs.items()
+    ]
+    if doc.status is not None:
+        written += [
+            (("status", "status_address"), doc.status.driver, doc.status.status_address),
+            (("status", "heartbeat_address"), doc.status.driver, doc.status.heartbeat_address),
+        ]
+    return written
+
+
+def check_written(
+    doc: ConfigDoc,
+    types: Mapping[str, DriverType],
+    settings: Mapping[str, BaseModel],
+    error: ErrorAt,
+) -> None:
+    """Raise for written points that overlap, an offset coarser than a slew step, a value that cannot fit."""
+    from compd.drivers.base import write_footprint, write_range
+
+    def bounds(driver: str, address: str) -> tuple[int, int] | None:
+        found: tuple[int, int] | None = write_range(
+            types[doc.drivers[driver].type], address, settings[driver]
+        )
+        return found
+
+    owners: dict[tuple[str, Hashable], tuple[str, str]] = {}
+    for location, driver, address in written_points(doc):
+        cells = write_footprint(types[doc.drivers[driver].type], address, settings[driver])
+        clash = next(
+            (owners[(driver, c)] for c in sorted(cells, key=str) if (driver, c) in owners), None
+        )
+        if clash is not None:
+            owner, other = clash
+            shared = "" if other == address else f" (it overlaps {other!r})"
+            raise error(
+                location,
+                f"address {address!r} on driver {driver!r} is already written by {owner}{shared}",
+                "Give every written value its own registers, bytes or node",
+            )
+        owner = ".".join(map(str, location[:2]))
+        owners.update({(driver, c): (owner, address) for c in cells})
+    _check_offsets(doc, bounds, error)
+    if doc.status is not None:
+        _check_status(doc, bounds, error)
+
+
+def _check_offsets(doc: ConfigDoc, bounds_of: Bounds, error: ErrorAt) -> None:
+    """Each offset fits its point at ``±max_offset_um``, and a count resolves a slew step."""
+    for name, output in doc.outputs.items():
+        encoding = output.encoding
+        bounds = bounds_of(output.driver, output.address)
+        step_um = output.max_rate_um_per_s * doc.period_s
+        resolution_um = 1.0 / encoding.scale
+        if (encoding.type == "int" or bounds is not None) and resolution_um > step_um * (1 + 1e-9):
+            counts = "an integer count" if encoding.type == "int" else "a count of the register"
+            raise error(
+                ("outputs", name, "encoding", "scale"),
+                f"{counts} of {resolution_um:g} um (scale {encoding.scale:g}) is coarser than one "
+                f"slew step of {step_um:g} um (max_rate_um_per_s x period_s): the offset would "
+                "move in steps larger than the slew limit",
+                f"Use scale >= {1.0 / step_um:g} (a finer unit on the PLC) or raise "
+                "max_rate_um_per_s",
+            )
+        if bounds is None:
+            continue
+        low, high = bounds
+        reach = output.max_offset_um * encoding.scale
+        if round(-reach) < low or round(reach) > high:
+            raise error(
+                ("outputs", name, "address"),
+                f"{output.address!r} holds {low}..{high}, but ±max_offset_um ({output.max_offset_um:g}"
+                f" um) at scale {encoding.scale:g} is ±{reach:g}: such an offset could not be written",
+                "Use a wider (signed) type, a smaller encoding.scale or a smaller max_offset_um",
+            )
+
+
+def _check_status(doc: ConfigDoc, bounds_of: Bounds, error: ErrorAt) -> None:
+    """The status word's highest bit and the heartbeat's highest count fit their points."""
+    status = doc.status
+    assert status is not None
+    top_bit = SIGNAL_BIT0 + len(doc.signals) - 1
+    needs = (
+        ("status_address", status.status_address, (1 << (top_bit + 1)) - 1, f"bits 0..{top_bit}"),
+        ("heartbeat_address", status.heartbeat_address, HEARTBEAT_MODULO - 1, "0..32767"),
+    )
+    for key, address, largest, what in needs:
+        bounds = bounds_of(status.driver, address)
+        if bounds is not None and largest > bounds[1]:
+            raise error(
+                ("status", key),
+                f"{address!r} holds {bounds[0]}..{bounds[1]}, but it must carry {what} "
+                f"(up to {largest}) for {len(doc.signals)} signals",
+                "Use a wider unsigned type (uint16 up to 8 signals, uint32 beyond)",
+            )
+
+
+def output_readback(
+    doc: ConfigDoc,
+    types: Mapping[str, DriverType],
+    settings: Mapping[str, BaseModel],
+    error: ErrorAt,
+) -> dict[str, bool]:
+    """Whether each axis reads its offset back: as configured, else wherever the driver can."""
+    from compd.drivers.base import reads_back
+
+    readback = {}
+    for name, output in doc.outputs.items():
+        kind = doc.drivers[output.driver].type
+        can = reads_back(types[kind], settings[output.driver])
+        if output.readback and not can:
+            raise error(
+                ("outputs", name, "readback"),
+                f"driver {output.driver!r} (type {kind}) cannot read back what the device holds",
+                "Remove 'readback: true' (the offset then resumes from the saved state, else 0)",
+            )
+        readback[name] = can if output.readback is None else output.readback
+    return readback
+
+
+def whole_counts(
+    doc: ConfigDoc, types: Mapping[str, DriverType], settings: Mapping[str, BaseModel]
+) -> dict[str, bool]:
+    """Whether each axis's point holds whole counts: an int encoding, or an integer register."""
+    from compd.drivers.base import write_range
+
+    return {
+        name: output.encoding.type == "int"
+        or write_range(
+            types[doc.drivers[output.driver].type], output.address, settings[output.driver]
+        )
+        is not None
+        for name, output in doc.outputs.items()
+    }
+
+
+def status_mismatch_bit(
+    doc: ConfigDoc, types: Mapping[str, DriverType], settings: Mapping[str, BaseModel]
+) -> int | None:
+    """The status word's readback-mismatch bit (:func:`compd.safety.mismatch_bit`), if its point holds it.
+
+    A status word at a 16-bit register with 8 signals has no bit left: the
+    mismatch then shows in the log and the counters only, never in a value
+    the register cannot take (which would fail the whole write).
+    """
+    from compd.drivers.base import write_range
+
+    bit = mismatch_bit(len(doc.signals))
+    if doc.status is None or bit is None:
+        return None
+    kind = types[doc.drivers[doc.status.driver].type]
+    bounds = write_range(kind, doc.status.status_address, settings[doc.status.driver])
+    return bit if bounds is None or (1 << (bit + 1)) - 1 <= bounds[1] else None
