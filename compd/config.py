@@ -33,7 +33,15 @@ from compd.errors import ConfigFileError
 from compd.model.compiled import CompiledModel
 from compd.modelfile import ModelFile
 from compd.schedule import GainRow, GainTable, first_overlap, model_gains
-from compd.yamlplace import FIXES, describe, parse_yaml, resolve_path, where
+from compd.yamlplace import (
+    FIXES,
+    describe,
+    parse_yaml,
+    read_limited,
+    resolve_path,
+    shorten,
+    where,
+)
 
 if TYPE_CHECKING:
     from compd.sim.plc.settings import SimulationDoc
@@ -261,10 +269,7 @@ def default_state_dir() -> Path:
 def load_config(path: str | Path) -> Config:
     """Read and validate a config file (schema and references; see :func:`check_model`)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as exc:
-        raise ConfigFileError(path, f"cannot read the file ({exc.strerror})") from exc
+    text = read_limited(path, ConfigFileError).decode("utf-8", errors="replace")
     return parse_config(text, path)
 
 
@@ -274,7 +279,7 @@ def parse_config(text: str, path: Path) -> Config:
         shown = data.get("schema") if isinstance(data, dict) else None
         raise ConfigFileError(
             path,
-            f"unsupported or missing schema {shown!r}",
+            f"unsupported or missing schema {shorten(shown)}",
             where="schema",
             fix=f"Start the file with 'schema: {SCHEMA}' (see config/compd.example.yaml)",
         )

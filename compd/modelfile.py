@@ -24,7 +24,7 @@ from compd.model.residual import DoorFeatures, ResidualModel
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
 from compd.yamlplace import describe as _describe
-from compd.yamlplace import parse_yaml
+from compd.yamlplace import parse_yaml, read_limited, shorten
 from compd.yamlplace import where as _where
 
 SCHEMA = "compd.model/1"
@@ -277,10 +277,11 @@ class ModelFile:
 def load_model(path: str | Path) -> ModelFile:
     """Read, validate and build a model file (does not compile; see :meth:`ModelFile.compile`)."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ModelFileError(path, f"cannot read the file ({exc.strerror})") from exc
+    return parse_model_bytes(read_limited(path, ModelFileError), path)
+
+
+def parse_model_bytes(raw: bytes, path: str | Path = "<model>") -> ModelFile:
+    """Validate a model file's bytes (as read, or as a client sent them); its sha256 is of these bytes."""
     return parse_model(raw.decode("utf-8", errors="replace"), path, hashlib.sha256(raw).hexdigest())
 
 
@@ -295,7 +296,7 @@ def parse_model(text: str, path: str | Path = "<model>", sha256: str | None = No
     if data.get("schema") != SCHEMA:
         raise ModelFileError(
             path,
-            f"unsupported or missing schema {data.get('schema')!r}",
+            f"unsupported or missing schema {shorten(data.get('schema'))}",
             where="schema",
             fix=f"Start the file with 'schema: {SCHEMA}'",
         )
