@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from compd.errors import ModelError, ModelFileError
 from compd.model.compiled import CompiledModel, compile_model
+from compd.model.limits import MAX_DELAY_SAMPLES, MAX_ORDER, MAX_SAMPLE_TIME_S, MAX_SUBMODELS
 from compd.model.residual import DoorFeatures, ResidualModel
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
@@ -70,9 +71,9 @@ class PositionDoc(_Strict):
 class TFDoc(_Strict):
     form: Literal["continuous", "discrete"]
     power_order: Literal["ascending", "descending"]
-    num: list[FiniteFloat] = Field(min_length=1)
-    den: list[FiniteFloat] = Field(min_length=1)
-    nk: int = Field(default=0, ge=0)
+    num: list[FiniteFloat] = Field(min_length=1, max_length=MAX_ORDER + 1)
+    den: list[FiniteFloat] = Field(min_length=1, max_length=MAX_ORDER + 1)
+    nk: int = Field(default=0, ge=0, le=MAX_DELAY_SAMPLES)
     delay_s: FiniteFloat = Field(default=0.0, ge=0.0)
 
     @model_validator(mode="after")
@@ -123,7 +124,7 @@ class ResidualDoc(_Strict):
 class OutputDoc(_Strict):
     unit: Literal["um"] = "um"
     description: str = ""
-    submodels: list[SubModelDoc] = Field(min_length=1)
+    submodels: list[SubModelDoc] = Field(min_length=1, max_length=MAX_SUBMODELS)
     residual: ResidualDoc | None = None
 
     @field_validator("submodels")
@@ -246,7 +247,7 @@ class ModelDoc(_Strict):
     schema_: Literal["compd.model/1"] = Field(alias="schema")
     name: str = Field(min_length=1)
     description: str = ""
-    sample_time_s: FiniteFloat = Field(gt=0)
+    sample_time_s: FiniteFloat = Field(gt=0, le=MAX_SAMPLE_TIME_S)
     signals: dict[str, SignalDoc] | None = None
     outputs: dict[str, OutputDoc] = Field(min_length=1)
     provenance: ProvenanceDoc = ProvenanceDoc()
@@ -415,4 +416,6 @@ _FIXES = {
     "literal_error": "Use one of the allowed values",
     "float_parsing": "Give a number",
     "finite_number": "Give a finite number",
+    "too_long": "Give fewer items (see the bounds in README.md, 'Model files')",
+    "less_than_equal": "Give a smaller value (see the bounds in README.md, 'Model files')",
 }
