@@ -47,8 +47,8 @@ if TYPE_CHECKING:
     from compd.sim.plc.settings import SimulationDoc
 
 SCHEMA = "compd.config/1"
-#: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31).
-MAX_SIGNALS = 24
+#: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..29).
+MAX_SIGNALS = 22
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -216,6 +216,29 @@ class GainScheduleDoc(_Strict):
         return GainTable(self.signal, tuple(r.row() for r in self.table), default, self.ramp_s)
 
 
+class LoadAccessDoc(_Strict):
+    """Who may switch the running model over the control socket (``compd model load``).
+
+    Users and groups by name or number; a client is allowed when its uid is
+    listed or its primary gid is (the kernel reports one gid per connection).
+    Unset ``users``: the daemon's own user and root. ``compd status`` is open
+    to everyone who can open the socket (its group).
+    """
+
+    users: list[str | int] | None = None
+    groups: list[str | int] = Field(default_factory=list)
+
+    def ids(self) -> tuple[frozenset[int], frozenset[int]]:
+        """The uids and gids; raises LookupError naming an unknown user or group."""
+        import grp
+        import pwd
+
+        users = [os.getuid(), 0] if self.users is None else self.users
+        uids = [u if isinstance(u, int) else pwd.getpwnam(u).pw_uid for u in users]
+        gids = [g if isinstance(g, int) else grp.getgrnam(g).gr_gid for g in self.groups]
+        return frozenset(uids), frozenset(gids)
+
+
 class ConfigDoc(_Strict):
     schema_: Literal["compd.config/1"] = Field(alias="schema")
     model: str
@@ -223,6 +246,7 @@ class ConfigDoc(_Strict):
     blend_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
     live_every_ticks: int = Field(default=60, ge=1)
     control_socket: str | None = None
+    load_access: LoadAccessDoc = LoadAccessDoc()
     drivers: dict[str, DriverDoc] = Field(min_length=1)
     signals: dict[str, SignalDoc] = Field(min_length=1, max_length=MAX_SIGNALS)
     outputs: dict[str, OutputDoc] = Field(min_length=1)
@@ -387,6 +411,12 @@ def parse_config(text: str, path: Path) -> Config:
                     f"Write it {syntax}",
                 ) from exc
 
+    try:
+        doc.load_access.ids()
+    except KeyError as exc:
+        raise error(
+            ("load_access",), f"no such user or group: {exc}", "Give an existing name or a number"
+        ) from exc
     simulation = None
     if doc.simulation is not None:
         # Imported here: the twin (and pandas) stay out of a real machine's daemon.

@@ -21,7 +21,9 @@ The status word written beside the offsets lets the PLC supervise compd:
 - bit 2 clamped, bit 3 slew-limited, bit 4 starting (no model output yet),
   bit 5 stopped (the last word written at shutdown), bit 6 a driver link down,
   bit 7 blending to a newly loaded model;
-- bits 8-31: one per configured signal, in config order, set while it is not OK.
+- bits 8-29: one per configured signal, in config order, set while it is not OK;
+- bit 30 model fault: the model's output is not finite, or a model failed and was
+  unloaded (see :class:`~compd.loop.Compensator`); bit 31 is unused (an int32's sign).
 
 The heartbeat counts ticks modulo 32768 (fits a PLC INT): when it stops
 changing, the PLC knows compd is gone and falls back on its own.
@@ -51,6 +53,7 @@ class Flag(IntEnum):
     STOPPED = 1 << 5
     DRIVER_DOWN = 1 << 6
     BLENDING = 1 << 7
+    MODEL_FAULT = 1 << 30
 
 
 class FaultMode(StrEnum):
@@ -127,7 +130,7 @@ class AxisSafety:
 
 
 def status_word(level: Level, flags: Iterable[Flag], signal_bad: Iterable[bool]) -> int:
-    """Pack the level (bits 0-1), flags (bits 2-7) and per-signal bits (8-31) into one word."""
+    """Pack the level (bits 0-1), flags (bits 2-7, 30) and per-signal bits (8-29) into one word."""
     word = int(level)
     for flag in flags:
         word |= int(flag)

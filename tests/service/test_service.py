@@ -15,6 +15,7 @@ from compd.control import request
 from compd.data import load_data
 from compd.model.run import simulate
 from compd.modelfile import load_model
+from compd.modelload import load_request
 from compd.safety import SIGNAL_BIT0, Flag, Level
 from compd.service import Service
 from compd.signals import Health
@@ -156,9 +157,9 @@ def test_hot_load_refuses_a_bad_model_and_blends_a_good_one(tmp_path):
         task = asyncio.create_task(service.run(duration_s=1800.0))
         while service.compensator.counters.ticks < 300:
             await asyncio.sleep(0)
-        replies["bad"] = await request(socket, {"cmd": "load", "path": str(bad)})
+        replies["bad"] = await request(socket, load_request(bad.read_bytes(), bad))
         replies["status"] = await request(socket, {"cmd": "status"})
-        replies["good"] = await request(socket, {"cmd": "load", "path": str(good)})
+        replies["good"] = await request(socket, load_request(good.read_bytes(), good))
         await task
 
     asyncio.run(scenario())
