@@ -1,4 +1,4 @@
-"""A model that fails while the daemon runs is unloaded, flagged and logged once; the daemon never dies of it, nor restarts into it."""
+"""A model failing while the daemon runs is unloaded, flagged and logged once; no crash, no restart into it."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ import numpy as np
 from structlog.testing import capture_logs
 
 from compd.clock import VirtualClock
+from compd.config import MAX_SIGNALS
 from compd.control import request
 from compd.loop import TickRecord
 from compd.modelload import load_request
-from compd.config import MAX_SIGNALS
 from compd.safety import SIGNAL_BIT0, Flag, Level
 from compd.service import Service
 from compd.state import install_model_bytes, installed_model
@@ -71,7 +71,7 @@ def run_with_load(
 
 
 def test_a_model_that_fails_while_running_is_unloaded_and_the_previous_restored(tmp_path):
-    """A loaded model that raises mid-shift is unloaded, the config's model restored warm, bit 30 set; a restart starts the config's."""
+    """A loaded model raising mid-shift is unloaded, the config's restored (bit 30 set) and started next time."""
     failed_at: list[int] = []
 
     def fail_once_blended(service: Service, record: TickRecord) -> None:
