@@ -35,39 +35,50 @@ def check(path: Path) -> tuple[int, str]:
     return code, err.getvalue()
 
 
+NUM, DEN = "num: [0.0162, 10.74, 5.368]", "den: [0.002098, 2.379, 1.0]"
+GATE = "gate: {signal: n_rpm, above: 0}"
+DISCRETE = [("form: continuous", "form: discrete"), (NUM, "num: [1.0]"), (DEN, "den: [1.0, -0.5]")]
+
+#: The files of the issue: edits of a valid file, and what the refusal must say.
 HOSTILE = {
-    "gain 1e308": (
-        "gate: {signal: n_rpm, above: 0}",
-        "gate: {signal: n_rpm, above: 0}\n        gain: 1e308",
+    "gain 1e308": ([(GATE, GATE + "\n        gain: 1e308")], "(gain 1e+308 x TF"),
+    "coefficients 1e308": (
+        [*DISCRETE, ("num: [1.0]", "num: [1e308, 1e308]")],
+        "static gain inf",
     ),
-    "coefficients 1e308": ("num: [0.0162, 10.74, 5.368]", "num: [1e308, 1e308]"),
-    "nk 1e6": ("den: [0.002098, 2.379, 1.0]", "den: [1.0, -0.5]\n          nk: 1000000"),
-    "nk 1e10": ("den: [0.002098, 2.379, 1.0]", "den: [1.0, -0.5]\n          nk: 1.0e+10"),
-    "delay_s 1e15": (
-        "den: [0.002098, 2.379, 1.0]",
-        "den: [0.002098, 2.379, 1.0]\n          delay_s: 1.0e+15",
+    "nk 1e6": (
+        [*DISCRETE, ("den: [1.0, -0.5]", "den: [1.0, -0.5]\n          nk: 1000000")],
+        "less than or equal to 600",
     ),
-    "order 3000": ("den: [0.002098, 2.379, 1.0]", "den: [" + ", ".join(["1.0"] * 3000) + "]"),
-    "den 1e-300": ("den: [0.002098, 2.379, 1.0]", "den: [1.0, 1.0e-300]"),
-    "sample time 1e308": ("sample_time_s: 1.0", "sample_time_s: 1.0e+308"),
+    "nk 1e10": (
+        [*DISCRETE, ("den: [1.0, -0.5]", "den: [1.0, -0.5]\n          nk: 1.0e+10")],
+        "less than or equal to 600",
+    ),
+    "delay_s 1e15": ([(DEN, DEN + "\n          delay_s: 1.0e+15")], "delays up to 600 samples"),
+    "order 3000": ([(DEN, "den: [" + ", ".join(["1.0e-4"] * 3000) + "]")], "at most 33 items"),
+    "den 1e-300": ([(NUM, "num: [1.0]"), (DEN, "den: [1.0, 1.0e-300]")], "orders of magnitude"),
+    "sample time 1e308": (
+        [("sample_time_s: 1.0", "sample_time_s: 1.0e+308")],
+        "less than or equal to 3600",
+    ),
 }
 
 
 @pytest.mark.parametrize("case", sorted(HOSTILE))
 def test_hostile_model_files_are_refused_by_check(case: str, tmp_path: Path) -> None:
-    """Each file the issue found passing `check` (or blowing up) now exits 2 naming the file and the place."""
-    old, new = HOSTILE[case]
-    text = VALID.replace(old, new)
-    if case.startswith("nk"):
-        text = text.replace("form: continuous", "form: discrete").replace(
-            "num: [0.0162, 10.74, 5.368]", "num: [1.0]"
-        )
-    assert text != VALID
+    """Each file the issue found passing `check` (or blowing up) exits 2 naming the file, the place and the bound."""
+    edits, expected = HOSTILE[case]
+    text = VALID
+    for old, new in edits:
+        assert old in text
+        text = text.replace(old, new)
     path = tmp_path / "model.yaml"
     path.write_text(text)
     code, err = check(path)
     assert code == 2, err
-    assert f"{path}: " in err and ("outputs.disp_z_um.submodels[0]" in err or "line " in err)
+    assert err.startswith(f"error: {path}: ") or f"{path}: " in err
+    assert "outputs.disp_z_um.submodels[0]" in err or "line " in err
+    assert expected in err
 
 
 def _tf(draw: Any) -> dict[str, Any]:

@@ -39,9 +39,13 @@ def test_a_duplicate_key_in_a_config_is_an_error(tmp_path: Path) -> None:
 
 
 def test_aliases_that_would_expand_beyond_the_limit_are_refused_before_expanding() -> None:
-    """A small file whose aliases nest into 10^8 values (an alias bomb in provenance lists) is refused on its line."""
+    """A small file whose aliases nest into 10^6 values (an alias bomb, as in provenance lists) is refused on its line.
+
+    (The issue's bomb was 10^8 values; 10^6 shows the same and stays within
+    a test machine's memory where the reader has no limit.)
+    """
     lines = ["schema: compd.model/1", "x0: &a0 [" + ", ".join(["1.0"] * 10) + "]"]
-    for level in range(1, 9):
+    for level in range(1, 6):
         lines.append(f"x{level}: &a{level} [" + ", ".join([f"*a{level - 1}"] * 10) + "]")
     text = "\n".join(lines) + "\n"
     assert len(text) < 2_000

@@ -91,8 +91,9 @@ def test_stop_is_served_while_a_load_is_being_checked(tmp_path, monkeypatch):
         loading = asyncio.create_task(
             request(service.config.control_socket, load_request(good.read_bytes(), good))
         )
-        while not entered.is_set():
+        while not entered.is_set() and not loading.done():
             await asyncio.sleep(0)
+        assert entered.is_set(), "the load never reached the check"
         service.stop()
         await task
         loading.cancel()
@@ -127,7 +128,7 @@ def test_a_second_load_during_a_check_is_refused(tmp_path, monkeypatch):
             await asyncio.sleep(0)
         socket, message = service.config.control_socket, load_request(good.read_bytes(), good)
         first = asyncio.create_task(request(socket, message, timeout_s=GIVE_UP_S))
-        while not entered.is_set():
+        while not entered.is_set() and not first.done():
             await asyncio.sleep(0)
         replies["second"] = await request(socket, message)
         release.set()
