@@ -207,7 +207,7 @@ class ControlServer:
         if handler is None:
             known = ", ".join(sorted(self.handlers))
             return _refusal(f"unknown command {command!r}; known commands: {known}")
-        access = self.access.get(command)
+        access = self.access.get(str(command))
         if access is not None and not access.allows(peer):
             log.warning("control command %r refused to %s", command, peer)
             who = "an unknown peer" if peer is None else f"uid {peer.uid}, gid {peer.gid}"

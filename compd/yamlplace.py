@@ -118,7 +118,7 @@ def _check_events(text: str, path: object, error: type[InputFileError]) -> None:
     stack: list[_Frame] = []
     total = 0
     for event in yaml.parse(text, Loader=_Loader):
-        line = event.start_mark.line + 1
+        line = event.start_mark.line + 1 if event.start_mark is not None else 0
         if isinstance(event, yaml.CollectionStartEvent):
             if len(stack) >= MAX_YAML_DEPTH:
                 raise error(
@@ -137,7 +137,7 @@ def _check_events(text: str, path: object, error: type[InputFileError]) -> None:
                 sizes[frame.anchor] = size
         elif isinstance(event, yaml.AliasEvent):
             _key_or_value(stack, event, path, error, line)
-            size = sizes.get(event.anchor, 1)
+            size = sizes.get(event.anchor or "", 1)
         elif isinstance(event, yaml.ScalarEvent):
             _key_or_value(stack, event, path, error, line)
             size = 1
