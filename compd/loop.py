@@ -380,16 +380,16 @@ class Compensator:
                 slot.outputs = slot.runner.step(checked)
             except Exception as exc:  # a model must never end the loop
                 slot.outputs[:] = np.nan
-                fault = self._unload(slot, checked, f"failed: {exc!r}")
+                fault = self._unload(slot, f"failed: {exc!r}")
                 continue
             if not np.all(np.isfinite(slot.outputs)):
                 fault = f"model {slot.compiled.name!r} gave a non-finite output"
                 state = slot.runner.state
                 if not all(np.all(np.isfinite(v)) for v in (state.z, state.residual)):
-                    fault = self._unload(slot, checked, "its state turned NaN/inf")
+                    fault = self._unload(slot, "its state turned NaN/inf")
         self._latch_fault(fault)
 
-    def _unload(self, slot: ModelSlot, checked: Mapping[str, float], why: str) -> str:
+    def _unload(self, slot: ModelSlot, why: str) -> str:
         """Take a failed model out of the loop: restore the one it replaced, or restart it."""
         slot.runner = None
         if slot is self.previous:  # the outgoing model of a blend: the blend ends early
@@ -403,7 +403,10 @@ class Compensator:
             restore.runner = None
             restore.outputs[:] = np.nan  # not stepped this tick: the axes hold
             if len(history) >= 2:  # warm, from the recent inputs (compd.model.handover)
-                restore.start(handover_state(restore.compiled, history))
+                try:
+                    restore.start(handover_state(restore.compiled, history))
+                except Exception:  # then from steady state with the next inputs
+                    log.warning("restored model starts cold", model=restore.compiled.name)
         self.active, self.previous, self.fallback = restore, None, None
         return self._failed(slot, restore, why)
 

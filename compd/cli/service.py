@@ -205,6 +205,8 @@ def _status(args: argparse.Namespace) -> int:
         f"[bold]{model['name']}[/bold]  sha256 {model['sha256'][:12]}  loaded {model['loaded']}"
         + (f"  (loading {model['pending']})" if model.get("pending") else "")
     )
+    if model.get("fault"):
+        out.print(f"[red]model fault[/red]: {model['fault']}")
     out.print(
         f"last tick {reply['last_tick']}  status word {reply['status_word']}  "
         f"heartbeat {reply['heartbeat']}"

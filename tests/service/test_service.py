@@ -154,12 +154,18 @@ def test_hot_load_refuses_a_bad_model_and_blends_a_good_one(tmp_path):
     replies = {}
 
     async def scenario() -> None:
-        task = asyncio.create_task(service.run(duration_s=1800.0))
-        while service.compensator.counters.ticks < 300:
+        task = asyncio.create_task(service.run())
+        counters = service.compensator.counters
+        while counters.ticks < 300:
             await asyncio.sleep(0)
         replies["bad"] = await request(socket, load_request(bad.read_bytes(), bad))
         replies["status"] = await request(socket, {"cmd": "status"})
         replies["good"] = await request(socket, load_request(good.read_bytes(), good))
+        # Counted from the reply: virtual ticks race ahead while the daemon checks the model.
+        stop_at = counters.ticks + 1500
+        while counters.ticks < stop_at:
+            await asyncio.sleep(0)
+        service.stop()
         await task
 
     asyncio.run(scenario())
