@@ -14,7 +14,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from compd.cli import main
-from compd.errors import CompdError
 from compd.model.limits import (
     MAX_DELAY_SAMPLES,
     MAX_GAIN_UM_PER_UNIT,
@@ -136,18 +135,15 @@ def model_files(draw: Any) -> dict[str, Any]:
 def test_random_model_files_compile_within_the_limits_or_are_refused_naming_the_place(
     doc: dict[str, Any], tmp_path: Path
 ) -> None:
-    """A random model file either compiles to a model within every bound, or is a CompdError naming file and place."""
+    """`model check` on a random file either accepts a model within every bound or exits 2 naming file and place."""
     path = tmp_path / "random.yaml"
     path.write_text(yaml.safe_dump(doc))
-    refusal: CompdError | None = None
-    try:
-        compiled = load_model(path).compile()
-    except CompdError as exc:
-        refusal = exc
-    if refusal is not None:
-        assert str(refusal).startswith(f"{path}: ")
-        assert getattr(refusal, "where", ""), str(refusal)
+    code, err = check(path)  # any exception but a CompdError escapes main() and fails the test
+    if code != 0:
+        assert code == 2 and f"{path}: " in err, err
+        assert "outputs.disp_z_um" in err or "line " in err or "sample time" in err, err
         return
+    compiled = load_model(path).compile()
     assert compiled.n_submodels <= MAX_SUBMODELS
     assert compiled.n_submodels * (compiled.n_states + 1) <= MAX_STATES
     assert all(tf.nk <= MAX_DELAY_SAMPLES and tf.order <= MAX_ORDER for tf in compiled.discrete)
