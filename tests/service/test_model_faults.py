@@ -20,7 +20,7 @@ from compd.safety import SIGNAL_BIT0, Flag, Level
 from compd.service import Service
 from compd.state import install_model_bytes, installed_model
 
-from .daemon_setup import run, write_config
+from .daemon_setup import run, ticked, write_config
 from .test_service import SLEW_UM, bad_and_good_models, offsets
 
 CONFIG_MODEL = "example-gated-arx-y"
@@ -65,12 +65,10 @@ def run_with_load(
     async def scenario() -> None:
         task = asyncio.create_task(service.run())
         counters = service.compensator.counters
-        while counters.ticks < 100:
-            await asyncio.sleep(0)
+        await ticked(service, task, 100)
         replies["load"] = await request(socket, load_request(good.read_bytes(), good))
         stop_at = counters.ticks + ticks_after
-        while counters.ticks < stop_at:
-            await asyncio.sleep(0)
+        await ticked(service, task, stop_at)
         service.stop()
         await task
 

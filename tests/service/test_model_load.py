@@ -18,7 +18,7 @@ from compd.errors import ConfigFileError
 from compd.modelload import load_request
 from compd.service import Service
 
-from .daemon_setup import write_config
+from .daemon_setup import ticked, write_config
 from .test_model_faults import short_socket
 from .test_service import bad_and_good_models
 
@@ -53,8 +53,7 @@ def test_the_ticks_go_on_while_a_load_is_checked(tmp_path, monkeypatch):
 
     async def scenario() -> None:
         task = asyncio.create_task(service.run())
-        while service.compensator.counters.ticks < 10:
-            await asyncio.sleep(0)
+        await ticked(service, task, 10)
         heartbeat = service.compensator.heartbeat
         replies["load"] = await request(
             service.config.control_socket,
@@ -86,8 +85,7 @@ def test_stop_is_served_while_a_load_is_being_checked(tmp_path, monkeypatch):
 
     async def scenario() -> bool:
         task = asyncio.create_task(service.run())
-        while service.compensator.counters.ticks < 10:
-            await asyncio.sleep(0)
+        await ticked(service, task, 10)
         loading = asyncio.create_task(
             request(service.config.control_socket, load_request(good.read_bytes(), good))
         )
@@ -124,8 +122,7 @@ def test_a_second_load_during_a_check_is_refused(tmp_path, monkeypatch):
 
     async def scenario() -> None:
         task = asyncio.create_task(service.run())
-        while service.compensator.counters.ticks < 10:
-            await asyncio.sleep(0)
+        await ticked(service, task, 10)
         socket, message = service.config.control_socket, load_request(good.read_bytes(), good)
         first = asyncio.create_task(request(socket, message, timeout_s=GIVE_UP_S))
         while not entered.is_set() and not first.done():
@@ -151,8 +148,7 @@ def test_the_daemon_never_reads_a_path_a_client_names(tmp_path):
 
     async def scenario() -> None:
         task = asyncio.create_task(service.run())
-        while service.compensator.counters.ticks < 3:
-            await asyncio.sleep(0)
+        await ticked(service, task, 3)
         socket = service.config.control_socket
         replies["path"] = await request(socket, {"cmd": "load", "path": str(secret)})
         replies["shadow"] = await request(socket, {"cmd": "load", "path": "/etc/shadow"})
@@ -173,8 +169,7 @@ def test_load_is_refused_to_a_peer_outside_load_access_while_status_is_answered(
 
     async def scenario() -> None:
         task = asyncio.create_task(service.run())
-        while service.compensator.counters.ticks < 3:
-            await asyncio.sleep(0)
+        await ticked(service, task, 3)
         socket = service.config.control_socket
         replies["load"] = await request(socket, load_request(good.read_bytes(), good))
         replies["status"] = await request(socket, {"cmd": "status"})
