@@ -37,16 +37,25 @@ from compd.writepoints import (
     check_written,
     output_readback,
     status_mismatch_bit,
+    status_model_fault_bit,
     whole_counts,
     written_points,
 )
-from compd.yamlplace import FIXES, describe, parse_yaml, resolve_path, where
+from compd.yamlplace import (
+    FIXES,
+    describe,
+    parse_yaml,
+    read_limited,
+    resolve_path,
+    shorten,
+    where,
+)
 
 if TYPE_CHECKING:
     from compd.sim.plc.settings import SimulationDoc
 
 SCHEMA = "compd.config/1"
-#: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31).
+#: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..29).
 MAX_SIGNALS = 24
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
@@ -217,6 +226,29 @@ class GainScheduleDoc(_Strict):
         return GainTable(self.signal, tuple(r.row() for r in self.table), default, self.ramp_s)
 
 
+class LoadAccessDoc(_Strict):
+    """Who may switch the running model over the control socket (``compd model load``).
+
+    Users and groups by name or number; a client is allowed when its uid is
+    listed or its primary gid is (the kernel reports one gid per connection).
+    Unset ``users``: the daemon's own user and root. ``compd status`` is open
+    to everyone who can open the socket (its group).
+    """
+
+    users: list[str | int] | None = None
+    groups: list[str | int] = Field(default_factory=list)
+
+    def ids(self) -> tuple[frozenset[int], frozenset[int]]:
+        """The uids and gids; raises LookupError naming an unknown user or group."""
+        import grp
+        import pwd
+
+        users = [os.getuid(), 0] if self.users is None else self.users
+        uids = [u if isinstance(u, int) else pwd.getpwnam(u).pw_uid for u in users]
+        gids = [g if isinstance(g, int) else grp.getgrnam(g).gr_gid for g in self.groups]
+        return frozenset(uids), frozenset(gids)
+
+
 class ConfigDoc(_Strict):
     schema_: Literal["compd.config/1"] = Field(alias="schema")
     model: str
@@ -224,6 +256,7 @@ class ConfigDoc(_Strict):
     blend_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
     live_every_ticks: int = Field(default=60, ge=1)
     control_socket: str | None = None
+    load_access: LoadAccessDoc = LoadAccessDoc()
     drivers: dict[str, DriverDoc] = Field(min_length=1)
     signals: dict[str, SignalDoc] = Field(min_length=1, max_length=MAX_SIGNALS)
     outputs: dict[str, OutputDoc] = Field(min_length=1)
@@ -255,6 +288,8 @@ class Config:
     whole_counts: dict[str, bool] = field(default_factory=dict)
     #: The status word's readback-mismatch bit, if the status point holds it.
     mismatch_bit: int | None = None
+    #: The status word's model-fault bit, where its point holds it (None: logged and counted only).
+    model_fault_bit: int | None = None
     #: The YAML node tree, for the line numbers of errors found later (:func:`check_model`).
     root: yaml.Node | None = field(default=None, repr=False, compare=False)
 
@@ -276,10 +311,7 @@ def default_state_dir() -> Path:
 def load_config(path: str | Path) -> Config:
     """Read and validate a config file (schema and references; see :func:`check_model`)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as exc:
-        raise ConfigFileError(path, f"cannot read the file ({exc.strerror})") from exc
+    text = read_limited(path, ConfigFileError).decode("utf-8", errors="replace")
     return parse_config(text, path)
 
 
@@ -289,7 +321,7 @@ def parse_config(text: str, path: Path) -> Config:
         shown = data.get("schema") if isinstance(data, dict) else None
         raise ConfigFileError(
             path,
-            f"unsupported or missing schema {shown!r}",
+            f"unsupported or missing schema {shorten(shown)}",
             where="schema",
             fix=f"Start the file with 'schema: {SCHEMA}' (see config/compd.example.yaml)",
         )
@@ -381,6 +413,12 @@ def parse_config(text: str, path: Path) -> Config:
     check_written(doc, types, settings, error)
     readback = output_readback(doc, types, settings, error)
 
+    try:
+        doc.load_access.ids()
+    except KeyError as exc:
+        raise error(
+            ("load_access",), f"no such user or group: {exc}", "Give an existing name or a number"
+        ) from exc
     simulation = None
     if doc.simulation is not None:
         # Imported here: the twin (and pandas) stay out of a real machine's daemon.
@@ -419,6 +457,7 @@ def parse_config(text: str, path: Path) -> Config:
         readback=readback,
         whole_counts=whole_counts(doc, types, settings),
         mismatch_bit=status_mismatch_bit(doc, types, settings),
+        model_fault_bit=status_model_fault_bit(doc, types, settings),
         root=root,
     )
 

@@ -6,6 +6,10 @@ unit's ``RuntimeDirectory``) speaking JSON lines: the client sends one object
 ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``. Local only, so
 access is file permission: the socket is ``0660``, usable by the daemon's
 user and group, and nobody on the network can move a machine's offsets.
+Within that group, a command may need more: the kernel tells the server who
+connected (``SO_PEERCRED``: pid, uid, gid), and a command given an
+:class:`Access` (``load``, which moves the offsets) is refused to any other
+peer, while ``status`` stays open to the whole group.
 
 The server must never be the reason the compensation loop stops: a malformed
 line, an unknown command, a handler that raises or a client that vanishes
@@ -26,7 +30,9 @@ import math
 import os
 import socket
 import stat
+import struct
 from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,12 +44,45 @@ DEFAULT_SOCKET_PATH = Path("/run/compd/control.sock")
 """Where ``compd run`` listens under the systemd unit (``RuntimeDirectory=compd``)."""
 
 SOCKET_MODE = 0o660
-MAX_LINE_BYTES = 1 << 20  # a request is a command and a few options; a model file path at most
+MAX_LINE_BYTES = 2 << 20  # a command and a few options; at most a model file (1 MiB, base64)
 MAX_CONNECTIONS = 16  # a few operators and scripts; more is a runaway client
 IDLE_TIMEOUT_S = 300.0  # a client silent this long is disconnected, so it cannot hold a slot
 
 Handler = Callable[[dict[str, Any]], Awaitable[dict[str, Any]]]
 """A command: takes the request object, returns the reply's fields (``ok`` is added)."""
+
+
+@dataclass(frozen=True)
+class Peer:
+    """The process at the other end of a connection, as the kernel saw it connect."""
+
+    pid: int
+    uid: int
+    gid: int
+
+
+@dataclass(frozen=True)
+class Access:
+    """Who may run a command: a peer whose uid is in ``uids`` or whose (primary) gid is in ``gids``."""
+
+    uids: frozenset[int]
+    gids: frozenset[int] = frozenset()
+
+    def allows(self, peer: Peer | None) -> bool:
+        return peer is not None and (peer.uid in self.uids or peer.gid in self.gids)
+
+
+def peer_of(writer: asyncio.StreamWriter) -> Peer | None:
+    """The connected process's credentials (``SO_PEERCRED``), or None where the OS has none."""
+    sock = writer.get_extra_info("socket")
+    option = getattr(socket, "SO_PEERCRED", None)
+    if sock is None or option is None:
+        return None
+    try:
+        raw = sock.getsockopt(socket.SOL_SOCKET, option, struct.calcsize("3i"))
+    except OSError:
+        return None
+    return Peer(*struct.unpack("3i", raw))
 
 
 class ControlServer:
@@ -53,7 +92,8 @@ class ControlServer:
     whole request (``cmd`` included) and returns the reply's fields. A
     handler raising :class:`~compd.errors.CompdError` is a refusal (its
     message is the reply's ``error``); any other exception is a bug, logged
-    with its traceback and answered as ``internal error``.
+    with its traceback and answered as ``internal error``. A command named in
+    ``access`` runs only for the peers its :class:`Access` allows.
     """
 
     def __init__(
@@ -64,9 +104,11 @@ class ControlServer:
         mode: int = SOCKET_MODE,
         max_connections: int = MAX_CONNECTIONS,
         idle_timeout_s: float = IDLE_TIMEOUT_S,
+        access: Mapping[str, Access] | None = None,
     ) -> None:
         self.path = Path(path)
         self.handlers = dict(handlers)
+        self.access = dict(access or {})
         self.mode = mode
         self.max_connections = max_connections
         self.idle_timeout_s = idle_timeout_s
@@ -126,6 +168,7 @@ class ControlServer:
         task = asyncio.current_task()
         assert task is not None
         self._connections.add(task)
+        peer = peer_of(writer)
         try:
             if len(self._connections) > self.max_connections:
                 await _send(writer, _refusal(f"busy: {self.max_connections} clients connected"))
@@ -142,7 +185,7 @@ class ControlServer:
                 if not line:
                     return
                 if line.strip():
-                    await _send(writer, await self.answer(line))
+                    await _send(writer, await self.answer(line, peer))
         except (ConnectionError, asyncio.CancelledError):
             pass  # the client went away, or the server is closing
         finally:
@@ -151,8 +194,8 @@ class ControlServer:
             with contextlib.suppress(Exception):
                 await writer.wait_closed()
 
-    async def answer(self, line: bytes) -> dict[str, Any]:
-        """The reply to one request line; never raises."""
+    async def answer(self, line: bytes, peer: Peer | None = None) -> dict[str, Any]:
+        """The reply to one request line from ``peer``; never raises."""
         try:
             request = json.loads(line)
         except (ValueError, UnicodeDecodeError) as exc:
@@ -164,13 +207,25 @@ class ControlServer:
         if handler is None:
             known = ", ".join(sorted(self.handlers))
             return _refusal(f"unknown command {command!r}; known commands: {known}")
+        access = self.access.get(str(command))
+        if access is not None and not access.allows(peer):
+            log.warning("control command %r refused to %s", command, peer)
+            who = "an unknown peer" if peer is None else f"uid {peer.uid}, gid {peer.gid}"
+            return _refusal(
+                f"permission denied: {command!r} is allowed for uids {sorted(access.uids)} and "
+                f"gids {sorted(access.gids)}, not {who}; run it as the service's user (see the "
+                "config's 'load_access')"
+            )
         try:
             result = await handler(request)
         except CompdError as exc:
             return _refusal(str(exc))
         except Exception as exc:  # a handler bug must not take the control socket down
             log.exception("control command %r failed", command)
-            return _refusal(f"internal error in {command!r}: {type(exc).__name__}: {exc}")
+            # The exception's text is cut: it may quote what the request carried.
+            return _refusal(
+                f"internal error in {command!r}: {type(exc).__name__}: {str(exc)[:200]}"
+            )
         if not isinstance(result, dict):
             log.error("control command %r returned %r, not a dict", command, type(result))
             return _refusal(f"internal error in {command!r}: the reply is not an object")

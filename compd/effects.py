@@ -30,7 +30,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from compd.errors import InputFileError
-from compd.yamlplace import FIXES, describe, parse_yaml, where
+from compd.yamlplace import FIXES, describe, parse_yaml, read_limited, where
 
 SCHEMA = "compd.effects/1"
 BUNDLED_NAME = "effects.yaml"
@@ -98,12 +98,9 @@ def load_catalogue(extra: Path | None = None) -> EffectCatalogue:
     entries = parse_catalogue(bundled.read_text(encoding="utf-8"), f"bundled:{BUNDLED_NAME}")
     if extra is not None:
         path = Path(extra)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise InputFileError(
-                path, f"cannot read the effect catalogue ({exc.strerror})"
-            ) from exc
+        text = read_limited(path, InputFileError, what="the effect catalogue").decode(
+            "utf-8", errors="replace"
+        )
         entries = parse_catalogue(text, path) + entries
     return EffectCatalogue(entries)
 

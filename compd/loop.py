@@ -117,6 +117,8 @@ class StatusPoint:
     heartbeat_address: str
     #: Whether the status point holds the readback-mismatch bit (:mod:`compd.safety`).
     mismatch_bit: bool = True
+    #: Whether the status point holds the model-fault bit (:mod:`compd.safety`).
+    model_fault_bit: bool = True
 
 
 class ModelSlot:
@@ -181,6 +183,8 @@ class Counters:
     model_loads: int = 0
     #: Offsets read back (per axis and tick) that were not what compd last wrote.
     offset_mismatches: int = 0
+    #: Models that failed while running (an exception, a state gone NaN/inf) and were unloaded.
+    model_failures: int = 0
 
 
 class Compensator:
@@ -193,7 +197,10 @@ class Compensator:
     3. step the model with the checked values (started at steady state with the first
        complete set of values, or from a resumed state); a model switched in starts warm
        from the recent inputs (:mod:`compd.model.handover`), then both run and blend
-       ``w * new + (1 - w) * old`` with ``w`` rising 0 -> 1 over ``blend_s``;
+       ``w * new + (1 - w) * old`` with ``w`` rising 0 -> 1 over ``blend_s``. A model
+       that raises or whose state turns NaN/inf is unloaded and the one it replaced
+       restored (``on_model_failure`` is told, so the service can un-install it); a
+       non-finite output sets the model-fault bit and level faulted, logged once;
     4. per axis ``target = sign * output``, through the safety stage, frozen while an
        input the axis depends on is faulted;
     5. write offsets, status word and heartbeat, all drivers concurrently.
@@ -217,6 +224,7 @@ class Compensator:
         initial_state: ModelState | None = None,
         schedule: GainScheduler | None = None,
         history_ticks: int = 28_800,
+        on_model_failure: Callable[[ModelSlot, ModelSlot], None] | None = None,
     ) -> None:
         self.signals = list(signals)
         self.monitors = dict(monitors)
@@ -229,6 +237,11 @@ class Compensator:
         self.active = model
         self.previous: ModelSlot | None = None
         self.pending: ModelSlot | None = None
+        #: The model to restore if the active one fails (the one it replaced).
+        self.fallback: ModelSlot | None = None
+        #: Why the model is faulted (None while its outputs are finite): logged once, the model-fault bit.
+        self.model_fault: str | None = None
+        self.on_model_failure = on_model_failure
         self.blend_start_s = -math.inf
         #: Gains by operating condition (:mod:`compd.schedule`), applied before each step.
         self.schedule = schedule
@@ -295,6 +308,8 @@ class Compensator:
                 flags.add(Flag.SLEWING)
         if self.active.runner is None:
             flags.add(Flag.STARTING)
+        if self.model_fault is not None:
+            any_frozen = True
         if not all(link.up for link in self.links.values()):
             flags.add(Flag.DRIVER_DOWN)
         bad = [r.health is not Health.OK for r in readings.values()]
@@ -302,8 +317,16 @@ class Compensator:
         unsure = Flag.DRIVER_DOWN in flags or mismatches or self.held.unknown
         if unsure and level is Level.OK:
             level = Level.DEGRADED
-        has_bit = self.status_point is not None and self.status_point.mismatch_bit
-        word = status_word(level, flags, bad, mismatch=mismatches > 0 and has_bit)
+        point = self.status_point
+        word = status_word(
+            level,
+            flags,
+            bad,
+            mismatch=mismatches > 0 and point is not None and point.mismatch_bit,
+            model_fault=self.model_fault is not None
+            and point is not None
+            and point.model_fault_bit,
+        )
         self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
         ok, acknowledged = await self._write(offsets, word)
         written = ok and len(acknowledged) == len(self.axes)
@@ -351,24 +374,89 @@ class Compensator:
     def _step_models(self, t_s: float, checked: Mapping[str, float]) -> None:
         self.history.append(checked)
         pending = self.pending
+        fault: str | None = None
         if pending is not None and self._complete(pending, checked):
-            pending.start(self._handover(pending, checked))
-            if self.active.runner is not None:
-                self.previous, self.blend_start_s = self.active, t_s
-            self.active, self.pending = pending, None
-            self.counters.model_loads += 1
+            self.pending = None
+            try:
+                pending.start(self._handover(pending, checked))
+            except Exception as exc:  # any failure of a new model: refuse it, keep the running one
+                fault = self._failed(pending, self.active, f"could not start: {exc!r}")
+            else:
+                if self.active.runner is not None:
+                    self.previous, self.blend_start_s = self.active, t_s
+                self.fallback, self.active = self.active, pending
+                self.counters.model_loads += 1
         for slot in (self.active, self.previous):
             if slot is None:
                 continue
             if not self._complete(slot, checked):
                 slot.outputs[:] = np.nan
                 continue
-            if slot.runner is None:
-                slot.start(slot.compiled.steady_state(checked))
-            assert slot.runner is not None
-            if self.schedule is not None:
-                self.schedule.apply(slot.runner)
-            slot.outputs = slot.runner.step(checked)
+            try:
+                if slot.runner is None:
+                    slot.start(slot.compiled.steady_state(checked))
+                assert slot.runner is not None
+                if self.schedule is not None:
+                    self.schedule.apply(slot.runner)
+                slot.outputs = slot.runner.step(checked)
+            except Exception as exc:  # a model must never end the loop
+                slot.outputs[:] = np.nan
+                fault = self._unload(slot, f"failed: {exc!r}")
+                continue
+            if not np.all(np.isfinite(slot.outputs)):
+                fault = f"model {slot.compiled.name!r} gave a non-finite output"
+                state = slot.runner.state
+                if not all(np.all(np.isfinite(v)) for v in (state.z, state.residual)):
+                    fault = self._unload(slot, "its state turned NaN/inf")
+        self._latch_fault(fault)
+
+    def _unload(self, slot: ModelSlot, why: str) -> str:
+        """Take a failed model out of the loop: restore the one it replaced, or restart it."""
+        slot.runner = None
+        if slot is self.previous:  # the outgoing model of a blend: the blend ends early
+            self.previous = None
+            return f"model {slot.compiled.name!r} (blending out) {why}"
+        restore = self.fallback
+        if restore is None or restore is slot:
+            return f"model {slot.compiled.name!r} {why}; restarting it from its inputs"
+        if restore is not self.previous:
+            history = self.history.matrix(restore.compiled.signals)
+            restore.runner = None
+            restore.outputs[:] = np.nan  # not stepped this tick: the axes hold
+            if len(history) >= 2:  # warm, from the recent inputs (compd.model.handover)
+                try:
+                    restore.start(handover_state(restore.compiled, history))
+                except Exception:  # then from steady state with the next inputs
+                    log.warning("restored model starts cold", model=restore.compiled.name)
+        self.active, self.previous, self.fallback = restore, None, None
+        return self._failed(slot, restore, why)
+
+    def _failed(self, failed: ModelSlot, restored: ModelSlot, why: str) -> str:
+        self.counters.model_failures += 1
+        log.error(
+            "model failed and was unloaded",
+            model=failed.compiled.name,
+            sha256=failed.sha256,
+            reason=why,
+            restored=restored.compiled.name,
+        )
+        message = f"model {failed.compiled.name!r} {why}; restored {restored.compiled.name!r}"
+        self.model_fault = message  # logged here: the latch only follows it (DEBUG, then INFO)
+        if self.on_model_failure is not None:
+            self.on_model_failure(failed, restored)
+        return message
+
+    def _latch_fault(self, fault: str | None) -> None:
+        """ERROR once when a model fault starts, DEBUG while it lasts, INFO when it ends."""
+        if fault is not None and self.model_fault is None:
+            log.error("model fault: the axes hold their offsets", reason=fault)
+        elif fault is not None:
+            log.debug("model fault goes on", reason=fault)
+        elif self.model_fault is not None and np.all(np.isfinite(self.active.outputs)):
+            log.info("model outputs are finite again", model=self.active.compiled.name)
+        else:
+            return
+        self.model_fault = fault
 
     def _handover(self, pending: ModelSlot, checked: Mapping[str, float]) -> ModelState:
         """A model switched in while another runs starts warm (:mod:`compd.model.handover`)."""

@@ -20,11 +20,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from compd.errors import ModelError, ModelFileError
 from compd.model.compiled import CompiledModel, compile_model
+from compd.model.limits import MAX_DELAY_SAMPLES, MAX_ORDER, MAX_SAMPLE_TIME_S, MAX_SUBMODELS
 from compd.model.residual import DoorFeatures, ResidualModel
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
 from compd.yamlplace import describe as _describe
-from compd.yamlplace import parse_yaml
+from compd.yamlplace import parse_yaml, read_limited, shorten
 from compd.yamlplace import where as _where
 
 SCHEMA = "compd.model/1"
@@ -70,9 +71,9 @@ class PositionDoc(_Strict):
 class TFDoc(_Strict):
     form: Literal["continuous", "discrete"]
     power_order: Literal["ascending", "descending"]
-    num: list[FiniteFloat] = Field(min_length=1)
-    den: list[FiniteFloat] = Field(min_length=1)
-    nk: int = Field(default=0, ge=0)
+    num: list[FiniteFloat] = Field(min_length=1, max_length=MAX_ORDER + 1)
+    den: list[FiniteFloat] = Field(min_length=1, max_length=MAX_ORDER + 1)
+    nk: int = Field(default=0, ge=0, le=MAX_DELAY_SAMPLES)
     delay_s: FiniteFloat = Field(default=0.0, ge=0.0)
 
     @model_validator(mode="after")
@@ -123,7 +124,7 @@ class ResidualDoc(_Strict):
 class OutputDoc(_Strict):
     unit: Literal["um"] = "um"
     description: str = ""
-    submodels: list[SubModelDoc] = Field(min_length=1)
+    submodels: list[SubModelDoc] = Field(min_length=1, max_length=MAX_SUBMODELS)
     residual: ResidualDoc | None = None
 
     @field_validator("submodels")
@@ -262,7 +263,7 @@ class ModelDoc(_Strict):
     schema_: Literal["compd.model/1"] = Field(alias="schema")
     name: str = Field(min_length=1)
     description: str = ""
-    sample_time_s: FiniteFloat = Field(gt=0)
+    sample_time_s: FiniteFloat = Field(gt=0, le=MAX_SAMPLE_TIME_S)
     signals: dict[str, SignalDoc] | None = None
     outputs: dict[str, OutputDoc] = Field(min_length=1)
     provenance: ProvenanceDoc = ProvenanceDoc()
@@ -293,10 +294,11 @@ class ModelFile:
 def load_model(path: str | Path) -> ModelFile:
     """Read, validate and build a model file (does not compile; see :meth:`ModelFile.compile`)."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ModelFileError(path, f"cannot read the file ({exc.strerror})") from exc
+    return parse_model_bytes(read_limited(path, ModelFileError), path)
+
+
+def parse_model_bytes(raw: bytes, path: str | Path = "<model>") -> ModelFile:
+    """Validate a model file's bytes (as read, or as a client sent them); its sha256 is of these bytes."""
     return parse_model(raw.decode("utf-8", errors="replace"), path, hashlib.sha256(raw).hexdigest())
 
 
@@ -311,7 +313,7 @@ def parse_model(text: str, path: str | Path = "<model>", sha256: str | None = No
     if data.get("schema") != SCHEMA:
         raise ModelFileError(
             path,
-            f"unsupported or missing schema {data.get('schema')!r}",
+            f"unsupported or missing schema {shorten(data.get('schema'))}",
             where="schema",
             fix=f"Start the file with 'schema: {SCHEMA}'",
         )
@@ -430,4 +432,6 @@ _FIXES = {
     "literal_error": "Use one of the allowed values",
     "float_parsing": "Give a number",
     "finite_number": "Give a finite number",
+    "too_long": "Give fewer items (see the bounds in README.md, 'Model files')",
+    "less_than_equal": "Give a smaller value (see the bounds in README.md, 'Model files')",
 }

@@ -30,7 +30,11 @@ The status word written beside the offsets lets the PLC supervise compd:
   wrote (a PLC restart that cleared it, another writer), and its slew limit was
   re-seeded from what it did hold. Placed there, not at bit 31, so that a
   16-bit status register has it for up to 7 signals; where the register has
-  no bit left, the mismatch is only logged and counted.
+  no bit left, the mismatch is only logged and counted;
+- the bit after that (``8 + n + 1``): model fault -- the model's output is not
+  finite, or a model failed and was unloaded (see :class:`~compd.loop.Compensator`).
+  Where the register has no bit left for it, the fault shows as level 2 (faulted),
+  in the log and in the counters.
 
 The heartbeat counts ticks modulo 32768 (fits a PLC INT): when it stops
 changing, the PLC knows compd is gone and falls back on its own.
@@ -137,12 +141,17 @@ class AxisSafety:
 
 
 def status_word(
-    level: Level, flags: Iterable[Flag], signal_bad: Sequence[bool], *, mismatch: bool = False
+    level: Level,
+    flags: Iterable[Flag],
+    signal_bad: Sequence[bool],
+    *,
+    mismatch: bool = False,
+    model_fault: bool = False,
 ) -> int:
-    """Pack the level (bits 0-1), flags (bits 2-7), per-signal bits (8-31) and mismatch bit into one word.
+    """Pack the level (bits 0-1), flags (bits 2-7), per-signal bits (8 on), mismatch and model-fault bits.
 
-    The caller passes ``mismatch`` only where the status point holds that bit
-    (:func:`compd.writepoints.status_mismatch_bit`).
+    The caller passes ``mismatch`` / ``model_fault`` only where the status point
+    holds that bit (:func:`compd.writepoints.status_flag_bits`).
     """
     word = int(level)
     for flag in flags:
@@ -152,10 +161,18 @@ def status_word(
             word |= 1 << (SIGNAL_BIT0 + i)
     if mismatch and (bit := mismatch_bit(len(signal_bad))) is not None:
         word |= 1 << bit
+    if model_fault and (bit := model_fault_bit(len(signal_bad))) is not None:
+        word |= 1 << bit
     return word
 
 
 def mismatch_bit(n_signals: int) -> int | None:
     """The offset-readback-mismatch bit for ``n_signals`` signals: the next after theirs, if any is left."""
     bit = SIGNAL_BIT0 + n_signals
+    return bit if bit < STATUS_BITS else None
+
+
+def model_fault_bit(n_signals: int) -> int | None:
+    """The model-fault bit for ``n_signals`` signals: the one after the mismatch bit, if any is left."""
+    bit = SIGNAL_BIT0 + n_signals + 1
     return bit if bit < STATUS_BITS else None

@@ -9,9 +9,10 @@ and runs the loop (:mod:`compd.loop`) until stopped.
 
 While running, the control socket answers ``status`` (a snapshot of the
 model, the last tick, the inputs and their health, and the counters) and
-``load`` (switch to an installed model file: validated and compiled first,
-a bad one refused while the running model goes on untouched; a good one
-blended in bumplessly by the loop). Shutdown (SIGTERM, SIGINT, end of
+``load`` (switch to a model file the client sends: validated, compiled and
+installed off the loop by :mod:`compd.modelload`, a bad one refused while
+the running model goes on untouched; a good one blended in bumplessly by the
+loop, and unloaded again should it fail while running). Shutdown (SIGTERM, SIGINT, end of
 ``duration_s``) saves the state, writes a last status word with the STOPPED
 bit (only after a first tick: a start that failed writes nothing), closes
 the drivers and exits cleanly.
@@ -25,28 +26,26 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from datetime import UTC, datetime
-from pathlib import Path
 from typing import Any
 
 import structlog
 
 from compd.clock import Clock
-from compd.config import Config, check_model
-from compd.control import ControlServer
+from compd.config import Config
+from compd.control import Access, ControlServer
 from compd.drivers.base import Driver, driver_types
-from compd.errors import CompdError, RecorderError
+from compd.errors import RecorderError
 from compd.faultlog import FaultLog
 from compd.links import DriverLink
 from compd.loop import (
     Compensator,
-    ModelSlot,
     SignalPoint,
     StatusPoint,
     TickRecord,
     TickTiming,
     run_periodic,
 )
-from compd.modelfile import load_model
+from compd.modelload import ModelLoader, startup_slots
 from compd.notify import SystemdNotifier
 from compd.offsets import AxisPoint
 from compd.recorder import Recorder
@@ -56,8 +55,6 @@ from compd.signals import Checks, SignalMonitor
 from compd.state import (
     SavedState,
     StateError,
-    install_model,
-    installed_model,
     load_state,
     resume_decision,
     save_state,
@@ -67,27 +64,6 @@ log = structlog.get_logger("compd.service")
 
 #: Input history kept for starting a newly loaded model warm (s): hours, as the machine's time constants.
 HISTORY_S = 8 * 3600.0
-
-
-def load_slot(config: Config, path: Path, loaded_at_unix_s: float) -> ModelSlot:
-    """Read, compile (at the config's period) and check a model against ``config``; raises on any problem."""
-    model_file = load_model(path)
-    compiled = model_file.compile(config.doc.period_s)
-    check_model(config, model_file, compiled)
-    return ModelSlot(model_file, compiled, loaded_at_unix_s)
-
-
-def startup_model_path(config: Config) -> Path:
-    """The model last installed with ``compd model load``, else the config's ``model``."""
-    installed = installed_model(config.state_dir)
-    if installed is None:
-        return config.model_path
-    log.info(
-        "starting with the model installed by 'compd model load', not the config's",
-        installed=str(installed),
-        config_model=str(config.model_path),
-    )
-    return installed
 
 
 def build_drivers(config: Config, now: Callable[[], float]) -> dict[str, Driver]:
@@ -126,7 +102,7 @@ class Service:
         self.on_tick = on_tick
         doc = config.doc
         now_unix = clock.wall()
-        slot = load_slot(config, startup_model_path(config), now_unix)
+        slot, fallback = startup_slots(config, now_unix)
         self.drivers = dict(drivers) if drivers is not None else build_drivers(config, clock.now)
         try:
             saved = load_state(config.state_dir)
@@ -205,6 +181,7 @@ class Service:
                 status.status_address,
                 status.heartbeat_address,
                 mismatch_bit=config.mismatch_bit is not None,
+                model_fault_bit=config.model_fault_bit is not None,
             )
             if status
             else None,
@@ -214,13 +191,20 @@ class Service:
             history_ticks=round(HISTORY_S / doc.period_s),
             schedule=GainScheduler(doc.gain_schedule.gain_table()) if doc.gain_schedule else None,
         )
+        self.loader = ModelLoader(config, clock.wall)
+        self.compensator.fallback = fallback
+        self.compensator.on_model_failure = self.loader.failed
         if saved is not None and decision.resume:
             self.compensator.heartbeat = saved.ticks % HEARTBEAT_MODULO
         self.timing = TickTiming()
         self.stop_event = asyncio.Event()
         self.started_unix_s = now_unix
         self._control = (
-            ControlServer(config.control_socket, {"status": self._status, "load": self._load})
+            ControlServer(
+                config.control_socket,
+                {"status": self._status, "load": self._load},
+                access={"load": Access(*doc.load_access.ids())},
+            )
             if control
             else None
         )
@@ -368,19 +352,14 @@ class Service:
         log.info("stopped", ticks=self.compensator.counters.ticks, overruns=self.timing.overruns)
 
     async def _load(self, message: dict[str, Any]) -> dict[str, Any]:
-        path = message.get("path")
-        if not isinstance(path, str):
-            raise CompdError('a load request needs "path": the installed model file')
-        try:
-            slot = load_slot(self.config, Path(path), self.clock.wall())
-        except CompdError as exc:
-            log.error("model refused; the running model goes on", path=path, error=str(exc))
-            raise
+        slot = await self.loader.accept(message)
         self.compensator.load(slot)
+        path = slot.model_file.path
         log.info("model loading", name=slot.compiled.name, sha256=slot.sha256, path=path)
         return {
             "model": slot.compiled.name,
             "sha256": slot.sha256,
+            "installed": path,
             "blend_s": self.config.doc.blend_s,
         }
 
@@ -401,6 +380,7 @@ class Service:
                 "started": slot.runner is not None,
                 "pending": comp.pending.compiled.name if comp.pending else None,
                 "blending_from": comp.previous.compiled.name if comp.previous else None,
+                "fault": comp.model_fault,
             },
             "gain_schedule": comp.schedule.status() if comp.schedule is not None else None,
             "resumed": self.resumed,
@@ -431,6 +411,7 @@ class Service:
                 "write_failures": counters.write_failures,
                 "model_loads": counters.model_loads,
                 "offset_mismatches": counters.offset_mismatches,
+                "model_failures": counters.model_failures,
             },
         }
 
@@ -447,9 +428,3 @@ def _iso(unix_s: float) -> str:
 
 def _finite(value: float) -> float | None:
     return value if math.isfinite(value) else None
-
-
-def install_and_announce(config: Config, model_path: Path) -> tuple[ModelSlot, Path]:
-    """Validate ``model_path`` against ``config``, install it into the state directory; returns both."""
-    slot = load_slot(config, model_path, 0.0)
-    return slot, install_model(config.state_dir, model_path)

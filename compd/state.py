@@ -187,7 +187,11 @@ def install_model(state_dir: Path, source: Path) -> Path:
     Both writes are atomic, so a daemon (re)starting meanwhile sees the old
     model or the new one. Returns the installed path.
     """
-    content = source.read_bytes()
+    return install_model_bytes(state_dir, source.read_bytes())
+
+
+def install_model_bytes(state_dir: Path, content: bytes) -> Path:
+    """:func:`install_model` for a model file's bytes (as a client sent them to the daemon)."""
     sha256 = hashlib.sha256(content).hexdigest()
     installed = state_dir / MODELS_DIR / f"{sha256}.yaml"
     if not installed.exists():
@@ -204,3 +208,17 @@ def installed_model(state_dir: Path) -> Path | None:
         return None
     path = state_dir / name
     return path if path.is_file() else None
+
+
+def reinstate_model(state_dir: Path, model_path: Path) -> None:
+    """Make ``model_path`` the model the next start picks, after the installed one failed.
+
+    A model installed under ``state_dir/models`` becomes ``current-model``
+    again; any other (the config's own model) is picked by removing
+    ``current-model``. Either way the failed model is not started again.
+    """
+    models = (state_dir / MODELS_DIR).resolve()
+    if model_path.resolve().parent == models:
+        write_atomic(state_dir / CURRENT_MODEL, f"{MODELS_DIR}/{model_path.name}\n".encode())
+    else:
+        (state_dir / CURRENT_MODEL).unlink(missing_ok=True)

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 from pydantic import BaseModel
 
 from compd.errors import ConfigFileError
-from compd.safety import HEARTBEAT_MODULO, SIGNAL_BIT0, mismatch_bit
+from compd.safety import HEARTBEAT_MODULO, SIGNAL_BIT0, mismatch_bit, model_fault_bit
 
 if TYPE_CHECKING:
     from compd.config import ConfigDoc
@@ -189,9 +189,24 @@ def status_mismatch_bit(
     mismatch then shows in the log and the counters only, never in a value
     the register cannot take (which would fail the whole write).
     """
+    return _held_bit(doc, types, settings, mismatch_bit(len(doc.signals)))
+
+
+def status_model_fault_bit(
+    doc: ConfigDoc, types: Mapping[str, DriverType], settings: Mapping[str, BaseModel]
+) -> int | None:
+    """The status word's model-fault bit (:func:`compd.safety.model_fault_bit`), if its point holds it."""
+    return _held_bit(doc, types, settings, model_fault_bit(len(doc.signals)))
+
+
+def _held_bit(
+    doc: ConfigDoc,
+    types: Mapping[str, DriverType],
+    settings: Mapping[str, BaseModel],
+    bit: int | None,
+) -> int | None:
     from compd.drivers.base import write_range
 
-    bit = mismatch_bit(len(doc.signals))
     if doc.status is None or bit is None:
         return None
     kind = types[doc.drivers[doc.status.driver].type]

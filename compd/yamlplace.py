@@ -11,6 +11,8 @@ package (``bundled:NAME``).
 
 from __future__ import annotations
 
+import os
+import stat
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -19,6 +21,57 @@ import yaml
 
 from compd.errors import InputFileError
 
+#: Limits on any YAML file compd reads (model, config, effect catalogue): a few
+#: kilobytes is typical; these bound the work a hostile or broken file can cause.
+MAX_YAML_BYTES = 1 << 20
+#: Values after alias expansion (``*name`` counts as everything ``&name`` holds).
+MAX_YAML_NODES = 100_000
+#: Nested mappings and lists (a model file needs 7).
+MAX_YAML_DEPTH = 32
+#: How much of a value an error message shows.
+SHOWN_CHARS = 80
+
+_Loader: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+def shorten(value: object, limit: int = SHOWN_CHARS) -> str:
+    """``repr(value)``, cut to ``limit`` characters: an error names a value, never echoes a file."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[: limit - 5]}...{text[-2:]}"
+
+
+def read_limited(
+    path: Path,
+    error: type[InputFileError],
+    max_bytes: int = MAX_YAML_BYTES,
+    *,
+    what: str = "the file",
+) -> bytes:
+    """The bytes of the regular file ``path``, refused beyond ``max_bytes``.
+
+    Opened non-blocking and checked to be a regular file before reading, so
+    a FIFO, a device (``/dev/zero``) or a huge file is an error, never a hang
+    or an allocation the size of the input.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise error(path, f"cannot read {what} ({exc.strerror})") from exc
+    with os.fdopen(fd, "rb") as file:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise error(path, "not a regular file", fix="Give the path of a YAML file")
+        try:
+            raw = file.read(max_bytes + 1)
+        except OSError as exc:
+            raise error(path, f"cannot read {what} ({exc.strerror})") from exc
+    if len(raw) > max_bytes:
+        raise error(
+            path,
+            f"larger than {max_bytes} bytes",
+            fix="A model or config file is a few kilobytes; check that this is the right file",
+        )
+    return raw
+
 
 def parse_yaml(
     text: str, path: object, error: type[InputFileError]
@@ -26,15 +79,104 @@ def parse_yaml(
     """The document and its node tree (for line numbers); a syntax error names the file and line.
 
     The one place compd reads YAML text, so every loader (model, config,
-    effect catalogue) words a syntax error the same way.
+    effect catalogue) words a syntax error the same way, and every one is
+    bounded: size, nesting and alias expansion are checked on the event
+    stream (no recursion, no construction) before a node is built, and a
+    duplicate key is an error rather than the last one silently winning.
     """
+    if len(text) > MAX_YAML_BYTES:
+        raise error(path, f"larger than {MAX_YAML_BYTES} bytes")
     try:
-        return yaml.safe_load(text), yaml.compose(text)
+        _check_events(text, path, error)
+        loader = _Loader(text)
+        try:
+            root = loader.get_single_node()
+            return (None if root is None else loader.construct_document(root)), root
+        finally:
+            loader.dispose()
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(exc, "problem", None) or str(exc)
         raise error(path, f"not valid YAML: {problem}", where=where) from exc
+
+
+class _Frame:
+    """An open mapping or list while the event stream is walked."""
+
+    def __init__(self, anchor: str | None, mapping: bool) -> None:
+        self.anchor = anchor
+        self.mapping = mapping
+        self.size = 1  # this node and everything under it, aliases expanded
+        self.keys: dict[str, int] = {}  # scalar key -> its line
+        self.at_key = True
+
+
+def _check_events(text: str, path: object, error: type[InputFileError]) -> None:
+    """Refuse deep nesting, alias bombs and duplicate keys, walking the events iteratively."""
+    sizes: dict[str, int] = {}  # anchor -> its expanded size
+    stack: list[_Frame] = []
+    total = 0
+    for event in yaml.parse(text, Loader=_Loader):
+        line = event.start_mark.line + 1 if event.start_mark is not None else 0
+        if isinstance(event, yaml.CollectionStartEvent):
+            if len(stack) >= MAX_YAML_DEPTH:
+                raise error(
+                    path,
+                    f"nested deeper than {MAX_YAML_DEPTH} levels",
+                    where=f"line {line}",
+                    fix="Flatten the structure",
+                )
+            _key_or_value(stack, event, path, error, line)
+            stack.append(_Frame(event.anchor, isinstance(event, yaml.MappingStartEvent)))
+            continue
+        if isinstance(event, yaml.CollectionEndEvent):
+            frame = stack.pop()
+            size = frame.size
+            if frame.anchor is not None:
+                sizes[frame.anchor] = size
+        elif isinstance(event, yaml.AliasEvent):
+            _key_or_value(stack, event, path, error, line)
+            size = sizes.get(event.anchor or "", 1)
+        elif isinstance(event, yaml.ScalarEvent):
+            _key_or_value(stack, event, path, error, line)
+            size = 1
+            if event.anchor is not None:
+                sizes[event.anchor] = 1
+        else:
+            continue
+        if stack:
+            stack[-1].size += size
+        else:
+            total += size
+        if total + sum(f.size for f in stack) > MAX_YAML_NODES:
+            raise error(
+                path,
+                f"holds more than {MAX_YAML_NODES} values (aliases expanded)",
+                where=f"line {line}",
+                fix="Write the values out, or drop the repeated aliases",
+            )
+
+
+def _key_or_value(
+    stack: list[_Frame], event: yaml.Event, path: object, error: type[InputFileError], line: int
+) -> None:
+    """Track key/value alternation in the innermost mapping; a repeated scalar key is an error."""
+    if not stack or not stack[-1].mapping:
+        return
+    frame = stack[-1]
+    is_key, frame.at_key = frame.at_key, not frame.at_key
+    if not is_key or not isinstance(event, yaml.ScalarEvent) or event.value == "<<":
+        return
+    first = frame.keys.get(event.value)
+    if first is not None:
+        raise error(
+            path,
+            f"duplicate key {shorten(event.value)} (first on line {first})",
+            where=f"line {line}",
+            fix="Give each key once",
+        )
+    frame.keys[event.value] = line
 
 
 #: The fix to suggest per pydantic error type.
@@ -64,7 +206,7 @@ def describe(error: Any) -> str:
         message = message[len("Value error, ") :]
     shown = error.get("input")
     if not isinstance(shown, dict | list):
-        message = f"{message} (got {shown!r})"
+        message = f"{message} (got {shorten(shown)})"
     return message
 
 

@@ -18,16 +18,17 @@ from compd.cli.simulate import run_simulated, time_scale_arg
 from compd.clock import RealClock
 from compd.config import Config, check_model, load_config
 from compd.control import request, request_sync
-from compd.errors import CompdError, ControlError
+from compd.errors import CompdError, ControlError, ModelFileError
 from compd.loop import TickRecord
 from compd.modelfile import load_model
+from compd.modelload import LOAD_TIMEOUT_S, load_request, slot_from_bytes
 from compd.notify import SystemdNotifier
 from compd.safety import Level
-from compd.service import Service, install_and_announce
+from compd.service import Service
 from compd.signals import Health
 from compd.sim.plc.build import build_machine
-from compd.state import installed_model
-from compd.yamlplace import resolve_path
+from compd.state import install_model_bytes, installed_model
+from compd.yamlplace import read_limited, resolve_path
 
 DEFAULT_CONFIG = Path("/etc/compd/compd.yaml")
 
@@ -204,6 +205,8 @@ def _status(args: argparse.Namespace) -> int:
         f"[bold]{model['name']}[/bold]  sha256 {model['sha256'][:12]}  loaded {model['loaded']}"
         + (f"  (loading {model['pending']})" if model.get("pending") else "")
     )
+    if model.get("fault"):
+        out.print(f"[red]model fault[/red]: {model['fault']}")
     out.print(
         f"last tick {reply['last_tick']}  status word {reply['status_word']}  "
         f"heartbeat {reply['heartbeat']}"
@@ -230,16 +233,27 @@ def _model_load(args: argparse.Namespace) -> int:
 
 
 async def model_load(config: Config, model_path: Path) -> int:
-    """``compd model load``: validate and install the model, then tell the running daemon."""
-    slot, installed = install_and_announce(config, model_path)
-    print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {installed}")
+    """``compd model load``: validate the model, send its bytes to the running daemon.
+
+    The client reads the file (with its own rights, size-limited) and checks
+    it first, for a quick message naming the file; the daemon checks it
+    again and installs it. With no daemon running, the client installs it
+    for the next start.
+    """
+    raw = read_limited(model_path, ModelFileError)
+    slot = slot_from_bytes(config, raw, model_path, 0.0)
     try:
-        reply = await request(config.control_socket, {"cmd": "load", "path": str(installed)})
+        reply = await request(
+            config.control_socket, load_request(raw, model_path), timeout_s=LOAD_TIMEOUT_S + 10
+        )
     except ControlError as exc:
+        installed = install_model_bytes(config.state_dir, raw)
+        print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {installed}")
         print(f"the daemon was not told ({exc}); it will start with this model", file=sys.stderr)
         return 0
     if not reply.get("ok"):
         raise CompdError(f"the daemon refused the model: {reply.get('error')}")
+    print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {reply.get('installed')}")
     print(f"the daemon is switching to it, blended over {reply.get('blend_s', 0):g} s")
     return 0
 

@@ -25,8 +25,16 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+import scipy.signal
 
 from compd.errors import ModelError
+from compd.model.limits import (
+    CHECK_SAMPLES,
+    MAX_GAIN_UM_PER_UNIT,
+    MAX_SAMPLE_TIME_S,
+    MAX_STATES,
+    MAX_SUBMODELS,
+)
 from compd.model.residual import ResidualModel
 from compd.model.structure import GateTarget, Model, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF, resample_discrete
@@ -231,13 +239,21 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
     """Compile ``model`` to run at ``sample_time_s`` (default: the model's own).
 
     Raises :class:`ModelError` naming the sub-model (``outputs.X.submodels[i]``)
-    when one is non-causal, unstable or cannot be brought to the sample time.
+    when one is non-causal, unstable, cannot be brought to the sample time,
+    or exceeds the bounds of :mod:`compd.model.limits` (checked before any
+    state is allocated; the last check simulates each sub-model's step response).
     """
     run_s = float(model.sample_time_s if sample_time_s is None else sample_time_s)
-    if not (np.isfinite(run_s) and run_s > 0):
-        raise ModelError(f"sample time must be > 0 seconds, got {run_s}")
+    for what, value in (("the model's sample time", model.sample_time_s), ("sample time", run_s)):
+        if not (np.isfinite(value) and 0 < value <= MAX_SAMPLE_TIME_S):
+            raise ModelError(f"{what} must be > 0 and <= {MAX_SAMPLE_TIME_S:g} s, got {value}")
     if not model.outputs or not any(output.submodels for output in model.outputs):
         raise ModelError(f"model {model.name!r} has no sub-models")
+    count = sum(len(output.submodels) for output in model.outputs)
+    if count > MAX_SUBMODELS:
+        raise ModelError(
+            f"model {model.name!r} has {count} sub-models; compd runs up to {MAX_SUBMODELS}"
+        )
     signals = model.signals()
     index = {name: i for i, name in enumerate(signals)}
     zero_slot, one_slot = len(signals), len(signals) + 1
@@ -251,13 +267,20 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
             path = f"outputs.{output.name}.submodels[{sub_i}] ({sub.name})"
             try:
                 tfs.append(_discretise(sub.tf, model.sample_time_s, run_s))
+                _check_gain(tfs[-1], sub.gain)
             except ModelError as exc:
                 raise ModelError(exc.message, where=path) from exc
             subs.append(sub)
             paths.append(path)
             owner.append(out_i)
 
-    length = max(max(tf.b.size, tf.a.size) for tf in tfs)
+    length = max(max(tf.nk + len(tf.num), tf.order + 1) for tf in tfs)
+    if len(tfs) * length > MAX_STATES:
+        raise ModelError(
+            f"model {model.name!r} would run {len(tfs)} sub-models x {length} states (the longest "
+            f"delay line) = {len(tfs) * length}; compd runs up to {MAX_STATES}. Use shorter "
+            "delays or fewer sub-models"
+        )
     b = np.zeros((len(tfs), length))
     a = np.zeros((len(tfs), length))
     for row, tf in enumerate(tfs):
@@ -265,6 +288,7 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
         a[row, : tf.a.size] = tf.a
     output_matrix = np.zeros((len(model.outputs), len(tfs)))
     output_matrix[owner, np.arange(len(tfs))] = 1.0
+    _check_step_responses(b, a, np.array([s.gain for s in subs], dtype=float), paths)
 
     return CompiledModel(
         name=model.name,
@@ -318,6 +342,38 @@ def _discretise(tf: DiscreteTF | ContinuousTF, model_s: float, run_s: float) -> 
         discrete = resample_discrete(tf, model_s, run_s)
     discrete.check_stable()
     return discrete
+
+
+def _check_gain(tf: DiscreteTF, gain: float) -> None:
+    """Refuse a non-finite or absurd ``|gain * B(1)/A(1)|`` (um per input unit)."""
+    with np.errstate(all="ignore"):
+        total = gain * tf.static_gain()
+    if not (np.isfinite(total) and abs(total) <= MAX_GAIN_UM_PER_UNIT):
+        raise ModelError(
+            f"static gain {total:.4g} um per input unit (gain {gain:.4g} x TF {tf.static_gain():.4g}) "
+            f"is not within +-{MAX_GAIN_UM_PER_UNIT:g}: no thermal model moves an axis that far. "
+            "Check the units and the coefficients"
+        )
+
+
+def _check_step_responses(b: np.ndarray, a: np.ndarray, gain: np.ndarray, paths: list[str]) -> None:
+    """Simulate each sub-model's unit-step response for a while: finite and within the gain bound.
+
+    The static gain bounds the end of the response; this bounds the way
+    there (a stable but badly conditioned TF can overflow on its way).
+    """
+    step = np.ones(CHECK_SAMPLES)
+    for row, path in enumerate(paths):
+        with np.errstate(all="ignore"):
+            response = scipy.signal.lfilter(b[row], a[row], step) * gain[row]
+            peak = float(np.max(np.abs(response)))
+        if not (np.isfinite(peak) and peak <= MAX_GAIN_UM_PER_UNIT):
+            raise ModelError(
+                f"its unit-step response reaches {peak:.4g} um within {CHECK_SAMPLES} samples "
+                f"(bound +-{MAX_GAIN_UM_PER_UNIT:g}): the output would not stay finite. Check "
+                "the coefficients",
+                where=path,
+            )
 
 
 def qualified_names(compiled: CompiledModel) -> Sequence[str]:

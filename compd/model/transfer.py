@@ -29,6 +29,7 @@ import scipy.linalg
 import scipy.signal
 
 from compd.errors import ModelError
+from compd.model.limits import MAX_DELAY_SAMPLES, MAX_ORDER
 
 #: A discrete pole this close to the unit circle (or beyond) is refused: its
 #: time constant would exceed ~30 years at 1 s sampling, which is an integrator
@@ -44,10 +45,28 @@ def _quiet_conversions() -> Iterator[None]:
         yield
 
 
+@contextmanager
+def _numerics(what: str) -> Iterator[None]:
+    """scipy's failures on extreme coefficients (overflow, a singular matrix) as a ModelError."""
+    try:
+        with np.errstate(all="ignore"), _quiet_conversions():
+            yield
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+        raise ModelError(
+            f"{what} failed ({type(exc).__name__}): the coefficients span too many orders of "
+            "magnitude for the sample time. Rescale the TF or check its coefficients"
+        ) from exc
+
+
 def _as_coefficients(values: object, what: str) -> np.ndarray:
     array = np.asarray(values, dtype=float)
     if array.ndim != 1 or array.size == 0:
         raise ModelError(f"{what} must be a non-empty list of numbers")
+    if array.size > MAX_ORDER + 1:
+        raise ModelError(
+            f"{what} has {array.size} coefficients; compd runs TFs up to order {MAX_ORDER} "
+            f"({MAX_ORDER + 1} coefficients)"
+        )
     if not np.all(np.isfinite(array)):
         raise ModelError(f"{what} contains a non-finite coefficient: {array.tolist()}")
     return array
@@ -82,10 +101,21 @@ class DiscreteTF:
             )
         if int(nk) != nk or nk < 0:
             raise ModelError(f"nk (input delay in samples) must be a whole number >= 0, got {nk}")
+        if nk > MAX_DELAY_SAMPLES:
+            raise ModelError(
+                f"input delay of {nk:g} samples exceeds the {MAX_DELAY_SAMPLES} compd runs"
+            )
         # Trailing zero coefficients carry nothing and would add spurious poles at z = 0.
         b = np.trim_zeros(b, "b") if np.any(b) else b[:1]
         a = np.trim_zeros(a, "b")
-        return cls(num=tuple(b / a[0]), den=tuple(a / a[0]), nk=int(nk))
+        with np.errstate(all="ignore"):
+            b, a = b / a[0], a / a[0]
+        if not (np.all(np.isfinite(b)) and np.all(np.isfinite(a))):
+            raise ModelError(
+                "normalising by den[0] overflows: the coefficients span too many orders of "
+                "magnitude. Rescale num and den"
+            )
+        return cls(num=tuple(b), den=tuple(a), nk=int(nk))
 
     @property
     def b(self) -> np.ndarray:
@@ -103,11 +133,15 @@ class DiscreteTF:
 
     def poles(self) -> np.ndarray:
         """Poles in the z-plane (roots of ``z^m A(z^-1)``)."""
-        return np.roots(self.den) if self.order else np.zeros(0, dtype=complex)
+        if not self.order:
+            return np.zeros(0, dtype=complex)
+        with _numerics("finding the poles"):
+            return np.roots(self.den)
 
     def static_gain(self) -> float:
-        """Output per unit of constant input at steady state: ``B(1) / A(1)``."""
-        return float(np.sum(self.num) / np.sum(self.den))
+        """Output per unit of constant input at steady state: ``B(1) / A(1)`` (inf if it overflows)."""
+        with np.errstate(all="ignore"):
+            return float(np.sum(self.num) / np.sum(self.den))
 
     def time_constants_s(self, sample_time_s: float) -> np.ndarray:
         """Time constants of the real-axis and complex poles, ``-Ts / ln|p|``, in seconds."""
@@ -157,11 +191,19 @@ class ContinuousTF:
             )
         if not np.isfinite(delay_s) or delay_s < 0:
             raise ModelError(f"delay_s must be >= 0 seconds, got {delay_s}")
+        if not np.all(np.isfinite(d / d[-1])):
+            raise ModelError(
+                "den's coefficients span too many orders of magnitude (dividing by the "
+                "highest-power one overflows). Rescale the TF"
+            )
         return cls(num=tuple(n), den=tuple(d), delay_s=float(delay_s))
 
     def poles(self) -> np.ndarray:
         """Poles in the s-plane, in rad/s."""
-        return np.roots(self.den[::-1]) if len(self.den) > 1 else np.zeros(0, dtype=complex)
+        if len(self.den) == 1:
+            return np.zeros(0, dtype=complex)
+        with _numerics("finding the poles"):
+            return np.roots(self.den[::-1])
 
     def static_gain(self) -> float:
         """``N(0) / D(0)``: output per unit of constant input at steady state."""
@@ -188,18 +230,19 @@ class ContinuousTF:
         nk = _whole_samples(self.delay_s, sample_time_s)
         num_desc = np.asarray(self.num[::-1])
         den_desc = np.asarray(self.den[::-1])
-        with _quiet_conversions():
-            a_c, b_c, c_c, d_c = scipy.signal.tf2ss(num_desc, den_desc)
-        n_states = a_c.shape[0]
-        if n_states == 0 or len(self.den) == 1:  # a static gain (tf2ss pads it with a dummy state)
+        if len(self.den) == 1:  # a static gain
             return DiscreteTF.from_coefficients([self.num[0] / self.den[0]], [1.0], nk)
-        block = np.zeros((n_states + 1, n_states + 1))
-        block[:n_states, :n_states] = a_c
-        block[:n_states, n_states:] = b_c
-        phi = scipy.linalg.expm(block * sample_time_s)
-        a_d = phi[:n_states, :n_states]
-        b_d = phi[:n_states, n_states:]
-        with _quiet_conversions():
+        with _numerics(f"discretising at {sample_time_s:g} s"):
+            a_c, b_c, c_c, d_c = scipy.signal.tf2ss(num_desc, den_desc)
+            n_states = a_c.shape[0]
+            block = np.zeros((n_states + 1, n_states + 1))
+            block[:n_states, :n_states] = a_c
+            block[:n_states, n_states:] = b_c
+            phi = scipy.linalg.expm(block * sample_time_s)
+            a_d = phi[:n_states, :n_states]
+            b_d = phi[:n_states, n_states:]
+            if not np.all(np.isfinite(phi)):
+                raise ArithmeticError("the matrix exponential overflows")
             num_z, den_z = scipy.signal.ss2tf(a_d, b_d, c_c, d_c)
         # ss2tf returns descending powers of z with equal lengths, which are
         # exactly the ascending powers of z^-1 once divided by z^n.
@@ -208,6 +251,11 @@ class ContinuousTF:
 
 def _whole_samples(delay_s: float, sample_time_s: float) -> int:
     samples = delay_s / sample_time_s
+    if samples > MAX_DELAY_SAMPLES:
+        raise ModelError(
+            f"delay_s = {delay_s:g} s is {samples:g} samples of {sample_time_s:g} s; compd runs "
+            f"delays up to {MAX_DELAY_SAMPLES} samples"
+        )
     if abs(samples - round(samples)) > 1e-9 * max(1.0, samples):
         raise ModelError(
             f"delay_s = {delay_s} s is not a whole number of {sample_time_s} s samples; "
@@ -240,13 +288,13 @@ def continuous_equivalent(tf: DiscreteTF, sample_time_s: float) -> ContinuousTF:
     b = tf.b
     leading_zeros = int(np.argmax(b != 0.0)) if np.any(b != 0.0) else 0
     delay_samples = max(leading_zeros - 1, 0)
-    with _quiet_conversions():
+    with _numerics("converting to continuous time"):
         a_d, b_d, c_d, d_d = scipy.signal.tf2ss(*_padded(b[delay_samples:], tf.a))
-    n_states = a_d.shape[0]
-    block = np.eye(n_states + 1)
-    block[:n_states, :n_states] = a_d
-    block[:n_states, n_states:] = b_d
-    log_block = scipy.linalg.logm(block) / sample_time_s
+        n_states = a_d.shape[0]
+        block = np.eye(n_states + 1)
+        block[:n_states, :n_states] = a_d
+        block[:n_states, n_states:] = b_d
+        log_block = scipy.linalg.logm(block) / sample_time_s
     if np.max(np.abs(np.imag(log_block))) > 1e-9 * max(1.0, np.max(np.abs(log_block))):
         raise ModelError("has no real continuous-time equivalent; re-identify at the data's rate")
     log_block = np.real(log_block)

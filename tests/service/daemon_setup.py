@@ -68,3 +68,11 @@ def run(
         service.on_tick = records.append
     asyncio.run(service.run(duration_s=duration_s))
     return service, records
+
+
+async def ticked(service: Service, running: asyncio.Task[Any], ticks: int) -> None:
+    """Yield to the loop until ``service`` has run ``ticks`` ticks, or its run ended (failed)."""
+    while service.compensator.counters.ticks < ticks and not running.done():
+        await asyncio.sleep(0)
+    if running.done():
+        running.result()  # a failed run fails the test here, instead of waiting for ever

@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from compd.control import MAX_LINE_BYTES, ControlServer, request, request_sync
+from compd.control import MAX_LINE_BYTES, Access, ControlServer, Peer, request, request_sync
 from compd.errors import ControlError, ModelFileError
 
 
@@ -259,3 +259,48 @@ def test_too_many_clients_are_turned_away_politely(sock_path):
     busy, served = asyncio.run(main())
     assert busy == {"ok": False, "error": "busy: 2 clients connected"}
     assert served["ok"]
+
+
+def test_a_command_with_access_runs_only_for_allowed_peers(sock_path):
+    """A command given an Access is refused to a peer whose uid and gid are not listed; other commands stay open."""
+    me, other = os.getuid(), os.getuid() + 12345
+    replies = {}
+
+    async def scenario() -> None:
+        for allowed in (frozenset({other}), frozenset({me})):
+            access = {"status": Access(allowed, frozenset({os.getgid() + 12345}))}
+            async with ControlServer(sock_path, {**HANDLERS, "open": status}, access=access):
+                replies[allowed] = (
+                    await request(sock_path, {"cmd": "status"}),
+                    await request(sock_path, {"cmd": "open"}),
+                )
+
+    asyncio.run(scenario())
+    refused, open_ = replies[frozenset({other})]
+    assert not refused["ok"] and refused["error"].startswith("permission denied: 'status'")
+    assert f"not uid {me}, gid {os.getgid()}" in refused["error"]
+    assert open_["ok"]
+    assert replies[frozenset({me})][0]["ok"]
+
+
+def test_the_server_reads_the_peers_credentials(sock_path):
+    """``peer_of`` reports the connecting process's pid, uid and gid (SO_PEERCRED)."""
+    seen = []
+
+    async def who(message: dict[str, Any]) -> dict[str, Any]:
+        return {}
+
+    async def scenario() -> None:
+        server = ControlServer(sock_path, {"who": who})
+        original = server.answer
+
+        async def answer(line: bytes, peer: Peer | None = None) -> dict[str, Any]:
+            seen.append(peer)
+            return await original(line, peer)
+
+        server.answer = answer  # type: ignore[method-assign]
+        async with server:
+            await request(sock_path, {"cmd": "who"})
+
+    asyncio.run(scenario())
+    assert seen == [Peer(os.getpid(), os.getuid(), os.getgid())]

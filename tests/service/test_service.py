@@ -15,12 +15,13 @@ from compd.control import request
 from compd.data import load_data
 from compd.model.run import simulate
 from compd.modelfile import load_model
+from compd.modelload import load_request
 from compd.safety import SIGNAL_BIT0, Flag, Level
 from compd.service import Service
 from compd.signals import Health
 from compd.state import load_state
 
-from .daemon_setup import run, write_config
+from .daemon_setup import run, ticked, write_config
 
 SLEW_UM = 1.0  # max_rate_um_per_s of the bundled simulated config, at 1 s
 
@@ -153,12 +154,16 @@ def test_hot_load_refuses_a_bad_model_and_blends_a_good_one(tmp_path):
     replies = {}
 
     async def scenario() -> None:
-        task = asyncio.create_task(service.run(duration_s=1800.0))
-        while service.compensator.counters.ticks < 300:
-            await asyncio.sleep(0)
-        replies["bad"] = await request(socket, {"cmd": "load", "path": str(bad)})
+        task = asyncio.create_task(service.run())
+        counters = service.compensator.counters
+        await ticked(service, task, 300)
+        replies["bad"] = await request(socket, load_request(bad.read_bytes(), bad))
         replies["status"] = await request(socket, {"cmd": "status"})
-        replies["good"] = await request(socket, {"cmd": "load", "path": str(good)})
+        replies["good"] = await request(socket, load_request(good.read_bytes(), good))
+        # Counted from the reply: virtual ticks race ahead while the daemon checks the model.
+        stop_at = counters.ticks + 1500
+        await ticked(service, task, stop_at)
+        service.stop()
         await task
 
     asyncio.run(scenario())
