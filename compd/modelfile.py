@@ -20,6 +20,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from compd.errors import ModelError, ModelFileError
 from compd.model.compiled import CompiledModel, compile_model
+from compd.model.guards import Finding, Severity
+from compd.model.guards import check_model as check_plausibility
 from compd.model.limits import MAX_DELAY_SAMPLES, MAX_ORDER, MAX_SAMPLE_TIME_S, MAX_SUBMODELS
 from compd.model.residual import DoorFeatures, ResidualModel
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
@@ -282,6 +284,35 @@ class ModelFile:
         """Each declared signal's unit, or None when the file declares no ``signals``."""
         signals = self.doc.signals
         return None if signals is None else {name: s.unit for name, s in signals.items()}
+
+    def findings(self) -> list[Finding]:
+        """The guard rails (:mod:`compd.model.guards`) against the calibration this file records.
+
+        Gains are judged against the recorded ranges of the calibration data and
+        time constants against its length; a file without a calibration record
+        gets only the checks that need no data.
+        """
+        calibration = self.doc.provenance.calibration
+        if calibration is None:
+            return check_plausibility(self.model)
+        return check_plausibility(
+            self.model,
+            ranges=calibration.ranges,
+            record_s=calibration.samples * calibration.sample_time_s,
+        )
+
+    def check_plausible(self) -> list[Finding]:
+        """Refuse the file if a guard rail finds an error; return the warnings."""
+        findings = self.findings()
+        errors = [f for f in findings if f.severity is Severity.ERROR]
+        if errors:
+            raise ModelFileError(
+                self.path,
+                "implausible for its own calibration data: "
+                + "; ".join(f"{f.output}/{f.submodel}: {f.message}" for f in errors),
+                fix=errors[0].fix,
+            )
+        return findings
 
     def compile(self, sample_time_s: float | None = None) -> CompiledModel:
         """Compile for running; a refusal names this file and the sub-model."""

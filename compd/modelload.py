@@ -49,6 +49,7 @@ def slot_from_bytes(
 ) -> ModelSlot:
     """Validate, compile (at the config's period) and check model-file bytes against ``config``."""
     model_file = parse_model_bytes(raw, name)
+    model_file.check_plausible()  # what `compd model check` refuses, the daemon never runs
     compiled = model_file.compile(config.doc.period_s)
     check_model(config, model_file, compiled)
     return ModelSlot(model_file, compiled, loaded_at_unix_s)

@@ -198,3 +198,40 @@ def test_missing_file_is_a_clear_error(tmp_path: Path) -> None:
 def test_text_can_be_parsed_without_a_file() -> None:
     """parse_model validates text directly (used by tools that generate models)."""
     assert parse_model(VALID).model.name == "t"
+
+
+IMPLAUSIBLE = textwrap.dedent(
+    """\
+    schema: compd.model/1
+    name: eight-years
+    sample_time_s: 15.0
+    outputs:
+      disp_um:
+        submodels:
+          - name: T16
+            effect: a collinear sensor's balancing term
+            input: {signal: T16}
+            tf: {form: discrete, power_order: ascending, nk: 1, num: [-6.6e-3], den: [1.0, -0.99999994]}
+    provenance:
+      calibration:
+        data: real.csv
+        samples: 7712
+        sample_time_s: 15.0
+        ranges: {disp_um: [-71.0, 18.3], T16: [23.7, 29.8]}
+    """
+)
+
+
+def test_a_model_implausible_for_its_calibration_is_refused_by_check(tmp_path: Path) -> None:
+    """An 8-year, -1.1e5 um/K sub-model compiles, but the guard rails refuse it: the daemon never runs it."""
+    model_file = load_model(write(tmp_path, IMPLAUSIBLE))
+    model_file.compile()  # causal and stable: the old check said "ok"
+    with pytest.raises(ModelFileError, match="implausible for its own calibration data") as refused:
+        model_file.check_plausible()
+    assert "T16" in str(refused.value) and "years" in str(refused.value)
+
+
+def test_a_file_without_calibration_gets_only_the_checks_that_need_no_data(tmp_path: Path) -> None:
+    """Without ranges or a record length there is nothing to judge gains and time constants against."""
+    text = IMPLAUSIBLE[: IMPLAUSIBLE.index("provenance:")]
+    assert load_model(write(tmp_path, text)).check_plausible() == []

@@ -85,6 +85,7 @@ def register(commands: Any) -> None:
 def _model_check(args: argparse.Namespace) -> int:
     model_file = load_model(args.model)
     compiled = model_file.compile(args.sample_time_s)
+    warnings = model_file.check_plausible()
     out = console()
     out.print(
         f"[bold]{compiled.name}[/bold]  {model_file.path}  sha256 {model_file.sha256[:12]}  "
@@ -118,6 +119,8 @@ def _model_check(args: argparse.Namespace) -> int:
             sub.describe_factors(),
         )
     out.print(table)
+    for finding in warnings:
+        print(finding.describe(), file=sys.stderr)
     out.print("[green]ok[/green]: compiles, causal and stable")
     return 0
 

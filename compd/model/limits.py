@@ -16,8 +16,9 @@ from __future__ import annotations
 MAX_ORDER = 32
 #: Longest input delay, in samples at the run sample time (10 min at 1 s).
 MAX_DELAY_SAMPLES = 600
-#: Sub-models per model, all outputs together.
-MAX_SUBMODELS = 64
+#: Sub-models per model, all outputs together: a lag bank on 24 inputs at 5 time
+#: constants is 120 (first-order, so its step stays small: the states bound it).
+MAX_SUBMODELS = 256
 #: Compiled states (sub-models x longest delay line); the per-tick step is a
 #: dense matrix of this size squared (2048: 32 MiB, a few ms per tick).
 MAX_STATES = 2048

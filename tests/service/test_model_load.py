@@ -188,3 +188,13 @@ def test_an_unknown_user_in_load_access_is_a_config_error(tmp_path):
     """`load_access.users` naming no such user stops check-config, naming the place."""
     with pytest.raises(ConfigFileError, match=r"line \d+ \(load_access\): no such user or group"):
         write_config(tmp_path, {"load_access": {"users": ["no-such-user-compd"]}})
+
+
+def test_load_refuses_what_model_check_refuses(tmp_path: Path) -> None:
+    """A model the guard rails flag (an 8-year sub-model of -1.1e5 um/K) is never accepted by the daemon."""
+    from compd.errors import ModelFileError
+    from tests.test_modelfile import IMPLAUSIBLE
+
+    config = write_config(tmp_path)
+    with pytest.raises(ModelFileError, match="implausible for its own calibration data"):
+        modelload.slot_from_bytes(config, IMPLAUSIBLE.encode(), "eight-years.yaml", 0.0)
