@@ -277,7 +277,9 @@ def configure_logging(*, json_lines: bool | None = None, level: str = "INFO") ->
         processors=[*shared, structlog.stdlib.ProcessorFormatter.wrap_for_formatter],
         logger_factory=structlog.stdlib.LoggerFactory(),
         wrapper_class=structlog.stdlib.BoundLogger,
-        cache_logger_on_first_use=True,
+        # Not cached: compd logs once per fault episode, so the lookup costs nothing, and a
+        # cached module-level logger would ignore any later configuration (tests' capture_logs).
+        cache_logger_on_first_use=False,
     )
     formatter = structlog.stdlib.ProcessorFormatter(
         foreign_pre_chain=shared,
