@@ -19,12 +19,14 @@ from compd.errors import CompdError
 from compd.sim import SCENARIOS, simulate_scenario
 from compd.sim.hall import air_conditioned
 from compd.sim.positions import simulate_feed_positions
+from compd.sim.realistic import REALISTIC_SCENARIOS
 from compd.sim.variants import VARIANTS, machine_variant
 
 #: Runs beyond the contract-column scenarios: they log extra columns (axis positions).
 EXTRA_SCENARIOS = {
     "feed_positions": "the feed run with X and Z dwelling at several positions; adds "
     "X_position_mm, Z_position_mm and the screw temperatures (seed 003's position-dependent error)",
+    **{name: text for name, (_, text) in REALISTIC_SCENARIOS.items()},
 }
 
 #: Decimals written per column kind: below each signal's noise, so nothing is lost.
@@ -74,7 +76,14 @@ def _twin(args: argparse.Namespace) -> int:
         "sample_time_s": args.sample_time_s,
         "params": machine_variant(args.variant),
     }
-    if args.scenario == "feed_positions":
+    if args.scenario in REALISTIC_SCENARIOS:
+        if args.air_conditioned:
+            raise CompdError(
+                f"--air-conditioned applies to runs with a T_ambient_degC column; {args.scenario} "
+                "has its own shop-floor sensors (T6, T7, T10): leave the option out"
+            )
+        frame = REALISTIC_SCENARIOS[args.scenario][0](args.hours, **options)
+    elif args.scenario == "feed_positions":
         frame = simulate_feed_positions(args.hours, **options)
     else:
         frame = simulate_scenario(args.scenario, args.hours, **options)

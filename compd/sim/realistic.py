@@ -82,11 +82,12 @@ class SensorSpec:
     spikes: bool = False
 
 
-#: ``T1`` .. ``T16``, in order. Near-duplicates differ only by offset and noise.
+#: ``T1`` .. ``T16``, in order. Near-duplicates sit on one part a few cm apart: they differ by
+#: offset, noise and a few per cent of a neighbouring part (the gradient across the part).
 SENSOR_LAYOUT: tuple[SensorSpec, ...] = (
     SensorSpec({"headstock": 1.0}, 60.0),  # T1  headstock, left
-    SensorSpec({"headstock": 1.0}, 60.0),  # T2  headstock, right: duplicate of T1
-    SensorSpec({"headstock": 1.0}, 90.0),  # T3  headstock, rear: duplicate of T1
+    SensorSpec({"headstock": 0.93, "column_front": 0.07}, 60.0),  # T2  headstock, lower: near T1
+    SensorSpec({"headstock": 0.9, "motor": 0.1}, 90.0),  # T3  headstock, rear: near T1
     SensorSpec({"coolant": 0.7, "bearings": 0.3}, 30.0, 0.02),  # T4  chiller return line
     SensorSpec({"motor": 1.0}, 40.0),  # T5  spindle motor
     SensorSpec({"ambient": 1.0}, 600.0),  # T6  shop floor, on the guard: ambient only
@@ -97,8 +98,8 @@ SENSOR_LAYOUT: tuple[SensorSpec, ...] = (
     SensorSpec({"bed": 1.0}, 120.0),  # T11 bed
     SensorSpec({"column_back": 1.0}, 60.0),  # T12 column back, top
     SensorSpec({"air": 1.0}, 120.0),  # T13 enclosure air, left
-    SensorSpec({"column_back": 1.0}, 60.0),  # T14 column back, middle: duplicate of T12
-    SensorSpec({"air": 1.0}, 120.0),  # T15 enclosure air, right: duplicate of T13
+    SensorSpec({"column_back": 0.93, "bed": 0.07}, 60.0),  # T14 column back, low: near T12
+    SensorSpec({"air": 0.93, "ambient": 0.07}, 120.0),  # T15 enclosure air, door: near T13
     SensorSpec({"headstock": 1.0}, 60.0, 0.12, spikes=True),  # T16 loose contact, spikes
 )
 TEMPERATURE_COLUMNS = tuple(f"T{i}" for i in range(1, len(SENSOR_LAYOUT) + 1))
@@ -150,16 +151,19 @@ def chiller_degc(
 
 
 def structural_creep_um(rng: np.random.Generator, time_s: np.ndarray) -> np.ndarray:
-    """Displacement (um, ``(3, samples)``) that no sensor sees: a creep of 0.1-0.4 um/h plus a slow bow.
+    """Displacement (um, ``(3, samples)``) that no sensor sees: settling and a creep of 0.1-0.4 um/h.
 
-    Per axis ``c(t) = r t + b (1 - cos(2π t / P))`` with ``r`` of either sign,
-    ``b`` of 1-3 um and ``P`` of 30-60 h: settling of the foundation and of
-    bolted joints, which goes on through the verify run.
+    Per axis ``c(t) = ±(r t + s (1 − e^{−t/τ}))`` with ``r`` of 0.1-0.4 um/h,
+    ``s`` of 1-4 um and ``τ`` of 10-30 h: bolted joints and the foundation
+    settling, monotone, and still going on through the verify run.
     """
     hours = time_s / _H
     creep = [
-        rng.choice([-1.0, 1.0]) * rng.uniform(0.1, 0.4) * hours
-        + rng.uniform(1.0, 3.0) * (1.0 - np.cos(2 * np.pi * hours / rng.uniform(30.0, 60.0)))
+        rng.choice([-1.0, 1.0])
+        * (
+            rng.uniform(0.1, 0.4) * hours
+            + rng.uniform(1.0, 4.0) * -np.expm1(-hours / rng.uniform(10.0, 30.0))
+        )
         for _ in DISPLACEMENT_COLUMNS
     ]
     return np.asarray(creep)
@@ -196,7 +200,7 @@ def simulate_real_record(
 
     The machine (``params`` with :data:`SPINDLE_CHILLER`) starts at rest in
     equilibrium with the first ambient and chiller temperatures. The schedule
-    uses ``[seed, 0]``, the sensors and the creep ``[seed, 1]``.
+    uses ``[seed, 0]``; the sensors, the creep and the probes streams of their own.
     """
     check_run(hours, sample_time_s)
     machine = chilled(params or MachineParameters())
@@ -213,21 +217,22 @@ def simulate_real_record(
     def site(name: str) -> np.ndarray:
         return boundary[name] if name in boundary else record.temperature(name)
 
-    rng = np.random.default_rng([seed, 1])
     columns: dict[str, np.ndarray] = {"time_s": time_s, "spindle_speed_rpm": speed}
-    for column, spec in zip(TEMPERATURE_COLUMNS, SENSOR_LAYOUT, strict=True):
+    # One random stream per sensor and probe, so a shorter run is the head of a longer one.
+    for k, (column, spec) in enumerate(zip(TEMPERATURE_COLUMNS, SENSOR_LAYOUT, strict=True)):
+        rng = np.random.default_rng([seed, 1, k])
         true = sum(weight * site(name) for name, weight in spec.sites.items())
         reading = lag(np.asarray(true), spec.lag_s, sample_time_s) + rng.uniform(
             -OFFSET_DEGC, OFFSET_DEGC
         )
         reading = reading + rng.normal(0.0, spec.noise_degc, size=time_s.shape)
         if spec.spikes:
-            reading = reading + _spikes_degc(rng, time_s)
+            reading = reading + _spikes_degc(np.random.default_rng([seed, 4]), time_s)
         columns[column] = _quantised(reading, QUANTUM_DEGC)
-    displacement = record.displacement_um + structural_creep_um(rng, time_s)
-    displacement = displacement + rng.normal(0.0, DISPLACEMENT_NOISE_UM, size=displacement.shape)
-    for column, values in zip(DISPLACEMENT_COLUMNS, displacement, strict=True):
-        columns[column] = _quantised(values, QUANTUM_UM)
+    creep = structural_creep_um(np.random.default_rng([seed, 2]), time_s)
+    for k, column in enumerate(DISPLACEMENT_COLUMNS):
+        noise = np.random.default_rng([seed, 3, k]).normal(0.0, DISPLACEMENT_NOISE_UM, time_s.size)
+        columns[column] = _quantised(record.displacement_um[k] + creep[k] + noise, QUANTUM_UM)
     return pd.DataFrame(columns)
 
 
