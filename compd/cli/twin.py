@@ -3,7 +3,9 @@
 The file has the columns every other command reads (``time_s``, controller
 signals, ``T_*_degC`` temperatures, ``disp_*_um`` displacements), so
 ``compd fit``, ``compare`` and ``diagnose`` can be tried, and tested, on
-runs whose physics is known: see :mod:`compd.sim`.
+runs whose physics is known: see :mod:`compd.sim`. The realistic runs
+(``real_record``, ``real_calibration``, ``real_verify``) log ``T1`` ..
+``T16`` instead, as a real machine's log often does.
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ from compd.sim.positions import simulate_feed_positions
 from compd.sim.realistic import REALISTIC_SCENARIOS
 from compd.sim.variants import VARIANTS, machine_variant
 
-#: Runs beyond the contract-column scenarios: they log extra columns (axis positions).
+#: Runs beyond the contract-column scenarios: extra columns (axis positions), or the realistic
+#: runs' own (T1..T16 without locations, disp_x/y/z_um; see :mod:`compd.sim.realistic`).
 EXTRA_SCENARIOS = {
     "feed_positions": "the feed run with X and Z dwelling at several positions; adds "
     "X_position_mm, Z_position_mm and the screw temperatures (seed 003's position-dependent error)",
