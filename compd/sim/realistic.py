@@ -82,25 +82,26 @@ class SensorSpec:
     spikes: bool = False
 
 
-#: ``T1`` .. ``T16``, in order. Near-duplicates sit on one part a few cm apart: they differ by
-#: offset, noise and a few per cent of a neighbouring part (the gradient across the part).
+#: ``T1`` .. ``T16``, in order. Pt100s screwed onto a casting read between it and the air
+#: around it (a quarter of the air's temperature here). Near-duplicates sit on one part a few cm
+#: apart: they differ by offset, noise and a few per cent of a neighbouring part.
 SENSOR_LAYOUT: tuple[SensorSpec, ...] = (
-    SensorSpec({"headstock": 1.0}, 60.0),  # T1  headstock, left
-    SensorSpec({"headstock": 0.93, "column_front": 0.07}, 60.0),  # T2  headstock, lower: near T1
-    SensorSpec({"headstock": 0.9, "motor": 0.1}, 90.0),  # T3  headstock, rear: near T1
-    SensorSpec({"coolant": 0.7, "bearings": 0.3}, 30.0, 0.02),  # T4  chiller return line
-    SensorSpec({"motor": 1.0}, 40.0),  # T5  spindle motor
+    SensorSpec({"headstock": 0.75, "air": 0.25}, 60.0),  # T1  headstock, left
+    SensorSpec({"headstock": 0.7, "column_front": 0.05, "air": 0.25}, 60.0),  # T2  lower: near T1
+    SensorSpec({"headstock": 0.68, "motor": 0.07, "air": 0.25}, 90.0),  # T3  rear: near T1
+    SensorSpec({"coolant": 0.7, "bearings": 0.22, "air": 0.08}, 30.0, 0.02),  # T4  chiller return
+    SensorSpec({"motor": 0.75, "ambient": 0.25}, 40.0),  # T5  spindle motor housing
     SensorSpec({"ambient": 1.0}, 600.0),  # T6  shop floor, on the guard: ambient only
     SensorSpec({"ambient": 1.0}, 2400.0),  # T7  electrical cabinet wall: ambient only
-    SensorSpec({"column_front": 1.0}, 60.0),  # T8  column, guideway side
-    SensorSpec({"bearings": 1.0}, 30.0),  # T9  spindle front bearing
+    SensorSpec({"column_front": 0.75, "air": 0.25}, 60.0),  # T8  column, guideway side
+    SensorSpec({"bearings": 0.75, "air": 0.25}, 30.0),  # T9  spindle nose, front bearing
     SensorSpec({"ambient": 1.0}, 1200.0),  # T10 hall pillar behind the machine: ambient only
-    SensorSpec({"bed": 1.0}, 120.0),  # T11 bed
-    SensorSpec({"column_back": 1.0}, 60.0),  # T12 column back, top
+    SensorSpec({"bed": 0.75, "ambient": 0.25}, 120.0),  # T11 bed
+    SensorSpec({"column_back": 0.75, "ambient": 0.25}, 60.0),  # T12 column back, top
     SensorSpec({"air": 1.0}, 120.0),  # T13 enclosure air, left
-    SensorSpec({"column_back": 0.93, "bed": 0.07}, 60.0),  # T14 column back, low: near T12
+    SensorSpec({"column_back": 0.7, "bed": 0.05, "ambient": 0.25}, 60.0),  # T14 low: near T12
     SensorSpec({"air": 0.93, "ambient": 0.07}, 120.0),  # T15 enclosure air, door: near T13
-    SensorSpec({"headstock": 1.0}, 60.0, 0.12, spikes=True),  # T16 loose contact, spikes
+    SensorSpec({"headstock": 0.75, "air": 0.25}, 60.0, 0.12, spikes=True),  # T16 loose contact
 )
 TEMPERATURE_COLUMNS = tuple(f"T{i}" for i in range(1, len(SENSOR_LAYOUT) + 1))
 DISPLACEMENT_COLUMNS = ("disp_x_um", "disp_y_um", "disp_z_um")
