@@ -185,6 +185,20 @@ def _quantised(x: np.ndarray, quantum: float) -> np.ndarray:
     return np.asarray(np.round(x / quantum) * quantum)
 
 
+def _read(
+    spec: SensorSpec, true_degc: np.ndarray, time_s: np.ndarray, seed: int, k: int
+) -> np.ndarray:
+    """Sensor ``k``'s logged reading: lag, Pt100 offset, noise, spikes if it has them, quantised."""
+    rng = np.random.default_rng([seed, 1, k])
+    reading = lag(true_degc, spec.lag_s, time_s[1] - time_s[0]) + rng.uniform(
+        -OFFSET_DEGC, OFFSET_DEGC
+    )
+    reading = reading + rng.normal(0.0, spec.noise_degc, size=time_s.shape)
+    if spec.spikes:
+        reading = reading + _spikes_degc(np.random.default_rng([seed, 4]), time_s)
+    return _quantised(reading, QUANTUM_DEGC)
+
+
 def chilled(params: MachineParameters) -> MachineParameters:
     """``params`` with the spindle chiller on the bearing cartridge."""
     return dataclasses.replace(params, links=(*params.links, SPINDLE_CHILLER))
@@ -221,15 +235,8 @@ def simulate_real_record(
     columns: dict[str, np.ndarray] = {"time_s": time_s, "spindle_speed_rpm": speed}
     # One random stream per sensor and probe, so a shorter run is the head of a longer one.
     for k, (column, spec) in enumerate(zip(TEMPERATURE_COLUMNS, SENSOR_LAYOUT, strict=True)):
-        rng = np.random.default_rng([seed, 1, k])
-        true = sum(weight * site(name) for name, weight in spec.sites.items())
-        reading = lag(np.asarray(true), spec.lag_s, sample_time_s) + rng.uniform(
-            -OFFSET_DEGC, OFFSET_DEGC
-        )
-        reading = reading + rng.normal(0.0, spec.noise_degc, size=time_s.shape)
-        if spec.spikes:
-            reading = reading + _spikes_degc(np.random.default_rng([seed, 4]), time_s)
-        columns[column] = _quantised(reading, QUANTUM_DEGC)
+        true = np.asarray(sum(weight * site(name) for name, weight in spec.sites.items()))
+        columns[column] = _read(spec, true, time_s, seed, k)
     creep = structural_creep_um(np.random.default_rng([seed, 2]), time_s)
     for k, column in enumerate(DISPLACEMENT_COLUMNS):
         noise = np.random.default_rng([seed, 3, k]).normal(0.0, DISPLACEMENT_NOISE_UM, time_s.size)
@@ -238,14 +245,22 @@ def simulate_real_record(
 
 
 def simulate_real_calibration(
-    hours: float, seed: int = 0, sample_time_s: float = 15.0, **options: MachineParameters | None
+    hours: float,
+    seed: int = 0,
+    sample_time_s: float = 15.0,
+    *,
+    params: MachineParameters | None = None,
 ) -> pd.DataFrame:
     """``real_calibration``: the first ``hours`` of ``real_record`` (its programme is :data:`CUT_H` h)."""
-    return simulate_real_record(hours, seed, sample_time_s, **options)
+    return simulate_real_record(hours, seed, sample_time_s, params=params)
 
 
 def simulate_real_verify(
-    hours: float, seed: int = 0, sample_time_s: float = 15.0, **options: MachineParameters | None
+    hours: float,
+    seed: int = 0,
+    sample_time_s: float = 15.0,
+    *,
+    params: MachineParameters | None = None,
 ) -> pd.DataFrame:
     """``real_verify``: ``real_record`` from :data:`CUT_H` for ``hours``, split off as its own file.
 
@@ -253,7 +268,7 @@ def simulate_real_verify(
     split-off log's contract); the temperatures are as logged.
     """
     check_run(hours, sample_time_s)
-    whole = simulate_real_record(CUT_H + hours, seed, sample_time_s, **options)
+    whole = simulate_real_record(CUT_H + hours, seed, sample_time_s, params=params)
     part = whole[whole["time_s"] >= CUT_H * _H].reset_index(drop=True)
     part["time_s"] = part["time_s"] - CUT_H * _H
     for column in DISPLACEMENT_COLUMNS:
