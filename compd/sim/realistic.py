@@ -24,7 +24,12 @@ These runs reproduce that, on the reference machine with a spindle chiller:
   there, as on the real record).
 
 The temperatures are ``T1`` .. ``T16`` in :data:`SENSOR_LAYOUT` order (its
-comments say where each sits; a user of the file is not told). The
+comments say where each sits; a user of the file is not told). A Pt100 on a
+casting reads partly the air around it, so no sensor is the temperature of
+the part that moves the tool, and the model has to un-mix collinear readings:
+that is where a free denominator per input finds large, cancelling sub-models
+and integrators. A run longer than its programme stands at rest for the rest;
+a shorter run is the head of a longer one of the same seed. The
 displacements are the TCP's ``disp_x_um``, ``disp_y_um``, ``disp_z_um`` as
 changes from the start, plus an unmodelled structural creep
 (:func:`structural_creep_um`) and 0.1 um of probe noise, quantised to 0.01 um.
