@@ -157,18 +157,18 @@ def chiller_degc(
 
 
 def structural_creep_um(rng: np.random.Generator, time_s: np.ndarray) -> np.ndarray:
-    """Displacement (um, ``(3, samples)``) that no sensor sees: settling and a creep of 0.1-0.4 um/h.
+    """Displacement (um, ``(3, samples)``) that no sensor sees: settling and a creep of 0.05-0.2 um/h.
 
-    Per axis ``c(t) = ±(r t + s (1 − e^{−t/τ}))`` with ``r`` of 0.1-0.4 um/h,
-    ``s`` of 1-4 um and ``τ`` of 10-30 h: bolted joints and the foundation
+    Per axis ``c(t) = ±(r t + s (1 − e^{−t/τ}))`` with ``r`` of 0.05-0.2 um/h,
+    ``s`` of 0.5-2 um and ``τ`` of 10-30 h: bolted joints and the foundation
     settling, monotone, and still going on through the verify run.
     """
     hours = time_s / _H
     creep = [
         rng.choice([-1.0, 1.0])
         * (
-            rng.uniform(0.1, 0.4) * hours
-            + rng.uniform(1.0, 4.0) * -np.expm1(-hours / rng.uniform(10.0, 30.0))
+            rng.uniform(0.05, 0.2) * hours
+            + rng.uniform(0.5, 2.0) * -np.expm1(-hours / rng.uniform(10.0, 30.0))
         )
         for _ in DISPLACEMENT_COLUMNS
     ]
