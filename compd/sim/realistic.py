@@ -116,6 +116,8 @@ COLUMNS = ("time_s", "spindle_speed_rpm", *TEMPERATURE_COLUMNS, *DISPLACEMENT_CO
 OFFSET_DEGC = 0.3
 QUANTUM_DEGC = 0.01
 DISPLACEMENT_NOISE_UM = 0.1
+#: Creep multiplier per displacement column (x, y, z); see :func:`structural_creep_um`.
+CREEP_SCALE = (1.0, 1.0, 2.0)
 QUANTUM_UM = 0.01
 
 
@@ -157,20 +159,23 @@ def chiller_degc(
 
 
 def structural_creep_um(rng: np.random.Generator, time_s: np.ndarray) -> np.ndarray:
-    """Displacement (um, ``(3, samples)``) that no sensor sees: settling and a creep of 0.05-0.2 um/h.
+    """Displacement (um, ``(3, samples)``) that no sensor sees: settling and a creep of 0.05-0.4 um/h.
 
-    Per axis ``c(t) = ±(r t + s (1 − e^{−t/τ}))`` with ``r`` of 0.05-0.2 um/h,
+    Per axis ``c(t) = ±m (r t + s (1 − e^{−t/τ}))`` with ``r`` of 0.05-0.2 um/h,
     ``s`` of 0.5-2 um and ``τ`` of 10-30 h: bolted joints and the foundation
-    settling, monotone, and still going on through the verify run.
+    settling, monotone, and still going on through the verify run. ``m`` is
+    :data:`CREEP_SCALE`: twice as much in z, whose loop (bed, column,
+    headstock) is the longest.
     """
     hours = time_s / _H
     creep = [
-        rng.choice([-1.0, 1.0])
+        scale
+        * rng.choice([-1.0, 1.0])
         * (
             rng.uniform(0.05, 0.2) * hours
             + rng.uniform(0.5, 2.0) * -np.expm1(-hours / rng.uniform(10.0, 30.0))
         )
-        for _ in DISPLACEMENT_COLUMNS
+        for scale in CREEP_SCALE
     ]
     return np.asarray(creep)
 

@@ -144,13 +144,14 @@ def test_displacements_start_at_zero(record: pd.DataFrame) -> None:
 
 
 def test_the_creep_is_a_fraction_of_a_micrometre_per_hour_and_goes_on() -> None:
-    """The unmodelled creep moves every axis by under 0.5 um/h on average, and still moves after the cut."""
+    """The unmodelled creep moves every axis by under 0.5 um/h (z the most) and still moves after the cut."""
     time_s = np.arange(0, RECORD_H * 3600 + 1, 60.0)
     for seed in range(5):
         creep = structural_creep_um(np.random.default_rng(seed), time_s)
         assert creep.shape == (3, time_s.size)
         rate = np.abs(creep[:, -1] - creep[:, 0]) / RECORD_H
         assert np.all(rate < 0.5)
+        assert rate[2] > 0.05
         after_cut = creep[:, time_s >= CUT_H * 3600]
         assert np.all(np.ptp(after_cut, axis=1) > 0.5)
 
