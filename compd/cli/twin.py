@@ -3,7 +3,9 @@
 The file has the columns every other command reads (``time_s``, controller
 signals, ``T_*_degC`` temperatures, ``disp_*_um`` displacements), so
 ``compd fit``, ``compare`` and ``diagnose`` can be tried, and tested, on
-runs whose physics is known: see :mod:`compd.sim`.
+runs whose physics is known: see :mod:`compd.sim`. The realistic runs
+(``real_record``, ``real_calibration``, ``real_verify``) log ``T1`` ..
+``T16`` instead, as a real machine's log often does.
 """
 
 from __future__ import annotations
@@ -19,12 +21,15 @@ from compd.errors import CompdError
 from compd.sim import SCENARIOS, simulate_scenario
 from compd.sim.hall import air_conditioned
 from compd.sim.positions import simulate_feed_positions
+from compd.sim.realistic import REALISTIC_SCENARIOS
 from compd.sim.variants import VARIANTS, machine_variant
 
-#: Runs beyond the contract-column scenarios: they log extra columns (axis positions).
+#: Runs beyond the contract-column scenarios: extra columns (axis positions), or the realistic
+#: runs' own (T1..T16 without locations, disp_x/y/z_um; see :mod:`compd.sim.realistic`).
 EXTRA_SCENARIOS = {
     "feed_positions": "the feed run with X and Z dwelling at several positions; adds "
     "X_position_mm, Z_position_mm and the screw temperatures (seed 003's position-dependent error)",
+    **{name: text for name, (_, text) in REALISTIC_SCENARIOS.items()},
 }
 
 #: Decimals written per column kind: below each signal's noise, so nothing is lost.
@@ -74,7 +79,14 @@ def _twin(args: argparse.Namespace) -> int:
         "sample_time_s": args.sample_time_s,
         "params": machine_variant(args.variant),
     }
-    if args.scenario == "feed_positions":
+    if args.scenario in REALISTIC_SCENARIOS:
+        if args.air_conditioned:
+            raise CompdError(
+                f"--air-conditioned applies to runs with a T_ambient_degC column; {args.scenario} "
+                "has its own shop-floor sensors (T6, T7, T10): leave the option out"
+            )
+        frame = REALISTIC_SCENARIOS[args.scenario][0](args.hours, **options)
+    elif args.scenario == "feed_positions":
         frame = simulate_feed_positions(args.hours, **options)
     else:
         frame = simulate_scenario(args.scenario, args.hours, **options)

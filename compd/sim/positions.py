@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from compd.sim.machine import ALPHA_STEEL_PER_K, MachineParameters
-from compd.sim.scenarios import _check, _Steps, scenario_inputs, simulate_scenario
+from compd.sim.scenarios import _Steps, check_run, scenario_inputs, simulate_scenario
 from compd.sim.sensors import PT100_NOISE_DEGC, class_a_tolerance_degc, lag
 from compd.sim.thermal import simulate_record
 
@@ -57,7 +57,7 @@ def position_schedule(
     hours: float, seed: int = 0, sample_time_s: float = 1.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """X and Z positions (mm from each screw's fixed bearing), one per sample."""
-    _check(hours, sample_time_s)
+    check_run(hours, sample_time_s)
     rng = np.random.default_rng([seed, 2])  # [seed, 0] and [seed, 1] are the feed run's
     total_s = hours * 3600.0
     t = np.arange(round(total_s / sample_time_s) + 1) * float(sample_time_s)

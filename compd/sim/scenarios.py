@@ -208,7 +208,7 @@ def scenario_inputs(
 ) -> InputRecord:
     """The machine inputs of scenario ``name``, one sample every ``sample_time_s`` over ``hours``."""
     effects = _scenario(name)
-    _check(hours, sample_time_s)
+    check_run(hours, sample_time_s)
     rng = np.random.default_rng([seed, 0])  # the schedule; sensors use [seed, 1]
     total_s = hours * 3600.0
     t = np.arange(round(total_s / sample_time_s) + 1) * float(sample_time_s)
@@ -283,7 +283,8 @@ def _scenario(name: str) -> _Effects:
         ) from None
 
 
-def _check(hours: float, sample_time_s: float) -> None:
+def check_run(hours: float, sample_time_s: float) -> None:
+    """Refuse a run length or sample time the twin does not generate (a :class:`ScenarioError`)."""
     if not (np.isfinite(hours) and 0 < hours <= MAX_HOURS):
         raise ScenarioError(f"hours must be above 0 and at most {MAX_HOURS:g}, not {hours}")
     if not (np.isfinite(sample_time_s) and 0 < sample_time_s <= MAX_SAMPLE_TIME_S):

@@ -76,3 +76,26 @@ def test_feed_positions_run_is_written_with_axis_positions(tmp_path: Path) -> No
     for column in ("X_position_mm", "Z_position_mm", "T_x_screw_degC", "T_z_screw_degC"):
         assert data.has(column)
     assert len(np.unique(data.column("X_position_mm"))) >= 2
+
+
+def test_a_realistic_run_is_written_with_sixteen_unnamed_temperatures(tmp_path: Path) -> None:
+    """`--scenario real_verify` writes time, speed, T1..T16 and disp_x/y/z_um, readable by load_data."""
+    out = tmp_path / "verify.csv"
+    assert main(["twin", "--scenario", "real_verify", "--hours", "2", "--sample-time-s", "60",
+                 "--seed", "4", "--out", str(out)]) == 0  # fmt: skip
+    data = load_data(out)
+    assert len(data) == 121
+    assert [f"T{i}" for i in range(1, 17)] == [c for c in data.columns if c.startswith("T")]
+    assert data.has("disp_z_um") and data.column("disp_z_um")[0] == 0.0
+
+
+def test_a_realistic_run_refuses_the_air_conditioned_option(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--air-conditioned needs a T_ambient_degC column: on a realistic run it exits 2, writing nothing."""
+    out = tmp_path / "x.csv"
+    code = main(["twin", "--scenario", "real_record", "--hours", "1", "--sample-time-s", "60",
+                 "--air-conditioned", "--out", str(out)])  # fmt: skip
+    assert code == 2
+    assert "--air-conditioned" in capsys.readouterr().err
+    assert not out.exists()
