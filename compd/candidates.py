@@ -27,7 +27,7 @@ from compd.errors import DataFileError, ModelError
 from compd.model.collinear import contribution_shares
 from compd.model.compiled import compile_model, qualified_names
 from compd.model.crossval import Folds, blocked_folds, cycle_folds
-from compd.model.guards import Finding, check_model
+from compd.model.guards import Finding, Severity, check_model
 from compd.model.identify import Identification, IdentifiedTF, Orders
 from compd.model.lagbank import (
     DEFAULT_TIME_CONSTANTS_S,
@@ -283,6 +283,18 @@ def guard_findings(
         record_s=len(data) * data.sample_time_s,
         contributions=contributions,
     )
+
+
+def refuse_errors(data: DataSet, findings: Sequence[Finding], *, what: str, where: str) -> None:
+    """Raise naming every guard-rail error in ``findings`` (``what``: the model or sub-model judged)."""
+    errors = [f for f in findings if f.severity is Severity.ERROR]
+    if errors:
+        raise DataFileError(
+            data.path,
+            f"{what}:\n  " + "\n  ".join(f.describe() for f in errors),
+            where=where,
+            fix="Follow the fixes above, or --force to write it anyway",
+        )
 
 
 def check_against_regression(data: DataSet, selection: Selection, chosen: str, force: bool) -> None:

@@ -24,12 +24,18 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from compd import __version__
-from compd.candidates import EXTEND_MARGIN_POINTS, folds_of, guard_findings, operating_signal
+from compd.candidates import (
+    EXTEND_MARGIN_POINTS,
+    folds_of,
+    guard_findings,
+    operating_signal,
+    refuse_errors,
+)
 from compd.data import DataSet
 from compd.errors import DataFileError, ModelError
 from compd.evaluate import Evaluation, compare, evaluate, measured_columns
 from compd.fit import unit_of
-from compd.model.guards import Finding, Severity
+from compd.model.guards import Finding
 from compd.model.identify import Identification, identify
 from compd.model.lagbank import fit_lag_bank
 from compd.model.metrics import fit_percent
@@ -180,14 +186,12 @@ def extend_model(
     )
     extended = parse_model(yaml_text, "<extended model>")
     findings = [f for f in guard_findings(data, model) if name in f.submodel.split(" + ")]
-    errors = [f for f in findings if f.severity is Severity.ERROR]
-    if errors and not force:
-        raise DataFileError(
-            data.path,
-            "the new sub-model is implausible for this record:\n  "
-            + "\n  ".join(f.describe() for f in errors),
+    if not force:
+        refuse_errors(
+            data,
+            findings,
+            what="the new sub-model is implausible for this record",
             where=f"--effect {signal}",
-            fix="Follow the fixes above, or --force to add it anyway",
         )
     return Extension(
         parent=parent,

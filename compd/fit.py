@@ -36,6 +36,7 @@ from compd.candidates import (
     input_shares,
     lag_bank_identification,
     operating_signal,
+    refuse_errors,
     select_inputs,
 )
 from compd.candidates import select as choose
@@ -43,7 +44,7 @@ from compd.data import DataSet
 from compd.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.errors import DataFileError, ModelError
 from compd.model.collinear import collinear_groups
-from compd.model.guards import Finding, Severity
+from compd.model.guards import Finding
 from compd.model.identify import MAX_ORDER, Identification, Progress, identify
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 from compd.model.metrics import Comparison
@@ -424,14 +425,12 @@ def fit_data(
     comparison = Comparison.of(output, y[first:], identification.simulated_um[first:])
     contributions = contributions_of(data, model)
     findings = guard_findings(data, model, contributions)
-    errors = [f for f in findings if f.severity is Severity.ERROR]
-    if errors and not force:
-        raise DataFileError(
-            data.path,
-            "the fitted model is implausible for its own calibration data:\n  "
-            + "\n  ".join(f.describe() for f in errors),
+    if not force:
+        refuse_errors(
+            data,
+            findings,
+            what="the fitted model is implausible for its own calibration data",
             where=f"--method {chosen}",
-            fix="Follow the fixes above, or --force to write the model anyway",
         )
     provenance = _provenance(data, identification, comparison, command, phase_gate, slope, span)
     provenance = provenance.model_copy(
