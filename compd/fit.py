@@ -399,7 +399,7 @@ def fit_data(
                 y,
                 changes,
                 sample_time_s=data.sample_time_s,
-                method=chosen,
+                method=chosen,  # type: ignore[arg-type]  # one of METHODS: checked above
                 order="auto" if order == "auto" else int(order),
                 gate=gate,
                 position=None if slope is None else data.column(slope.signal) - slope.reference_mm,

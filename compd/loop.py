@@ -317,15 +317,15 @@ class Compensator:
         unsure = Flag.DRIVER_DOWN in flags or mismatches or self.held.unknown
         if unsure and level is Level.OK:
             level = Level.DEGRADED
-        point = self.status_point
+        status = self.status_point
         word = status_word(
             level,
             flags,
             bad,
-            mismatch=mismatches > 0 and point is not None and point.mismatch_bit,
+            mismatch=mismatches > 0 and status is not None and status.mismatch_bit,
             model_fault=self.model_fault is not None
-            and point is not None
-            and point.model_fault_bit,
+            and status is not None
+            and status.model_fault_bit,
         )
         self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
         ok, acknowledged = await self._write(offsets, word)
