@@ -488,9 +488,10 @@ def _provenance(
             f"orders chosen automatically: fit {identification.validation_fit_percent:.4f} % "
             "on the held-back last third, estimated on the first two thirds"
         )
-    notes.append(
-        f"orders: na={orders.na} nb={list(orders.nb)} nf={list(orders.nf)} nk={list(orders.nk)}"
-    )
+    if identification.method != "lagbank":  # its orders are all first-order lags: said below
+        notes.append(
+            f"orders: na={orders.na} nb={list(orders.nb)} nf={list(orders.nf)} nk={list(orders.nk)}"
+        )
     if phase_gate is not None:
         notes.append(
             f"phase gate {phase_gate} > 0 switches the heating-difference TFs' inputs "

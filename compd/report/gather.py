@@ -62,10 +62,17 @@ class ModelRun:
         compiled = self.evaluation.compiled
         row = compiled.output_matrix[compiled.output_names.index(output)]
         names = qualified_names(compiled)
-        parts = {
-            names[int(i)].split("/", 1)[1]: self.evaluation.result.contributions[:, i]
-            for i in np.flatnonzero(row)
-        }
+        parts: dict[str, np.ndarray] = {}
+        for i in np.flatnonzero(row):
+            sub = compiled.submodels[int(i)]
+            # A lag bank's lags of one input are one effect: one trace, not five.
+            name = (
+                f"{sub.input.signal} (lag bank)"
+                if sub.effect.endswith("(lagbank)")
+                else names[int(i)].split("/", 1)[1]
+            )
+            term = self.evaluation.result.contributions[:, i]
+            parts[name] = parts[name] + term if name in parts else term
         result = self.evaluation.result
         for r, (out_i, residual) in enumerate(compiled.residuals):  # seed 004's forest term
             if compiled.output_names[out_i] == output and result.residuals is not None:
