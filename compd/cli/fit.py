@@ -220,9 +220,42 @@ def _candidates_table(result: FitResult) -> Table:
     return table
 
 
+def _lag_bank_table(result: FitResult, args: argparse.Namespace) -> Table:
+    """Per input: its gain at each time constant and in steady state (a row, not five sub-models)."""
+    identification = result.identification
+    taus = sorted(
+        {c.time_constant_s for c in identification.channels if c.time_constant_s is not None}
+    )
+    table = Table(
+        "input",
+        *[("gain" if t == 0 else f"lag {t:g} s") for t in taus],
+        "static gain (um/unit)",
+        "share of output",
+        title=f"{result.model.name}: lag bank on {args.data} "
+        f"({len(identification.simulated_um)} samples, {identification.sample_time_s:g} s); "
+        "um per input unit",
+    )
+    gains: dict[str, dict[float, float]] = {}
+    for channel in identification.channels:
+        assert channel.time_constant_s is not None
+        gains.setdefault(channel.input_name, {})[channel.time_constant_s] = channel.tf.static_gain()
+    for name, row in gains.items():
+        share = result.input_shares.get(name)
+        table.add_row(
+            name,
+            *[f"{row.get(t, 0.0):.3g}" for t in taus],
+            f"{sum(row.values()):.4g}",
+            "-" if share is None else f"{share:.0%}",
+        )
+    return table
+
+
 def _report(result: FitResult, args: argparse.Namespace) -> None:
     identification = result.identification
     sample_s = identification.sample_time_s
+    if identification.method == "lagbank":
+        _report_tail(result, args, _lag_bank_table(result, args))
+        return
     table = Table(
         "sub-model",
         "input",
@@ -249,6 +282,11 @@ def _report(result: FitResult, args: argparse.Namespace) -> None:
             ", ".join(f"{t:.0f}" for t in tf.time_constants_s(sample_s)) or "-",
             f"{tf.static_gain():.5g}",
         )
+    _report_tail(result, args, table)
+
+
+def _report_tail(result: FitResult, args: argparse.Namespace, table: Table) -> None:
+    identification = result.identification
     out = console()
     out.print(table)
     residue = result.comparison.residue
@@ -278,7 +316,7 @@ def _report(result: FitResult, args: argparse.Namespace) -> None:
             f"inputs that move together (|r| >= {MIN_ABS_CORRELATION}, one piece of information "
             f"per group): {groups}"
         )
-    if len(result.input_shares) > 1:
+    if len(result.input_shares) > 1 and identification.method != "lagbank":
         carried = ", ".join(f"{name} {share:.0%}" for name, share in result.input_shares.items())
         out.print(f"share of the model's output carried by each input: {carried}")
     for finding in result.findings:
