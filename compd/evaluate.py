@@ -15,6 +15,7 @@ import numpy as np
 from compd.data import DataSet
 from compd.errors import DataFileError
 from compd.model.compiled import CompiledModel, ModelState
+from compd.model.initial import estimate_initial_state
 from compd.model.metrics import Comparison
 from compd.model.run import SimulationResult, simulate
 from compd.modelfile import ModelFile
@@ -22,7 +23,9 @@ from compd.modelfile import ModelFile
 if TYPE_CHECKING:  # compd.span builds on this module
     from compd.span import Span
 
-InitialState = Literal["steady", "rest"]
+InitialState = Literal["steady", "rest", "estimate"]
+#: ``init="estimate"`` fits the initial state to the measurement over this much of the record's start.
+ESTIMATE_WINDOW_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -65,7 +68,10 @@ def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "stea
     """Compile ``model_file`` at the data's sample time and simulate it over the whole record.
 
     ``init="steady"`` starts in equilibrium with the first sample's signals
-    (no start-up transient); ``"rest"`` starts with all TF states at zero.
+    (no start-up transient); ``"rest"`` starts with all TF states at zero;
+    ``"estimate"`` starts from the steady state corrected to fit the measured
+    outputs (columns named as the model's outputs) over the first
+    :data:`ESTIMATE_WINDOW_S` (:mod:`compd.model.initial`).
     """
     notes = []
     model_s = model_file.model.sample_time_s
@@ -77,8 +83,23 @@ def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "stea
     compiled = model_file.compile(data.sample_time_s)
     signals = signal_matrix(compiled, data)
     state: ModelState = (
-        compiled.steady_state(signals[0]) if init == "steady" else compiled.rest_state(signals[0])
+        compiled.rest_state(signals[0]) if init == "rest" else compiled.steady_state(signals[0])
     )
+    if init == "estimate":
+        measured = {o: data.column(o) for o in compiled.output_names if data.has(o)}
+        if not measured:
+            raise DataFileError(
+                data.path,
+                f"--init estimate needs the measured outputs, columns named {list(compiled.output_names)}",
+                where="--init estimate",
+                fix="Name the measured column as the model output, or use --init steady",
+            )
+        window = max(2, round(ESTIMATE_WINDOW_S / data.sample_time_s))
+        state = estimate_initial_state(compiled, signals, measured, state, window)
+        notes.append(
+            f"initial state estimated from the measurement over the first "
+            f"{min(window, len(data)) * data.sample_time_s / 3600:g} h (judge after it with --from)"
+        )
     result = simulate(compiled, signals, state)
     return Evaluation(model_file, compiled, data, result, tuple(notes))
 

@@ -34,9 +34,11 @@ def data_options(
     if initial_state:
         parser.add_argument(
             "--init",
-            choices=("steady", "rest"),
+            choices=("steady", "rest", "estimate"),
             default="steady",
-            help="initial model state: in equilibrium with the first sample (default) or all zero",
+            help="initial model state: in equilibrium with the first sample (default), all zero, or "
+            "estimated from the measured output over the first hour (for a record that starts "
+            "mid-transient, e.g. split off a longer log; judge after that hour with --from)",
         )
     parser.add_argument(
         "--max-gap-s",
