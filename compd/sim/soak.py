@@ -1,0 +1,464 @@
+"""A fault-injection soak: compd's service against the simulated machine, a fault every few minutes.
+
+compd's real :class:`~compd.service.Service` runs against the simulated
+machine's Modbus TCP PLC on 127.0.0.1, on virtual time, for a whole shift.
+Every few (virtual) minutes a fault drawn with a seeded generator strikes:
+
+- ``plc_reset``: the PLC restarts and its offset register is cleared to 0;
+- ``link_drop``: the PLC's server is gone for a while, then back;
+- ``garbage``: another server holds the port for a while, answering bytes
+  that are not Modbus (random bytes, a broken frame header), then the PLC returns;
+- ``state_corrupt``: the service is stopped, its state file corrupted
+  (garbage, truncated, NaN, an offset of 1e9 um, ...), and started again;
+- ``bad_model``: a model file that must be refused (a non-finite gain, a
+  huge ``nk``, garbage bytes) is sent to ``load`` over the control socket;
+- ``kill``: the service is dropped as SIGKILL leaves a process -- no final
+  state save, no STOPPED word, its sockets closed -- and a new one started on
+  the same state directory.
+
+A witness on the PLC's write path sees every value the offset register
+receives and judges it against what the register held just before (after
+any reset): the soak counts crashes (an exception out of the service, or a
+service that cannot be built), steps above the slew limit
+(``max_rate_um_per_s * period_s``), and offsets the service reports as
+acknowledged (:attr:`~compd.loop.TickRecord.acknowledged_um`, what the
+recorder writes) that the PLC never received. Targets: 0, 0, 0.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import random
+import socket
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from compd.clock import VirtualClock
+from compd.config import Config, load_config
+from compd.control import request
+from compd.drivers.modbus import ModbusDriver
+from compd.errors import CompdError
+from compd.loop import TickRecord
+from compd.modelload import load_request
+from compd.service import Service
+from compd.sim.plc.build import build_machine
+from compd.sim.plc.machine import MachineClock, SimulatedMachine
+from compd.sim.plc.modbus import ModbusPlcServer
+from compd.sim.plc.run import settle, start_machine
+from compd.state import STATE_FILE
+from compd.yamlplace import resolve_path
+
+FAULT_KINDS = ("plc_reset", "link_drop", "garbage", "state_corrupt", "bad_model", "kill")
+#: Faults that stop the service (the others strike while it runs).
+RESTARTS = ("state_corrupt", "kill")
+#: Virtual seconds between the end of one service and the start of the next.
+RESTART_S = 3.0
+#: Slack on a step, um: the register holds whole counts, so only float noise.
+STEP_TOLERANCE_UM = 1e-6
+
+
+@dataclass(frozen=True)
+class Fault:
+    """One fault: what, when (virtual s), which variant, and for how long (drop, garbage)."""
+
+    at_s: float
+    kind: str
+    variant: str = ""
+    duration_s: float = 0.0
+
+
+def draw_faults(
+    duration_s: float,
+    seed: int,
+    *,
+    every_s: tuple[float, float] = (120.0, 360.0),
+    kinds: Sequence[str] = FAULT_KINDS,
+) -> list[Fault]:
+    """Faults at intervals uniform in ``every_s``; the first ``len(kinds)`` cover every kind once."""
+    rng = random.Random(seed)
+    first = list(kinds)
+    rng.shuffle(first)
+    faults: list[Fault] = []
+    t_s = rng.uniform(*every_s)
+    while t_s < duration_s - 60.0:
+        kind = first.pop(0) if first else rng.choice(kinds)
+        variant = rng.choice(VARIANTS[kind])
+        length = {"link_drop": (5.0, 60.0), "garbage": (5.0, 30.0)}.get(kind)
+        faults.append(Fault(t_s, kind, variant, rng.uniform(*length) if length else 0.0))
+        t_s += rng.uniform(*every_s)
+    return faults
+
+
+def _bad_models(good: bytes) -> dict[str, bytes]:
+    """Model files ``load`` must refuse: a gain of 1e308, an input delay of 10^6 samples, garbage."""
+    text = good.decode()
+    head, _, _ = text.partition("provenance:")  # a plausibility check needs no calibration record
+    return {
+        "gain_1e308": head.replace("num: [-5.153093192770708,", "num: [1e308,", 1).encode(),
+        "nk_1e6": head.replace("nk: 1,", "nk: 1000000,", 1).encode(),
+        "garbage": random.Random(len(text)).randbytes(4096),
+    }
+
+
+def _corrupt(saved: bytes, variant: str) -> bytes:
+    """The state file ``saved`` corrupted as ``variant`` says."""
+    if variant == "garbage":
+        return b"\x00garbage{" + random.Random(len(saved)).randbytes(200)
+    if variant == "truncated":
+        return saved[: len(saved) // 2]
+    if variant == "empty":
+        return b""
+    try:
+        doc = json.loads(saved)
+    except ValueError:
+        return b"{}"
+    if variant == "offset_1e9":
+        doc["offsets_um"] = {k: 1e9 for k in doc.get("offsets_um", {})} or {"Z": 1e9}
+        return json.dumps(doc).encode()
+    if variant == "offset_nan":  # NaN is not JSON, but a hand-edited file may hold it
+        doc["offsets_um"] = {"Z": math.nan}
+        return json.dumps(doc).encode()
+    doc["model_sha256"] = "0" * 64  # "other_model"
+    return json.dumps(doc).encode()
+
+
+VARIANTS: dict[str, tuple[str, ...]] = {
+    "plc_reset": ("",),
+    "link_drop": ("",),
+    "garbage": ("random", "bad_header", "close"),
+    "state_corrupt": ("garbage", "truncated", "empty", "offset_1e9", "offset_nan", "other_model"),
+    "bad_model": ("gain_1e308", "nk_1e6", "garbage"),
+    "kill": ("",),
+}
+
+
+@dataclass
+class SoakResult:
+    """What the soak saw: faults by kind, the three counts judged, and what explains them."""
+
+    faults: Counter[str] = field(default_factory=Counter)
+    crashes: int = 0
+    slew_violations: int = 0
+    unacknowledged: int = 0
+    #: Writes that reached the PLC while the service counted them failed (allowed: re-seeded).
+    landed_unacknowledged: int = 0
+    offsets_received: int = 0
+    largest_step_um: float = 0.0
+    ticks: int = 0
+    services: int = 0
+    bad_models_refused: int = 0
+    bad_models_accepted: int = 0
+    offset_mismatches: int = 0
+    #: Why each bad model was refused (the daemon's reply).
+    refusals: list[str] = field(default_factory=list)
+    simulated_s: float = 0.0
+    wall_s: float = 0.0
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        return (
+            self.crashes == 0
+            and self.slew_violations == 0
+            and self.unacknowledged == 0
+            and self.bad_models_accepted == 0
+        )
+
+
+def soak_config(directory: Path, *, hours: float, seed: int) -> Config:
+    """The bundled simulated machine (Modbus TCP) on a free port, its files under ``directory``.
+
+    ``directory`` should be short (under /tmp): it holds the control socket.
+    """
+    doc = yaml.safe_load(resolve_path("bundled:simulated.yaml", Path(".")).read_text())
+    doc["model"] = str(resolve_path("bundled:simulated_model.yaml", Path(".")))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        doc["drivers"]["plc"]["settings"]["port"] = s.getsockname()[1]
+    doc["state"] = {"directory": str(directory / "state"), "save_every_ticks": 60}
+    doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
+    doc["control_socket"] = str(directory / "c.sock")
+    doc["simulation"] = {"scenario": "production", "hours": hours, "seed": seed}
+    path = directory / "compd.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return load_config(path)
+
+
+class Witness:
+    """The PLC's side: every value the offset register receives, judged against what it held."""
+
+    def __init__(self, address: str, scale: float, max_step_um: float, result: SoakResult) -> None:
+        self.address = address
+        self.scale = scale
+        self.max_step_um = max_step_um
+        self.result = result
+        self.held_raw = 0.0  # the register starts cleared
+        self.programming = False  # the PLC's own program is writing
+        self._since_tick: list[float] = []
+
+    def sink(self, inner: Callable[[str, float], None]) -> Callable[[str, float], None]:
+        def written(address: str, raw: float) -> None:
+            if address == self.address:
+                self._offset(raw)
+            inner(address, raw)
+
+        return written
+
+    def _offset(self, raw: float) -> None:
+        if not self.programming:
+            step_um = abs(raw - self.held_raw) / self.scale
+            self.result.largest_step_um = max(self.result.largest_step_um, step_um)
+            if step_um > self.max_step_um + STEP_TOLERANCE_UM:
+                self.result.slew_violations += 1
+                self.result.errors.append(
+                    f"step of {step_um:g} um: {self.held_raw / self.scale:g} -> {raw / self.scale:g}"
+                )
+            self.result.offsets_received += 1
+            self._since_tick.append(raw)
+        self.held_raw = raw
+
+    def tick(self, record: TickRecord, axis: str) -> None:
+        """One tick's acknowledged offset must be among the values the PLC received during it."""
+        received, self._since_tick = self._since_tick, []
+        self.result.ticks += 1
+        acknowledged = record.acknowledged_um.get(axis, math.nan)
+        if math.isfinite(acknowledged):
+            if not any(round(acknowledged * self.scale) == round(r) for r in received):
+                self.result.unacknowledged += 1
+                self.result.errors.append(f"t={record.t_s:g} s: {acknowledged} um never received")
+        else:
+            self.result.landed_unacknowledged += len(received)
+
+
+class SoakClock(MachineClock):
+    """The machine's clock, which also strikes the faults that fall due as time moves on."""
+
+    def __init__(self, machine: SimulatedMachine, strike: Callable[[float], object]) -> None:
+        super().__init__(VirtualClock(wall0_unix_s=time.time()), machine)
+        self.strike = strike
+
+    async def sleep_until(self, t: float) -> None:
+        await super().sleep_until(t)
+        await self.strike(t)  # type: ignore[misc]
+
+
+class Soak:
+    """One soak run over ``config`` (a simulated Modbus machine); :meth:`run` returns the result."""
+
+    def __init__(self, config: Config, faults: Sequence[Fault], *, seed: int = 0) -> None:
+        self.config = config
+        self.faults = list(faults)
+        self.rng = random.Random(seed)
+        self.result = SoakResult()
+        doc = config.doc
+        (self.axis, out), *_ = doc.outputs.items()
+        self.driver = out.driver
+        self.machine = build_machine(config)
+        self.witness = Witness(
+            out.address, out.encoding.scale, out.max_rate_um_per_s * doc.period_s, self.result
+        )
+        self._replace_server()
+        self.clock = SoakClock(self.machine, self._strike)
+        self.service: Service | None = None
+        self._restart: asyncio.Future[str] | None = None
+        self._loads: list[asyncio.Task[None]] = []
+        self._ends: list[tuple[float, Callable[[], object]]] = []
+        self._bad = _bad_models(config.model_path.read_bytes())
+        self._variant = ""
+
+    def _replace_server(self) -> None:
+        """The PLC's Modbus server again, its write sink passing through the witness."""
+        doc, name = self.config.doc, self.driver
+        outputs = [o.address for o in doc.outputs.values() if o.driver == name]
+        if doc.status is not None and doc.status.driver == name:
+            outputs += [doc.status.status_address, doc.status.heartbeat_address]
+        self.server = ModbusPlcServer(
+            self.config.driver_settings[name],  # type: ignore[arg-type]
+            inputs=[s.address for s in doc.signals.values() if s.driver == name],
+            outputs=outputs,
+            on_write=self.witness.sink(self.machine.on_write(name)),
+            base_dir=self.config.base_dir,
+        )
+        self.machine.servers[name] = self.server
+
+    async def run(self) -> SoakResult:
+        started = time.perf_counter()
+        (self.config.state_dir / STATE_FILE).unlink(missing_ok=True)
+        await start_machine(self.config, self.machine)
+        try:
+            await self._services(self.machine.duration_s)
+            await asyncio.gather(*self._loads, return_exceptions=True)
+        finally:
+            await self.machine.stop()
+        self.result.simulated_s = self.machine.now_s
+        self.result.wall_s = time.perf_counter() - started
+        return self.result
+
+    async def _services(self, end_s: float) -> None:
+        while self.clock.now() < end_s:
+            try:
+                service = Service(
+                    self.config, clock=self.clock, on_tick=self._tick, background_saves=False
+                )
+            except Exception as exc:  # a service that cannot start is a crash, then a retry
+                self._crash(f"start failed: {exc!r}")
+                await self.clock.base.sleep_until(self.clock.now() + RESTART_S)
+                continue
+            self.result.services += 1
+            self.service = service
+            self.clock.settle = lambda s=service: settle(s.links)  # type: ignore[misc]
+            self._restart = asyncio.get_running_loop().create_future()
+            task = asyncio.create_task(service.run(duration_s=end_s - self.clock.now()))
+            await asyncio.wait({task, self._restart}, return_when=asyncio.FIRST_COMPLETED)
+            how = self._restart.result() if self._restart.done() else None
+            self._restart = None
+            if how == "kill":
+                await self._kill(service, task)
+            else:
+                with contextlib.suppress(Exception):
+                    await task
+                if task.exception() is not None:
+                    self._crash(f"service failed: {task.exception()!r}")
+            self.result.offset_mismatches += service.compensator.counters.offset_mismatches
+            self.service = None
+            if how is None and task.exception() is None:
+                return  # the shift is over
+            if how == "state_corrupt":
+                self._corrupt_state()
+            await self._downtime(RESTART_S)
+
+    async def _downtime(self, seconds: float) -> None:
+        """No service for ``seconds``: the machine and the PLC faults under way go on."""
+        self.clock.settle = None
+        target = self.clock.now() + seconds
+        while self.clock.now() < target:
+            await MachineClock.sleep_until(self.clock, min(target, self.clock.now() + 1.0))
+            await self._end_due(self.clock.now())
+
+    async def _kill(self, service: Service, task: asyncio.Task[None]) -> None:
+        """What SIGKILL leaves: nothing more of the service runs; the OS closes its sockets."""
+
+        async def vanish() -> None:
+            await asyncio.gather(*(link.driver.close() for link in service.links.values()))
+            if service._control is not None:  # the listening socket; its file stays (stale)
+                await service._control.close()
+
+        service._shutdown = vanish  # type: ignore[method-assign]
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+    def _crash(self, why: str) -> None:
+        self.result.crashes += 1
+        self.result.errors.append(f"t={self.clock.now():g} s: {why}")
+
+    def _tick(self, record: TickRecord) -> None:
+        self.witness.tick(record, self.axis)
+
+    def _corrupt_state(self) -> None:
+        path = self.config.state_dir / STATE_FILE
+        saved = path.read_bytes() if path.exists() else b"{}"
+        path.write_bytes(_corrupt(saved, self._variant))
+
+    # -- faults, struck from the clock between ticks ------------------------
+
+    async def _strike(self, t_s: float) -> None:
+        await self._end_due(t_s)
+        while self.faults and self.faults[0].at_s <= t_s and self.service is not None:
+            fault = self.faults.pop(0)
+            self.result.faults[fault.kind] += 1
+            if fault.kind in RESTARTS:
+                self._variant = fault.variant
+                if fault.kind == "state_corrupt":
+                    self.service.stop()  # a clean stop: the next tick does not come
+                assert self._restart is not None
+                self._restart.set_result(fault.kind)
+                if fault.kind == "kill":
+                    await asyncio.Event().wait()  # frozen until killed
+                return
+            await self._begin(fault, t_s)
+
+    async def _begin(self, fault: Fault, t_s: float) -> None:
+        if fault.kind == "plc_reset":
+            await self.server.stop()
+            await self.server.start()
+            await self._program(0.0)
+        elif fault.kind == "link_drop":
+            await self.server.stop()
+            self._ends.append((t_s + fault.duration_s, self.server.start))
+        elif fault.kind == "garbage":
+            await self.server.stop()
+            impostor = await self._garbage_server(fault.variant)
+
+            async def back() -> None:
+                impostor.close()
+                await impostor.wait_closed()
+                await self.server.start()
+
+            self._ends.append((t_s + fault.duration_s, back))
+        elif fault.kind == "bad_model":
+            assert self.service is not None
+            self._loads.append(asyncio.create_task(self._load_bad(self.service, fault.variant)))
+
+    async def _end_due(self, t_s: float) -> None:
+        due = [end for end in self._ends if end[0] <= t_s]
+        for end in due:
+            self._ends.remove(end)
+            await end[1]()  # type: ignore[misc]
+
+    async def _program(self, offset_um: float) -> None:
+        """The PLC's own program sets its offset register (here: the reset of a restart)."""
+        settings = self.config.driver_settings[self.driver]
+        driver = ModbusDriver(settings, now=self.clock.now, base_dir=Path())  # type: ignore[arg-type]
+        await driver.open()
+        self.witness.programming = True
+        try:
+            out = self.config.doc.outputs[self.axis]
+            await driver.write({out.address: round(offset_um * out.encoding.scale)})
+        finally:
+            self.witness.programming = False
+            await driver.close()
+
+    async def _garbage_server(self, variant: str) -> asyncio.Server:
+        """A server on the PLC's port that answers every request with bytes that are not Modbus."""
+        rng = random.Random(self.rng.random())
+
+        async def answer(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            with contextlib.suppress(OSError, ConnectionError):
+                while request_bytes := await reader.read(260):
+                    if variant == "random":
+                        writer.write(rng.randbytes(rng.randint(1, 300)))
+                    elif variant == "bad_header":  # its transaction id, a wrong protocol and length
+                        writer.write(request_bytes[:2] + b"\x13\x37\xff\xff" + rng.randbytes(9))
+                    await writer.drain()
+                    if variant == "close" or rng.random() < 0.3:
+                        break
+            writer.close()
+
+        host, port = self.server.address
+        return await asyncio.start_server(answer, host, port, reuse_address=True)
+
+    async def _load_bad(self, service: Service, variant: str) -> None:
+        """Send a bad model to ``load`` over the control socket; it must be refused."""
+        try:
+            reply = await request(
+                self.config.control_socket,
+                load_request(self._bad[variant], f"bad-{variant}.yaml"),
+                timeout_s=60.0,
+            )
+        except CompdError:  # the service went away meanwhile (a kill): no verdict
+            return
+        if reply.get("ok"):
+            self.result.bad_models_accepted += 1
+            self.result.errors.append(f"bad model {variant} accepted: {reply}")
+        else:
+            self.result.bad_models_refused += 1
+            self.result.refusals.append(str(reply.get("error", "")))
