@@ -32,10 +32,11 @@ import contextlib
 import json
 import math
 import random
+import re
 import socket
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -98,14 +99,21 @@ def draw_faults(
 
 
 def _bad_models(good: bytes) -> dict[str, bytes]:
-    """Model files ``load`` must refuse: a gain of 1e308, an input delay of 10^6 samples, garbage."""
-    text = good.decode()
-    head, _, _ = text.partition("provenance:")  # a plausibility check needs no calibration record
-    return {
-        "gain_1e308": head.replace("num: [-5.153093192770708,", "num: [1e308,", 1).encode(),
-        "nk_1e6": head.replace("nk: 1,", "nk: 1000000,", 1).encode(),
-        "garbage": random.Random(len(text)).randbytes(4096),
+    """Model files ``load`` must refuse: a gain of 1e308, a delay of 10^6 samples, a pole at 1.2, garbage."""
+    head = good.decode().partition("provenance:")[0]  # no calibration record to check against
+    edits = {
+        "gain_1e308": (r"num: \[[^,\]]*", "num: [1e308"),
+        "nk_1e6": (r"nk: \d+", "nk: 1000000"),
+        "unstable": (r"den: \[[^\]]*\]", "den: [1.0, -1.2, 0.0]"),
     }
+    bad = {}
+    for name, (pattern, replacement) in edits.items():
+        text, n = re.subn(pattern, replacement, head, count=1)
+        if n != 1:
+            raise ValueError(f"the soak cannot make a {name} model from this one: no {pattern!r}")
+        bad[name] = text.encode()
+    bad["garbage"] = random.Random(len(head)).randbytes(4096)
+    return bad
 
 
 def _corrupt(saved: bytes, variant: str) -> bytes:
@@ -135,8 +143,8 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "link_drop": ("",),
     "garbage": ("random", "bad_header", "close"),
     "state_corrupt": ("garbage", "truncated", "empty", "offset_1e9", "offset_nan", "other_model"),
-    "bad_model": ("gain_1e308", "nk_1e6", "garbage"),
-    "kill": ("",),
+    "bad_model": ("gain_1e308", "nk_1e6", "unstable", "garbage"),
+    "kill": ("between_ticks", "mid_write"),
 }
 
 
@@ -224,6 +232,11 @@ class Witness:
             self.result.offsets_received += 1
             self._since_tick.append(raw)
         self.held_raw = raw
+
+    def abandon(self) -> None:
+        """The service died mid-tick: what reached the PLC meanwhile was never acknowledged."""
+        self.result.landed_unacknowledged += len(self._since_tick)
+        self._since_tick = []
 
     def tick(self, record: TickRecord, axis: str) -> None:
         """One tick's acknowledged offset must be among the values the PLC received during it."""
@@ -355,6 +368,7 @@ class Soak:
         task.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await task
+        self.witness.abandon()
 
     def _crash(self, why: str) -> None:
         self.result.crashes += 1
@@ -375,6 +389,9 @@ class Soak:
         while self.faults and self.faults[0].at_s <= t_s and self.service is not None:
             fault = self.faults.pop(0)
             self.result.faults[fault.kind] += 1
+            if fault.kind == "kill" and fault.variant == "mid_write":
+                self._kill_in_next_write(self.service)
+                return
             if fault.kind in RESTARTS:
                 self._variant = fault.variant
                 if fault.kind == "state_corrupt":
@@ -385,6 +402,29 @@ class Soak:
                     await asyncio.Event().wait()  # frozen until killed
                 return
             await self._begin(fault, t_s)
+
+    def _kill_in_next_write(self, service: Service) -> None:
+        """The service dies in its next write: the PLC applies it, compd never hears the reply."""
+        link = service.links[self.driver]
+        restart = self._restart
+        assert restart is not None
+
+        class Dying:
+            async def open(self) -> None:
+                await driver.open()
+
+            async def read(self, points: Sequence[str]) -> dict[str, float]:
+                return await driver.read(points)
+
+            async def write(self, values: Mapping[str, float]) -> None:
+                await driver.write(values)
+                restart.set_result("kill")
+                await asyncio.Event().wait()  # frozen until killed
+
+            async def close(self) -> None:
+                await driver.close()
+
+        driver, link.driver = link.driver, Dying()
 
     async def _begin(self, fault: Fault, t_s: float) -> None:
         if fault.kind == "plc_reset":
