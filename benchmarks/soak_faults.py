@@ -90,8 +90,9 @@ def main() -> int:
         f"{result.ticks} ticks by {result.services} services; "
         f"{result.offsets_received} offsets received by the PLC, largest step "
         f"{result.largest_step_um:g} um (limit 1 um); readback mismatches followed "
-        f"{result.offset_mismatches}; writes that landed while counted failed "
-        f"{result.landed_unacknowledged}; bad models refused {result.bad_models_refused}"
+        f"{result.offset_mismatches}; writes the PLC applied but compd never heard back "
+        f"(killed mid-write) {result.landed_unacknowledged}; bad models refused "
+        f"{result.bad_models_refused}"
     )
     for error in result.errors[:20]:
         print("  ", error)
