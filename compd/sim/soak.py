@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import json
 import math
 import random
@@ -36,9 +37,10 @@ import re
 import socket
 import time
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -254,13 +256,15 @@ class Witness:
 class SoakClock(MachineClock):
     """The machine's clock, which also strikes the faults that fall due as time moves on."""
 
-    def __init__(self, machine: SimulatedMachine, strike: Callable[[float], object]) -> None:
+    def __init__(
+        self, machine: SimulatedMachine, strike: Callable[[float], Awaitable[None]]
+    ) -> None:
         super().__init__(VirtualClock(wall0_unix_s=time.time()), machine)
         self.strike = strike
 
     async def sleep_until(self, t: float) -> None:
         await super().sleep_until(t)
-        await self.strike(t)  # type: ignore[misc]
+        await self.strike(t)
 
 
 class Soak:
@@ -283,7 +287,7 @@ class Soak:
         self.service: Service | None = None
         self._restart: asyncio.Future[str] | None = None
         self._loads: list[asyncio.Task[None]] = []
-        self._ends: list[tuple[float, Callable[[], object]]] = []
+        self._ends: list[tuple[float, Callable[[], Awaitable[None]]]] = []
         self._bad = _bad_models(config.model_path.read_bytes())
         self._variant = ""
 
@@ -294,7 +298,7 @@ class Soak:
         if doc.status is not None and doc.status.driver == name:
             outputs += [doc.status.status_address, doc.status.heartbeat_address]
         self.server = ModbusPlcServer(
-            self.config.driver_settings[name],  # type: ignore[arg-type]
+            self.config.driver_settings[name],
             inputs=[s.address for s in doc.signals.values() if s.driver == name],
             outputs=outputs,
             on_write=self.witness.sink(self.machine.on_write(name)),
@@ -327,10 +331,11 @@ class Soak:
                 continue
             self.result.services += 1
             self.service = service
-            self.clock.settle = lambda s=service: settle(s.links)  # type: ignore[misc]
+            self.clock.settle = functools.partial(settle, service.links)
             self._restart = asyncio.get_running_loop().create_future()
             task = asyncio.create_task(service.run(duration_s=end_s - self.clock.now()))
-            await asyncio.wait({task, self._restart}, return_when=asyncio.FIRST_COMPLETED)
+            waits: set[asyncio.Future[Any]] = {task, self._restart}
+            await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
             how = self._restart.result() if self._restart.done() else None
             self._restart = None
             if how == "kill":
@@ -356,7 +361,7 @@ class Soak:
             await MachineClock.sleep_until(self.clock, min(target, self.clock.now() + 1.0))
             await self._end_due(self.clock.now())
 
-    async def _kill(self, service: Service, task: asyncio.Task[None]) -> None:
+    async def _kill(self, service: Service, task: asyncio.Task[Any]) -> None:
         """What SIGKILL leaves: nothing more of the service runs; the OS closes its sockets."""
 
         async def vanish() -> None:
@@ -406,15 +411,16 @@ class Soak:
     def _kill_in_next_write(self, service: Service) -> None:
         """The service dies in its next write: the PLC applies it, compd never hears the reply."""
         link = service.links[self.driver]
-        restart = self._restart
-        assert restart is not None
+        assert self._restart is not None
+        restart: asyncio.Future[str] = self._restart
 
         class Dying:
             async def open(self) -> None:
                 await driver.open()
 
             async def read(self, points: Sequence[str]) -> dict[str, float]:
-                return await driver.read(points)
+                values: dict[str, float] = await driver.read(points)
+                return values
 
             async def write(self, values: Mapping[str, float]) -> None:
                 await driver.write(values)
@@ -452,12 +458,12 @@ class Soak:
         due = [end for end in self._ends if end[0] <= t_s]
         for end in due:
             self._ends.remove(end)
-            await end[1]()  # type: ignore[misc]
+            await end[1]()
 
     async def _program(self, offset_um: float) -> None:
         """The PLC's own program sets its offset register (here: the reset of a restart)."""
         settings = self.config.driver_settings[self.driver]
-        driver = ModbusDriver(settings, now=self.clock.now, base_dir=Path())  # type: ignore[arg-type]
+        driver = ModbusDriver(settings, now=self.clock.now, base_dir=Path())
         await driver.open()
         self.witness.programming = True
         try:
