@@ -36,7 +36,8 @@ from pathlib import Path
 import structlog
 from common import environment, verdict
 
-from compd.sim.soak import FAULT_KINDS, Soak, draw_faults, soak_config
+from compd.sim.soak import Soak, soak_config
+from compd.sim.soakfaults import FAULT_KINDS, draw_faults
 
 
 def quiet() -> None:

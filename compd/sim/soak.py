@@ -14,7 +14,10 @@ Every few (virtual) minutes a fault drawn with a seeded generator strikes:
   huge ``nk``, garbage bytes) is sent to ``load`` over the control socket;
 - ``kill``: the service is dropped as SIGKILL leaves a process -- no final
   state save, no STOPPED word, its sockets closed -- and a new one started on
-  the same state directory.
+  the same state directory (or in the middle of a write: the PLC applies
+  it, compd never hears back).
+
+The draw and the makings of each fault are :mod:`compd.sim.soakfaults`.
 
 A witness on the PLC's write path sees every value the offset register
 receives and judges it against what the register held just before (after
@@ -30,10 +33,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
-import json
 import math
 import random
-import re
 import socket
 import time
 from collections import Counter
@@ -56,98 +57,14 @@ from compd.sim.plc.build import build_machine
 from compd.sim.plc.machine import MachineClock, SimulatedMachine
 from compd.sim.plc.modbus import ModbusPlcServer
 from compd.sim.plc.run import settle, start_machine
+from compd.sim.soakfaults import RESTARTS, Fault, bad_models, corrupt_state, garbage_server
 from compd.state import STATE_FILE
 from compd.yamlplace import resolve_path
 
-FAULT_KINDS = ("plc_reset", "link_drop", "garbage", "state_corrupt", "bad_model", "kill")
-#: Faults that stop the service (the others strike while it runs).
-RESTARTS = ("state_corrupt", "kill")
 #: Virtual seconds between the end of one service and the start of the next.
 RESTART_S = 3.0
 #: Slack on a step, um: the register holds whole counts, so only float noise.
 STEP_TOLERANCE_UM = 1e-6
-
-
-@dataclass(frozen=True)
-class Fault:
-    """One fault: what, when (virtual s), which variant, and for how long (drop, garbage)."""
-
-    at_s: float
-    kind: str
-    variant: str = ""
-    duration_s: float = 0.0
-
-
-def draw_faults(
-    duration_s: float,
-    seed: int,
-    *,
-    every_s: tuple[float, float] = (120.0, 360.0),
-    kinds: Sequence[str] = FAULT_KINDS,
-) -> list[Fault]:
-    """Faults at intervals uniform in ``every_s``; the first ``len(kinds)`` cover every kind once."""
-    rng = random.Random(seed)
-    first = list(kinds)
-    rng.shuffle(first)
-    faults: list[Fault] = []
-    t_s = rng.uniform(*every_s)
-    while t_s < duration_s - 60.0:
-        kind = first.pop(0) if first else rng.choice(kinds)
-        variant = rng.choice(VARIANTS[kind])
-        length = {"link_drop": (5.0, 60.0), "garbage": (5.0, 30.0)}.get(kind)
-        faults.append(Fault(t_s, kind, variant, rng.uniform(*length) if length else 0.0))
-        t_s += rng.uniform(*every_s)
-    return faults
-
-
-def _bad_models(good: bytes) -> dict[str, bytes]:
-    """Model files ``load`` must refuse: a gain of 1e308, a delay of 10^6 samples, a pole at 1.2, garbage."""
-    head = good.decode().partition("provenance:")[0]  # no calibration record to check against
-    edits = {
-        "gain_1e308": (r"num: \[[^,\]]*", "num: [1e308"),
-        "nk_1e6": (r"nk: \d+", "nk: 1000000"),
-        "unstable": (r"den: \[[^\]]*\]", "den: [1.0, -1.2, 0.0]"),
-    }
-    bad = {}
-    for name, (pattern, replacement) in edits.items():
-        text, n = re.subn(pattern, replacement, head, count=1)
-        if n != 1:
-            raise ValueError(f"the soak cannot make a {name} model from this one: no {pattern!r}")
-        bad[name] = text.encode()
-    bad["garbage"] = random.Random(len(head)).randbytes(4096)
-    return bad
-
-
-def _corrupt(saved: bytes, variant: str) -> bytes:
-    """The state file ``saved`` corrupted as ``variant`` says."""
-    if variant == "garbage":
-        return b"\x00garbage{" + random.Random(len(saved)).randbytes(200)
-    if variant == "truncated":
-        return saved[: len(saved) // 2]
-    if variant == "empty":
-        return b""
-    try:
-        doc = json.loads(saved)
-    except ValueError:
-        return b"{}"
-    if variant == "offset_1e9":
-        doc["offsets_um"] = {k: 1e9 for k in doc.get("offsets_um", {})} or {"Z": 1e9}
-        return json.dumps(doc).encode()
-    if variant == "offset_nan":  # NaN is not JSON, but a hand-edited file may hold it
-        doc["offsets_um"] = {"Z": math.nan}
-        return json.dumps(doc).encode()
-    doc["model_sha256"] = "0" * 64  # "other_model"
-    return json.dumps(doc).encode()
-
-
-VARIANTS: dict[str, tuple[str, ...]] = {
-    "plc_reset": ("",),
-    "link_drop": ("",),
-    "garbage": ("random", "bad_header", "close"),
-    "state_corrupt": ("garbage", "truncated", "empty", "offset_1e9", "offset_nan", "other_model"),
-    "bad_model": ("gain_1e308", "nk_1e6", "unstable", "garbage"),
-    "kill": ("between_ticks", "mid_write"),
-}
 
 
 @dataclass
@@ -288,7 +205,7 @@ class Soak:
         self._restart: asyncio.Future[str] | None = None
         self._loads: list[asyncio.Task[None]] = []
         self._ends: list[tuple[float, Callable[[], Awaitable[None]]]] = []
-        self._bad = _bad_models(config.model_path.read_bytes())
+        self._bad = bad_models(config.model_path.read_bytes())
         self._variant = ""
 
     def _replace_server(self) -> None:
@@ -385,7 +302,7 @@ class Soak:
     def _corrupt_state(self) -> None:
         path = self.config.state_dir / STATE_FILE
         saved = path.read_bytes() if path.exists() else b"{}"
-        path.write_bytes(_corrupt(saved, self._variant))
+        path.write_bytes(corrupt_state(saved, self._variant))
 
     # -- faults, struck from the clock between ticks ------------------------
 
@@ -442,7 +359,8 @@ class Soak:
             self._ends.append((t_s + fault.duration_s, self.server.start))
         elif fault.kind == "garbage":
             await self.server.stop()
-            impostor = await self._garbage_server(fault.variant)
+            host, port = self.server.address
+            impostor = await garbage_server(host, port, fault.variant, self.rng.random())
 
             async def back() -> None:
                 impostor.close()
@@ -472,25 +390,6 @@ class Soak:
         finally:
             self.witness.programming = False
             await driver.close()
-
-    async def _garbage_server(self, variant: str) -> asyncio.Server:
-        """A server on the PLC's port that answers every request with bytes that are not Modbus."""
-        rng = random.Random(self.rng.random())
-
-        async def answer(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-            with contextlib.suppress(OSError, ConnectionError):
-                while request_bytes := await reader.read(260):
-                    if variant == "random":
-                        writer.write(rng.randbytes(rng.randint(1, 300)))
-                    elif variant == "bad_header":  # its transaction id, a wrong protocol and length
-                        writer.write(request_bytes[:2] + b"\x13\x37\xff\xff" + rng.randbytes(9))
-                    await writer.drain()
-                    if variant == "close" or rng.random() < 0.3:
-                        break
-            writer.close()
-
-        host, port = self.server.address
-        return await asyncio.start_server(answer, host, port, reuse_address=True)
 
     async def _load_bad(self, service: Service, variant: str) -> None:
         """Send a bad model to ``load`` over the control socket; it must be refused."""

@@ -13,7 +13,8 @@ from __future__ import annotations
 import asyncio
 from pathlib import Path
 
-from compd.sim.soak import FAULT_KINDS, Soak, draw_faults, soak_config
+from compd.sim.soak import Soak, soak_config
+from compd.sim.soakfaults import FAULT_KINDS, draw_faults
 
 HOURS = 1.5
 SEED = 14

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import itertools
 import math
 
 from compd.loop import TickRecord
-from compd.sim.soak import FAULT_KINDS, SoakResult, Witness, draw_faults
+from compd.sim.soak import SoakResult, Witness
 
 OFFSET = "holding:100:int32"
 
@@ -49,11 +48,3 @@ def test_an_acknowledged_offset_the_plc_never_received_is_counted():
     sink(OFFSET, 7.0)
     w.tick(record(math.nan), "Z")  # it landed, but the service counts the write failed
     assert (result.unacknowledged, result.landed_unacknowledged, result.ticks) == (1, 1, 3)
-
-
-def test_the_fault_draw_covers_every_kind_first_and_is_seeded():
-    """The first faults are one of each kind; the same seed draws the same faults."""
-    faults = draw_faults(8 * 3600, 1)
-    assert {f.kind for f in faults[: len(FAULT_KINDS)]} == set(FAULT_KINDS)
-    assert faults == draw_faults(8 * 3600, 1) != draw_faults(8 * 3600, 2)
-    assert all(120 <= b.at_s - a.at_s <= 360 for a, b in itertools.pairwise(faults))
