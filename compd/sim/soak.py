@@ -13,9 +13,9 @@ Every few (virtual) minutes a fault drawn with a seeded generator strikes:
 - ``bad_model``: a model file that must be refused (a non-finite gain, a
   huge ``nk``, garbage bytes) is sent to ``load`` over the control socket;
 - ``kill``: the service is dropped as SIGKILL leaves a process -- no final
-  state save, no STOPPED word, its sockets closed -- and a new one started on
-  the same state directory (or in the middle of a write: the PLC applies
-  it, compd never hears back).
+  state save, no STOPPED word, its sockets closed -- between two ticks or in
+  the middle of a write (the PLC applies it, compd never hears back), and a
+  new one is started on the same state directory.
 
 The draw and the makings of each fault are :mod:`compd.sim.soakfaults`.
 
@@ -230,6 +230,7 @@ class Soak:
         try:
             await self._services(self.machine.duration_s)
             await asyncio.gather(*self._loads, return_exceptions=True)
+            await self._end_due(math.inf)  # a drop or garbage server outlasting the shift
         finally:
             await self.machine.stop()
         self.result.simulated_s = self.machine.now_s
@@ -244,7 +245,7 @@ class Soak:
                 )
             except Exception as exc:  # a service that cannot start is a crash, then a retry
                 self._crash(f"start failed: {exc!r}")
-                await self.clock.base.sleep_until(self.clock.now() + RESTART_S)
+                await self._downtime(RESTART_S)
                 continue
             self.result.services += 1
             self.service = service
@@ -308,7 +309,10 @@ class Soak:
 
     async def _strike(self, t_s: float) -> None:
         await self._end_due(t_s)
+        restart = self._restart
         while self.faults and self.faults[0].at_s <= t_s and self.service is not None:
+            if restart is None or restart.done():
+                return  # this service is on its way out: the fault waits for the next one
             fault = self.faults.pop(0)
             self.result.faults[fault.kind] += 1
             if fault.kind == "kill" and fault.variant == "mid_write":
@@ -318,8 +322,7 @@ class Soak:
                 self._variant = fault.variant
                 if fault.kind == "state_corrupt":
                     self.service.stop()  # a clean stop: the next tick does not come
-                assert self._restart is not None
-                self._restart.set_result(fault.kind)
+                restart.set_result(fault.kind)
                 if fault.kind == "kill":
                     await asyncio.Event().wait()  # frozen until killed
                 return
@@ -341,6 +344,8 @@ class Soak:
 
             async def write(self, values: Mapping[str, float]) -> None:
                 await driver.write(values)
+                if restart.done():  # stopped by another fault first: no kill
+                    return
                 restart.set_result("kill")
                 await asyncio.Event().wait()  # frozen until killed
 

@@ -39,5 +39,5 @@ def test_a_faulted_shift_ends_with_no_crash_no_jump_and_no_unacknowledged_offset
     assert result.services == restarts + 1
     assert result.simulated_s == HOURS * 3600
     assert result.offsets_received > 0.8 * result.ticks
-    # Each reset register is seen (a readback mismatch) and followed, never jumped over.
-    assert result.offset_mismatches >= result.faults["plc_reset"]
+    # Cleared registers are seen as readback mismatches; no other fault is mistaken for one.
+    assert 0 < result.offset_mismatches <= result.faults["plc_reset"]
