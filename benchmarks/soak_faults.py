@@ -27,16 +27,24 @@ import argparse
 import asyncio
 import logging
 import os
+import random
 import shutil
+import signal
+import subprocess
 import sys
 import tempfile
+import time
 from collections import Counter
 from pathlib import Path
 
 import structlog
+import yaml
 from common import environment, verdict
 
-from compd.sim.soak import Soak, soak_config
+from compd.clock import RealClock
+from compd.loop import run_periodic
+from compd.sim.plc.run import start_machine
+from compd.sim.soak import Soak, SoakResult, soak_config
 from compd.sim.soakfaults import FAULT_KINDS, draw_faults
 
 
@@ -46,6 +54,66 @@ def quiet() -> None:
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 
+def daemon(config: Path, log: Path, time_scale: float) -> subprocess.Popen[bytes]:
+    """``compd run`` as a child process, on the real clock ``time_scale`` times faster."""
+    command = [sys.executable, "-m", "compd.cli", "run", "--config", str(config)]
+    command += ["--time-scale", str(time_scale)]
+    return subprocess.Popen(command, stdout=log.open("ab"), stderr=subprocess.STDOUT)
+
+
+async def real_kills(
+    directory: Path, kills: int, seed: int, minutes: float, time_scale: float
+) -> tuple[SoakResult, int, int]:
+    """``compd run`` processes killed with SIGKILL at random times of a shift, each started again.
+
+    The machine runs here on the real clock, ``time_scale`` times faster, its
+    PLC behind the same witness as the soak's; compd runs as child processes.
+    Returns the witness's result (slew violations; a daemon that exits by
+    itself, or not with 0 on the last SIGTERM, is a crash), the kills made
+    and the daemons started.
+    """
+    config = soak_config(directory, hours=minutes / 60, seed=seed)
+    soak = Soak(config, [], seed=seed)  # its machine, PLC and witness, no in-process service
+    doc = yaml.safe_load(config.path.read_text())
+    del doc["simulation"]
+    daemon_config = directory / "daemon.yaml"
+    daemon_config.write_text(yaml.safe_dump(doc, sort_keys=False))
+    log = directory / "daemons.log"
+    rng = random.Random(seed)
+    kill_at = sorted(rng.uniform(60.0, minutes * 60 - 60.0) for _ in range(kills))
+    machine, result = soak.machine, soak.result
+    await start_machine(config, machine)
+    process = daemon(daemon_config, log, time_scale)
+    started, killed = 1, 0
+
+    async def step(t_s: float) -> None:
+        nonlocal process, started, killed
+        await machine.advance_to(t_s)
+        if process.poll() is not None:  # it died by itself
+            result.crashes += 1
+            result.errors.append(f"t={t_s:g} s: compd run exited with {process.returncode}")
+            process, started = daemon(daemon_config, log, time_scale), started + 1
+        if kill_at and t_s >= kill_at[0]:
+            kill_at.pop(0)
+            process.send_signal(signal.SIGKILL)
+            process.wait()
+            killed += 1
+            process, started = daemon(daemon_config, log, time_scale), started + 1
+
+    try:
+        await run_periodic(
+            RealClock(time_scale), machine.sample_time_s, step,
+            stop=asyncio.Event(), duration_s=machine.duration_s,
+        )  # fmt: skip
+    finally:
+        process.send_signal(signal.SIGTERM)
+        if await asyncio.to_thread(process.wait, 30) != 0:
+            result.crashes += 1
+            result.errors.append(f"the last compd run exited with {process.returncode}")
+        await machine.stop()
+    return result, killed, started
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hours", type=float, default=8.0, help="shift length (default 8)")
@@ -53,6 +121,10 @@ def main() -> int:
     parser.add_argument(
         "--every-min", type=float, nargs=2, default=(2.0, 6.0), metavar=("MIN", "MAX"),
         help="minutes between faults, uniform (default 2 6)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--real-kills", type=int, default=4,
+        help="SIGKILLs of a `compd run` process in a second, real-time run (default 4; 0: none)",
     )  # fmt: skip
     args = parser.parse_args()
     quiet()
@@ -97,8 +169,39 @@ def main() -> int:
     )
     for error in result.errors[:20]:
         print("  ", error)
-    print(f"soak: {verdict(result.passed)}")
-    return 0 if result.passed else 1
+    passed = result.passed
+    if args.real_kills:
+        passed &= real_kill_figures(args.real_kills, args.seed)
+    print(f"soak: {verdict(passed)}")
+    return 0 if passed else 1
+
+
+def real_kill_figures(kills: int, seed: int) -> bool:
+    minutes, time_scale = 20.0, 60.0
+    directory = Path(tempfile.mkdtemp(prefix="compd-kill-", dir="/tmp"))
+    try:
+        started = time.perf_counter()
+        result, killed, daemons = asyncio.run(
+            real_kills(directory, kills, seed, minutes, time_scale)
+        )
+        wall_s = time.perf_counter() - started
+    finally:
+        shutil.rmtree(directory, ignore_errors=True)
+    print()
+    print(
+        f"real SIGKILL: {minutes:g} min of the shift at {time_scale:g}x real time, `compd run` "
+        f"killed {killed} times and started again ({daemons} processes), {wall_s:.0f} s wall"
+    )
+    rows = (("crashes", result.crashes), ("steps above the slew limit", result.slew_violations))
+    for name, count in rows:
+        print(f"{name:<40}{count:>6}   target 0  {verdict(count == 0)}")
+    print(
+        f"{result.offsets_received} offsets received by the PLC, largest step "
+        f"{result.largest_step_um:g} um (limit 1 um)"
+    )
+    for error in result.errors[:20]:
+        print("  ", error)
+    return result.crashes == 0 and result.slew_violations == 0 and killed == kills
 
 
 if __name__ == "__main__":
