@@ -31,6 +31,7 @@ SCRIPTS = (
     "bench_opcua.py",
     "bench_serial.py",
     "bench_all_drivers.py",
+    "soak_faults.py",
 )
 #: Arguments per script: the tick benchmark's quick run (600 ticks at 0.1 s, 1 minute);
 #: its full run (600 real 1 Hz ticks, 10 minutes) is ``python benchmarks/bench_tick.py``.

@@ -1,0 +1,414 @@
+"""A fault-injection soak: compd's service against the simulated machine, a fault every few minutes.
+
+compd's real :class:`~compd.service.Service` runs against the simulated
+machine's Modbus TCP PLC on 127.0.0.1, on virtual time, for a whole shift.
+Every few (virtual) minutes a fault drawn with a seeded generator strikes:
+
+- ``plc_reset``: the PLC restarts and its offset register is cleared to 0;
+- ``link_drop``: the PLC's server is gone for a while, then back;
+- ``garbage``: another server holds the port for a while, answering bytes
+  that are not Modbus (random bytes, a broken frame header), then the PLC returns;
+- ``state_corrupt``: the service is stopped, its state file corrupted
+  (garbage, truncated, NaN, an offset of 1e9 um, ...), and started again;
+- ``bad_model``: a model file that must be refused (a non-finite gain, a
+  huge ``nk``, garbage bytes) is sent to ``load`` over the control socket;
+- ``kill``: the service is dropped as SIGKILL leaves a process -- no final
+  state save, no STOPPED word, its sockets closed -- between two ticks or in
+  the middle of a write (the PLC applies it, compd never hears back), and a
+  new one is started on the same state directory.
+
+The draw and the makings of each fault are :mod:`compd.sim.soakfaults`.
+
+A witness on the PLC's write path sees every value the offset register
+receives and judges it against what the register held just before (after
+any reset): the soak counts crashes (an exception out of the service, or a
+service that cannot be built), steps above the slew limit
+(``max_rate_um_per_s * period_s``), and offsets the service reports as
+acknowledged (:attr:`~compd.loop.TickRecord.acknowledged_um`, what the
+recorder writes) that the PLC never received. Targets: 0, 0, 0.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import math
+import random
+import socket
+import time
+from collections import Counter
+from collections.abc import Awaitable, Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from compd.clock import VirtualClock
+from compd.config import Config, load_config
+from compd.control import request
+from compd.drivers.modbus import ModbusDriver
+from compd.errors import CompdError
+from compd.loop import TickRecord
+from compd.modelload import load_request
+from compd.service import Service
+from compd.sim.plc.build import build_machine
+from compd.sim.plc.machine import MachineClock, SimulatedMachine
+from compd.sim.plc.modbus import ModbusPlcServer
+from compd.sim.plc.run import settle, start_machine
+from compd.sim.soakfaults import RESTARTS, Fault, bad_models, corrupt_state, garbage_server
+from compd.state import STATE_FILE
+from compd.yamlplace import resolve_path
+
+#: Virtual seconds between the end of one service and the start of the next.
+RESTART_S = 3.0
+#: Slack on a step, um: the register holds whole counts, so only float noise.
+STEP_TOLERANCE_UM = 1e-6
+
+
+@dataclass
+class SoakResult:
+    """What the soak saw: faults by kind, the three counts judged, and what explains them."""
+
+    faults: Counter[str] = field(default_factory=Counter)
+    crashes: int = 0
+    slew_violations: int = 0
+    unacknowledged: int = 0
+    #: Writes that reached the PLC while the service counted them failed (allowed: re-seeded).
+    landed_unacknowledged: int = 0
+    offsets_received: int = 0
+    largest_step_um: float = 0.0
+    ticks: int = 0
+    services: int = 0
+    bad_models_refused: int = 0
+    bad_models_accepted: int = 0
+    offset_mismatches: int = 0
+    #: Why each bad model was refused (the daemon's reply).
+    refusals: list[str] = field(default_factory=list)
+    simulated_s: float = 0.0
+    wall_s: float = 0.0
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        return (
+            self.crashes == 0
+            and self.slew_violations == 0
+            and self.unacknowledged == 0
+            and self.bad_models_accepted == 0
+        )
+
+
+def soak_config(directory: Path, *, hours: float, seed: int) -> Config:
+    """The bundled simulated machine (Modbus TCP) on a free port, its files under ``directory``.
+
+    ``directory`` should be short (under /tmp): it holds the control socket.
+    """
+    doc = yaml.safe_load(resolve_path("bundled:simulated.yaml", Path(".")).read_text())
+    doc["model"] = str(resolve_path("bundled:simulated_model.yaml", Path(".")))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        doc["drivers"]["plc"]["settings"]["port"] = s.getsockname()[1]
+    doc["state"] = {"directory": str(directory / "state"), "save_every_ticks": 60}
+    doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
+    doc["control_socket"] = str(directory / "c.sock")
+    doc["simulation"] = {"scenario": "production", "hours": hours, "seed": seed}
+    path = directory / "compd.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return load_config(path)
+
+
+class Witness:
+    """The PLC's side: every value the offset register receives, judged against what it held."""
+
+    def __init__(self, address: str, scale: float, max_step_um: float, result: SoakResult) -> None:
+        self.address = address
+        self.scale = scale
+        self.max_step_um = max_step_um
+        self.result = result
+        self.held_raw = 0.0  # the register starts cleared
+        self.programming = False  # the PLC's own program is writing
+        self._since_tick: list[float] = []
+
+    def sink(self, inner: Callable[[str, float], None]) -> Callable[[str, float], None]:
+        def written(address: str, raw: float) -> None:
+            if address == self.address:
+                self._offset(raw)
+            inner(address, raw)
+
+        return written
+
+    def _offset(self, raw: float) -> None:
+        if not self.programming:
+            step_um = abs(raw - self.held_raw) / self.scale
+            self.result.largest_step_um = max(self.result.largest_step_um, step_um)
+            if step_um > self.max_step_um + STEP_TOLERANCE_UM:
+                self.result.slew_violations += 1
+                self.result.errors.append(
+                    f"step of {step_um:g} um: {self.held_raw / self.scale:g} -> {raw / self.scale:g}"
+                )
+            self.result.offsets_received += 1
+            self._since_tick.append(raw)
+        self.held_raw = raw
+
+    def abandon(self) -> None:
+        """The service died mid-tick: what reached the PLC meanwhile was never acknowledged."""
+        self.result.landed_unacknowledged += len(self._since_tick)
+        self._since_tick = []
+
+    def tick(self, record: TickRecord, axis: str) -> None:
+        """One tick's acknowledged offset must be among the values the PLC received during it."""
+        received, self._since_tick = self._since_tick, []
+        self.result.ticks += 1
+        acknowledged = record.acknowledged_um.get(axis, math.nan)
+        if math.isfinite(acknowledged):
+            if not any(round(acknowledged * self.scale) == round(r) for r in received):
+                self.result.unacknowledged += 1
+                self.result.errors.append(f"t={record.t_s:g} s: {acknowledged} um never received")
+        else:
+            self.result.landed_unacknowledged += len(received)
+
+
+class SoakClock(MachineClock):
+    """The machine's clock, which also strikes the faults that fall due as time moves on."""
+
+    def __init__(
+        self, machine: SimulatedMachine, strike: Callable[[float], Awaitable[None]]
+    ) -> None:
+        super().__init__(VirtualClock(wall0_unix_s=time.time()), machine)
+        self.strike = strike
+
+    async def sleep_until(self, t: float) -> None:
+        await super().sleep_until(t)
+        await self.strike(t)
+
+
+class Soak:
+    """One soak run over ``config`` (a simulated Modbus machine); :meth:`run` returns the result."""
+
+    def __init__(self, config: Config, faults: Sequence[Fault], *, seed: int = 0) -> None:
+        self.config = config
+        self.faults = list(faults)
+        self.rng = random.Random(seed)
+        self.result = SoakResult()
+        doc = config.doc
+        (self.axis, out), *_ = doc.outputs.items()
+        self.driver = out.driver
+        self.machine = build_machine(config)
+        self.witness = Witness(
+            out.address, out.encoding.scale, out.max_rate_um_per_s * doc.period_s, self.result
+        )
+        self._replace_server()
+        self.clock = SoakClock(self.machine, self._strike)
+        self.service: Service | None = None
+        self._restart: asyncio.Future[str] | None = None
+        self._loads: list[asyncio.Task[None]] = []
+        self._ends: list[tuple[float, Callable[[], Awaitable[None]]]] = []
+        self._bad = bad_models(config.model_path.read_bytes())
+        self._variant = ""
+
+    def _replace_server(self) -> None:
+        """The PLC's Modbus server again, its write sink passing through the witness."""
+        doc, name = self.config.doc, self.driver
+        outputs = [o.address for o in doc.outputs.values() if o.driver == name]
+        if doc.status is not None and doc.status.driver == name:
+            outputs += [doc.status.status_address, doc.status.heartbeat_address]
+        self.server = ModbusPlcServer(
+            self.config.driver_settings[name],
+            inputs=[s.address for s in doc.signals.values() if s.driver == name],
+            outputs=outputs,
+            on_write=self.witness.sink(self.machine.on_write(name)),
+            base_dir=self.config.base_dir,
+        )
+        self.machine.servers[name] = self.server
+
+    async def run(self) -> SoakResult:
+        started = time.perf_counter()
+        (self.config.state_dir / STATE_FILE).unlink(missing_ok=True)
+        await start_machine(self.config, self.machine)
+        try:
+            await self._services(self.machine.duration_s)
+            await asyncio.gather(*self._loads, return_exceptions=True)
+            await self._end_due(math.inf)  # a drop or garbage server outlasting the shift
+        finally:
+            await self.machine.stop()
+        self.result.simulated_s = self.machine.now_s
+        self.result.wall_s = time.perf_counter() - started
+        return self.result
+
+    async def _services(self, end_s: float) -> None:
+        while self.clock.now() < end_s:
+            try:
+                service = Service(
+                    self.config, clock=self.clock, on_tick=self._tick, background_saves=False
+                )
+            except Exception as exc:  # a service that cannot start is a crash, then a retry
+                self._crash(f"start failed: {exc!r}")
+                await self._downtime(RESTART_S)
+                continue
+            self.result.services += 1
+            self.service = service
+            self.clock.settle = functools.partial(settle, service.links)
+            self._restart = asyncio.get_running_loop().create_future()
+            task = asyncio.create_task(service.run(duration_s=end_s - self.clock.now()))
+            waits: set[asyncio.Future[Any]] = {task, self._restart}
+            await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
+            how = self._restart.result() if self._restart.done() else None
+            self._restart = None
+            if how == "kill":
+                await self._kill(service, task)
+            else:
+                with contextlib.suppress(Exception):
+                    await task
+                if task.exception() is not None:
+                    self._crash(f"service failed: {task.exception()!r}")
+            self.result.offset_mismatches += service.compensator.counters.offset_mismatches
+            self.service = None
+            if how is None and task.exception() is None:
+                return  # the shift is over
+            if how == "state_corrupt":
+                self._corrupt_state()
+            await self._downtime(RESTART_S)
+
+    async def _downtime(self, seconds: float) -> None:
+        """No service for ``seconds``: the machine and the PLC faults under way go on."""
+        self.clock.settle = None
+        target = self.clock.now() + seconds
+        while self.clock.now() < target:
+            await MachineClock.sleep_until(self.clock, min(target, self.clock.now() + 1.0))
+            await self._end_due(self.clock.now())
+
+    async def _kill(self, service: Service, task: asyncio.Task[Any]) -> None:
+        """What SIGKILL leaves: nothing more of the service runs; the OS closes its sockets."""
+
+        async def vanish() -> None:
+            await asyncio.gather(*(link.driver.close() for link in service.links.values()))
+            if service._control is not None:  # the listening socket; its file stays (stale)
+                await service._control.close()
+
+        service._shutdown = vanish  # type: ignore[method-assign]
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        self.witness.abandon()
+
+    def _crash(self, why: str) -> None:
+        self.result.crashes += 1
+        self.result.errors.append(f"t={self.clock.now():g} s: {why}")
+
+    def _tick(self, record: TickRecord) -> None:
+        self.witness.tick(record, self.axis)
+
+    def _corrupt_state(self) -> None:
+        path = self.config.state_dir / STATE_FILE
+        saved = path.read_bytes() if path.exists() else b"{}"
+        path.write_bytes(corrupt_state(saved, self._variant))
+
+    # -- faults, struck from the clock between ticks ------------------------
+
+    async def _strike(self, t_s: float) -> None:
+        await self._end_due(t_s)
+        restart = self._restart
+        while self.faults and self.faults[0].at_s <= t_s and self.service is not None:
+            if restart is None or restart.done():
+                return  # this service is on its way out: the fault waits for the next one
+            fault = self.faults.pop(0)
+            self.result.faults[fault.kind] += 1
+            if fault.kind == "kill" and fault.variant == "mid_write":
+                self._kill_in_next_write(self.service)
+                return
+            if fault.kind in RESTARTS:
+                self._variant = fault.variant
+                if fault.kind == "state_corrupt":
+                    self.service.stop()  # a clean stop: the next tick does not come
+                restart.set_result(fault.kind)
+                if fault.kind == "kill":
+                    await asyncio.Event().wait()  # frozen until killed
+                return
+            await self._begin(fault, t_s)
+
+    def _kill_in_next_write(self, service: Service) -> None:
+        """The service dies in its next write: the PLC applies it, compd never hears the reply."""
+        link = service.links[self.driver]
+        assert self._restart is not None
+        restart: asyncio.Future[str] = self._restart
+
+        class Dying:
+            async def open(self) -> None:
+                await driver.open()
+
+            async def read(self, points: Sequence[str]) -> dict[str, float]:
+                values: dict[str, float] = await driver.read(points)
+                return values
+
+            async def write(self, values: Mapping[str, float]) -> None:
+                await driver.write(values)
+                if restart.done():  # stopped by another fault first: no kill
+                    return
+                restart.set_result("kill")
+                await asyncio.Event().wait()  # frozen until killed
+
+            async def close(self) -> None:
+                await driver.close()
+
+        driver, link.driver = link.driver, Dying()
+
+    async def _begin(self, fault: Fault, t_s: float) -> None:
+        if fault.kind == "plc_reset":
+            await self.server.stop()
+            await self.server.start()
+            await self._program(0.0)
+        elif fault.kind == "link_drop":
+            await self.server.stop()
+            self._ends.append((t_s + fault.duration_s, self.server.start))
+        elif fault.kind == "garbage":
+            await self.server.stop()
+            host, port = self.server.address
+            impostor = await garbage_server(host, port, fault.variant, self.rng.random())
+
+            async def back() -> None:
+                impostor.close()
+                await impostor.wait_closed()
+                await self.server.start()
+
+            self._ends.append((t_s + fault.duration_s, back))
+        elif fault.kind == "bad_model":
+            assert self.service is not None
+            self._loads.append(asyncio.create_task(self._load_bad(self.service, fault.variant)))
+
+    async def _end_due(self, t_s: float) -> None:
+        due = [end for end in self._ends if end[0] <= t_s]
+        for end in due:
+            self._ends.remove(end)
+            await end[1]()
+
+    async def _program(self, offset_um: float) -> None:
+        """The PLC's own program sets its offset register (here: the reset of a restart)."""
+        settings = self.config.driver_settings[self.driver]
+        driver = ModbusDriver(settings, now=self.clock.now, base_dir=Path())
+        await driver.open()
+        self.witness.programming = True
+        try:
+            out = self.config.doc.outputs[self.axis]
+            await driver.write({out.address: round(offset_um * out.encoding.scale)})
+        finally:
+            self.witness.programming = False
+            await driver.close()
+
+    async def _load_bad(self, service: Service, variant: str) -> None:
+        """Send a bad model to ``load`` over the control socket; it must be refused."""
+        try:
+            reply = await request(
+                self.config.control_socket,
+                load_request(self._bad[variant], f"bad-{variant}.yaml"),
+                timeout_s=60.0,
+            )
+        except CompdError:  # the service went away meanwhile (a kill): no verdict
+            return
+        if reply.get("ok"):
+            self.result.bad_models_accepted += 1
+            self.result.errors.append(f"bad model {variant} accepted: {reply}")
+        else:
+            self.result.bad_models_refused += 1
+            self.result.refusals.append(str(reply.get("error", "")))

@@ -1,0 +1,127 @@
+"""The faults of the soak (:mod:`compd.sim.soak`): the seeded draw, and what each kind is made of.
+
+Kinds, each with variants drawn with it: ``plc_reset`` (the PLC restarts
+and clears its offset register), ``link_drop`` (its server gone for a while),
+``garbage`` (another server on its port answering bytes that are not Modbus:
+random bytes, a frame header with the wrong protocol and length, or a
+connection closed at once), ``state_corrupt`` (the state file damaged between
+a stop and a restart), ``bad_model`` (a model file ``load`` must refuse) and
+``kill`` (the service dropped as SIGKILL leaves it: between two ticks, or in
+the middle of a write, which the PLC applies and compd never hears back).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import random
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+FAULT_KINDS = ("plc_reset", "link_drop", "garbage", "state_corrupt", "bad_model", "kill")
+#: Faults that stop the service (the others strike while it runs).
+RESTARTS = ("state_corrupt", "kill")
+
+
+@dataclass(frozen=True)
+class Fault:
+    """One fault: what, when (virtual s), which variant, and for how long (drop, garbage)."""
+
+    at_s: float
+    kind: str
+    variant: str = ""
+    duration_s: float = 0.0
+
+
+def draw_faults(
+    duration_s: float,
+    seed: int,
+    *,
+    every_s: tuple[float, float] = (120.0, 360.0),
+    kinds: Sequence[str] = FAULT_KINDS,
+) -> list[Fault]:
+    """Faults at intervals uniform in ``every_s``; the first ``len(kinds)`` cover every kind once."""
+    rng = random.Random(seed)
+    first = list(kinds)
+    rng.shuffle(first)
+    faults: list[Fault] = []
+    t_s = rng.uniform(*every_s)
+    while t_s < duration_s - 60.0:
+        kind = first.pop(0) if first else rng.choice(kinds)
+        variant = rng.choice(VARIANTS[kind])
+        length = {"link_drop": (5.0, 60.0), "garbage": (5.0, 30.0)}.get(kind)
+        faults.append(Fault(t_s, kind, variant, rng.uniform(*length) if length else 0.0))
+        t_s += rng.uniform(*every_s)
+    return faults
+
+
+def bad_models(good: bytes) -> dict[str, bytes]:
+    """Model files ``load`` must refuse: a gain of 1e308, a delay of 10^6 samples, a pole at 1.2, garbage."""
+    head = good.decode().partition("provenance:")[0]  # no calibration record to check against
+    edits = {
+        "gain_1e308": (r"num: \[[^,\]]*", "num: [1e308"),
+        "nk_1e6": (r"nk: \d+", "nk: 1000000"),
+        "unstable": (r"den: \[[^\]]*\]", "den: [1.0, -1.2, 0.0]"),
+    }
+    bad = {}
+    for name, (pattern, replacement) in edits.items():
+        text, n = re.subn(pattern, replacement, head, count=1)
+        if n != 1:
+            raise ValueError(f"the soak cannot make a {name} model from this one: no {pattern!r}")
+        bad[name] = text.encode()
+    bad["garbage"] = random.Random(len(head)).randbytes(4096)
+    return bad
+
+
+def corrupt_state(saved: bytes, variant: str) -> bytes:
+    """The state file ``saved`` corrupted as ``variant`` says."""
+    if variant == "garbage":
+        return b"\x00garbage{" + random.Random(len(saved)).randbytes(200)
+    if variant == "truncated":
+        return saved[: len(saved) // 2]
+    if variant == "empty":
+        return b""
+    try:
+        doc = json.loads(saved)
+    except ValueError:
+        return b"{}"
+    if variant == "offset_1e9":
+        doc["offsets_um"] = {k: 1e9 for k in doc.get("offsets_um", {})} or {"Z": 1e9}
+        return json.dumps(doc).encode()
+    if variant == "offset_nan":  # NaN is not JSON, but a hand-edited file may hold it
+        doc["offsets_um"] = {"Z": math.nan}
+        return json.dumps(doc).encode()
+    doc["model_sha256"] = "0" * 64  # "other_model"
+    return json.dumps(doc).encode()
+
+
+VARIANTS: dict[str, tuple[str, ...]] = {
+    "plc_reset": ("",),
+    "link_drop": ("",),
+    "garbage": ("random", "bad_header", "close"),
+    "state_corrupt": ("garbage", "truncated", "empty", "offset_1e9", "offset_nan", "other_model"),
+    "bad_model": ("gain_1e308", "nk_1e6", "unstable", "garbage"),
+    "kill": ("between_ticks", "mid_write"),
+}
+
+
+async def garbage_server(host: str, port: int, variant: str, seed: float) -> asyncio.Server:
+    """A server on ``host:port`` that answers every request with bytes that are not Modbus."""
+    rng = random.Random(seed)
+
+    async def answer(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        with contextlib.suppress(OSError, ConnectionError):
+            while request_bytes := await reader.read(260):
+                if variant == "random":
+                    writer.write(rng.randbytes(rng.randint(1, 300)))
+                elif variant == "bad_header":  # its transaction id, a wrong protocol and length
+                    writer.write(request_bytes[:2] + b"\x13\x37\xff\xff" + rng.randbytes(9))
+                await writer.drain()
+                if variant == "close" or rng.random() < 0.3:
+                    break
+        writer.close()
+
+    return await asyncio.start_server(answer, host, port, reuse_address=True)

@@ -1,0 +1,50 @@
+"""The soak's witness (:class:`compd.sim.soak.Witness`) judges what the PLC's offset register receives."""
+
+from __future__ import annotations
+
+import math
+
+from compd.loop import TickRecord
+from compd.sim.soak import SoakResult, Witness
+
+OFFSET = "holding:100:int32"
+
+
+def record(acknowledged_um: float) -> TickRecord:
+    return TickRecord(
+        t_s=0.0, wall_unix_s=0.0, values={}, health={}, reasons={}, model_outputs={},
+        contributions={}, targets_um={}, offsets_um={}, status=0, heartbeat=0,
+        written=math.isfinite(acknowledged_um), acknowledged_um={"Z": acknowledged_um},
+    )  # fmt: skip
+
+
+def witness() -> tuple[Witness, SoakResult, list[tuple[str, float]]]:
+    result, passed = SoakResult(), []
+    w = Witness(OFFSET, scale=10.0, max_step_um=1.0, result=result)
+    return w, result, passed
+
+
+def test_a_step_beyond_the_slew_limit_from_what_the_register_held_is_counted():
+    """Steps are judged from what the register held, a PLC reset included: 0 -> 1.0 ok, reset, 0 -> 1.1 counted."""
+    w, result, passed = witness()
+    sink = w.sink(lambda address, raw: passed.append((address, raw)))
+    sink(OFFSET, 10.0)  # 1.0 um from 0: one step
+    sink("holding:110", 999.0)  # the status word is not an offset
+    w.programming = True
+    sink(OFFSET, 0.0)  # the PLC clears its register
+    w.programming = False
+    sink(OFFSET, 11.0)  # 1.1 um from 0: beyond the step
+    assert result.slew_violations == 1 and result.largest_step_um == 1.1
+    assert result.offsets_received == 2 and len(passed) == 4  # everything reaches the machine
+
+
+def test_an_acknowledged_offset_the_plc_never_received_is_counted():
+    """A tick acknowledging 0.5 um counts only if 5 counts arrived during it; a failed write is no claim."""
+    w, result, _ = witness()
+    sink = w.sink(lambda address, raw: None)
+    sink(OFFSET, 5.0)
+    w.tick(record(0.5), "Z")
+    w.tick(record(0.6), "Z")  # nothing arrived this tick
+    sink(OFFSET, 7.0)
+    w.tick(record(math.nan), "Z")  # it landed, but the service counts the write failed
+    assert (result.unacknowledged, result.landed_unacknowledged, result.ticks) == (1, 1, 3)
