@@ -92,7 +92,7 @@ def folds_of(data: DataSet, signal: str | None) -> Folds:
         raise DataFileError(data.path, exc.message, where="--cycles") from exc
 
 
-def select(
+def compare_candidates(
     y: np.ndarray,
     changes: Mapping[str, np.ndarray],
     *,
@@ -312,7 +312,7 @@ def check_against_regression(data: DataSet, selection: Selection, chosen: str, f
             f"%; {selection.folds.describe()}): it would compensate worse than the controller's "
             "built-in regression",
             where=f"--method {chosen}",
-            fix="Use --method auto (keeps the better), select fewer inputs, or --force to write it",
+            fix="Use --method auto (keeps the better), --select-inputs, or --force to write it",
         )
 
 

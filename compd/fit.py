@@ -28,6 +28,7 @@ from compd.candidates import (
     Selection,
     SelectionStep,
     check_against_regression,
+    compare_candidates,
     contributions_of,
     cross_validation_doc,
     describe_lag_bank,
@@ -39,7 +40,6 @@ from compd.candidates import (
     refuse_errors,
     select_inputs,
 )
-from compd.candidates import select as choose
 from compd.data import DataSet
 from compd.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.errors import DataFileError, ModelError
@@ -270,7 +270,7 @@ def fit_data(
     cycles: str | None = None,
     force: bool = False,
     time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S,
-    select: bool = False,
+    select_inputs_first: bool = False,
     phase_gate: str | None = None,
     position: str | None = None,
     position_reference_mm: float = 0.0,
@@ -351,7 +351,7 @@ def fit_data(
         )
     folds = folds_of(data, operating_signal(data, cycles, phase_gate))
     steps: list[SelectionStep] = []
-    if select:
+    if select_inputs_first:
         if structured or method not in ("auto", "lagbank"):
             raise DataFileError(
                 data.path,
@@ -373,7 +373,7 @@ def fit_data(
     if method == "mlr":
         candidates = ("mlr",)
     try:
-        selection = choose(
+        selection = compare_candidates(
             y,
             changes,
             sample_time_s=data.sample_time_s,

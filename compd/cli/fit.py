@@ -177,7 +177,7 @@ def _fit(args: argparse.Namespace) -> int:
             order=order,
             cycles=args.cycles,
             time_constants_s=args.time_constants_s,
-            select=args.select_inputs,
+            select_inputs_first=args.select_inputs,
             force=args.force,
             phase_gate=args.phase_gate,
             position=args.position,
