@@ -28,6 +28,7 @@ from compd.candidates import (
     EXTEND_MARGIN_POINTS,
     folds_of,
     guard_findings,
+    lag_bank_identification,
     operating_signal,
     refuse_errors,
 )
@@ -37,7 +38,7 @@ from compd.evaluate import Evaluation, compare, evaluate, measured_columns
 from compd.fit import unit_of
 from compd.model.guards import Finding
 from compd.model.identify import Identification, identify
-from compd.model.lagbank import fit_lag_bank
+from compd.model.lagbank import LagBankFit, fit_lag_bank
 from compd.model.metrics import fit_percent
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF, resample_discrete
@@ -53,16 +54,15 @@ from compd.span import Span, span_data, until_stop
 
 @dataclass(frozen=True)
 class Extension:
-    """A model extended by one sub-model, with the evidence for it."""
+    """A model extended by the sub-model(s) of one signal, with the evidence for it."""
 
     parent: ModelFile
     extended: ModelFile
     yaml_text: str
     output: str
     measured_column: str
-    submodel: SubModel
-    #: The new sub-model's TF, at the model's sample time.
-    tf: DiscreteTF
+    #: The new sub-models: one TF, or with ``method="lagbank"`` one per lag of the signal.
+    submodels: tuple[SubModel, ...]
     identification: Identification
     fit_before: float
     fit_after: float
@@ -134,7 +134,9 @@ def extend_model(
             f"column {signal!r} is constant, so it cannot explain anything in this record",
             fix="Extend on a record in which the effect varies",
         )
-    held_out = judge_signal(data, measured, before.predicted(output), residue, excitation, first)
+    held_out, bank = judge_signal(
+        data, measured, before.predicted(output), residue, excitation, first
+    )
     if held_out.rise_points < EXTEND_MARGIN_POINTS and not force:
         raise DataFileError(
             data.path,
@@ -145,39 +147,53 @@ def extend_model(
             where=f"--effect {signal}",
             fix="Try the next candidate of compd diagnose, or --force to add it anyway",
         )
-    identification = identify(
-        residue,
-        {signal: excitation - excitation[0]},
-        sample_time_s=data.sample_time_s,
-        method=method,  # type: ignore[arg-type]
-        order=order,  # type: ignore[arg-type]
-        progress=progress,
-        first_sample=first,
-    )
-    (channel,) = identification.channels
-    tf = _at_model_rate(channel.tf, data, parent)
     taken = {s.name for o in parent.model.outputs for s in o.submodels}
-    name = _unique(f"{signal}_effect", taken)
-    submodel = SubModel(
-        name=name,
-        effect=effect,
-        input=InputSpec(signal),
-        tf=tf,
-        gain=1.0,
-    )
-    model = _with_submodel(parent.model, output, submodel)
+    if method == "lagbank":
+        # The regularised lag bank that earned the signal its place is the sub-model itself.
+        identification = lag_bank_identification(bank, [signal], data.sample_time_s)
+        submodels = tuple(
+            SubModel(
+                name=_unique(f"{signal}_effect_{_lag_label(c.time_constant_s)}", taken),
+                effect=f"{effect} ({_lag_label(c.time_constant_s)}, lagbank)",
+                input=InputSpec(signal),
+                tf=_at_model_rate(c.tf, data, parent),
+            )
+            for c in identification.channels
+        )
+    else:
+        identification = identify(
+            residue,
+            {signal: excitation - excitation[0]},
+            sample_time_s=data.sample_time_s,
+            method=method,  # type: ignore[arg-type]
+            order=order,  # type: ignore[arg-type]
+            progress=progress,
+            first_sample=first,
+        )
+        (channel,) = identification.channels
+        submodels = (
+            SubModel(
+                name=_unique(f"{signal}_effect", taken),
+                effect=effect,
+                input=InputSpec(signal),
+                tf=_at_model_rate(channel.tf, data, parent),
+            ),
+        )
+    names = [sub.name for sub in submodels]
+    model = _with_submodels(parent.model, output, submodels)
 
-    provisional = _write(parent, model, data, signal, name, {}, {}, command)
+    provisional = _write(parent, model, data, signal, names, {}, {}, command)
     after = evaluate(parse_model(provisional, parent.path), data)
     fit_before = fit_percent(measured[first:], before.predicted(output)[first:])
     fit_after = fit_percent(measured[first:], after.predicted(output)[first:])
-    residue_fit = fit_percent(residue[first:], _contribution(after, output, name)[first:])
+    added = sum(_contribution(after, output, name) for name in names)
+    residue_fit = fit_percent(residue[first:], np.asarray(added)[first:])
     yaml_text = _write(
         parent,
         model,
         data if span is None else span_data(data, span),
         signal,
-        name,
+        names,
         {output: fit_before},
         {output: fit_after},
         command,
@@ -185,7 +201,7 @@ def extend_model(
         output=output,
     )
     extended = parse_model(yaml_text, "<extended model>")
-    findings = [f for f in guard_findings(data, model) if name in f.submodel.split(" + ")]
+    findings = [f for f in guard_findings(data, model) if set(names) & set(f.submodel.split(" + "))]
     if not force:
         refuse_errors(
             data,
@@ -199,8 +215,7 @@ def extend_model(
         yaml_text=yaml_text,
         output=output,
         measured_column=measured_name,
-        submodel=submodel,
-        tf=tf,
+        submodels=submodels,
         identification=identification,
         fit_before=fit_before,
         fit_after=fit_after,
@@ -217,13 +232,14 @@ def judge_signal(
     residue: np.ndarray,
     excitation: np.ndarray,
     first_sample: int = 0,
-) -> HeldOut:
+) -> tuple[HeldOut, LagBankFit]:
     """How much a regularised sub-model on ``excitation`` raises the fit on parts of ``data`` it never saw.
 
     The residue is fitted by a lag bank on the signal (:mod:`compd.model.lagbank`)
     on all but one operating cycle (or block) at a time, and each held-out
     part predicted; the rise is the fit % of the model plus those held-out
-    predictions over the model alone.
+    predictions over the model alone. Returns that and the lag bank fitted on
+    every (scored) sample, which ``--method lagbank`` adds as the sub-model.
     """
     folds = folds_of(data, operating_signal(data, None, None))
     u = (excitation - excitation[0])[:, None]
@@ -239,7 +255,7 @@ def judge_signal(
     held = np.isfinite(bank.cv_predicted_um)
     before = fit_percent(measured[held], predicted[held])
     after = fit_percent(measured[held], predicted[held] + bank.cv_predicted_um[held])
-    return HeldOut(folds.describe(), float(before), float(after))
+    return HeldOut(folds.describe(), float(before), float(after)), bank
 
 
 def verify_extension(extension: Extension, data: DataSet) -> tuple[float, float]:
@@ -315,12 +331,16 @@ def _at_model_rate(tf: DiscreteTF, data: DataSet, parent: ModelFile) -> Discrete
         ) from exc
 
 
-def _with_submodel(model: Model, output: str, submodel: SubModel) -> Model:
+def _with_submodels(model: Model, output: str, submodels: tuple[SubModel, ...]) -> Model:
     outputs = tuple(
-        Output(o.name, (*o.submodels, submodel)) if o.name == output else o for o in model.outputs
+        Output(o.name, (*o.submodels, *submodels)) if o.name == output else o for o in model.outputs
     )
     # A new name, so reports and logs can tell the extended model from its parent.
-    return Model(f"{model.name}+{submodel.input.signal}", model.sample_time_s, outputs)
+    return Model(f"{model.name}+{submodels[0].input.signal}", model.sample_time_s, outputs)
+
+
+def _lag_label(time_constant_s: float | None) -> str:
+    return "gain" if not time_constant_s else f"lag_{time_constant_s:g}s"
 
 
 def _unique(name: str, taken: set[str]) -> str:
@@ -351,7 +371,7 @@ def _write(
     model: Model,
     data: DataSet,
     signal: str,
-    submodel_name: str,
+    submodel_names: list[str],
     fit_before: dict[str, float],
     fit_after: dict[str, float],
     command: str,
@@ -370,7 +390,7 @@ def _write(
         parent_sha256=parent.sha256,
         data=data.path,
         effect_signal=signal,
-        submodels=[submodel_name],
+        submodels=submodel_names,
         fit_percent_before=fit_before,
         fit_percent_after=fit_after,
         created=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),

@@ -22,6 +22,7 @@ from compd.cli.progress import progress_reporter
 from compd.effects import load_catalogue
 from compd.extend import extend_model, verify_extension, with_verification
 from compd.model.identify import MIN_SAMPLES
+from compd.model.transfer import DiscreteTF
 from compd.modelfile import load_model
 from compd.summary import json_clean, json_text
 
@@ -44,7 +45,11 @@ def register(commands: Any) -> None:
         help="TF order of the new sub-model: 'auto' (chosen on held-back data) or N",
     )
     extend.add_argument(
-        "--method", choices=("oe", "arx"), default="oe", help="identification method (default oe)"
+        "--method",
+        choices=("oe", "arx", "lagbank"),
+        default="oe",
+        help="identification method (default oe); lagbank: first-order lags at fixed time "
+        "constants, ridge-regularised, as the held-out check fits them (one sub-model per lag)",
     )
     extend.add_argument(
         "--output", metavar="COLUMN", help="the measured column, when the model has several outputs"
@@ -105,7 +110,22 @@ def _extend(args: argparse.Namespace) -> int:
         yaml_text = with_verification(extension, verify_data.path, *verified)
     args.out.write_text(yaml_text)
 
-    tf = extension.tf
+    model_s = parent.model.sample_time_s
+    tfs = [sub.tf for sub in extension.submodels if isinstance(sub.tf, DiscreteTF)]
+    taus = [[float(t) for t in tf.time_constants_s(model_s)] for tf in tfs]
+    described: list[dict[str, object]] = [
+        {
+            "name": sub.name,
+            "order": tf.order,
+            "nk": tf.nk,
+            "time_constants_s": tau,
+            "static_gain_um_per_unit": float(tf.static_gain()),
+        }
+        for sub, tf, tau in zip(extension.submodels, tfs, taus, strict=True)
+    ]
+    first = described[0]
+    static_gain = float(sum(tf.static_gain() for tf in tfs))  # the signal's, all lags together
+    time_constants = sorted({t for tau in taus for t in tau}, reverse=True)
     summary: dict[str, object] = {
         "model": str(args.model),
         "model_sha256": parent.sha256,
@@ -113,12 +133,13 @@ def _extend(args: argparse.Namespace) -> int:
         "output": extension.output,
         "effect_signal": args.effect,
         "effect": effect,
-        "submodel": extension.submodel.name,
+        "submodel": first["name"],
+        "submodels": described,
         "method": extension.identification.method,
-        "order": tf.order,
-        "nk": tf.nk,
-        "time_constants_s": [float(t) for t in tf.time_constants_s(parent.model.sample_time_s)],
-        "static_gain_um_per_unit": float(tf.static_gain()),
+        "order": first["order"],
+        "nk": first["nk"],
+        "time_constants_s": time_constants,
+        "static_gain_um_per_unit": static_gain,
         "residue_fit_percent": json_clean(extension.residue_fit),
         "fit_percent_before": json_clean(extension.fit_before),
         "fit_percent_after": json_clean(extension.fit_after),
@@ -141,15 +162,16 @@ def _extend(args: argparse.Namespace) -> int:
         print(json_text(summary))
         return 0
     out = console()
+    names = ", ".join(str(d["name"]) for d in described)
     out.print(
-        f"added [bold]{extension.submodel.name}[/bold] to {extension.output}: {effect} "
+        f"added [bold]{names}[/bold] to {extension.output}: {effect} "
         f"(input {args.effect} as a change from start; {extension.identification.method}, "
-        f"order {tf.order}, nk {tf.nk}, time constants "
-        f"{', '.join(f'{t:.0f}' for t in tf.time_constants_s(parent.model.sample_time_s)) or '-'} s, "
-        f"static gain {tf.static_gain():.4g} um/unit)"
+        f"order {first['order']}, nk {first['nk']}, time constants "
+        f"{', '.join(f'{t:.0f}' for t in time_constants) or '-'} s, "
+        f"static gain {static_gain:.4g} um/unit)"
     )
     out.print(
-        f"the new sub-model alone reproduces the residue with {fmt(extension.residue_fit, 1)} % fit"
+        f"the new sub-model(s) alone reproduce the residue with {fmt(extension.residue_fit, 1)} % fit"
     )
     table = Table(
         "data", "fit % before", "fit % after", "change (points)", title="free-run simulation fit"

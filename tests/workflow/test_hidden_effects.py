@@ -146,3 +146,20 @@ def test_base_model_on_a_speed_spectrum_beats_the_controllers_regression(
     mlr_fit = fit_of(compd_json("compare", mlr, spectrum), "disp_z_um")
     assert tf_fit >= 85.0
     assert tf_fit > mlr_fit
+
+
+def test_extend_with_a_lag_bank_adds_one_sub_model_per_lag(folder: Path, calibration: Path) -> None:
+    """`extend --method lagbank` adds the regularised lags of the signal and fixes the unseen run as OE does."""
+    base = base_model(folder, calibration, "disp_z_um")
+    first = twin(folder, "cutting", RUN_HOURS, seed=2)
+    second = twin(folder, "cutting", RUN_HOURS, seed=3)
+    extended = folder / "extended-cutting-lagbank.yaml"
+    result = compd_json(
+        "extend", base, first, "--effect", "spindle_power_kw", "--method", "lagbank",
+        "--verify", second, "--out", extended,
+    )  # fmt: skip
+    before, after = result["verify"]["fit_percent_before"], result["verify"]["fit_percent_after"]
+    assert after >= 85.0 and after - before >= 20.0, (before, after)
+    names = [s["name"] for s in result["submodels"]]
+    assert names[0] == "spindle_power_kw_effect_gain" and len(names) == 5
+    assert all(s["order"] <= 1 for s in result["submodels"])
