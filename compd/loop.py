@@ -258,6 +258,11 @@ class Compensator:
             if axis.readback:
                 self._readbacks.setdefault(axis.driver, []).append(axis)
                 self._reads.setdefault(axis.driver, [])
+        #: Per driver, the addresses read each tick: its signals, then its offsets read back.
+        self._addresses = {
+            d: [p.address for p in points] + [a.address for a in self._readbacks.get(d, [])]
+            for d, points in self._reads.items()
+        }
         if initial_state is not None:
             model.start(initial_state)
         #: What each offset point holds, as far as compd knows (:mod:`compd.offsets`).
@@ -473,11 +478,7 @@ class Compensator:
     async def _read(self) -> tuple[dict[str, float], dict[str, float]]:
         """Signal values by name, and the raw offsets read back by axis name."""
         drivers = list(self._reads)
-        addresses = {
-            d: [p.address for p in self._reads[d]] + [a.address for a in self._readbacks.get(d, [])]
-            for d in drivers
-        }
-        results = await _all([self.links[d].read(addresses[d]) for d in drivers])
+        results = await _all([self.links[d].read(self._addresses[d]) for d in drivers])
         values: dict[str, float] = {}
         held: dict[str, float] = {}
         for driver, raw in zip(drivers, results, strict=True):
