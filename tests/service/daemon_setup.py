@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import copy
+import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -76,3 +77,8 @@ async def ticked(service: Service, running: asyncio.Task[Any], ticks: int) -> No
         await asyncio.sleep(0)
     if running.done():
         running.result()  # a failed run fails the test here, instead of waiting for ever
+
+
+def short_socket() -> Path:
+    """A control-socket path short enough for AF_UNIX (pytest's tmp_path can exceed 108 bytes)."""
+    return Path(tempfile.mkdtemp(prefix="compd-", dir="/tmp")) / "c.sock"

@@ -6,21 +6,14 @@ import json
 import signal
 import subprocess
 import sys
-import tempfile
 import time
-from pathlib import Path
 
 from compd.cli import main
 from compd.state import installed_model
 
-from .daemon_setup import write_config
+from .daemon_setup import short_socket, write_config
 
 RUN = [sys.executable, "-m", "compd.cli", "run", "--config"]
-
-
-def short_socket() -> str:
-    """A control socket path short enough for AF_UNIX (pytest's tmp_path can exceed 108 bytes)."""
-    return str(Path(tempfile.mkdtemp(prefix="compd-", dir="/tmp")) / "c.sock")
 
 
 def test_check_config_accepts_the_bundled_simulated_config(capsys):
@@ -42,7 +35,7 @@ def test_check_config_error_exits_2_naming_the_place(tmp_path, capsys):
 def test_run_stops_after_duration_and_saves_state(tmp_path):
     """compd run --time-scale --duration-s exits 0 after the given clock time, logging JSON lines and saving state."""
     config = write_config(
-        tmp_path, {"control_socket": short_socket(), "recorder": {"enabled": True}}
+        tmp_path, {"control_socket": str(short_socket()), "recorder": {"enabled": True}}
     )
     done = subprocess.run(
         [
@@ -68,7 +61,7 @@ def test_run_stops_after_duration_and_saves_state(tmp_path):
 
 def test_model_load_without_a_daemon_installs_for_the_next_start(tmp_path, capsys):
     """model load validates and installs the model even when no daemon runs, and says so."""
-    config = write_config(tmp_path, {"control_socket": short_socket()})
+    config = write_config(tmp_path, {"control_socket": str(short_socket())})
     assert main(["model", "load", str(config.model_path), "--config", str(config.path)]) == 0
     captured = capsys.readouterr()
     assert "installed example-gated-arx-y" in captured.out
@@ -78,7 +71,7 @@ def test_model_load_without_a_daemon_installs_for_the_next_start(tmp_path, capsy
 
 def test_model_load_refuses_a_bad_model(tmp_path, capsys):
     """A model that does not compile is refused with exit 2 and nothing is installed."""
-    config = write_config(tmp_path, {"control_socket": short_socket()})
+    config = write_config(tmp_path, {"control_socket": str(short_socket())})
     bad = tmp_path / "bad.yaml"
     bad.write_text(config.model_path.read_text().replace("-0.998889505944279", "-1.5"))
     assert main(["model", "load", str(bad), "--config", str(config.path)]) == 2
@@ -88,14 +81,14 @@ def test_model_load_refuses_a_bad_model(tmp_path, capsys):
 
 def test_status_without_a_daemon(tmp_path, capsys):
     """status with no daemon running exits 2 asking whether compd runs."""
-    config = write_config(tmp_path, {"control_socket": short_socket()})
+    config = write_config(tmp_path, {"control_socket": str(short_socket())})
     assert main(["status", "--config", str(config.path)]) == 2
     assert "is compd running?" in capsys.readouterr().err
 
 
 def test_status_model_load_and_sigterm_on_a_running_daemon(tmp_path, capsys):
     """Against a running daemon: status shows it, model load switches it, SIGTERM stops it cleanly with state saved."""
-    config = write_config(tmp_path, {"control_socket": short_socket(), "blend_s": 5})
+    config = write_config(tmp_path, {"control_socket": str(short_socket()), "blend_s": 5})
     daemon = subprocess.Popen(
         [*RUN, str(config.path), "--time-scale", "10", "--log-format", "json"],
         stdout=subprocess.PIPE,

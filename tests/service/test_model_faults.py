@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -20,14 +19,10 @@ from compd.safety import SIGNAL_BIT0, Level, mismatch_bit, model_fault_bit
 from compd.service import Service
 from compd.state import install_model_bytes, installed_model
 
-from .daemon_setup import run, ticked, write_config
+from .daemon_setup import run, short_socket, ticked, write_config
 from .test_service import SLEW_UM, bad_and_good_models, offsets
 
 CONFIG_MODEL = "example-gated-arx-y"
-
-
-def short_socket() -> Path:
-    return Path(tempfile.mkdtemp(prefix="compd-", dir="/tmp")) / "c.sock"
 
 
 def faulted(record: TickRecord) -> bool:

@@ -18,8 +18,7 @@ from compd.errors import ConfigFileError
 from compd.modelload import load_request
 from compd.service import Service
 
-from .daemon_setup import ticked, write_config
-from .test_model_faults import short_socket
+from .daemon_setup import short_socket, ticked, write_config
 from .test_service import bad_and_good_models
 
 #: A give-up bound for waits on another thread, never an assertion on elapsed time.

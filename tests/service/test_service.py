@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +20,7 @@ from compd.service import Service
 from compd.signals import Health
 from compd.state import load_state
 
-from .daemon_setup import run, ticked, write_config
+from .daemon_setup import run, short_socket, ticked, write_config
 
 SLEW_UM = 1.0  # max_rate_um_per_s of the bundled simulated config, at 1 s
 
@@ -139,7 +138,7 @@ def bad_and_good_models(directory: Path) -> tuple[Path, Path]:
 def test_hot_load_refuses_a_bad_model_and_blends_a_good_one(tmp_path):
     """Over the control socket a bad model is refused while the old one runs; a good one switches without a jump."""
     bad, good = bad_and_good_models(tmp_path)
-    socket = Path(tempfile.mkdtemp(prefix="compd-", dir="/tmp")) / "c.sock"
+    socket = short_socket()
     config = write_config(
         tmp_path,
         {
