@@ -273,19 +273,7 @@ def test_bad_windows_are_input_errors(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     """A window that is empty, outside the record or too short ends with status 2 and names the span."""
-    argv = [
-        "fit",
-        "--data",
-        str(record),
-        "--output",
-        OUTPUT,
-        "--inputs",
-        "T1",
-        "--out",
-        str(tmp_path / "m.yaml"),
-        *options,
-    ]
-    assert main(argv) == 2
+    assert main(_fit_argv(record, "T1", tmp_path / "m.yaml", *options)) == 2
     err = capsys.readouterr().err
     for word in words:
         assert word in err
@@ -297,6 +285,12 @@ def test_a_time_that_is_not_one_is_a_usage_error(model: Path, record: Path) -> N
     with pytest.raises(SystemExit) as stop:
         main(["compare", str(model), str(record), "--from", "32h"])
     assert stop.value.code == 2
+
+
+def _fit_argv(record: Path, inputs: str, out: Path, *options: str) -> list[str]:
+    """``compd fit`` of the record's output from ``inputs`` into ``out``."""
+    argv = ["fit", "--data", record, "--output", OUTPUT, "--inputs", inputs, "--out", out]
+    return [str(a) for a in (*argv, *options)]
 
 
 @pytest.mark.parametrize(
@@ -333,18 +327,7 @@ def test_a_pattern_matching_nothing_is_an_error(
     record: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A glob that matches no column names itself, the option and the file's columns."""
-    argv = [
-        "fit",
-        "--data",
-        str(record),
-        "--output",
-        OUTPUT,
-        "--inputs",
-        "T1,temp_*",
-        "--out",
-        str(tmp_path / "m.yaml"),
-    ]
-    assert main(argv) == 2
+    assert main(_fit_argv(record, "T1,temp_*", tmp_path / "m.yaml")) == 2
     err = capsys.readouterr().err
     assert "'temp_*' matches no column" in err
     assert "--inputs" in err
