@@ -151,6 +151,7 @@ class Service:
             for name, d in doc.drivers.items()
         }
         status = doc.status
+        self.loader = ModelLoader(config, clock.wall)
         self.compensator = Compensator(
             signals=[
                 SignalPoint(name, s.driver, s.address, s.scale, s.offset, s.type)
@@ -190,10 +191,9 @@ class Service:
             initial_state=saved.model_state if saved is not None and decision.resume else None,
             history_ticks=round(HISTORY_S / doc.period_s),
             schedule=GainScheduler(doc.gain_schedule.gain_table()) if doc.gain_schedule else None,
+            on_model_failure=self.loader.failed,
         )
-        self.loader = ModelLoader(config, clock.wall)
         self.compensator.fallback = fallback
-        self.compensator.on_model_failure = self.loader.failed
         if saved is not None and decision.resume:
             self.compensator.heartbeat = saved.ticks % HEARTBEAT_MODULO
         self.timing = TickTiming()
