@@ -55,7 +55,8 @@ if TYPE_CHECKING:
     from compd.sim.plc.settings import SimulationDoc
 
 SCHEMA = "compd.config/1"
-#: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..29).
+#: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31); the
+#: readback-mismatch and model-fault bits follow them where bits are left (:mod:`compd.safety`).
 MAX_SIGNALS = 24
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]

@@ -151,7 +151,7 @@ def status_word(
     """Pack the level (bits 0-1), flags (bits 2-7), per-signal bits (8 on), mismatch and model-fault bits.
 
     The caller passes ``mismatch`` / ``model_fault`` only where the status point
-    holds that bit (:func:`compd.writepoints.status_flag_bits`).
+    holds that bit (:func:`compd.writepoints.status_mismatch_bit`, :func:`~compd.writepoints.status_model_fault_bit`).
     """
     word = int(level)
     for flag in flags:
