@@ -211,7 +211,6 @@ def lag_bank_identification(
         for name, tfs in zip(inputs, fit.channel_tfs(sample_time_s), strict=True)
         for tf, tau in zip(tfs, fit.time_constants_s, strict=True)
     ]
-    n = len(channels)
     orders = Orders(
         na=1,
         nb=tuple(len(c.tf.num) for c in channels),
@@ -224,7 +223,7 @@ def lag_bank_identification(
         sample_time_s=sample_time_s,
         fit_percent=fit.fit_percent,
         validation_fit_percent=None,
-        orders=orders if n else Orders(0, (), (), ()),
+        orders=orders,
         simulated_um=fit.predicted_um,
     )
 

@@ -369,9 +369,10 @@ def fit_data(
         )
         changes = {step.input: changes[step.input] for step in steps}
         inputs = list(changes)
-    candidates = ("mlr",) if structured or method in ("oe", "arx") else ("lagbank", "mlr")
-    if method == "mlr":
-        candidates = ("mlr",)
+    # The regression is always scored: every fit is printed beside it.
+    candidates = (
+        ("lagbank", "mlr") if method in ("auto", "lagbank") and not structured else ("mlr",)
+    )
     try:
         selection = compare_candidates(
             y,

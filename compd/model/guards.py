@@ -31,6 +31,7 @@ from enum import StrEnum
 
 import numpy as np
 
+from compd.errors import ModelError
 from compd.model.structure import Model, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
 
@@ -74,7 +75,9 @@ def time_constants_s(tf: DiscreteTF | ContinuousTF, sample_time_s: float) -> np.
 def _static_gain(sub: SubModel) -> float | None:
     try:
         return sub.gain * sub.tf.static_gain()
-    except Exception:  # an integrator has no static gain; the time-constant rule names it
+    except (
+        ModelError
+    ):  # a continuous integrator has no static gain; the time-constant rule names it
         return None
 
 
