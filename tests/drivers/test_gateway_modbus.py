@@ -161,7 +161,7 @@ def test_link_recovers_after_a_gateway_restart():
         await server.start()
         back = time.monotonic()
         while not await link.read(["in:0:int16", "out:0:int32"]):
-            assert time.monotonic() - back < 5.0, "no reconnect within 5 s"
+            assert time.monotonic() - back < 30.0, "no reconnect within 30 s"
             await asyncio.sleep(0.05)
         assert await link.write({"out:4:int16": 2.0}) is True
         await link.close()

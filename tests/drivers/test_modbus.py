@@ -189,7 +189,7 @@ def test_server_stopped_and_restarted():
                 await driver.open()
                 break
             except DriverDisconnectedError:
-                assert time.monotonic() - back < 5.0
+                assert time.monotonic() - back < 30.0, "no reconnect within 30 s"
                 await asyncio.sleep(0.1)
         assert await driver.read(["input:0:int16"]) == {"input:0:int16": -1234.0}
         await driver.close()
@@ -219,7 +219,7 @@ def test_link_keeps_ticking_and_reconnects():
         thread.start()
         back = time.monotonic()
         while not await link.read(["input:0:int16"]):
-            assert time.monotonic() - back < 5.0, "no reconnect within 5 s"
+            assert time.monotonic() - back < 30.0, "no reconnect within 30 s"
             await asyncio.sleep(0.05)
         await link.close()
         return time.monotonic() - back
@@ -261,7 +261,7 @@ def drop_and_restore(
             await asyncio.to_thread(thread.start)
             back = time.monotonic()
             while not await link.read(["input:0:int16"]):
-                assert time.monotonic() - back < 5.0, "no reconnect within 5 s"
+                assert time.monotonic() - back < 30.0, "no reconnect within 30 s"
                 await asyncio.sleep(0.02)
         await link.close()
 

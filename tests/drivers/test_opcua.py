@@ -497,7 +497,7 @@ def test_server_stopped_and_restarted(certs, restart_server: OpcUaTestServer):
         await asyncio.to_thread(restart_server.start)
         back_at = time.monotonic()
         while not (values := await link.read([point])):
-            assert time.monotonic() - back_at < 5.0, "no reconnect within 5 s"
+            assert time.monotonic() - back_at < 30.0, "no reconnect within 30 s"
             await asyncio.sleep(0.05)
         await link.close()
         assert values == {point: 31.25}

@@ -332,7 +332,7 @@ def test_restart_drops_the_connection_keeps_the_values_and_the_link_reconnects()
         await server.start()  # rebinds the same port at once
         back = time.monotonic()
         while not await link.read(["input:10:int16"]):
-            assert time.monotonic() - back < 5.0, "no reconnect within 5 s"
+            assert time.monotonic() - back < 30.0, "no reconnect within 30 s"
             await asyncio.sleep(0.02)
         resumed_s = time.monotonic() - back
         assert await link.read(["input:10:int16", "coil:2"]) == {

@@ -233,7 +233,7 @@ def test_restart_drops_clients_and_the_link_reconnects(plc: Plc) -> None:
         await plc.server.start()
         back_at = time.monotonic()
         while not (values := await link.read([T_STRING])):
-            assert time.monotonic() - back_at < 5.0, "no reconnect within 5 s"
+            assert time.monotonic() - back_at < 30.0, "no reconnect within 30 s"
             await asyncio.sleep(0.02)
         await link.close()
         return down, values, plc.server.last_start_s

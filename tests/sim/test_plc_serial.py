@@ -178,7 +178,7 @@ def test_unplug_and_replug_through_the_link(tmp_path: Path):
         await server.start()
         back = time.monotonic()
         while not (values := await link.read(["1"])):
-            assert time.monotonic() - back < 5.0, "no reconnect within 5 s"
+            assert time.monotonic() - back < 30.0, "no reconnect within 30 s"
             await asyncio.sleep(0.02)
         assert values == {"1": 24.0}
         await link.close()
