@@ -38,7 +38,7 @@ from compd.evaluate import Evaluation, compare, evaluate, measured_columns
 from compd.fit import unit_of
 from compd.model.guards import Finding
 from compd.model.identify import Identification, identify
-from compd.model.lagbank import LagBankFit, fit_lag_bank
+from compd.model.lagbank import LagBankFit, fit_lag_bank, lag_name
 from compd.model.metrics import fit_percent
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF, resample_discrete
@@ -153,8 +153,8 @@ def extend_model(
         identification = lag_bank_identification(bank, [signal], data.sample_time_s)
         submodels = tuple(
             SubModel(
-                name=_unique(f"{signal}_effect_{_lag_label(c.time_constant_s)}", taken),
-                effect=f"{effect} ({_lag_label(c.time_constant_s)}, lagbank)",
+                name=_unique(lag_name(f"{signal}_effect", c.time_constant_s or 0.0), taken),
+                effect=f"{effect} (lag {c.time_constant_s or 0.0:g} s, lagbank)",
                 input=InputSpec(signal),
                 tf=_at_model_rate(c.tf, data, parent),
             )
@@ -337,10 +337,6 @@ def _with_submodels(model: Model, output: str, submodels: tuple[SubModel, ...]) 
     )
     # A new name, so reports and logs can tell the extended model from its parent.
     return Model(f"{model.name}+{submodels[0].input.signal}", model.sample_time_s, outputs)
-
-
-def _lag_label(time_constant_s: float | None) -> str:
-    return "gain" if not time_constant_s else f"lag_{time_constant_s:g}s"
 
 
 def _unique(name: str, taken: set[str]) -> str:

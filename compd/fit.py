@@ -46,7 +46,7 @@ from compd.errors import DataFileError, ModelError
 from compd.model.collinear import collinear_groups
 from compd.model.guards import Finding
 from compd.model.identify import MAX_ORDER, Identification, Progress, identify
-from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
+from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S, lag_name
 from compd.model.metrics import Comparison
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
 from compd.modelfile import CalibrationDoc, ProvenanceDoc
@@ -137,9 +137,7 @@ def identification_to_model(
             tau = channel.time_constant_s
             subs.append(
                 SubModel(
-                    name=f"{channel.input_name}_lag_{tau:g}s"
-                    if tau
-                    else f"{channel.input_name}_gain",
+                    name=lag_name(channel.input_name, tau),
                     effect=f"{channel.input_name}: first-order lag of {tau:g} s (lagbank)"
                     if tau
                     else f"{channel.input_name}: static gain (lagbank)",

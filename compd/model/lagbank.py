@@ -29,6 +29,7 @@ holds as ordinary first-order sub-models, so the service, ``compare`` and
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -75,6 +76,22 @@ class LagBankFit:
             ]
             for row in self.gains
         ]
+
+
+#: A lag bank's sub-model names: ``PREFIX_gain`` and ``PREFIX_lag_300s`` (PREFIX: the input,
+#: or ``SIGNAL_effect`` for an extension), so readers can group the lags of one input.
+_LAG_NAME = re.compile(r"^(?P<prefix>.+)_(?:gain|lag_[0-9.e+]+s)$")
+
+
+def lag_name(prefix: str, time_constant_s: float) -> str:
+    """The sub-model name of the lag at ``time_constant_s`` (0: the gain) of ``prefix``."""
+    return f"{prefix}_gain" if time_constant_s == 0.0 else f"{prefix}_lag_{time_constant_s:g}s"
+
+
+def lag_prefix(name: str) -> str | None:
+    """What :func:`lag_name` was given, or None for a name that is not a lag's."""
+    match = _LAG_NAME.match(name)
+    return None if match is None else match["prefix"]
 
 
 def lag_tf(gain: float, time_constant_s: float, sample_time_s: float) -> DiscreteTF:

@@ -28,6 +28,7 @@ from compd.errors import DataFileError
 from compd.evaluate import Evaluation, measured_columns
 from compd.evaluate import compare as compare_outputs
 from compd.model.compiled import qualified_names
+from compd.model.lagbank import lag_prefix
 from compd.model.metrics import Comparison
 from compd.summary import compare_summary
 
@@ -64,13 +65,10 @@ class ModelRun:
         names = qualified_names(compiled)
         parts: dict[str, np.ndarray] = {}
         for i in np.flatnonzero(row):
-            sub = compiled.submodels[int(i)]
+            own = names[int(i)].split("/", 1)[1]
             # A lag bank's lags of one input are one effect: one trace, not five.
-            name = (
-                f"{sub.input.signal} (lag bank)"
-                if sub.effect.endswith("(lagbank)")
-                else names[int(i)].split("/", 1)[1]
-            )
+            prefix = lag_prefix(own)
+            name = own if prefix is None else f"{prefix} (lag bank)"
             term = self.evaluation.result.contributions[:, i]
             parts[name] = parts[name] + term if name in parts else term
         result = self.evaluation.result

@@ -109,3 +109,13 @@ def test_the_regression_baseline_is_scored_the_same_way() -> None:
     gains, cv = regression_cv(y, temps, cycle_folds(speed))
     calibration = 100 * (1 - np.linalg.norm(y - temps @ gains) / np.linalg.norm(y - y.mean()))
     assert cv < calibration
+
+
+def test_lag_names_carry_their_input_so_readers_can_group_them() -> None:
+    """``T5_lag_3600s`` and ``T5_gain`` give back ``T5``; an ordinary sub-model name gives nothing."""
+    from compd.model.lagbank import lag_name, lag_prefix
+
+    assert [lag_name("T5", t) for t in (0.0, 3600.0)] == ["T5_gain", "T5_lag_3600s"]
+    assert lag_prefix("T5_lag_3600s") == lag_prefix("T5_gain") == "T5"
+    assert lag_prefix("spindle_power_kw_effect_lag_300s") == "spindle_power_kw_effect"
+    assert lag_prefix("T_spindle_degC") is None
