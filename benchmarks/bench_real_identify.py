@@ -52,6 +52,7 @@ from compd.model.lagbank import (  # noqa: E402
     DEFAULT_TIME_CONSTANTS_S,
     fit_lag_bank,
     lag_features,
+    regression_cv,
 )
 from compd.model.metrics import fit_percent  # noqa: E402
 
@@ -84,14 +85,8 @@ def _ridge_raw(y: np.ndarray, u: np.ndarray, folds: Folds, dt_s: float) -> tuple
 
 
 def _mlr(y: np.ndarray, u: np.ndarray, folds: Folds) -> tuple[float, float]:
-    def fit_predict(train: np.ndarray) -> np.ndarray:
-        k, *_ = np.linalg.lstsq(u[train], y[train], rcond=None)
-        return np.asarray(u @ k)
-
-    full = fit_predict(np.ones(y.size, dtype=bool))
-    return float(fit_percent(y, full)), pooled_fit_percent(
-        y, cross_validated_prediction(fit_predict, folds)
-    )
+    gains, cv = regression_cv(y, u, folds)
+    return float(fit_percent(y, u @ gains)), cv
 
 
 def _lagbank_nested(y: np.ndarray, u: np.ndarray, folds: Folds, dt_s: float) -> float:
