@@ -71,21 +71,7 @@ def record(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def model(record: Path) -> Path:
     """An order-1 OE model of the whole record: close to the true lags."""
     out = record.parent / "model.yaml"
-    compd(
-        "fit",
-        "--data",
-        record,
-        "--output",
-        OUTPUT,
-        "--inputs",
-        "T1,T2",
-        "--method",
-        "oe",
-        "--order",
-        1,
-        "--out",
-        out,
-    )
+    compd(*_fit_argv(record, "T1,T2", out, "--method", "oe", "--order", 1))
     return out
 
 
@@ -140,23 +126,7 @@ def test_fit_until_reads_nothing_after_the_cut(method: str, tmp_path: Path) -> N
     for shift in (0.0, 4.0):
         data = _write(_record(after_cut=shift), tmp_path / f"log{shift:g}.csv")
         out = tmp_path / f"{method}{shift:g}.yaml"
-        compd(
-            "fit",
-            "--data",
-            data,
-            "--output",
-            OUTPUT,
-            "--inputs",
-            "T1,T2",
-            "--method",
-            method,
-            "--order",
-            1,
-            "--until",
-            "32:00",
-            "--out",
-            out,
-        )
+        compd(*_fit_argv(data, "T1,T2", out, "--method", method, "--order", 1, "--until", "32:00"))
         fitted.append(_tfs(out))
     for (num, den), (num2, den2) in zip(*fitted, strict=True):
         np.testing.assert_array_equal(num, num2)
@@ -172,21 +142,17 @@ def test_fit_from_fits_the_window_with_the_whole_log_references(tmp_path: Path) 
     for name, table in (("clean", frame), ("spoiled", spoiled)):
         out = tmp_path / f"{name}.yaml"
         compd(
-            "fit",
-            "--data",
-            _write(table, tmp_path / f"{name}.csv"),
-            "--output",
-            OUTPUT,
-            "--inputs",
-            "T1,T2",
-            "--method",
-            "oe",
-            "--order",
-            1,
-            "--from",
-            "8:00",
-            "--out",
-            out,
+            *_fit_argv(
+                _write(table, tmp_path / f"{name}.csv"),
+                "T1,T2",
+                out,
+                "--method",
+                "oe",
+                "--order",
+                1,
+                "--from",
+                "8:00",
+            )
         )
         models.append(out)
     for (num, den), (num2, den2) in zip(_tfs(models[0]), _tfs(models[1]), strict=True):
@@ -200,21 +166,7 @@ def test_fit_from_until_records_the_window(record: Path, tmp_path: Path) -> None
     """The model's calibration record covers the fitted samples only, and the output names them."""
     out = tmp_path / "m.yaml"
     printed = compd(
-        "fit",
-        "--data",
-        record,
-        "--output",
-        OUTPUT,
-        "--inputs",
-        "T1,T2",
-        "--method",
-        "mlr",
-        "--from",
-        "8:00",
-        "--until",
-        "32:00",
-        "--out",
-        out,
+        *_fit_argv(record, "T1,T2", out, "--method", "mlr", "--from", "8:00", "--until", "32:00")
     )
     assert "fitted on 8.00 h .. 31.98 h (1440 samples)" in printed
     provenance = load_model(out).doc.provenance
@@ -287,7 +239,7 @@ def test_a_time_that_is_not_one_is_a_usage_error(model: Path, record: Path) -> N
     assert stop.value.code == 2
 
 
-def _fit_argv(record: Path, inputs: str, out: Path, *options: str) -> list[str]:
+def _fit_argv(record: Path, inputs: str, out: Path, *options: object) -> list[str]:
     """``compd fit`` of the record's output from ``inputs`` into ``out``."""
     argv = ["fit", "--data", record, "--output", OUTPUT, "--inputs", inputs, "--out", out]
     return [str(a) for a in (*argv, *options)]
@@ -307,19 +259,7 @@ def test_inputs_take_globs_and_all(
 ) -> None:
     """``--inputs`` expands globs and ``all`` (never the output or another displacement) in column order."""
     out = tmp_path / "m.yaml"
-    compd(
-        "fit",
-        "--data",
-        record,
-        "--output",
-        OUTPUT,
-        "--inputs",
-        inputs,
-        "--method",
-        "mlr",
-        "--out",
-        out,
-    )
+    compd(*_fit_argv(record, inputs, out, "--method", "mlr"))
     assert load_model(out).model.signals() == signals
 
 
