@@ -61,13 +61,13 @@ import structlog
 import yaml
 from common import environment, verdict
 
-from compd.config import Config, load_config
-from compd.links import DriverLink
-from compd.loop import TickRecord
-from compd.service import Service
+from compd.files.yamlplace import resolve_path
+from compd.service.config import Config, load_config
+from compd.service.daemon import Service
+from compd.service.links import DriverLink
+from compd.service.loop import TickRecord
 from compd.sim.plc.machine import MachineClock, SimulatedMachine
 from compd.sim.plc.run import run_simulation
-from compd.yamlplace import resolve_path
 
 MAX_P99_ALL_MS = 20.0
 MAX_P99_MODBUS_MS = 5.0

@@ -171,7 +171,7 @@ def main() -> int:
 
     compiled = compile_model(as_model(oe2))
     state = compiled.steady_state(inputs[0])
-    # Column-major, as compd.evaluate.signal_matrix lays out a loaded data file.
+    # Column-major, as compd.toolkit.evaluate.signal_matrix lays out a loaded data file.
     columns = np.asfortranarray(inputs)
     sim_s, _ = best_seconds(lambda: simulate(compiled, columns, state), 7)
     tfs = [channel.tf for channel in oe2.channels]

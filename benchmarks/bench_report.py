@@ -17,10 +17,10 @@ import time
 
 from common import environment, verdict
 
-from compd.evaluate import evaluate
-from compd.modelfile import load_model
+from compd.files.modelfile import load_model
 from compd.report.gather import gather
 from compd.report.page import build_html
+from compd.toolkit.evaluate import evaluate
 from tests.report.conftest import GATED, day_record
 
 MAX_REPORT_S = 20.0

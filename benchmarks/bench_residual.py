@@ -35,7 +35,7 @@ from sklearn.ensemble import RandomForestRegressor
 
 from compd.model import TickRunner, compile_model
 from compd.model.residual import DoorFeatures, ResidualModel
-from compd.residual import forest_from_sklearn
+from compd.toolkit.residual import forest_from_sklearn
 
 TARGET_P99_US = 2000.0
 

@@ -1,7 +1,7 @@
 """Tick timing of the whole service loop: lateness of the wake-ups and CPU per tick, on real time.
 
 ``compd run`` must wake on its absolute deadlines and finish each tick well
-inside the period. This runs the real service (:class:`compd.service.Service`:
+inside the period. This runs the real service (:class:`compd.service.daemon.Service`:
 simulated driver, signal checks, the benchmark model of :mod:`common` with 10
 sub-models of 4th order over 3 axes and 7 signals, safety stage, writes,
 recorder and periodic state saves) on the real clock for ``--ticks`` ticks
@@ -35,11 +35,11 @@ import numpy as np
 import yaml
 from common import build_model, environment, verdict, week_signals
 
-from compd.clock import RealClock
-from compd.config import load_config
-from compd.loop import TickRecord
-from compd.recorder import Recorder
-from compd.service import Service
+from compd.service.clock import RealClock
+from compd.service.config import load_config
+from compd.service.daemon import Service
+from compd.service.loop import TickRecord
+from compd.service.recorder import Recorder
 
 MAX_P99_LATENESS_MS = 5.0
 MAX_CPU_MS_PER_TICK = 1.0

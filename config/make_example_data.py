@@ -19,7 +19,7 @@ import pandas as pd
 import scipy.signal
 
 from compd.model import compile_model, simulate
-from compd.modelfile import load_model
+from compd.files.modelfile import load_model
 
 HERE = Path(__file__).parent
 SAMPLE_TIME_S = 10.0

@@ -55,7 +55,7 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
-from compd.yamlplace import resolve_path
+from compd.files.yamlplace import resolve_path
 
 log = structlog.get_logger("compd.drivers.opcua")
 quiet_library("asyncua")  # a line per read at INFO, per dropped session at WARNING

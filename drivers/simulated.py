@@ -24,9 +24,9 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from compd.data import load_data
 from compd.errors import DriverDisconnectedError, DriverProtocolError
-from compd.yamlplace import resolve_path
+from compd.files.data import load_data
+from compd.files.yamlplace import resolve_path
 
 FaultKind = Literal["stuck", "nan", "value", "drop"]
 

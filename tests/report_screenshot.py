@@ -88,10 +88,10 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         print(missing, file=sys.stderr)
         return 1
-    from compd.data import load_data
-    from compd.evaluate import evaluate
-    from compd.modelfile import load_model
+    from compd.files.data import load_data
+    from compd.files.modelfile import load_model
     from compd.report import write_report
+    from compd.toolkit.evaluate import evaluate
 
     data = load_data(args.data)
     other = None if args.compare is None else evaluate(load_model(args.compare), data)

@@ -270,7 +270,7 @@ def test_json_commands_on_values_near_the_float_range_exit_2_naming_the_cell(
 
 def test_json_output_writes_non_finite_figures_as_null() -> None:
     """Every --json object prints NaN and +-inf, at any depth, as null: strict JSON a script can parse."""
-    from compd.summary import json_text
+    from compd.toolkit.summary import json_text
 
     text = json_text(
         {"fit_percent": float("-inf"), "rms": [1.5, float("nan")], "n": {"x": 1e308 * 10}}

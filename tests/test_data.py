@@ -14,8 +14,8 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose, assert_array_equal
 
-from compd.data import DataSet, load_data
 from compd.errors import DataFileError
+from compd.files.data import DataSet, load_data
 
 HEADER = "time_s,T_spindle_degC,T_shopfloor_degC"
 

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from compd.cli import main
-from compd.data import load_data
-from compd.denoise import remove_first_imfs
-from compd.evaluate import compare, evaluate, signal_matrix
+from compd.files.data import load_data
+from compd.files.modelfile import load_model
 from compd.model.run import TickRunner
-from compd.modelfile import load_model
 from compd.sim import simulate_scenario
 from compd.sim.hall import air_conditioned
+from compd.toolkit.denoise import remove_first_imfs
+from compd.toolkit.evaluate import compare, evaluate, signal_matrix
 
 TS = 10.0
 INPUTS = "T_spindle_degC,T_ambient_degC"

@@ -127,8 +127,8 @@ def test_a_found_effect_too_small_to_matter_is_said_not_to_survive() -> None:
     import numpy as np
     import scipy.signal
 
-    from compd.analysis import DiagnosisResult
     from compd.model.diagnose import diagnose_residue
+    from compd.toolkit.analysis import DiagnosisResult
 
     rng = np.random.default_rng(0)
     n = 6 * 3600 // 10

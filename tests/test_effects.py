@@ -4,8 +4,8 @@ from pathlib import Path
 
 import pytest
 
-from compd.effects import UNKNOWN_EFFECT, load_catalogue, parse_catalogue
 from compd.errors import InputFileError
+from compd.files.effects import UNKNOWN_EFFECT, load_catalogue, parse_catalogue
 
 USER = """\
 schema: compd.effects/1

@@ -13,7 +13,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from compd.cli import main
-from compd.modelfile import load_model
+from compd.files.modelfile import load_model
 
 CONFIG = Path(__file__).parent.parent / "config"
 DATA = CONFIG / "example_spectrum.csv"

@@ -8,9 +8,9 @@ import pytest
 import scipy.signal
 
 from compd.cli import main
-from compd.data import load_data
-from compd.evaluate import compare, evaluate
-from compd.modelfile import load_model
+from compd.files.data import load_data
+from compd.files.modelfile import load_model
+from compd.toolkit.evaluate import compare, evaluate
 from tests.model.thermal_cases import held_levels, thermal_second_order
 
 TS = 10.0

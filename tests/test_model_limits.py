@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from compd.cli import main
+from compd.files.modelfile import load_model
 from compd.model.limits import (
     MAX_DELAY_SAMPLES,
     MAX_GAIN_UM_PER_UNIT,
@@ -21,7 +22,6 @@ from compd.model.limits import (
     MAX_STATES,
     MAX_SUBMODELS,
 )
-from compd.modelfile import load_model
 
 from .test_modelfile import VALID
 

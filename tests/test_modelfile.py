@@ -9,7 +9,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from compd.errors import ModelFileError
-from compd.modelfile import load_model, parse_model
+from compd.files.modelfile import load_model, parse_model
 
 CONFIG = Path(__file__).parent.parent / "config"
 

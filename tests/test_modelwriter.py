@@ -5,6 +5,8 @@ from __future__ import annotations
 import pytest
 import yaml
 
+from compd.files.modelfile import CalibrationDoc, ProvenanceDoc, parse_model
+from compd.files.modelwriter import model_to_yaml, yaml_float
 from compd.model import (
     ContinuousTF,
     DiscreteTF,
@@ -16,8 +18,6 @@ from compd.model import (
     SubModel,
     compile_model,
 )
-from compd.modelfile import CalibrationDoc, ProvenanceDoc, parse_model
-from compd.modelwriter import model_to_yaml, yaml_float
 
 
 def _model() -> Model:

@@ -6,12 +6,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from compd.data import load_data
 from compd.errors import DataFileError, ModelFileError
-from compd.fit import fit_data
+from compd.files.data import load_data
+from compd.files.modelfile import parse_model
+from compd.files.modelwriter import model_to_yaml
 from compd.model import DiscreteTF, InputSpec, Model, Output, Position, SubModel, compile_model
-from compd.modelfile import parse_model
-from compd.modelwriter import model_to_yaml
+from compd.toolkit.fit import fit_data
 
 TF = DiscreteTF.from_coefficients([0.0012345678901234567, -3.3e-7], [1.0, -0.95], 1)
 

@@ -10,13 +10,13 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from compd.errors import DataFileError, ModelFileError
+from compd.files.modelfile import ResidualDoc, load_model
+from compd.files.modelwriter import model_to_yaml
 from compd.model.compiled import compile_model
 from compd.model.run import simulate
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF
-from compd.modelfile import ResidualDoc, load_model
-from compd.modelwriter import model_to_yaml
-from compd.residual import (
+from compd.toolkit.residual import (
     check_door_signal,
     fit_residual,
     sidecar_bytes,

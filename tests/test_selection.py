@@ -7,9 +7,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from compd.data import load_data
 from compd.errors import DataFileError
-from compd.selection import select_columns
+from compd.files.data import load_data
+from compd.toolkit.selection import select_columns
 
 
 @pytest.fixture

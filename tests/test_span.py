@@ -8,9 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from compd.data import load_data
 from compd.errors import DataFileError
-from compd.span import parse_time_s, resolve_span, until_stop
+from compd.files.data import load_data
+from compd.toolkit.span import parse_time_s, resolve_span, until_stop
 
 
 @pytest.mark.parametrize(

@@ -12,11 +12,11 @@ import pandas as pd
 import pytest
 
 from compd.cli import main
-from compd.data import load_data
 from compd.errors import ModelFileError
-from compd.evaluate import evaluate
-from compd.modelfile import load_model, parse_model
-from compd.modelwriter import model_to_yaml
+from compd.files.data import load_data
+from compd.files.modelfile import load_model, parse_model
+from compd.files.modelwriter import model_to_yaml
+from compd.toolkit.evaluate import evaluate
 
 TS = 10.0
 TRUE_GAINS = {"g1": 1.4, "g2": 0.6}

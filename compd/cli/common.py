@@ -10,11 +10,11 @@ import sys
 from rich.console import Console
 from rich.table import Table
 
-from compd.analysis import DEFAULT_WINDOW_S
-from compd.data import DataSet, load_data
-from compd.evaluate import Evaluation
+from compd.files.data import DataSet, load_data
 from compd.model.metrics import Comparison
-from compd.span import Span, parse_time_s, resolve_span
+from compd.toolkit.analysis import DEFAULT_WINDOW_S
+from compd.toolkit.evaluate import Evaluation
+from compd.toolkit.span import Span, parse_time_s, resolve_span
 
 EXIT_INPUT_ERROR = 2
 
@@ -60,7 +60,7 @@ def span_options(parser: argparse.ArgumentParser, *, scored: str, detail: str = 
 
     The model still runs from the file's start, with every input's reference
     (its first value) and the model state of the whole record
-    (:mod:`compd.span`); ``detail`` adds what the command does with it.
+    (:mod:`compd.toolkit.span`); ``detail`` adds what the command does with it.
     """
     what = (
         f"only samples from TIME on are {scored}; the model still runs from the file's "
@@ -85,7 +85,7 @@ def span_options(parser: argparse.ArgumentParser, *, scored: str, detail: str = 
 
 
 def time_arg(text: str) -> float:
-    """An argparse ``type``: :func:`compd.span.parse_time_s`."""
+    """An argparse ``type``: :func:`compd.toolkit.span.parse_time_s`."""
     try:
         return parse_time_s(text)
     except ValueError as exc:

@@ -8,10 +8,10 @@ from typing import Any
 
 from compd import __version__
 from compd.cli.common import comparison_table, console
-from compd.data import load_data
-from compd.evaluate import compare, evaluate
+from compd.files.data import load_data
+from compd.files.modelfile import load_model
 from compd.model.metrics import Comparison
-from compd.modelfile import load_model
+from compd.toolkit.evaluate import compare, evaluate
 
 
 def register(commands: Any) -> None:

@@ -4,7 +4,7 @@
 (``--window-s``, default 15 min), those whose RMS exceeds the tolerance
 (``--tolerance-um``, default twice the model's calibration residue RMS) with
 the operating conditions then and the signals outside the calibration range
-(see :mod:`compd.analysis`). JSON layout: top-level ``failing_windows`` is
+(see :mod:`compd.toolkit.analysis`). JSON layout: top-level ``failing_windows`` is
 the list over every compared output, time-ordered per output, each entry
 ``{output, start_s, end_s, rms_um, outside_calibration, conditions}``;
 ``outputs.<name>.window_tolerance_um`` is the tolerance used and top-level
@@ -22,11 +22,6 @@ from typing import Any
 import pandas as pd
 from rich.table import Column, Table
 
-from compd.analysis import (
-    CONDITION_PATTERNS,
-    WindowsResult,
-    find_failing_windows,
-)
 from compd.cli.common import (
     comparison_table,
     console,
@@ -37,11 +32,16 @@ from compd.cli.common import (
     window_options,
 )
 from compd.cli.service import register_model_load
-from compd.evaluate import compare, evaluate, measured_columns
+from compd.files.modelfile import load_model
 from compd.model.compiled import qualified_names
-from compd.modelfile import load_model
-from compd.span import evaluate_span
-from compd.summary import compare_summary, json_text
+from compd.toolkit.analysis import (
+    CONDITION_PATTERNS,
+    WindowsResult,
+    find_failing_windows,
+)
+from compd.toolkit.evaluate import compare, evaluate, measured_columns
+from compd.toolkit.span import evaluate_span
+from compd.toolkit.summary import compare_summary, json_text
 
 
 def register(commands: Any) -> None:

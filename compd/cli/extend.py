@@ -19,12 +19,12 @@ from compd.cli.common import (
     span_from_args,
 )
 from compd.cli.progress import progress_reporter
-from compd.effects import load_catalogue
-from compd.extend import extend_model, verify_extension, with_verification
+from compd.files.effects import load_catalogue
+from compd.files.modelfile import load_model
 from compd.model.identify import MIN_SAMPLES
 from compd.model.transfer import DiscreteTF
-from compd.modelfile import load_model
-from compd.summary import json_clean, json_text
+from compd.toolkit.extend import extend_model, verify_extension, with_verification
+from compd.toolkit.summary import json_clean, json_text
 
 
 def register(commands: Any) -> None:

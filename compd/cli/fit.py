@@ -10,16 +10,16 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.candidates import FIT_METHODS
 from compd.cli.common import console, data_options, fmt, load_data_from_args, span_from_args
 from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
 from compd.errors import DataFileError
-from compd.fit import FitResult, fit_data
 from compd.model.collinear import MIN_ABS_CORRELATION
 from compd.model.identify import MIN_SAMPLES
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
-from compd.selection import select_columns
+from compd.toolkit.candidates import FIT_METHODS
+from compd.toolkit.fit import FitResult, fit_data
+from compd.toolkit.selection import select_columns
 
 
 def register(commands: Any) -> None:

@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import Any
 
 from compd.cli.common import data_options, load_data_from_args, span_from_args, window_options
-from compd.modelfile import load_model
-from compd.span import evaluate_span
+from compd.files.modelfile import load_model
+from compd.toolkit.span import evaluate_span
 
 
 def register(commands: Any) -> None:

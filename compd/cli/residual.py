@@ -21,12 +21,12 @@ from rich.table import Table
 
 from compd.cli.common import console, data_options, fmt, load_data_from_args, span_from_args
 from compd.cli.residual_options import add_forest_options
-from compd.data import DataSet
-from compd.evaluate import evaluate, measured_columns
-from compd.modelfile import ModelFile, load_model
-from compd.residual import ResidueFigures, sidecar_path, stack_on_model
-from compd.span import Span, evaluate_span
-from compd.summary import json_text
+from compd.files.data import DataSet
+from compd.files.modelfile import ModelFile, load_model
+from compd.toolkit.evaluate import evaluate, measured_columns
+from compd.toolkit.residual import ResidueFigures, sidecar_path, stack_on_model
+from compd.toolkit.span import Span, evaluate_span
+from compd.toolkit.summary import json_text
 
 
 def register(commands: Any) -> None:

@@ -15,10 +15,10 @@ from typing import Any
 from rich.table import Table
 
 from compd.cli.common import console, fmt
-from compd.data import DataSet
-from compd.fit import FitResult
-from compd.residual import sidecar_path, stack_residual
-from compd.span import Span
+from compd.files.data import DataSet
+from compd.toolkit.fit import FitResult
+from compd.toolkit.residual import sidecar_path, stack_residual
+from compd.toolkit.span import Span
 
 
 def add_residual_options(parser: Any) -> None:

@@ -15,20 +15,20 @@ import structlog
 
 from compd.cli.common import console
 from compd.cli.simulate import run_simulated, time_scale_arg
-from compd.clock import RealClock
-from compd.config import Config, check_model, load_config
-from compd.control import request, request_sync
 from compd.errors import CompdError, ControlError, ModelFileError
-from compd.loop import TickRecord
-from compd.modelfile import load_model
-from compd.modelload import LOAD_TIMEOUT_S, load_request, slot_from_bytes
-from compd.notify import SystemdNotifier
-from compd.safety import Level
-from compd.service import Service
-from compd.signals import Health
+from compd.files.modelfile import load_model
+from compd.files.yamlplace import read_limited, resolve_path
+from compd.service.clock import RealClock
+from compd.service.config import Config, check_model, load_config
+from compd.service.control import request, request_sync
+from compd.service.daemon import Service
+from compd.service.loop import TickRecord
+from compd.service.modelload import LOAD_TIMEOUT_S, load_request, slot_from_bytes
+from compd.service.notify import SystemdNotifier
+from compd.service.safety import Level
+from compd.service.signals import Health
+from compd.service.state import install_model_bytes, installed_model
 from compd.sim.plc.build import build_machine
-from compd.state import install_model_bytes, installed_model
-from compd.yamlplace import read_limited, resolve_path
 
 DEFAULT_CONFIG = Path("/etc/compd/compd.yaml")
 

@@ -13,11 +13,11 @@ import numpy as np
 from rich.table import Table
 
 from compd.cli.common import console, data_options, fmt, load_data_from_args
-from compd.gainsets import parse_bounds
-from compd.modelfile import load_model
-from compd.probes import load_probes
-from compd.summary import json_text
-from compd.update import Update, update_model
+from compd.files.modelfile import load_model
+from compd.toolkit.gainsets import parse_bounds
+from compd.toolkit.probes import load_probes
+from compd.toolkit.summary import json_text
+from compd.toolkit.update import Update, update_model
 
 
 def register(commands: Any) -> None:

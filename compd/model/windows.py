@@ -54,7 +54,7 @@ def failing_windows(
     Parameters
     ----------
     time_s
-        Sample times in s, increasing (a uniform grid, as :class:`compd.data.DataSet` has).
+        Sample times in s, increasing (a uniform grid, as :class:`compd.files.data.DataSet` has).
     residue_um
         Measured minus predicted, um, one value per sample.
     tolerance_um

@@ -1,6 +1,6 @@
-"""What the report reads from ``compd.analysis`` results, in one place.
+"""What the report reads from ``compd.toolkit.analysis`` results, in one place.
 
-Failing windows and the candidate ranking are computed by ``compd.analysis``
+Failing windows and the candidate ranking are computed by ``compd.toolkit.analysis``
 (the same functions ``compd compare`` and ``compd diagnose`` call, so all
 three say the same thing); the report only shows them. A diagnosis may be
 missing with a reason (a record too short to cross-validate, no candidate
@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from compd.analysis import DiagnosisResult, WindowsResult
 from compd.model.diagnose import CandidateScore
 from compd.model.windows import FailingWindow
+from compd.toolkit.analysis import DiagnosisResult, WindowsResult
 
 
 def windows(result: WindowsResult) -> Sequence[FailingWindow]:

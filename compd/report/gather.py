@@ -15,7 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from compd.analysis import (
+from compd.errors import DataFileError
+from compd.files.data import DataSet
+from compd.model.compiled import qualified_names
+from compd.model.lagbank import lag_prefix
+from compd.model.metrics import Comparison
+from compd.toolkit.analysis import (
     DEFAULT_WINDOW_S,
     DiagnosisResult,
     WindowsResult,
@@ -23,14 +28,9 @@ from compd.analysis import (
     diagnose_evaluation,
     find_failing_windows,
 )
-from compd.data import DataSet
-from compd.errors import DataFileError
-from compd.evaluate import Evaluation, measured_columns
-from compd.evaluate import compare as compare_outputs
-from compd.model.compiled import qualified_names
-from compd.model.lagbank import lag_prefix
-from compd.model.metrics import Comparison
-from compd.summary import compare_summary
+from compd.toolkit.evaluate import Evaluation, measured_columns
+from compd.toolkit.evaluate import compare as compare_outputs
+from compd.toolkit.summary import compare_summary
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,10 @@ import plotly.io as pio
 from plotly.offline import get_plotlyjs
 
 from compd import __version__
-from compd.evaluate import Evaluation
 from compd.report import figures, tables
 from compd.report.gather import ReportData, gather
-from compd.summary import json_finite
+from compd.toolkit.evaluate import Evaluation
+from compd.toolkit.summary import json_finite
 
 #: CSS class of every figure's wrapper ``div`` (one per plot).
 FIGURE_CLASS = "compd-figure"

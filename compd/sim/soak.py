@@ -1,6 +1,6 @@
 """A fault-injection soak: compd's service against the simulated machine, a fault every few minutes.
 
-compd's real :class:`~compd.service.Service` runs against the simulated
+compd's real :class:`~compd.service.daemon.Service` runs against the simulated
 machine's Modbus TCP PLC on 127.0.0.1, on virtual time, for a whole shift.
 Every few (virtual) minutes a fault drawn with a seeded generator strikes:
 
@@ -24,7 +24,7 @@ receives and judges it against what the register held just before (after
 any reset): the soak counts crashes (an exception out of the service, or a
 service that cannot be built), steps above the slew limit
 (``max_rate_um_per_s * period_s``), and offsets the service reports as
-acknowledged (:attr:`~compd.loop.TickRecord.acknowledged_um`, what the
+acknowledged (:attr:`~compd.service.loop.TickRecord.acknowledged_um`, what the
 recorder writes) that the PLC never received. Targets: 0, 0, 0.
 """
 
@@ -45,21 +45,21 @@ from typing import Any
 
 import yaml
 
-from compd.clock import VirtualClock
-from compd.config import Config, load_config
-from compd.control import request
 from compd.drivers.modbus import ModbusDriver
 from compd.errors import CompdError
-from compd.loop import TickRecord
-from compd.modelload import load_request
-from compd.service import Service
+from compd.files.yamlplace import resolve_path
+from compd.service.clock import VirtualClock
+from compd.service.config import Config, load_config
+from compd.service.control import request
+from compd.service.daemon import Service
+from compd.service.loop import TickRecord
+from compd.service.modelload import load_request
+from compd.service.state import STATE_FILE
 from compd.sim.plc.build import build_machine
 from compd.sim.plc.machine import MachineClock, SimulatedMachine
 from compd.sim.plc.modbus import ModbusPlcServer
 from compd.sim.plc.run import settle, start_machine
 from compd.sim.soakfaults import RESTARTS, Fault, bad_models, corrupt_state, garbage_server
-from compd.state import STATE_FILE
-from compd.yamlplace import resolve_path
 
 #: Virtual seconds between the end of one service and the start of the next.
 RESTART_S = 3.0

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 import yaml
 
-from compd.config import Config, load_config
+from compd.files.yamlplace import resolve_path
+from compd.service.config import Config, load_config
 from compd.sim.plc.machine import AxisSummary
 from compd.sim.plc.run import SimulationResult, run_simulation
-from compd.yamlplace import resolve_path
 from tests.clirun import compd
 
 CALIBRATION_HOURS = 24

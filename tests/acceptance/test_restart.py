@@ -96,9 +96,11 @@ def test_a_killed_daemon_resumes_its_state_and_the_offset_does_not_jump(
         # Warm and compensated: on a loaded machine the daemon's ramp can trail the twin's clock,
         # so wait for the offset itself rather than for a time.
         warm = machine.wait_for(
-            lambda m: m.now_s >= KILL_AT_S
-            and m.plc.heartbeat_changes > 100
-            and abs(m.applied_um["z"]) > 5
+            lambda m: (
+                m.now_s >= KILL_AT_S
+                and m.plc.heartbeat_changes > 100
+                and abs(m.applied_um["z"]) > 5
+            )
         )
         first.send_signal(signal.SIGKILL)
         first.wait(timeout=10)

@@ -17,10 +17,10 @@ import pytest
 import scipy.signal
 
 from compd.cli import main
-from compd.data import load_data
-from compd.evaluate import evaluate
+from compd.files.data import load_data
+from compd.files.modelfile import load_model
 from compd.model.metrics import Comparison
-from compd.modelfile import load_model
+from compd.toolkit.evaluate import evaluate
 from tests.clirun import compd
 
 TS = 60.0

@@ -15,9 +15,9 @@ import yaml
 from compd.drivers.base import DRIVERS
 from compd.drivers.gateway import GatewayDriver, GatewaySettings
 
-from compd.clock import RealClock
 from compd.errors import DriverProtocolError, DriverTimeoutError
-from compd.links import DriverLink
+from compd.service.clock import RealClock
+from compd.service.links import DriverLink
 from compd.sim.plc.gateway import GatewayServer
 
 from .contract import ContractSetup, DriverContract

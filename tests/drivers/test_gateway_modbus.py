@@ -12,10 +12,10 @@ import pytest
 from compd.drivers.gateway import GatewayDriver, GatewaySettings
 from compd.drivers.modbus import ModbusDriver, ModbusSettings
 
-from compd.clock import RealClock
-from compd.config import parse_config
 from compd.errors import ConfigFileError, DriverProtocolError, DriverTimeoutError
-from compd.links import DriverLink
+from compd.service.clock import RealClock
+from compd.service.config import parse_config
+from compd.service.links import DriverLink
 from compd.sim.plc.gateway import GatewayServer
 
 from .contract import ContractSetup, DriverContract

@@ -18,18 +18,18 @@ from compd.drivers.base import DRIVERS
 from compd.drivers.modbus import ModbusDriver, ModbusSettings
 from structlog.testing import capture_logs
 
-from compd.clock import RealClock
-from compd.config import parse_config
 from compd.errors import (
     ConfigFileError,
     DriverDisconnectedError,
     DriverProtocolError,
     DriverTimeoutError,
 )
-from compd.links import DriverLink
-from compd.loop import TickRecord
-from compd.safety import Flag
-from compd.service import Service
+from compd.service.clock import RealClock
+from compd.service.config import parse_config
+from compd.service.daemon import Service
+from compd.service.links import DriverLink
+from compd.service.loop import TickRecord
+from compd.service.safety import Flag
 
 from ..service.daemon_setup import write_config
 from .contract import ContractSetup, DriverContract

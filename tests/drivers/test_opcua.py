@@ -21,8 +21,6 @@ from compd.drivers.base import DRIVERS, driver_types
 from compd.drivers.opcua import OpcUaDriver, OpcUaSettings
 from pydantic import ValidationError
 
-from compd.clock import RealClock
-from compd.config import parse_config
 from compd.errors import (
     ConfigFileError,
     DriverDisconnectedError,
@@ -30,7 +28,9 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
-from compd.links import DriverLink
+from compd.service.clock import RealClock
+from compd.service.config import parse_config
+from compd.service.links import DriverLink
 
 from .contract import ContractSetup, DriverContract
 from .opcua_server import (

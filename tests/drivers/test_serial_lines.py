@@ -15,8 +15,8 @@ from compd.drivers.serial_lines import (
 )
 from pydantic import ValidationError
 
-from compd.config import parse_config
 from compd.errors import ConfigFileError, DriverProtocolError
+from compd.service.config import parse_config
 
 EXAMPLE_CONFIG = Path(__file__).parents[2] / "config" / "compd.example.yaml"
 

@@ -16,18 +16,18 @@ from compd.drivers.serial_lines import SerialSensorSettings
 from compd.drivers.serial_sensor import SerialSensorDriver
 from structlog.testing import capture_logs
 
-from compd.clock import RealClock
-from compd.config import Config
 from compd.errors import (
     DriverDisconnectedError,
     DriverError,
     DriverProtocolError,
     DriverTimeoutError,
 )
-from compd.links import DriverLink
-from compd.loop import TickRecord
-from compd.service import Service
-from compd.signals import Health
+from compd.service.clock import RealClock
+from compd.service.config import Config
+from compd.service.daemon import Service
+from compd.service.links import DriverLink
+from compd.service.loop import TickRecord
+from compd.service.signals import Health
 
 from ..service.daemon_setup import write_config
 from .contract import ContractSetup, DriverContract

@@ -11,8 +11,8 @@ import pytest
 from compd.drivers.base import DRIVERS, Driver, driver_types
 from compd.drivers.simulated import SimulatedDriver, SimulatedSettings
 
-from compd.clock import VirtualClock
 from compd.errors import DriverDisconnectedError, DriverProtocolError
+from compd.service.clock import VirtualClock
 
 from .contract import ContractSetup, DriverContract
 

@@ -13,7 +13,7 @@ from compd.model.residual import DoorFeatures, Forest, ResidualModel
 from compd.model.run import TickRunner, simulate
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF
-from compd.residual import forest_from_sklearn
+from compd.toolkit.residual import forest_from_sklearn
 
 DT_S = 10.0
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from compd.cli import main
-from compd.data import DataSet
+from compd.files.data import DataSet
 
 CONFIG = Path(__file__).parent.parent.parent / "config"
 DATA = CONFIG / "example_spectrum.csv"

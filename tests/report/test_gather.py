@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from compd.data import DataSet, load_data
-from compd.evaluate import Evaluation, evaluate
-from compd.modelfile import load_model
+from compd.files.data import DataSet, load_data
+from compd.files.modelfile import load_model
 from compd.report.gather import ReportData, condition_groups, gather
 from compd.report.page import build_html
+from compd.toolkit.evaluate import Evaluation, evaluate
 from tests.report.conftest import DATA, GATED, REGRESSION, SEED000, cli_json
 
 

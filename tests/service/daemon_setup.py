@@ -11,11 +11,11 @@ from typing import Any
 
 import yaml
 
-from compd.clock import VirtualClock
-from compd.config import Config, load_config
-from compd.loop import TickRecord
-from compd.service import Service
-from compd.yamlplace import resolve_path
+from compd.files.yamlplace import resolve_path
+from compd.service.clock import VirtualClock
+from compd.service.config import Config, load_config
+from compd.service.daemon import Service
+from compd.service.loop import TickRecord
 
 BUNDLED_SIMULATED = resolve_path("bundled:replay.yaml", Path("."))
 

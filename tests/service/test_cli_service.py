@@ -9,7 +9,7 @@ import sys
 import time
 
 from compd.cli import main
-from compd.state import installed_model
+from compd.service.state import installed_model
 
 from .daemon_setup import short_socket, write_config
 

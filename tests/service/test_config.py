@@ -9,10 +9,10 @@ import yaml
 from compd.drivers.gateway import GatewayDriver
 from compd.drivers.modbus import ModbusDriver, ModbusSettings
 
-from compd.config import check_model, load_config, parse_config
 from compd.errors import ConfigFileError
-from compd.modelfile import load_model
-from compd.yamlplace import resolve_path
+from compd.files.modelfile import load_model
+from compd.files.yamlplace import resolve_path
+from compd.service.config import check_model, load_config, parse_config
 
 from .daemon_setup import BUNDLED_SIMULATED, simulated_doc, write_config
 

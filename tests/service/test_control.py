@@ -18,8 +18,8 @@ from typing import Any
 
 import pytest
 
-from compd.control import MAX_LINE_BYTES, Access, ControlServer, Peer, request, request_sync
 from compd.errors import ControlError, ModelFileError
+from compd.service.control import MAX_LINE_BYTES, Access, ControlServer, Peer, request, request_sync
 
 
 @pytest.fixture

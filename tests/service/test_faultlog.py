@@ -7,10 +7,10 @@ import asyncio
 import structlog
 from structlog.testing import capture_logs
 
-from compd.clock import VirtualClock
 from compd.faultlog import FaultLog
-from compd.service import Service
-from compd.state import STATE_FILE
+from compd.service.clock import VirtualClock
+from compd.service.daemon import Service
+from compd.service.state import STATE_FILE
 
 from .daemon_setup import write_config
 

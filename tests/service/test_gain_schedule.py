@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from compd.config import Config, check_model
-from compd.data import load_data
 from compd.errors import ConfigFileError
+from compd.files.data import load_data
+from compd.files.modelfile import load_model
+from compd.files.modelwriter import model_to_yaml
 from compd.model import InputSpec, Model, Output, SubModel, compile_model
 from compd.model.run import TickRunner, simulate
-from compd.modelfile import load_model
-from compd.modelwriter import model_to_yaml
-from compd.safety import Flag
-from compd.schedule import GainRow, GainScheduler, GainTable, first_overlap
+from compd.service.config import Config, check_model
+from compd.service.safety import Flag
+from compd.service.schedule import GainRow, GainScheduler, GainTable, first_overlap
 from tests.model.conftest import first_order
 
 from .daemon_setup import run, simulated_doc, write_config

@@ -7,9 +7,9 @@ from collections.abc import Mapping, Sequence
 
 from structlog.testing import capture_logs
 
-from compd.clock import VirtualClock
 from compd.errors import DriverDisconnectedError
-from compd.links import DriverLink
+from compd.service.clock import VirtualClock
+from compd.service.links import DriverLink
 
 
 class FlakyDriver:

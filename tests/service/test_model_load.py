@@ -11,12 +11,12 @@ from typing import Any
 
 import pytest
 
-from compd import modelload
-from compd.clock import VirtualClock
-from compd.control import request
 from compd.errors import ConfigFileError
-from compd.modelload import load_request
-from compd.service import Service
+from compd.service import modelload
+from compd.service.clock import VirtualClock
+from compd.service.control import request
+from compd.service.daemon import Service
+from compd.service.modelload import load_request
 
 from .daemon_setup import short_socket, ticked, write_config
 from .test_service import bad_and_good_models

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from compd.notify import SystemdNotifier
+from compd.service.notify import SystemdNotifier
 
 
 @pytest.fixture
@@ -115,7 +115,7 @@ def test_watchdog_meant_for_another_process_is_off():
 def test_a_vanished_socket_is_logged_once_and_never_raises(tmp_path, caplog):
     """Sending to a socket that is gone returns False, logs one error, then only debug lines."""
     notifier = SystemdNotifier({"NOTIFY_SOCKET": str(tmp_path / "gone.sock")})
-    with caplog.at_level(logging.DEBUG, logger="compd.notify"):
+    with caplog.at_level(logging.DEBUG, logger="compd.service.notify"):
         assert not notifier.watchdog()
         assert not notifier.watchdog()
         assert not notifier.watchdog()
@@ -127,7 +127,7 @@ def test_recovery_after_a_failure_is_logged(tmp_path, caplog):
     """When the socket comes back, the next ping is delivered and the recovery logged at info."""
     path = tmp_path / "late.sock"
     notifier = SystemdNotifier({"NOTIFY_SOCKET": str(path)})
-    with caplog.at_level(logging.INFO, logger="compd.notify"):
+    with caplog.at_level(logging.INFO, logger="compd.service.notify"):
         assert not notifier.watchdog()
         with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
             sock.bind(str(path))
@@ -149,7 +149,7 @@ def test_a_full_queue_drops_pings_instead_of_blocking(path_socket):
 
 def test_a_bad_notify_socket_value_disables_notification(caplog):
     """A NOTIFY_SOCKET that is neither a path nor @name is logged and ignored."""
-    with caplog.at_level(logging.ERROR, logger="compd.notify"):
+    with caplog.at_level(logging.ERROR, logger="compd.service.notify"):
         notifier = SystemdNotifier({"NOTIFY_SOCKET": "vsock:2:1234"})
     assert not notifier.enabled and not notifier.ready()
     assert "NOTIFY_SOCKET" in caplog.text

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from compd.offsets import AxisPoint, HeldOffsets
-from compd.safety import AxisLimits, AxisSafety
+from compd.service.offsets import AxisPoint, HeldOffsets
+from compd.service.safety import AxisLimits, AxisSafety
 
 LIMITS = AxisLimits(max_offset_um=50.0, max_rate_um_per_s=1.0)
 

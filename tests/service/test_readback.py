@@ -27,14 +27,14 @@ from compd.drivers.modbus import ModbusDriver
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from compd.clock import VirtualClock
-from compd.config import Config, load_config
-from compd.loop import TickRecord
-from compd.safety import SIGNAL_BIT0, Level
-from compd.service import Service
+from compd.files.yamlplace import resolve_path
+from compd.service.clock import VirtualClock
+from compd.service.config import Config, load_config
+from compd.service.daemon import Service
+from compd.service.loop import TickRecord
+from compd.service.safety import SIGNAL_BIT0, Level
+from compd.service.state import STATE_FILE
 from compd.sim.plc.modbus import ModbusPlcServer
-from compd.state import STATE_FILE
-from compd.yamlplace import resolve_path
 
 OFFSET = "holding:100:int32"  # 0.1 um counts (encoding scale 10)
 STATUS = "holding:110"

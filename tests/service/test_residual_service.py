@@ -10,17 +10,17 @@ import pytest
 from numpy.testing import assert_allclose
 
 from compd.cli import main
-from compd.clock import VirtualClock
-from compd.data import load_data
+from compd.files.data import load_data
+from compd.files.modelfile import ResidualDoc
+from compd.files.modelwriter import model_to_yaml
 from compd.model.residual import DoorFeatures
 from compd.model.run import simulate
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF
-from compd.modelfile import ResidualDoc
-from compd.modelwriter import model_to_yaml
-from compd.residual import fit_residual, sidecar_bytes, sidecar_path
-from compd.service import Service
-from compd.state import load_state
+from compd.service.clock import VirtualClock
+from compd.service.daemon import Service
+from compd.service.state import load_state
+from compd.toolkit.residual import fit_residual, sidecar_bytes, sidecar_path
 
 from .daemon_setup import run, simulated_doc, write_config
 

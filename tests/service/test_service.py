@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from compd.clock import VirtualClock
-from compd.control import request
-from compd.data import load_data
+from compd.files.data import load_data
+from compd.files.modelfile import load_model
 from compd.model.run import simulate
-from compd.modelfile import load_model
-from compd.modelload import load_request
-from compd.safety import SIGNAL_BIT0, Flag, Level
-from compd.service import Service
-from compd.signals import Health
-from compd.state import load_state
+from compd.service.clock import VirtualClock
+from compd.service.control import request
+from compd.service.daemon import Service
+from compd.service.modelload import load_request
+from compd.service.safety import SIGNAL_BIT0, Flag, Level
+from compd.service.signals import Health
+from compd.service.state import load_state
 
 from .daemon_setup import run, short_socket, ticked, write_config
 

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compd.modelfile import load_model
-from compd.state import (
+from compd.files.modelfile import load_model
+from compd.files.yamlplace import resolve_path
+from compd.service.state import (
     STATE_FILE,
     SavedState,
     StateError,
@@ -19,7 +20,6 @@ from compd.state import (
     resume_decision,
     save_state,
 )
-from compd.yamlplace import resolve_path
 
 MODEL = resolve_path("bundled:example_gated_arx.yaml", Path("."))
 

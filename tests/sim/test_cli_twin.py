@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from compd.cli import main
-from compd.data import load_data
+from compd.files.data import load_data
 from compd.sim import COLUMNS
 
 

@@ -14,9 +14,9 @@ import pytest
 from compd.drivers.modbus import ModbusDriver, ModbusSettings, parse_address
 from pymodbus.client import AsyncModbusTcpClient
 
-from compd.clock import RealClock
 from compd.errors import DriverProtocolError
-from compd.links import DriverLink
+from compd.service.clock import RealClock
+from compd.service.links import DriverLink
 from compd.sim.plc.modbus import ModbusPlcServer
 
 from ..drivers.modbus_server import free_port

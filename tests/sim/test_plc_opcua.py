@@ -20,9 +20,9 @@ from typing import Any, TypeVar
 import pytest
 from compd.drivers.opcua import OpcUaDriver, OpcUaSettings
 
-from compd.clock import RealClock
 from compd.errors import DriverProtocolError
-from compd.links import DriverLink
+from compd.service.clock import RealClock
+from compd.service.links import DriverLink
 from compd.sim.plc.opcua import (
     OpcUaPlcServer,
     ensure_client_certificate,

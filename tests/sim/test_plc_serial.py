@@ -12,9 +12,9 @@ import pytest
 from compd.drivers.serial_lines import SerialSensorSettings, checksum_hex
 from compd.drivers.serial_sensor import SerialSensorDriver
 
-from compd.clock import RealClock
 from compd.errors import DriverProtocolError
-from compd.links import DriverLink
+from compd.service.clock import RealClock
+from compd.service.links import DriverLink
 from compd.sim.plc.serial import SerialPlcServer
 
 VALUES = {"1": 23.456, "2": -5.25, "3": 1e-7, "4": 351.0}

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from compd.errors import CompdError
-from compd.modelload import slot_from_bytes
+from compd.service.modelload import slot_from_bytes
 from compd.sim.soak import soak_config
 from compd.sim.soakfaults import FAULT_KINDS, bad_models, draw_faults
 

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from compd.cli import main
-from compd.modelfile import load_model
+from compd.files.modelfile import load_model
 from tests.workflow.test_hidden_effects import BASE_INPUTS, compd, compd_json, twin
 
 FOREST = ("--trees", 30, "--max-depth", 8)

@@ -32,7 +32,7 @@ from pathlib import Path
 import pytest
 
 from compd.cli import main
-from compd.modelfile import load_model
+from compd.files.modelfile import load_model
 from compd.sim.positions import simulate_feed_positions
 
 SAMPLE_TIME_S = 10

@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from compd.modelfile import load_model
+from compd.files.modelfile import load_model
 from tests.clirun import compd
 
 SAMPLE_TIME_S = 10

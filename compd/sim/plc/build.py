@@ -10,8 +10,8 @@ from __future__ import annotations
 import importlib
 import re
 
-from compd.config import Config
 from compd.errors import ConfigFileError
+from compd.service.config import Config
 from compd.sim.plc.machine import ServedAxis, ServedSignal, SimulatedMachine
 from compd.sim.plc.server import PlcServer, PlcServerType
 from compd.sim.scenarios import SCENARIOS

@@ -65,8 +65,8 @@ from cryptography.x509.oid import ExtendedKeyUsageOID
 from compd.drivers.opcua import OpcUaDriver, OpcUaSettings
 from compd.drivers.opcua_security import load_certificate
 from compd.errors import DriverError
+from compd.files.yamlplace import resolve_path
 from compd.sim.plc.server import WriteSink
-from compd.yamlplace import resolve_path
 
 log = structlog.get_logger("compd.sim.plc.opcua")
 

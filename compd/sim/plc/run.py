@@ -19,15 +19,15 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from compd.clock import Clock, RealClock, VirtualClock
-from compd.config import Config
 from compd.errors import CompdError
-from compd.links import DriverLink
-from compd.loop import TickRecord, TickTiming, run_periodic
-from compd.service import Service
+from compd.service.clock import Clock, RealClock, VirtualClock
+from compd.service.config import Config
+from compd.service.daemon import Service
+from compd.service.links import DriverLink
+from compd.service.loop import TickRecord, TickTiming, run_periodic
+from compd.service.state import STATE_FILE
 from compd.sim.plc.build import build_machine
 from compd.sim.plc.machine import AxisSummary, MachineClock, SimulatedMachine
-from compd.state import STATE_FILE
 
 #: Longest a virtual clock waits (real time) for a reconnect before time moves on.
 SETTLE_MAX_S = 2.0

@@ -10,9 +10,9 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
-from compd.loop import TickRecord
-from compd.safety import Level
-from compd.signals import Health
+from compd.service.loop import TickRecord
+from compd.service.safety import Level
+from compd.service.signals import Health
 from compd.sim.plc.machine import AxisSummary, SimulatedMachine
 
 _HEALTH_STYLE = {Health.OK: "green", Health.HELD: "yellow", Health.FAULTED: "bold red"}

@@ -12,16 +12,16 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from compd.data import DataSet
 from compd.errors import DataFileError
+from compd.files.data import DataSet
+from compd.files.modelfile import ModelFile
 from compd.model.compiled import CompiledModel, ModelState
 from compd.model.initial import estimate_initial_state
 from compd.model.metrics import Comparison
 from compd.model.run import SimulationResult, simulate
-from compd.modelfile import ModelFile
 
-if TYPE_CHECKING:  # compd.span builds on this module
-    from compd.span import Span
+if TYPE_CHECKING:  # compd.toolkit.span builds on this module
+    from compd.toolkit.span import Span
 
 InitialState = Literal["steady", "rest", "estimate"]
 #: ``init="estimate"`` fits the initial state to the measurement over this much of the record's start.
@@ -37,7 +37,7 @@ class Evaluation:
     data: DataSet
     result: SimulationResult
     notes: tuple[str, ...]
-    #: The part of the record judged (``--from``/``--until``, :mod:`compd.span`), if one was asked.
+    #: The part of the record judged (``--from``/``--until``, :mod:`compd.toolkit.span`), if one was asked.
     span: Span | None = None
     #: When this is a later part of a run: that run, from the record's first sample.
     whole: Evaluation | None = None

@@ -1,4 +1,4 @@
-"""Writing a model as a ``compd.model/1`` YAML file that :func:`compd.modelfile.parse_model` reads back unchanged.
+"""Writing a model as a ``compd.model/1`` YAML file that :func:`compd.files.modelfile.parse_model` reads back unchanged.
 
 Written by hand rather than with ``yaml.dump`` so the file reads like the
 annotated examples in ``config/``: one flow mapping per TF, comments naming
@@ -17,9 +17,9 @@ from collections.abc import Iterable, Mapping
 
 import yaml
 
+from compd.files.modelfile import SCHEMA, ProvenanceDoc, ResidualDoc
 from compd.model.structure import Gate, InputSpec, Model, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
-from compd.modelfile import SCHEMA, ProvenanceDoc, ResidualDoc
 
 
 def yaml_float(value: float) -> str:

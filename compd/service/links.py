@@ -19,12 +19,12 @@ from collections.abc import Mapping, Sequence
 
 import structlog
 
-from compd.clock import Clock
 from compd.drivers.base import Driver
 from compd.errors import DriverError
 from compd.faultlog import FaultLog
+from compd.service.clock import Clock
 
-log = structlog.get_logger("compd.links")
+log = structlog.get_logger("compd.service.links")
 
 
 class DriverLink:

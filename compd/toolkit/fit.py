@@ -8,7 +8,7 @@ compare reproduces), turns the phase-gate column into a gate, builds the
 data's fit, residue RMS and the range of every column, which compare uses to
 flag operating conditions the model never saw). With a position column
 (seed 003 eq. 5) every input also gets a slope sub-model whose contribution
-is multiplied by ``position - reference_mm``. With a :class:`~compd.span.Span`
+is multiplied by ``position - reference_mm``. With a :class:`~compd.toolkit.span.Span`
 (``--from``/``--until``) only the span's samples are fitted and scored; the
 model still runs from the record's first sample (see :mod:`compd.model.identify`).
 """
@@ -23,7 +23,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from compd import __version__
-from compd.candidates import (
+from compd.errors import DataFileError, ModelError
+from compd.files.data import DataSet
+from compd.files.modelfile import CalibrationDoc, ProvenanceDoc
+from compd.files.modelwriter import model_to_yaml
+from compd.model.collinear import collinear_groups
+from compd.model.guards import Finding
+from compd.model.identify import MAX_ORDER, Identification, Progress, identify
+from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S, lag_name
+from compd.model.metrics import Comparison
+from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
+from compd.toolkit.candidates import (
     FIT_METHODS,
     Selection,
     SelectionStep,
@@ -40,18 +50,8 @@ from compd.candidates import (
     refuse_errors,
     select_inputs,
 )
-from compd.data import DataSet
-from compd.denoise import bake_lowpasses, denoise_columns, denoise_note
-from compd.errors import DataFileError, ModelError
-from compd.model.collinear import collinear_groups
-from compd.model.guards import Finding
-from compd.model.identify import MAX_ORDER, Identification, Progress, identify
-from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S, lag_name
-from compd.model.metrics import Comparison
-from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
-from compd.modelfile import CalibrationDoc, ProvenanceDoc
-from compd.modelwriter import model_to_yaml
-from compd.span import Span, until_stop
+from compd.toolkit.denoise import bake_lowpasses, denoise_columns, denoise_note
+from compd.toolkit.span import Span, until_stop
 
 #: Unit suffixes of compd's signal naming convention (``T_spindle_degC``, ``spindle_power_kw``).
 _UNIT_SUFFIX = re.compile(r"_(degC|K|rpm|kw|kW|W|um|mm|s|bar|percent|pct)$")
@@ -284,7 +284,7 @@ def fit_data(
     ``position``: an axis-position column (mm); every input then also gets a
     slope sub-model multiplied by ``position - position_reference_mm``.
     ``denoise``: inputs identified with their first EMD mode removed and run
-    through a matched causal low-pass baked into their TFs (:mod:`compd.denoise`);
+    through a matched causal low-pass baked into their TFs (:mod:`compd.toolkit.denoise`);
     ``denoise_imfs`` modes are removed (seed 004: 1). ``span``: fit only its
     samples, the model run from the record's start (nothing after it is read).
     ``method="auto"`` keeps whichever of the lag bank and the static

@@ -21,10 +21,10 @@ from types import MappingProxyType
 
 import numpy as np
 
-from compd.data import DataSet
 from compd.errors import DataFileError
-from compd.evaluate import Evaluation, InitialState, evaluate
-from compd.modelfile import ModelFile
+from compd.files.data import DataSet
+from compd.files.modelfile import ModelFile
+from compd.toolkit.evaluate import Evaluation, InitialState, evaluate
 
 _CLOCK = re.compile(r"^\s*(\d+):([0-5]?\d)(?::([0-5]?\d(?:\.\d*)?))?\s*$")
 

@@ -30,18 +30,8 @@ from pydantic import (
 )
 
 from compd.errors import ConfigFileError
-from compd.model.compiled import CompiledModel
-from compd.modelfile import ModelFile
-from compd.schedule import GainRow, GainTable, first_overlap, model_gains
-from compd.writepoints import (
-    check_written,
-    output_readback,
-    status_mismatch_bit,
-    status_model_fault_bit,
-    whole_counts,
-    written_points,
-)
-from compd.yamlplace import (
+from compd.files.modelfile import ModelFile
+from compd.files.yamlplace import (
     FIXES,
     describe,
     parse_yaml,
@@ -50,13 +40,23 @@ from compd.yamlplace import (
     shorten,
     where,
 )
+from compd.model.compiled import CompiledModel
+from compd.service.schedule import GainRow, GainTable, first_overlap, model_gains
+from compd.service.writepoints import (
+    check_written,
+    output_readback,
+    status_mismatch_bit,
+    status_model_fault_bit,
+    whole_counts,
+    written_points,
+)
 
 if TYPE_CHECKING:
     from compd.sim.plc.settings import SimulationDoc
 
 SCHEMA = "compd.config/1"
 #: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31); the
-#: readback-mismatch and model-fault bits follow them where bits are left (:mod:`compd.safety`).
+#: readback-mismatch and model-fault bits follow them where bits are left (:mod:`compd.service.safety`).
 MAX_SIGNALS = 24
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
@@ -68,7 +68,7 @@ class _Strict(BaseModel):
 
 
 class ChecksDoc(_Strict):
-    """Per-signal plausibility checks (see :mod:`compd.signals`), in the signal's unit."""
+    """Per-signal plausibility checks (see :mod:`compd.service.signals`), in the signal's unit."""
 
     min: FiniteFloat | None = None
     max: FiniteFloat | None = None
@@ -215,7 +215,7 @@ class GainRowDoc(_Strict):
 
 
 class GainScheduleDoc(_Strict):
-    """Gains by operating condition (see :mod:`compd.schedule`)."""
+    """Gains by operating condition (see :mod:`compd.service.schedule`)."""
 
     signal: str
     table: list[GainRowDoc] = Field(min_length=1)
@@ -283,7 +283,7 @@ class Config:
     control_socket: Path
     driver_settings: dict[str, BaseModel]
     simulation: SimulationDoc | None = None
-    #: Per axis: the offset is read back each tick (:mod:`compd.writepoints`).
+    #: Per axis: the offset is read back each tick (:mod:`compd.service.writepoints`).
     readback: dict[str, bool] = field(default_factory=dict)
     #: Per axis: its point holds whole counts (an int encoding, or an integer register).
     whole_counts: dict[str, bool] = field(default_factory=dict)

@@ -3,7 +3,7 @@
 What the loop read and wrote is the evidence for every later question (did
 the model drift? what did the machine see when the part was out of
 tolerance?), and it is the input of ``compd compare`` and re-identification.
-So the files are exactly what :func:`compd.data.load_data` reads: a header,
+So the files are exactly what :func:`compd.files.data.load_data` reads: a header,
 a ``timestamp`` column first with UTC ISO-8601 times carrying their offset
 (``2026-11-23T10:15:00.000+00:00``), then one column per key of the row.
 
@@ -36,8 +36,8 @@ from collections.abc import Callable, Mapping
 from datetime import UTC, datetime
 from pathlib import Path
 
-from compd.data import TIME_NAMES
 from compd.errors import RecorderError
+from compd.files.data import TIME_NAMES
 
 log = logging.getLogger(__name__)
 
@@ -120,7 +120,7 @@ class Recorder:
         """Append one row, stamped ``at_s`` (s since the epoch, default the clock's now).
 
         Cells are written as ``str(value)`` (floats round-trip exactly), bools
-        as 1/0, NaN as ``nan`` (a gap to :func:`~compd.data.load_data`), text
+        as 1/0, NaN as ``nan`` (a gap to :func:`~compd.files.data.load_data`), text
         quoted when it holds a comma, quote or newline. Raises
         :class:`~compd.errors.RecorderError` when the files cannot be written.
         """

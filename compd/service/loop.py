@@ -6,13 +6,13 @@ so the loop does not drift. A tick that ends after the next deadline is an
 overrun: the missed deadlines are counted, logged and skipped (a late tick
 is not made up by a burst of ticks).
 
-The clock is injected (:mod:`compd.clock`): real time, optionally scaled, or
+The clock is injected (:mod:`compd.service.clock`): real time, optionally scaled, or
 virtual time that jumps straight to each deadline, so tests replay an
 8-hour shift in seconds through exactly the code a machine runs.
 
 :class:`Compensator` is the per-tick function itself: read, check, step,
 limit, write, in that order, with every I/O through a
-:class:`~compd.links.DriverLink` so that no I/O error can end the loop.
+:class:`~compd.service.links.DriverLink` so that no I/O error can end the loop.
 """
 
 from __future__ import annotations
@@ -27,18 +27,18 @@ from typing import Any, TypeVar
 import numpy as np
 import structlog
 
-from compd.clock import Clock
-from compd.links import DriverLink
+from compd.files.modelfile import ModelFile
 from compd.model.compiled import CompiledModel, ModelState, qualified_names
 from compd.model.handover import SignalHistory, handover_state
 from compd.model.run import TickRunner
-from compd.modelfile import ModelFile
-from compd.offsets import AxisPoint, HeldOffsets
-from compd.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
-from compd.schedule import GainScheduler
-from compd.signals import Health, SignalMonitor
+from compd.service.clock import Clock
+from compd.service.links import DriverLink
+from compd.service.offsets import AxisPoint, HeldOffsets
+from compd.service.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
+from compd.service.schedule import GainScheduler
+from compd.service.signals import Health, SignalMonitor
 
-log = structlog.get_logger("compd.loop")
+log = structlog.get_logger("compd.service.loop")
 T = TypeVar("T")
 
 
@@ -115,9 +115,9 @@ class StatusPoint:
     driver: str
     status_address: str
     heartbeat_address: str
-    #: Whether the status point holds the readback-mismatch bit (:mod:`compd.safety`).
+    #: Whether the status point holds the readback-mismatch bit (:mod:`compd.service.safety`).
     mismatch_bit: bool = True
-    #: Whether the status point holds the model-fault bit (:mod:`compd.safety`).
+    #: Whether the status point holds the model-fault bit (:mod:`compd.service.safety`).
     model_fault_bit: bool = True
 
 
@@ -193,7 +193,7 @@ class Compensator:
     One tick at time ``t_s``:
 
     1. read every signal, all drivers concurrently, each under its timeout;
-    2. check each value (:class:`~compd.signals.SignalMonitor`): good, held, or faulted;
+    2. check each value (:class:`~compd.service.signals.SignalMonitor`): good, held, or faulted;
     3. step the model with the checked values (started at steady state with the first
        complete set of values, or from a resumed state); a model switched in starts warm
        from the recent inputs (:mod:`compd.model.handover`), then both run and blend
@@ -205,7 +205,7 @@ class Compensator:
        input the axis depends on is faulted;
     5. write offsets, status word and heartbeat, all drivers concurrently.
 
-    The stage slews from what each device holds (:class:`~compd.offsets.HeldOffsets`):
+    The stage slews from what each device holds (:class:`~compd.service.offsets.HeldOffsets`):
     the offset read back at step 1 where the driver can, else the last acknowledged write.
     """
 
@@ -243,7 +243,7 @@ class Compensator:
         self.model_fault: str | None = None
         self.on_model_failure = on_model_failure
         self.blend_start_s = -math.inf
-        #: Gains by operating condition (:mod:`compd.schedule`), applied before each step.
+        #: Gains by operating condition (:mod:`compd.service.schedule`), applied before each step.
         self.schedule = schedule
         self.heartbeat = 0
         self.counters = Counters()
@@ -265,7 +265,7 @@ class Compensator:
         }
         if initial_state is not None:
             model.start(initial_state)
-        #: What each offset point holds, as far as compd knows (:mod:`compd.offsets`).
+        #: What each offset point holds, as far as compd knows (:mod:`compd.service.offsets`).
         self.held = HeldOffsets(self.axes, self.safety)
 
     def load(self, slot: ModelSlot) -> None:

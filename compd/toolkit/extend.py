@@ -24,7 +24,22 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from compd import __version__
-from compd.candidates import (
+from compd.errors import DataFileError, ModelError
+from compd.files.data import DataSet
+from compd.files.modelfile import (
+    CalibrationDoc,
+    ExtensionDoc,
+    ModelFile,
+    parse_model,
+)
+from compd.files.modelwriter import model_to_yaml
+from compd.model.guards import Finding
+from compd.model.identify import Identification, identify
+from compd.model.lagbank import LagBankFit, fit_lag_bank, lag_name
+from compd.model.metrics import fit_percent
+from compd.model.structure import InputSpec, Model, Output, SubModel
+from compd.model.transfer import DiscreteTF, resample_discrete
+from compd.toolkit.candidates import (
     EXTEND_MARGIN_POINTS,
     folds_of,
     guard_findings,
@@ -32,24 +47,9 @@ from compd.candidates import (
     operating_signal,
     refuse_errors,
 )
-from compd.data import DataSet
-from compd.errors import DataFileError, ModelError
-from compd.evaluate import Evaluation, compare, evaluate, measured_columns
-from compd.fit import unit_of
-from compd.model.guards import Finding
-from compd.model.identify import Identification, identify
-from compd.model.lagbank import LagBankFit, fit_lag_bank, lag_name
-from compd.model.metrics import fit_percent
-from compd.model.structure import InputSpec, Model, Output, SubModel
-from compd.model.transfer import DiscreteTF, resample_discrete
-from compd.modelfile import (
-    CalibrationDoc,
-    ExtensionDoc,
-    ModelFile,
-    parse_model,
-)
-from compd.modelwriter import model_to_yaml
-from compd.span import Span, span_data, until_stop
+from compd.toolkit.evaluate import Evaluation, compare, evaluate, measured_columns
+from compd.toolkit.fit import unit_of
+from compd.toolkit.span import Span, span_data, until_stop
 
 
 @dataclass(frozen=True)
@@ -108,7 +108,7 @@ def extend_model(
     (:func:`judge_signal`), and the new sub-model must pass the guard rails;
     otherwise nothing is added unless ``force``.
     ``column`` names the measured displacement when the data does not name
-    it after the model output (see :func:`compd.evaluate.measured_columns`);
+    it after the model output (see :func:`compd.toolkit.evaluate.measured_columns`);
     with several outputs it selects the one to extend. ``span``
     (``--from``/``--until``): the models run from the record's start, the new
     sub-model is fitted and every fit % taken on the span's samples only.

@@ -6,7 +6,7 @@ judges them against a tolerance taken from the model's calibration record
 output) and the calibration data's signal ranges. :func:`diagnose_evaluation`
 ranks the data's other signals by how much of the residue each explains
 (:mod:`compd.model.diagnose`) and names the physical effect behind each from
-the effect catalogue (:mod:`compd.effects`). The CLI (``compare``,
+the effect catalogue (:mod:`compd.files.effects`). The CLI (``compare``,
 ``diagnose``) and the HTML report both call these two functions, so they
 always say the same thing.
 """
@@ -21,13 +21,13 @@ from typing import Any, Literal
 
 import numpy as np
 
-from compd.candidates import EXTEND_MARGIN_POINTS
-from compd.data import DataSet
-from compd.effects import EffectCatalogue, load_catalogue
 from compd.errors import DataFileError
-from compd.evaluate import Evaluation
+from compd.files.data import DataSet
+from compd.files.effects import EffectCatalogue, load_catalogue
 from compd.model.diagnose import Diagnosis, diagnose_residue
 from compd.model.windows import FailingWindow, failing_windows
+from compd.toolkit.candidates import EXTEND_MARGIN_POINTS
+from compd.toolkit.evaluate import Evaluation
 
 #: Operating conditions reported per failing window (column-name globs, case-insensitive),
 #: besides every signal the model reads.

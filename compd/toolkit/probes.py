@@ -4,7 +4,7 @@ A CSV with ``time_s`` (seconds from the data file's first sample, as compd
 counts time) and one column per probed output, named like the model output
 (``disp_z_um``); an empty or NaN cell means that axis was not probed at that
 instant. Every problem names the file, the line (the header is line 1), the
-column and the fix, as :mod:`compd.data` does. Probes need not fall on the
+column and the fix, as :mod:`compd.files.data` does. Probes need not fall on the
 data's sample grid: each gain's simulated contribution is interpolated
 linearly at the probe instants.
 """
@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 
 from compd.errors import DataFileError, ModelFileError
-from compd.gainsets import Decomposition
-from compd.modelfile import ModelFile
+from compd.files.modelfile import ModelFile
+from compd.toolkit.gainsets import Decomposition
 
 
 @dataclass(frozen=True, eq=False)

@@ -16,8 +16,8 @@ interpolated at the probe instants, and the optimiser works on those numbers
 alone. With a continuously measured run (``--characteristic-from``), the
 gains' characteristic bounds (eq. 7) are found first and bound the probe fit.
 
-Probe files are read by :mod:`compd.probes`, gain names resolved by
-:mod:`compd.gainsets`.
+Probe files are read by :mod:`compd.toolkit.probes`, gain names resolved by
+:mod:`compd.toolkit.gainsets`.
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from compd import __version__
-from compd.data import DataSet
 from compd.errors import DataFileError, ModelError
-from compd.evaluate import InitialState
-from compd.gainsets import Decomposition, Gain, decompose, model_gains, with_gains
+from compd.files.data import DataSet
+from compd.files.modelfile import CharacteristicDoc, ModelFile, UpdateDoc, parse_model
+from compd.files.modelwriter import model_to_yaml
 from compd.model.gains import (
     DEFAULT_BOUNDS,
     CharacteristicBounds,
@@ -42,9 +42,9 @@ from compd.model.gains import (
     update_gains,
 )
 from compd.model.metrics import fit_percent
-from compd.modelfile import CharacteristicDoc, ModelFile, UpdateDoc, parse_model
-from compd.modelwriter import model_to_yaml
-from compd.probes import ProbeRows, Probes, probe_rows, probed_outputs
+from compd.toolkit.evaluate import InitialState
+from compd.toolkit.gainsets import Decomposition, Gain, decompose, model_gains, with_gains
+from compd.toolkit.probes import ProbeRows, Probes, probe_rows, probed_outputs
 
 #: Intervals between changes shorter than this are too short for eq. 7 to judge a gain.
 MIN_SEGMENT_S = 300.0

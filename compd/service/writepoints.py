@@ -30,11 +30,11 @@ from typing import TYPE_CHECKING
 from pydantic import BaseModel
 
 from compd.errors import ConfigFileError
-from compd.safety import HEARTBEAT_MODULO, SIGNAL_BIT0, mismatch_bit, model_fault_bit
+from compd.service.safety import HEARTBEAT_MODULO, SIGNAL_BIT0, mismatch_bit, model_fault_bit
 
 if TYPE_CHECKING:
-    from compd.config import ConfigDoc
     from compd.drivers.base import DriverType
+    from compd.service.config import ConfigDoc
 
 #: Builds the config error for a place: ``error(location, message, fix)``.
 ErrorAt = Callable[[tuple[str | int, ...], str, str], ConfigFileError]
@@ -183,7 +183,7 @@ def whole_counts(
 def status_mismatch_bit(
     doc: ConfigDoc, types: Mapping[str, DriverType], settings: Mapping[str, BaseModel]
 ) -> int | None:
-    """The status word's readback-mismatch bit (:func:`compd.safety.mismatch_bit`), if its point holds it.
+    """The status word's readback-mismatch bit (:func:`compd.service.safety.mismatch_bit`), if its point holds it.
 
     A status word at a 16-bit register with 8 signals has no bit left: the
     mismatch then shows in the log and the counters only, never in a value
@@ -195,7 +195,7 @@ def status_mismatch_bit(
 def status_model_fault_bit(
     doc: ConfigDoc, types: Mapping[str, DriverType], settings: Mapping[str, BaseModel]
 ) -> int | None:
-    """The status word's model-fault bit (:func:`compd.safety.model_fault_bit`), if its point holds it."""
+    """The status word's model-fault bit (:func:`compd.service.safety.model_fault_bit`), if its point holds it."""
     return _held_bit(doc, types, settings, model_fault_bit(len(doc.signals)))
 
 

@@ -10,9 +10,9 @@ import json
 import math
 from typing import Any
 
-from compd.analysis import DEFAULT_WINDOW_S, WindowsResult
-from compd.evaluate import Evaluation
 from compd.model.metrics import Comparison
+from compd.toolkit.analysis import DEFAULT_WINDOW_S, WindowsResult
+from compd.toolkit.evaluate import Evaluation
 
 
 def json_clean(value: object) -> object:

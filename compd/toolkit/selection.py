@@ -14,8 +14,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from fnmatch import fnmatchcase
 
-from compd.data import DataSet
 from compd.errors import DataFileError
+from compd.files.data import DataSet
 
 #: Column names of measured displacements (case-insensitive): never an input under ``all``.
 DISPLACEMENT_PATTERNS = ("disp_*", "*_um")

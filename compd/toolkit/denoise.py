@@ -32,8 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from compd.data import DataSet
 from compd.errors import DataFileError
+from compd.files.data import DataSet
+from compd.files.modelfile import DenoisedInputDoc, DenoiseDoc
 from compd.model.compiled import compile_model
 from compd.model.identify import Identification
 from compd.model.lowpass import MatchedLowPass, cascade, match_lowpass
@@ -41,7 +42,6 @@ from compd.model.metrics import Comparison
 from compd.model.run import simulate
 from compd.model.structure import Model
 from compd.model.transfer import DiscreteTF
-from compd.modelfile import DenoisedInputDoc, DenoiseDoc
 
 
 def remove_first_imfs(x: np.ndarray, count: int = 1) -> np.ndarray:

@@ -9,7 +9,7 @@ worker thread, one load at a time and under a time limit, while the 1 Hz
 tick and SIGTERM go on being served by the event loop.
 
 A model that later fails while running is unloaded by the loop
-(:class:`~compd.loop.Compensator`); :meth:`ModelLoader.failed` then makes
+(:class:`~compd.service.loop.Compensator`); :meth:`ModelLoader.failed` then makes
 the model it restored the one the next start picks, so a bad model is never
 started again by a restart. At start-up an installed model that is refused
 falls back on the config's model, with an ERROR naming both.
@@ -29,14 +29,14 @@ from typing import Any, TypeVar
 
 import structlog
 
-from compd.config import Config, check_model
 from compd.errors import CompdError, ModelFileError
-from compd.loop import ModelSlot
-from compd.modelfile import parse_model_bytes
-from compd.state import install_model_bytes, installed_model, reinstate_model
-from compd.yamlplace import MAX_YAML_BYTES, read_limited, shorten
+from compd.files.modelfile import parse_model_bytes
+from compd.files.yamlplace import MAX_YAML_BYTES, read_limited, shorten
+from compd.service.config import Config, check_model
+from compd.service.loop import ModelSlot
+from compd.service.state import install_model_bytes, installed_model, reinstate_model
 
-log = structlog.get_logger("compd.modelload")
+log = structlog.get_logger("compd.service.modelload")
 T = TypeVar("T")
 
 #: Longest a load may take to validate and install before it is refused (s);

@@ -14,7 +14,7 @@ comparing arrays, never by looping over rows.
 
 The work is bounded by the input: a file larger than :data:`MAX_FILE_BYTES`
 or with more than :data:`MAX_COLUMNS` columns is refused before it is
-parsed, and the grid's size before it is made (:mod:`compd.data_checks`).
+parsed, and the grid's size before it is made (:mod:`compd.files.data_checks`).
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ from types import MappingProxyType
 import numpy as np
 import pandas as pd
 
-from compd import data_checks as checks
 from compd.errors import DataFileError
+from compd.files import data_checks as checks
 
 TIME_SECONDS = "time_s"
 TIMESTAMP_NAMES = ("time", "timestamp", "datetime")

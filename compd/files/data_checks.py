@@ -1,6 +1,6 @@
 """The data loader's sampling rules: one uniform grid, gaps interpolated or refused.
 
-:mod:`compd.data` reads a file into times (seconds from the first row) and
+:mod:`compd.files.data` reads a file into times (seconds from the first row) and
 signals laid out as ``(n_columns, n_rows)``; this module puts them on the grid
 ``t_k = k * Ts`` and applies the gap rule, turning every refusal into a
 message that names the file, the lines and the column (:class:`Rows` knows

@@ -12,7 +12,7 @@ the driver gave no new value) passes the checks its config names:
 
 A bad reading is replaced by the last good value (``HELD``) for at most
 ``hold_s`` seconds from the first bad reading; after that the signal is
-``FAULTED`` and the axes that depend on it freeze (see :mod:`compd.safety`).
+``FAULTED`` and the axes that depend on it freeze (see :mod:`compd.service.safety`).
 A good reading ends a hold or a fault at once. After a fault the spike check
 is suspended for the first reading: the true value may have moved further
 than ``max_jump`` meanwhile, and it must be possible to recover.

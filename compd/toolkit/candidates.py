@@ -22,8 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from compd.data import DataSet
 from compd.errors import DataFileError, ModelError
+from compd.files.data import DataSet
+from compd.files.modelfile import CrossValidationDoc
 from compd.model.collinear import contribution_shares
 from compd.model.compiled import compile_model, qualified_names
 from compd.model.crossval import Folds, blocked_folds, cycle_folds
@@ -38,7 +39,6 @@ from compd.model.lagbank import (
 from compd.model.metrics import fit_percent
 from compd.model.run import simulate
 from compd.model.structure import Model
-from compd.modelfile import CrossValidationDoc
 
 #: What ``compd fit --method`` accepts; ``auto`` compares lagbank and mlr by cross-validation.
 FIT_METHODS = ("auto", "lagbank", "oe", "arx", "mlr")

@@ -1,16 +1,16 @@
 """The compensation service's lifecycle: config -> model -> drivers -> loop -> shutdown.
 
 Start-up validates everything before the first write to a machine: the
-config (:mod:`compd.config`), the model (the one last installed with
+config (:mod:`compd.service.config`), the model (the one last installed with
 ``compd model load``, else the config's), and that the two fit. It then
-decides whether to resume the saved model state (:mod:`compd.state`), opens
+decides whether to resume the saved model state (:mod:`compd.service.state`), opens
 the drivers, the control socket and the recorder, tells systemd it is ready
-and runs the loop (:mod:`compd.loop`) until stopped.
+and runs the loop (:mod:`compd.service.loop`) until stopped.
 
 While running, the control socket answers ``status`` (a snapshot of the
 model, the last tick, the inputs and their health, and the counters) and
 ``load`` (switch to a model file the client sends: validated, compiled and
-installed off the loop by :mod:`compd.modelload`, a bad one refused while
+installed off the loop by :mod:`compd.service.modelload`, a bad one refused while
 the running model goes on untouched; a good one blended in bumplessly by the
 loop, and unloaded again should it fail while running). Shutdown (SIGTERM, SIGINT, end of
 ``duration_s``) saves the state, writes a last status word with the STOPPED
@@ -30,14 +30,14 @@ from typing import Any
 
 import structlog
 
-from compd.clock import Clock
-from compd.config import Config
-from compd.control import Access, ControlServer
 from compd.drivers.base import Driver, driver_types
 from compd.errors import RecorderError
 from compd.faultlog import FaultLog
-from compd.links import DriverLink
-from compd.loop import (
+from compd.service.clock import Clock
+from compd.service.config import Config
+from compd.service.control import Access, ControlServer
+from compd.service.links import DriverLink
+from compd.service.loop import (
     Compensator,
     SignalPoint,
     StatusPoint,
@@ -45,14 +45,14 @@ from compd.loop import (
     TickTiming,
     run_periodic,
 )
-from compd.modelload import ModelLoader, startup_slots
-from compd.notify import SystemdNotifier
-from compd.offsets import AxisPoint
-from compd.recorder import Recorder
-from compd.safety import HEARTBEAT_MODULO, AxisLimits, AxisSafety, FaultMode
-from compd.schedule import GainScheduler
-from compd.signals import Checks, SignalMonitor
-from compd.state import (
+from compd.service.modelload import ModelLoader, startup_slots
+from compd.service.notify import SystemdNotifier
+from compd.service.offsets import AxisPoint
+from compd.service.recorder import Recorder
+from compd.service.safety import HEARTBEAT_MODULO, AxisLimits, AxisSafety, FaultMode
+from compd.service.schedule import GainScheduler
+from compd.service.signals import Checks, SignalMonitor
+from compd.service.state import (
     SavedState,
     StateError,
     load_state,
@@ -60,7 +60,7 @@ from compd.state import (
     save_state,
 )
 
-log = structlog.get_logger("compd.service")
+log = structlog.get_logger("compd.service.daemon")
 
 #: Input history kept for starting a newly loaded model warm (s): hours, as the machine's time constants.
 HISTORY_S = 8 * 3600.0

@@ -17,11 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from compd.data import DataSet
 from compd.errors import ModelFileError
-from compd.evaluate import InitialState, evaluate
+from compd.files.data import DataSet
+from compd.files.modelfile import ModelFile
 from compd.model.structure import Model, Output
-from compd.modelfile import ModelFile
+from compd.toolkit.evaluate import InitialState, evaluate
 
 
 def parse_bounds(text: str | None, where_path: str) -> dict[str, tuple[float, float]]:

@@ -1,6 +1,6 @@
 """What each axis's offset point holds, as far as compd knows: readback, re-seeding, acknowledged writes.
 
-The safety stage (:mod:`compd.safety`) limits each step against the last
+The safety stage (:mod:`compd.service.safety`) limits each step against the last
 output; that bounds what the machine sees only if the last output is what
 the machine holds. It is not after a PLC restart that cleared its offset
 register, nor at a start whose saved state is missing, stale or wrong. So
@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import structlog
 
-from compd.safety import AxisSafety
+from compd.service.safety import AxisSafety
 
-log = structlog.get_logger("compd.offsets")
+log = structlog.get_logger("compd.service.offsets")
 
 
 @dataclass(frozen=True)
@@ -70,7 +70,7 @@ class AxisPoint:
         """``raw``, at most as many whole counts from ``held`` as one slew step holds.
 
         Rounding to counts could otherwise add a count to a slew step;
-        :mod:`compd.writepoints` makes sure one step holds at least one count.
+        :mod:`compd.service.writepoints` makes sure one step holds at least one count.
         """
         if not self.integer or held is None:
             return raw

@@ -24,22 +24,24 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from compd.errors import DataFileError, ModelError, ModelFileError
-from compd.evaluate import evaluate, measured_columns
-from compd.model.residual import DEFAULT_TIME_CONSTANTS_S, DoorFeatures, Forest, ResidualModel
-from compd.model.structure import Model
-from compd.modelfile import (
+from compd.files.modelfile import (
     ModelFile,
     ProvenanceDoc,
     ResidualDoc,
     ResidualFiguresDoc,
     parse_model,
 )
-from compd.modelwriter import model_to_yaml
-from compd.span import Span, until_stop
+from compd.files.modelwriter import model_to_yaml
+from compd.model.residual import DEFAULT_TIME_CONSTANTS_S, DoorFeatures, Forest, ResidualModel
+from compd.model.structure import Model
+from compd.toolkit.evaluate import evaluate, measured_columns
+from compd.toolkit.span import Span, until_stop
 
-if TYPE_CHECKING:  # compd.fit imports the data and identification stack; only its types here
-    from compd.data import DataSet
-    from compd.fit import FitResult
+if (
+    TYPE_CHECKING
+):  # compd.toolkit.fit imports the data and identification stack; only its types here
+    from compd.files.data import DataSet
+    from compd.toolkit.fit import FitResult
 
 #: Forest arrays stored per output, as ``<output>/<name>`` in the sidecar.
 _ARRAYS = ("roots", "left", "right", "feature", "threshold", "value")
@@ -324,7 +326,7 @@ def _stack(
     options: tuple[str, int, int, int],
     span: Span | None = None,
 ) -> StackedFit:
-    from compd.fit import unit_of
+    from compd.toolkit.fit import unit_of
 
     signal, trees, max_depth, seed = options
     door = data.column(signal)  # an unknown column names the file's columns

@@ -19,6 +19,9 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from compd.errors import ModelError, ModelFileError
+from compd.files.yamlplace import describe as _describe
+from compd.files.yamlplace import parse_yaml, read_limited, shorten
+from compd.files.yamlplace import where as _where
 from compd.model.compiled import CompiledModel, compile_model
 from compd.model.guards import Finding, Severity
 from compd.model.guards import check_model as check_plausibility
@@ -26,9 +29,6 @@ from compd.model.limits import MAX_DELAY_SAMPLES, MAX_ORDER, MAX_SAMPLE_TIME_S, 
 from compd.model.residual import DoorFeatures, ResidualModel
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
-from compd.yamlplace import describe as _describe
-from compd.yamlplace import parse_yaml, read_limited, shorten
-from compd.yamlplace import where as _where
 
 SCHEMA = "compd.model/1"
 
@@ -427,7 +427,7 @@ def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
 def _residual(doc: ResidualDoc | None, output: str, path: str | Path) -> ResidualModel | None:
     if doc is None:
         return None
-    from compd.residual import load_sidecar  # the sidecar reader; imports compd.model only
+    from compd.toolkit.residual import load_sidecar  # the sidecar reader; imports compd.model only
 
     forest = load_sidecar(path, doc.file, doc.sha256, output)
     try:

@@ -30,7 +30,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from compd.errors import InputFileError
-from compd.yamlplace import FIXES, describe, parse_yaml, read_limited, where
+from compd.files.yamlplace import FIXES, describe, parse_yaml, read_limited, where
 
 SCHEMA = "compd.effects/1"
 BUNDLED_NAME = "effects.yaml"
