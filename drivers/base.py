@@ -6,16 +6,19 @@ constructor taking those settings. The loop never sees a protocol library's
 exceptions: drivers raise only compd's :class:`~compd.errors.DriverError`
 family (timeout / disconnected / protocol), and the loop reconnects.
 
-Driver types are looked up by name in :data:`DRIVERS`, a plain dict, plus
-the ``compd.drivers`` entry-point group so a third-party package can ship a
-driver without touching compd::
+This module imports no driver: :mod:`compd.drivers.registry` finds a driver
+type by the name a config gives and imports its module only then, so a
+daemon on Modbus never loads asyncua, python-can or the simulator.
 
-    [project.entry-points."compd.drivers"]
-    mybus = "mypackage.driver:MyBusDriver"
-
-Two optional class-level hooks tell the config checks and the service what a
+Optional class-level hooks tell the config checks and the service what a
 driver type's addresses mean; a type without them gets the cautious answer
-(:func:`write_footprint`, :func:`reads_back`):
+(:func:`check_address`, :func:`write_footprint`, :func:`reads_back`):
+
+``validate_address(address, *, writable, settings=None)``
+    raises ValueError naming what is wrong with one address (its grammar;
+    with ``settings``, also what only the instance knows, e.g. area sizes);
+``address_syntax: str``
+    the grammar, shown as the fix when ``validate_address`` refuses;
 
 ``footprint(address, settings) -> frozenset``
     the cells (registers, bytes or bits, nodes) a written value occupies,
@@ -33,19 +36,13 @@ driver type's addresses mean; a type without them gets the cautious answer
 from __future__ import annotations
 
 from collections.abc import Callable, Hashable, Mapping, Sequence
-from importlib import metadata
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-from compd.drivers.gateway import GatewayDriver
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.opcua import OpcUaDriver
-from compd.drivers.serial_sensor import SerialSensorDriver
-from compd.drivers.simulated import SimulatedDriver
 from pydantic import BaseModel
 
-#: Entry-point group for third-party drivers.
-ENTRY_POINT_GROUP = "compd.drivers"
+#: Shown as the fix for a refused address when a driver type has no ``address_syntax``.
+DEFAULT_ADDRESS_SYNTAX = "as config/compd.example.yaml shows"
 
 
 @runtime_checkable
@@ -78,22 +75,27 @@ class DriverType(Protocol):
     def __call__(self, settings: Any, *, now: Callable[[], float], base_dir: Path) -> Driver: ...
 
 
-#: Built-in driver types by the name a config's ``drivers.<name>.type`` gives.
-DRIVERS: dict[str, DriverType] = {
-    "modbus": ModbusDriver,
-    "opcua": OpcUaDriver,
-    "profibus_gateway": GatewayDriver,
-    "serial_sensor": SerialSensorDriver,
-    "simulated": SimulatedDriver,
-}
+class AddressHooks(Protocol):
+    """The optional address hooks, declared: a driver type that has them has them so."""
+
+    address_syntax: str
+
+    @staticmethod
+    def validate_address(address: str, *, writable: bool, settings: Any = None) -> None: ...
 
 
-def driver_types() -> dict[str, DriverType]:
-    """Built-in drivers and those installed under the ``compd.drivers`` entry-point group."""
-    found = dict(DRIVERS)
-    for entry in metadata.entry_points(group=ENTRY_POINT_GROUP):
-        found.setdefault(entry.name, entry.load())
-    return found
+def check_address(
+    kind: DriverType, address: str, *, writable: bool, settings: BaseModel | None = None
+) -> None:
+    """Run the type's ``validate_address`` hook, if it has one (ValueError names the fault)."""
+    hook = getattr(kind, "validate_address", None)
+    if hook is not None:
+        hook(address, writable=writable, settings=settings)
+
+
+def address_syntax(kind: DriverType) -> str:
+    """The type's address grammar, for the fix of a refused address."""
+    return str(getattr(kind, "address_syntax", DEFAULT_ADDRESS_SYNTAX))
 
 
 def write_footprint(kind: DriverType, address: str, settings: BaseModel) -> frozenset[Hashable]:

@@ -194,7 +194,7 @@ class ModbusDriver:
         self.requests = 0
 
     @staticmethod
-    def validate_address(address: str, *, writable: bool) -> None:
+    def validate_address(address: str, *, writable: bool, settings: object = None) -> None:
         """Config-time check of one address; ValueError names what is wrong."""
         point = parse_address(address)
         if writable and point.table not in WRITABLE_TABLES:

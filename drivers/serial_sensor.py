@@ -225,7 +225,7 @@ class SerialSensorDriver:
     address_syntax = "as a channel of a signal; put outputs and status on a writable driver"
 
     @staticmethod
-    def validate_address(address: str, *, writable: bool) -> None:
+    def validate_address(address: str, *, writable: bool, settings: object = None) -> None:
         """A scanner's channels can be read, never written (``compd check-config`` refuses it)."""
         if writable:
             raise ValueError(

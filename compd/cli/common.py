@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 
@@ -15,6 +14,7 @@ from compd.model.metrics import Comparison
 from compd.toolkit.analysis import DEFAULT_WINDOW_S
 from compd.toolkit.evaluate import Evaluation
 from compd.toolkit.span import Span, parse_time_s, resolve_span
+from compd.toolkit.summary import fmt
 
 EXIT_INPUT_ERROR = 2
 
@@ -142,10 +142,6 @@ def console() -> Console:
     # Piped output (a file, a CI log) is read by people and grep alike:
     # don't wrap tables at rich's 80-column default.
     return Console(highlight=False, width=None if sys.stdout.isatty() else 200)
-
-
-def fmt(value: float | None, digits: int = 2) -> str:
-    return "n/a" if value is None or math.isnan(value) else f"{value:.{digits}f}"
 
 
 def print_notes(evaluation: Evaluation) -> None:

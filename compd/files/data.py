@@ -34,10 +34,8 @@ import pandas as pd
 
 from compd.errors import DataFileError
 from compd.files import data_checks as checks
+from compd.files.columns import TIME_NAMES, TIME_SECONDS, TIMESTAMP_NAMES
 
-TIME_SECONDS = "time_s"
-TIMESTAMP_NAMES = ("time", "timestamp", "datetime")
-TIME_NAMES = (TIME_SECONDS, *TIMESTAMP_NAMES)
 GAP_TEXTS = ("", "NaN", "nan")
 """Cell texts that mark a missing sample (a gap), as opposed to a bad cell."""
 

@@ -427,7 +427,7 @@ def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
 def _residual(doc: ResidualDoc | None, output: str, path: str | Path) -> ResidualModel | None:
     if doc is None:
         return None
-    from compd.toolkit.residual import load_sidecar  # the sidecar reader; imports compd.model only
+    from compd.files.sidecar import load_sidecar
 
     forest = load_sidecar(path, doc.file, doc.sha256, output)
     try:

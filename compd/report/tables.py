@@ -12,10 +12,10 @@ from collections.abc import Iterable, Mapping, Sequence
 from fnmatch import fnmatchcase
 from html import escape
 
-from compd.cli.common import fmt
 from compd.report import analysis_view as view
 from compd.report.gather import ModelRun, ReportData
 from compd.toolkit.analysis import CONDITION_PATTERNS
+from compd.toolkit.summary import fmt
 
 #: (compare --json key, label, digits): the metrics table's rows, in order.
 METRICS: tuple[tuple[str, str, int], ...] = (

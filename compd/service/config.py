@@ -13,11 +13,11 @@ stops ``compd run`` before the first write to a machine, and
 
 from __future__ import annotations
 
-import inspect
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import (
@@ -29,6 +29,13 @@ from pydantic import (
     model_validator,
 )
 
+from compd.drivers.base import DriverType, address_syntax, check_address
+from compd.drivers.registry import (
+    DriverImportError,
+    UnknownDriverError,
+    driver_names,
+    load_driver_type,
+)
 from compd.errors import ConfigFileError
 from compd.files.modelfile import ModelFile
 from compd.files.yamlplace import (
@@ -50,9 +57,6 @@ from compd.service.writepoints import (
     whole_counts,
     written_points,
 )
-
-if TYPE_CHECKING:
-    from compd.sim.plc.settings import SimulationDoc
 
 SCHEMA = "compd.config/1"
 #: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31); the
@@ -282,7 +286,9 @@ class Config:
     recorder_dir: Path | None
     control_socket: Path
     driver_settings: dict[str, BaseModel]
-    simulation: SimulationDoc | None = None
+    #: The ``simulation:`` section as written: the service never reads it; the
+    #: command line and :mod:`compd.sim.plc.settings` validate it and start the twin.
+    simulation: Mapping[str, Any] | None = None
     #: Per axis: the offset is read back each tick (:mod:`compd.service.writepoints`).
     readback: dict[str, bool] = field(default_factory=dict)
     #: Per axis: its point holds whole counts (an int encoding, or an integer register).
@@ -329,26 +335,32 @@ def parse_config(text: str, path: Path) -> Config:
     try:
         doc = ConfigDoc.model_validate(data)
     except ValidationError as exc:
-        raise _from_validation(exc, path, root, ()) from exc
+        raise validation_error(exc, path, root, ()) from exc
 
     def error(location: tuple[str | int, ...], message: str, fix: str) -> ConfigFileError:
         return ConfigFileError(path, message, where=where(root, location), fix=fix)
 
-    from compd.drivers.base import driver_types  # the registry imports every driver
-
-    types = driver_types()
+    types: dict[str, DriverType] = {}
     settings: dict[str, BaseModel] = {}
     for name, driver in doc.drivers.items():
-        if driver.type not in types:
+        try:
+            types[driver.type] = load_driver_type(driver.type)
+        except UnknownDriverError:
             raise error(
                 ("drivers", name, "type"),
                 f"unknown driver type {driver.type!r}",
-                f"Use one of {sorted(types)}",
-            )
+                f"Use one of {driver_names()}",
+            ) from None
+        except DriverImportError as exc:
+            raise error(
+                ("drivers", name, "type"),
+                str(exc),
+                "Install the library it names (pip install compd reinstalls compd's own)",
+            ) from exc
         try:
             settings[name] = types[driver.type].settings_model.model_validate(driver.settings)
         except ValidationError as exc:
-            raise _from_validation(exc, path, root, ("drivers", name, "settings")) from exc
+            raise validation_error(exc, path, root, ("drivers", name, "settings")) from exc
     drivers = sorted(doc.drivers)
     references: list[tuple[tuple[str | int, ...], str]] = [
         (("signals", n, "driver"), s.driver) for n, s in doc.signals.items()
@@ -390,26 +402,18 @@ def parse_config(text: str, path: Path) -> Config:
                 "[250, 500) do not overlap)",
             )
     written = written_points(doc)
-    # A driver type may check its own address grammar (optional hook
-    # ``validate_address(address, *, writable)`` raising ValueError, and an
-    # ``address_syntax`` text for the fix); a hook with a ``settings`` keyword
-    # also gets the instance's settings, to check e.g. area sizes.
+    # Each driver type checks its own address grammar (compd.drivers.base.AddressHooks).
     read = [(("signals", n, "address"), s.driver, s.address) for n, s in doc.signals.items()]
     for locations, writable in ((read, False), (written, True)):
         for location, driver_name, address in locations:
-            check = getattr(types[doc.drivers[driver_name].type], "validate_address", None)
+            kind = types[doc.drivers[driver_name].type]
             try:
-                if check is not None and "settings" in inspect.signature(check).parameters:
-                    check(address, writable=writable, settings=settings[driver_name])
-                elif check is not None:
-                    check(address, writable=writable)
+                check_address(kind, address, writable=writable, settings=settings[driver_name])
             except ValueError as exc:
-                kind = types[doc.drivers[driver_name].type]
-                syntax = getattr(kind, "address_syntax", "as config/compd.example.yaml shows")
                 raise error(
                     location,
                     f"address {address!r} for driver {driver_name!r}: {exc}",
-                    f"Write it {syntax}",
+                    f"Write it {address_syntax(kind)}",
                 ) from exc
     check_written(doc, types, settings, error)
     readback = output_readback(doc, types, settings, error)
@@ -420,15 +424,6 @@ def parse_config(text: str, path: Path) -> Config:
         raise error(
             ("load_access",), f"no such user or group: {exc}", "Give an existing name or a number"
         ) from exc
-    simulation = None
-    if doc.simulation is not None:
-        # Imported here: the twin (and pandas) stay out of a real machine's daemon.
-        from compd.sim.plc.settings import SimulationDoc
-
-        try:
-            simulation = SimulationDoc.model_validate(doc.simulation)
-        except ValidationError as exc:
-            raise _from_validation(exc, path, root, ("simulation",)) from exc
     state_dir = (
         resolve_path(doc.state.directory, path.parent)
         if doc.state.directory
@@ -454,7 +449,7 @@ def parse_config(text: str, path: Path) -> Config:
         recorder_dir=recorder_dir,
         control_socket=socket,
         driver_settings=settings,
-        simulation=simulation,
+        simulation=doc.simulation,
         readback=readback,
         whole_counts=whole_counts(doc, types, settings),
         mismatch_bit=status_mismatch_bit(doc, types, settings),
@@ -512,9 +507,10 @@ def _check_gain_names(
                 )
 
 
-def _from_validation(
+def validation_error(
     exc: ValidationError, path: Path, root: yaml.Node | None, prefix: tuple[str | int, ...]
 ) -> ConfigFileError:
+    """The first of pydantic's complaints about the section at ``prefix``, placed in the file."""
     # A misspelt key shows up as "unknown key" plus "missing key"; the
     # unknown one is the more useful to report.
     errors = sorted(exc.errors(), key=lambda e: e["type"] != "extra_forbidden")

@@ -30,7 +30,8 @@ from typing import Any
 
 import structlog
 
-from compd.drivers.base import Driver, driver_types
+from compd.drivers.base import Driver
+from compd.drivers.registry import load_driver_type
 from compd.errors import RecorderError
 from compd.faultlog import FaultLog
 from compd.service.clock import Clock
@@ -67,9 +68,11 @@ HISTORY_S = 8 * 3600.0
 
 
 def build_drivers(config: Config, now: Callable[[], float]) -> dict[str, Driver]:
-    types = driver_types()
+    """One driver per config entry; each type's module is imported here, not before."""
     return {
-        name: types[doc.type](config.driver_settings[name], now=now, base_dir=config.base_dir)
+        name: load_driver_type(doc.type)(
+            config.driver_settings[name], now=now, base_dir=config.base_dir
+        )
         for name, doc in config.doc.drivers.items()
     }
 

@@ -37,7 +37,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from compd.errors import RecorderError
-from compd.files.data import TIME_NAMES
+from compd.files.columns import TIME_NAMES
 
 log = logging.getLogger(__name__)
 

@@ -6,7 +6,7 @@ trees as in seed 004 sect. 2.3) on the TF model's free-run residue against
 the smoothed door features of :mod:`compd.model.residual`. The fitted trees
 are exported to plain arrays (children, feature, threshold, value) and never
 pickled: a sidecar ``.npz`` next to the model YAML holds them, named in the
-YAML with its sha256, which :func:`load_sidecar` checks, so a model file and
+YAML with its sha256, which :func:`~compd.files.sidecar.load_sidecar` checks, so a model file and
 its forest cannot be mixed up. The residue is judged as in seed 004
 (tables 2-5): peak-to-peak and RMS of measured minus predicted, TF alone
 vs stacked.
@@ -15,7 +15,6 @@ vs stacked.
 from __future__ import annotations
 
 import hashlib
-import io
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -32,26 +31,23 @@ from compd.files.modelfile import (
     parse_model,
 )
 from compd.files.modelwriter import model_to_yaml
+from compd.files.sidecar import FOREST_ARRAYS, sidecar_bytes, sidecar_path
 from compd.model.residual import DEFAULT_TIME_CONSTANTS_S, DoorFeatures, Forest, ResidualModel
 from compd.model.structure import Model
 from compd.toolkit.evaluate import evaluate, measured_columns
 from compd.toolkit.span import Span, until_stop
 
-if (
-    TYPE_CHECKING
-):  # compd.toolkit.fit imports the data and identification stack; only its types here
+# compd.toolkit.fit imports the data and identification stack; only its types here
+if TYPE_CHECKING:
     from compd.files.data import DataSet
     from compd.toolkit.fit import FitResult
-
-#: Forest arrays stored per output, as ``<output>/<name>`` in the sidecar.
-_ARRAYS = ("roots", "left", "right", "feature", "threshold", "value")
 
 
 def forest_from_sklearn(regressor: Any) -> Forest:
     """The fitted trees of a ``RandomForestRegressor`` (single output) as one flat node table."""
     trees = [estimator.tree_ for estimator in regressor.estimators_]
     offsets = np.cumsum([0] + [tree.node_count for tree in trees])
-    parts: dict[str, list[np.ndarray]] = {name: [] for name in _ARRAYS[1:]}
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in FOREST_ARRAYS[1:]}
     for offset, tree in zip(offsets[:-1], trees, strict=True):
         nodes = np.arange(tree.node_count)
         leaf = tree.children_left < 0
@@ -146,68 +142,6 @@ def fit_residual(
     residual = ResidualModel(features, forest_from_sklearn(regressor))
     stacked = residue_um - residual.forest.predict(x)
     return ResidualFit(residual, ResidueFigures.of(residue_um), ResidueFigures.of(stacked))
-
-
-def sidecar_path(model_path: str | Path) -> Path:
-    """``MODEL.yaml`` -> ``MODEL.residual.npz`` in the same folder."""
-    model_path = Path(model_path)
-    return model_path.with_name(model_path.stem + ".residual.npz")
-
-
-def sidecar_bytes(forests: Mapping[str, Forest]) -> bytes:
-    """The ``.npz`` content holding each output's forest arrays (``<output>/<array>``)."""
-    arrays: dict[str, np.ndarray] = {}
-    for output, forest in forests.items():
-        for name in _ARRAYS:
-            arrays[f"{output}/{name}"] = getattr(forest, name)
-        arrays[f"{output}/n_features"] = np.array(forest.n_features)
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, **arrays)  # type: ignore[arg-type]
-    return buffer.getvalue()
-
-
-def load_sidecar(model_path: str | Path, file: str, sha256: str, output: str) -> Forest:
-    """Read ``output``'s forest from the sidecar ``file`` (relative to the model file), hash checked."""
-    path = Path(model_path).parent / file
-    fix = "Keep the .npz written by compd fit next to the model file, or refit the model"
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ModelFileError(
-            model_path,
-            f"residual-model file {str(path)!r} cannot be read ({exc.strerror})",
-            where=f"outputs.{output}.residual.file",
-            fix=fix,
-        ) from exc
-    actual = hashlib.sha256(raw).hexdigest()
-    if actual != sha256:
-        raise ModelFileError(
-            model_path,
-            f"residual-model file {str(path)!r} has sha256 {actual[:12]}..., the model file "
-            f"names {sha256[:12]}...: the forest belongs to another model",
-            where=f"outputs.{output}.residual.sha256",
-            fix=fix,
-        )
-    try:
-        with np.load(io.BytesIO(raw), allow_pickle=False) as npz:
-            arrays = {name: npz[f"{output}/{name}"] for name in _ARRAYS}
-            n_features = int(npz[f"{output}/n_features"])
-        return Forest(
-            roots=arrays["roots"].astype(np.intp),
-            left=arrays["left"].astype(np.intp),
-            right=arrays["right"].astype(np.intp),
-            feature=arrays["feature"].astype(np.intp),
-            threshold=arrays["threshold"].astype(float),
-            value=arrays["value"].astype(float),
-            n_features=n_features,
-        )
-    except (KeyError, ValueError, OSError, ModelError) as exc:
-        raise ModelFileError(
-            model_path,
-            f"residual-model file {str(path)!r} holds no valid forest for {output!r} ({exc})",
-            where=f"outputs.{output}.residual.file",
-            fix=fix,
-        ) from exc
 
 
 @dataclass(frozen=True, eq=False)

@@ -15,6 +15,11 @@ from compd.toolkit.analysis import DEFAULT_WINDOW_S, WindowsResult
 from compd.toolkit.evaluate import Evaluation
 
 
+def fmt(value: float | None, digits: int = 2) -> str:
+    """A figure for a table: ``n/a`` where it is undefined (None or NaN)."""
+    return "n/a" if value is None or math.isnan(value) else f"{value:.{digits}f}"
+
+
 def json_clean(value: object) -> object:
     """NaN and +-inf become ``null`` (JSON has neither; scripts read undefined values as null).
 

@@ -1,4 +1,4 @@
-"""deploy/compd.service.daemon: a unit systemd accepts, with the options compd's service relies on."""
+"""deploy/compd.service: a unit systemd accepts, with the options compd's service relies on."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from compd.cli import build_parser
 from compd.files.data import load_data
 from compd.service.control import request_sync
 
-UNIT = Path(__file__).parents[2] / "deploy" / "compd.service.daemon"
+UNIT = Path(__file__).parents[2] / "deploy" / "compd.service"
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
 needs_systemd = pytest.mark.skipif(
     SYSTEMD_ANALYZE is None,
@@ -58,7 +58,7 @@ def installable_unit(tmp_path: Path) -> Path:
     if not Path(compd).exists():
         pytest.skip("the compd entry point is not installed: pip install -e .")
     text = UNIT.read_text().replace("/opt/compd/venv/bin/compd", compd)
-    path = tmp_path / "compd.service.daemon"
+    path = tmp_path / "compd.service"
     path.write_text(text)
     return path
 
@@ -73,7 +73,7 @@ def test_systemd_analyze_verify_accepts_the_unit(installable_unit):
         timeout=60,
     )
     assert done.returncode == 0, done.stderr
-    assert "compd.service.daemon" not in done.stderr, done.stderr
+    assert "compd.service" not in done.stderr, done.stderr
 
 
 @needs_systemd

@@ -12,8 +12,8 @@ from typing import ClassVar
 import can
 import pytest
 import yaml
-from compd.drivers.base import DRIVERS
 from compd.drivers.gateway import GatewayDriver, GatewaySettings
+from compd.drivers.registry import load_driver_type
 
 from compd.errors import DriverProtocolError, DriverTimeoutError
 from compd.service.clock import RealClock
@@ -74,7 +74,7 @@ async def shut(server: GatewayServer, driver: GatewayDriver) -> None:
 
 def test_registered():
     """The driver is registered as 'profibus_gateway'."""
-    assert DRIVERS["profibus_gateway"] is GatewayDriver
+    assert load_driver_type("profibus_gateway") is GatewayDriver
 
 
 @pytest.mark.parametrize("protocol", ["canopen", "raw", "canopen sync"])

@@ -14,8 +14,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from compd.drivers.base import DRIVERS
 from compd.drivers.modbus import ModbusDriver, ModbusSettings
+from compd.drivers.registry import load_driver_type
 from structlog.testing import capture_logs
 
 from compd.errors import (
@@ -75,7 +75,7 @@ def run(driver: ModbusDriver, *calls):
 
 def test_registered():
     """The driver is registered as 'modbus'."""
-    assert DRIVERS["modbus"] is ModbusDriver
+    assert load_driver_type("modbus") is ModbusDriver
 
 
 def test_reads_every_type_and_order_in_one_request(server):

@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 import structlog
 import yaml
-from compd.drivers.base import DRIVERS, driver_types
 from compd.drivers.opcua import OpcUaDriver, OpcUaSettings
+from compd.drivers.registry import driver_names, load_driver_type
 from pydantic import ValidationError
 
 from compd.errors import (
@@ -102,7 +102,7 @@ def refused(driver: OpcUaDriver) -> DriverError:
 
 def test_registered_with_its_settings():
     """The opcua driver is in the registry under 'opcua' and owns its settings model."""
-    assert DRIVERS["opcua"] is OpcUaDriver and "opcua" in driver_types()
+    assert load_driver_type("opcua") is OpcUaDriver and "opcua" in driver_names()
     assert OpcUaDriver.settings_model is OpcUaSettings
 
 

@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from compd.drivers.base import DRIVERS, Driver, driver_types
+from compd.drivers.base import Driver
+from compd.drivers.registry import driver_names, load_driver_type
 from compd.drivers.serial_lines import SerialSensorSettings
 from compd.drivers.serial_sensor import SerialSensorDriver
 from structlog.testing import capture_logs
@@ -81,8 +82,8 @@ def run(driver: SerialSensorDriver, body: Callable[[SerialSensorDriver], Awaitab
 
 def test_registered_and_satisfies_the_protocol(scanner):
     """The serial driver is in the registry under 'serial_sensor' and is a Driver."""
-    assert DRIVERS["serial_sensor"] is SerialSensorDriver
-    assert driver_types()["serial_sensor"] is SerialSensorDriver
+    assert load_driver_type("serial_sensor") is SerialSensorDriver
+    assert driver_names()["serial_sensor"] is SerialSensorDriver
     assert isinstance(make(scanner.port), Driver)
 
 

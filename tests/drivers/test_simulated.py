@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from compd.drivers.base import DRIVERS, Driver, driver_types
+from compd.drivers.base import Driver
+from compd.drivers.registry import driver_names, load_driver_type
 from compd.drivers.simulated import SimulatedDriver, SimulatedSettings
 
 from compd.errors import DriverDisconnectedError, DriverProtocolError
@@ -33,7 +34,7 @@ def read(driver: SimulatedDriver, *points: str) -> dict[str, float]:
 
 def test_registered_and_satisfies_the_protocol(tmp_path):
     """The simulated driver is in the registry and is a Driver."""
-    assert DRIVERS["simulated"] is SimulatedDriver and "simulated" in driver_types()
+    assert load_driver_type("simulated") is SimulatedDriver and "simulated" in driver_names()
     assert isinstance(make(tmp_path)[0], Driver)
 
 

@@ -7,9 +7,9 @@ from typing import Any
 
 import pytest
 
-from compd.cli.common import fmt
 from compd.report.page import FIGURE_CLASS
 from compd.report.tables import METRICS
+from compd.toolkit.summary import fmt
 from tests.report.conftest import Written
 from tests.report_screenshot import chromium, chromium_missing, wait_for_plots
 

@@ -8,13 +8,13 @@ from html.parser import HTMLParser
 
 import pytest
 
-from compd.cli.common import fmt
 from compd.files.data import DataSet
 from compd.files.modelfile import load_model
 from compd.report.gather import gather
 from compd.report.page import FIGURE_CLASS, build_html, json_script
 from compd.report.tables import METRICS
 from compd.toolkit.evaluate import evaluate
+from compd.toolkit.summary import fmt
 from tests.report.conftest import GATED, Written, day_record
 
 DIGITS = {key: digits for key, _, digits in METRICS}

@@ -13,6 +13,7 @@ from compd.cli import main
 from compd.files.data import load_data
 from compd.files.modelfile import ResidualDoc
 from compd.files.modelwriter import model_to_yaml
+from compd.files.sidecar import sidecar_bytes, sidecar_path
 from compd.model.residual import DoorFeatures
 from compd.model.run import simulate
 from compd.model.structure import InputSpec, Model, Output, SubModel
@@ -20,7 +21,7 @@ from compd.model.transfer import DiscreteTF
 from compd.service.clock import VirtualClock
 from compd.service.daemon import Service
 from compd.service.state import load_state
-from compd.toolkit.residual import fit_residual, sidecar_bytes, sidecar_path
+from compd.toolkit.residual import fit_residual
 
 from .daemon_setup import run, simulated_doc, write_config
 

@@ -14,6 +14,7 @@ from compd.errors import ConfigFileError
 from compd.service.config import Config
 from compd.sim.plc.machine import ServedAxis, ServedSignal, SimulatedMachine
 from compd.sim.plc.server import PlcServer, PlcServerType
+from compd.sim.plc.settings import simulation_of
 from compd.sim.scenarios import SCENARIOS
 from compd.sim.sensors import COLUMNS
 from compd.sim.variants import VARIANTS
@@ -39,14 +40,7 @@ def server_type(driver_type: str) -> PlcServerType:
 
 def build_machine(config: Config) -> SimulatedMachine:
     """The simulated machine ``config.simulation`` describes; ConfigFileError names what does not fit."""
-    sim = config.simulation
-    if sim is None:
-        raise ConfigFileError(
-            config.path,
-            "this config has no 'simulation' section",
-            where="simulation",
-            fix="Add one (see config/simulated.yaml) or run compd against a real machine",
-        )
+    sim = simulation_of(config)
     doc = config.doc
 
     def error(where: str, message: str, fix: str) -> ConfigFileError:

@@ -89,8 +89,7 @@ async def run_simulation(
             clock.settle = lambda: settle(service.links)
         if service_hook is not None:
             service_hook(service)
-        assert config.simulation is not None
-        if duration_s is None and config.simulation.stop_at_end:
+        if duration_s is None and machine.doc.stop_at_end:
             duration_s = machine.duration_s
         timing = await service.run(duration_s=duration_s)
     finally:

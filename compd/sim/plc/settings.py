@@ -11,7 +11,10 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from compd.errors import ConfigFileError
+from compd.service.config import Config, validation_error
 
 FaultKind = Literal["stuck", "nan", "value", "drop", "restart"]
 TwinAxis = Literal["x", "y", "z"]
@@ -70,3 +73,18 @@ class SimulationDoc(_Strict):
     faults: tuple[SimFaultDoc, ...] = ()
     #: ``compd run`` stops at the end of the scenario (unless --duration-s says otherwise).
     stop_at_end: bool = True
+
+
+def simulation_of(config: Config) -> SimulationDoc:
+    """The config's ``simulation:`` section, validated; ConfigFileError names what does not fit."""
+    if config.simulation is None:
+        raise ConfigFileError(
+            config.path,
+            "this config has no 'simulation' section",
+            where="simulation",
+            fix="Add one (see config/simulated.yaml) or run compd against a real machine",
+        )
+    try:
+        return SimulationDoc.model_validate(config.simulation)
+    except ValidationError as exc:
+        raise validation_error(exc, config.path, config.root, ("simulation",)) from exc
