@@ -5,6 +5,12 @@ Each sub-command lives in one module of this package that exposes
 that calls the library and renders the result. Errors from bad input end the
 command with exit status 2 and a one-paragraph message naming the file, the
 place and the fix.
+
+The command line parses first and imports what the chosen command needs
+(as git and systemctl do): :data:`COMMANDS` names each command's module and
+one-line help, so ``compd --help`` imports no command module and ``compd
+status`` only its own. :func:`build_parser` with no argument builds every
+command's full parser (for tests and generated help).
 """
 
 from __future__ import annotations
@@ -15,27 +21,59 @@ import sys
 from collections.abc import Sequence
 
 from compd import __version__
-from compd.cli.common import EXIT_INPUT_ERROR
+from compd.cli.args import EXIT_INPUT_ERROR
 from compd.errors import CompdError
 
-#: Command modules, in the order ``compd --help`` lists them.
-COMMAND_MODULES = (
-    "compd.cli.demo",
-    "compd.cli.evaluate",
-    "compd.cli.fit",
-    "compd.cli.diagnose",
-    "compd.cli.extend",
-    "compd.cli.residual",
-    "compd.cli.report",
-    "compd.cli.service",
-    "compd.cli.simulate",
-    "compd.cli.twin",
-    "compd.cli.update",
-)
+#: Every command, in the order ``compd --help`` lists them: the module that
+#: registers it and its one-line help (checked against the module by the tests).
+COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("compd.cli.demo", "compare the bundled example models with bundled example data"),
+    "model": ("compd.cli.model", "model files: check one, load one into the running daemon"),
+    "simulate": ("compd.cli.evaluate", "model output and each sub-model's contribution per sample"),
+    "compare": ("compd.cli.evaluate", "model against measurement: fit %%, residue, reduction"),
+    "fit": (
+        "compd.cli.fit",
+        "identify TFs (ARX, OE or MLR) from calibration data and write a model file",
+    ),
+    "diagnose": (
+        "compd.cli.diagnose",
+        "which logged signal (physical effect) explains the model's residue",
+    ),
+    "extend": (
+        "compd.cli.extend",
+        "identify a sub-model from an effect's signal to the residue and add it (seed 001 4.3)",
+    ),
+    "residual": (
+        "compd.cli.residual",
+        "stack a random forest on a model's residue against the smoothed door signal "
+        "(seed 004) and show the residue before and after",
+    ),
+    "report": (
+        "compd.cli.report",
+        "one HTML file: measured vs simulated, residue, failing windows, contributions, "
+        "candidates, conditions",
+    ),
+    "run": ("compd.cli.service", "the compensation service: read, model, limit, write at 1 Hz"),
+    "check-config": (
+        "compd.cli.service",
+        "validate a daemon config and its model exactly as 'compd run' does",
+    ),
+    "status": ("compd.cli.service", "the running daemon's model, inputs, offsets, counters"),
+    "simulate-machine": (
+        "compd.cli.simulate",
+        "serve the simulated machine of a config's 'simulation' section, for a compd elsewhere",
+    ),
+    "twin": ("compd.cli.twin", "generate a run of the simulated milling centre as a data file"),
+    "update": (
+        "compd.cli.update",
+        "re-optimise the model's named gains (g1, g2, ...) on sparse probe measurements (seed 002)",
+    ),
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(_chosen_module(argv))
     args = parser.parse_args(argv)
     if not hasattr(args, "handler"):
         parser.print_help()
@@ -47,12 +85,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INPUT_ERROR
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(module: str | None = None) -> argparse.ArgumentParser:
+    """The parser with every command in full, or only ``module``'s (the rest named, with help).
+
+    ``module=""`` registers no command module: enough for ``--help`` and ``--version``.
+    """
     parser = argparse.ArgumentParser(
         prog="compd", description="Thermal-error compensation for CNC machine tools."
     )
     parser.add_argument("--version", action="version", version=f"compd {__version__}")
     commands = parser.add_subparsers(title="commands", metavar="COMMAND")
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(commands)
+    registered: set[str] = set()
+    for name, (owner, text) in COMMANDS.items():
+        if module is None or owner == module:
+            if owner not in registered:
+                importlib.import_module(owner).register(commands)
+                registered.add(owner)
+        else:
+            commands.add_parser(name, help=text)
     return parser
+
+
+def _chosen_module(argv: Sequence[str]) -> str:
+    """The module of the command ``argv`` names (its first word), or "" for none."""
+    first = next((word for word in argv if not word.startswith("-")), None)
+    return COMMANDS[first][0] if first in COMMANDS else ""

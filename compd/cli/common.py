@@ -6,17 +6,15 @@ import argparse
 import os
 import sys
 
-from rich.console import Console
 from rich.table import Table
 
+from compd.cli.args import positive_float
 from compd.files.data import DataSet, load_data
 from compd.model.metrics import Comparison
 from compd.toolkit.analysis import DEFAULT_WINDOW_S
 from compd.toolkit.evaluate import Evaluation
 from compd.toolkit.span import Span, parse_time_s, resolve_span
 from compd.toolkit.summary import fmt
-
-EXIT_INPUT_ERROR = 2
 
 
 def data_options(
@@ -118,17 +116,6 @@ def window_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def positive_float(text: str) -> float:
-    """An argparse ``type``: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0.0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
-    return value
-
-
 def load_data_from_args(
     args: argparse.Namespace, path: str | os.PathLike[str] | None = None
 ) -> DataSet:
@@ -136,12 +123,6 @@ def load_data_from_args(
     return load_data(
         args.data if path is None else path, max_gap_s=args.max_gap_s, resample=args.resample
     )
-
-
-def console() -> Console:
-    # Piped output (a file, a CI log) is read by people and grep alike:
-    # don't wrap tables at rich's 80-column default.
-    return Console(highlight=False, width=None if sys.stdout.isatty() else 200)
 
 
 def print_notes(evaluation: Evaluation) -> None:

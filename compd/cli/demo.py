@@ -7,7 +7,8 @@ from importlib import resources
 from typing import Any
 
 from compd import __version__
-from compd.cli.common import comparison_table, console
+from compd.cli.common import comparison_table
+from compd.cli.terminal import console
 from compd.files.data import load_data
 from compd.files.modelfile import load_model
 from compd.model.metrics import Comparison

@@ -9,7 +9,8 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import console, data_options, fmt, load_data_from_args, span_from_args
+from compd.cli.common import data_options, fmt, load_data_from_args, span_from_args
+from compd.cli.terminal import console
 from compd.files.effects import load_catalogue
 from compd.files.modelfile import load_model
 from compd.toolkit.analysis import DiagnosisResult, diagnose_evaluation

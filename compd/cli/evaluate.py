@@ -20,18 +20,17 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
-from rich.table import Column, Table
+from rich.table import Table
 
 from compd.cli.common import (
     comparison_table,
-    console,
     data_options,
     load_data_from_args,
     print_notes,
     span_from_args,
     window_options,
 )
-from compd.cli.service import register_model_load
+from compd.cli.terminal import console
 from compd.files.modelfile import load_model
 from compd.model.compiled import qualified_names
 from compd.toolkit.analysis import (
@@ -45,15 +44,6 @@ from compd.toolkit.summary import compare_summary, json_text
 
 
 def register(commands: Any) -> None:
-    model = commands.add_parser("model", help="model files").add_subparsers(metavar="ACTION")
-    check = model.add_parser("check", help="validate and compile a model file; show its sub-models")
-    check.add_argument("model", type=Path, metavar="MODEL.yaml")
-    check.add_argument(
-        "--sample-time-s", type=float, help="compile for this sample time (default: the model's)"
-    )
-    check.set_defaults(handler=_model_check)
-    register_model_load(model)
-
     sim = commands.add_parser(
         "simulate", help="model output and each sub-model's contribution per sample"
     )
@@ -80,49 +70,6 @@ def register(commands: Any) -> None:
     window_options(cmp_)
     data_options(cmp_, scored="judged (fit %%, RMS, windows; JSON from_s/until_s)")
     cmp_.set_defaults(handler=_compare)
-
-
-def _model_check(args: argparse.Namespace) -> int:
-    model_file = load_model(args.model)
-    compiled = model_file.compile(args.sample_time_s)
-    warnings = model_file.check_plausible()
-    out = console()
-    out.print(
-        f"[bold]{compiled.name}[/bold]  {model_file.path}  sha256 {model_file.sha256[:12]}  "
-        f"sample time {compiled.sample_time_s:g} s  signals: {', '.join(compiled.signals)}"
-    )
-    table = Table(
-        "effect",
-        "input",
-        "order",
-        "nk",
-        "poles (z)",
-        "time constants (s)",
-        "static gain (um/unit)",
-        "gain",
-        "gate, position",
-    )
-    table.columns.insert(0, Column("sub-model", no_wrap=True))
-    for name, sub, tf in zip(
-        qualified_names(compiled), compiled.submodels, compiled.discrete, strict=True
-    ):
-        table.add_row(
-            name,
-            sub.effect,
-            sub.input.describe(),
-            str(tf.order),
-            str(tf.nk),
-            ", ".join(f"{p:.6g}" for p in tf.poles()) or "-",
-            ", ".join(f"{t:.1f}" for t in tf.time_constants_s(compiled.sample_time_s)) or "-",
-            f"{tf.static_gain():.4g}",
-            f"{sub.gain:g}",
-            sub.describe_factors(),
-        )
-    out.print(table)
-    for finding in warnings:
-        print(finding.describe(), file=sys.stderr)
-    out.print("[green]ok[/green]: compiles, causal and stable")
-    return 0
 
 
 def _simulate(args: argparse.Namespace) -> int:

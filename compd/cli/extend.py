@@ -10,15 +10,9 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import (
-    console,
-    data_options,
-    fmt,
-    load_data_from_args,
-    order_arg,
-    span_from_args,
-)
+from compd.cli.common import data_options, fmt, load_data_from_args, order_arg, span_from_args
 from compd.cli.progress import progress_reporter
+from compd.cli.terminal import console
 from compd.files.effects import load_catalogue
 from compd.files.modelfile import load_model
 from compd.model.identify import MIN_SAMPLES

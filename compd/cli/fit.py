@@ -10,9 +10,10 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import console, data_options, fmt, load_data_from_args, span_from_args
+from compd.cli.common import data_options, fmt, load_data_from_args, span_from_args
 from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
+from compd.cli.terminal import console
 from compd.errors import DataFileError
 from compd.model.collinear import MIN_ABS_CORRELATION
 from compd.model.identify import MIN_SAMPLES

@@ -19,8 +19,9 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import console, data_options, fmt, load_data_from_args, span_from_args
+from compd.cli.common import data_options, fmt, load_data_from_args, span_from_args
 from compd.cli.residual_options import add_forest_options
+from compd.cli.terminal import console
 from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile, load_model
 from compd.toolkit.evaluate import evaluate, measured_columns

@@ -14,7 +14,8 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import console, fmt
+from compd.cli.common import fmt
+from compd.cli.terminal import console
 from compd.files.data import DataSet
 from compd.toolkit.fit import FitResult
 from compd.toolkit.residual import sidecar_path, stack_residual

@@ -17,7 +17,9 @@ from typing import Any
 
 from rich.live import Live
 
-from compd.cli.common import console, positive_float
+from compd.cli.args import positive_float
+from compd.cli.serving import config_from_arg, configure_logging
+from compd.cli.terminal import console
 from compd.service.config import Config
 from compd.service.daemon import Service
 from compd.service.loop import TickRecord
@@ -27,11 +29,6 @@ from compd.sim.plc.view import fault_table, live_view, summary_table
 
 #: Real seconds between two frames of the live view.
 FRAME_S = 0.25
-
-
-def time_scale_arg(text: str) -> float | None:
-    """``--time-scale``: a factor > 0, or ``max`` (virtual time, as fast as the I/O allows) as None."""
-    return None if text == "max" else positive_float(text)
 
 
 def register(commands: Any) -> None:
@@ -118,9 +115,7 @@ def print_summary(result: SimulationResult) -> None:
 
 
 def _simulate_machine(args: argparse.Namespace) -> int:
-    from compd.cli.service import _config, configure_logging
-
-    config = _config(args.config)
+    config = config_from_arg(args.config)
     configure_logging()
     stop = asyncio.Event()
     every = 600  # steps: a line every 10 simulated minutes at 1 s
@@ -149,4 +144,4 @@ def _simulate_machine(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["register", "run_simulated", "time_scale_arg"]
+__all__ = ["register", "run_simulated"]

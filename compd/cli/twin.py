@@ -16,7 +16,7 @@ from typing import Any
 
 import pandas as pd
 
-from compd.cli.common import console
+from compd.cli.terminal import console
 from compd.errors import CompdError
 from compd.sim import SCENARIOS, simulate_scenario
 from compd.sim.hall import air_conditioned

@@ -48,6 +48,7 @@ from compd.files.yamlplace import (
     where,
 )
 from compd.model.compiled import CompiledModel
+from compd.service.paths import control_socket_of, state_dir_of
 from compd.service.schedule import GainRow, GainTable, first_overlap, model_gains
 from compd.service.writepoints import (
     check_written,
@@ -309,12 +310,6 @@ class Config:
         return tuple(self.doc.signals)
 
 
-def default_state_dir() -> Path:
-    """``$XDG_STATE_HOME/compd``, else ``~/.local/state/compd``."""
-    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(base) / "compd"
-
-
 def load_config(path: str | Path) -> Config:
     """Read and validate a config file (schema and references; see :func:`check_model`)."""
     path = Path(path)
@@ -424,11 +419,7 @@ def parse_config(text: str, path: Path) -> Config:
         raise error(
             ("load_access",), f"no such user or group: {exc}", "Give an existing name or a number"
         ) from exc
-    state_dir = (
-        resolve_path(doc.state.directory, path.parent)
-        if doc.state.directory
-        else default_state_dir()
-    )
+    state_dir = state_dir_of(doc.state.directory, path.parent)
     recorder_dir = None
     if doc.recorder.enabled:
         recorder_dir = (
@@ -436,11 +427,7 @@ def parse_config(text: str, path: Path) -> Config:
             if doc.recorder.directory
             else state_dir / "records"
         )
-    socket = (
-        resolve_path(doc.control_socket, path.parent)
-        if doc.control_socket
-        else state_dir / "control.sock"
-    )
+    socket = control_socket_of(doc.control_socket, state_dir, path.parent)
     return Config(
         path=path,
         doc=doc,

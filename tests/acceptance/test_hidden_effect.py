@@ -13,7 +13,7 @@ import asyncio
 import json
 from pathlib import Path
 
-from compd.cli.service import model_load
+from compd.cli.daemon import model_load
 from compd.service.daemon import Service
 from compd.service.loop import TickRecord
 from compd.sim.plc.machine import SimulatedMachine

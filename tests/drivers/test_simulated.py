@@ -121,3 +121,14 @@ class TestSimulatedContract(DriverContract):
             missing="nope",
             break_connection=lambda: driver.inject("drop", duration_s=60.0),
         )
+
+
+def test_a_driver_type_is_imported_only_when_a_config_names_it():
+    """The registry names every type without importing one; an unknown name is refused."""
+    import pytest
+
+    from compd.drivers.registry import BUILTIN, UnknownDriverError
+
+    assert set(BUILTIN) <= set(driver_names())
+    with pytest.raises(UnknownDriverError):
+        load_driver_type("no-such-bus")

@@ -1,0 +1,42 @@
+"""Argument types and options shared by commands, light enough for every parser.
+
+Nothing here imports numpy, pydantic or a command's library: the parsers
+are built before the command is chosen.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+#: Exit status of a command that refused its input (a bad file, option or config).
+EXIT_INPUT_ERROR = 2
+
+#: The daemon's config when ``--config`` is not given.
+DEFAULT_CONFIG = Path("/etc/compd/compd.yaml")
+
+
+def positive_float(text: str) -> float:
+    """An argparse ``type``: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
+    return value
+
+
+def time_scale_arg(text: str) -> float | None:
+    """``--time-scale``: a factor > 0, or ``max`` (virtual time, as fast as the I/O allows) as None."""
+    return None if text == "max" else positive_float(text)
+
+
+def daemon_options(parser: argparse.ArgumentParser) -> None:
+    """``--config`` of a command that talks to the running daemon."""
+    parser.add_argument(
+        "--config",
+        default=str(DEFAULT_CONFIG),
+        metavar="FILE.yaml",
+        help=f"the daemon's config (default {DEFAULT_CONFIG}); gives the state dir and socket",
+    )

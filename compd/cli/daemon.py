@@ -1,0 +1,153 @@
+"""What ``compd run``, ``check-config`` and ``model load`` do, imported once one is chosen.
+
+The parsers are in :mod:`compd.cli.service` and :mod:`compd.cli.model`. A
+config for a real machine never loads the simulated machine, pandas or the
+modelling toolkit: the twin is imported only for a config that has one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from compd.cli.serving import config_from_arg, configure_logging
+from compd.cli.terminal import console
+from compd.errors import CompdError, ControlError, ModelFileError
+from compd.files.modelfile import load_model
+from compd.files.yamlplace import read_limited
+from compd.service.clock import RealClock
+from compd.service.config import Config, check_model
+from compd.service.control import request
+from compd.service.daemon import Service
+from compd.service.loop import TickRecord
+from compd.service.modelload import LOAD_TIMEOUT_S, load_request, slot_from_bytes
+from compd.service.notify import SystemdNotifier
+from compd.service.safety import Level
+from compd.service.signals import Health
+from compd.service.state import install_model_bytes, installed_model
+
+
+def check_config_command(args: argparse.Namespace) -> int:
+    config = config_from_arg(args.config)
+    # The model `compd run` would start with: the installed one, else the config's.
+    installed = installed_model(config.state_dir)
+    model_path = installed or config.model_path
+    model_file = load_model(model_path)
+    compiled = model_file.compile(config.doc.period_s)
+    check_model(config, model_file, compiled)
+    doc = config.doc
+    out = console()
+    out.print(f"[green]ok[/green]: {config.path}")
+    out.print(
+        f"  model {compiled.name} ({model_path}, sha256 {model_file.sha256[:12]}) at "
+        f"{doc.period_s:g} s; outputs {', '.join(compiled.output_names)}"
+        + (" (installed with 'compd model load')" if installed else "")
+    )
+    out.print(f"  drivers: {', '.join(f'{n} ({d.type})' for n, d in doc.drivers.items())}")
+    out.print(f"  signals: {', '.join(doc.signals)}")
+    for axis, o in doc.outputs.items():
+        out.print(
+            f"  axis {axis}: {o.sign:+d} x {o.model_output} -> {o.driver}:{o.address}, "
+            f"|offset| <= {o.max_offset_um:g} um, <= {o.max_rate_um_per_s:g} um/s"
+        )
+    if config.simulation is not None:
+        from compd.sim.plc.build import build_machine  # the twin only where a config has one
+
+        sim = build_machine(config)  # checks the mapping; starts nothing
+        out.print(
+            f"  simulated machine: {sim.doc.scenario}, {sim.doc.hours:g} h, seed {sim.doc.seed}; "
+            f"controllers {', '.join(f'{n} ({doc.drivers[n].type})' for n in sim.servers)}"
+        )
+    out.print(f"  state {config.state_dir}, recorder {config.recorder_dir or 'off'}")
+    out.print(f"  control socket {config.control_socket}")
+    return 0
+
+
+def run_command(args: argparse.Namespace) -> int:
+    config = config_from_arg(args.config)
+    json_lines = {"auto": None, "json": True, "console": False}[args.log_format]
+    configure_logging(json_lines=json_lines)
+    live_every = args.live_every
+    if config.simulation is not None:
+        from compd.cli.simulate import run_simulated  # the twin only where a config has one
+
+        return run_simulated(config, args.time_scale, args.duration_s, live_every)
+    if args.time_scale is None:
+        raise CompdError(
+            f"--time-scale max runs on virtual time: only for a simulated machine, and "
+            f"{config.path} has no 'simulation' section; give a factor such as 600"
+        )
+    if live_every is None and sys.stdout.isatty():
+        live_every = config.doc.live_every_ticks
+    return asyncio.run(_serve(config, args.time_scale, args.duration_s, live_every))
+
+
+async def _serve(
+    config: Config, time_scale: float, duration_s: float | None, live_every: int | None
+) -> int:
+    clock = RealClock(time_scale)
+    live = _live_printer(live_every) if live_every else None
+    service = Service(config, clock=clock, notifier=SystemdNotifier(), on_tick=live)
+    install_signal_handlers(service)
+    await service.run(duration_s=duration_s)
+    return 0
+
+
+def _live_printer(every: int) -> Any:
+    count = 0
+
+    def show(record: TickRecord) -> None:
+        nonlocal count
+        count += 1
+        if count % every:
+            return
+        offsets = "  ".join(f"{axis} {v:+8.3f} um" for axis, v in record.offsets_um.items())
+        bad = [n for n, h in record.health.items() if h is not Health.OK]
+        level = Level(record.status & 0b11).name.lower()
+        print(
+            f"t {record.t_s / 3600:7.3f} h  {offsets}  status {level}"
+            + (f" ({', '.join(bad)})" if bad else ""),
+            flush=True,
+        )
+
+    return show
+
+
+def model_load_command(args: argparse.Namespace) -> int:
+    return asyncio.run(model_load(config_from_arg(args.config), args.model))
+
+
+async def model_load(config: Config, model_path: Path) -> int:
+    """``compd model load``: validate the model, send its bytes to the running daemon.
+
+    The client reads the file (with its own rights, size-limited) and checks
+    it first, for a quick message naming the file; the daemon checks it
+    again and installs it. With no daemon running, the client installs it
+    for the next start.
+    """
+    raw = read_limited(model_path, ModelFileError)
+    slot = slot_from_bytes(config, raw, model_path, 0.0)
+    try:
+        reply = await request(
+            config.control_socket, load_request(raw, model_path), timeout_s=LOAD_TIMEOUT_S + 10
+        )
+    except ControlError as exc:
+        installed = install_model_bytes(config.state_dir, raw)
+        print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {installed}")
+        print(f"the daemon was not told ({exc}); it will start with this model", file=sys.stderr)
+        return 0
+    if not reply.get("ok"):
+        raise CompdError(f"the daemon refused the model: {reply.get('error')}")
+    print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {reply.get('installed')}")
+    print(f"the daemon is switching to it, blended over {reply.get('blend_s', 0):g} s")
+    return 0
+
+
+def install_signal_handlers(service: Service) -> None:
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, service.stop)

@@ -1,0 +1,52 @@
+"""What the commands that run a daemon or a machine share: the ``--config`` they name, the logs."""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+import structlog
+
+from compd.files.yamlplace import resolve_path
+from compd.service.config import Config, load_config
+
+
+def config_from_arg(text: str) -> Config:
+    """The config ``--config`` names (a path, or ``bundled:NAME``), validated."""
+    return load_config(resolve_path(text, Path.cwd()))
+
+
+def configure_logging(*, json_lines: bool | None = None, level: str = "INFO") -> None:
+    """structlog: JSON lines (stdout, journald) by default, human-readable on a terminal.
+
+    Standard-library loggers (the control socket, the recorder) go through the same renderer.
+    """
+    if json_lines is None:
+        json_lines = not sys.stdout.isatty()
+    shared: list[Any] = [
+        structlog.stdlib.add_log_level,
+        structlog.stdlib.add_logger_name,
+        structlog.processors.TimeStamper(fmt="iso", utc=True),
+    ]
+    renderer: Any = (
+        structlog.processors.JSONRenderer() if json_lines else structlog.dev.ConsoleRenderer()
+    )
+    structlog.configure(
+        processors=[*shared, structlog.stdlib.ProcessorFormatter.wrap_for_formatter],
+        logger_factory=structlog.stdlib.LoggerFactory(),
+        wrapper_class=structlog.stdlib.BoundLogger,
+        # Not cached: compd logs once per fault episode, so the lookup costs nothing, and a
+        # cached module-level logger would ignore any later configuration (tests' capture_logs).
+        cache_logger_on_first_use=False,
+    )
+    formatter = structlog.stdlib.ProcessorFormatter(
+        foreign_pre_chain=shared,
+        processors=[structlog.stdlib.ProcessorFormatter.remove_processors_meta, renderer],
+    )
+    handler = logging.StreamHandler(sys.stdout)
+    handler.setFormatter(formatter)
+    root = logging.getLogger()
+    root.handlers = [handler]
+    root.setLevel(level)

@@ -1,0 +1,82 @@
+"""A third-party driver plugs in through the ``compd.drivers`` entry-point group, untouched compd."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+import yaml
+
+from compd.drivers.registry import driver_names, load_driver_type
+from compd.service.config import load_config
+from compd.service.daemon import build_drivers
+from tests.acceptance.conftest import machine_doc
+
+BUNDLED_MODEL = Path(__file__).parents[2] / "config" / "simulated_model.yaml"
+
+
+@pytest.fixture
+def installed_plugin(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A package ``mybus`` installed beside compd: a module and its dist-info with the entry point."""
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "mybus.py").write_text(
+        textwrap.dedent(
+            '''
+            from pydantic import BaseModel
+
+            class MyBusSettings(BaseModel):
+                station: int
+
+            class MyBusDriver:
+                settings_model = MyBusSettings
+                address_syntax = "as REGISTER, a whole number"
+
+                def __init__(self, settings, *, now, base_dir):
+                    self.settings = settings
+
+                @staticmethod
+                def validate_address(address, *, writable, settings=None):
+                    if not address.isdigit():
+                        raise ValueError("not a register number")
+
+                async def open(self): ...
+                async def read(self, points): return {}
+                async def write(self, values): ...
+                async def close(self): ...
+            '''
+        )
+    )
+    info = site / "mybus-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: mybus\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("[compd.drivers]\nmybus = mybus:MyBusDriver\n")
+    monkeypatch.syspath_prepend(str(site))
+    load_driver_type.cache_clear()
+    yield site
+    load_driver_type.cache_clear()
+
+
+def test_an_installed_driver_is_named_loaded_and_checked(installed_plugin: Path, tmp_path: Path):
+    assert "mybus" in driver_names() and "modbus" in driver_names()
+    kind = load_driver_type("mybus")
+    assert kind.__name__ == "MyBusDriver"
+
+    doc = machine_doc(tmp_path, BUNDLED_MODEL, simulation={"scenario": "production"})
+    del doc["simulation"]
+    doc["drivers"]["plc"] = {"type": "mybus", "settings": {"station": 3}}
+    for signal in doc["signals"].values():
+        signal["address"] = "7"
+    for output in doc["outputs"].values():
+        output["address"] = "100"
+    doc["status"]["status_address"], doc["status"]["heartbeat_address"] = "101", "102"
+    path = tmp_path / "compd.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    config = load_config(path)
+    assert build_drivers(config, now=lambda: 0.0)["plc"].settings.station == 3
+
+    doc["signals"][next(iter(doc["signals"]))]["address"] = "T1"
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(Exception, match="not a register number.*as REGISTER, a whole number"):
+        load_config(path)
