@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from compd.drivers.registry import driver_names, load_driver_type
+
+from compd.errors import ConfigFileError
 from compd.service.config import load_config
 from compd.service.daemon import build_drivers
 from tests.acceptance.conftest import machine_doc
@@ -23,7 +24,7 @@ def installed_plugin(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     site.mkdir()
     (site / "mybus.py").write_text(
         textwrap.dedent(
-            '''
+            """
             from pydantic import BaseModel
 
             class MyBusSettings(BaseModel):
@@ -45,7 +46,7 @@ def installed_plugin(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
                 async def read(self, points): return {}
                 async def write(self, values): ...
                 async def close(self): ...
-            '''
+            """
         )
     )
     info = site / "mybus-1.0.dist-info"
@@ -78,5 +79,7 @@ def test_an_installed_driver_is_named_loaded_and_checked(installed_plugin: Path,
 
     doc["signals"][next(iter(doc["signals"]))]["address"] = "T1"
     path.write_text(yaml.safe_dump(doc))
-    with pytest.raises(Exception, match="not a register number.*as REGISTER, a whole number"):
+    with pytest.raises(
+        ConfigFileError, match=r"not a register number.*as REGISTER, a whole number"
+    ):
         load_config(path)

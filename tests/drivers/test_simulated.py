@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from compd.drivers.base import Driver
-from compd.drivers.registry import driver_names, load_driver_type
+from compd.drivers.registry import BUILTIN, UnknownDriverError, driver_names, load_driver_type
 from compd.drivers.simulated import SimulatedDriver, SimulatedSettings
 
 from compd.errors import DriverDisconnectedError, DriverProtocolError
@@ -125,10 +125,6 @@ class TestSimulatedContract(DriverContract):
 
 def test_a_driver_type_is_imported_only_when_a_config_names_it():
     """The registry names every type without importing one; an unknown name is refused."""
-    import pytest
-
-    from compd.drivers.registry import BUILTIN, UnknownDriverError
-
     assert set(BUILTIN) <= set(driver_names())
     with pytest.raises(UnknownDriverError):
         load_driver_type("no-such-bus")
