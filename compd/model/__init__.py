@@ -2,50 +2,50 @@
 
 numpy and scipy only: nothing here reads files, logs or knows about asyncio,
 so every result can be checked against scipy with ``assert_allclose``.
+
+The names below are loaded on first use (PEP 562): the daemon, which only
+compiles and steps models, never loads the identification stack.
 """
 
-from compd.model.compiled import CompiledModel, ModelState, compile_model
-from compd.model.diagnose import CandidateScore, Diagnosis, diagnose_residue
-from compd.model.identify import Identification, IdentifiedTF, identify
-from compd.model.metrics import Comparison, ErrorStats, fit_percent
-from compd.model.run import SimulationResult, TickRunner, simulate
-from compd.model.structure import (
-    Gate,
-    GateTarget,
-    InputSpec,
-    Model,
-    Output,
-    Position,
-    SubModel,
-)
-from compd.model.transfer import ContinuousTF, DiscreteTF
-from compd.model.windows import FailingWindow, failing_windows
+from __future__ import annotations
 
-__all__ = [
-    "CandidateScore",
-    "Comparison",
-    "CompiledModel",
-    "ContinuousTF",
-    "Diagnosis",
-    "DiscreteTF",
-    "ErrorStats",
-    "FailingWindow",
-    "Gate",
-    "GateTarget",
-    "Identification",
-    "IdentifiedTF",
-    "InputSpec",
-    "Model",
-    "ModelState",
-    "Output",
-    "Position",
-    "SimulationResult",
-    "SubModel",
-    "TickRunner",
-    "compile_model",
-    "diagnose_residue",
-    "failing_windows",
-    "fit_percent",
-    "identify",
-    "simulate",
-]
+import importlib
+from typing import Any
+
+#: Public name -> the module that defines it.
+_EXPORTS = {
+    "CandidateScore": "compd.model.diagnose",
+    "Comparison": "compd.model.metrics",
+    "CompiledModel": "compd.model.compiled",
+    "ContinuousTF": "compd.model.transfer",
+    "Diagnosis": "compd.model.diagnose",
+    "DiscreteTF": "compd.model.transfer",
+    "ErrorStats": "compd.model.metrics",
+    "FailingWindow": "compd.model.windows",
+    "Gate": "compd.model.structure",
+    "GateTarget": "compd.model.structure",
+    "Identification": "compd.model.identify",
+    "IdentifiedTF": "compd.model.identify",
+    "InputSpec": "compd.model.structure",
+    "Model": "compd.model.structure",
+    "ModelState": "compd.model.compiled",
+    "Output": "compd.model.structure",
+    "Position": "compd.model.structure",
+    "SimulationResult": "compd.model.run",
+    "SubModel": "compd.model.structure",
+    "TickRunner": "compd.model.run",
+    "compile_model": "compd.model.compiled",
+    "diagnose_residue": "compd.model.diagnose",
+    "failing_windows": "compd.model.windows",
+    "fit_percent": "compd.model.metrics",
+    "identify": "compd.model.identify",
+    "simulate": "compd.model.run",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'compd.model' has no attribute {name!r}")
+    return getattr(importlib.import_module(_EXPORTS[name]), name)

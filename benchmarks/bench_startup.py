@@ -1,0 +1,118 @@
+"""Start-up of the commands and the daemon's resident memory: ``compd`` parses first, imports later.
+
+Each command runs in a fresh interpreter, 7 times; the figures are the median
+wall time and the median CPU time (user + system) of the process. Beside them:
+
+- the interpreter alone (``python -c pass``): the floor no command can beat;
+- every command's parser built eagerly (``build_parser()``), which is what
+  each command cost before the command table (issue 13: 3.0-3.4 s, 218 MB).
+
+The daemon: ``compd run`` for 20 s on a config for a real machine (Modbus
+TCP, the twin serving it from its own process, as a PLC would), its peak
+resident memory (``ru_maxrss``), beside ``compd run`` on the simulated config
+(the twin, pandas and the scenario inside the same process).
+
+Targets: ``--help``, ``--version`` and ``status`` < 0.3 s; the daemon < 100 MB.
+Run: ``PYTHONPATH=. python benchmarks/bench_startup.py``.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+from common import environment, verdict
+
+ROOT = Path(__file__).resolve().parents[1]
+REPEATS = 7
+DAEMON_S = 20
+
+
+def measured(argv: list[str]) -> tuple[float, float, float]:
+    """Wall s, CPU s and peak RSS (MB) of one process."""
+    start = time.perf_counter()
+    child = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _, _, usage = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - start
+    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
+
+
+def median_of(argv: list[str]) -> tuple[float, float, float]:
+    runs = [measured(argv) for _ in range(REPEATS)]
+    return tuple(statistics.median(r[i] for r in runs) for i in range(3))  # type: ignore[return-value]
+
+
+def configs(directory: Path) -> tuple[Path, Path]:
+    """The bundled simulated config on a free port, and the same without its ``simulation``."""
+    doc = yaml.safe_load((ROOT / "config" / "simulated.yaml").read_text())
+    doc["model"] = str(ROOT / "config" / "simulated_model.yaml")
+    doc["drivers"]["plc"]["settings"]["port"] = 15920
+    doc["state"] = {"directory": str(directory / "state")}
+    doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
+    doc["control_socket"] = str(directory / "sim.sock")
+    simulated = directory / "simulated.yaml"
+    simulated.write_text(yaml.safe_dump(doc))
+    del doc["simulation"]
+    doc["control_socket"] = str(directory / "real.sock")
+    real = directory / "real.yaml"
+    real.write_text(yaml.safe_dump(doc))
+    return simulated, real
+
+
+def main() -> int:
+    print(environment())
+    compd = [sys.executable, "-m", "compd.cli"]
+    with tempfile.TemporaryDirectory(dir="/tmp") as tmp:
+        simulated, real = configs(Path(tmp))
+        rows = [
+            ("python -c pass (the floor)", [sys.executable, "-c", "pass"], None),
+            (
+                "every parser, eagerly (before)",
+                [sys.executable, "-c", "from compd.cli import build_parser; build_parser()"],
+                None,
+            ),
+            ("compd --help", [*compd, "--help"], 0.3),
+            ("compd --version", [*compd, "--version"], 0.3),
+            ("compd status (not running)", [*compd, "status", "--config", str(real)], 0.3),
+            ("compd check-config (real machine)", [*compd, "check-config", str(real)], None),
+        ]
+        print(f"\n{'command':38} {'wall s':>8} {'CPU s':>8} {'RSS MB':>8}  target")
+        passed = True
+        for name, argv, target_s in rows:
+            wall, cpu, rss = median_of(argv)
+            ok = target_s is None or wall < target_s
+            passed &= ok
+            shown = f"< {target_s} s {verdict(ok)}" if target_s else ""
+            print(f"{name:38} {wall:8.3f} {cpu:8.3f} {rss:8.1f}  {shown}")
+
+        print(f"\ncompd run for {DAEMON_S} s: peak resident memory")
+        machine = subprocess.Popen(
+            [*compd, "simulate-machine", "--config", str(simulated)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        try:
+            time.sleep(3)
+            run = [*compd, "run", "--config", str(real), "--duration-s", str(DAEMON_S)]
+            _, cpu, rss_real = measured([*run, "--log-format", "json"])
+        finally:
+            machine.terminate()
+            machine.wait()
+        _, _, rss_sim = measured(
+            [*compd, "run", "--config", str(simulated), "--duration-s", str(DAEMON_S),
+             "--log-format", "json"]
+        )  # fmt: skip
+        ok = rss_real < 100
+        passed &= ok
+        print(f"{'real machine (Modbus TCP)':38} {rss_real:8.1f} MB  < 100 MB {verdict(ok)}")
+        print(f"{'simulated machine in the process':38} {rss_sim:8.1f} MB  (baseline)")
+    return 0 if passed else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
