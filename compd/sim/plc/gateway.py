@@ -310,7 +310,7 @@ def _encode(address: str, point: ImagePoint, raw: float) -> bytes:
     if codec is not None and codec.type in ("float32", "float64") and not math.isfinite(raw):
         # A PLC can hold NaN or infinity in a float (a failed sensor); the
         # codec, made to check compd's own writes, refuses them.
-        data: bytes = codec._reorder(struct.pack(">f" if codec.type == "float32" else ">d", raw))
+        data: bytes = codec.reorder(struct.pack(">f" if codec.type == "float32" else ">d", raw))
         return data
     if codec is not None:
         raw = servable(codec, raw)  # an integer input saturates; a broken sensor reads its minimum
