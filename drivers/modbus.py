@@ -324,6 +324,33 @@ class ModbusDriver:
             with contextlib.suppress(Exception):  # close() never raises (Driver contract)
                 client.close()
 
+    # -- single requests --------------------------------------------------
+    # Public so that a driver built on Modbus (the Profibus gateway's Modbus
+    # transport) reuses this driver's connection, request counting and error
+    # translation instead of its internals. Neither takes the bus lock: the
+    # caller serialises its requests (the gateway holds its own lock).
+
+    async def read_span(
+        self, table: Table, start: int, count: int, *, device: int
+    ) -> list[int] | list[bool]:
+        """Read ``count`` registers (or bits) of ``table`` from ``start`` in one request.
+
+        DriverError family on failure, a short reply included.
+        """
+        client, _ = self._connection()
+        return await self._read_span(client, table, start, count, device)
+
+    async def write_registers(
+        self, start: int, registers: Sequence[int], *, device: int, what: str
+    ) -> None:
+        """Write holding registers from ``start`` in one "write multiple registers" request.
+
+        ``what`` names the request in error messages (e.g. the gateway's
+        "write output area (holding 0..15)").
+        """
+        client, _ = self._connection()
+        await self._call(client.write_registers(start, list(registers), device_id=device), what)
+
     # -- internals ----------------------------------------------------------
 
     def _connection(self) -> tuple[AsyncModbusTcpClient | AsyncModbusSerialClient, asyncio.Lock]:
