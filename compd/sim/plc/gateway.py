@@ -38,9 +38,10 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simcore import SimCore
 
-from compd.drivers.gateway import FRAME_BYTES, GatewayDriver, GatewaySettings
+from compd.drivers.gateway import GatewayDriver
 from compd.drivers.gateway_can import SYNC_ID, close_bus, frame_sizes, listen, open_bus
 from compd.drivers.gateway_image import ImagePoint, parse_address
+from compd.drivers.gateway_settings import FRAME_BYTES, GatewaySettings
 from compd.errors import DriverError
 from compd.sim.plc.server import WriteSink, servable
 
