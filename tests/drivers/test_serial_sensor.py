@@ -83,7 +83,7 @@ def run(driver: SerialSensorDriver, body: Callable[[SerialSensorDriver], Awaitab
 def test_registered_and_satisfies_the_protocol(scanner):
     """The serial driver is in the registry under 'serial_sensor' and is a Driver."""
     assert load_driver_type("serial_sensor") is SerialSensorDriver
-    assert driver_names()["serial_sensor"] is SerialSensorDriver
+    assert "serial_sensor" in driver_names()
     assert isinstance(make(scanner.port), Driver)
 
 
