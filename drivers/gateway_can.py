@@ -20,14 +20,14 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import can
+from compd.drivers.gateway_settings import FRAME_BYTES, GatewaySettings
 
 from compd.errors import DriverDisconnectedError, DriverProtocolError, DriverTimeoutError
 
 if TYPE_CHECKING:
-    from compd.drivers.gateway import GatewaySettings, StatusWatch
+    from compd.drivers.gateway_status import StatusWatch
 
 SYNC_ID = 0x080
-FRAME_BYTES = 8
 
 
 def frame_sizes(size: int) -> list[int]:

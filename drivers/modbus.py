@@ -38,13 +38,18 @@ import asyncio
 import contextlib
 import struct
 from collections.abc import Awaitable, Callable, Mapping, Sequence
-from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
-from typing import Any, Literal, cast
+from typing import Any, Literal
 
 from compd.drivers.library_logs import quiet_library
-from compd.drivers.points import INT_RANGES, ORDERS, POINT_TYPES, Order, PointCodec, PointType
+from compd.drivers.modbus_addresses import (
+    BIT_TABLES,
+    WRITABLE_TABLES,
+    ModbusPoint,
+    Table,
+    parse_address,
+)
+from compd.drivers.points import INT_RANGES
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
@@ -58,10 +63,6 @@ from compd.errors import (
 
 quiet_library("pymodbus")  # its per-attempt errors and hex dumps: see compd.drivers.library_logs
 
-Table = Literal["holding", "input", "coil", "discrete"]
-TABLES: tuple[str, ...] = ("holding", "input", "coil", "discrete")
-WRITABLE_TABLES = ("holding", "coil")
-_BIT_TABLES = ("coil", "discrete")
 _MAX_BITS_PER_REQUEST = 2000  # Modbus limit for read coils / discrete inputs
 _MAX_WRITE_REGISTERS = 123  # Modbus limit for write multiple registers
 
@@ -90,67 +91,6 @@ class ModbusSettings(BaseModel):
         if self.transport == "rtu" and not self.serial_port:
             raise ValueError("transport 'rtu' needs 'serial_port'")
         return self
-
-
-@dataclass(frozen=True)
-class ModbusPoint:
-    """One parsed address: where the value lives and how it is encoded."""
-
-    table: Table
-    address: int
-    codec: PointCodec
-    device_id: int | None  # None: the driver's default
-
-    @property
-    def count(self) -> int:
-        """Registers (or bits) the value spans."""
-        return 1 if self.table in _BIT_TABLES else self.codec.words
-
-
-@cache
-def parse_address(text: str) -> ModbusPoint:
-    """Parse ``TABLE:ADDRESS[:TYPE][:byte=..][:word=..][:device=N]``; ValueError says what is wrong."""
-    parts = [p.strip() for p in text.split(":")]
-    if len(parts) < 2:
-        raise ValueError(f"{text!r} is not TABLE:ADDRESS (e.g. 'holding:100:int32')")
-    table, number, *rest = parts
-    if table not in TABLES:
-        raise ValueError(f"unknown Modbus table {table!r}; use one of {TABLES}")
-    if not number.isdigit() or not 0 <= int(number) <= 65535:
-        raise ValueError(f"address {number!r} must be an integer 0..65535 (0-based, on the wire)")
-    kind = "bool" if table in _BIT_TABLES else "uint16"
-    options: dict[str, str] = {}
-    for i, part in enumerate(rest):
-        if "=" not in part:
-            if i != 0:
-                raise ValueError(f"the type must come right after the address in {text!r}")
-            kind = part
-            continue
-        key, _, value = part.partition("=")
-        if key not in ("byte", "word", "device") or key in options:
-            raise ValueError(f"unknown or repeated option {key!r}; use byte=, word=, device=")
-        options[key] = value
-    if kind not in POINT_TYPES:
-        raise ValueError(f"unknown type {kind!r}; use one of {POINT_TYPES}")
-    if table in _BIT_TABLES and kind != "bool":
-        raise ValueError(f"a {table} is a single bit: its type can only be bool")
-    for key in ("byte", "word"):
-        if options.get(key, "big") not in ORDERS:
-            raise ValueError(f"{key}= must be 'big' or 'little'")
-    device = options.get("device")
-    if device is not None and not (device.isdigit() and int(device) <= 247):
-        raise ValueError("device= must be an integer 0..247")
-    # PointCodec checks type and orders again; the messages above are the friendlier ones.
-    codec = PointCodec(
-        type=cast(PointType, kind),
-        byte_order=cast(Order, options.get("byte", "big")),
-        word_order=cast(Order, options.get("word", "big")),
-    )
-    if int(number) + codec.words > 65536:
-        raise ValueError(f"{kind} at {number} runs past register 65535")
-    return ModbusPoint(
-        cast(Table, table), int(number), codec, None if device is None else int(device)
-    )
 
 
 def _spans(
@@ -267,7 +207,7 @@ class ModbusDriver:
             for (device, table), members in groups.items():
                 limit = (
                     _MAX_BITS_PER_REQUEST
-                    if table in _BIT_TABLES
+                    if table in BIT_TABLES
                     else self.settings.max_registers_per_request
                 )
                 for run in _spans(members, limit):
@@ -276,7 +216,7 @@ class ModbusDriver:
                     words = await self._read_span(client, table, start, count, device)
                     for name, point in run:
                         offset = point.address - start
-                        if table in _BIT_TABLES:
+                        if table in BIT_TABLES:
                             values[name] = 1.0 if words[offset] else 0.0
                         else:
                             values[name] = point.codec.decode_registers(
@@ -324,6 +264,33 @@ class ModbusDriver:
             with contextlib.suppress(Exception):  # close() never raises (Driver contract)
                 client.close()
 
+    # -- single requests --------------------------------------------------
+    # Public so that a driver built on Modbus (the Profibus gateway's Modbus
+    # transport) reuses this driver's connection, request counting and error
+    # translation instead of its internals. Neither takes the bus lock: the
+    # caller serialises its requests (the gateway holds its own lock).
+
+    async def read_span(
+        self, table: Table, start: int, count: int, *, device: int
+    ) -> list[int] | list[bool]:
+        """Read ``count`` registers (or bits) of ``table`` from ``start`` in one request.
+
+        DriverError family on failure, a short reply included.
+        """
+        client, _ = self._connection()
+        return await self._read_span(client, table, start, count, device)
+
+    async def write_registers(
+        self, start: int, registers: Sequence[int], *, device: int, what: str
+    ) -> None:
+        """Write holding registers from ``start`` in one "write multiple registers" request.
+
+        ``what`` names the request in error messages (e.g. the gateway's
+        "write output area (holding 0..15)").
+        """
+        client, _ = self._connection()
+        await self._call(client.write_registers(start, list(registers), device_id=device), what)
+
     # -- internals ----------------------------------------------------------
 
     def _connection(self) -> tuple[AsyncModbusTcpClient | AsyncModbusSerialClient, asyncio.Lock]:
@@ -360,7 +327,7 @@ class ModbusDriver:
         }
         what = f"read {table} {start}..{start + count - 1} of device {device}"
         reply = await self._call(calls[table](start, count=count, device_id=device), what)
-        words: list[int] | list[bool] = reply.bits if table in _BIT_TABLES else reply.registers
+        words: list[int] | list[bool] = reply.bits if table in BIT_TABLES else reply.registers
         if len(words) < count:
             raise DriverProtocolError(
                 f"Modbus {self._where()}: {what}: short reply ({len(words)} of {count})"

@@ -28,7 +28,6 @@ put into error messages (:mod:`compd.drivers.opcua_security`).
 from __future__ import annotations
 
 import asyncio
-import os
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -45,6 +44,8 @@ from compd.drivers.opcua_security import (
     certificate_der,
     certificate_uri,
     check_endpoints,
+    read_password,
+    settings_file,
 )
 from compd.drivers.opcua_settings import POLICIES, OpcUaSecurity, OpcUaSettings
 from compd.drivers.opcua_values import NUMERIC_TYPES, to_float, to_variant, variant_type
@@ -55,7 +56,6 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
-from compd.files.yamlplace import resolve_path
 
 log = structlog.get_logger("compd.drivers.opcua")
 quiet_library("asyncua")  # a line per read at INFO, per dropped session at WARNING
@@ -178,7 +178,7 @@ class OpcUaDriver:
             )
         if self.settings.username:
             client.set_user(self.settings.username)
-            client.set_password(self._password())
+            client.set_password(read_password(self.settings, self._base_dir))
 
     async def _check_server_endpoint(self, security: OpcUaSecurity) -> None:
         """Refuse a server that is not the trusted one, or lacks our policy, before the handshake.
@@ -204,30 +204,7 @@ class OpcUaDriver:
         check_endpoints(self.settings.url, endpoints, trusted, POLICIES[security.policy].URI, mode)
 
     def _path(self, name: str) -> Path:
-        path = resolve_path(name, self._base_dir)
-        if not path.is_file():
-            raise DriverError(f"OPC UA driver: file {path} does not exist")
-        return path
-
-    def _password(self) -> str:
-        """The password from ``password_file`` or ``password_env`` (never logged)."""
-        if self.settings.password_file:
-            path = self._path(self.settings.password_file)
-            try:
-                return path.read_text(encoding="utf-8").rstrip("\r\n")
-            except (OSError, UnicodeDecodeError) as exc:  # the message names the file, not its text
-                raise DriverError(
-                    f"OPC UA driver: cannot read password_file {path} ({type(exc).__name__})"
-                ) from None
-        if self.settings.password_env:
-            value = os.environ.get(self.settings.password_env)
-            if value is None:
-                raise DriverError(
-                    f"OPC UA driver: environment variable {self.settings.password_env} "
-                    "(password_env) is not set"
-                )
-            return value
-        return ""
+        return settings_file(name, self._base_dir)
 
     # -- read and write ----------------------------------------------------
 

@@ -1,25 +1,30 @@
-"""OPC UA security material for the driver: certificates, the password's secrecy, refusals explained.
+"""OPC UA security material for the driver: certificates, the password, refusals explained.
 
 OPC UA ties a client's identity to its application certificate: the
 application URI the client announces must be the URI in that certificate's
 subjectAltName, so it is read from there. The driver's error messages turn
 the server's refusal codes into the fix an operator needs. And asyncua's
 DEBUG log of the requests it sends would show the password: a filter on
-that logger blanks it, because compd never logs a secret.
+that logger blanks it, because compd never logs a secret. The password is
+read here (:func:`read_password`) so that the simulated PLC's server checks
+the very password the driver sends.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import re
 from pathlib import Path
 
 from asyncua import ua
 from asyncua.ua.status_codes import StatusCodes
+from compd.drivers.opcua_settings import OpcUaSettings
 from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 
 from compd.errors import DriverError, DriverProtocolError
+from compd.files.yamlplace import resolve_path
 
 
 class _RedactPasswords(logging.Filter):
@@ -62,6 +67,39 @@ REFUSALS: dict[int, str] = {
     ),
     StatusCodes.BadSecurityPolicyRejected: "does not offer this security policy",
 }
+
+
+def settings_file(name: str, base_dir: Path) -> Path:
+    """A file the settings name (relative to ``base_dir``, the config's folder); it must exist."""
+    path = resolve_path(name, base_dir)
+    if not path.is_file():
+        raise DriverError(f"OPC UA driver: file {path} does not exist")
+    return path
+
+
+def read_password(settings: OpcUaSettings, base_dir: Path) -> str:
+    """The password from ``password_file`` or ``password_env``; ``""`` when neither is set.
+
+    Public so that the simulated PLC accepts exactly what the driver sends.
+    DriverError names the file or variable, never the password's text.
+    """
+    if settings.password_file:
+        path = settings_file(settings.password_file, base_dir)
+        try:
+            return path.read_text(encoding="utf-8").rstrip("\r\n")
+        except (OSError, UnicodeDecodeError) as exc:  # the message names the file, not its text
+            raise DriverError(
+                f"OPC UA driver: cannot read password_file {path} ({type(exc).__name__})"
+            ) from None
+    if settings.password_env:
+        value = os.environ.get(settings.password_env)
+        if value is None:
+            raise DriverError(
+                f"OPC UA driver: environment variable {settings.password_env} "
+                "(password_env) is not set"
+            )
+        return value
+    return ""
 
 
 def load_certificate(path: Path) -> x509.Certificate:

@@ -104,7 +104,7 @@ class PointCodec:
         """Engineering value from ``size_bytes`` bytes laid out in this point's orders."""
         if len(data) != self.size_bytes:
             raise DriverProtocolError(f"{self.type} needs {self.size_bytes} bytes, got {len(data)}")
-        (raw,) = struct.unpack(_FORMATS[self.type], self._reorder(bytes(data)))
+        (raw,) = struct.unpack(_FORMATS[self.type], self.reorder(bytes(data)))
         if self.type == "bool":
             raw = 1 if raw else 0
         return float(raw) * self.scale + self.offset
@@ -112,7 +112,7 @@ class PointCodec:
     def encode_bytes(self, value: float) -> bytes:
         """Bytes for engineering ``value``, range-checked (never wrapped)."""
         raw = self.raw_for(value)
-        return self._reorder(struct.pack(_FORMATS[self.type], raw))
+        return self.reorder(struct.pack(_FORMATS[self.type], raw))
 
     # -- 16-bit registers (a register is one big-endian word on the Modbus wire) --
 
@@ -159,8 +159,12 @@ class PointCodec:
             )
         return rounded
 
-    def _reorder(self, data: bytes) -> bytes:
-        """Convert between big-endian bytes and this point's layout (an involution)."""
+    def reorder(self, data: bytes) -> bytes:
+        """Convert between big-endian bytes and this point's layout (an involution).
+
+        Public for servers that must lay out a value the codec refuses to
+        encode (the simulated gateway serves a PLC's NaN or infinity).
+        """
         words = [data[i : i + 2] for i in range(0, len(data), 2)]
         if self.word_order == "little":
             words.reverse()

@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from compd.drivers.modbus import ModbusDriver, ModbusSettings, parse_address
+from compd.drivers.modbus import ModbusDriver, ModbusSettings
+from compd.drivers.modbus_addresses import parse_address
 from pymodbus.client import AsyncModbusTcpClient
 
 from compd.errors import DriverProtocolError

@@ -23,12 +23,8 @@ from compd.drivers.opcua import OpcUaDriver, OpcUaSettings
 from compd.errors import DriverProtocolError
 from compd.service.clock import RealClock
 from compd.service.links import DriverLink
-from compd.sim.plc.opcua import (
-    OpcUaPlcServer,
-    ensure_client_certificate,
-    ensure_server_certificate,
-    parse_address,
-)
+from compd.sim.plc.opcua import OpcUaPlcServer, parse_address
+from compd.sim.plc.opcua_security import ensure_client_certificate, ensure_server_certificate
 
 T = TypeVar("T")
 

@@ -38,9 +38,10 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simcore import SimCore
 
-from compd.drivers.gateway import FRAME_BYTES, GatewayDriver, GatewaySettings
+from compd.drivers.gateway import GatewayDriver
 from compd.drivers.gateway_can import SYNC_ID, close_bus, frame_sizes, listen, open_bus
 from compd.drivers.gateway_image import ImagePoint, parse_address
+from compd.drivers.gateway_settings import FRAME_BYTES, GatewaySettings
 from compd.errors import DriverError
 from compd.sim.plc.server import WriteSink, servable
 
@@ -310,7 +311,7 @@ def _encode(address: str, point: ImagePoint, raw: float) -> bytes:
     if codec is not None and codec.type in ("float32", "float64") and not math.isfinite(raw):
         # A PLC can hold NaN or infinity in a float (a failed sensor); the
         # codec, made to check compd's own writes, refuses them.
-        data: bytes = codec._reorder(struct.pack(">f" if codec.type == "float32" else ">d", raw))
+        data: bytes = codec.reorder(struct.pack(">f" if codec.type == "float32" else ">d", raw))
         return data
     if codec is not None:
         raw = servable(codec, raw)  # an integer input saturates; a broken sensor reads its minimum

@@ -5,8 +5,9 @@ instance connects (``settings.host``:``settings.port``). Its memory holds
 exactly the addresses of the config, nothing else, as a PLC programmer maps
 them: the inputs compd reads (any table, type and order, any ``device=``)
 and the outputs compd writes (holding registers and coils). Values are laid
-out by compd's own codec (:func:`compd.drivers.modbus.parse_address`), so a
-published raw value reads back as that very value through the driver.
+out by compd's own codec
+(:func:`compd.drivers.modbus_addresses.parse_address`), so a published raw
+value reads back as that very value through the driver.
 
 Writes are accepted only at output addresses; a write touching an input or
 an address the config does not name is refused with Modbus exception 2
@@ -39,7 +40,8 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simcore import SimCore
 
-from compd.drivers.modbus import WRITABLE_TABLES, ModbusPoint, ModbusSettings, parse_address
+from compd.drivers.modbus import ModbusSettings
+from compd.drivers.modbus_addresses import WRITABLE_TABLES, ModbusPoint, parse_address
 from compd.errors import DriverProtocolError
 from compd.sim.plc.server import PlcServerType, WriteSink, servable
 
