@@ -18,9 +18,9 @@ from typing import Any
 from rich.live import Live
 
 from compd.cli.common import console, positive_float
+from compd.service.compensator import TickRecord
 from compd.service.config import Config
 from compd.service.daemon import Service
-from compd.service.loop import TickRecord
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import SimulationResult, run_simulation, serve_machine
 from compd.sim.plc.view import fault_table, live_view, summary_table

@@ -5,7 +5,7 @@ config (:mod:`compd.service.config`), the model (the one last installed with
 ``compd model load``, else the config's), and that the two fit. It then
 decides whether to resume the saved model state (:mod:`compd.service.state`), opens
 the drivers, the control socket and the recorder, tells systemd it is ready
-and runs the loop (:mod:`compd.service.loop`) until stopped.
+and runs the loop (:mod:`compd.service.ticks`, :mod:`compd.service.compensator`) until stopped.
 
 While running, the control socket answers ``status`` (a snapshot of the
 model, the last tick, the inputs and their health, and the counters) and
@@ -35,20 +35,14 @@ from compd.drivers.registry import load_driver_type
 from compd.errors import RecorderError
 from compd.faultlog import FaultLog
 from compd.service.clock import Clock
+from compd.service.compensator import Compensator, TickRecord
 from compd.service.config import Config
 from compd.service.control import Access, ControlServer
 from compd.service.links import DriverLink
-from compd.service.loop import (
-    Compensator,
-    SignalPoint,
-    StatusPoint,
-    TickRecord,
-    TickTiming,
-    run_periodic,
-)
 from compd.service.modelload import ModelLoader, startup_slots
 from compd.service.notify import SystemdNotifier
 from compd.service.offsets import AxisPoint
+from compd.service.points import SignalPoint, StatusPoint
 from compd.service.recorder import Recorder
 from compd.service.safety import HEARTBEAT_MODULO, AxisLimits, AxisSafety, FaultMode
 from compd.service.schedule import GainScheduler
@@ -60,6 +54,7 @@ from compd.service.state import (
     resume_decision,
     save_state,
 )
+from compd.service.ticks import TickTiming, run_periodic
 
 log = structlog.get_logger("compd.service.daemon")
 

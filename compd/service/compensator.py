@@ -1,154 +1,33 @@
-"""The 1 Hz loop: an absolute-deadline scheduler on an injectable clock, and the per-tick function.
+"""The per-tick function: read, check, step the model, limit, write, in that order.
 
-The scheduler (:func:`run_periodic`) wakes at ``t0 + k * period_s`` -- the
-next deadline is the last one plus the period, never "now plus the period",
-so the loop does not drift. A tick that ends after the next deadline is an
-overrun: the missed deadlines are counted, logged and skipped (a late tick
-is not made up by a burst of ticks).
-
-The clock is injected (:mod:`compd.service.clock`): real time, optionally scaled, or
-virtual time that jumps straight to each deadline, so tests replay an
-8-hour shift in seconds through exactly the code a machine runs.
-
-:class:`Compensator` is the per-tick function itself: read, check, step,
-limit, write, in that order, with every I/O through a
-:class:`~compd.service.links.DriverLink` so that no I/O error can end the loop.
+:class:`Compensator` is what the scheduler (:mod:`compd.service.ticks`) calls
+once per period. Every I/O goes through the per-driver batches of
+:mod:`compd.service.points` (each a :class:`~compd.service.links.DriverLink`),
+so that no I/O error can end the loop; the models it steps are the slots of
+:mod:`compd.service.slots`.
 """
 
 from __future__ import annotations
 
-import asyncio
 import math
 import time
-from collections.abc import Awaitable, Callable, Coroutine, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
 
 import numpy as np
 import structlog
 
-from compd.files.modelfile import ModelFile
-from compd.model.compiled import CompiledModel, ModelState, qualified_names
+from compd.model.compiled import ModelState
 from compd.model.handover import SignalHistory, handover_state
-from compd.model.run import TickRunner
-from compd.service.clock import Clock
 from compd.service.links import DriverLink
 from compd.service.offsets import AxisPoint, HeldOffsets
+from compd.service.points import DriverBatches, SignalPoint, StatusPoint
 from compd.service.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
 from compd.service.schedule import GainScheduler
 from compd.service.signals import Health, SignalMonitor
+from compd.service.slots import ModelSlot
 
-log = structlog.get_logger("compd.service.loop")
-T = TypeVar("T")
-
-
-@dataclass
-class TickTiming:
-    """Scheduler counters: ticks run, deadlines missed, lateness of the wake-ups (s)."""
-
-    ticks: int = 0
-    overruns: int = 0
-    last_lateness_s: float = 0.0
-    max_lateness_s: float = 0.0
-
-
-async def run_periodic(
-    clock: Clock,
-    period_s: float,
-    tick: Callable[[float], Awaitable[None]],
-    *,
-    stop: asyncio.Event,
-    duration_s: float | None = None,
-    timing: TickTiming | None = None,
-) -> TickTiming:
-    """Call ``tick(deadline)`` at ``deadline = t0 + k * period_s`` until ``stop`` is set.
-
-    With ``duration_s``, the last tick is the last deadline within
-    ``t0 + duration_s`` (so ``duration_s / period_s + 1`` ticks when nothing
-    overruns). Returns the counters (also updated live in ``timing``).
-    """
-    timing = timing or TickTiming()
-    deadline = clock.now()
-    until_s = None if duration_s is None else deadline + duration_s
-    while not stop.is_set() and (until_s is None or deadline <= until_s + 1e-9):
-        await clock.sleep_until(deadline)
-        if stop.is_set():
-            break
-        lateness_s = clock.now() - deadline
-        timing.last_lateness_s = lateness_s
-        timing.max_lateness_s = max(timing.max_lateness_s, lateness_s)
-        await tick(deadline)
-        timing.ticks += 1
-        deadline += period_s
-        behind_s = clock.now() - deadline
-        if behind_s > 0:
-            missed = math.floor(behind_s / period_s) + 1
-            timing.overruns += missed
-            deadline += missed * period_s
-            log.warning("overrun", missed_deadlines=missed, behind_s=round(behind_s, 4))
-    return timing
-
-
-@dataclass(frozen=True)
-class SignalPoint:
-    """Where a signal is read: ``value = convert(raw) * scale + offset``.
-
-    ``kind`` converts the raw reading first: ``int`` rounds it (a register
-    count), ``bool`` makes it 1.0 when non-zero, else 0.0.
-    """
-
-    name: str
-    driver: str
-    address: str
-    scale: float = 1.0
-    offset: float = 0.0
-    kind: str = "float"
-
-    def convert(self, raw: float) -> float:
-        if self.kind != "float" and math.isfinite(raw):
-            raw = float(round(raw)) if self.kind == "int" else float(raw != 0)
-        return raw * self.scale + self.offset
-
-
-@dataclass(frozen=True)
-class StatusPoint:
-    driver: str
-    status_address: str
-    heartbeat_address: str
-    #: Whether the status point holds the readback-mismatch bit (:mod:`compd.service.safety`).
-    mismatch_bit: bool = True
-    #: Whether the status point holds the model-fault bit (:mod:`compd.service.safety`).
-    model_fault_bit: bool = True
-
-
-class ModelSlot:
-    """A loaded model: its file, compiled form, and once started, its runner."""
-
-    def __init__(self, model_file: ModelFile, compiled: CompiledModel, loaded_at_unix_s: float):
-        self.model_file = model_file
-        self.compiled = compiled
-        self.loaded_at_unix_s = loaded_at_unix_s
-        self.runner: TickRunner | None = None
-        self.outputs = np.full(len(compiled.output_names), np.nan)
-        self.names = list(qualified_names(compiled))
-        self._index = {name: i for i, name in enumerate(compiled.output_names)}
-        owners = compiled.output_matrix.argmax(axis=0)
-        #: Signals each output depends on (inputs, minus signals, gates and positions of its sub-models).
-        self.depends: dict[str, set[str]] = {name: set() for name in compiled.output_names}
-        for owner, sub in zip(owners, compiled.submodels, strict=True):
-            self.depends[compiled.output_names[owner]] |= set(sub.signals())
-        for owner, residual in compiled.residuals:  # seed 004's door residual reads its signal too
-            self.depends[compiled.output_names[owner]].add(residual.signal)
-
-    @property
-    def sha256(self) -> str:
-        return self.model_file.sha256
-
-    def start(self, state: ModelState) -> None:
-        self.runner = TickRunner(self.compiled, state)
-
-    def output(self, name: str) -> float:
-        return float(self.outputs[self._index[name]])
+log = structlog.get_logger("compd.service.compensator")
 
 
 @dataclass
@@ -250,19 +129,8 @@ class Compensator:
         self.last: TickRecord | None = None
         #: The inputs of the last ``history_ticks`` ticks, to start a newly loaded model warm.
         self.history = SignalHistory([p.name for p in self.signals], history_ticks)
-        self._reads: dict[str, list[SignalPoint]] = {}
-        for point in self.signals:
-            self._reads.setdefault(point.driver, []).append(point)
-        self._readbacks: dict[str, list[AxisPoint]] = {}
-        for axis in self.axes:
-            if axis.readback:
-                self._readbacks.setdefault(axis.driver, []).append(axis)
-                self._reads.setdefault(axis.driver, [])
-        #: Per driver, the addresses read each tick: its signals, then its offsets read back.
-        self._addresses = {
-            d: [p.address for p in points] + [a.address for a in self._readbacks.get(d, [])]
-            for d, points in self._reads.items()
-        }
+        #: The signals, offsets and status word, batched per driver (:mod:`compd.service.points`).
+        self.points = DriverBatches(self.signals, self.axes, status, self.links)
         if initial_state is not None:
             model.start(initial_state)
         #: What each offset point holds, as far as compd knows (:mod:`compd.service.offsets`).
@@ -273,7 +141,7 @@ class Compensator:
         self.pending = slot
 
     async def tick(self, t_s: float) -> TickRecord:
-        values, held = await self._read()
+        values, held = await self.points.read()
         mismatches = self.held.read_back(held)
         self.counters.offset_mismatches += mismatches
         readings = {}
@@ -369,12 +237,10 @@ class Compensator:
         Nothing at all before the first tick: a start that failed knows nothing
         the machine should be told, least of all an offset.
         """
-        point = self.status_point
-        if self.last is None or point is None:
+        if self.last is None or self.status_point is None:
             return False
         word = status_word(Level(self.last.status & 0b11), [Flag.STOPPED], [])
-        batch = {point.status_address: float(word), point.heartbeat_address: float(self.heartbeat)}
-        return await self.links[point.driver].write(batch)
+        return await self.points.write_status(word, self.heartbeat)
 
     def _step_models(self, t_s: float, checked: Mapping[str, float]) -> None:
         self.history.append(checked)
@@ -475,48 +341,16 @@ class Compensator:
     def _complete(slot: ModelSlot, checked: Mapping[str, float]) -> bool:
         return all(math.isfinite(checked[s]) for s in slot.compiled.signals)
 
-    async def _read(self) -> tuple[dict[str, float], dict[str, float]]:
-        """Signal values by name, and the raw offsets read back by axis name."""
-        drivers = list(self._reads)
-        results = await _all([self.links[d].read(self._addresses[d]) for d in drivers])
-        values: dict[str, float] = {}
-        held: dict[str, float] = {}
-        for driver, raw in zip(drivers, results, strict=True):
-            for point in self._reads[driver]:
-                if point.address in raw:
-                    values[point.name] = point.convert(raw[point.address])
-            for axis in self._readbacks.get(driver, []):
-                value = raw.get(axis.address)
-                if value is not None and math.isfinite(value):
-                    held[axis.name] = value
-        return values, held
-
     async def _write(
         self, offsets: Mapping[str, float], word: int
     ) -> tuple[bool, dict[str, float]]:
         """Write what is safe to write; whether every write succeeded, and the offsets (um) acknowledged."""
         raws = self.held.to_write(offsets)
-        batches: dict[str, dict[str, float]] = {}
-        for axis in self.axes:
-            if axis.name in raws:
-                batches.setdefault(axis.driver, {})[axis.address] = raws[axis.name]
-        if self.status_point is not None:
-            batch = batches.setdefault(self.status_point.driver, {})
-            batch[self.status_point.status_address] = float(word)
-            batch[self.status_point.heartbeat_address] = float(self.heartbeat)
-        drivers = list(batches)
-        results = await _all([self.links[d].write(batches[d]) for d in drivers])
-        if not all(results):
+        ok = await self.points.write(raws, word, self.heartbeat)
+        if not all(ok.values()):
             self.counters.write_failures += 1
-        return all(results), self.held.written(raws, dict(zip(drivers, results, strict=True)))
+        return all(ok.values()), self.held.written(raws, ok)
 
 
 def _um(axis: AxisPoint, raw: float | None) -> float:
     return math.nan if raw is None else axis.decode(raw)
-
-
-async def _all(calls: list[Coroutine[Any, Any, T]]) -> list[T]:
-    """``asyncio.gather``, without its task per call when there is only one (the usual case)."""
-    if len(calls) == 1:
-        return [await calls[0]]
-    return list(await asyncio.gather(*calls))
