@@ -12,7 +12,7 @@ from structlog.testing import capture_logs
 
 from compd.service.clock import VirtualClock
 from compd.service.compensator import TickRecord
-from compd.service.config import MAX_SIGNALS
+from compd.service.configdoc import MAX_SIGNALS
 from compd.service.control import request
 from compd.service.daemon import Service
 from compd.service.modelload import load_request
