@@ -14,18 +14,16 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
-import numpy as np
 import structlog
 
 from compd.model.compiled import ModelState
-from compd.model.handover import SignalHistory, handover_state
 from compd.service.links import DriverLink
 from compd.service.offsets import AxisPoint, HeldOffsets
 from compd.service.points import DriverBatches, SignalPoint, StatusPoint
 from compd.service.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
 from compd.service.schedule import GainScheduler
 from compd.service.signals import Health, SignalMonitor
-from compd.service.slots import ModelSlot
+from compd.service.slots import ModelSlot, ModelSlots
 
 log = structlog.get_logger("compd.service.compensator")
 
@@ -74,12 +72,10 @@ class Compensator:
     1. read every signal, all drivers concurrently, each under its timeout;
     2. check each value (:class:`~compd.service.signals.SignalMonitor`): good, held, or faulted;
     3. step the model with the checked values (started at steady state with the first
-       complete set of values, or from a resumed state); a model switched in starts warm
-       from the recent inputs (:mod:`compd.model.handover`), then both run and blend
-       ``w * new + (1 - w) * old`` with ``w`` rising 0 -> 1 over ``blend_s``. A model
-       that raises or whose state turns NaN/inf is unloaded and the one it replaced
-       restored (``on_model_failure`` is told, so the service can un-install it); a
-       non-finite output sets the model-fault bit and level faulted, logged once;
+       complete set of values, or from a resumed state), switching in a loaded model
+       bumplessly and unloading a failed one (:class:`~compd.service.slots.ModelSlots`;
+       ``on_model_failure`` is told); a model fault sets the model-fault bit and level
+       faulted;
     4. per axis ``target = sign * output``, through the safety stage, frozen while an
        input the axis depends on is faulted;
     5. write offsets, status word and heartbeat, all drivers concurrently.
@@ -111,24 +107,22 @@ class Compensator:
         self.safety = dict(safety)
         self.links = dict(links)
         self.status_point = status
-        self.blend_s = blend_s
         self.wall_at = wall_at
-        self.active = model
-        self.previous: ModelSlot | None = None
-        self.pending: ModelSlot | None = None
-        #: The model to restore if the active one fails (the one it replaced).
-        self.fallback: ModelSlot | None = None
-        #: Why the model is faulted (None while its outputs are finite): logged once, the model-fault bit.
-        self.model_fault: str | None = None
-        self.on_model_failure = on_model_failure
-        self.blend_start_s = -math.inf
         #: Gains by operating condition (:mod:`compd.service.schedule`), applied before each step.
         self.schedule = schedule
         self.heartbeat = 0
         self.counters = Counters()
         self.last: TickRecord | None = None
-        #: The inputs of the last ``history_ticks`` ticks, to start a newly loaded model warm.
-        self.history = SignalHistory([p.name for p in self.signals], history_ticks)
+        #: The models run, switched, blended and unloaded (:mod:`compd.service.slots`).
+        self.models = ModelSlots(
+            model,
+            [p.name for p in self.signals],
+            self.counters,
+            blend_s=blend_s,
+            history_ticks=history_ticks,
+            schedule=schedule,
+            on_failure=on_model_failure,
+        )
         #: The signals, offsets and status word, batched per driver (:mod:`compd.service.points`).
         self.points = DriverBatches(self.signals, self.axes, status, self.links)
         if initial_state is not None:
@@ -136,9 +130,30 @@ class Compensator:
         #: What each offset point holds, as far as compd knows (:mod:`compd.service.offsets`).
         self.held = HeldOffsets(self.axes, self.safety)
 
+    # The model slots as the status and the tests see them (:class:`ModelSlots`).
+    @property
+    def active(self) -> ModelSlot:
+        """The model whose outputs the axes follow."""
+        return self.models.active
+
+    @property
+    def previous(self) -> ModelSlot | None:
+        """The model being blended out, if a blend runs."""
+        return self.models.previous
+
+    @property
+    def pending(self) -> ModelSlot | None:
+        """The model loaded but not yet switched in."""
+        return self.models.pending
+
+    @property
+    def model_fault(self) -> str | None:
+        """Why the model is faulted; None while its outputs are finite."""
+        return self.models.fault
+
     def load(self, slot: ModelSlot) -> None:
         """Switch to ``slot`` at the next tick whose inputs are complete, blending bumplessly."""
-        self.pending = slot
+        self.models.load(slot)
 
     async def tick(self, t_s: float) -> TickRecord:
         values, held = await self.points.read()
@@ -155,19 +170,16 @@ class Compensator:
         if self.schedule is not None:
             key = readings[self.schedule.table.signal]
             self.schedule.update(t_s, key.value, usable=key.health is not Health.FAULTED)
-        self._step_models(t_s, checked)
-
-        weight = min(1.0, (t_s - self.blend_start_s) / self.blend_s) if self.blend_s else 1.0
-        if weight >= 1.0:
-            self.previous = None
+        models = self.models
+        models.step(t_s, checked)
+        weight = models.blend_weight(t_s)
         targets: dict[str, float] = {}
         offsets: dict[str, float] = {}
         flags: set[Flag] = set()
         any_frozen = False
         for axis in self.axes:
-            output = self.active.output(axis.model_output)
-            if self.previous is not None:
-                output = weight * output + (1 - weight) * self.previous.output(axis.model_output)
+            output = models.output(axis.model_output, weight)
+            if weight is not None:
                 flags.add(Flag.BLENDING)
             depends = self.active.depends[axis.model_output]
             faulted = any(readings[s].health is Health.FAULTED for s in depends)
@@ -181,7 +193,7 @@ class Compensator:
                 flags.add(Flag.SLEWING)
         if self.active.runner is None:
             flags.add(Flag.STARTING)
-        if self.model_fault is not None:
+        if models.fault is not None:
             any_frozen = True
         if not all(link.up for link in self.links.values()):
             flags.add(Flag.DRIVER_DOWN)
@@ -196,9 +208,7 @@ class Compensator:
             flags,
             bad,
             mismatch=mismatches > 0 and status is not None and status.mismatch_bit,
-            model_fault=self.model_fault is not None
-            and status is not None
-            and status.model_fault_bit,
+            model_fault=models.fault is not None and status is not None and status.model_fault_bit,
         )
         self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
         ok, acknowledged = await self._write(offsets, word)
@@ -241,105 +251,6 @@ class Compensator:
             return False
         word = status_word(Level(self.last.status & 0b11), [Flag.STOPPED], [])
         return await self.points.write_status(word, self.heartbeat)
-
-    def _step_models(self, t_s: float, checked: Mapping[str, float]) -> None:
-        self.history.append(checked)
-        pending = self.pending
-        fault: str | None = None
-        if pending is not None and self._complete(pending, checked):
-            self.pending = None
-            try:
-                pending.start(self._handover(pending, checked))
-            except Exception as exc:  # any failure of a new model: refuse it, keep the running one
-                fault = self._failed(pending, self.active, f"could not start: {exc!r}")
-            else:
-                if self.active.runner is not None:
-                    self.previous, self.blend_start_s = self.active, t_s
-                self.fallback, self.active = self.active, pending
-                self.counters.model_loads += 1
-        for slot in (self.active, self.previous):
-            if slot is None:
-                continue
-            if not self._complete(slot, checked):
-                slot.outputs[:] = np.nan
-                continue
-            try:
-                if slot.runner is None:
-                    slot.start(slot.compiled.steady_state(checked))
-                assert slot.runner is not None
-                if self.schedule is not None:
-                    self.schedule.apply(slot.runner)
-                slot.outputs = slot.runner.step(checked)
-            except Exception as exc:  # a model must never end the loop
-                slot.outputs[:] = np.nan
-                fault = self._unload(slot, f"failed: {exc!r}")
-                continue
-            if not np.all(np.isfinite(slot.outputs)):
-                fault = f"model {slot.compiled.name!r} gave a non-finite output"
-                state = slot.runner.state
-                if not all(np.all(np.isfinite(v)) for v in (state.z, state.residual)):
-                    fault = self._unload(slot, "its state turned NaN/inf")
-        self._latch_fault(fault)
-
-    def _unload(self, slot: ModelSlot, why: str) -> str:
-        """Take a failed model out of the loop: restore the one it replaced, or restart it."""
-        slot.runner = None
-        if slot is self.previous:  # the outgoing model of a blend: the blend ends early
-            self.previous = None
-            return f"model {slot.compiled.name!r} (blending out) {why}"
-        restore = self.fallback
-        if restore is None or restore is slot:
-            return f"model {slot.compiled.name!r} {why}; restarting it from its inputs"
-        if restore is not self.previous:
-            history = self.history.matrix(restore.compiled.signals)
-            restore.runner = None
-            restore.outputs[:] = np.nan  # not stepped this tick: the axes hold
-            if len(history) >= 2:  # warm, from the recent inputs (compd.model.handover)
-                try:
-                    restore.start(handover_state(restore.compiled, history))
-                except Exception:  # then from steady state with the next inputs
-                    log.warning("restored model starts cold", model=restore.compiled.name)
-        self.active, self.previous, self.fallback = restore, None, None
-        return self._failed(slot, restore, why)
-
-    def _failed(self, failed: ModelSlot, restored: ModelSlot, why: str) -> str:
-        self.counters.model_failures += 1
-        log.error(
-            "model failed and was unloaded",
-            model=failed.compiled.name,
-            sha256=failed.sha256,
-            reason=why,
-            restored=restored.compiled.name,
-        )
-        message = f"model {failed.compiled.name!r} {why}; restored {restored.compiled.name!r}"
-        self.model_fault = message  # logged here: the latch only follows it (DEBUG, then INFO)
-        if self.on_model_failure is not None:
-            self.on_model_failure(failed, restored)
-        return message
-
-    def _latch_fault(self, fault: str | None) -> None:
-        """ERROR once when a model fault starts, DEBUG while it lasts, INFO when it ends."""
-        if fault is not None and self.model_fault is None:
-            log.error("model fault: the axes hold their offsets", reason=fault)
-        elif fault is not None:
-            log.debug("model fault goes on", reason=fault)
-        elif self.model_fault is not None and np.all(np.isfinite(self.active.outputs)):
-            log.info("model outputs are finite again", model=self.active.compiled.name)
-        else:
-            return
-        self.model_fault = fault
-
-    def _handover(self, pending: ModelSlot, checked: Mapping[str, float]) -> ModelState:
-        """A model switched in while another runs starts warm (:mod:`compd.model.handover`)."""
-        running = self.active
-        history = self.history.matrix(pending.compiled.signals)
-        if running.runner is None or len(history) < 2:
-            return pending.compiled.steady_state(checked)
-        return handover_state(pending.compiled, history, running.compiled, running.runner.state)
-
-    @staticmethod
-    def _complete(slot: ModelSlot, checked: Mapping[str, float]) -> bool:
-        return all(math.isfinite(checked[s]) for s in slot.compiled.signals)
 
     async def _write(
         self, offsets: Mapping[str, float], word: int

@@ -110,7 +110,7 @@ class Service:
             schedule=doc.gain_schedule.scheduler() if doc.gain_schedule else None,
             on_model_failure=self.loader.failed,
         )
-        self.compensator.fallback = fallback
+        self.compensator.models.fallback = fallback
         if resume is not None:
             self.compensator.heartbeat = resume.ticks % HEARTBEAT_MODULO
         self.timing = TickTiming()

@@ -114,7 +114,7 @@ def test_a_new_model_that_cannot_start_is_dropped_and_the_running_one_goes_on(
     def broken_handover(*args: Any, **kwargs: Any) -> Any:
         raise np.linalg.LinAlgError("singular matrix")
 
-    monkeypatch.setattr("compd.service.compensator.handover_state", broken_handover)
+    monkeypatch.setattr("compd.service.slots.handover_state", broken_handover)
     service, records, replies, logs = run_with_load(tmp_path, lambda s, r: None, ticks_after=200)
     assert replies["load"]["ok"]  # accepted: it failed only when the loop started it
     assert len(records) >= 300 and service.compensator.active.compiled.name == CONFIG_MODEL
