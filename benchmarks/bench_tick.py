@@ -36,9 +36,9 @@ import yaml
 from common import build_model, environment, verdict, week_signals
 
 from compd.service.clock import RealClock
+from compd.service.compensator import TickRecord
 from compd.service.config import load_config
 from compd.service.daemon import Service
-from compd.service.loop import TickRecord
 from compd.service.recorder import Recorder
 
 MAX_P99_LATENESS_MS = 5.0

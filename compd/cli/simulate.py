@@ -20,9 +20,9 @@ from rich.live import Live
 from compd.cli.args import positive_float
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import console
+from compd.service.compensator import TickRecord
 from compd.service.config import Config
 from compd.service.daemon import Service
-from compd.service.loop import TickRecord
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import SimulationResult, run_simulation, serve_machine
 from compd.sim.plc.view import fault_table, live_view, summary_table

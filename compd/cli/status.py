@@ -1,10 +1,10 @@
 """``compd status``: ask the running daemon over its control socket, at once.
 
 The socket comes from two keys of the config's YAML
-(:func:`compd.service.paths.control_socket_in`), not from validating the
+(:func:`compd.service.paths.control_socket_of`), not from validating the
 whole config and its model: status must answer in a blink on an edge PC,
-also to say that nothing is running. A config whose keys cannot be read
-that way is loaded in full, for the error that names the place.
+also to say that nothing is running. A file that is not a YAML mapping
+is loaded in full, for the error that names the place.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from compd.cli.terminal import console
 from compd.errors import CompdError, ConfigFileError
 from compd.files.yamlplace import parse_yaml, read_limited, resolve_path
 from compd.service.control import request_sync
-from compd.service.paths import control_socket_in
+from compd.service.paths import control_socket_of
 
 
 def control_socket(config_text: str) -> Path:
@@ -25,12 +25,11 @@ def control_socket(config_text: str) -> Path:
     path = resolve_path(config_text, Path.cwd())
     text = read_limited(path, ConfigFileError).decode("utf-8", errors="replace")
     data, _ = parse_yaml(text, path, ConfigFileError)
-    socket = control_socket_in(data, path.parent) if isinstance(data, dict) else None
-    if socket is None:
+    if not isinstance(data, dict):
         from compd.cli.serving import config_from_arg  # raises the error naming the place
 
         return config_from_arg(config_text).control_socket
-    return socket
+    return control_socket_of(data, path.parent)
 
 
 def status_command(args: argparse.Namespace) -> int:

@@ -9,27 +9,25 @@ an undefined driver, a model input without a signal) are errors reading
 ``FILE: line N (signals.T_spindle.driver): what is wrong. fix``; any of them
 stops ``compd run`` before the first write to a machine, and
 ``compd check-config`` runs exactly the same validation.
+
+Each section's schema, and the runtime object it builds, is in
+:mod:`compd.service.configdoc`; the checks here span sections (a reference
+from one to another, an address a driver type must accept), run in the order
+:func:`parse_config` lists them. Where the daemon's files go is
+:mod:`compd.service.paths`.
 """
 
 from __future__ import annotations
 
-import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Any
 
 import yaml
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    StrictInt,
-    ValidationError,
-    model_validator,
-)
+from pydantic import BaseModel, ValidationError
 
-from compd.drivers.base import DriverType, address_syntax, check_address
+from compd.drivers.base import Driver, DriverType, address_syntax, check_address
 from compd.drivers.registry import (
     DriverImportError,
     UnknownDriverError,
@@ -48,9 +46,13 @@ from compd.files.yamlplace import (
     where,
 )
 from compd.model.compiled import CompiledModel
-from compd.service.paths import control_socket_of, state_dir_of
-from compd.service.schedule import GainRow, GainTable, first_overlap, model_gains
+from compd.service import paths
+from compd.service.configdoc import SCHEMA, ConfigDoc, GainScheduleDoc
+from compd.service.offsets import AxisPoint
+from compd.service.points import StatusPoint
+from compd.service.schedule import first_overlap, model_gains
 from compd.service.writepoints import (
+    ErrorAt,
     check_written,
     output_readback,
     status_mismatch_bit,
@@ -58,222 +60,6 @@ from compd.service.writepoints import (
     whole_counts,
     written_points,
 )
-
-SCHEMA = "compd.config/1"
-#: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31); the
-#: readback-mismatch and model-fault bits follow them where bits are left (:mod:`compd.service.safety`).
-MAX_SIGNALS = 24
-
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class ChecksDoc(_Strict):
-    """Per-signal plausibility checks (see :mod:`compd.service.signals`), in the signal's unit."""
-
-    min: FiniteFloat | None = None
-    max: FiniteFloat | None = None
-    stale_s: Positive = 10.0
-    stuck_s: Positive | None = None
-    stuck_tolerance: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
-    max_jump: Positive | None = None
-    hold_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 30.0
-
-    @model_validator(mode="after")
-    def _ordered(self) -> ChecksDoc:
-        if self.min is not None and self.max is not None and self.min >= self.max:
-            raise ValueError(f"'min' ({self.min}) must be below 'max' ({self.max})")
-        return self
-
-
-class SignalDoc(_Strict):
-    """``value = raw * scale + offset`` in ``unit``."""
-
-    driver: str
-    address: str = Field(min_length=1)
-    type: Literal["float", "int", "bool"] = "float"
-    scale: FiniteFloat = 1.0
-    offset: FiniteFloat = 0.0
-    unit: str
-    description: str = ""
-    checks: ChecksDoc = ChecksDoc()
-
-
-class EncodingDoc(_Strict):
-    """How an offset in um is written: ``round(offset_um * scale)`` for ``int``."""
-
-    type: Literal["float", "int"] = "float"
-    scale: Positive = 1.0
-
-
-class OutputDoc(_Strict):
-    """One compensated axis: ``offset_um = sign * model_output`` after the safety stage."""
-
-    model_output: str
-    driver: str
-    address: str = Field(min_length=1)
-    encoding: EncodingDoc = EncodingDoc()
-    sign: Literal[-1, 1] = -1
-    max_offset_um: Positive
-    max_rate_um_per_s: Positive
-    #: Read the offset back each tick and slew from what the PLC holds; default: where the driver can.
-    readback: bool | None = None
-
-
-class StatusDoc(_Strict):
-    """Where the status word and the heartbeat counter go, for the PLC's supervision."""
-
-    driver: str
-    status_address: str = Field(min_length=1)
-    heartbeat_address: str = Field(min_length=1)
-
-
-class DriverDoc(_Strict):
-    type: str
-    settings: dict[str, Any] = Field(default_factory=dict)
-    timeout_s: Positive = 0.5
-    reconnect_min_s: Positive = 1.0
-    reconnect_max_s: Positive = 60.0
-
-
-class SafetyDoc(_Strict):
-    on_fault: Literal["ramp", "freeze"] = "ramp"
-    fault_ramp_after_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
-
-
-class StateDoc(_Strict):
-    directory: str | None = None
-    save_every_ticks: int = Field(default=60, ge=1)
-    resume_max_age_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 900.0
-
-
-class RecorderDoc(_Strict):
-    enabled: bool = True
-    directory: str | None = None
-    max_file_bytes: int = Field(default=20_000_000, ge=1024)
-    max_file_age_s: Positive = 86_400.0
-    max_total_bytes: int = Field(default=2_000_000_000, ge=1024)
-
-    @model_validator(mode="after")
-    def _total_holds_a_file(self) -> RecorderDoc:
-        if self.max_total_bytes < self.max_file_bytes:
-            raise ValueError(
-                f"'max_total_bytes' ({self.max_total_bytes}) must be at least 'max_file_bytes' "
-                f"({self.max_file_bytes}): the open file alone may reach that size"
-            )
-        return self
-
-
-class EffectDoc(_Strict):
-    """An entry of the effect catalogue: a physical effect and the signals that excite it."""
-
-    description: str = ""
-    signals: list[str] = Field(default_factory=list)
-
-
-class WhenDoc(_Strict):
-    """A gain-table key: ``when: 2`` (a whole number) or ``when: {min: 0, max: 250}`` (``min <= key < max``)."""
-
-    value: StrictInt | None = None
-    min: FiniteFloat | None = None
-    max: FiniteFloat | None = None
-
-    @model_validator(mode="before")
-    @classmethod
-    def _whole_or_range(cls, data: object) -> object:
-        if isinstance(data, int) and not isinstance(data, bool):
-            return {"value": data}
-        if not isinstance(data, dict) or "value" in data:
-            raise ValueError(
-                "'when' must be a whole number (a head or program number, e.g. 'when: 2') "
-                f"or a range (e.g. 'when: {{min: 0, max: 250}}'), got {data!r}"
-            )
-        return data
-
-    @model_validator(mode="after")
-    def _ordered(self) -> WhenDoc:
-        if self.value is None and self.min is None and self.max is None:
-            raise ValueError("a range needs 'min', 'max' or both")
-        if self.min is not None and self.max is not None and self.min >= self.max:
-            raise ValueError(f"'min' ({self.min}) must be below 'max' ({self.max})")
-        return self
-
-
-class GainRowDoc(_Strict):
-    """A row of the gain table: ``gains`` (gain_name -> value) while the key matches ``when``."""
-
-    when: WhenDoc
-    gains: dict[str, FiniteFloat] = Field(min_length=1)
-
-    def row(self) -> GainRow:
-        when = self.when
-        return GainRow(
-            dict(self.gains),
-            value=when.value,
-            low=float("-inf") if when.min is None else when.min,
-            high=float("inf") if when.max is None else when.max,
-        )
-
-
-class GainScheduleDoc(_Strict):
-    """Gains by operating condition (see :mod:`compd.service.schedule`)."""
-
-    signal: str
-    table: list[GainRowDoc] = Field(min_length=1)
-    default: dict[str, FiniteFloat] | None = None
-    ramp_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 30.0
-
-    def gain_table(self) -> GainTable:
-        default = None if self.default is None else dict(self.default)
-        return GainTable(self.signal, tuple(r.row() for r in self.table), default, self.ramp_s)
-
-
-class LoadAccessDoc(_Strict):
-    """Who may switch the running model over the control socket (``compd model load``).
-
-    Users and groups by name or number; a client is allowed when its uid is
-    listed or its primary gid is (the kernel reports one gid per connection).
-    Unset ``users``: the daemon's own user and root. ``compd status`` is open
-    to everyone who can open the socket (its group).
-    """
-
-    users: list[str | int] | None = None
-    groups: list[str | int] = Field(default_factory=list)
-
-    def ids(self) -> tuple[frozenset[int], frozenset[int]]:
-        """The uids and gids; raises LookupError naming an unknown user or group."""
-        import grp
-        import pwd
-
-        users = [os.getuid(), 0] if self.users is None else self.users
-        uids = [u if isinstance(u, int) else pwd.getpwnam(u).pw_uid for u in users]
-        gids = [g if isinstance(g, int) else grp.getgrnam(g).gr_gid for g in self.groups]
-        return frozenset(uids), frozenset(gids)
-
-
-class ConfigDoc(_Strict):
-    schema_: Literal["compd.config/1"] = Field(alias="schema")
-    model: str
-    period_s: Positive = 1.0
-    blend_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
-    live_every_ticks: int = Field(default=60, ge=1)
-    control_socket: str | None = None
-    load_access: LoadAccessDoc = LoadAccessDoc()
-    drivers: dict[str, DriverDoc] = Field(min_length=1)
-    signals: dict[str, SignalDoc] = Field(min_length=1, max_length=MAX_SIGNALS)
-    outputs: dict[str, OutputDoc] = Field(min_length=1)
-    status: StatusDoc | None = None
-    safety: SafetyDoc = SafetyDoc()
-    state: StateDoc = StateDoc()
-    recorder: RecorderDoc = RecorderDoc()
-    effects: dict[str, EffectDoc] = Field(default_factory=dict)
-    gain_schedule: GainScheduleDoc | None = None
-    #: The simulated machine this config runs against (:mod:`compd.sim.plc.settings`).
-    simulation: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -309,6 +95,34 @@ class Config:
     def signal_names(self) -> tuple[str, ...]:
         return tuple(self.doc.signals)
 
+    def axis_points(self) -> list[AxisPoint]:
+        """Each output's write point, with what its driver says of it (whole counts, readback)."""
+        return [
+            out.point(
+                axis,
+                integer=self.whole_counts.get(axis),
+                readback=self.readback.get(axis, False),
+            )
+            for axis, out in self.doc.outputs.items()
+        ]
+
+    def status_point(self) -> StatusPoint | None:
+        """The status word's point, with the optional bits its register holds; None without one."""
+        status = self.doc.status
+        if status is None:
+            return None
+        return status.point(
+            mismatch_bit=self.mismatch_bit is not None,
+            model_fault_bit=self.model_fault_bit is not None,
+        )
+
+    def build_drivers(self, now: Callable[[], float]) -> dict[str, Driver]:
+        """One driver per ``drivers`` entry, none opened yet."""
+        return {
+            name: driver.driver(self.driver_settings[name], now=now, base_dir=self.base_dir)
+            for name, driver in self.doc.drivers.items()
+        }
+
 
 def load_config(path: str | Path) -> Config:
     """Read and validate a config file (schema and references; see :func:`check_model`)."""
@@ -318,6 +132,54 @@ def load_config(path: str | Path) -> Config:
 
 
 def parse_config(text: str, path: Path) -> Config:
+    """Validate ``text`` as the config at ``path``: the first problem found is the error raised."""
+    doc, root = _read_doc(text, path)
+    at = _Places(path, root)
+    types, settings = _driver_types(doc, at)
+    _check_driver_names(doc, at.error)
+    _check_effect_signals(doc, at.error)
+    _check_gain_schedule(doc, at.error)
+    _check_addresses(doc, types, settings, at.error)
+    check_written(doc, types, settings, at.error)
+    readback = output_readback(doc, types, settings, at.error)
+    _check_load_access(doc, at.error)
+    state_dir = paths.state_dir(doc.state.directory, path.parent)
+    recorder_dir = None
+    if doc.recorder.enabled:
+        recorder_dir = paths.recorder_dir(doc.recorder.directory, state_dir, path.parent)
+    return Config(
+        path=path,
+        doc=doc,
+        model_path=resolve_path(doc.model, path.parent),
+        state_dir=state_dir,
+        recorder_dir=recorder_dir,
+        control_socket=paths.control_socket(doc.control_socket, state_dir, path.parent),
+        driver_settings=settings,
+        simulation=doc.simulation,
+        readback=readback,
+        whole_counts=whole_counts(doc, types, settings),
+        mismatch_bit=status_mismatch_bit(doc, types, settings),
+        model_fault_bit=status_model_fault_bit(doc, types, settings),
+        root=root,
+    )
+
+
+@dataclass(frozen=True)
+class _Places:
+    """Errors placed in the config file: the line and key of a location."""
+
+    path: Path
+    root: yaml.Node | None
+
+    def error(self, location: tuple[str | int, ...], message: str, fix: str) -> ConfigFileError:
+        return ConfigFileError(self.path, message, where=where(self.root, location), fix=fix)
+
+    def invalid(self, exc: ValidationError, prefix: tuple[str | int, ...]) -> ConfigFileError:
+        return validation_error(exc, self.path, self.root, prefix)
+
+
+def _read_doc(text: str, path: Path) -> tuple[ConfigDoc, yaml.Node | None]:
+    """The YAML, of the supported schema, validated section by section."""
     data, root = parse_yaml(text, path, ConfigFileError)
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         shown = data.get("schema") if isinstance(data, dict) else None
@@ -328,26 +190,28 @@ def parse_config(text: str, path: Path) -> Config:
             fix=f"Start the file with 'schema: {SCHEMA}' (see config/compd.example.yaml)",
         )
     try:
-        doc = ConfigDoc.model_validate(data)
+        return ConfigDoc.model_validate(data), root
     except ValidationError as exc:
         raise validation_error(exc, path, root, ()) from exc
 
-    def error(location: tuple[str | int, ...], message: str, fix: str) -> ConfigFileError:
-        return ConfigFileError(path, message, where=where(root, location), fix=fix)
 
+def _driver_types(
+    doc: ConfigDoc, at: _Places
+) -> tuple[dict[str, DriverType], dict[str, BaseModel]]:
+    """Each driver's type (by type name), imported, and its settings (by driver), validated by the type."""
     types: dict[str, DriverType] = {}
     settings: dict[str, BaseModel] = {}
     for name, driver in doc.drivers.items():
         try:
             types[driver.type] = load_driver_type(driver.type)
         except UnknownDriverError:
-            raise error(
+            raise at.error(
                 ("drivers", name, "type"),
                 f"unknown driver type {driver.type!r}",
                 f"Use one of {driver_names()}",
             ) from None
         except DriverImportError as exc:
-            raise error(
+            raise at.error(
                 ("drivers", name, "type"),
                 str(exc),
                 "Install the library it names (pip install compd reinstalls compd's own)",
@@ -355,8 +219,12 @@ def parse_config(text: str, path: Path) -> Config:
         try:
             settings[name] = types[driver.type].settings_model.model_validate(driver.settings)
         except ValidationError as exc:
-            raise validation_error(exc, path, root, ("drivers", name, "settings")) from exc
-    drivers = sorted(doc.drivers)
+            raise at.invalid(exc, ("drivers", name, "settings")) from exc
+    return types, settings
+
+
+def _check_driver_names(doc: ConfigDoc, error: ErrorAt) -> None:
+    """Every signal, output and the status name a driver defined under ``drivers``."""
     references: list[tuple[tuple[str | int, ...], str]] = [
         (("signals", n, "driver"), s.driver) for n, s in doc.signals.items()
     ]
@@ -368,8 +236,12 @@ def parse_config(text: str, path: Path) -> Config:
             raise error(
                 location,
                 f"driver {driver_name!r} is not defined under 'drivers'",
-                f"Define it or use one of {drivers}",
+                f"Define it or use one of {sorted(doc.drivers)}",
             )
+
+
+def _check_effect_signals(doc: ConfigDoc, error: ErrorAt) -> None:
+    """Every signal of the effect catalogue is defined under ``signals``."""
     for name, effect in doc.effects.items():
         for i, signal in enumerate(effect.signals):
             if signal not in doc.signals:
@@ -378,28 +250,40 @@ def parse_config(text: str, path: Path) -> Config:
                     f"signal {signal!r} is not defined under 'signals'",
                     f"Define it or use one of {sorted(doc.signals)}",
                 )
+
+
+def _check_gain_schedule(doc: ConfigDoc, error: ErrorAt) -> None:
+    """The gain schedule's key is a defined signal, and no two of its rows overlap."""
     schedule = doc.gain_schedule
-    if schedule is not None:
-        if schedule.signal not in doc.signals:
-            raise error(
-                ("gain_schedule", "signal"),
-                f"signal {schedule.signal!r} is not defined under 'signals'",
-                f"Define it (e.g. the spindle head number, type: int) or use one of "
-                f"{sorted(doc.signals)}",
-            )
-        overlap = first_overlap([r.row() for r in schedule.table])
-        if overlap is not None:
-            i, j = overlap
-            raise error(
-                ("gain_schedule", "table", j, "when"),
-                f"row {j} overlaps row {i}: some value of {schedule.signal!r} would match both",
-                "Make the rows disjoint (ranges are min <= value < max, so [0, 250) and "
-                "[250, 500) do not overlap)",
-            )
-    written = written_points(doc)
-    # Each driver type checks its own address grammar (compd.drivers.base.AddressHooks).
+    if schedule is None:
+        return
+    if schedule.signal not in doc.signals:
+        raise error(
+            ("gain_schedule", "signal"),
+            f"signal {schedule.signal!r} is not defined under 'signals'",
+            f"Define it (e.g. the spindle head number, type: int) or use one of "
+            f"{sorted(doc.signals)}",
+        )
+    overlap = first_overlap([r.row() for r in schedule.table])
+    if overlap is not None:
+        i, j = overlap
+        raise error(
+            ("gain_schedule", "table", j, "when"),
+            f"row {j} overlaps row {i}: some value of {schedule.signal!r} would match both",
+            "Make the rows disjoint (ranges are min <= value < max, so [0, 250) and "
+            "[250, 500) do not overlap)",
+        )
+
+
+def _check_addresses(
+    doc: ConfigDoc,
+    types: Mapping[str, DriverType],
+    settings: Mapping[str, BaseModel],
+    error: ErrorAt,
+) -> None:
+    """Each address read or written is one its driver type accepts (:func:`compd.drivers.base.check_address`)."""
     read = [(("signals", n, "address"), s.driver, s.address) for n, s in doc.signals.items()]
-    for locations, writable in ((read, False), (written, True)):
+    for locations, writable in ((read, False), (written_points(doc), True)):
         for location, driver_name, address in locations:
             kind = types[doc.drivers[driver_name].type]
             try:
@@ -410,39 +294,16 @@ def parse_config(text: str, path: Path) -> Config:
                     f"address {address!r} for driver {driver_name!r}: {exc}",
                     f"Write it {address_syntax(kind)}",
                 ) from exc
-    check_written(doc, types, settings, error)
-    readback = output_readback(doc, types, settings, error)
 
+
+def _check_load_access(doc: ConfigDoc, error: ErrorAt) -> None:
+    """Every user and group named under ``load_access`` exists."""
     try:
         doc.load_access.ids()
     except KeyError as exc:
         raise error(
             ("load_access",), f"no such user or group: {exc}", "Give an existing name or a number"
         ) from exc
-    state_dir = state_dir_of(doc.state.directory, path.parent)
-    recorder_dir = None
-    if doc.recorder.enabled:
-        recorder_dir = (
-            resolve_path(doc.recorder.directory, path.parent)
-            if doc.recorder.directory
-            else state_dir / "records"
-        )
-    socket = control_socket_of(doc.control_socket, state_dir, path.parent)
-    return Config(
-        path=path,
-        doc=doc,
-        model_path=resolve_path(doc.model, path.parent),
-        state_dir=state_dir,
-        recorder_dir=recorder_dir,
-        control_socket=socket,
-        driver_settings=settings,
-        simulation=doc.simulation,
-        readback=readback,
-        whole_counts=whole_counts(doc, types, settings),
-        mismatch_bit=status_mismatch_bit(doc, types, settings),
-        model_fault_bit=status_model_fault_bit(doc, types, settings),
-        root=root,
-    )
 
 
 def check_model(config: Config, model_file: ModelFile, compiled: CompiledModel) -> None:

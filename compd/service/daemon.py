@@ -5,7 +5,7 @@ config (:mod:`compd.service.config`), the model (the one last installed with
 ``compd model load``, else the config's), and that the two fit. It then
 decides whether to resume the saved model state (:mod:`compd.service.state`), opens
 the drivers, the control socket and the recorder, tells systemd it is ready
-and runs the loop (:mod:`compd.service.loop`) until stopped.
+and runs the loop (:mod:`compd.service.ticks`, :mod:`compd.service.compensator`) until stopped.
 
 While running, the control socket answers ``status`` (a snapshot of the
 model, the last tick, the inputs and their health, and the counters) and
@@ -22,37 +22,23 @@ from __future__ import annotations
 
 import asyncio
 import gc
-import math
 import time
 from collections.abc import Callable, Mapping
-from datetime import UTC, datetime
 from typing import Any
 
 import structlog
 
 from compd.drivers.base import Driver
-from compd.drivers.registry import load_driver_type
 from compd.errors import RecorderError
 from compd.faultlog import FaultLog
 from compd.service.clock import Clock
+from compd.service.compensator import Compensator, TickRecord
 from compd.service.config import Config
-from compd.service.control import Access, ControlServer
-from compd.service.links import DriverLink
-from compd.service.loop import (
-    Compensator,
-    SignalPoint,
-    StatusPoint,
-    TickRecord,
-    TickTiming,
-    run_periodic,
-)
+from compd.service.control import ControlServer
 from compd.service.modelload import ModelLoader, startup_slots
 from compd.service.notify import SystemdNotifier
-from compd.service.offsets import AxisPoint
-from compd.service.recorder import Recorder
-from compd.service.safety import HEARTBEAT_MODULO, AxisLimits, AxisSafety, FaultMode
-from compd.service.schedule import GainScheduler
-from compd.service.signals import Checks, SignalMonitor
+from compd.service.safety import HEARTBEAT_MODULO
+from compd.service.slots import ModelSlot
 from compd.service.state import (
     SavedState,
     StateError,
@@ -60,21 +46,13 @@ from compd.service.state import (
     resume_decision,
     save_state,
 )
+from compd.service.statusview import status_snapshot
+from compd.service.ticks import TickTiming, run_periodic
 
 log = structlog.get_logger("compd.service.daemon")
 
 #: Input history kept for starting a newly loaded model warm (s): hours, as the machine's time constants.
 HISTORY_S = 8 * 3600.0
-
-
-def build_drivers(config: Config, now: Callable[[], float]) -> dict[str, Driver]:
-    """One driver per config entry; each type's module is imported here, not before."""
-    return {
-        name: load_driver_type(doc.type)(
-            config.driver_settings[name], now=now, base_dir=config.base_dir
-        )
-        for name, doc in config.doc.drivers.items()
-    }
 
 
 class Service:
@@ -106,99 +84,35 @@ class Service:
         doc = config.doc
         now_unix = clock.wall()
         slot, fallback = startup_slots(config, now_unix)
-        self.drivers = dict(drivers) if drivers is not None else build_drivers(config, clock.now)
-        try:
-            saved = load_state(config.state_dir)
-        except StateError as exc:
-            log.warning("saved state ignored", reason=str(exc))
-            saved = None
-        decision = resume_decision(
-            saved,
-            slot.sha256,
-            slot.compiled,
-            now_unix,
-            doc.state.resume_max_age_s,
-            real_now_unix_s=time.time(),
-            time_scale=getattr(clock, "time_scale", 1.0),
-            max_offsets_um={axis: out.max_offset_um for axis, out in doc.outputs.items()},
-        )
-        log.info(
-            "model",
-            name=slot.compiled.name,
-            sha256=slot.sha256,
-            path=slot.model_file.path,
-            resume=decision.resume,
-            reason=decision.reason,
-        )
-        self.resumed = decision.resume
-        offsets = dict(saved.offsets_um) if saved is not None and decision.resume else {}
-        safety = {
-            axis: AxisSafety(
-                AxisLimits(out.max_offset_um, out.max_rate_um_per_s),
-                doc.period_s,
-                on_fault=FaultMode(doc.safety.on_fault),
-                fault_ramp_after_s=doc.safety.fault_ramp_after_s,
-                offset_um=offsets.get(axis, 0.0),
-            )
-            for axis, out in doc.outputs.items()
-        }
+        self.drivers = dict(drivers) if drivers is not None else config.build_drivers(clock.now)
+        resume = _resumable(config, slot, clock, now_unix)
+        self.resumed = resume is not None
+        offsets = dict(resume.offsets_um) if resume is not None else {}
         self.links = {
-            name: DriverLink(
-                name,
-                self.drivers[name],
-                clock,
-                timeout_s=d.timeout_s,
-                backoff_min_s=d.reconnect_min_s,
-                backoff_max_s=d.reconnect_max_s,
-            )
-            for name, d in doc.drivers.items()
+            name: d.link(name, self.drivers[name], clock) for name, d in doc.drivers.items()
         }
-        status = doc.status
         self.loader = ModelLoader(config, clock.wall)
         self.compensator = Compensator(
-            signals=[
-                SignalPoint(name, s.driver, s.address, s.scale, s.offset, s.type)
-                for name, s in doc.signals.items()
-            ],
-            monitors={
-                name: SignalMonitor(name, Checks(**s.checks.model_dump()))
-                for name, s in doc.signals.items()
+            signals=[s.point(name) for name, s in doc.signals.items()],
+            monitors={name: s.monitor(name) for name, s in doc.signals.items()},
+            axes=config.axis_points(),
+            safety={
+                axis: out.stage(doc.period_s, doc.safety, offset_um=offsets.get(axis, 0.0))
+                for axis, out in doc.outputs.items()
             },
-            axes=[
-                AxisPoint(
-                    axis,
-                    o.model_output,
-                    o.driver,
-                    o.address,
-                    float(o.sign),
-                    o.encoding.scale,
-                    config.whole_counts.get(axis, o.encoding.type == "int"),
-                    readback=config.readback.get(axis, False),
-                )
-                for axis, o in doc.outputs.items()
-            ],
-            safety=safety,
             links=self.links,
             model=slot,
-            status=StatusPoint(
-                status.driver,
-                status.status_address,
-                status.heartbeat_address,
-                mismatch_bit=config.mismatch_bit is not None,
-                model_fault_bit=config.model_fault_bit is not None,
-            )
-            if status
-            else None,
+            status=config.status_point(),
             blend_s=doc.blend_s,
             wall_at=clock.wall_at,
-            initial_state=saved.model_state if saved is not None and decision.resume else None,
+            initial_state=resume.model_state if resume is not None else None,
             history_ticks=round(HISTORY_S / doc.period_s),
-            schedule=GainScheduler(doc.gain_schedule.gain_table()) if doc.gain_schedule else None,
+            schedule=doc.gain_schedule.scheduler() if doc.gain_schedule else None,
             on_model_failure=self.loader.failed,
         )
-        self.compensator.fallback = fallback
-        if saved is not None and decision.resume:
-            self.compensator.heartbeat = saved.ticks % HEARTBEAT_MODULO
+        self.compensator.models.fallback = fallback
+        if resume is not None:
+            self.compensator.heartbeat = resume.ticks % HEARTBEAT_MODULO
         self.timing = TickTiming()
         self.stop_event = asyncio.Event()
         self.started_unix_s = now_unix
@@ -206,20 +120,13 @@ class Service:
             ControlServer(
                 config.control_socket,
                 {"status": self._status, "load": self._load},
-                access={"load": Access(*doc.load_access.ids())},
+                access={"load": doc.load_access.access()},
             )
             if control
             else None
         )
         self.recorder = (
-            Recorder(
-                config.recorder_dir,
-                max_file_bytes=doc.recorder.max_file_bytes,
-                max_file_age_s=doc.recorder.max_file_age_s,
-                max_total_bytes=doc.recorder.max_total_bytes,
-            )
-            if config.recorder_dir is not None
-            else None
+            doc.recorder.recorder(config.recorder_dir) if config.recorder_dir is not None else None
         )
         self._recorder_fault = FaultLog(log)
         self._save_fault = FaultLog(log)  # saves fail every save_every_ticks: log once
@@ -370,53 +277,14 @@ class Service:
         return self.status()
 
     def status(self) -> dict[str, Any]:
-        """A JSON-able snapshot: model, last tick, inputs and health, offsets, counters."""
-        comp = self.compensator
-        slot, last = comp.active, comp.last
-        counters = comp.counters
-        return {
-            "model": {
-                "name": slot.compiled.name,
-                "sha256": slot.sha256,
-                "path": slot.model_file.path,
-                "loaded": _iso(slot.loaded_at_unix_s),
-                "started": slot.runner is not None,
-                "pending": comp.pending.compiled.name if comp.pending else None,
-                "blending_from": comp.previous.compiled.name if comp.previous else None,
-                "fault": comp.model_fault,
-            },
-            "gain_schedule": comp.schedule.status() if comp.schedule is not None else None,
-            "resumed": self.resumed,
-            "started": _iso(self.started_unix_s),
-            "last_tick": None if last is None else _iso(last.wall_unix_s),
-            "status_word": None if last is None else last.status,
-            "heartbeat": comp.heartbeat,
-            "offsets_um": {a: s.offset_um for a, s in comp.safety.items()},
-            # What the PLC holds as far as compd knows (read back, else acknowledged).
-            "offsets_held_um": comp.held.known_um(),
-            "targets_um": {} if last is None else last.targets_um,
-            "inputs": {
-                name: {
-                    "value": _finite(m.reading.value),
-                    "health": m.reading.health.name.lower(),
-                    "reason": m.reading.reason,
-                }
-                for name, m in comp.monitors.items()
-            },
-            "drivers": {name: ("up" if link.up else "down") for name, link in self.links.items()},
-            "counters": {
-                "ticks": counters.ticks,
-                "overruns": self.timing.overruns,
-                "max_lateness_ms": round(self.timing.max_lateness_s * 1e3, 3),
-                "signal_faults": counters.signal_faults,
-                "driver_faults": sum(link.faults for link in self.links.values()),
-                "reconnects": sum(link.reconnects for link in self.links.values()),
-                "write_failures": counters.write_failures,
-                "model_loads": counters.model_loads,
-                "offset_mismatches": counters.offset_mismatches,
-                "model_failures": counters.model_failures,
-            },
-        }
+        """A JSON-able snapshot (:mod:`compd.service.statusview`)."""
+        return status_snapshot(
+            self.compensator,
+            self.links,
+            self.timing,
+            resumed=self.resumed,
+            started_unix_s=self.started_unix_s,
+        )
 
 
 def _summary(record: TickRecord) -> str:
@@ -425,9 +293,31 @@ def _summary(record: TickRecord) -> str:
     return f"{offsets}; status word {record.status}"
 
 
-def _iso(unix_s: float) -> str:
-    return datetime.fromtimestamp(unix_s, UTC).isoformat(timespec="seconds")
-
-
-def _finite(value: float) -> float | None:
-    return value if math.isfinite(value) else None
+def _resumable(
+    config: Config, slot: ModelSlot, clock: Clock, now_unix_s: float
+) -> SavedState | None:
+    """The saved state to resume from, if it belongs to this model and is recent and sane enough."""
+    try:
+        saved = load_state(config.state_dir)
+    except StateError as exc:
+        log.warning("saved state ignored", reason=str(exc))
+        saved = None
+    decision = resume_decision(
+        saved,
+        slot.sha256,
+        slot.compiled,
+        now_unix_s,
+        config.doc.state.resume_max_age_s,
+        real_now_unix_s=time.time(),
+        time_scale=getattr(clock, "time_scale", 1.0),
+        max_offsets_um={axis: out.max_offset_um for axis, out in config.doc.outputs.items()},
+    )
+    log.info(
+        "model",
+        name=slot.compiled.name,
+        sha256=slot.sha256,
+        path=slot.model_file.path,
+        resume=decision.resume,
+        reason=decision.reason,
+    )
+    return saved if decision.resume else None

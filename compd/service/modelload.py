@@ -9,7 +9,7 @@ worker thread, one load at a time and under a time limit, while the 1 Hz
 tick and SIGTERM go on being served by the event loop.
 
 A model that later fails while running is unloaded by the loop
-(:class:`~compd.service.loop.Compensator`); :meth:`ModelLoader.failed` then makes
+(:class:`~compd.service.compensator.Compensator`); :meth:`ModelLoader.failed` then makes
 the model it restored the one the next start picks, so a bad model is never
 started again by a restart. At start-up an installed model that is refused
 falls back on the config's model, with an ERROR naming both.
@@ -33,7 +33,7 @@ from compd.errors import CompdError, ModelFileError
 from compd.files.modelfile import parse_model_bytes
 from compd.files.yamlplace import MAX_YAML_BYTES, read_limited, shorten
 from compd.service.config import Config, check_model
-from compd.service.loop import ModelSlot
+from compd.service.slots import ModelSlot
 from compd.service.state import install_model_bytes, installed_model, reinstate_model
 
 log = structlog.get_logger("compd.service.modelload")

@@ -14,7 +14,7 @@ so no written offset is ever NaN or inf, and no two consecutive offsets
 differ by more than ``R*T`` -- at start, at a model change, on recovery,
 always. ``last`` is what the machine holds: :meth:`AxisSafety.load` re-seeds
 it at start and whenever the offset point reads back something else (the
-service, :mod:`compd.service.loop`). An offset loaded outside ``±M`` (held by the PLC,
+service, :mod:`compd.service.offsets`). An offset loaded outside ``±M`` (held by the PLC,
 or saved under a larger limit) walks into range at the slew rate rather than
 jumping.
 
@@ -32,7 +32,7 @@ The status word written beside the offsets lets the PLC supervise compd:
   16-bit status register has it for up to 7 signals; where the register has
   no bit left, the mismatch is only logged and counted;
 - the bit after that (``8 + n + 1``): model fault -- the model's output is not
-  finite, or a model failed and was unloaded (see :class:`~compd.service.loop.Compensator`).
+  finite, or a model failed and was unloaded (see :class:`~compd.service.compensator.Compensator`).
   Where the register has no bit left for it, the fault shows as level 2 (faulted),
   in the log and in the counters.
 

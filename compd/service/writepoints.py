@@ -34,7 +34,7 @@ from compd.service.safety import HEARTBEAT_MODULO, SIGNAL_BIT0, mismatch_bit, mo
 
 if TYPE_CHECKING:
     from compd.drivers.base import DriverType
-    from compd.service.config import ConfigDoc
+    from compd.service.configdoc import ConfigDoc
 
 #: Builds the config error for a place: ``error(location, message, fix)``.
 ErrorAt = Callable[[tuple[str | int, ...], str, str], ConfigFileError]

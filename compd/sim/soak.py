@@ -24,7 +24,7 @@ receives and judges it against what the register held just before (after
 any reset): the soak counts crashes (an exception out of the service, or a
 service that cannot be built), steps above the slew limit
 (``max_rate_um_per_s * period_s``), and offsets the service reports as
-acknowledged (:attr:`~compd.service.loop.TickRecord.acknowledged_um`, what the
+acknowledged (:attr:`~compd.service.compensator.TickRecord.acknowledged_um`, what the
 recorder writes) that the PLC never received. Targets: 0, 0, 0.
 """
 
@@ -49,10 +49,10 @@ from compd.drivers.modbus import ModbusDriver
 from compd.errors import CompdError
 from compd.files.yamlplace import resolve_path
 from compd.service.clock import VirtualClock
+from compd.service.compensator import TickRecord
 from compd.service.config import Config, load_config
 from compd.service.control import request
 from compd.service.daemon import Service
-from compd.service.loop import TickRecord
 from compd.service.modelload import load_request
 from compd.service.state import STATE_FILE
 from compd.sim.plc.build import build_machine

@@ -25,10 +25,10 @@ from compd.errors import (
     DriverTimeoutError,
 )
 from compd.service.clock import RealClock
+from compd.service.compensator import TickRecord
 from compd.service.config import parse_config
 from compd.service.daemon import Service
 from compd.service.links import DriverLink
-from compd.service.loop import TickRecord
 from compd.service.safety import Flag
 
 from ..service.daemon_setup import write_config

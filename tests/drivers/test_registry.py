@@ -11,7 +11,6 @@ from compd.drivers.registry import driver_names, load_driver_type
 
 from compd.errors import ConfigFileError
 from compd.service.config import load_config
-from compd.service.daemon import build_drivers
 from tests.acceptance.conftest import machine_doc
 
 BUNDLED_MODEL = Path(__file__).parents[2] / "config" / "simulated_model.yaml"
@@ -75,7 +74,7 @@ def test_an_installed_driver_is_named_loaded_and_checked(installed_plugin: Path,
     path = tmp_path / "compd.yaml"
     path.write_text(yaml.safe_dump(doc))
     config = load_config(path)
-    assert build_drivers(config, now=lambda: 0.0)["plc"].settings.station == 3
+    assert config.build_drivers(now=lambda: 0.0)["plc"].settings.station == 3
 
     doc["signals"][next(iter(doc["signals"]))]["address"] = "T1"
     path.write_text(yaml.safe_dump(doc))

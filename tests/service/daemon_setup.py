@@ -13,9 +13,9 @@ import yaml
 
 from compd.files.yamlplace import resolve_path
 from compd.service.clock import VirtualClock
+from compd.service.compensator import TickRecord
 from compd.service.config import Config, load_config
 from compd.service.daemon import Service
-from compd.service.loop import TickRecord
 
 BUNDLED_SIMULATED = resolve_path("bundled:replay.yaml", Path("."))
 

@@ -11,10 +11,10 @@ import numpy as np
 from structlog.testing import capture_logs
 
 from compd.service.clock import VirtualClock
-from compd.service.config import MAX_SIGNALS
+from compd.service.compensator import TickRecord
+from compd.service.configdoc import MAX_SIGNALS
 from compd.service.control import request
 from compd.service.daemon import Service
-from compd.service.loop import TickRecord
 from compd.service.modelload import load_request
 from compd.service.safety import SIGNAL_BIT0, Level, mismatch_bit, model_fault_bit
 from compd.service.state import install_model_bytes, installed_model
@@ -114,7 +114,7 @@ def test_a_new_model_that_cannot_start_is_dropped_and_the_running_one_goes_on(
     def broken_handover(*args: Any, **kwargs: Any) -> Any:
         raise np.linalg.LinAlgError("singular matrix")
 
-    monkeypatch.setattr("compd.service.loop.handover_state", broken_handover)
+    monkeypatch.setattr("compd.service.slots.handover_state", broken_handover)
     service, records, replies, logs = run_with_load(tmp_path, lambda s, r: None, ticks_after=200)
     assert replies["load"]["ok"]  # accepted: it failed only when the loop started it
     assert len(records) >= 300 and service.compensator.active.compiled.name == CONFIG_MODEL

@@ -29,9 +29,9 @@ from hypothesis import strategies as st
 
 from compd.files.yamlplace import resolve_path
 from compd.service.clock import VirtualClock
+from compd.service.compensator import TickRecord
 from compd.service.config import Config, load_config
 from compd.service.daemon import Service
-from compd.service.loop import TickRecord
 from compd.service.safety import SIGNAL_BIT0, Level
 from compd.service.state import STATE_FILE
 from compd.sim.plc.modbus import ModbusPlcServer

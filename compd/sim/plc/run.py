@@ -21,11 +21,12 @@ from typing import Any
 
 from compd.errors import CompdError
 from compd.service.clock import Clock, RealClock, VirtualClock
+from compd.service.compensator import TickRecord
 from compd.service.config import Config
 from compd.service.daemon import Service
 from compd.service.links import DriverLink
-from compd.service.loop import TickRecord, TickTiming, run_periodic
 from compd.service.state import STATE_FILE
+from compd.service.ticks import TickTiming, run_periodic
 from compd.sim.plc.build import build_machine
 from compd.sim.plc.machine import AxisSummary, MachineClock, SimulatedMachine
 

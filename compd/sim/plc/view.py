@@ -10,7 +10,7 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
-from compd.service.loop import TickRecord
+from compd.service.compensator import TickRecord
 from compd.service.safety import Level
 from compd.service.signals import Health
 from compd.sim.plc.machine import AxisSummary, SimulatedMachine

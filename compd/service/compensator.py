@@ -1,0 +1,267 @@
+"""The per-tick function: read, check, step the model, limit, write, in that order.
+
+:class:`Compensator` is what the scheduler (:mod:`compd.service.ticks`) calls
+once per period. Every I/O goes through the per-driver batches of
+:mod:`compd.service.points` (each a :class:`~compd.service.links.DriverLink`),
+so that no I/O error can end the loop; the models it steps are the slots of
+:mod:`compd.service.slots`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import structlog
+
+from compd.model.compiled import ModelState
+from compd.service.links import DriverLink
+from compd.service.offsets import AxisPoint, HeldOffsets
+from compd.service.points import DriverBatches, SignalPoint, StatusPoint
+from compd.service.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
+from compd.service.schedule import GainScheduler
+from compd.service.signals import Health, SignalMonitor
+from compd.service.slots import ModelSlot, ModelSlots
+
+log = structlog.get_logger("compd.service.compensator")
+
+
+@dataclass
+class TickRecord:
+    """Everything one tick saw and did, for the recorder, the status and the tests."""
+
+    t_s: float
+    wall_unix_s: float
+    values: dict[str, float]
+    health: dict[str, Health]
+    reasons: dict[str, str]
+    model_outputs: dict[str, float]
+    contributions: dict[str, float]
+    targets_um: dict[str, float]
+    offsets_um: dict[str, float]
+    status: int
+    heartbeat: int
+    written: bool
+    #: The scheduled gains in use (gain_name -> value); empty without a gain schedule.
+    gains: dict[str, float] = field(default_factory=dict)
+    #: Per axis, the offset the device acknowledged this tick (NaN: not written this tick).
+    acknowledged_um: dict[str, float] = field(default_factory=dict)
+    #: Per axis with readback, the offset the device held at the start of the tick (NaN: unknown).
+    readback_um: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class Counters:
+    ticks: int = 0
+    signal_faults: int = 0
+    write_failures: int = 0
+    model_loads: int = 0
+    #: Offsets read back (per axis and tick) that were not what compd last wrote.
+    offset_mismatches: int = 0
+    #: Models that failed while running (an exception, a state gone NaN/inf) and were unloaded.
+    model_failures: int = 0
+
+
+class Compensator:
+    """The per-tick function: read, check, step the model, limit, write; no I/O error escapes.
+
+    One tick at time ``t_s``:
+
+    1. read every signal, all drivers concurrently, each under its timeout;
+    2. check each value (:class:`~compd.service.signals.SignalMonitor`): good, held, or faulted;
+    3. step the model with the checked values (started at steady state with the first
+       complete set of values, or from a resumed state), switching in a loaded model
+       bumplessly and unloading a failed one (:class:`~compd.service.slots.ModelSlots`;
+       ``on_model_failure`` is told); a model fault sets the model-fault bit and level
+       faulted;
+    4. per axis ``target = sign * output``, through the safety stage, frozen while an
+       input the axis depends on is faulted;
+    5. write offsets, status word and heartbeat, all drivers concurrently.
+
+    The stage slews from what each device holds (:class:`~compd.service.offsets.HeldOffsets`):
+    the offset read back at step 1 where the driver can, else the last acknowledged write.
+    """
+
+    def __init__(
+        self,
+        *,
+        signals: Sequence[SignalPoint],
+        monitors: Mapping[str, SignalMonitor],
+        axes: Sequence[AxisPoint],
+        safety: Mapping[str, AxisSafety],
+        links: Mapping[str, DriverLink],
+        model: ModelSlot,
+        status: StatusPoint | None = None,
+        blend_s: float = 60.0,
+        wall_at: Callable[[float], float] = lambda t_s: time.time(),
+        initial_state: ModelState | None = None,
+        schedule: GainScheduler | None = None,
+        history_ticks: int = 28_800,
+        on_model_failure: Callable[[ModelSlot, ModelSlot], None] | None = None,
+    ) -> None:
+        self.signals = list(signals)
+        self.monitors = dict(monitors)
+        self.axes = list(axes)
+        self.safety = dict(safety)
+        self.links = dict(links)
+        self.status_point = status
+        self.wall_at = wall_at
+        #: Gains by operating condition (:mod:`compd.service.schedule`), applied before each step.
+        self.schedule = schedule
+        self.heartbeat = 0
+        self.counters = Counters()
+        self.last: TickRecord | None = None
+        #: The models run, switched, blended and unloaded (:mod:`compd.service.slots`).
+        self.models = ModelSlots(
+            model,
+            [p.name for p in self.signals],
+            self.counters,
+            blend_s=blend_s,
+            history_ticks=history_ticks,
+            schedule=schedule,
+            on_failure=on_model_failure,
+        )
+        #: The signals, offsets and status word, batched per driver (:mod:`compd.service.points`).
+        self.points = DriverBatches(self.signals, self.axes, status, self.links)
+        if initial_state is not None:
+            model.start(initial_state)
+        #: What each offset point holds, as far as compd knows (:mod:`compd.service.offsets`).
+        self.held = HeldOffsets(self.axes, self.safety)
+
+    # The model slots as the status and the tests see them (:class:`ModelSlots`).
+    @property
+    def active(self) -> ModelSlot:
+        """The model whose outputs the axes follow."""
+        return self.models.active
+
+    @property
+    def previous(self) -> ModelSlot | None:
+        """The model being blended out, if a blend runs."""
+        return self.models.previous
+
+    @property
+    def pending(self) -> ModelSlot | None:
+        """The model loaded but not yet switched in."""
+        return self.models.pending
+
+    @property
+    def model_fault(self) -> str | None:
+        """Why the model is faulted; None while its outputs are finite."""
+        return self.models.fault
+
+    def load(self, slot: ModelSlot) -> None:
+        """Switch to ``slot`` at the next tick whose inputs are complete, blending bumplessly."""
+        self.models.load(slot)
+
+    async def tick(self, t_s: float) -> TickRecord:
+        values, held = await self.points.read()
+        mismatches = self.held.read_back(held)
+        self.counters.offset_mismatches += mismatches
+        readings = {}
+        for point in self.signals:
+            monitor = self.monitors[point.name]
+            was = monitor.reading.health
+            readings[point.name] = reading = monitor.update(t_s, values.get(point.name))
+            if reading.health is Health.FAULTED and was is not Health.FAULTED:
+                self.counters.signal_faults += 1
+        checked = {name: r.value for name, r in readings.items()}
+        if self.schedule is not None:
+            key = readings[self.schedule.table.signal]
+            self.schedule.update(t_s, key.value, usable=key.health is not Health.FAULTED)
+        models = self.models
+        models.step(t_s, checked)
+        weight = models.blend_weight(t_s)
+        targets: dict[str, float] = {}
+        offsets: dict[str, float] = {}
+        flags: set[Flag] = set()
+        any_frozen = False
+        for axis in self.axes:
+            output = models.output(axis.model_output, weight)
+            if weight is not None:
+                flags.add(Flag.BLENDING)
+            depends = self.active.depends[axis.model_output]
+            faulted = any(readings[s].health is Health.FAULTED for s in depends)
+            targets[axis.name] = target = axis.sign * output
+            result = self.safety[axis.name].step(target, t_s, faulted=faulted)
+            offsets[axis.name] = result.offset_um
+            any_frozen |= faulted
+            if result.clamped:
+                flags.add(Flag.CLAMPED)
+            if result.slewed:
+                flags.add(Flag.SLEWING)
+        if self.active.runner is None:
+            flags.add(Flag.STARTING)
+        if models.fault is not None:
+            any_frozen = True
+        if not all(link.up for link in self.links.values()):
+            flags.add(Flag.DRIVER_DOWN)
+        bad = [r.health is not Health.OK for r in readings.values()]
+        level = Level.FAULTED if any_frozen else Level.DEGRADED if any(bad) else Level.OK
+        unsure = Flag.DRIVER_DOWN in flags or mismatches or self.held.unknown
+        if unsure and level is Level.OK:
+            level = Level.DEGRADED
+        status = self.status_point
+        word = status_word(
+            level,
+            flags,
+            bad,
+            mismatch=mismatches > 0 and status is not None and status.mismatch_bit,
+            model_fault=models.fault is not None and status is not None and status.model_fault_bit,
+        )
+        self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
+        ok, acknowledged = await self._write(offsets, word)
+        written = ok and len(acknowledged) == len(self.axes)
+        self.counters.ticks += 1
+        runner = self.active.runner
+        contributions = (
+            dict(zip(self.active.names, runner.contributions.tolist(), strict=True))
+            if runner is not None
+            else {name: math.nan for name in self.active.names}
+        )
+        self.last = TickRecord(
+            t_s=t_s,
+            wall_unix_s=self.wall_at(t_s),
+            values=checked,
+            health={name: r.health for name, r in readings.items()},
+            reasons={name: r.reason for name, r in readings.items() if r.reason},
+            model_outputs=dict(
+                zip(self.active.compiled.output_names, self.active.outputs.tolist(), strict=True)
+            ),
+            contributions=contributions,
+            targets_um=targets,
+            offsets_um=offsets,
+            status=word,
+            heartbeat=self.heartbeat,
+            written=written,
+            gains=dict(self.schedule.applied) if self.schedule is not None else {},
+            acknowledged_um={a.name: acknowledged.get(a.name, math.nan) for a in self.axes},
+            readback_um={a.name: _um(a, held.get(a.name)) for a in self.axes if a.readback},
+        )
+        return self.last
+
+    async def write_stopped(self) -> bool:
+        """The last status word at shutdown (``STOPPED``), for the PLC; offsets are left as they are.
+
+        Nothing at all before the first tick: a start that failed knows nothing
+        the machine should be told, least of all an offset.
+        """
+        if self.last is None or self.status_point is None:
+            return False
+        word = status_word(Level(self.last.status & 0b11), [Flag.STOPPED], [])
+        return await self.points.write_status(word, self.heartbeat)
+
+    async def _write(
+        self, offsets: Mapping[str, float], word: int
+    ) -> tuple[bool, dict[str, float]]:
+        """Write what is safe to write; whether every write succeeded, and the offsets (um) acknowledged."""
+        raws = self.held.to_write(offsets)
+        ok = await self.points.write(raws, word, self.heartbeat)
+        if not all(ok.values()):
+            self.counters.write_failures += 1
+        return all(ok.values()), self.held.written(raws, ok)
+
+
+def _um(axis: AxisPoint, raw: float | None) -> float:
+    return math.nan if raw is None else axis.decode(raw)

@@ -1,0 +1,329 @@
+"""The config file's schema: one frozen pydantic document per section, each building its runtime object.
+
+After Klipper, a config section maps to the object it configures: a signal
+section builds the point it is read at and the monitor that checks it
+(:meth:`SignalDoc.point`, :meth:`SignalDoc.monitor`), an output section the
+axis's write point and its safety stage (:meth:`OutputDoc.point`,
+:meth:`OutputDoc.stage`), a driver section its driver and the link that
+supervises it (:meth:`DriverDoc.driver`, :meth:`DriverDoc.link`), and so on;
+the service (:mod:`compd.service.daemon`) only assembles them. Validation
+across sections (references, addresses, written points) is
+:mod:`compd.service.config`'s.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
+
+from compd.drivers.base import Driver
+from compd.drivers.registry import load_driver_type
+from compd.service.clock import Clock
+from compd.service.control import Access
+from compd.service.links import DriverLink
+from compd.service.offsets import AxisPoint
+from compd.service.points import SignalPoint, StatusPoint
+from compd.service.recorder import Recorder
+from compd.service.safety import AxisLimits, AxisSafety, FaultMode
+from compd.service.schedule import GainRow, GainScheduler, GainTable
+from compd.service.signals import Checks, SignalMonitor
+
+SCHEMA = "compd.config/1"
+#: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31); the
+#: readback-mismatch and model-fault bits follow them where bits are left (:mod:`compd.service.safety`).
+MAX_SIGNALS = 24
+
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ChecksDoc(_Strict):
+    """Per-signal plausibility checks (see :mod:`compd.service.signals`), in the signal's unit."""
+
+    min: FiniteFloat | None = None
+    max: FiniteFloat | None = None
+    stale_s: Positive = 10.0
+    stuck_s: Positive | None = None
+    stuck_tolerance: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    max_jump: Positive | None = None
+    hold_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 30.0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ChecksDoc:
+        if self.min is not None and self.max is not None and self.min >= self.max:
+            raise ValueError(f"'min' ({self.min}) must be below 'max' ({self.max})")
+        return self
+
+    def checks(self) -> Checks:
+        return Checks(**self.model_dump())
+
+
+class SignalDoc(_Strict):
+    """``value = raw * scale + offset`` in ``unit``."""
+
+    driver: str
+    address: str = Field(min_length=1)
+    type: Literal["float", "int", "bool"] = "float"
+    scale: FiniteFloat = 1.0
+    offset: FiniteFloat = 0.0
+    unit: str
+    description: str = ""
+    checks: ChecksDoc = ChecksDoc()
+
+    def point(self, name: str) -> SignalPoint:
+        """Where the signal ``name`` is read, and how its raw value is scaled."""
+        return SignalPoint(name, self.driver, self.address, self.scale, self.offset, self.type)
+
+    def monitor(self, name: str) -> SignalMonitor:
+        """The plausibility checks of the signal ``name``, with no reading yet."""
+        return SignalMonitor(name, self.checks.checks())
+
+
+class EncodingDoc(_Strict):
+    """How an offset in um is written: ``round(offset_um * scale)`` for ``int``."""
+
+    type: Literal["float", "int"] = "float"
+    scale: Positive = 1.0
+
+
+class OutputDoc(_Strict):
+    """One compensated axis: ``offset_um = sign * model_output`` after the safety stage."""
+
+    model_output: str
+    driver: str
+    address: str = Field(min_length=1)
+    encoding: EncodingDoc = EncodingDoc()
+    sign: Literal[-1, 1] = -1
+    max_offset_um: Positive
+    max_rate_um_per_s: Positive
+    #: Read the offset back each tick and slew from what the PLC holds; default: where the driver can.
+    readback: bool | None = None
+
+    def point(self, axis: str, *, integer: bool | None = None, readback: bool = False) -> AxisPoint:
+        """Where the axis's offset is written; ``integer``: whole counts (default: an int encoding).
+
+        Whether the point holds whole counts and is read back depends on its
+        driver: :class:`compd.service.config.Config` knows, and passes them.
+        """
+        whole = self.encoding.type == "int" if integer is None else integer
+        return AxisPoint(
+            axis,
+            self.model_output,
+            self.driver,
+            self.address,
+            float(self.sign),
+            self.encoding.scale,
+            whole,
+            readback=readback,
+        )
+
+    def stage(self, period_s: float, safety: SafetyDoc, *, offset_um: float = 0.0) -> AxisSafety:
+        """The axis's safety stage at ``period_s``, seeded with ``offset_um`` (um)."""
+        return AxisSafety(
+            AxisLimits(self.max_offset_um, self.max_rate_um_per_s),
+            period_s,
+            on_fault=FaultMode(safety.on_fault),
+            fault_ramp_after_s=safety.fault_ramp_after_s,
+            offset_um=offset_um,
+        )
+
+
+class StatusDoc(_Strict):
+    """Where the status word and the heartbeat counter go, for the PLC's supervision."""
+
+    driver: str
+    status_address: str = Field(min_length=1)
+    heartbeat_address: str = Field(min_length=1)
+
+    def point(self, *, mismatch_bit: bool, model_fault_bit: bool) -> StatusPoint:
+        """Where the status word goes; which of the optional bits its point holds, the config knows."""
+        return StatusPoint(
+            self.driver,
+            self.status_address,
+            self.heartbeat_address,
+            mismatch_bit=mismatch_bit,
+            model_fault_bit=model_fault_bit,
+        )
+
+
+class DriverDoc(_Strict):
+    type: str
+    settings: dict[str, Any] = Field(default_factory=dict)
+    timeout_s: Positive = 0.5
+    reconnect_min_s: Positive = 1.0
+    reconnect_max_s: Positive = 60.0
+
+    def driver(self, settings: BaseModel, *, now: Callable[[], float], base_dir: Path) -> Driver:
+        """The driver, not yet opened; its type's module is imported here, not before."""
+        return load_driver_type(self.type)(settings, now=now, base_dir=base_dir)
+
+    def link(self, name: str, driver: Driver, clock: Clock) -> DriverLink:
+        """The supervision of ``driver``: its timeout and reconnect backoff."""
+        return DriverLink(
+            name,
+            driver,
+            clock,
+            timeout_s=self.timeout_s,
+            backoff_min_s=self.reconnect_min_s,
+            backoff_max_s=self.reconnect_max_s,
+        )
+
+
+class SafetyDoc(_Strict):
+    on_fault: Literal["ramp", "freeze"] = "ramp"
+    fault_ramp_after_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
+
+
+class StateDoc(_Strict):
+    directory: str | None = None
+    save_every_ticks: int = Field(default=60, ge=1)
+    resume_max_age_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 900.0
+
+
+class RecorderDoc(_Strict):
+    enabled: bool = True
+    directory: str | None = None
+    max_file_bytes: int = Field(default=20_000_000, ge=1024)
+    max_file_age_s: Positive = 86_400.0
+    max_total_bytes: int = Field(default=2_000_000_000, ge=1024)
+
+    @model_validator(mode="after")
+    def _total_holds_a_file(self) -> RecorderDoc:
+        if self.max_total_bytes < self.max_file_bytes:
+            raise ValueError(
+                f"'max_total_bytes' ({self.max_total_bytes}) must be at least 'max_file_bytes' "
+                f"({self.max_file_bytes}): the open file alone may reach that size"
+            )
+        return self
+
+    def recorder(self, directory: Path) -> Recorder:
+        """The recorder writing into ``directory`` (resolved by :mod:`compd.service.paths`)."""
+        return Recorder(
+            directory,
+            max_file_bytes=self.max_file_bytes,
+            max_file_age_s=self.max_file_age_s,
+            max_total_bytes=self.max_total_bytes,
+        )
+
+
+class EffectDoc(_Strict):
+    """An entry of the effect catalogue: a physical effect and the signals that excite it."""
+
+    description: str = ""
+    signals: list[str] = Field(default_factory=list)
+
+
+class WhenDoc(_Strict):
+    """A gain-table key: ``when: 2`` (a whole number) or ``when: {min: 0, max: 250}`` (``min <= key < max``)."""
+
+    value: StrictInt | None = None
+    min: FiniteFloat | None = None
+    max: FiniteFloat | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _whole_or_range(cls, data: object) -> object:
+        if isinstance(data, int) and not isinstance(data, bool):
+            return {"value": data}
+        if not isinstance(data, dict) or "value" in data:
+            raise ValueError(
+                "'when' must be a whole number (a head or program number, e.g. 'when: 2') "
+                f"or a range (e.g. 'when: {{min: 0, max: 250}}'), got {data!r}"
+            )
+        return data
+
+    @model_validator(mode="after")
+    def _ordered(self) -> WhenDoc:
+        if self.value is None and self.min is None and self.max is None:
+            raise ValueError("a range needs 'min', 'max' or both")
+        if self.min is not None and self.max is not None and self.min >= self.max:
+            raise ValueError(f"'min' ({self.min}) must be below 'max' ({self.max})")
+        return self
+
+
+class GainRowDoc(_Strict):
+    """A row of the gain table: ``gains`` (gain_name -> value) while the key matches ``when``."""
+
+    when: WhenDoc
+    gains: dict[str, FiniteFloat] = Field(min_length=1)
+
+    def row(self) -> GainRow:
+        when = self.when
+        return GainRow(
+            dict(self.gains),
+            value=when.value,
+            low=float("-inf") if when.min is None else when.min,
+            high=float("inf") if when.max is None else when.max,
+        )
+
+
+class GainScheduleDoc(_Strict):
+    """Gains by operating condition (see :mod:`compd.service.schedule`)."""
+
+    signal: str
+    table: list[GainRowDoc] = Field(min_length=1)
+    default: dict[str, FiniteFloat] | None = None
+    ramp_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 30.0
+
+    def gain_table(self) -> GainTable:
+        default = None if self.default is None else dict(self.default)
+        return GainTable(self.signal, tuple(r.row() for r in self.table), default, self.ramp_s)
+
+    def scheduler(self) -> GainScheduler:
+        return GainScheduler(self.gain_table())
+
+
+class LoadAccessDoc(_Strict):
+    """Who may switch the running model over the control socket (``compd model load``).
+
+    Users and groups by name or number; a client is allowed when its uid is
+    listed or its primary gid is (the kernel reports one gid per connection).
+    Unset ``users``: the daemon's own user and root. ``compd status`` is open
+    to everyone who can open the socket (its group).
+    """
+
+    users: list[str | int] | None = None
+    groups: list[str | int] = Field(default_factory=list)
+
+    def ids(self) -> tuple[frozenset[int], frozenset[int]]:
+        """The uids and gids; raises LookupError naming an unknown user or group."""
+        import grp
+        import pwd
+
+        users = [os.getuid(), 0] if self.users is None else self.users
+        uids = [u if isinstance(u, int) else pwd.getpwnam(u).pw_uid for u in users]
+        gids = [g if isinstance(g, int) else grp.getgrnam(g).gr_gid for g in self.groups]
+        return frozenset(uids), frozenset(gids)
+
+    def access(self) -> Access:
+        """Who may load a model, as the control socket checks it."""
+        return Access(*self.ids())
+
+
+class ConfigDoc(_Strict):
+    schema_: Literal["compd.config/1"] = Field(alias="schema")
+    model: str
+    period_s: Positive = 1.0
+    blend_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
+    live_every_ticks: int = Field(default=60, ge=1)
+    control_socket: str | None = None
+    load_access: LoadAccessDoc = LoadAccessDoc()
+    drivers: dict[str, DriverDoc] = Field(min_length=1)
+    signals: dict[str, SignalDoc] = Field(min_length=1, max_length=MAX_SIGNALS)
+    outputs: dict[str, OutputDoc] = Field(min_length=1)
+    status: StatusDoc | None = None
+    safety: SafetyDoc = SafetyDoc()
+    state: StateDoc = StateDoc()
+    recorder: RecorderDoc = RecorderDoc()
+    effects: dict[str, EffectDoc] = Field(default_factory=dict)
+    gain_schedule: GainScheduleDoc | None = None
+    #: The simulated machine this config runs against (:mod:`compd.sim.plc.settings`).
+    simulation: dict[str, Any] | None = None
