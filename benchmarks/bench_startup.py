@@ -12,6 +12,10 @@ TCP, the twin serving it from its own process, as a PLC would), its peak
 resident memory (``ru_maxrss``), beside ``compd run`` on the simulated config
 (the twin, pandas and the scenario inside the same process).
 
+This process imports neither numpy nor compd: a child's peak resident
+memory counts its parent's pages up to ``exec`` (``ru_maxrss`` survives it),
+so a heavy parent would inflate every figure.
+
 Targets: ``--help``, ``--version`` and ``status`` < 0.3 s; the daemon < 100 MB.
 Run: ``PYTHONPATH=. python benchmarks/bench_startup.py``.
 """
@@ -27,11 +31,26 @@ import time
 from pathlib import Path
 
 import yaml
-from common import environment, verdict
 
 ROOT = Path(__file__).resolve().parents[1]
 REPEATS = 7
 DAEMON_S = 20
+
+
+def verdict(passed: bool) -> str:
+    return "PASS" if passed else "FAIL"
+
+
+def environment() -> str:
+    """What produced the figures; asked of a child, so this process stays small (see below)."""
+    script = (
+        "import platform, os, numpy, scipy; print(f'python {platform.python_version()}, "
+        "numpy {numpy.__version__}, scipy {scipy.__version__}, {platform.machine()}, "
+        "{os.cpu_count()} CPUs')"
+    )
+    return subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True
+    ).stdout.strip()
 
 
 def measured(argv: list[str]) -> tuple[float, float, float]:
