@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 from compd.drivers.gateway import GatewayDriver
+from compd.drivers.linuxcnc import LinuxCncDriver
 from compd.drivers.modbus import ModbusDriver
 from compd.drivers.opcua import OpcUaDriver
 from compd.drivers.serial_sensor import SerialSensorDriver
@@ -80,6 +81,7 @@ class DriverType(Protocol):
 
 #: Built-in driver types by the name a config's ``drivers.<name>.type`` gives.
 DRIVERS: dict[str, DriverType] = {
+    "linuxcnc": LinuxCncDriver,
     "modbus": ModbusDriver,
     "opcua": OpcUaDriver,
     "profibus_gateway": GatewayDriver,

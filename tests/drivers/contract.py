@@ -95,3 +95,16 @@ class DriverContract:
             await setup.driver.close()
 
         asyncio.run(scenario())
+
+
+def run_calls(driver: Driver, *calls: tuple[str, object]) -> list[object]:
+    """Open ``driver``, await each ``(method, argument)`` call in turn, close; return the results."""
+
+    async def scenario() -> list[object]:
+        await driver.open()
+        try:
+            return [await getattr(driver, name)(arg) for name, arg in calls]
+        finally:
+            await driver.close()
+
+    return asyncio.run(scenario())
