@@ -8,10 +8,10 @@ machine's servo-thread clock so that a busy machine cannot fail it.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import itertools
 import os
 import signal
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,9 +21,13 @@ import yaml
 from compd.drivers.base import DRIVERS
 from compd.drivers.linuxcnc import LinuxCncDriver, LinuxCncSettings
 
+from compd.clock import RealClock
 from compd.config import load_config
 from compd.errors import ConfigFileError, DriverDisconnectedError, DriverProtocolError
+from compd.loop import TickRecord
+from compd.service import Service
 
+from ..service.daemon_setup import write_config
 from . import linuxcnc_machine
 from .contract import ContractSetup, DriverContract, run_calls
 from .linuxcnc_machine import MAX_VELOCITY_MM_PER_S, OFFSET_AV_RATIO, Machine
@@ -175,9 +179,69 @@ def test_a_new_component_picks_up_the_offset_linuxcnc_holds(machine):
     assert held == {"axis.z": 1234.0}
 
 
-# The contract leaves drivers open when its event loop ends; their subprocess
-# transports then complain on garbage collection, after the fixture ended them.
-@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_service_compensates_through_linuxcnc(tmp_path, machine):
+    """The daemon reads HAL (spindle speed, a warming spindle) and its offset, in 0.1 um counts, reaches joint 2."""
+    machine.mdi("M3 S3000")
+    machine.halcmd("sets", "T-spindle-degC", "25")
+    on_mill = {"driver": "mill", "unit": "degC"}
+    config = write_config(
+        tmp_path,
+        {
+            "drivers": {
+                "mill": {
+                    "type": "linuxcnc",
+                    "settings": {"component": "svc", "ini_file": str(machine.folder / "sim.ini")},
+                    "timeout_s": 2.0,
+                }
+            },
+            "signals": {
+                # max_jump: the test steps the temperature, no spike.
+                "T_spindle_degC": {
+                    **on_mill,
+                    "address": "T-spindle-degC",
+                    "checks": {"max_jump": 20},
+                },
+                "spindle_speed_rpm": {**on_mill, "address": "spindle.0.speed-out", "unit": "rpm"},
+            },
+            "outputs": {
+                "Y": {
+                    "driver": "mill",
+                    "address": "axis.z",
+                    "encoding": {"type": "int", "scale": 10},
+                    "max_rate_um_per_s": 5.0,
+                }
+            },
+        },
+    )
+    records: list[TickRecord] = []
+    # Real time, 20x fast: HAL is real I/O, which a virtual clock would outrun.
+    service = Service(config, clock=RealClock(20.0), control=False, background_saves=False)
+
+    def on_tick(record: TickRecord) -> None:
+        records.append(record)
+        if len(records) == 5:  # the spindle warms by 10 K, set on HAL as a sensor would
+            threading.Thread(target=machine.halcmd, args=("sets", "T-spindle-degC", "35")).start()
+
+    service.on_tick = on_tick
+    try:
+        asyncio.run(service.run(duration_s=300.0))
+        (held,) = run_calls(make_driver(machine), ("read", ["axis.z", "joint.2.pos-cmd"]))
+    finally:
+        run_calls(make_driver(machine), ("write", {"axis.z": 0.0}))
+        machine.mdi("M5")
+    last = records[-1]
+    assert len(records) >= 100 and all(r.written for r in records[1:])
+    assert (last.values["T_spindle_degC"], last.values["spindle_speed_rpm"]) == (35.0, 3000.0)
+    assert set(last.health.values()) == {0}  # every signal ok (Health.OK)
+    assert abs(last.offsets_um["Y"]) >= 0.5  # the model moved the axis (1.4 um here)
+    assert held["axis.z"] == round(last.offsets_um["Y"] * 10)
+    assert held["joint.2.pos-cmd"] == pytest.approx(held["axis.z"] * 1e-4, abs=1e-9)
+    assert service.compensator.counters.offset_mismatches == 0  # it read back what it wrote
+    print(
+        f"service: Y {last.offsets_um['Y']:.1f} um -> joint 2 at {held['joint.2.pos-cmd']:.6f} mm"
+    )
+
+
 class TestLinuxCncContract(DriverContract):
     """The LinuxCNC driver passes the driver contract; the cut link is the helper process ending."""
 
@@ -196,15 +260,6 @@ class TestLinuxCncContract(DriverContract):
             missing="no-such-signal",
             break_connection=cut,
         )
-        # The contract leaves some drivers open, their loop gone: end their helpers.
-        pid = driver.helper_pid
-        if pid is not None:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGTERM)
-                deadline = time.monotonic() + 10
-                while time.monotonic() < deadline:
-                    os.kill(pid, 0)  # raises once the helper is gone (and reaped)
-                    time.sleep(0.05)
         run_calls(make_driver(machine), ("write", {"axis.z": 0.0}))
 
 
