@@ -65,6 +65,7 @@ _AXIS = re.compile(r"axis\.[xyzabcuvw]")
 _HAL_NAME = re.compile(r"[A-Za-z0-9_.:-]{1,41}")
 _S32 = (-(2**31), 2**31 - 1)
 _UM_PER_UNIT = {"mm": 1000.0, "inch": 25400.0}
+_ENDED = "the HAL helper ended (LinuxCNC shut down, or halcmd unload removed the component)"
 
 
 class LinuxCncSettings(BaseModel):
@@ -201,11 +202,11 @@ class LinuxCncDriver:
     async def _request(self, request: dict[str, Any]) -> Any:
         """Send one request line, await its reply line; failures become DriverError."""
         process, lock = self._process, self._lock
-        if process is None or lock is None or process.returncode is not None:
-            raise DriverDisconnectedError(self._gone("the HAL helper is not running"))
+        if process is None or lock is None:
+            raise DriverDisconnectedError("LinuxCNC driver is not open")
         async with lock:
             if process.returncode is not None:
-                raise DriverDisconnectedError(self._gone("the HAL helper is not running"))
+                raise DriverDisconnectedError(self._gone(_ENDED))
             assert process.stdin is not None and process.stdout is not None
             try:
                 process.stdin.write(json.dumps(request).encode() + b"\n")
@@ -223,7 +224,7 @@ class LinuxCncDriver:
                 raise DriverDisconnectedError(self._gone(str(exc))) from exc
         if not line:
             await asyncio.sleep(0)  # let the stderr task take the helper's last words
-            raise DriverDisconnectedError(self._gone("the HAL helper ended"))
+            raise DriverDisconnectedError(self._gone(_ENDED))
         try:
             reply = json.loads(line)
         except ValueError as exc:

@@ -135,19 +135,22 @@ class Component:
     @staticmethod
     def _source(address, pins, signals):
         """The signal an input pin links to, and its HAL type (a new ``compd:`` signal for a lone output pin)."""
-        if address in signals:
-            return address, _TYPES[signals[address]["TYPE"]]
-        pin = pins.get(address)
-        if pin is None:
+        item = signals.get(address) or pins.get(address)
+        if item is None:
             raise Refused(f"LinuxCNC has no HAL signal or pin named {address!r}")
-        if pin["DIRECTION"] != hal.HAL_OUT:
+        kind = _TYPES.get(item["TYPE"])
+        if kind is None:
+            raise Refused(f"{address} is not a bit, float, s32 or u32: compd cannot read it")
+        if address in signals:
+            return address, kind
+        if item["DIRECTION"] != hal.HAL_OUT:
             raise Refused(
                 f"{address} is an input pin: name the signal or output pin that drives it"
             )
         for name, sig in signals.items():
             if sig["DRIVER"] == address:
-                return name, _TYPES[pin["TYPE"]]
-        return f"compd:{address}", _TYPES[pin["TYPE"]]
+                return name, kind
+        return f"compd:{address}", kind
 
     def read(self, addresses):
         self.ensure(addresses)

@@ -290,3 +290,4 @@ def test_linuxcnc_going_away_is_a_disconnect(machine):
     raised = asyncio.run(scenario())
     assert len(raised) == 3
     assert all(isinstance(e, DriverDisconnectedError) for e in raised), raised
+    print("LinuxCNC gone:", *(str(e) for e in raised), sep="\n  ")
