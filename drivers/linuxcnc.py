@@ -166,6 +166,9 @@ class LinuxCncDriver:
             raise
 
     async def read(self, points: Sequence[str]) -> dict[str, float]:
+        for address in points:
+            if not _HAL_NAME.fullmatch(address):
+                raise DriverProtocolError(f"LinuxCNC: {address!r} is not a HAL name (<= 41 chars)")
         values = await self._request({"read": list(points)})
         return {name: float(v) for name, v in values.items()}
 
@@ -194,7 +197,7 @@ class LinuxCncDriver:
                     await process.wait()
         if task is not None:
             task.cancel()
-            with contextlib.suppress(BaseException):
+            with contextlib.suppress(asyncio.CancelledError):
                 await task
 
     # -- internals ----------------------------------------------------------
@@ -223,7 +226,10 @@ class LinuxCncDriver:
             except (OSError, ValueError) as exc:  # broken pipe, or a line over the limit
                 raise DriverDisconnectedError(self._gone(str(exc))) from exc
         if not line:
-            await asyncio.sleep(0)  # let the stderr task take the helper's last words
+            task = self._stderr_task  # the helper's last words, for the message
+            if task is not None:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(asyncio.shield(task), 1.0)
             raise DriverDisconnectedError(self._gone(_ENDED))
         try:
             reply = json.loads(line)

@@ -11,6 +11,7 @@ import asyncio
 import itertools
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -89,6 +90,13 @@ def test_the_commented_example_config_is_valid(tmp_path):
     path.write_text(yaml.safe_dump(doc))
     with pytest.raises(ConfigFileError, match=r"axis\.x \.\. axis\.w"):
         load_config(path)
+
+
+def test_a_python_without_hal_is_a_disconnect_naming_it():
+    """A ``python`` lacking LinuxCNC's hal module fails open as a disconnect that quotes the helper's error."""
+    driver = make_driver(python=sys.executable)  # compd's own Python: no hal module
+    with pytest.raises(DriverDisconnectedError, match="No module named 'hal'"):
+        run_calls(driver, ("read", ["spindle-speed"]))
 
 
 def test_reads_hal_signals_and_pins(machine):
