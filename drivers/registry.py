@@ -22,6 +22,7 @@ ENTRY_POINT_GROUP = "compd.drivers"
 
 #: compd's own driver types: config name -> ``module:class``, imported on first use.
 BUILTIN: dict[str, str] = {
+    "linuxcnc": "compd.drivers.linuxcnc:LinuxCncDriver",
     "modbus": "compd.drivers.modbus:ModbusDriver",
     "opcua": "compd.drivers.opcua:OpcUaDriver",
     "profibus_gateway": "compd.drivers.gateway:GatewayDriver",

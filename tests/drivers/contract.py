@@ -3,7 +3,8 @@
 A driver's test module subclasses :class:`DriverContract` and provides the
 ``setup`` fixture: a fresh driver (not yet open), addresses it can read, one
 it can write, one that does not exist, and a ``break_connection()`` callable
-that makes the device unreachable (a stopped server, a dropped link).
+that makes the device unreachable (a stopped server, a dropped link). Each
+test closes the driver it opened, on the event loop it opened it on.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import asyncio
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import pytest
 from compd.drivers.base import Driver
@@ -28,6 +30,19 @@ class ContractSetup:
     break_connection: Callable[[], None]
 
 
+def run_calls(driver: Driver, *calls: tuple[str, Any]) -> list[Any]:
+    """Open ``driver``, await each ``(method, argument)`` call in turn, close; return the results."""
+
+    async def scenario() -> list[Any]:
+        await driver.open()
+        try:
+            return [await getattr(driver, name)(arg) for name, arg in calls]
+        finally:
+            await driver.close()
+
+    return asyncio.run(scenario())
+
+
 class DriverContract:
     """Subclass and define a ``setup`` fixture returning :class:`ContractSetup`."""
 
@@ -38,32 +53,20 @@ class DriverContract:
     def test_reads_floats_for_the_requested_addresses(self, setup: ContractSetup) -> None:
         """After open, a read returns a float for each requested address and nothing else."""
 
-        async def scenario() -> dict[str, float]:
-            await setup.driver.open()
-            return await setup.driver.read(list(setup.readable))
-
-        values = asyncio.run(scenario())
+        (values,) = run_calls(setup.driver, ("read", list(setup.readable)))
         assert set(values) <= set(setup.readable) and values
         assert all(isinstance(v, float) and math.isfinite(v) for v in values.values())
 
     def test_write_is_accepted(self, setup: ContractSetup) -> None:
         """After open, writing a value to a writable address succeeds."""
 
-        async def scenario() -> None:
-            await setup.driver.open()
-            await setup.driver.write({setup.writable: 1.25})
-
-        asyncio.run(scenario())
+        run_calls(setup.driver, ("write", {setup.writable: 1.25}))
 
     def test_unknown_address_is_a_driver_error(self, setup: ContractSetup) -> None:
         """Reading an address the device does not have raises a DriverError, not the library's exception."""
 
-        async def scenario() -> None:
-            await setup.driver.open()
-            await setup.driver.read([setup.missing])
-
         with pytest.raises(DriverError):
-            asyncio.run(scenario())
+            run_calls(setup.driver, ("read", [setup.missing]))
 
     def test_lost_connection_is_disconnected_or_timeout(self, setup: ContractSetup) -> None:
         """When the device is unreachable, read and write raise DriverDisconnectedError or DriverTimeoutError."""
@@ -80,6 +83,7 @@ class DriverContract:
                     await asyncio.wait_for(call, 10.0)
                 except BaseException as exc:
                     raised.append(exc)
+            await setup.driver.close()
             return raised
 
         raised = asyncio.run(scenario())
