@@ -48,7 +48,7 @@ from compd.toolkit.candidates import (
     refuse_errors,
 )
 from compd.toolkit.evaluate import Evaluation, compare, evaluate, measured_columns
-from compd.toolkit.fit import unit_of
+from compd.toolkit.fitmodel import unit_of
 from compd.toolkit.span import Span, span_data, until_stop
 
 

@@ -260,7 +260,7 @@ def _stack(
     options: tuple[str, int, int, int],
     span: Span | None = None,
 ) -> StackedFit:
-    from compd.toolkit.fit import unit_of
+    from compd.toolkit.fitmodel import unit_of
 
     signal, trees, max_depth, seed = options
     door = data.column(signal)  # an unknown column names the file's columns
