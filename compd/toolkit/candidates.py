@@ -24,7 +24,7 @@ from threadpoolctl import threadpool_limits
 
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
-from compd.files.modelfile import CrossValidationDoc
+from compd.files.modelschema import CrossValidationDoc
 from compd.model.collinear import contribution_shares
 from compd.model.compiled import compile_model, qualified_names
 from compd.model.crossval import Folds, blocked_folds, cycle_folds

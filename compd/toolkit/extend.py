@@ -26,12 +26,8 @@ from threadpoolctl import threadpool_limits
 from compd import __version__
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
-from compd.files.modelfile import (
-    CalibrationDoc,
-    ExtensionDoc,
-    ModelFile,
-    parse_model,
-)
+from compd.files.modelfile import ModelFile, parse_model
+from compd.files.modelschema import CalibrationDoc, ExtensionDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.guards import Finding
 from compd.model.identify import Identification, identify

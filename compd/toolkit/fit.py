@@ -26,7 +26,7 @@ import numpy as np
 
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
-from compd.files.modelfile import ProvenanceDoc
+from compd.files.modelschema import ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.collinear import collinear_groups
 from compd.model.guards import Finding

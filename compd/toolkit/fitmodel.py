@@ -18,7 +18,7 @@ import numpy as np
 from compd import __version__
 from compd.errors import ModelError
 from compd.files.data import DataSet
-from compd.files.modelfile import CalibrationDoc, ProvenanceDoc
+from compd.files.modelschema import CalibrationDoc, ProvenanceDoc
 from compd.model.identify import Identification
 from compd.model.lagbank import lag_name
 from compd.model.metrics import Comparison

@@ -23,13 +23,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from compd.errors import DataFileError, ModelError, ModelFileError
-from compd.files.modelfile import (
-    ModelFile,
-    ProvenanceDoc,
-    ResidualDoc,
-    ResidualFiguresDoc,
-    parse_model,
-)
+from compd.files.modelfile import ModelFile, parse_model
+from compd.files.modelschema import ProvenanceDoc, ResidualDoc, ResidualFiguresDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.files.sidecar import FOREST_ARRAYS, sidecar_bytes, sidecar_path
 from compd.model.residual import DEFAULT_TIME_CONSTANTS_S, DoorFeatures, Forest, ResidualModel
