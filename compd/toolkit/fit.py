@@ -30,9 +30,10 @@ from compd.files.modelschema import ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.collinear import collinear_groups
 from compd.model.guards import Finding
-from compd.model.identify import Identification, Progress, identify
+from compd.model.identify import Identification, identify
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 from compd.model.metrics import Comparison
+from compd.model.orderfit import Progress
 from compd.model.structure import Model, Position
 from compd.toolkit.candidates import (
     Selection,

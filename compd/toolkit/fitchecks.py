@@ -13,7 +13,7 @@ import numpy as np
 
 from compd.errors import DataFileError
 from compd.files.data import DataSet
-from compd.model.identify import MAX_ORDER
+from compd.model.orderfit import MAX_ORDER
 from compd.toolkit.candidates import FIT_METHODS
 
 
