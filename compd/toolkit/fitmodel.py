@@ -12,18 +12,23 @@ from __future__ import annotations
 
 import datetime as dt
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from compd import __version__
 from compd.errors import ModelError
-from compd.files.data import DataSet
 from compd.files.modelschema import CalibrationDoc, ProvenanceDoc
-from compd.model.identify import Identification
 from compd.model.lagbank import lag_name
-from compd.model.metrics import Comparison
 from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
-from compd.toolkit.span import Span
+
+# Types only: unit_of is wanted where the data reader (pandas) and the
+# identification stack (scipy.signal) are not (compd.toolkit.residual).
+if TYPE_CHECKING:
+    from compd.files.data import DataSet
+    from compd.model.identify import Identification
+    from compd.model.metrics import Comparison
+    from compd.toolkit.span import Span
 
 #: Unit suffixes of compd's signal naming convention (``T_spindle_degC``, ``spindle_power_kw``).
 _UNIT_SUFFIX = re.compile(r"_(degC|K|rpm|kw|kW|W|um|mm|s|bar|percent|pct)$")
