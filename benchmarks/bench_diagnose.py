@@ -40,12 +40,8 @@ from common import BUSY_START, environment, verdict, week_signals  # noqa: E402
 from numpy.testing import assert_allclose  # noqa: E402
 
 from compd.model.correlation import correlate  # noqa: E402
-from compd.model.diagnose import (  # noqa: E402
-    diagnose_residue,
-    fit_candidate,
-    lag_bank,
-    time_constant_bank,
-)
+from compd.model.diagnose import diagnose_residue  # noqa: E402
+from compd.model.lagscore import fit_candidate, lag_bank, time_constant_bank  # noqa: E402
 
 CORR_SAMPLES = 288_000
 MAX_LAG = 7_200

@@ -50,8 +50,9 @@ from common import environment, verdict
 from compd.service.clock import RealClock
 from compd.service.ticks import run_periodic
 from compd.sim.plc.run import start_machine
-from compd.sim.soak import Soak, SoakResult, soak_config
+from compd.sim.soak import Soak, soak_config
 from compd.sim.soakfaults import FAULT_KINDS, draw_faults
+from compd.sim.soakwitness import SoakResult
 
 
 def quiet() -> None:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from compd.files.modelfile import CalibrationDoc, ProvenanceDoc, parse_model
+from compd.files.modelfile import parse_model
+from compd.files.modelschema import CalibrationDoc, ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml, yaml_float
 from compd.model import (
     ContinuousTF,

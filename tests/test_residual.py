@@ -10,7 +10,8 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from compd.errors import DataFileError, ModelFileError
-from compd.files.modelfile import ResidualDoc, load_model
+from compd.files.modelfile import load_model
+from compd.files.modelschema import ResidualDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.compiled import compile_model
 from compd.model.run import simulate

@@ -17,7 +17,7 @@ from collections.abc import Iterable, Mapping
 
 import yaml
 
-from compd.files.modelfile import SCHEMA, ProvenanceDoc, ResidualDoc
+from compd.files.modelschema import SCHEMA, ProvenanceDoc, ResidualDoc
 from compd.model.structure import Gate, InputSpec, Model, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
 

@@ -17,7 +17,8 @@ Every few (virtual) minutes a fault drawn with a seeded generator strikes:
   the middle of a write (the PLC applies it, compd never hears back), and a
   new one is started on the same state directory.
 
-The draw and the makings of each fault are :mod:`compd.sim.soakfaults`.
+The draw and the makings of each fault are :mod:`compd.sim.soakfaults`; the
+witness below is :mod:`compd.sim.soakwitness`.
 
 A witness on the PLC's write path sees every value the offset register
 receives and judges it against what the register held just before (after
@@ -37,9 +38,7 @@ import math
 import random
 import socket
 import time
-from collections import Counter
 from collections.abc import Awaitable, Callable, Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -60,44 +59,10 @@ from compd.sim.plc.machine import MachineClock, SimulatedMachine
 from compd.sim.plc.modbus import ModbusPlcServer
 from compd.sim.plc.run import settle, start_machine
 from compd.sim.soakfaults import RESTARTS, Fault, bad_models, corrupt_state, garbage_server
+from compd.sim.soakwitness import SoakResult, Witness
 
 #: Virtual seconds between the end of one service and the start of the next.
 RESTART_S = 3.0
-#: Slack on a step, um: the register holds whole counts, so only float noise.
-STEP_TOLERANCE_UM = 1e-6
-
-
-@dataclass
-class SoakResult:
-    """What the soak saw: faults by kind, the three counts judged, and what explains them."""
-
-    faults: Counter[str] = field(default_factory=Counter)
-    crashes: int = 0
-    slew_violations: int = 0
-    unacknowledged: int = 0
-    #: Writes that reached the PLC while the service counted them failed (allowed: re-seeded).
-    landed_unacknowledged: int = 0
-    offsets_received: int = 0
-    largest_step_um: float = 0.0
-    ticks: int = 0
-    services: int = 0
-    bad_models_refused: int = 0
-    bad_models_accepted: int = 0
-    offset_mismatches: int = 0
-    #: Why each bad model was refused (the daemon's reply).
-    refusals: list[str] = field(default_factory=list)
-    simulated_s: float = 0.0
-    wall_s: float = 0.0
-    errors: list[str] = field(default_factory=list)
-
-    @property
-    def passed(self) -> bool:
-        return (
-            self.crashes == 0
-            and self.slew_violations == 0
-            and self.unacknowledged == 0
-            and self.bad_models_accepted == 0
-        )
 
 
 def soak_config(directory: Path, *, hours: float, seed: int) -> Config:
@@ -117,57 +82,6 @@ def soak_config(directory: Path, *, hours: float, seed: int) -> Config:
     path = directory / "compd.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return load_config(path)
-
-
-class Witness:
-    """The PLC's side: every value the offset register receives, judged against what it held."""
-
-    def __init__(self, address: str, scale: float, max_step_um: float, result: SoakResult) -> None:
-        self.address = address
-        self.scale = scale
-        self.max_step_um = max_step_um
-        self.result = result
-        self.held_raw = 0.0  # the register starts cleared
-        self.programming = False  # the PLC's own program is writing
-        self._since_tick: list[float] = []
-
-    def sink(self, inner: Callable[[str, float], None]) -> Callable[[str, float], None]:
-        def written(address: str, raw: float) -> None:
-            if address == self.address:
-                self._offset(raw)
-            inner(address, raw)
-
-        return written
-
-    def _offset(self, raw: float) -> None:
-        if not self.programming:
-            step_um = abs(raw - self.held_raw) / self.scale
-            self.result.largest_step_um = max(self.result.largest_step_um, step_um)
-            if step_um > self.max_step_um + STEP_TOLERANCE_UM:
-                self.result.slew_violations += 1
-                self.result.errors.append(
-                    f"step of {step_um:g} um: {self.held_raw / self.scale:g} -> {raw / self.scale:g}"
-                )
-            self.result.offsets_received += 1
-            self._since_tick.append(raw)
-        self.held_raw = raw
-
-    def abandon(self) -> None:
-        """The service died mid-tick: what reached the PLC meanwhile was never acknowledged."""
-        self.result.landed_unacknowledged += len(self._since_tick)
-        self._since_tick = []
-
-    def tick(self, record: TickRecord, axis: str) -> None:
-        """One tick's acknowledged offset must be among the values the PLC received during it."""
-        received, self._since_tick = self._since_tick, []
-        self.result.ticks += 1
-        acknowledged = record.acknowledged_um.get(axis, math.nan)
-        if math.isfinite(acknowledged):
-            if not any(round(acknowledged * self.scale) == round(r) for r in received):
-                self.result.unacknowledged += 1
-                self.result.errors.append(f"t={record.t_s:g} s: {acknowledged} um never received")
-        else:
-            self.result.landed_unacknowledged += len(received)
 
 
 class SoakClock(MachineClock):

@@ -24,12 +24,12 @@ from threadpoolctl import threadpool_limits
 
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
-from compd.files.modelfile import CrossValidationDoc
+from compd.files.modelschema import CrossValidationDoc
 from compd.model.collinear import contribution_shares
 from compd.model.compiled import compile_model, qualified_names
 from compd.model.crossval import Folds, blocked_folds, cycle_folds
 from compd.model.guards import Finding, Severity, check_model
-from compd.model.identify import Identification, IdentifiedTF, Orders
+from compd.model.identify import Identification, IdentifiedTF
 from compd.model.lagbank import (
     DEFAULT_TIME_CONSTANTS_S,
     LagBankFit,
@@ -37,6 +37,7 @@ from compd.model.lagbank import (
     regression_cv,
 )
 from compd.model.metrics import fit_percent
+from compd.model.orderfit import Orders
 from compd.model.run import simulate
 from compd.model.structure import Model
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from compd.errors import DataFileError
 from compd.files.data import DataSet
-from compd.files.modelfile import DenoisedInputDoc, DenoiseDoc
+from compd.files.modelschema import DenoisedInputDoc, DenoiseDoc
 from compd.model.compiled import compile_model
 from compd.model.identify import Identification
 from compd.model.lowpass import MatchedLowPass, cascade, match_lowpass

@@ -11,27 +11,20 @@ The steps of the paper, for one axis output:
 
 The new model is written through the model-file writer and read back with the
 model-file parser before anything is reported, so the figures quoted are
-those of the file a user will load.
+those of the file a user will load (what it records: :mod:`compd.toolkit.extendrecord`).
 """
 
 from __future__ import annotations
 
-import datetime as dt
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from compd import __version__
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
-from compd.files.modelfile import (
-    CalibrationDoc,
-    ExtensionDoc,
-    ModelFile,
-    parse_model,
-)
+from compd.files.modelfile import ModelFile, parse_model
 from compd.files.modelwriter import model_to_yaml
 from compd.model.guards import Finding
 from compd.model.identify import Identification, identify
@@ -48,7 +41,7 @@ from compd.toolkit.candidates import (
     refuse_errors,
 )
 from compd.toolkit.evaluate import Evaluation, compare, evaluate, measured_columns
-from compd.toolkit.fit import unit_of
+from compd.toolkit.extendrecord import extension_yaml
 from compd.toolkit.span import Span, span_data, until_stop
 
 
@@ -182,13 +175,13 @@ def extend_model(
     names = [sub.name for sub in submodels]
     model = _with_submodels(parent.model, output, submodels)
 
-    provisional = _write(parent, model, data, signal, names, {}, {}, command)
+    provisional = extension_yaml(parent, model, data, signal, names, {}, {}, command)
     after = evaluate(parse_model(provisional, parent.path), data)
     fit_before = fit_percent(measured[first:], before.predicted(output)[first:])
     fit_after = fit_percent(measured[first:], after.predicted(output)[first:])
     added = sum(_contribution(after, output, name) for name in names)
     residue_fit = fit_percent(residue[first:], np.asarray(added)[first:])
-    yaml_text = _write(
+    yaml_text = extension_yaml(
         parent,
         model,
         data if span is None else span_data(data, span),
@@ -360,64 +353,3 @@ def _contribution(evaluation: Evaluation, output: str, name: str) -> np.ndarray:
     )
     contribution: np.ndarray = evaluation.result.contributions[:, index]
     return contribution
-
-
-def _write(
-    parent: ModelFile,
-    model: Model,
-    data: DataSet,
-    signal: str,
-    submodel_names: list[str],
-    fit_before: dict[str, float],
-    fit_after: dict[str, float],
-    command: str,
-    *,
-    calibration_rms_um: float | None = None,
-    output: str = "",
-) -> str:
-    doc = parent.doc
-    units = parent.signal_units()
-    if units is not None and signal not in units:
-        units = {**units, signal: unit_of(signal)}
-    calibration = doc.provenance.calibration
-    if calibration is not None and calibration_rms_um is not None:
-        calibration = _widened(calibration, data, output, calibration_rms_um)
-    extension = ExtensionDoc(
-        parent_sha256=parent.sha256,
-        data=data.path,
-        effect_signal=signal,
-        submodels=submodel_names,
-        fit_percent_before=fit_before,
-        fit_percent_after=fit_after,
-        created=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-    )
-    provenance = doc.provenance.model_copy(
-        update={
-            "extensions": [*doc.provenance.extensions, extension],
-            "calibration": calibration,
-            "compd_version": __version__,
-            "command": command or doc.provenance.command,
-        }
-    )
-    return model_to_yaml(model, description=doc.description, signals=units, provenance=provenance)
-
-
-def _widened(
-    calibration: CalibrationDoc, data: DataSet, output: str, rms_um: float
-) -> CalibrationDoc:
-    """The record the model has now been fitted on includes ``data``: widen the seen ranges.
-
-    The calibration RMS (the failing-window tolerance is twice it) becomes the
-    larger of the old one and the extended model's RMS on the extension data,
-    so windows are not flagged merely for being as good as the fit itself.
-    """
-    ranges = dict(calibration.ranges)
-    for name, values in data.columns.items():
-        low, high = float(np.min(values)), float(np.max(values))
-        if name in ranges:
-            old_low, old_high = ranges[name]
-            low, high = min(low, old_low), max(high, old_high)
-        ranges[name] = (low, high)
-    rms = dict(calibration.rms_um)
-    rms[output] = max(rms.get(output, 0.0), rms_um)
-    return calibration.model_copy(update={"ranges": ranges, "rms_um": rms})

@@ -11,30 +11,31 @@ flag operating conditions the model never saw). With a position column
 is multiplied by ``position - reference_mm``. With a :class:`~compd.toolkit.span.Span`
 (``--from``/``--until``) only the span's samples are fitted and scored; the
 model still runs from the record's first sample (see :mod:`compd.model.identify`).
+
+The option checks are :mod:`compd.toolkit.fitchecks`; the model and provenance
+written, :mod:`compd.toolkit.fitmodel`; the candidates compared,
+:mod:`compd.toolkit.candidates`.
 """
 
 from __future__ import annotations
 
-import datetime as dt
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from compd import __version__
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
-from compd.files.modelfile import CalibrationDoc, ProvenanceDoc
+from compd.files.modelschema import ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.collinear import collinear_groups
 from compd.model.guards import Finding
-from compd.model.identify import MAX_ORDER, Identification, Progress, identify
-from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S, lag_name
+from compd.model.identify import Identification, identify
+from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 from compd.model.metrics import Comparison
-from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
+from compd.model.orderfit import Progress
+from compd.model.structure import Model, Position
 from compd.toolkit.candidates import (
-    FIT_METHODS,
     Selection,
     SelectionStep,
     check_against_regression,
@@ -51,10 +52,9 @@ from compd.toolkit.candidates import (
     select_inputs,
 )
 from compd.toolkit.denoise import bake_lowpasses, denoise_columns, denoise_note
+from compd.toolkit.fitchecks import check_arguments, check_position
+from compd.toolkit.fitmodel import fit_provenance, identification_to_model, unit_of
 from compd.toolkit.span import Span, until_stop
-
-#: Unit suffixes of compd's signal naming convention (``T_spindle_degC``, ``spindle_power_kw``).
-_UNIT_SUFFIX = re.compile(r"_(degC|K|rpm|kw|kW|W|um|mm|s|bar|percent|pct)$")
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,186 +76,6 @@ class FitResult:
     input_shares: dict[str, float] = field(default_factory=dict)
     #: With ``select``: the inputs in the order forward selection added them.
     selection_steps: list[SelectionStep] = field(default_factory=list)
-
-
-def unit_of(name: str) -> str:
-    """The unit a signal's name carries (``T_spindle_degC`` -> ``degC``), or ``-`` if it carries none."""
-    match = _UNIT_SUFFIX.search(name)
-    if match is None:
-        return "-"
-    return {"kw": "kW", "pct": "percent"}.get(match.group(1), match.group(1))
-
-
-def identification_to_model(
-    identification: Identification,
-    *,
-    output: str,
-    name: str,
-    gate_signal: str | None = None,
-    position: Position | None = None,
-) -> Model:
-    """One output ``output`` whose sub-models are the identified channels (inputs referenced to start).
-
-    Gated channels get ``gate: {signal: gate_signal, above: 0, applies_to: input}``
-    (see :mod:`compd.model.identify` for why the input, not the output). With a
-    phase gate the cooling sub-models share the gain ``g1`` and the
-    heating-difference ones ``g2`` (seed 002 eq. 6), so ``compd update`` can
-    re-weigh the two phases from probe measurements. Slope channels (seed
-    003 ``m1``) get ``position`` and are named ``INPUT_slope``.
-    """
-    method = identification.method
-    subs = []
-    for channel in identification.channels:
-        if channel.sloped:
-            if position is None:
-                raise ModelError("a slope channel needs the position signal")
-            subs.append(
-                SubModel(
-                    name=f"{channel.input_name}_slope",
-                    effect=f"{channel.input_name}: slope in um per mm, times "
-                    f"({position.signal} - {position.reference_mm:g} mm) ({method})",
-                    input=InputSpec(channel.input_name),
-                    tf=channel.tf,
-                    position=position,
-                )
-            )
-        elif channel.gated:
-            if gate_signal is None:
-                raise ModelError("a gated channel needs the gate signal's name")
-            subs.append(
-                SubModel(
-                    name=f"{channel.input_name}_heating",
-                    effect=f"{channel.input_name}: heating minus cooling, while "
-                    f"{gate_signal} > 0 ({method})",
-                    input=InputSpec(channel.input_name),
-                    tf=channel.tf,
-                    gate=Gate(gate_signal, 0.0, True, GateTarget.INPUT),
-                    gain_name="g2",
-                )
-            )
-        elif channel.time_constant_s is not None:
-            tau = channel.time_constant_s
-            subs.append(
-                SubModel(
-                    name=lag_name(channel.input_name, tau),
-                    effect=f"{channel.input_name}: first-order lag of {tau:g} s (lagbank)"
-                    if tau
-                    else f"{channel.input_name}: static gain (lagbank)",
-                    input=InputSpec(channel.input_name),
-                    tf=channel.tf,
-                )
-            )
-        else:
-            effect = (
-                f"{channel.input_name}: cooling, always on ({method})"
-                if gate_signal is not None
-                else f"{channel.input_name}: offset at every position ({method})"
-                if position is not None
-                else f"{channel.input_name} ({method})"
-            )
-            subs.append(
-                SubModel(
-                    name=channel.input_name,
-                    effect=effect,
-                    input=InputSpec(channel.input_name),
-                    tf=channel.tf,
-                    gain_name=None if gate_signal is None else "g1",
-                )
-            )
-    return Model(name, identification.sample_time_s, (Output(output, tuple(subs)),))
-
-
-def _check_arguments(
-    data: DataSet, output: str, inputs: Sequence[str], order: int | str, method: str
-) -> None:
-    if not inputs:
-        raise DataFileError(
-            data.path,
-            "no inputs given",
-            where="--inputs",
-            fix=f"Name one or more columns, comma-separated, from: {', '.join(data.columns)}",
-        )
-    repeated = sorted({i for i in inputs if list(inputs).count(i) > 1})
-    if repeated:
-        raise DataFileError(
-            data.path, f"inputs {repeated} are named twice", where="--inputs", fix="Name each once"
-        )
-    if output in inputs:
-        raise DataFileError(
-            data.path,
-            f"the output column {output!r} is also among the inputs",
-            where="--inputs",
-            fix="A model cannot use the displacement it predicts; remove it from --inputs",
-        )
-    for column in (output, *inputs):
-        data.column(column)  # an unknown column names the file's columns
-    if order != "auto" and not (isinstance(order, int) and 1 <= order <= MAX_ORDER):
-        raise DataFileError(
-            data.path,
-            f"order must be 'auto' or 1..{MAX_ORDER}, got {order!r}",
-            where="--order",
-            fix="Use --order auto to choose it on held-back data",
-        )
-    if method not in FIT_METHODS:
-        raise DataFileError(
-            data.path,
-            f"unknown method {method!r}",
-            where="--method",
-            fix=f"Use one of {', '.join(FIT_METHODS)}",
-        )
-    for column in inputs:
-        if np.ptp(data.column(column)) == 0.0:
-            raise DataFileError(
-                data.path,
-                f"input column {column!r} is constant ({data.column(column)[0]:g}) over the whole "
-                "record, so its effect cannot be identified",
-                where=f"column {column!r}",
-                fix="Leave it out of --inputs, or calibrate on data in which it varies",
-            )
-
-
-def _check_position(
-    data: DataSet,
-    position: str,
-    reference_mm: float,
-    output: str,
-    inputs: Sequence[str],
-    phase_gate: str | None,
-) -> None:
-    """Refuse a position column the slope cannot be identified from (file, place, fix)."""
-    where = f"--position {position}"
-    if position == output or position in inputs:
-        raise DataFileError(
-            data.path,
-            f"the position column {position!r} is also the output or an input",
-            where=where,
-            fix="The position multiplies the slope sub-models; do not list it in --inputs",
-        )
-    if phase_gate is not None:
-        raise DataFileError(
-            data.path,
-            "--position and --phase-gate together are not supported",
-            where=where,
-            fix="Fit the feed axis with --position only (its screw heats while it moves)",
-        )
-    if not np.isfinite(reference_mm):
-        raise DataFileError(
-            data.path,
-            f"the reference position {reference_mm} is not a finite number",
-            where="--position-reference-mm",
-            fix="Give the position in mm at which the slope term is zero (e.g. 0)",
-        )
-    values = data.column(position)  # an unknown column names the file's columns
-    distinct = np.unique(values)
-    if distinct.size < 2:
-        raise DataFileError(
-            data.path,
-            f"column {position!r} holds one position ({distinct[0]:g} mm) over the whole record, "
-            "so the slope (um per mm) cannot be told from the offset",
-            where=f"column {position!r}",
-            fix="Calibrate with measurements at two or more positions along the axis (seed "
-            "003: e.g. both ends and the middle), or fit without --position",
-        )
 
 
 def fit_data(
@@ -307,7 +127,7 @@ def fit_data(
                 where="--from",
                 fix="Fit with --denoise and --until only, or without --denoise",
             )
-    _check_arguments(data, output, inputs, order, method)
+    check_arguments(data, output, inputs, order, method)
     y = data.column(output)
     if denoise and phase_gate is not None:
         raise DataFileError(
@@ -328,7 +148,7 @@ def fit_data(
         gate = data.column(phase_gate) > 0.0
     slope = None
     if position is not None:
-        _check_position(data, position, position_reference_mm, output, inputs, phase_gate)
+        check_position(data, position, position_reference_mm, output, inputs, phase_gate)
         slope = Position(position, float(position_reference_mm))
     if phase_gate is not None and phase_gate in inputs:
         raise DataFileError(
@@ -431,7 +251,7 @@ def fit_data(
             what="the fitted model is implausible for its own calibration data",
             where=f"--method {chosen}",
         )
-    provenance = _provenance(data, identification, comparison, command, phase_gate, slope, span)
+    provenance = fit_provenance(data, identification, comparison, command, phase_gate, slope, span)
     provenance = provenance.model_copy(
         update={"cross_validation": cross_validation_doc(output, selection)}
     )
@@ -459,67 +279,4 @@ def fit_data(
         collinear=collinear_groups(np.column_stack(list(changes.values()))[first:], list(changes)),
         input_shares=input_shares(model, contributions),
         selection_steps=steps,
-    )
-
-
-def _provenance(
-    data: DataSet,
-    identification: Identification,
-    comparison: Comparison,
-    command: str | None,
-    phase_gate: str | None,
-    position: Position | None = None,
-    span: Span | None = None,
-) -> ProvenanceDoc:
-    output = comparison.output
-    orders = identification.orders
-    first = 0 if span is None else span.start
-    notes = [
-        f"free-run simulation fit {identification.fit_percent:.4f} % on the whole calibration "
-        "record (inputs as changes from start, model started at rest)"
-        if span is None or span.whole
-        else f"free-run simulation fit {identification.fit_percent:.4f} % "
-        f"{span.describe('fitted')} (inputs as changes from the file's first values, model "
-        "started at rest there)",
-    ]
-    if identification.validation_fit_percent is not None:
-        notes.append(
-            f"orders chosen automatically: fit {identification.validation_fit_percent:.4f} % "
-            "on the held-back last third, estimated on the first two thirds"
-        )
-    if identification.method != "lagbank":  # its orders are all first-order lags: said below
-        notes.append(
-            f"orders: na={orders.na} nb={list(orders.nb)} nf={list(orders.nf)} nk={list(orders.nk)}"
-        )
-    if phase_gate is not None:
-        notes.append(
-            f"phase gate {phase_gate} > 0 switches the heating-difference TFs' inputs "
-            "(seed 002 eq. 5 switches their outputs; see compd.model.identify)"
-        )
-    if position is not None:
-        notes.append(
-            f"slope sub-models are multiplied by ({position.signal} - {position.reference_mm:g} "
-            "mm) after their TF; their numerators were refitted in that form (see "
-            "compd.model.position)"
-        )
-    ranges = {  # of the samples fitted: the conditions the model was fitted for
-        column: (float(np.min(values[first:])), float(np.max(values[first:])))
-        for column, values in data.columns.items()
-    }
-    return ProvenanceDoc(
-        data=data.path,
-        command=command,
-        created=dt.datetime.now(dt.UTC).replace(microsecond=0).isoformat().replace("+00:00", "Z"),
-        compd_version=__version__,
-        method=identification.method,
-        fit_percent={output: identification.fit_percent},
-        calibration=CalibrationDoc(
-            data=data.path,
-            samples=len(data) - first,
-            sample_time_s=data.sample_time_s,
-            fit_percent={output: identification.fit_percent},
-            rms_um={output: comparison.residue.rms_um},
-            ranges=ranges,
-        ),
-        notes="; ".join(notes),
     )

@@ -23,13 +23,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from compd.errors import DataFileError, ModelError, ModelFileError
-from compd.files.modelfile import (
-    ModelFile,
-    ProvenanceDoc,
-    ResidualDoc,
-    ResidualFiguresDoc,
-    parse_model,
-)
+from compd.files.modelfile import ModelFile, parse_model
+from compd.files.modelschema import ProvenanceDoc, ResidualDoc, ResidualFiguresDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.files.sidecar import FOREST_ARRAYS, sidecar_bytes, sidecar_path
 from compd.model.residual import DEFAULT_TIME_CONSTANTS_S, DoorFeatures, Forest, ResidualModel
@@ -260,7 +255,7 @@ def _stack(
     options: tuple[str, int, int, int],
     span: Span | None = None,
 ) -> StackedFit:
-    from compd.toolkit.fit import unit_of
+    from compd.toolkit.fitmodel import unit_of
 
     signal, trees, max_depth, seed = options
     door = data.column(signal)  # an unknown column names the file's columns

@@ -31,7 +31,8 @@ import numpy as np
 from compd import __version__
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
-from compd.files.modelfile import CharacteristicDoc, ModelFile, UpdateDoc, parse_model
+from compd.files.modelfile import ModelFile, parse_model
+from compd.files.modelschema import CharacteristicDoc, UpdateDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.gains import (
     DEFAULT_BOUNDS,

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from compd.model.diagnose import diagnose_residue, lag_bank, time_constant_bank
+from compd.model.diagnose import diagnose_residue
+from compd.model.lagscore import lag_bank, time_constant_bank
 
 SAMPLE_TIME_S = 10.0
 N = 8640  # 24 h at 10 s

@@ -11,7 +11,7 @@ from numpy.testing import assert_allclose
 
 from compd.cli import main
 from compd.files.data import load_data
-from compd.files.modelfile import ResidualDoc
+from compd.files.modelschema import ResidualDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.files.sidecar import sidecar_bytes, sidecar_path
 from compd.model.residual import DoorFeatures

@@ -1,11 +1,11 @@
-"""The soak's witness (:class:`compd.sim.soak.Witness`) judges what the PLC's offset register receives."""
+"""The soak's witness (:class:`compd.sim.soakwitness.Witness`) judges what the PLC's offset register receives."""
 
 from __future__ import annotations
 
 import math
 
 from compd.service.compensator import TickRecord
-from compd.sim.soak import SoakResult, Witness
+from compd.sim.soakwitness import SoakResult, Witness
 
 OFFSET = "holding:100:int32"
 

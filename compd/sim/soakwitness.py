@@ -1,0 +1,104 @@
+"""The soak's judge on the PLC's side (:mod:`compd.sim.soak`): every value the offset register receives.
+
+The :class:`Witness` sits on the PLC's write path and judges each write
+against what the register held just before (after any reset): steps above
+the slew limit, and offsets the service reports as acknowledged
+(:attr:`~compd.service.loop.TickRecord.acknowledged_um`) that the PLC never
+received. The counts go into a :class:`SoakResult`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from compd.service.loop import TickRecord
+
+#: Slack on a step, um: the register holds whole counts, so only float noise.
+STEP_TOLERANCE_UM = 1e-6
+
+
+@dataclass
+class SoakResult:
+    """What the soak saw: faults by kind, the three counts judged, and what explains them."""
+
+    faults: Counter[str] = field(default_factory=Counter)
+    crashes: int = 0
+    slew_violations: int = 0
+    unacknowledged: int = 0
+    #: Writes that reached the PLC while the service counted them failed (allowed: re-seeded).
+    landed_unacknowledged: int = 0
+    offsets_received: int = 0
+    largest_step_um: float = 0.0
+    ticks: int = 0
+    services: int = 0
+    bad_models_refused: int = 0
+    bad_models_accepted: int = 0
+    offset_mismatches: int = 0
+    #: Why each bad model was refused (the daemon's reply).
+    refusals: list[str] = field(default_factory=list)
+    simulated_s: float = 0.0
+    wall_s: float = 0.0
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        return (
+            self.crashes == 0
+            and self.slew_violations == 0
+            and self.unacknowledged == 0
+            and self.bad_models_accepted == 0
+        )
+
+
+class Witness:
+    """The PLC's side: every value the offset register receives, judged against what it held."""
+
+    def __init__(self, address: str, scale: float, max_step_um: float, result: SoakResult) -> None:
+        self.address = address
+        self.scale = scale
+        self.max_step_um = max_step_um
+        self.result = result
+        self.held_raw = 0.0  # the register starts cleared
+        self.programming = False  # the PLC's own program is writing
+        self._since_tick: list[float] = []
+
+    def sink(self, inner: Callable[[str, float], None]) -> Callable[[str, float], None]:
+        def written(address: str, raw: float) -> None:
+            if address == self.address:
+                self._offset(raw)
+            inner(address, raw)
+
+        return written
+
+    def _offset(self, raw: float) -> None:
+        if not self.programming:
+            step_um = abs(raw - self.held_raw) / self.scale
+            self.result.largest_step_um = max(self.result.largest_step_um, step_um)
+            if step_um > self.max_step_um + STEP_TOLERANCE_UM:
+                self.result.slew_violations += 1
+                self.result.errors.append(
+                    f"step of {step_um:g} um: {self.held_raw / self.scale:g} -> {raw / self.scale:g}"
+                )
+            self.result.offsets_received += 1
+            self._since_tick.append(raw)
+        self.held_raw = raw
+
+    def abandon(self) -> None:
+        """The service died mid-tick: what reached the PLC meanwhile was never acknowledged."""
+        self.result.landed_unacknowledged += len(self._since_tick)
+        self._since_tick = []
+
+    def tick(self, record: TickRecord, axis: str) -> None:
+        """One tick's acknowledged offset must be among the values the PLC received during it."""
+        received, self._since_tick = self._since_tick, []
+        self.result.ticks += 1
+        acknowledged = record.acknowledged_um.get(axis, math.nan)
+        if math.isfinite(acknowledged):
+            if not any(round(acknowledged * self.scale) == round(r) for r in received):
+                self.result.unacknowledged += 1
+                self.result.errors.append(f"t={record.t_s:g} s: {acknowledged} um never received")
+        else:
+            self.result.landed_unacknowledged += len(received)

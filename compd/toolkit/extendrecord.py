@@ -1,0 +1,83 @@
+"""What ``compd extend`` records in the model file: an extension entry and the widened calibration.
+
+Each extension appends an :class:`~compd.files.modelschema.ExtensionDoc` to
+the parent's provenance (parent hash, data, signal, new sub-models, fit before
+and after) and widens the recorded calibration, so ``compd compare`` judges
+later data against everything the model has now been fitted on.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+
+import numpy as np
+
+from compd import __version__
+from compd.files.data import DataSet
+from compd.files.modelfile import ModelFile
+from compd.files.modelschema import CalibrationDoc, ExtensionDoc
+from compd.files.modelwriter import model_to_yaml
+from compd.model.structure import Model
+from compd.toolkit.fitmodel import unit_of
+
+
+def extension_yaml(
+    parent: ModelFile,
+    model: Model,
+    data: DataSet,
+    signal: str,
+    submodel_names: list[str],
+    fit_before: dict[str, float],
+    fit_after: dict[str, float],
+    command: str,
+    *,
+    calibration_rms_um: float | None = None,
+    output: str = "",
+) -> str:
+    """``model`` as YAML, ``parent``'s provenance extended by the step that added ``submodel_names``."""
+    doc = parent.doc
+    units = parent.signal_units()
+    if units is not None and signal not in units:
+        units = {**units, signal: unit_of(signal)}
+    calibration = doc.provenance.calibration
+    if calibration is not None and calibration_rms_um is not None:
+        calibration = widened_calibration(calibration, data, output, calibration_rms_um)
+    extension = ExtensionDoc(
+        parent_sha256=parent.sha256,
+        data=data.path,
+        effect_signal=signal,
+        submodels=submodel_names,
+        fit_percent_before=fit_before,
+        fit_percent_after=fit_after,
+        created=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+    )
+    provenance = doc.provenance.model_copy(
+        update={
+            "extensions": [*doc.provenance.extensions, extension],
+            "calibration": calibration,
+            "compd_version": __version__,
+            "command": command or doc.provenance.command,
+        }
+    )
+    return model_to_yaml(model, description=doc.description, signals=units, provenance=provenance)
+
+
+def widened_calibration(
+    calibration: CalibrationDoc, data: DataSet, output: str, rms_um: float
+) -> CalibrationDoc:
+    """The record the model has now been fitted on includes ``data``: widen the seen ranges.
+
+    The calibration RMS (the failing-window tolerance is twice it) becomes the
+    larger of the old one and the extended model's RMS on the extension data,
+    so windows are not flagged merely for being as good as the fit itself.
+    """
+    ranges = dict(calibration.ranges)
+    for name, values in data.columns.items():
+        low, high = float(np.min(values)), float(np.max(values))
+        if name in ranges:
+            old_low, old_high = ranges[name]
+            low, high = min(low, old_low), max(high, old_high)
+        ranges[name] = (low, high)
+    rms = dict(calibration.rms_um)
+    rms[output] = max(rms.get(output, 0.0), rms_um)
+    return calibration.model_copy(update={"ranges": ranges, "rms_um": rms})

@@ -1,0 +1,111 @@
+"""The checks ``compd fit`` makes of its options before fitting, each refusal naming file, option and fix.
+
+Kept apart from :mod:`compd.toolkit.fit` so the fit itself reads as the steps
+it takes; every check here only reads the data set and raises
+:class:`~compd.errors.DataFileError`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from compd.errors import DataFileError
+from compd.files.data import DataSet
+from compd.model.orderfit import MAX_ORDER
+from compd.toolkit.candidates import FIT_METHODS
+
+
+def check_arguments(
+    data: DataSet, output: str, inputs: Sequence[str], order: int | str, method: str
+) -> None:
+    """Refuse missing, repeated or constant inputs, an unknown column, order or method."""
+    if not inputs:
+        raise DataFileError(
+            data.path,
+            "no inputs given",
+            where="--inputs",
+            fix=f"Name one or more columns, comma-separated, from: {', '.join(data.columns)}",
+        )
+    repeated = sorted({i for i in inputs if list(inputs).count(i) > 1})
+    if repeated:
+        raise DataFileError(
+            data.path, f"inputs {repeated} are named twice", where="--inputs", fix="Name each once"
+        )
+    if output in inputs:
+        raise DataFileError(
+            data.path,
+            f"the output column {output!r} is also among the inputs",
+            where="--inputs",
+            fix="A model cannot use the displacement it predicts; remove it from --inputs",
+        )
+    for column in (output, *inputs):
+        data.column(column)  # an unknown column names the file's columns
+    if order != "auto" and not (isinstance(order, int) and 1 <= order <= MAX_ORDER):
+        raise DataFileError(
+            data.path,
+            f"order must be 'auto' or 1..{MAX_ORDER}, got {order!r}",
+            where="--order",
+            fix="Use --order auto to choose it on held-back data",
+        )
+    if method not in FIT_METHODS:
+        raise DataFileError(
+            data.path,
+            f"unknown method {method!r}",
+            where="--method",
+            fix=f"Use one of {', '.join(FIT_METHODS)}",
+        )
+    for column in inputs:
+        if np.ptp(data.column(column)) == 0.0:
+            raise DataFileError(
+                data.path,
+                f"input column {column!r} is constant ({data.column(column)[0]:g}) over the whole "
+                "record, so its effect cannot be identified",
+                where=f"column {column!r}",
+                fix="Leave it out of --inputs, or calibrate on data in which it varies",
+            )
+
+
+def check_position(
+    data: DataSet,
+    position: str,
+    reference_mm: float,
+    output: str,
+    inputs: Sequence[str],
+    phase_gate: str | None,
+) -> None:
+    """Refuse a position column the slope cannot be identified from (file, place, fix)."""
+    where = f"--position {position}"
+    if position == output or position in inputs:
+        raise DataFileError(
+            data.path,
+            f"the position column {position!r} is also the output or an input",
+            where=where,
+            fix="The position multiplies the slope sub-models; do not list it in --inputs",
+        )
+    if phase_gate is not None:
+        raise DataFileError(
+            data.path,
+            "--position and --phase-gate together are not supported",
+            where=where,
+            fix="Fit the feed axis with --position only (its screw heats while it moves)",
+        )
+    if not np.isfinite(reference_mm):
+        raise DataFileError(
+            data.path,
+            f"the reference position {reference_mm} is not a finite number",
+            where="--position-reference-mm",
+            fix="Give the position in mm at which the slope term is zero (e.g. 0)",
+        )
+    values = data.column(position)  # an unknown column names the file's columns
+    distinct = np.unique(values)
+    if distinct.size < 2:
+        raise DataFileError(
+            data.path,
+            f"column {position!r} holds one position ({distinct[0]:g} mm) over the whole record, "
+            "so the slope (um per mm) cannot be told from the offset",
+            where=f"column {position!r}",
+            fix="Calibrate with measurements at two or more positions along the axis (seed "
+            "003: e.g. both ends and the middle), or fit without --position",
+        )
