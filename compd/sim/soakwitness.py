@@ -3,7 +3,7 @@
 The :class:`Witness` sits on the PLC's write path and judges each write
 against what the register held just before (after any reset): steps above
 the slew limit, and offsets the service reports as acknowledged
-(:attr:`~compd.service.loop.TickRecord.acknowledged_um`) that the PLC never
+(:attr:`~compd.service.compensator.TickRecord.acknowledged_um`) that the PLC never
 received. The counts go into a :class:`SoakResult`.
 """
 
@@ -14,7 +14,7 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from compd.service.loop import TickRecord
+from compd.service.compensator import TickRecord
 
 #: Slack on a step, um: the register holds whole counts, so only float noise.
 STEP_TOLERANCE_UM = 1e-6
