@@ -28,6 +28,7 @@ put into error messages (:mod:`compd.drivers.opcua_security`).
 from __future__ import annotations
 
 import asyncio
+import re
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -74,9 +75,17 @@ _GONE = {
 }
 
 
+#: An address in NodeId syntax: ``[ns=N;|nsu=URI;]`` then ``i=``, ``s=``, ``g=`` or ``b=``.
+_NODE_ID = re.compile(r"(ns=\d+;|nsu=[^;]+;)?[isgb]=")
+
+
 def _node_id(address: str) -> ua.NodeId | None:
-    """The NodeId an address names directly, or None when it is a browse path."""
-    if "/" in address:
+    """The NodeId an address names directly, or None when it is a browse path.
+
+    NodeId syntax wins over a ``/`` in the text: SINUMERIK's string NodeIds are
+    paths themselves (``ns=2;s=/Plc/DB9000.DBD10:DINT``).
+    """
+    if "/" in address and not _NODE_ID.match(address):
         return None
     try:
         return ua.NodeId.from_string(address)

@@ -1,4 +1,4 @@
-"""deploy/compd.service: a unit systemd accepts, with the options compd's service relies on."""
+"""deploy/compd.service and its template compd@.service: units systemd accepts, with the options compd relies on."""
 
 from __future__ import annotations
 
@@ -22,7 +22,11 @@ from compd.cli import build_parser
 from compd.files.data import load_data
 from compd.service.control import request_sync
 
-UNIT = Path(__file__).parents[2] / "deploy" / "compd.service"
+DEPLOY = Path(__file__).parents[2] / "deploy"
+UNIT = DEPLOY / "compd.service"
+TEMPLATE = DEPLOY / "compd@.service"
+#: Each unit file and the name systemd sees it under (a template only as an instance).
+UNITS = {"compd.service": UNIT, "compd@mill1.service": TEMPLATE}
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
 needs_systemd = pytest.mark.skipif(
     SYSTEMD_ANALYZE is None,
@@ -46,19 +50,19 @@ def parse_unit(text: str) -> dict[str, dict[str, list[str]]]:
     return sections
 
 
-@pytest.fixture(scope="module")
-def service() -> dict[str, list[str]]:
-    return parse_unit(UNIT.read_text())["Service"]
+@pytest.fixture(scope="module", params=list(UNITS), ids=list(UNITS))
+def service(request: pytest.FixtureRequest) -> dict[str, list[str]]:
+    return parse_unit(UNITS[request.param].read_text())["Service"]
 
 
-@pytest.fixture
-def installable_unit(tmp_path: Path) -> Path:
+@pytest.fixture(params=list(UNITS), ids=list(UNITS))
+def installable_unit(request: pytest.FixtureRequest, tmp_path: Path) -> Path:
     """The unit with ExecStart pointing at this environment's compd, as verify checks it exists."""
     compd = shutil.which("compd") or str(Path(sys.executable).parent / "compd")
     if not Path(compd).exists():
         pytest.skip("the compd entry point is not installed: pip install -e .")
-    text = UNIT.read_text().replace("/opt/compd/venv/bin/compd", compd)
-    path = tmp_path / "compd.service"
+    text = UNITS[request.param].read_text().replace("/opt/compd/venv/bin/compd", compd)
+    path = tmp_path / request.param
     path.write_text(text)
     return path
 
@@ -73,7 +77,7 @@ def test_systemd_analyze_verify_accepts_the_unit(installable_unit):
         timeout=60,
     )
     assert done.returncode == 0, done.stderr
-    assert "compd.service" not in done.stderr, done.stderr
+    assert installable_unit.name not in done.stderr, done.stderr
 
 
 @needs_systemd
@@ -86,7 +90,8 @@ def test_sandbox_exposure_stays_low(installable_unit):
         timeout=60,
     )
     assert done.returncode == 0, done.stdout + done.stderr
-    found = re.search(r"Overall exposure level for compd\.service: (\d+\.\d+)", done.stdout)
+    name = re.escape(installable_unit.name)
+    found = re.search(rf"Overall exposure level for {name}: (\d+\.\d+)", done.stdout)
     assert found and float(found[1]) <= 2.0, done.stdout[-300:]
 
 
@@ -105,7 +110,7 @@ def test_execstart_is_a_command_compd_accepts(service):
     argv = shlex.split(command)
     assert argv[0].endswith("/compd")
     args = build_parser().parse_args(argv[1:])
-    assert argv[1] == "run" and args.config == "/etc/compd/compd.yaml"
+    assert argv[1] == "run" and args.config in ("/etc/compd/compd.yaml", "/etc/compd/%i.yaml")
 
 
 def test_machine_access_survives_the_sandbox(service):
@@ -139,7 +144,38 @@ def test_the_service_is_confined(service):
     for key, value in expected.items():
         assert service.get(key) == [value], key
     assert service["SystemCallFilter"][0] == "@system-service"
-    assert service["StateDirectory"] == ["compd"] and service["RuntimeDirectory"] == ["compd"]
+    assert service["StateDirectory"] in (["compd"], ["compd/%i"])
+    assert service["RuntimeDirectory"] == service["StateDirectory"]
+
+
+def test_the_template_differs_from_the_unit_only_in_its_instance_places():
+    """compd@.service has compd.service's every option, the same hardening, but per-instance config and directories."""
+    unit = parse_unit(UNIT.read_text())
+    template = parse_unit(TEMPLATE.read_text())
+    per_instance = {"Description", "ExecStart", "StateDirectory", "RuntimeDirectory", "Environment"}
+    for section, options in unit.items():
+        for key, values in options.items():
+            if key not in per_instance:
+                assert template[section].get(key) == values, f"[{section}] {key}"
+    assert set(template["Service"]) == set(unit["Service"])
+    service = template["Service"]
+    assert service["ExecStart"][0].endswith("run --config /etc/compd/%i.yaml")
+    assert service["StateDirectory"] == ["compd/%i"] and service["RuntimeDirectory"] == ["compd/%i"]
+    # No XDG_STATE_HOME: a config without state.directory must fail, not share /var/lib/compd.
+    assert "XDG_STATE_HOME" not in " ".join(service["Environment"])
+
+
+def test_the_guides_instance_config_uses_the_templates_directories():
+    """The per-instance paths deploy/README.md tells each NAME.yaml to set are the template's directories."""
+    readme = (DEPLOY / "README.md").read_text()
+    snippet = readme[readme.index("## Several machines on one PC") :]
+    block = yaml.safe_load(re.search(r"```yaml\n(.*?)```", snippet, re.S)[1])
+    service = parse_unit(TEMPLATE.read_text())["Service"]
+    instance = Path(block["state"]["directory"]).name
+    state = "/var/lib/" + service["StateDirectory"][0].replace("%i", instance)
+    runtime = "/run/" + service["RuntimeDirectory"][0].replace("%i", instance)
+    assert block["state"]["directory"] == state
+    assert str(Path(block["control_socket"]).parent) == runtime
 
 
 _MDWE_SCRIPT = """

@@ -48,6 +48,9 @@ VARIABLES: dict[str, tuple[ua.VariantType, Any, bool]] = {
     "heartbeat": (ua.VariantType.Boolean, False, True),
 }
 
+#: The string identifier of a node named like a SINUMERIK OPC UA server's PLC variables.
+SINUMERIK_DBD = "/Plc/DB9000.DBD10:DINT"
+
 
 @dataclass(frozen=True)
 class Certificates:
@@ -226,6 +229,13 @@ class OpcUaTestServer:
             if writable:
                 await node.set_writable()
             self.nodes[name] = node
+        # A SINUMERIK-style string NodeId, a path itself: a PLC data block double word.
+        self.nodes["sinumerik_dbd"] = await machine.add_variable(
+            ua.NodeId(SINUMERIK_DBD, ns),
+            ua.QualifiedName("DB9000.DBD10", ns),
+            ua.Variant(0, ua.VariantType.Int32),
+        )
+        await self.nodes["sinumerik_dbd"].set_writable()
         await self.nodes["T_faulty_degC"].write_value(
             ua.DataValue(
                 ua.Variant(99.0, ua.VariantType.Double),

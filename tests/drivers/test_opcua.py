@@ -35,6 +35,7 @@ from compd.service.links import DriverLink
 from .contract import ContractSetup, DriverContract
 from .opcua_server import (
     PASSWORD,
+    SINUMERIK_DBD,
     USERNAME,
     Certificates,
     OpcUaTestServer,
@@ -290,6 +291,23 @@ def test_writes_use_the_node_type(certs, server):
         "heartbeat": True,
     }
     assert isinstance(held["comp_y_0p1um"], int) and isinstance(held["heartbeat"], bool)
+
+
+def test_a_string_node_id_with_slashes_is_a_node_id_not_a_browse_path(certs, server):
+    """ns=N;s=/Plc/DB9000.DBD10:DINT (SINUMERIK's form) writes and reads back that node."""
+    address = f"ns={server.namespace_index};s={SINUMERIK_DBD}"
+    assert OpcUaDriver.footprint(address, None) == frozenset({address})
+
+    async def scenario() -> dict[str, float]:
+        driver = await opened(make_driver(certs, server.url))
+        try:
+            await driver.write({address: -123.0})
+            return await driver.read([address])
+        finally:
+            await driver.close()
+
+    assert asyncio.run(scenario()) == {address: -123.0}
+    assert server.value("sinumerik_dbd") == -123
 
 
 @pytest.mark.parametrize(
