@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compd.config import ConfigDoc
-from compd.yamlplace import resolve_path
+from compd.files.yamlplace import resolve_path
+from compd.service.config import ConfigDoc
 
 from ..clirun import compd
 

@@ -19,14 +19,14 @@ from pathlib import Path
 
 import pytest
 import yaml
-from compd.clock import RealClock
-from compd.config import load_config
 from compd.drivers.linuxcnc import LinuxCncDriver, LinuxCncSettings
 from compd.drivers.registry import load_driver_type
-from compd.loop import TickRecord
 
 from compd.errors import ConfigFileError, DriverDisconnectedError, DriverProtocolError
-from compd.service import Service
+from compd.service.clock import RealClock
+from compd.service.compensator import TickRecord
+from compd.service.config import load_config
+from compd.service.daemon import Service
 
 from ..service.daemon_setup import write_config
 from . import linuxcnc_machine
