@@ -4,7 +4,9 @@ numpy and scipy only: nothing here reads files, logs or knows about asyncio,
 so every result can be checked against scipy with ``assert_allclose``.
 
 The names below are loaded on first use (PEP 562): the daemon, which only
-compiles and steps models, never loads the identification stack.
+compiles and steps models, never loads the identification stack. (The
+function ``identify`` is not among them: once loaded, the submodule of the
+same name would shadow it; import it from :mod:`compd.model.identify`.)
 """
 
 from __future__ import annotations
@@ -38,7 +40,6 @@ _EXPORTS = {
     "diagnose_residue": "compd.model.diagnose",
     "failing_windows": "compd.model.windows",
     "fit_percent": "compd.model.metrics",
-    "identify": "compd.model.identify",
     "simulate": "compd.model.run",
 }
 

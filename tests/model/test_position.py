@@ -20,9 +20,9 @@ from compd.model import (
     SubModel,
     TickRunner,
     compile_model,
-    identify,
     simulate,
 )
+from compd.model.identify import identify
 from compd.model.position import (
     channel_scales,
     check_position,
