@@ -116,6 +116,7 @@ class Service:
         self.timing = TickTiming()
         self.stop_event = asyncio.Event()
         self.started_unix_s = now_unix
+        self._killed = False
         self._control = (
             ControlServer(
                 config.control_socket,
@@ -245,7 +246,20 @@ class Service:
         else:
             self._recorder_fault.cleared("recorder works again")
 
+    def leave_as_killed(self) -> None:
+        """Make the end of ``run`` what SIGKILL would leave: sockets closed, nothing saved or written.
+
+        For fault-injection soaks (:mod:`compd.sim.soak`) that kill and restart
+        the service inside one process.
+        """
+        self._killed = True
+
     async def _shutdown(self) -> None:
+        if self._killed:  # the OS closes the sockets; the socket file stays (stale)
+            await asyncio.gather(*(link.driver.close() for link in self.links.values()))
+            if self._control is not None:
+                await self._control.close()
+            return
         self.notifier.stopping("saving state")
         if self._saving is not None:
             await self._saving

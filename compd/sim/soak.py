@@ -195,13 +195,7 @@ class Soak:
 
     async def _kill(self, service: Service, task: asyncio.Task[Any]) -> None:
         """What SIGKILL leaves: nothing more of the service runs; the OS closes its sockets."""
-
-        async def vanish() -> None:
-            await asyncio.gather(*(link.driver.close() for link in service.links.values()))
-            if service._control is not None:  # the listening socket; its file stays (stale)
-                await service._control.close()
-
-        service._shutdown = vanish  # type: ignore[method-assign]
+        service.leave_as_killed()
         task.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await task
