@@ -9,7 +9,7 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import data_options, fmt, load_data_from_args, span_from_args
+from compd.cli.common import data_options, load_data_from_args, span_from_args
 from compd.cli.terminal import console
 from compd.files.effects import load_catalogue
 from compd.files.modelfile import load_model
@@ -17,7 +17,7 @@ from compd.toolkit.analysis import DiagnosisResult, diagnose_evaluation
 from compd.toolkit.evaluate import measured_columns
 from compd.toolkit.selection import select_columns
 from compd.toolkit.span import evaluate_span
-from compd.toolkit.summary import json_clean, json_text
+from compd.toolkit.summary import fmt, json_clean, json_text
 
 DEFAULT_TOP = 5
 #: Fewest samples diagnosed: the default 5 cross-validation blocks of 20.

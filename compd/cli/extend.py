@@ -10,7 +10,7 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import data_options, fmt, load_data_from_args, order_arg, span_from_args
+from compd.cli.common import data_options, load_data_from_args, order_arg, span_from_args
 from compd.cli.progress import progress_reporter
 from compd.cli.terminal import console
 from compd.files.effects import load_catalogue
@@ -18,7 +18,7 @@ from compd.files.modelfile import load_model
 from compd.model.identify import MIN_SAMPLES
 from compd.model.transfer import DiscreteTF
 from compd.toolkit.extend import extend_model, verify_extension, with_verification
-from compd.toolkit.summary import json_clean, json_text
+from compd.toolkit.summary import fmt, json_clean, json_text
 
 
 def register(commands: Any) -> None:

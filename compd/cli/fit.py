@@ -10,7 +10,7 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import data_options, fmt, load_data_from_args, span_from_args
+from compd.cli.common import data_options, load_data_from_args, span_from_args
 from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
 from compd.cli.terminal import console
@@ -21,6 +21,7 @@ from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 from compd.toolkit.candidates import FIT_METHODS
 from compd.toolkit.fit import FitResult, fit_data
 from compd.toolkit.selection import select_columns
+from compd.toolkit.summary import fmt
 
 
 def register(commands: Any) -> None:

@@ -19,15 +19,16 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import data_options, fmt, load_data_from_args, span_from_args
+from compd.cli.common import data_options, load_data_from_args, span_from_args
 from compd.cli.residual_options import add_forest_options
 from compd.cli.terminal import console
 from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile, load_model
+from compd.files.sidecar import sidecar_path
 from compd.toolkit.evaluate import evaluate, measured_columns
-from compd.toolkit.residual import ResidueFigures, sidecar_path, stack_on_model
+from compd.toolkit.residual import ResidueFigures, stack_on_model
 from compd.toolkit.span import Span, evaluate_span
-from compd.toolkit.summary import json_text
+from compd.toolkit.summary import fmt, json_text
 
 
 def register(commands: Any) -> None:

@@ -14,12 +14,13 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import fmt
 from compd.cli.terminal import console
 from compd.files.data import DataSet
+from compd.files.sidecar import sidecar_path
 from compd.toolkit.fit import FitResult
-from compd.toolkit.residual import sidecar_path, stack_residual
+from compd.toolkit.residual import stack_residual
 from compd.toolkit.span import Span
+from compd.toolkit.summary import fmt
 
 
 def add_residual_options(parser: Any) -> None:

@@ -12,12 +12,12 @@ from typing import Any
 import numpy as np
 from rich.table import Table
 
-from compd.cli.common import data_options, fmt, load_data_from_args
+from compd.cli.common import data_options, load_data_from_args
 from compd.cli.terminal import console
 from compd.files.modelfile import load_model
 from compd.toolkit.gainsets import parse_bounds
 from compd.toolkit.probes import load_probes
-from compd.toolkit.summary import json_text
+from compd.toolkit.summary import fmt, json_text
 from compd.toolkit.update import Update, update_model
 
 

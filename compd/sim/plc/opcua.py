@@ -263,7 +263,7 @@ class OpcUaPlcServer:
     def _password(self) -> str:
         """The password exactly as the driver reads it (file or environment), never logged."""
         try:
-            return read_password(self.settings, self._base_dir)
+            return str(read_password(self.settings, self._base_dir))
         except DriverError as exc:
             raise RuntimeError(f"simulated OPC UA server: {exc}") from None
 
