@@ -31,6 +31,7 @@ SCRIPTS = (
     "bench_opcua.py",
     "bench_serial.py",
     "bench_all_drivers.py",
+    "bench_startup.py",
     "soak_faults.py",
 )
 #: Arguments per script: the tick benchmark's quick run (600 ticks at 0.1 s, 1 minute);
