@@ -15,14 +15,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-#: The topic pages and what each says (the pages are in :mod:`compd.cli.topics`).
-TOPICS = {
-    "config": "the daemon config's sections and keys, with types, bounds and defaults",
-    "model-file": "the model file's keys (schema compd.model/1), with types and bounds",
-    "units": "the unit suffixes of signal and column names",
-    "status-word": "the status word's bits, written to the PLC beside the offsets",
-    "exit-codes": "what compd's exit status means",
-}
+from compd.cli.topicnames import TOPICS
+
 #: Shells ``compd completion`` writes a script for (those shtab supports and compd tests or documents).
 SHELLS = ("bash", "zsh", "tcsh", "fish")
 
@@ -48,7 +42,7 @@ def register(commands: Any) -> None:
         help="the shell completion script (bash, zsh, tcsh, fish)",
         description="Print a tab-completion script for SHELL, generated from compd's parser. "
         "Install it once, e.g. `compd completion bash > /etc/bash_completion.d/compd` "
-        "(zsh: `compd completion zsh > \"${fpath[1]}/_compd\"`); regenerate it after "
+        '(zsh: `compd completion zsh > "${fpath[1]}/_compd"`); regenerate it after '
         "upgrading compd.",
     )
     completion.add_argument("shell", choices=SHELLS)

@@ -19,7 +19,7 @@ from pydantic import BaseModel
 from compd import __version__
 from compd.cli import COMMANDS, VERSION, build_parser
 from compd.cli.args import EXIT_INPUT_ERROR
-from compd.cli.helpdoc import TOPICS
+from compd.cli.topicnames import TOPICS
 from compd.errors import CompdError
 
 #: Unit suffixes of signal and column names (``compd.toolkit.fitmodel.unit_of`` reads them).
@@ -30,11 +30,12 @@ UNIT_SUFFIXES = {
     "_kw": "power, kilowatts (spindle_power_kw); _kW and _W are read too",
     "_um": "displacement or offset, micrometres (disp_z_um); every offset compd writes is in um",
     "_mm": "axis position, millimetres (X_position_mm)",
-    "_mm_per_min": "feed rate, millimetres per minute (feed_x_mm_per_min)",
     "_s": "time or duration, seconds (time_s, period_s)",
     "_bar": "pressure, bar",
     "_percent": "a share in percent (_pct is read too)",
 }
+#: Suffixes of the naming convention that ``unit_of`` does not read (their unit is "-" in a fit).
+NAMED_ONLY = {"_mm_per_min": "feed rate, millimetres per minute (feed_x_mm_per_min)"}
 
 
 def help_text(topic: str | None, *, man: bool = False) -> str:
@@ -183,8 +184,10 @@ def units_page() -> str:
         "`compd fit` takes each input's unit from its name; a name without one gets unit '-'.",
         "",
     ]
-    width = max(map(len, UNIT_SUFFIXES)) + 2
+    width = max(map(len, [*UNIT_SUFFIXES, *NAMED_ONLY])) + 2
     lines += [f"  {suffix:<{width}}{text}" for suffix, text in UNIT_SUFFIXES.items()]
+    lines += [f"  {suffix:<{width}}{text}; `compd fit` records its unit as '-'"
+              for suffix, text in NAMED_ONLY.items()]  # fmt: skip
     lines += [
         "",
         "Config keys follow the same rule: period_s, max_offset_um, max_rate_um_per_s, "
