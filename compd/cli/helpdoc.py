@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from compd.cli import COMMANDS
 from compd.cli.topicnames import TOPICS
 
 #: Shells ``compd completion`` writes a script for (those shtab supports and compd tests or documents).
@@ -29,7 +30,13 @@ def register(commands: Any) -> None:
         "exit-codes) or the man page",
         description=f"Help on a command (its full --help) or a topic. Topics: {topics}.",
     )
-    helper.add_argument("topic", nargs="?", metavar="COMMAND|TOPIC", help="omit for the list")
+    helper.add_argument(
+        "topic",
+        nargs="?",
+        choices=[*COMMANDS, *TOPICS],  # so the completion scripts offer them too
+        metavar="COMMAND|TOPIC",
+        help="omit for the list",
+    )
     helper.add_argument(
         "--man",
         action="store_true",

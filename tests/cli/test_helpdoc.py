@@ -169,6 +169,7 @@ def test_bash_completes_commands(bash_script: Path) -> None:
     """``compd fi<TAB>`` offers fit; ``compd <TAB>`` every command."""
     assert _bash_completions(bash_script, "compd fi") == ["fit"]
     assert set(COMMANDS) <= set(_bash_completions(bash_script, "compd "))
+    assert _bash_completions(bash_script, "compd help status-") == ["status-word"]
 
 
 def test_bash_completes_a_commands_options(bash_script: Path) -> None:
