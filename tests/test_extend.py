@@ -77,7 +77,8 @@ def test_provenance_records_parent_data_and_fits(extended: tuple[Path, dict]) ->
     path, summary = extended
     (record,) = load_model(path).doc.provenance.extensions
     assert record.parent_sha256 == load_model(REGRESSION).sha256
-    assert record.data == str(DATA) and record.effect_signal == "spindle_speed_rpm"
+    # recorded from the model file's folder: the bundled example data by its bundled name
+    assert record.data == f"bundled:{DATA.name}" and record.effect_signal == "spindle_speed_rpm"
     assert record.submodels == ["spindle_speed_rpm_effect"]
     assert record.fit_percent_before["disp_z_um"] == pytest.approx(summary["fit_percent_before"])
     assert record.fit_percent_after["disp_z_um"] == pytest.approx(summary["fit_percent_after"])
@@ -97,7 +98,7 @@ def test_verify_reports_and_records_fit_on_other_data(
     assert code == 0 and isinstance(summary, dict)
     verify = summary["verify"]
     record = load_model(out).doc.provenance.extensions[-1]
-    assert record.verify_data == str(other)
+    assert record.verify_data == other.name  # beside the model: relative to its folder
     assert record.verify_fit_percent_after["disp_y_um"] == pytest.approx(
         verify["fit_percent_after"]
     )

@@ -23,6 +23,10 @@ from collections.abc import Sequence
 from compd import __version__
 from compd.cli.args import EXIT_INPUT_ERROR
 from compd.errors import CompdError
+from compd.schemas import CONFIG_SCHEMA, MODEL_SCHEMA
+
+#: What ``compd --version`` prints: compd's version and the file formats it reads and writes.
+VERSION = f"compd {__version__}\nmodel files: {MODEL_SCHEMA}\nconfig files: {CONFIG_SCHEMA}"
 
 #: Every command, in the order ``compd --help`` lists them: the module that
 #: registers it and its one-line help (checked against the module by the tests).
@@ -68,6 +72,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "compd.cli.update",
         "re-optimise the model's named gains (g1, g2, ...) on sparse probe measurements (seed 002)",
     ),
+    "help": (
+        "compd.cli.helpdoc",
+        "a command's full help, a topic (config, model-file, units, status-word, exit-codes) "
+        "or the man page",
+    ),
+    "completion": ("compd.cli.helpdoc", "the shell completion script (bash, zsh, tcsh, fish)"),
 }
 
 
@@ -93,7 +103,9 @@ def build_parser(module: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="compd", description="Thermal-error compensation for CNC machine tools."
     )
-    parser.add_argument("--version", action="version", version=f"compd {__version__}")
+    parser.add_argument(
+        "--version", action=_Version, help="compd's version and the file formats it reads"
+    )
     commands = parser.add_subparsers(title="commands", metavar="COMMAND")
     registered: set[str] = set()
     for name, (owner, text) in COMMANDS.items():
@@ -104,6 +116,17 @@ def build_parser(module: str | None = None) -> argparse.ArgumentParser:
         else:
             commands.add_parser(name, help=text)
     return parser
+
+
+class _Version(argparse.Action):
+    """``--version`` printed line by line (argparse's own action refills it into one paragraph)."""
+
+    def __init__(self, option_strings: list[str], dest: str, help: str | None = None) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+        print(VERSION)
+        parser.exit()
 
 
 def _chosen_module(argv: Sequence[str]) -> str:

@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 from rich.table import Table
 
 from compd.cli.args import positive_float
 from compd.files.data import DataSet, load_data
+from compd.files.yamlplace import BUNDLED, resolve_path
 from compd.model.metrics import Comparison
 from compd.toolkit.analysis import DEFAULT_WINDOW_S
 from compd.toolkit.evaluate import Evaluation
@@ -119,10 +121,11 @@ def window_options(parser: argparse.ArgumentParser) -> None:
 def load_data_from_args(
     args: argparse.Namespace, path: str | os.PathLike[str] | None = None
 ) -> DataSet:
-    """Load ``path`` (default ``args.data``) with the options of :func:`data_options`."""
-    return load_data(
-        args.data if path is None else path, max_gap_s=args.max_gap_s, resample=args.resample
-    )
+    """Load ``path`` (default ``args.data``; ``bundled:NAME`` too) with the options of :func:`data_options`."""
+    path = args.data if path is None else path
+    if str(path).startswith(BUNDLED):  # as provenance records a bundled file
+        path = resolve_path(str(path), Path("."))
+    return load_data(path, max_gap_s=args.max_gap_s, resample=args.resample)
 
 
 def print_notes(evaluation: Evaluation) -> None:

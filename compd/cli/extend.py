@@ -15,6 +15,7 @@ from compd.cli.progress import progress_reporter
 from compd.cli.terminal import console
 from compd.files.effects import load_catalogue
 from compd.files.modelfile import load_model
+from compd.files.provenancepaths import write_model_text
 from compd.model.identify import MIN_SAMPLES
 from compd.model.transfer import DiscreteTF
 from compd.toolkit.extend import extend_model, verify_extension, with_verification
@@ -102,7 +103,9 @@ def _extend(args: argparse.Namespace) -> int:
     if verify_data is not None:
         verified = verify_extension(extension, verify_data)
         yaml_text = with_verification(extension, verify_data.path, *verified)
-    args.out.write_text(yaml_text)
+    write_model_text(
+        args.out, yaml_text, parent=parent.doc.provenance, parent_path=Path(parent.path)
+    )
 
     model_s = parent.model.sample_time_s
     tfs = [sub.tf for sub in extension.submodels if isinstance(sub.tf, DiscreteTF)]

@@ -24,6 +24,7 @@ from compd.cli.residual_options import add_forest_options
 from compd.cli.terminal import console
 from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile, load_model
+from compd.files.provenancepaths import write_model_text
 from compd.files.sidecar import sidecar_path
 from compd.toolkit.evaluate import evaluate, measured_columns
 from compd.toolkit.residual import ResidueFigures, stack_on_model
@@ -87,7 +88,9 @@ def _residual(args: argparse.Namespace) -> int:
         span=span,
     )
     sidecar_path(args.out).write_bytes(stacked.sidecar)
-    args.out.write_text(stacked.yaml_text, encoding="utf-8")
+    write_model_text(
+        args.out, stacked.yaml_text, parent=parent.doc.provenance, parent_path=Path(parent.path)
+    )
     written = load_model(args.out)  # the figures are those of the files as written
     records = [("data", data)] + ([("verify", verify)] if verify is not None else [])
     spans = {"data": span, "verify": None}

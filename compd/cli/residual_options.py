@@ -16,6 +16,7 @@ from rich.table import Table
 
 from compd.cli.terminal import console
 from compd.files.data import DataSet
+from compd.files.provenancepaths import write_model_text
 from compd.files.sidecar import sidecar_path
 from compd.toolkit.fit import FitResult
 from compd.toolkit.residual import stack_residual
@@ -55,7 +56,7 @@ def write_fit(
     ``span`` (``--from``/``--until``): the forest is fitted on the samples the TFs were.
     """
     if not getattr(args, "residual_model", None):
-        args.out.write_text(result.yaml_text, encoding="utf-8")
+        write_model_text(args.out, result.yaml_text)
         return
     stacked = stack_residual(
         result,
@@ -68,7 +69,7 @@ def write_fit(
         span=span,
     )
     sidecar_path(args.out).write_bytes(stacked.sidecar)
-    args.out.write_text(stacked.yaml_text, encoding="utf-8")
+    write_model_text(args.out, stacked.yaml_text)
     forest = stacked.fit.residual.forest
     table = Table(
         "on the calibration data",

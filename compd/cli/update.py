@@ -15,6 +15,7 @@ from rich.table import Table
 from compd.cli.common import data_options, load_data_from_args
 from compd.cli.terminal import console
 from compd.files.modelfile import load_model
+from compd.files.provenancepaths import write_model_text
 from compd.toolkit.gainsets import parse_bounds
 from compd.toolkit.probes import load_probes
 from compd.toolkit.summary import fmt, json_text
@@ -98,7 +99,9 @@ def _update(args: argparse.Namespace) -> int:
         init=args.init,
         command=command,
     )
-    args.out.write_text(result.yaml_text, encoding="utf-8")
+    write_model_text(
+        args.out, result.yaml_text, parent=parent.doc.provenance, parent_path=Path(parent.path)
+    )
     summary = _summary(result, args)
     if args.json:
         print(json_text(summary))

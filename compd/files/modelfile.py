@@ -19,8 +19,8 @@ from pydantic import ValidationError
 
 from compd.errors import ModelError, ModelFileError
 from compd.files.modelschema import SCHEMA, GateDoc, ModelDoc, ResidualDoc, TFDoc
+from compd.files.yamlplace import BUNDLED, parse_yaml, read_limited, resolve_path, shorten
 from compd.files.yamlplace import describe as _describe
-from compd.files.yamlplace import parse_yaml, read_limited, shorten
 from compd.files.yamlplace import where as _where
 from compd.model.compiled import CompiledModel, compile_model
 from compd.model.guards import Finding, Severity
@@ -82,8 +82,11 @@ class ModelFile:
 
 
 def load_model(path: str | Path) -> ModelFile:
-    """Read, validate and build a model file (does not compile; see :meth:`ModelFile.compile`)."""
-    path = Path(path)
+    """Read, validate and build a model file (does not compile; see :meth:`ModelFile.compile`).
+
+    ``bundled:NAME`` names one of the bundled examples (as provenance records them).
+    """
+    path = resolve_path(path, Path(".")) if str(path).startswith(BUNDLED) else Path(path)
     return parse_model_bytes(read_limited(path, ModelFileError), path)
 
 

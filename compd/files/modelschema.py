@@ -14,8 +14,9 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from compd.model.limits import MAX_DELAY_SAMPLES, MAX_ORDER, MAX_SAMPLE_TIME_S, MAX_SUBMODELS
+from compd.schemas import MODEL_SCHEMA
 
-SCHEMA = "compd.model/1"
+SCHEMA = MODEL_SCHEMA
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 

@@ -110,7 +110,8 @@ def _residual(doc: ResidualDoc) -> list[str]:
     ]
 
 
-def _provenance(provenance: ProvenanceDoc) -> list[str]:
+def provenance_lines(provenance: ProvenanceDoc) -> list[str]:
+    """The ``provenance:`` block, last in a model file (:mod:`compd.files.provenancepaths` relies on that)."""
     data = provenance.model_dump(mode="json", exclude_defaults=True)
     if not data:
         return []
@@ -186,5 +187,5 @@ def model_to_yaml(
         if output.name in residuals:
             lines += _residual(residuals[output.name])
     if provenance is not None:
-        lines += _provenance(provenance)
+        lines += provenance_lines(provenance)
     return "\n".join(lines) + "\n"

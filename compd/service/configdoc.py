@@ -22,6 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
 from compd.drivers.base import Driver
 from compd.drivers.registry import load_driver_type
+from compd.schemas import CONFIG_SCHEMA
 from compd.service.clock import Clock
 from compd.service.control import Access
 from compd.service.links import DriverLink
@@ -32,7 +33,7 @@ from compd.service.safety import AxisLimits, AxisSafety, FaultMode
 from compd.service.schedule import GainRow, GainScheduler, GainTable
 from compd.service.signals import Checks, SignalMonitor
 
-SCHEMA = "compd.config/1"
+SCHEMA = CONFIG_SCHEMA
 #: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31); the
 #: readback-mismatch and model-fault bits follow them where bits are left (:mod:`compd.service.safety`).
 MAX_SIGNALS = 24
