@@ -120,3 +120,10 @@ def test_outputs_empty_with_a_model_runs_it_and_writes_nothing(tmp_path, capsys)
     )
     assert result.timing.ticks == 601 and result.machine.plc.writes == 0
     assert records[-1].offsets_um == {} and abs(records[-1].model_outputs["disp_z_um"]) < 1e3
+
+
+def test_the_bundled_logger_config_checks(capsys):
+    """`compd check-config bundled:record.yaml`, the modelling loop's first command, passes."""
+    assert main(["check-config", "bundled:record.yaml"]) == 0
+    out = capsys.readouterr().out
+    assert "a data logger at 10 s" in out and "disp_z_um" in out and "calibration, 24 h" in out
