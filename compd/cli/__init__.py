@@ -57,6 +57,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "one HTML file: measured vs simulated, residue, failing windows, contributions, "
         "candidates, conditions",
     ),
+    "record": (
+        "compd.cli.record",
+        "record a config's signals (a calibration run) into files compd fit reads",
+    ),
     "run": ("compd.cli.service", "the compensation service: read, model, limit, write at 1 Hz"),
     "check-config": (
         "compd.cli.service",

@@ -40,3 +40,21 @@ def daemon_options(parser: argparse.ArgumentParser) -> None:
         metavar="FILE.yaml",
         help=f"the daemon's config (default {DEFAULT_CONFIG}); gives the state dir and socket",
     )
+
+
+def clock_options(parser: argparse.ArgumentParser) -> None:
+    """``--time-scale`` and ``--log-format`` of a command that runs the service (run, record)."""
+    parser.add_argument(
+        "--time-scale",
+        type=time_scale_arg,
+        default=1.0,
+        metavar="X|max",
+        help="run the clock X times faster than real time, or 'max': virtual time, as fast as "
+        "the I/O allows (simulated machines only; default 1)",
+    )
+    parser.add_argument(
+        "--log-format",
+        choices=("auto", "json", "console"),
+        default="auto",
+        help="JSON lines (journald) or human-readable; auto: human-readable on a terminal",
+    )

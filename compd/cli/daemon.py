@@ -33,20 +33,27 @@ from compd.service.state import install_model_bytes, installed_model
 
 def check_config_command(args: argparse.Namespace) -> int:
     config = config_from_arg(args.config)
-    # The model `compd run` would start with: the installed one, else the config's.
-    installed = installed_model(config.state_dir)
-    model_path = installed or config.model_path
-    model_file = load_model(model_path)
-    compiled = model_file.compile(config.doc.period_s)
-    check_model(config, model_file, compiled)
     doc = config.doc
     out = console()
-    out.print(f"[green]ok[/green]: {config.path}")
-    out.print(
-        f"  model {compiled.name} ({model_path}, sha256 {model_file.sha256[:12]}) at "
-        f"{doc.period_s:g} s; outputs {', '.join(compiled.output_names)}"
-        + (" (installed with 'compd model load')" if installed else "")
-    )
+    if config.model_path is None:
+        out.print(f"[green]ok[/green]: {config.path}")
+        out.print(
+            f"  a data logger at {doc.period_s:g} s: no outputs, no model; the signals are "
+            "read, checked and recorded, nothing is written (compd record, compd run)"
+        )
+    else:
+        # The model `compd run` would start with: the installed one, else the config's.
+        installed = installed_model(config.state_dir)
+        model_path = installed or config.model_path
+        model_file = load_model(model_path)
+        compiled = model_file.compile(doc.period_s)
+        check_model(config, model_file, compiled)
+        out.print(f"[green]ok[/green]: {config.path}")
+        out.print(
+            f"  model {compiled.name} ({model_path}, sha256 {model_file.sha256[:12]}) at "
+            f"{doc.period_s:g} s; outputs {', '.join(compiled.output_names)}"
+            + (" (installed with 'compd model load')" if installed else "")
+        )
     out.print(f"  drivers: {', '.join(f'{n} ({d.type})' for n, d in doc.drivers.items())}")
     out.print(f"  signals: {', '.join(doc.signals)}")
     for axis, o in doc.outputs.items():

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from compd.cli.args import daemon_options, time_scale_arg
+from compd.cli.args import clock_options, daemon_options
 
 
 def register(commands: Any) -> None:
@@ -18,14 +18,6 @@ def register(commands: Any) -> None:
         "run", help="the compensation service: read, model, limit, write at 1 Hz"
     )
     run.add_argument("--config", required=True, metavar="FILE.yaml", help="path or bundled:NAME")
-    run.add_argument(
-        "--time-scale",
-        type=time_scale_arg,
-        default=1.0,
-        metavar="X|max",
-        help="run the clock X times faster than real time, or 'max': virtual time, as fast as "
-        "the I/O allows (simulated machines only; default 1)",
-    )
     run.add_argument(
         "--duration-s",
         type=float,
@@ -39,12 +31,7 @@ def register(commands: Any) -> None:
         help="print a live line every N ticks (default: the config's live_every_ticks, "
         "on a terminal only)",
     )
-    run.add_argument(
-        "--log-format",
-        choices=("auto", "json", "console"),
-        default="auto",
-        help="JSON lines (journald) or human-readable; auto: human-readable on a terminal",
-    )
+    clock_options(run)
     run.set_defaults(handler=_run)
 
     check = commands.add_parser(

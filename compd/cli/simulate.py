@@ -108,9 +108,11 @@ def print_summary(result: SimulationResult) -> None:
     out = console()
     out.print(summary_table(result.summary))
     out.print(fault_table(result.status, result.machine))
+    model = result.status["model"]
+    ran = f"model {model['name']}" if model is not None else "recorded only, nothing written"
     out.print(
         f"{result.simulated_s / 3600:.2f} h simulated in {result.wall_s:.1f} s "
-        f"({result.timing.ticks} ticks, model {result.status['model']['name']})"
+        f"({result.timing.ticks} ticks, {ran})"
     )
 
 

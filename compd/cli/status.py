@@ -42,11 +42,15 @@ def status_command(args: argparse.Namespace) -> int:
     out = console()
     model = reply["model"]
     counters = reply["counters"]
-    out.print(
-        f"[bold]{model['name']}[/bold]  sha256 {model['sha256'][:12]}  loaded {model['loaded']}"
-        + (f"  (loading {model['pending']})" if model.get("pending") else "")
-    )
-    if model.get("fault"):
+    if model is None:
+        out.print("[bold]recording[/bold]: a data logger (no outputs, no model), writing nothing")
+    else:
+        out.print(
+            f"[bold]{model['name']}[/bold]  sha256 {model['sha256'][:12]}  "
+            f"loaded {model['loaded']}"
+            + (f"  (loading {model['pending']})" if model.get("pending") else "")
+        )
+    if model is not None and model.get("fault"):
         out.print(f"[red]model fault[/red]: {model['fault']}")
     out.print(
         f"last tick {reply['last_tick']}  status word {reply['status_word']}  "

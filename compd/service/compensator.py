@@ -80,6 +80,10 @@ class Compensator:
        input the axis depends on is faulted;
     5. write offsets, status word and heartbeat, all drivers concurrently.
 
+    Without a model (``model=None``: a data logger, no axes) steps 3 and 4 are
+    skipped: the signals are read and checked for the recorder, and only a
+    status word and heartbeat are written, where the config has them.
+
     The stage slews from what each device holds (:class:`~compd.service.offsets.HeldOffsets`):
     the offset read back at step 1 where the driver can, else the last acknowledged write.
     """
@@ -92,7 +96,7 @@ class Compensator:
         axes: Sequence[AxisPoint],
         safety: Mapping[str, AxisSafety],
         links: Mapping[str, DriverLink],
-        model: ModelSlot,
+        model: ModelSlot | None,
         status: StatusPoint | None = None,
         blend_s: float = 60.0,
         wall_at: Callable[[float], float] = lambda t_s: time.time(),
@@ -113,19 +117,25 @@ class Compensator:
         self.heartbeat = 0
         self.counters = Counters()
         self.last: TickRecord | None = None
-        #: The models run, switched, blended and unloaded (:mod:`compd.service.slots`).
-        self.models = ModelSlots(
-            model,
-            [p.name for p in self.signals],
-            self.counters,
-            blend_s=blend_s,
-            history_ticks=history_ticks,
-            schedule=schedule,
-            on_failure=on_model_failure,
+        if model is None and self.axes:
+            raise ValueError("axes need a model to compute their offsets")
+        #: The models run, switched, blended and unloaded (:mod:`compd.service.slots`); None: a logger.
+        self.models = (
+            ModelSlots(
+                model,
+                [p.name for p in self.signals],
+                self.counters,
+                blend_s=blend_s,
+                history_ticks=history_ticks,
+                schedule=schedule,
+                on_failure=on_model_failure,
+            )
+            if model is not None
+            else None
         )
         #: The signals, offsets and status word, batched per driver (:mod:`compd.service.points`).
         self.points = DriverBatches(self.signals, self.axes, status, self.links)
-        if initial_state is not None:
+        if initial_state is not None and model is not None:
             model.start(initial_state)
         #: What each offset point holds, as far as compd knows (:mod:`compd.service.offsets`).
         self.held = HeldOffsets(self.axes, self.safety)
@@ -133,26 +143,30 @@ class Compensator:
     # The model slots as the status and the tests see them (:class:`ModelSlots`).
     @property
     def active(self) -> ModelSlot:
-        """The model whose outputs the axes follow."""
+        """The model whose outputs the axes follow; a logger has none (check :attr:`models`)."""
+        if self.models is None:
+            raise AttributeError("a data logger runs no model")
         return self.models.active
 
     @property
     def previous(self) -> ModelSlot | None:
         """The model being blended out, if a blend runs."""
-        return self.models.previous
+        return None if self.models is None else self.models.previous
 
     @property
     def pending(self) -> ModelSlot | None:
         """The model loaded but not yet switched in."""
-        return self.models.pending
+        return None if self.models is None else self.models.pending
 
     @property
     def model_fault(self) -> str | None:
         """Why the model is faulted; None while its outputs are finite."""
-        return self.models.fault
+        return None if self.models is None else self.models.fault
 
     def load(self, slot: ModelSlot) -> None:
         """Switch to ``slot`` at the next tick whose inputs are complete, blending bumplessly."""
+        if self.models is None:
+            raise ValueError("a data logger runs no model")
         self.models.load(slot)
 
     async def tick(self, t_s: float) -> TickRecord:
@@ -171,13 +185,16 @@ class Compensator:
             key = readings[self.schedule.table.signal]
             self.schedule.update(t_s, key.value, usable=key.health is not Health.FAULTED)
         models = self.models
-        models.step(t_s, checked)
-        weight = models.blend_weight(t_s)
+        weight = None
+        if models is not None:
+            models.step(t_s, checked)
+            weight = models.blend_weight(t_s)
         targets: dict[str, float] = {}
         offsets: dict[str, float] = {}
         flags: set[Flag] = set()
         any_frozen = False
         for axis in self.axes:
+            assert models is not None  # axes need a model (checked in __init__)
             output = models.output(axis.model_output, weight)
             if weight is not None:
                 flags.add(Flag.BLENDING)
@@ -191,9 +208,9 @@ class Compensator:
                 flags.add(Flag.CLAMPED)
             if result.slewed:
                 flags.add(Flag.SLEWING)
-        if self.active.runner is None:
+        if models is not None and models.active.runner is None:
             flags.add(Flag.STARTING)
-        if models.fault is not None:
+        if self.model_fault is not None:
             any_frozen = True
         if not all(link.up for link in self.links.values()):
             flags.add(Flag.DRIVER_DOWN)
@@ -208,27 +225,22 @@ class Compensator:
             flags,
             bad,
             mismatch=mismatches > 0 and status is not None and status.mismatch_bit,
-            model_fault=models.fault is not None and status is not None and status.model_fault_bit,
+            model_fault=self.model_fault is not None
+            and status is not None
+            and status.model_fault_bit,
         )
         self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
         ok, acknowledged = await self._write(offsets, word)
         written = ok and len(acknowledged) == len(self.axes)
         self.counters.ticks += 1
-        runner = self.active.runner
-        contributions = (
-            dict(zip(self.active.names, runner.contributions.tolist(), strict=True))
-            if runner is not None
-            else {name: math.nan for name in self.active.names}
-        )
+        outputs, contributions = _model_outputs(None if models is None else models.active)
         self.last = TickRecord(
             t_s=t_s,
             wall_unix_s=self.wall_at(t_s),
             values=checked,
             health={name: r.health for name, r in readings.items()},
             reasons={name: r.reason for name, r in readings.items() if r.reason},
-            model_outputs=dict(
-                zip(self.active.compiled.output_names, self.active.outputs.tolist(), strict=True)
-            ),
+            model_outputs=outputs,
             contributions=contributions,
             targets_um=targets,
             offsets_um=offsets,
@@ -261,6 +273,17 @@ class Compensator:
         if not all(ok.values()):
             self.counters.write_failures += 1
         return all(ok.values()), self.held.written(raws, ok)
+
+
+def _model_outputs(slot: ModelSlot | None) -> tuple[dict[str, float], dict[str, float]]:
+    """The active model's outputs and each sub-model's contribution (NaN before it starts)."""
+    if slot is None:
+        return {}, {}
+    outputs = dict(zip(slot.compiled.output_names, slot.outputs.tolist(), strict=True))
+    runner = slot.runner
+    if runner is None:
+        return outputs, {name: math.nan for name in slot.names}
+    return outputs, dict(zip(slot.names, runner.contributions.tolist(), strict=True))
 
 
 def _um(axis: AxisPoint, raw: float | None) -> float:

@@ -20,7 +20,7 @@ from one to another, an address a driver type must accept), run in the order
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -68,7 +68,8 @@ class Config:
 
     path: Path
     doc: ConfigDoc
-    model_path: Path
+    #: None for a data logger (no ``outputs``, no ``model``): it records, it compensates nothing.
+    model_path: Path | None
     state_dir: Path
     recorder_dir: Path | None
     control_socket: Path
@@ -94,6 +95,42 @@ class Config:
     @property
     def signal_names(self) -> tuple[str, ...]:
         return tuple(self.doc.signals)
+
+    @property
+    def logger(self) -> bool:
+        """A data logger: no outputs and no model; signals read, checked and recorded, nothing written."""
+        return self.model_path is None
+
+    def recording(self, directory: Path, *, max_file_bytes: int) -> Config:
+        """This config as ``compd record`` runs it: its signals only, recorded into ``directory``.
+
+        Outputs, model and status word are dropped, so nothing is ever written
+        to the machine; a recording is never deleted to make room (the
+        recorder's ``max_total_bytes`` is lifted), and a file is rotated by
+        size only, at ``max_file_bytes``.
+        """
+        recorder = self.doc.recorder.model_copy(
+            update={
+                "enabled": True,
+                "directory": str(directory),
+                "max_file_bytes": max_file_bytes,
+                "max_file_age_s": float("inf"),
+                "max_total_bytes": 2**62,
+            }
+        )
+        doc = self.doc.model_copy(
+            update={"outputs": {}, "model": None, "status": None, "recorder": recorder}
+        )
+        return replace(
+            self,
+            doc=doc,
+            model_path=None,
+            recorder_dir=directory,
+            readback={},
+            whole_counts={},
+            mismatch_bit=None,
+            model_fault_bit=None,
+        )
 
     def axis_points(self) -> list[AxisPoint]:
         """Each output's write point, with what its driver says of it (whole counts, readback)."""
@@ -136,6 +173,7 @@ def parse_config(text: str, path: Path) -> Config:
     doc, root = _read_doc(text, path)
     at = _Places(path, root)
     types, settings = _driver_types(doc, at)
+    _check_model_named(doc, at.error)
     _check_driver_names(doc, at.error)
     _check_effect_signals(doc, at.error)
     _check_gain_schedule(doc, at.error)
@@ -150,7 +188,7 @@ def parse_config(text: str, path: Path) -> Config:
     return Config(
         path=path,
         doc=doc,
-        model_path=resolve_path(doc.model, path.parent),
+        model_path=None if doc.model is None else resolve_path(doc.model, path.parent),
         state_dir=state_dir,
         recorder_dir=recorder_dir,
         control_socket=paths.control_socket(doc.control_socket, state_dir, path.parent),
@@ -221,6 +259,19 @@ def _driver_types(
         except ValidationError as exc:
             raise at.invalid(exc, ("drivers", name, "settings")) from exc
     return types, settings
+
+
+def _check_model_named(doc: ConfigDoc, error: ErrorAt) -> None:
+    """Outputs need a model to compute their offsets; a config without outputs is a data logger."""
+    if doc.outputs and doc.model is None:
+        raise error(
+            ("outputs",),
+            f"outputs {sorted(doc.outputs)} need a model to compute their offsets, and 'model' "
+            "is not set",
+            "Name the model file ('model: base.yaml', written by compd fit), or remove "
+            "'outputs' to run as a data logger that records the signals and writes nothing "
+            "(compd record)",
+        )
 
 
 def _check_driver_names(doc: ConfigDoc, error: ErrorAt) -> None:

@@ -311,7 +311,8 @@ class LoadAccessDoc(_Strict):
 
 class ConfigDoc(_Strict):
     schema_: Literal["compd.config/1"] = Field(alias="schema")
-    model: str
+    #: The model file; a config without ``outputs`` (a data logger, ``compd record``) needs none.
+    model: str | None = None
     period_s: Positive = 1.0
     blend_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
     live_every_ticks: int = Field(default=60, ge=1)
@@ -319,7 +320,8 @@ class ConfigDoc(_Strict):
     load_access: LoadAccessDoc = LoadAccessDoc()
     drivers: dict[str, DriverDoc] = Field(min_length=1)
     signals: dict[str, SignalDoc] = Field(min_length=1, max_length=MAX_SIGNALS)
-    outputs: dict[str, OutputDoc] = Field(min_length=1)
+    #: Empty: a data logger, reading, checking and recording the signals, writing nothing.
+    outputs: dict[str, OutputDoc] = Field(default_factory=dict)
     status: StatusDoc | None = None
     safety: SafetyDoc = SafetyDoc()
     state: StateDoc = StateDoc()

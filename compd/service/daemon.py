@@ -85,7 +85,7 @@ class Service:
         now_unix = clock.wall()
         slot, fallback = startup_slots(config, now_unix)
         self.drivers = dict(drivers) if drivers is not None else config.build_drivers(clock.now)
-        resume = _resumable(config, slot, clock, now_unix)
+        resume = _resumable(config, slot, clock, now_unix) if slot is not None else None
         self.resumed = resume is not None
         offsets = dict(resume.offsets_um) if resume is not None else {}
         self.links = {
@@ -110,7 +110,8 @@ class Service:
             schedule=doc.gain_schedule.scheduler() if doc.gain_schedule else None,
             on_model_failure=self.loader.failed,
         )
-        self.compensator.models.fallback = fallback
+        if self.compensator.models is not None:
+            self.compensator.models.fallback = fallback
         if resume is not None:
             self.compensator.heartbeat = resume.ticks % HEARTBEAT_MODULO
         self.timing = TickTiming()
@@ -165,6 +166,8 @@ class Service:
 
     def snapshot(self) -> SavedState | None:
         """What :meth:`save_state` writes: the active model's state and the offsets, now."""
+        if self.compensator.models is None:
+            return None  # a data logger: no model state to save
         slot = self.compensator.active
         if slot.runner is None:
             return None  # nothing learned yet: keep whatever was saved before
@@ -210,7 +213,12 @@ class Service:
         record = await self.compensator.tick(t_s)
         ticks = self.compensator.counters.ticks
         if ticks == 1:
-            self.notifier.ready(f"compensating with {self.compensator.active.compiled.name}")
+            models = self.compensator.models
+            self.notifier.ready(
+                f"compensating with {models.active.compiled.name}"
+                if models is not None
+                else "recording (a data logger: nothing is written)"
+            )
         # systemd's watchdog restarts a daemon whose loop has stalled or hangs in I/O: ping
         # only for a tick that finished within its period, so a loop that can no longer keep
         # its deadlines stops pinging. A machine that is merely unreachable (PLC off at

@@ -29,7 +29,7 @@ from typing import Any, TypeVar
 
 import structlog
 
-from compd.errors import CompdError, ModelFileError
+from compd.errors import CompdError, ConfigFileError, ModelFileError
 from compd.files.modelfile import parse_model_bytes
 from compd.files.yamlplace import MAX_YAML_BYTES, read_limited, shorten
 from compd.service.config import Config, check_model
@@ -48,6 +48,13 @@ def slot_from_bytes(
     config: Config, raw: bytes, name: str | Path, loaded_at_unix_s: float
 ) -> ModelSlot:
     """Validate, compile (at the config's period) and check model-file bytes against ``config``."""
+    if config.logger:
+        raise ConfigFileError(
+            config.path,
+            "this config is a data logger (no 'outputs', no 'model'): it has no model to switch",
+            where="outputs",
+            fix="Add 'model' and 'outputs' to the config and restart compd to compensate with it",
+        )
     model_file = parse_model_bytes(raw, name)
     model_file.check_plausible()  # what `compd model check` refuses, the daemon never runs
     compiled = model_file.compile(config.doc.period_s)
@@ -60,13 +67,17 @@ def load_slot(config: Config, path: Path, loaded_at_unix_s: float) -> ModelSlot:
     return slot_from_bytes(config, read_limited(path, ModelFileError), path, loaded_at_unix_s)
 
 
-def startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot, ModelSlot | None]:
+def startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot | None, ModelSlot | None]:
     """The model to start with and the one to fall back on if it fails while running.
+
+    A data logger (:attr:`Config.logger`) starts with none, whatever is installed.
 
     The model installed with ``compd model load`` comes first, with the
     config's as its fallback; an installed model that is refused is logged,
     un-installed, and the config's model starts instead.
     """
+    if config.model_path is None:
+        return None, None
     installed = installed_model(config.state_dir)
     if installed is None:
         return load_slot(config, config.model_path, now_unix_s), None

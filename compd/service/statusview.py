@@ -27,19 +27,10 @@ def status_snapshot(
     started_unix_s: float,
 ) -> dict[str, Any]:
     """A JSON-able snapshot: model, last tick, inputs and health, offsets, counters."""
-    slot, last = comp.active, comp.last
-    counters = comp.counters
+    last, counters = comp.last, comp.counters
     return {
-        "model": {
-            "name": slot.compiled.name,
-            "sha256": slot.sha256,
-            "path": slot.model_file.path,
-            "loaded": _iso(slot.loaded_at_unix_s),
-            "started": slot.runner is not None,
-            "pending": comp.pending.compiled.name if comp.pending else None,
-            "blending_from": comp.previous.compiled.name if comp.previous else None,
-            "fault": comp.model_fault,
-        },
+        # None: a data logger (no outputs, no model), recording its signals.
+        "model": None if comp.models is None else _model(comp),
         "gain_schedule": comp.schedule.status() if comp.schedule is not None else None,
         "resumed": resumed,
         "started": _iso(started_unix_s),
@@ -71,6 +62,20 @@ def status_snapshot(
             "offset_mismatches": counters.offset_mismatches,
             "model_failures": counters.model_failures,
         },
+    }
+
+
+def _model(comp: Compensator) -> dict[str, Any]:
+    slot = comp.active
+    return {
+        "name": slot.compiled.name,
+        "sha256": slot.sha256,
+        "path": slot.model_file.path,
+        "loaded": _iso(slot.loaded_at_unix_s),
+        "started": slot.runner is not None,
+        "pending": comp.pending.compiled.name if comp.pending else None,
+        "blending_from": comp.previous.compiled.name if comp.previous else None,
+        "fault": comp.model_fault,
     }
 
 
