@@ -98,7 +98,8 @@ class LiveDriver:
 
     async def read(self, addresses: Sequence[str]) -> dict[str, RawReading]:
         async with asyncio.timeout(self.timeout_s):
-            return await read_raw(self.driver, addresses)
+            readings: dict[str, RawReading] = await read_raw(self.driver, addresses)
+        return readings
 
     async def write(self, address: str, value: float) -> None:
         await self.ensure_open()
@@ -121,8 +122,9 @@ class LiveDriver:
             f"timed out after {self.timeout_s:g} s" if isinstance(exc, TimeoutError) else str(exc)
         )
         message = f"{action}: {text}"
-        lowered = text.lower()
-        if self.serial and ("lock" in lowered or "busy" in lowered):
+        # pyserial names the lock ("could not exclusively lock port"); pymodbus only says
+        # it cannot connect, so on a serial line every failed open gets the hint.
+        if self.serial and action == "cannot connect":
             message += f" ({SERIAL_BUSY_HINT})"
         return message
 
@@ -203,8 +205,6 @@ class LiveReader:
         return Row(point, raw, device_value, value)
 
 
-def _finite(value: float | None) -> float | str | None:
-    """JSON has no NaN: a non-finite number as its text."""
-    if value is None or math.isfinite(value):
-        return value
-    return str(value)
+def _finite(value: float | None) -> float | None:
+    """JSON has no NaN: a non-finite number is null, as in every compd ``--json`` (``raw`` shows it)."""
+    return value if value is not None and math.isfinite(value) else None

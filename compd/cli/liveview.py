@@ -31,7 +31,6 @@ from rich.table import Table
 from rich.text import Text
 
 from compd.cli.livepoints import LiveDriver, LivePoint, LiveReader, Row
-from compd.cli.read import EXIT_POINT_FAILED
 from compd.cli.serving import config_from_arg
 from compd.cli.terminal import console
 from compd.drivers.base import DriverType, address_syntax, check_address, reads_back
@@ -44,6 +43,9 @@ from compd.drivers.registry import (
 from compd.errors import CompdError, DriverError, InputFileError
 from compd.files.yamlplace import describe, parse_yaml, read_limited, resolve_path
 from compd.service.config import Config
+
+#: Exit status when a point could not be read or failed its checks (2 stays "bad input").
+EXIT_POINT_FAILED = 1
 
 # -- compd read -------------------------------------------------------------
 
@@ -113,7 +115,8 @@ def config_points(config: Config, names: Sequence[str]) -> list[LivePoint]:
 
 def _reads_back(config: Config, driver: str) -> bool:
     kind = load_driver_type(config.doc.drivers[driver].type)
-    return reads_back(kind, config.driver_settings[driver])
+    answer: bool = reads_back(kind, config.driver_settings[driver])
+    return answer
 
 
 def _on_serial_line(type_name: str, settings: BaseModel) -> bool:
@@ -203,9 +206,9 @@ def probe_settings(kind: DriverType, args: argparse.Namespace) -> tuple[BaseMode
         settings = kind.settings_model.model_validate(data)
     except ValidationError as exc:
         first = sorted(exc.errors(), key=lambda e: e["type"] != "extra_forbidden")[0]
-        place = ".".join(str(p) for p in first["loc"]) or "settings"
+        key = ".".join(str(p) for p in first["loc"]) or "settings"
         raise CompdError(
-            f"driver type {args.type!r} settings ({source}): {place}: {describe(first)}. "
+            f"driver type {args.type!r} settings ({source}): {key}: {describe(first)}. "
             f"Fix it with --set KEY=VALUE (keys as under drivers.NAME.settings, see "
             "config/compd.example.yaml)"
         ) from None

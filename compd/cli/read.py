@@ -18,9 +18,6 @@ from typing import Any
 
 from compd.cli.args import positive_float
 
-#: Exit status when a point could not be read or failed its checks (2 stays "bad input").
-EXIT_POINT_FAILED = 1
-
 
 def _count(text: str) -> int:
     """``--count``: a whole number >= 1."""

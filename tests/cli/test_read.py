@@ -23,6 +23,7 @@ from compd.drivers.modbus import ModbusDriver, ModbusSettings
 from compd.cli import main
 from tests.drivers.instrument import PtyInstrument
 from tests.drivers.modbus_server import free_port, tcp_server
+from tests.drivers.test_modbus_rtu import pty_pair  # noqa: F401  (a fixture: socat's pty pair)
 
 ROOT = Path(__file__).parents[2]
 MODEL = ROOT / "config" / "simulated_model.yaml"
@@ -335,5 +336,16 @@ def test_a_busy_serial_port_says_one_master(tmp_path, scanner):
     with serial.Serial(str(scanner.port), exclusive=True):
         code, out, _ = compd("read", "--config", config, "T1_degC", "--json")
     problem = points(out)["T1_degC"]["problem"]
+    assert "cannot connect" in problem and "a serial line has one master" in problem
+    assert code == 1
+
+
+def test_a_busy_modbus_rtu_line_says_one_master(pty_pair):  # noqa: F811  (the fixture)
+    """Modbus RTU on a port another process holds: the probe's error names the one-master rule."""
+    ours, _, _ = pty_pair
+    with serial.Serial(ours, exclusive=True):
+        code, out, _ = compd("probe", "modbus", "--set", "transport=rtu", "--set",
+                             f"serial_port={ours}", "holding:0", "--json")  # fmt: skip
+    problem = points(out)["holding:0"]["problem"]
     assert "cannot connect" in problem and "a serial line has one master" in problem
     assert code == 1
