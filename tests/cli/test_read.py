@@ -349,3 +349,25 @@ def test_a_busy_modbus_rtu_line_says_one_master(pty_pair):  # noqa: F811  (the f
     problem = points(out)["holding:0"]["problem"]
     assert "cannot connect" in problem and "a serial line has one master" in problem
     assert code == 1
+
+
+def test_probe_a_profibus_gateway_shows_the_image_bytes(tmp_path):
+    """A gateway over Modbus TCP (the simulated one): each value's bytes in the image, a bit with its byte."""
+    from tests.drivers.gateway_setup import ThreadedGateway, make_server, modbus_settings
+
+    port = free_port()
+    settings = modbus_settings(port)
+    gateway = ThreadedGateway(make_server(settings))
+    gateway.start()
+    try:
+        file = tmp_path / "gateway.yaml"
+        file.write_text(yaml.safe_dump(settings.model_dump(mode="json")))
+        code, out, err = compd("probe", "profibus_gateway", "--settings", file, "in:0:int16",
+                               "in:8:int32", "in:14.2", "--json")  # fmt: skip
+    finally:
+        gateway.close()
+    rows = points(out)
+    assert (rows["in:0:int16"]["raw"], rows["in:0:int16"]["value"]) == ("FB 2E", -1234.0)
+    assert (rows["in:8:int32"]["raw"], rows["in:8:int32"]["value"]) == ("F8 A4 32 EB", -123456789.0)
+    assert rows["in:14.2"]["raw"].endswith(" bit 2") and rows["in:14.2"]["value"] == 1.0
+    assert code == 0, err
