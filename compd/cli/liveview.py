@@ -291,7 +291,9 @@ async def _session(
 
             with Live(console=out, auto_refresh=False) as screen:
                 return await _loop(
-                    reader, args, lambda rows, _: screen.update(_table(rows, title), refresh=True)
+                    reader,
+                    args,
+                    lambda rows, _: screen.update(_table(rows, f"{title}  {_now()}"), refresh=True),
                 )
         return await _loop(reader, args, lambda rows, n: _print(out, rows, n, title, args))
     finally:
@@ -314,7 +316,7 @@ async def _loop(
 
 
 def _print(out: Console, rows: list[Row], n: int, title: str, args: argparse.Namespace) -> None:
-    stamp = datetime.now(UTC).isoformat(timespec="milliseconds")
+    stamp = _now()
     if args.json:
         record = {"title": title, "read": n, "time": stamp, "points": [r.as_dict() for r in rows]}
         print(json.dumps(record), flush=True)
@@ -323,26 +325,49 @@ def _print(out: Console, rows: list[Row], n: int, title: str, args: argparse.Nam
 
 
 def _table(rows: list[Row], title: str) -> Table:
-    """One row per point; a probe's rows (address = point, one driver) without the repeats."""
-    probe = all(r.point.kind == "probe" for r in rows)
-    columns = ["point", "driver", "address", "raw", "device", "value", "unit", "health"]
-    if probe:  # the point is its address, the value the device's: no scaling, no unit
-        columns = ["address", "raw", "value", "health"]
+    """One row per point, without the columns that would only repeat another.
+
+    A probe's point is its address and its value the device's (no scaling, no
+    unit); one driver needs no driver column; unscaled points no device column.
+    """
+    cells: dict[str, list[str]] = {
+        "point": [r.point.name for r in rows],
+        "driver": [r.point.driver for r in rows],
+        "address": [r.point.address for r in rows],
+        "raw": [r.raw for r in rows],
+        "device": [_number(r.device_value) for r in rows],
+        "value": [_number(r.value) for r in rows],
+        "unit": [r.point.unit for r in rows],
+    }
+    if cells["point"] == cells["address"]:
+        del cells["point"]
+    if len(set(cells["driver"])) <= 1:
+        del cells["driver"]
+    if cells["device"] == cells["value"]:
+        del cells["device"]
+    if not any(cells["unit"]):
+        del cells["unit"]
     table = Table(title=Text(title), title_justify="left")
-    for column in columns:
-        table.add_column(column, justify="right" if column in ("device", "value") else "left")
-    for row in rows:
-        p = row.point
+    for column, texts in cells.items():
+        # Names whole (a narrow terminal folds addresses, raw and health instead).
+        table.add_column(
+            column,
+            justify="right" if column in ("device", "value") else "left",
+            min_width=max(map(len, texts)) if column == "point" else None,
+            overflow="fold",
+        )
+    table.add_column("health", overflow="fold")
+    for i, row in enumerate(rows):
         health = Text(row.health, style="green" if row.ok else "bold red")
         if row.problem:
             health.append(f" {row.problem}", style="" if row.ok else "red")
-        cells = [p.address, row.raw, _number(row.value)]
-        if not probe:
-            cells = [p.name, p.driver, p.address, row.raw, _number(row.device_value)]
-            cells += [_number(row.value), p.unit]
         # Text, not markup: addresses such as holding:100:int32 must not become emoji.
-        table.add_row(*map(Text, cells), health)
+        table.add_row(*(Text(texts[i]) for texts in cells.values()), health)
     return table
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
 def _number(value: float | None) -> str:
