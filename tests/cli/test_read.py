@@ -371,3 +371,13 @@ def test_probe_a_profibus_gateway_shows_the_image_bytes(tmp_path):
     assert (rows["in:8:int32"]["raw"], rows["in:8:int32"]["value"]) == ("F8 A4 32 EB", -123456789.0)
     assert rows["in:14.2"]["raw"].endswith(" bit 2") and rows["in:14.2"]["value"] == 1.0
     assert code == 0, err
+
+
+def test_read_loads_the_daemons_stack_only(tmp_path):
+    """``compd read`` on a Modbus config imports no toolkit, twin, report, pandas, rich.live or other driver."""
+    from tests.test_architecture import NOT_IN_THE_DAEMON, imported_by, loaded
+
+    status, modules, out = imported_by("read", "--config", machine_config(tmp_path, free_port()))
+    assert status == 1 and "cannot connect" in out
+    assert "compd.drivers.modbus" in modules
+    assert loaded(modules, (*NOT_IN_THE_DAEMON, "asyncua", "can")) == []
