@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 import yaml
@@ -31,7 +31,6 @@ from rich.table import Table
 from rich.text import Text
 
 from compd.cli.livepoints import LiveDriver, LivePoint, LiveReader, Row
-from compd.cli.serving import config_from_arg
 from compd.cli.terminal import console
 from compd.drivers.base import DriverType, address_syntax, check_address, reads_back
 from compd.drivers.registry import (
@@ -42,7 +41,9 @@ from compd.drivers.registry import (
 )
 from compd.errors import CompdError, DriverError, InputFileError
 from compd.files.yamlplace import describe, parse_yaml, read_limited, resolve_path
-from compd.service.config import Config
+
+if TYPE_CHECKING:
+    from compd.service.config import Config
 
 #: Exit status when a point could not be read or failed its checks (2 stays "bad input").
 EXIT_POINT_FAILED = 1
@@ -51,6 +52,9 @@ EXIT_POINT_FAILED = 1
 
 
 def read_command(args: argparse.Namespace) -> int:
+    # The config's checks load the model file's stack (scipy, ~3 s on an edge PC): read only.
+    from compd.cli.serving import config_from_arg
+
     _quiet_logs()
     config = config_from_arg(args.config)
     points = config_points(config, args.names)

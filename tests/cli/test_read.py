@@ -381,3 +381,13 @@ def test_read_loads_the_daemons_stack_only(tmp_path):
     assert status == 1 and "cannot connect" in out
     assert "compd.drivers.modbus" in modules
     assert loaded(modules, (*NOT_IN_THE_DAEMON, "asyncua", "can")) == []
+
+
+def test_probe_loads_no_model_stack():
+    """``compd probe`` needs no config: no scipy, no model, no config checks, only its driver."""
+    from tests.test_architecture import imported_by, loaded
+
+    argv = ("probe", "modbus", "--set", "host=127.0.0.1", "--set", f"port={free_port()}", "input:0")
+    status, modules, out = imported_by(*argv)
+    assert status == 1 and "cannot connect" in out
+    assert loaded(modules, ("scipy", "compd.model", "compd.service.config", "asyncua")) == []
