@@ -165,7 +165,9 @@ def probe_command(args: argparse.Namespace) -> int:
                 f"refusing to write {args.write} to {address} on {target}: there is no terminal "
                 "to confirm on. Check the address and value, then pass --yes to write from a script"
             )
-        _run(reader(), argparse.Namespace(**{**vars(args), "watch": False, "json": False}), "now")
+        once = argparse.Namespace(**{**vars(args), "watch": False, "json": False})
+        if _run(reader(), once, f"compd probe {target}: now") != 0:
+            raise CompdError(f"{address} cannot be read now (see above): nothing written")
         _confirm(console(), address, args.write, target)
     return _run(
         reader(), args, f"compd probe {target}: wrote {args.write} to {address}", write=value
