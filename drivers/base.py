@@ -31,11 +31,20 @@ driver type's addresses mean; a type without them gets the cautious answer
     whether ``read()`` of a written address returns what the device holds
     *now* (after a PLC restart that cleared it, say), not what this driver
     last sent; the service then re-seeds each offset's slew limit from it.
+
+One optional instance hook serves commissioning (``compd read``, ``compd probe``):
+
+``async read_raw(points) -> dict[str, RawReading]``
+    what the device returned for each address before it became the float
+    ``read()`` gives (registers, image bytes, a node's variant, a reply's
+    field), read in one batch as ``read()`` would; without it,
+    :func:`read_raw` shows the float itself.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Hashable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -73,6 +82,35 @@ class DriverType(Protocol):
     settings_model: type[BaseModel]
 
     def __call__(self, settings: Any, *, now: Callable[[], float], base_dir: Path) -> Driver: ...
+
+
+@dataclass(frozen=True)
+class RawReading:
+    """One address as the device gave it: ``raw`` for people, ``value`` as ``read()`` gives it.
+
+    ``value`` is ``None`` when the device answered without a usable value
+    (a bad OPC UA quality, a scanner value outside the sensor's range);
+    ``note`` then says why.
+    """
+
+    raw: str
+    value: float | None
+    note: str = ""
+
+
+@runtime_checkable
+class RawReader(Protocol):
+    """The optional ``read_raw`` hook, declared: a driver that has it has it so."""
+
+    async def read_raw(self, points: Sequence[str]) -> dict[str, RawReading]: ...
+
+
+async def read_raw(driver: Driver, points: Sequence[str]) -> dict[str, RawReading]:
+    """Each address's raw reading through the driver's hook; without it, ``read()``'s float."""
+    if isinstance(driver, RawReader):
+        return await driver.read_raw(points)
+    values = await driver.read(points)
+    return {point: RawReading(repr(value), value) for point, value in values.items()}
 
 
 class AddressHooks(Protocol):

@@ -55,6 +55,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Protocol
 
+from compd.drivers.base import RawReading
 from compd.drivers.gateway_image import (
     BYTE_TYPES,
     SYNTAX,
@@ -164,9 +165,25 @@ class GatewayDriver:
         self._transport = transport
 
     async def read(self, points: Sequence[str]) -> dict[str, float]:
+        return {
+            name: point.read(image) for name, (point, image) in (await self._images(points)).items()
+        }
+
+    async def read_raw(self, points: Sequence[str]) -> dict[str, RawReading]:
+        """The image bytes behind each address (hex, image order; a bit: its byte), and its value."""
+        readings: dict[str, RawReading] = {}
+        for name, (point, image) in (await self._images(points)).items():
+            shown = " ".join(f"{b:02X}" for b in image[point.offset : point.end])
+            if point.bit is not None:
+                shown = f"{shown} bit {point.bit}"
+            readings[name] = RawReading(shown, point.read(image))
+        return readings
+
+    async def _images(self, points: Sequence[str]) -> dict[str, tuple[ImagePoint, bytes]]:
+        """Each address (fresh ones only) with the image it is read from: input area or output area."""
         transport, lock = self._connection()
         parsed = [(name, self._point(name)) for name in points]
-        values: dict[str, float] = {}
+        found: dict[str, tuple[ImagePoint, bytes]] = {}
         if any(p.address.area == "in" for _, p in parsed):
             async with lock:
                 image, fresh = await transport.read_input()
@@ -175,7 +192,7 @@ class GatewayDriver:
                 if point.address.area == "in" and (
                     fresh is None or frame_of(point.offset, FRAME_BYTES) in fresh
                 ):
-                    values[name] = point.read(image)
+                    found[name] = (point, image)
         if any(p.address.area == "out" for _, p in parsed):
             output = self.output_image
             if isinstance(transport, ModbusTransport):  # the gateway's image, not our copy
@@ -183,8 +200,8 @@ class GatewayDriver:
                     output = await transport.read_output()
             for name, point in parsed:
                 if point.address.area == "out":
-                    values[name] = point.read(output)
-        return values
+                    found[name] = (point, output)
+        return found
 
     async def write(self, values: Mapping[str, float]) -> None:
         transport, lock = self._connection()

@@ -50,6 +50,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
+from compd.drivers.base import RawReading
 from pydantic import BaseModel, ConfigDict, Field
 
 from compd.errors import (
@@ -166,11 +167,19 @@ class LinuxCncDriver:
             raise
 
     async def read(self, points: Sequence[str]) -> dict[str, float]:
+        return {name: float(v) for name, v in (await self._read_hal(points)).items()}
+
+    async def read_raw(self, points: Sequence[str]) -> dict[str, RawReading]:
+        """Each HAL value as the helper sent it (``true`` for a bit, ``5`` for s32/u32, ``1.25`` float)."""
+        values = await self._read_hal(points)
+        return {name: RawReading(json.dumps(v), float(v)) for name, v in values.items()}
+
+    async def _read_hal(self, points: Sequence[str]) -> dict[str, Any]:
         for address in points:
             if not _HAL_NAME.fullmatch(address):
                 raise DriverProtocolError(f"LinuxCNC: {address!r} is not a HAL name (<= 41 chars)")
-        values = await self._request({"read": list(points)})
-        return {name: float(v) for name, v in values.items()}
+        values: dict[str, Any] = await self._request({"read": list(points)})
+        return values
 
     async def write(self, values: Mapping[str, float]) -> None:
         counts = {}

@@ -41,6 +41,7 @@ from collections.abc import Awaitable, Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
+from compd.drivers.base import RawReading
 from compd.drivers.library_logs import quiet_library
 from compd.drivers.modbus_addresses import (
     BIT_TABLES,
@@ -196,13 +197,33 @@ class ModbusDriver:
         self._client = client
 
     async def read(self, points: Sequence[str]) -> dict[str, float]:
+        fetched = await self._fetch(points)
+        return {name: _decode(point, words) for name, (point, words) in fetched.items()}
+
+    async def read_raw(self, points: Sequence[str]) -> dict[str, RawReading]:
+        """The registers (hex words, wire order) or the bit behind each address, and its value."""
+        fetched = await self._fetch(points)
+        return {
+            name: RawReading(
+                str(int(bool(words[0])))
+                if point.table in BIT_TABLES
+                else " ".join(f"0x{w:04X}" for w in words),
+                _decode(point, words),
+            )
+            for name, (point, words) in fetched.items()
+        }
+
+    async def _fetch(
+        self, points: Sequence[str]
+    ) -> dict[str, tuple[ModbusPoint, list[int] | list[bool]]]:
+        """Each address's point and its registers (or bit), read in merged spans under the lock."""
         client, lock = self._connection()
         groups: dict[tuple[int, str], list[tuple[str, ModbusPoint]]] = {}
         for name in points:
             point = self._parse(name)
             device = self.settings.device_id if point.device_id is None else point.device_id
             groups.setdefault((device, point.table), []).append((name, point))
-        values: dict[str, float] = {}
+        fetched: dict[str, tuple[ModbusPoint, list[int] | list[bool]]] = {}
         async with lock:
             for (device, table), members in groups.items():
                 limit = (
@@ -216,13 +237,8 @@ class ModbusDriver:
                     words = await self._read_span(client, table, start, count, device)
                     for name, point in run:
                         offset = point.address - start
-                        if table in BIT_TABLES:
-                            values[name] = 1.0 if words[offset] else 0.0
-                        else:
-                            values[name] = point.codec.decode_registers(
-                                words[offset : offset + point.count]
-                            )
-        return values
+                        fetched[name] = (point, words[offset : offset + point.count])
+        return fetched
 
     async def write(self, values: Mapping[str, float]) -> None:
         client, lock = self._connection()
@@ -360,6 +376,13 @@ class ModbusDriver:
                 f"(exception code {code}{_EXCEPTION_NAMES.get(code or 0, '')})"
             )
         return reply
+
+
+def _decode(point: ModbusPoint, words: Sequence[int] | Sequence[bool]) -> float:
+    """A point's value from its registers (or its bit)."""
+    if point.table in BIT_TABLES:
+        return 1.0 if words[0] else 0.0
+    return point.codec.decode_registers(words)
 
 
 def _merge_writes(items: list[tuple[int, list[int]]]) -> list[tuple[int, list[int]]]:

@@ -39,6 +39,7 @@ from asyncua.common.node import Node
 from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.status_codes import StatusCodes
 from asyncua.ua.uaerrors import UaError, UaStatusCodeError, UaStringParsingError
+from compd.drivers.base import RawReading
 from compd.drivers.library_logs import quiet_library
 from compd.drivers.opcua_security import (
     REFUSALS,
@@ -218,18 +219,8 @@ class OpcUaDriver:
     # -- read and write ----------------------------------------------------
 
     async def read(self, points: Sequence[str]) -> dict[str, float]:
-        async with self._lock:
-            client = self._connected()
-            try:
-                await self._resolve(client, points)
-                nodes = [self._nodes[p][0].nodeid for p in points]
-                results = await client.uaclient.read_attributes(nodes, AttributeIds.Value)
-            except (DriverError, asyncio.CancelledError):
-                raise
-            except Exception as exc:
-                raise self._translate(exc, "read") from exc
         values: dict[str, float] = {}
-        for point, result in zip(points, results, strict=True):
+        for point, result in zip(points, await self._read_values(points), strict=True):
             if not _good(result.StatusCode):
                 # A bad quality (sensor fault, out of service) is no new value:
                 # the signal goes stale, the rest of the batch is still good.
@@ -237,6 +228,35 @@ class OpcUaDriver:
                 continue
             values[point] = to_float(point, None if result.Value is None else result.Value.Value)
         return values
+
+    async def read_raw(self, points: Sequence[str]) -> dict[str, RawReading]:
+        """Each node's value with its variant type (``Int32 -1234``), or its bad status code."""
+        readings: dict[str, RawReading] = {}
+        for point, result in zip(points, await self._read_values(points), strict=True):
+            variant = result.Value
+            shown = "empty" if variant is None else f"{variant.VariantType.name} {variant.Value!r}"
+            if not _good(result.StatusCode):
+                readings[point] = RawReading(shown, None, _name(result.StatusCode))
+            else:
+                value = to_float(point, None if variant is None else variant.Value)
+                readings[point] = RawReading(shown, value)
+        return readings
+
+    async def _read_values(self, points: Sequence[str]) -> list[ua.DataValue]:
+        """Each address's DataValue, in one Read service call."""
+        async with self._lock:
+            client = self._connected()
+            try:
+                await self._resolve(client, points)
+                nodes = [self._nodes[p][0].nodeid for p in points]
+                results: list[ua.DataValue] = await client.uaclient.read_attributes(
+                    nodes, AttributeIds.Value
+                )
+            except (DriverError, asyncio.CancelledError):
+                raise
+            except Exception as exc:
+                raise self._translate(exc, "read") from exc
+        return results
 
     async def write(self, values: Mapping[str, float]) -> None:
         if not values:

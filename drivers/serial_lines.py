@@ -162,9 +162,27 @@ def parse_values(
     settings: SerialSensorSettings, pattern: re.Pattern[str], payload: str, channels: Sequence[str]
 ) -> dict[str, float]:
     """``{channel: value}`` for every one of ``channels`` from one reply payload, or raise."""
+    fields = parse_fields(settings, pattern, payload, channels)
+    return {channel: field_value(settings, channel, text) for channel, text in fields.items()}
+
+
+def field_value(settings: SerialSensorSettings, channel: str, text: str | None) -> float:
+    """A reply's value field as a number, or DriverProtocolError naming the channel."""
+    try:
+        return float(text)  # type: ignore[arg-type]  # None: the TypeError below
+    except (TypeError, ValueError):
+        raise DriverProtocolError(
+            f"channel {channel} value {text!r} from {settings.port} is not a number"
+        ) from None
+
+
+def parse_fields(
+    settings: SerialSensorSettings, pattern: re.Pattern[str], payload: str, channels: Sequence[str]
+) -> dict[str, str]:
+    """``{channel: value field as sent}`` for every one of ``channels`` from one reply payload, or raise."""
     s = settings
     items = payload.split(s.item_separator) if s.item_separator else [payload]
-    found: dict[str, float] = {}
+    found: dict[str, str] = {}
     for item in items:
         match = pattern.fullmatch(item.strip())
         if match is None:
@@ -175,12 +193,7 @@ def parse_values(
         channel = groups.get("channel") or (channels[0] if len(channels) == 1 else None)
         if channel is None:
             raise DriverProtocolError(f"reply from {s.port} names no channel: {payload[:80]!r}")
-        try:
-            found[channel] = float(groups["value"])
-        except (TypeError, ValueError):
-            raise DriverProtocolError(
-                f"channel {channel} value {groups['value']!r} from {s.port} is not a number"
-            ) from None
+        found[channel] = groups["value"]
     missing = [c for c in channels if c not in found]
     if missing:
         raise DriverProtocolError(

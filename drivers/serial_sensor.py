@@ -49,12 +49,16 @@ import re
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import serial
 import structlog
+from compd.drivers.base import RawReading
 from compd.drivers.serial_lines import (
     SerialSensorSettings,
+    field_value,
     frame_request,
+    parse_fields,
     parse_values,
     reply_payload,
 )
@@ -269,18 +273,34 @@ class SerialSensorDriver:
             raise DriverDisconnectedError(f"serial port {self.settings.port} lost: {reason}")
         return protocol, transport, lock
 
-    async def _poll(self, channels: list[str]) -> dict[str, float]:
+    async def read_raw(self, points: Sequence[str]) -> dict[str, RawReading]:
+        """Each channel's value field as the instrument sent it, from one poll of its own.
+
+        Also in background mode: commissioning wants the reply of now, not the poller's last.
+        """
+        channels = list(dict.fromkeys(points))
+        fields = await self._poll(channels, parse=parse_fields)
+        readings: dict[str, RawReading] = {}
+        for channel, text in fields.items():
+            kept = self._in_range({channel: field_value(self.settings, channel, text)})
+            note = "" if channel in kept else self.rejected.get(channel, "")
+            readings[channel] = RawReading(repr(text), kept.get(channel), note)
+        return readings
+
+    async def _poll(
+        self, channels: list[str], parse: Callable[..., dict[str, Any]] = parse_values
+    ) -> dict[str, Any]:
         """Ask for ``channels`` (one request, or one per channel) under the bus lock; all or nothing."""
         s = self.settings
-        raw: dict[str, float] = {}
+        raw: dict[str, Any] = {}
         async with self._connected()[2]:
             if s.per_channel:
                 for channel in channels:
                     payload = await self._exchange(channel=channel)
-                    raw |= parse_values(s, self._pattern, payload, [channel])
+                    raw |= parse(s, self._pattern, payload, [channel])
             else:
                 payload = await self._exchange(channels=s.channel_separator.join(channels))
-                raw = parse_values(s, self._pattern, payload, channels)
+                raw = parse(s, self._pattern, payload, channels)
         return raw
 
     async def _poll_forever(self, next_s: float) -> None:

@@ -67,6 +67,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "validate a daemon config and its model exactly as 'compd run' does",
     ),
     "status": ("compd.cli.service", "the running daemon's model, inputs, offsets, counters"),
+    "read": ("compd.cli.read", "a config's live values, raw and decoded, without the service"),
+    "probe": ("compd.cli.read", "read (or, confirmed, write) addresses of a driver, no config"),
     "simulate-machine": (
         "compd.cli.simulate",
         "serve the simulated machine of a config's 'simulation' section, for a compd elsewhere",

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import pytest
-from compd.drivers.base import Driver
+from compd.drivers.base import Driver, RawReading, read_raw
 
 from compd.errors import DriverDisconnectedError, DriverError, DriverTimeoutError
 
@@ -56,6 +56,24 @@ class DriverContract:
         (values,) = run_calls(setup.driver, ("read", list(setup.readable)))
         assert set(values) <= set(setup.readable) and values
         assert all(isinstance(v, float) and math.isfinite(v) for v in values.values())
+
+    def test_raw_readings_give_the_values_read_gives(self, setup: ContractSetup) -> None:
+        """``read_raw`` (the hook, or its fallback) shows a raw text and read()'s value for each address."""
+
+        async def scenario() -> tuple[dict[str, float], dict[str, RawReading]]:
+            await setup.driver.open()
+            try:
+                return await setup.driver.read(readable), await read_raw(setup.driver, readable)
+            finally:
+                await setup.driver.close()
+
+        readable = list(setup.readable)
+        values, raws = asyncio.run(scenario())
+        assert set(raws) <= set(readable) and raws
+        assert all(r.raw for r in raws.values())
+        assert {a: r.value for a, r in raws.items() if a in values} == {
+            a: v for a, v in values.items() if a in raws
+        }
 
     def test_write_is_accepted(self, setup: ContractSetup) -> None:
         """After open, writing a value to a writable address succeeds."""

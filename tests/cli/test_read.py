@@ -1,0 +1,393 @@
+"""``compd read`` and ``compd probe`` against real peers: pymodbus, a secured asyncua, a pty scanner."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import io
+import json
+import os
+import select
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import serial
+import yaml
+from compd.drivers.modbus import ModbusDriver, ModbusSettings
+
+from compd.cli import main
+from tests.drivers.instrument import PtyInstrument
+from tests.drivers.modbus_server import free_port, tcp_server
+from tests.drivers.test_modbus_rtu import pty_pair  # noqa: F401  (a fixture: socat's pty pair)
+
+ROOT = Path(__file__).parents[2]
+MODEL = ROOT / "config" / "simulated_model.yaml"
+
+
+def compd(*argv: object) -> tuple[int, str, str]:
+    """Run one compd command in-process: exit status, stdout, stderr."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in argv])
+    return code, out.getvalue(), err.getvalue()
+
+
+def points(stdout: str) -> dict[str, dict[str, Any]]:
+    """The rows of the one JSON read printed, by point name."""
+    (line,) = stdout.splitlines()
+    return {p["name"]: p for p in json.loads(line)["points"]}
+
+
+@pytest.fixture(scope="module")
+def plc() -> Iterator[int]:
+    """A pymodbus server on 127.0.0.1 (tests/drivers/modbus_server.py); yields its port."""
+    port = free_port()
+    server = tcp_server(port)
+    server.start()
+    yield port
+    server.stop()
+
+
+def holding(port: int, address: str) -> float:
+    """What the server holds at ``address``, read by a client of its own."""
+
+    async def read() -> float:
+        driver = ModbusDriver(
+            ModbusSettings(host="127.0.0.1", port=port), now=time.monotonic, base_dir=Path(".")
+        )
+        await driver.open()
+        try:
+            return (await driver.read([address]))[address]
+        finally:
+            await driver.close()
+
+    return asyncio.run(read())
+
+
+def machine_config(directory: Path, port: int, **changes: Any) -> Path:
+    """A daemon config on the test server: 25.00 and 22.00 degC in 0.01 degC, Z in 0.1 um, status."""
+    doc: dict[str, Any] = {
+        "schema": "compd.config/1",
+        "model": str(MODEL),
+        "drivers": {"plc": {"type": "modbus", "settings": {"host": "127.0.0.1", "port": port}}},
+        "signals": {
+            "T_spindle_degC": {
+                "driver": "plc",
+                "address": "input:10:int16",
+                "scale": 0.01,
+                "unit": "degC",
+                "checks": {"min": 5, "max": 80},
+            },
+            "T_bed_degC": {
+                "driver": "plc",
+                "address": "input:11:int16",
+                "scale": 0.01,
+                "unit": "degC",
+                "checks": {"min": 5, "max": 20},  # the server's 22.00 degC is above it
+            },
+        },
+        "outputs": {
+            "Z": {
+                "model_output": "Z",
+                "driver": "plc",
+                "address": "holding:120:int32",
+                "encoding": {"type": "int", "scale": 10},
+                "max_offset_um": 100,
+                "max_rate_um_per_s": 5,
+            }
+        },
+        "status": {
+            "driver": "plc",
+            "status_address": "holding:122",
+            "heartbeat_address": "holding:123",
+        },
+        "state": {"directory": str(directory / "state")},
+        "recorder": {"enabled": False},
+    }
+    doc.update(changes)
+    path = directory / "compd.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+# -- compd read ---------------------------------------------------------------
+
+
+def test_read_shows_raw_registers_decoded_value_unit_and_the_checks_verdict(tmp_path, plc):
+    """Each signal: its register as hex, the int16, the scaled degC; a value above max fails with exit 1."""
+    write = compd("probe", "modbus", "--set", "host=127.0.0.1", "--set", f"port={plc}",
+                  "holding:120:int32", "--write", "-25", "--yes")  # fmt: skip
+    assert write[0] == 0, write
+    code, out, err = compd("read", "--config", machine_config(tmp_path, plc), "--json")
+    rows = points(out)
+    spindle = rows["T_spindle_degC"]
+    assert (spindle["raw"], spindle["device_value"], spindle["value"]) == ("0x09C4", 2500.0, 25.0)
+    assert (spindle["unit"], spindle["health"], spindle["problem"]) == ("degC", "OK", "")
+    bed = rows["T_bed_degC"]
+    assert bed["value"] == 22.0 and bed["health"] == "FAULTED"
+    assert bed["problem"] == "22 above max 20"
+    offset = rows["offset Z"]  # read back: -25 counts of 0.1 um
+    assert (offset["raw"], offset["value"], offset["unit"]) == ("0xFFFF 0xFFE7", -2.5, "um")
+    assert {"status word", "heartbeat"} <= rows.keys()
+    assert code == 1 and err == ""
+
+
+def test_read_named_signals_only_and_the_table(tmp_path, plc):
+    """Naming a signal reads only it; all good is exit 0; the table shows raw, value and unit."""
+    code, out, _ = compd("read", "--config", machine_config(tmp_path, plc), "T_spindle_degC")
+    assert code == 0
+    assert "0x09C4" in out and "2500" in out and "degC" in out and "OK" in out
+    assert "T_bed_degC" not in out and "offset Z" not in out
+
+
+def test_read_an_unknown_name_is_refused_with_the_names_there_are(tmp_path, plc):
+    code, _, err = compd("read", "--config", machine_config(tmp_path, plc), "T_nope")
+    assert code == 2
+    assert "no signal or output named 'T_nope'" in err and "T_spindle_degC" in err
+
+
+def test_a_driver_that_cannot_connect_shows_its_error_on_each_row(tmp_path):
+    """Nothing listening: every row says 'cannot connect', exit 1, no traceback."""
+    code, out, err = compd("read", "--config", machine_config(tmp_path, free_port()), "--json")
+    rows = points(out)
+    assert {r["health"] for r in rows.values()} == {"ERROR"}
+    assert all("cannot connect" in r["problem"] for r in rows.values())
+    assert code == 1 and "Traceback" not in out + err
+
+
+def test_watch_reads_count_times_and_stops(tmp_path, plc):
+    """--watch --count 3: three reads (JSON lines, numbered), then a clean exit."""
+    config = machine_config(tmp_path, plc)
+    code, out, _ = compd("read", "--config", config, "T_spindle_degC", "--watch", "--count", 3,
+                         "--interval-s", 0.01, "--json")  # fmt: skip
+    reads = [json.loads(line) for line in out.splitlines()]
+    assert [r["read"] for r in reads] == [1, 2, 3]
+    assert all(r["points"][0]["value"] == 25.0 for r in reads)
+    assert code == 0
+
+
+def test_the_bundled_replay_reads_through_the_fallback():
+    """A driver without read_raw (the simulated one) shows read()'s float as its raw value."""
+    code, out, _ = compd("read", "--config", "bundled:replay.yaml", "--json")
+    row = points(out)["spindle_speed_rpm"]
+    assert float(row["raw"]) == row["device_value"] == row["value"]
+    assert code == 0
+
+
+# -- compd probe --------------------------------------------------------------
+
+
+def probe(port: int, *argv: object) -> tuple[int, str, str]:
+    return compd("probe", "modbus", "--set", "host=127.0.0.1", "--set", f"port={port}", *argv)
+
+
+def test_probe_reads_addresses_in_their_own_type(plc):
+    """No config: registers and the value of each address's type, unscaled; a refused one is its error."""
+    code, out, _ = probe(plc, "input:0:int16", "input:2:float32:word=little", "discrete:0",
+                         "holding:9000", "--json")  # fmt: skip
+    rows = points(out)
+    assert (rows["input:0:int16"]["raw"], rows["input:0:int16"]["value"]) == ("0xFB2E", -1234.0)
+    assert rows["input:2:float32:word=little"]["raw"] == "0x0000 0x41AC"
+    assert rows["input:2:float32:word=little"]["value"] == 21.5
+    assert (rows["discrete:0"]["raw"], rows["discrete:0"]["value"]) == ("1", 1.0)
+    assert rows["holding:9000"]["health"] == "ERROR"
+    assert "illegal data address" in rows["holding:9000"]["problem"]
+    assert code == 1
+
+
+def test_probe_write_without_a_terminal_or_yes_is_refused(plc):
+    """Piped stdin, no --yes: nothing written, and the message says how to write from a script."""
+    before = holding(plc, "holding:40:int32")
+    code, _, err = probe(plc, "holding:40:int32", "--write", before + 7)
+    assert code == 2 and "no terminal to confirm on" in err and "--yes" in err
+    assert holding(plc, "holding:40:int32") == before
+
+
+def test_probe_write_with_yes_lands_in_the_servers_registers(plc):
+    """--yes: the raw int32 is written, read back and shown; another client sees it."""
+    code, out, _ = probe(plc, "holding:42:int32", "--write", -70000, "--yes", "--json")
+    assert code == 0
+    assert points(out)["holding:42:int32"]["raw"] == "0xFFFE 0xEE90"
+    assert holding(plc, "holding:42:int32") == -70000
+
+
+@pytest.mark.parametrize(("answer", "written"), [("holding:44", True), ("y", False)])
+def test_probe_write_asks_on_a_terminal_for_the_address(plc, answer, written):
+    """On a terminal the current value is shown, then only the address typed back writes."""
+    before = holding(plc, "holding:44")
+    main_fd, terminal = os.openpty()
+    argv = ["probe", "modbus", "--set", "host=127.0.0.1", "--set", f"port={plc}", "holding:44",
+            "--write", str(int(before) + 3)]  # fmt: skip
+    process = subprocess.Popen(
+        [sys.executable, "-m", "compd.cli", *argv], stdin=terminal, stdout=terminal,
+        stderr=terminal, cwd=ROOT,
+    )  # fmt: skip
+    os.close(terminal)
+    seen = b""
+    try:
+        while b"to confirm" not in seen:
+            ready, _, _ = select.select([main_fd], [], [], 60)
+            assert ready, f"no prompt: {seen!r}"
+            seen += os.read(main_fd, 4096)
+        os.write(main_fd, answer.encode() + b"\n")
+        with contextlib.suppress(OSError):  # the terminal closes with the process
+            while chunk := os.read(main_fd, 4096):
+                seen += chunk
+        assert process.wait(60) == (0 if written else 2), seen
+    finally:
+        process.kill()
+        os.close(main_fd)
+    assert holding(plc, "holding:44") == (before + 3 if written else before)
+    assert (b"not confirmed: nothing written" in seen) != written
+
+
+def test_probe_refuses_bad_settings_and_addresses_before_connecting():
+    """A misspelt setting or a bad address ends with exit 2 and the fix, nothing opened."""
+    code, _, err = compd("probe", "modbus", "--set", "hots=10.0.0.1", "holding:1")
+    assert code == 2 and "hots: unknown key 'hots'" in err and "--set KEY=VALUE" in err
+    code, _, err = compd("probe", "modbus", "--set", "host=10.0.0.1", "holding:x")
+    assert code == 2 and "address 'holding:x'" in err and "TABLE:ADDRESS" in err
+    code, _, err = compd("probe", "modbus", "--set", "host=10.0.0.1", "input:1", "--write", "3")
+    assert code == 2 and "cannot be written" in err
+    code, _, err = compd("probe", "nobus", "x")
+    assert code == 2 and "unknown driver type 'nobus'" in err and "modbus" in err
+
+
+# -- OPC UA, with security --------------------------------------------------
+
+
+def test_probe_opcua_shows_each_nodes_variant_type(tmp_path):
+    """A secured asyncua server: the settings from a YAML file, each node's variant and value."""
+    from tests.drivers.opcua_server import PASSWORD, USERNAME, OpcUaTestServer, make_certificates
+
+    certs = make_certificates(tmp_path)
+    (tmp_path / "password.txt").write_text(PASSWORD + "\n")
+    server = OpcUaTestServer(certs)
+    server.start()
+    try:
+        settings = tmp_path / "opcua.yaml"
+        settings.write_text(yaml.safe_dump({
+            "url": server.url,
+            "security": {
+                "certificate": str(certs.client_cert),
+                "private_key": str(certs.client_key),
+                "server_certificate": str(certs.server_cert),
+            },
+            "username": USERNAME,
+            "password_file": "password.txt",
+        }))  # fmt: skip
+        spindle, rpm = server.node_id("T_spindle_degC"), server.node_id("spindle_rpm")
+        code, out, err = compd("probe", "opcua", "--settings", settings, spindle, rpm, "--json",
+                               "--timeout-s", 10)  # fmt: skip
+    finally:
+        server.shutdown()
+    rows = points(out)
+    assert (rows[spindle]["raw"], rows[spindle]["value"]) == ("Double 31.25", 31.25)
+    assert (rows[rpm]["raw"], rows[rpm]["value"]) == ("UInt16 12000", 12000.0)
+    assert code == 0, err
+    assert PASSWORD not in out + err
+
+
+# -- a serial scanner on a pty ------------------------------------------------
+
+
+@pytest.fixture
+def scanner(tmp_path: Path) -> Iterator[PtyInstrument]:
+    instrument = PtyInstrument(tmp_path / "ttyScanner", {"1": 23.456, "2": 351.0})
+    yield instrument
+    instrument.unplug()
+
+
+def scanner_config(directory: Path, port: Path) -> Path:
+    """T1 and T2 on the scanner (range -50..300 degC), the offset on a Modbus PLC nobody reads."""
+    path = machine_config(directory, free_port())
+    doc = yaml.safe_load(path.read_text())
+    doc["drivers"]["scanner"] = {
+        "type": "serial_sensor",
+        "settings": {"port": str(port), "channels": ["1", "2"], "range": [-50, 300],
+                     "reply_timeout_s": 0.5},
+    }  # fmt: skip
+    doc["signals"] = {
+        f"T{c}_degC": {"driver": "scanner", "address": c, "unit": "degC"} for c in ("1", "2")
+    }
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def test_read_a_serial_scanner_shows_each_reply_field(tmp_path, scanner):
+    """The reply's field as sent, its value; a value outside the sensor's range shows why it is left out."""
+    code, out, _ = compd("read", "--config", scanner_config(tmp_path, scanner.port), "T1_degC",
+                         "T2_degC", "--json")  # fmt: skip
+    rows = points(out)
+    assert (rows["T1_degC"]["raw"], rows["T1_degC"]["value"]) == ("'+23.456'", 23.456)
+    assert rows["T2_degC"]["raw"] == "'+351.000'" and rows["T2_degC"]["value"] is None
+    assert "outside the sensor's range" in rows["T2_degC"]["problem"]
+    assert code == 1
+
+
+def test_a_busy_serial_port_says_one_master(tmp_path, scanner):
+    """The port held by another process (the daemon, say): the error says to stop it first."""
+    config = scanner_config(tmp_path, scanner.port)
+    with serial.Serial(str(scanner.port), exclusive=True):
+        code, out, _ = compd("read", "--config", config, "T1_degC", "--json")
+    problem = points(out)["T1_degC"]["problem"]
+    assert "cannot connect" in problem and "a serial line has one master" in problem
+    assert code == 1
+
+
+def test_a_busy_modbus_rtu_line_says_one_master(pty_pair):  # noqa: F811  (the fixture)
+    """Modbus RTU on a port another process holds: the probe's error names the one-master rule."""
+    ours, _, _ = pty_pair
+    with serial.Serial(ours, exclusive=True):
+        code, out, _ = compd("probe", "modbus", "--set", "transport=rtu", "--set",
+                             f"serial_port={ours}", "holding:0", "--json")  # fmt: skip
+    problem = points(out)["holding:0"]["problem"]
+    assert "cannot connect" in problem and "a serial line has one master" in problem
+    assert code == 1
+
+
+def test_probe_a_profibus_gateway_shows_the_image_bytes(tmp_path):
+    """A gateway over Modbus TCP (the simulated one): each value's bytes in the image, a bit with its byte."""
+    from tests.drivers.gateway_setup import ThreadedGateway, make_server, modbus_settings
+
+    port = free_port()
+    settings = modbus_settings(port)
+    gateway = ThreadedGateway(make_server(settings))
+    gateway.start()
+    try:
+        file = tmp_path / "gateway.yaml"
+        file.write_text(yaml.safe_dump(settings.model_dump(mode="json")))
+        code, out, err = compd("probe", "profibus_gateway", "--settings", file, "in:0:int16",
+                               "in:8:int32", "in:14.2", "--json")  # fmt: skip
+    finally:
+        gateway.close()
+    rows = points(out)
+    assert (rows["in:0:int16"]["raw"], rows["in:0:int16"]["value"]) == ("FB 2E", -1234.0)
+    assert (rows["in:8:int32"]["raw"], rows["in:8:int32"]["value"]) == ("F8 A4 32 EB", -123456789.0)
+    assert rows["in:14.2"]["raw"].endswith(" bit 2") and rows["in:14.2"]["value"] == 1.0
+    assert code == 0, err
+
+
+def test_read_loads_the_daemons_stack_only(tmp_path):
+    """``compd read`` on a Modbus config imports no toolkit, twin, report, pandas, rich.live or other driver."""
+    from tests.test_architecture import NOT_IN_THE_DAEMON, imported_by, loaded
+
+    status, modules, out = imported_by("read", "--config", machine_config(tmp_path, free_port()))
+    assert status == 1 and "cannot connect" in out
+    assert "compd.drivers.modbus" in modules
+    assert loaded(modules, (*NOT_IN_THE_DAEMON, "asyncua", "can")) == []
+
+
+def test_probe_loads_no_model_stack():
+    """``compd probe`` needs no config: no scipy, no model, no config checks, only its driver."""
+    from tests.test_architecture import imported_by, loaded
+
+    argv = ("probe", "modbus", "--set", "host=127.0.0.1", "--set", f"port={free_port()}", "input:0")
+    status, modules, out = imported_by(*argv)
+    assert status == 1 and "cannot connect" in out
+    assert loaded(modules, ("scipy", "compd.model", "compd.service.config", "asyncua")) == []
