@@ -84,6 +84,9 @@ def test_a_killed_daemon_resumes_its_state_and_the_offset_does_not_jump(
         short_dir, calibrated_model, simulation={"scenario": "production", "hours": 2, "seed": 7}
     )
     doc["state"]["save_every_ticks"] = 10
+    # The restart takes seconds of real time, x100 on the machine's clock; a busy CI machine
+    # must not age the state past the limit (the limit has its own tests).
+    doc["state"]["resume_max_age_s"] = 4 * 3600
     machine = MachineThread(write_config(short_dir, doc, "machine.yaml"))
     del doc["simulation"]
     daemon_config = short_dir / "daemon.yaml"
