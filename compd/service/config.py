@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 from pydantic import BaseModel, ValidationError
@@ -35,7 +35,6 @@ from compd.drivers.registry import (
     load_driver_type,
 )
 from compd.errors import ConfigFileError
-from compd.files.modelfile import ModelFile
 from compd.files.yamlplace import (
     FIXES,
     describe,
@@ -45,7 +44,6 @@ from compd.files.yamlplace import (
     shorten,
     where,
 )
-from compd.model.compiled import CompiledModel
 from compd.service import paths
 from compd.service.configdoc import SCHEMA, ConfigDoc, GainScheduleDoc
 from compd.service.offsets import AxisPoint
@@ -60,6 +58,10 @@ from compd.service.writepoints import (
     whole_counts,
     written_points,
 )
+
+if TYPE_CHECKING:  # annotations only: a config is read without loading the model stack
+    from compd.files.modelfile import ModelFile
+    from compd.model.compiled import CompiledModel
 
 
 @dataclass(frozen=True)

@@ -45,10 +45,12 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from compd.model.compiled import CompiledModel
-from compd.model.run import TickRunner
+if TYPE_CHECKING:  # annotations only: a config is read without loading the model stack
+    from compd.model.compiled import CompiledModel
+    from compd.model.run import TickRunner
+
 
 #: A reading within this of a row's whole number matches it (a scaled ``float`` signal).
 WHOLE_TOLERANCE = 1e-6
