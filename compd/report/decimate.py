@@ -14,8 +14,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-#: Buckets per trace: two points each, so at most 4,000 drawn points per trace.
-DEFAULT_BUCKETS = 2000
+#: Buckets per trace: two points each, so at most 2,000 drawn points per trace,
+#: two per pixel column of a report's plot area (about 1,000 px wide).
+DEFAULT_BUCKETS = 1000
 
 
 def minmax_indices(values: Sequence[np.ndarray], n_buckets: int = DEFAULT_BUCKETS) -> np.ndarray:
