@@ -228,7 +228,8 @@ def _table(result: WindowsResult, shown: list[str], *, width: int | None) -> Tab
         )
     if width is not None:
         used = sum(widths[:-1]) + 3 * len(widths) + 1  # 2 padding + 1 border per column
-        widths[-1] = max(widths[-1], len(_OUTSIDE), width - used)
+        whole = max(len(row[-1]) for row in rows)  # the longest list on one line, no wider
+        widths[-1] = max(widths[-1], len(_OUTSIDE), min(width - used, whole))
     table = Table(title="mean over each window" if narrow and shown else None)
     for k, (head, least) in enumerate(zip(heads, widths, strict=True)):
         justify = "right" if 2 < k < len(heads) - 1 else "left"

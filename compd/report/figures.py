@@ -155,6 +155,7 @@ def residue(report: ReportData, output: str) -> go.Figure:
                 layer="below",
                 name=label,
                 legendgroup=f"grade{grade}",
+                legendrank=1000 + grade,  # grades in order, after the lines
                 showlegend=grade not in graded,
                 row=row,
                 col=1,
@@ -162,12 +163,21 @@ def residue(report: ReportData, output: str) -> go.Figure:
             graded.add(grade)
         fig.update_yaxes(title_text="residue (um)", row=row, col=1, secondary_y=False)
         _overlay_candidate(fig, report, run, output, row)
-    fig.update_layout(height=_HEIGHT_PX + 260 * (len(runs) - 1), legend={"y": 1.04})
+    fig.update_layout(
+        height=_HEIGHT_PX + 60 + 260 * (len(runs) - 1),
+        legend={"y": 1.04, "x": 0.0, "xanchor": "left"},  # under the title, however long
+    )
     fig.update_xaxes(title_text="")
     fig.update_xaxes(title_text="time (h)", row=len(runs), col=1)
     for annotation in fig.layout.annotations:  # subplot titles: left, as the figure's
         annotation.update(x=0.0, xanchor="left", font={"size": 13})
-    return _time_axis(fig, report)
+    # make_subplots narrows the plot for the second y axis; its ticks and
+    # title go in the right margin instead, so this plot lines up with the rest.
+    fig.update_xaxes(domain=[0.0, 1.0])
+    fig = _time_axis(fig, report)
+    # the title at the very top, two rows of legend between it and the plot
+    fig.update_layout(margin={"t": 110}, title={"yref": "container", "y": 0.99, "yanchor": "top"})
+    return fig
 
 
 def _residue_title(run: ModelRun, output: str) -> str:
