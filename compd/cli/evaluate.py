@@ -232,8 +232,12 @@ def _table(result: WindowsResult, shown: list[str], *, width: int | None) -> Tab
         widths[-1] = max(widths[-1], len(_OUTSIDE), min(width - used, whole))
     table = Table(title="mean over each window" if narrow and shown else None)
     for k, (head, least) in enumerate(zip(heads, widths, strict=True)):
-        justify = "right" if 2 < k < len(heads) - 1 else "left"
-        table.add_column(head, width=least, justify=justify, no_wrap=not narrow)
+        table.add_column(
+            head,
+            width=least,
+            justify="right" if 2 < k < len(heads) - 1 else "left",
+            no_wrap=not narrow,
+        )
     for w, row in zip(result.windows, rows, strict=True):
         outside = set(w.outside_calibration)
         marked = [
