@@ -86,15 +86,17 @@ def test_report_is_self_contained(single_report: Written) -> None:
 
 
 def test_failing_windows_are_tabled(single_report: Written) -> None:
-    """Each failing window of compare --json is one row of the windows table, with its span and RMS."""
+    """Each failing window of compare --json is one row of the windows table: span, RMS, times the limit."""
     failing = single_report.summaries[0]["failing_windows"]
     assert failing, "the fixture's 2.5 um limit makes some windows fail"
     html = single_report.html
     table = html[html.index('<table class="windows">') :]
     table = table[: table.index("</table>")]
     assert table.count("<tr>") == 1 + len(failing)
+    tolerance = single_report.summaries[0]["outputs"][failing[0]["output"]]["window_tolerance_um"]
     for w in failing:
         assert f"<td>{w['rms_um']:.2f}</td>" in table
+        assert f"{w['rms_um'] / tolerance:.1f}×</td>" in table  # how far over the limit
 
 
 def test_embedded_summary_is_compare_json(single_report: Written, compare_report: Written) -> None:
