@@ -276,3 +276,59 @@ def test_json_output_writes_non_finite_figures_as_null() -> None:
         {"fit_percent": float("-inf"), "rms": [1.5, float("nan")], "n": {"x": 1e308 * 10}}
     )
     assert json.loads(text) == {"fit_percent": None, "rms": [1.5, None], "n": {"x": None}}
+
+
+@pytest.fixture
+def terminal_80(monkeypatch: pytest.MonkeyPatch) -> None:
+    """compare prints to an 80-column terminal (rich's console at width 80)."""
+    from rich.console import Console
+
+    monkeypatch.setattr("compd.cli.evaluate.console", lambda: Console(width=80, highlight=False))
+
+
+def test_compare_at_80_columns_keeps_the_outside_calibration_column(
+    residue_case: tuple[Path, Path], capsys: pytest.CaptureFixture[str], terminal_80: None
+) -> None:
+    """On an 80-column terminal the failing windows keep span, RMS and outside calibration whole.
+
+    Condition columns that do not fit are left out (all-zero ones first) and
+    named under the table; no header or signal name is cut to "spind…".
+    """
+    code, out, err = run(capsys, "compare", *residue_case)
+    assert code == 0, err
+    windows = out[out.index("windows of 15 min") :]
+    assert "outside calibration" in windows
+    assert all(len(line) <= 80 for line in windows.splitlines())
+    assert "…" not in windows
+    assert "│ 8:30  │ 8:45  │ 2.96" in windows and "spindle_power_kw" in windows
+    words = " ".join(windows.split())  # the caption wraps at 80 columns
+    assert "left out for width: T_coolant_degC, door_open" in words and "--wide shows all" in words
+
+
+def test_compare_wide_shows_every_condition_column(
+    residue_case: tuple[Path, Path], capsys: pytest.CaptureFixture[str], terminal_80: None
+) -> None:
+    """--wide shows every condition column whole, wider than the terminal."""
+    code, out, err = run(capsys, "compare", *residue_case, "--wide")
+    assert code == 0, err
+    for name in ("spindle_speed_rpm", "spindle_power_kw", "feed_x_mm_per_min", "door_open"):
+        assert f"mean {name}" in out
+    assert "outside calibration" in out and "left out for width" not in out
+
+
+def test_a_window_of_zero_length_at_the_end_is_not_judged(
+    residue_case: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A record ending on a lone sample at exactly 12:00 has 48 windows of 15 min, not 49 with [12:00, 12:00]."""
+    model, data = residue_case
+    frame = pd.read_csv(data)
+    last = frame.iloc[[-1]].assign(time_s=12 * 3600.0)  # one sample on the 49th window's start
+    whole = tmp_path / "whole_hours.csv"
+    pd.concat([frame, last]).to_csv(whole, index=False)
+    report = compare_json(capsys, model, whole, "--tolerance-um", "0.01")
+    windows = report["failing_windows"]
+    assert len(windows) == 48
+    assert all(w["end_s"] > w["start_s"] for w in windows)
+    code, out, err = run(capsys, "compare", model, whole, "--tolerance-um", "0.01")
+    assert code == 0, err
+    assert "48 of 48 windows" in out

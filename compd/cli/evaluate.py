@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
+from rich.console import Console
 from rich.table import Table
 
 from compd.cli.common import (
@@ -66,6 +67,12 @@ def register(commands: Any) -> None:
         type=Path,
         metavar="OUT.html",
         help="also write the HTML report (as compd report does)",
+    )
+    cmp_.add_argument(
+        "--wide",
+        action="store_true",
+        help="show every condition column of the failing-windows table, however wide "
+        "(default: fit the terminal, leaving out all-zero columns first)",
     )
     window_options(cmp_)
     data_options(cmp_, scored="judged (fit %%, RMS, windows; JSON from_s/until_s)")
@@ -125,7 +132,12 @@ def _compare(args: argparse.Namespace) -> int:
     for result in windows:
         out.print(windows_summary(result))
         if result.windows:
-            out.print(windows_table(result))
+            table = windows_table(result, width=None if args.wide else out.width)
+            if args.wide:  # the table's own width, not squeezed into the terminal's
+                wide = Console(file=out.file, width=max(out.width, table_width(table)))
+                wide.print(table, crop=False)
+            else:
+                out.print(table)
     if not span.whole:
         out.print(span.describe("judged"))
     return 0
@@ -148,23 +160,98 @@ def windows_summary(result: WindowsResult) -> str:
     )
 
 
-def windows_table(result: WindowsResult) -> Table:
-    """Failing windows: span (h:mm from the start), RMS, mean conditions, outside-calibration signals."""
+#: The failing-windows table's own columns, never dropped for width.
+_OUTSIDE = "outside calibration"
+
+
+def windows_table(result: WindowsResult, *, width: int | None = None) -> Table:
+    """Failing windows: span (h:mm from the start), RMS, mean conditions, outside-calibration signals.
+
+    ``width`` is the terminal's: the span, the RMS and the outside-calibration
+    column always fit in it. A table that fits whole is shown whole;
+    otherwise condition columns whose mean is zero in every failing window
+    (a door never opened, no feed) say nothing and go first, then condition
+    columns from the right until the table fits, named in the caption.
+    ``None`` (``--wide``) shows every condition column, nothing wrapped:
+    print it at :func:`table_width`.
+    """
     shown = _shown(result)
-    table = Table(
-        "from", "to", "residue RMS (um)", *(f"mean {n}" for n in shown), "outside calibration"
-    )
-    for w in result.windows:
-        table.add_row(
+    whole = _table(result, shown, width=None)
+    if width is None or table_width(whole) <= width:
+        return whole
+    dropped = [n for n in shown if all(w.conditions[n] == 0.0 for w in result.windows)]
+    shown = [n for n in shown if n not in dropped]
+    while shown and table_width(_table(result, shown, width=1)) > width:
+        dropped.append(shown.pop())
+    table = _table(result, shown, width=width)
+    if dropped:
+        table.caption = (
+            f"left out for width: {', '.join(dropped)} (all-zero ones first); --wide shows all"
+        )
+    return table
+
+
+def _table(result: WindowsResult, shown: list[str], *, width: int | None) -> Table:
+    """The table with the condition columns ``shown``, laid out for ``width`` columns.
+
+    Column widths are set here, not left to rich: squeezing a table into a
+    terminal, rich cuts words (``spind…``) rather than wrap them. With a
+    ``width``, headers wrap between the words of a column name, each column
+    is its longest word wide and the outside-calibration column takes the
+    rest (its header on one line). ``None``: each column is its longest cell.
+    """
+    narrow = width is not None
+    heads = [
+        "from",
+        "to",
+        "residue RMS (um)",
+        *(name.replace("_", " ") if narrow else f"mean {name}" for name in shown),
+        _OUTSIDE,
+    ]
+    rows = [
+        [
             _clock(w.start_s),
             _clock(w.end_s),
             f"{w.rms_um:.2f}",
-            *(_cell(w.conditions[n], n in w.outside_calibration) for n in shown),
-            f"[bold red]{', '.join(w.outside_calibration)}[/bold red]"
-            if w.outside_calibration
-            else "-",
+            *(f"{w.conditions[n]:.4g}" for n in shown),
+            ", ".join(w.outside_calibration) or "-",
+        ]
+        for w in result.windows
+    ]
+    widths = []
+    for k, head in enumerate(heads):
+        cells = [head, *(row[k] for row in rows)]
+        widths.append(
+            max(len(word) for cell in cells for word in cell.split())
+            if narrow
+            else max(len(cell) for cell in cells)
         )
+    if width is not None:
+        used = sum(widths[:-1]) + 3 * len(widths) + 1  # 2 padding + 1 border per column
+        whole = max(len(row[-1]) for row in rows)  # the longest list on one line, no wider
+        widths[-1] = max(widths[-1], len(_OUTSIDE), min(width - used, whole))
+    table = Table(title="mean over each window" if narrow and shown else None)
+    for k, (head, least) in enumerate(zip(heads, widths, strict=True)):
+        table.add_column(
+            head,
+            width=least,
+            justify="right" if 2 < k < len(heads) - 1 else "left",
+            no_wrap=not narrow,
+        )
+    for w, row in zip(result.windows, rows, strict=True):
+        outside = set(w.outside_calibration)
+        marked = [
+            f"[bold red]{c}[/bold red]" if n in outside else c
+            for n, c in zip(shown, row[3:-1], strict=True)
+        ]
+        last = f"[bold red]{row[-1]}[/bold red]" if outside else row[-1]
+        table.add_row(*row[:3], *marked, last)
     return table
+
+
+def table_width(table: Table) -> int:
+    """Terminal columns ``table`` (of :func:`windows_table`) takes: what ``--wide`` prints it at."""
+    return sum((c.width or 0) + 3 for c in table.columns) + 1
 
 
 def _shown(result: WindowsResult) -> list[str]:
@@ -172,11 +259,6 @@ def _shown(result: WindowsResult) -> list[str]:
     return [
         n for n in result.conditions if any(fnmatchcase(n.lower(), p) for p in CONDITION_PATTERNS)
     ]
-
-
-def _cell(value: float, outside: bool) -> str:
-    text = f"{value:.4g}"
-    return f"[bold red]{text}[/bold red]" if outside else text
 
 
 def _clock(seconds: float) -> str:

@@ -14,12 +14,26 @@ from plotly.subplots import make_subplots
 
 from compd.report import analysis_view as view
 from compd.report.decimate import DEFAULT_BUCKETS, minmax_indices
-from compd.report.gather import ModelRun, ReportData
+from compd.report.gather import ModelRun, ReportData, column_unit, declared_units
 
 #: One colour per model (primary, compared), the measurement in black.
 MODEL_COLOURS = ("#1f5fa8", "#d1495b")
 MEASURED_COLOUR = "#222222"
-WINDOW_COLOUR = "#f2a541"
+#: The top-ranked candidate signal drawn over the residue (on a second y axis).
+CANDIDATE_COLOUR = "#2a9d8f"
+#: Failing windows shaded by how far their residue RMS exceeds the limit:
+#: (ratio above which the grade starts, legend label, fill colour). A reader
+#: sees at a glance the few windows far beyond the limit among many just over it.
+WINDOW_GRADES = (
+    (1.0, "window RMS 1–1.5× limit", "rgba(252, 187, 161, 0.45)"),
+    (1.5, "1.5–2×", "rgba(252, 146, 114, 0.45)"),
+    (2.0, "2–5×", "rgba(251, 106, 74, 0.45)"),
+    (5.0, "5–10×", "rgba(222, 45, 38, 0.45)"),
+    (10.0, "> 10×", "rgba(165, 15, 21, 0.5)"),
+)
+#: Margins of every figure on the time axis, so their plot areas line up one
+#: above the other (the right one leaves room for the residue's second axis).
+TIME_MARGIN = {"l": 80, "r": 90, "t": 60, "b": 50}
 _HEIGHT_PX = 340
 
 
@@ -47,6 +61,20 @@ def _layout(fig: go.Figure, title: str, y_title: str, *, height: int = _HEIGHT_P
     return fig
 
 
+def _time_axis(fig: go.Figure, report: ReportData) -> go.Figure:
+    """The record's whole span on every x axis and :data:`TIME_MARGIN`: time axes align across figures."""
+    t = report.data.time_s
+    fig.update_xaxes(range=[float(t[0]) / 3600.0, float(t[-1]) / 3600.0])
+    fig.update_layout(margin=TIME_MARGIN)
+    return fig
+
+
+def window_grade(rms_um: float, tolerance_um: float) -> int:
+    """Index into :data:`WINDOW_GRADES` of a failing window: how far its RMS exceeds the limit."""
+    ratio = rms_um / tolerance_um
+    return max(k for k, (low, _, _) in enumerate(WINDOW_GRADES) if ratio > low or k == 0)
+
+
 def _line(
     x: np.ndarray, y: np.ndarray, index: np.ndarray, name: str, colour: str, **kwargs: object
 ) -> go.Scatter:
@@ -65,49 +93,139 @@ def measured_vs_simulated(report: ReportData, output: str) -> go.Figure:
     """The measured displacement and each model's free-run simulation of it, in um."""
     x = time_h(report)
     runs = [r for r in report.runs if output in r.outputs]
-    measured = report.data.column(runs[0].outputs[output].measured_column)
-    simulated = [r.evaluation.predicted(output) for r in runs]
-    index = minmax_indices([measured, *simulated], DEFAULT_BUCKETS)
-    fig = go.Figure()
     column = runs[0].outputs[output].measured_column
-    fig.add_trace(_line(x, measured, index, f"measured ({column})", MEASURED_COLOUR))
-    for i, (run, y) in enumerate(zip(runs, simulated, strict=True)):
-        fig.add_trace(_line(x, y, index, f"simulated: {run.name}", MODEL_COLOURS[i]))
-    return _layout(fig, f"{output}: measured vs simulated (free run)", "displacement (um)")
+    measured = report.data.column(column)
+    fig = go.Figure()
+    fig.add_trace(_line(x, measured, _kept(measured), f"measured ({column})", MEASURED_COLOUR))
+    for i, run in enumerate(runs):
+        y = run.evaluation.predicted(output)
+        fig.add_trace(_line(x, y, _kept(y), f"simulated: {run.name}", MODEL_COLOURS[i]))
+    fig = _layout(fig, f"{output}: measured vs simulated (free run)", "displacement (um)")
+    return _time_axis(fig, report)
+
+
+def _kept(y: np.ndarray) -> np.ndarray:
+    """Samples of one line to draw (each line on its own: unstacked lines need no common x)."""
+    return minmax_indices([y], DEFAULT_BUCKETS)
 
 
 def residue(report: ReportData, output: str) -> go.Figure:
-    """Each model's residue (measured - simulated, um), failing windows shaded, ± tolerance dashed."""
+    """Each model's residue (um) in a panel of its own, sharing the time axis.
+
+    In each panel: the failing windows of that model shaded by grade
+    (:data:`WINDOW_GRADES`), its RMS limit ±tolerance dashed, and the
+    candidate signal its diagnosis ranks first drawn on a second y axis in
+    the signal's unit, so a reader sees whether the residue follows it.
+    """
     x = time_h(report)
-    runs = [r for r in report.runs if output in r.outputs]
-    measured = report.data.column(runs[0].outputs[output].measured_column)
-    residues = [measured - r.evaluation.predicted(output) for r in runs]
-    index = minmax_indices(residues, DEFAULT_BUCKETS)
-    fig = go.Figure()
-    for i, (run, y) in enumerate(zip(runs, residues, strict=True)):
-        fig.add_trace(_line(x, y, index, f"residue: {run.name}", MODEL_COLOURS[i]))
-    primary = runs[0].outputs[output]
-    tolerance = view.tolerance_um(primary.windows)
-    for sign in (1.0, -1.0):
-        fig.add_hline(y=sign * tolerance, line={"color": "#888888", "dash": "dash", "width": 1})
-    for window in view.windows(primary.windows):
-        fig.add_vrect(
-            x0=window.start_s / 3600.0,
-            x1=window.end_s / 3600.0,
-            fillcolor=WINDOW_COLOUR,
-            opacity=0.3,
-            line_width=0,
-            layer="below",
+    runs = [(i, r) for i, r in enumerate(report.runs) if output in r.outputs]
+    measured = report.data.column(runs[0][1].outputs[output].measured_column)
+    fig = make_subplots(
+        rows=len(runs),
+        cols=1,
+        shared_xaxes=True,
+        vertical_spacing=0.1,
+        specs=[[{"secondary_y": True}] for _ in runs],
+        subplot_titles=[_residue_title(run, output) for _, run in runs],
+    )
+    fig = _layout(fig, f"{output}: residue (measured − simulated)", "")
+    graded: set[int] = set()
+    for row, (i, run) in enumerate(runs, start=1):
+        y = measured - run.evaluation.predicted(output)
+        fig.add_trace(
+            _line(x, y, _kept(y), f"residue: {run.name}", MODEL_COLOURS[i]), row=row, col=1
         )
-    failing = (
-        f"windows where {runs[0].name} fails shaded"
-        if view.windows(primary.windows)
-        else f"no window where {runs[0].name} fails"
+        result = run.outputs[output].windows
+        tolerance = view.tolerance_um(result)
+        for sign in (1.0, -1.0):
+            fig.add_hline(
+                y=sign * tolerance,
+                line={"color": "#888888", "dash": "dash", "width": 1},
+                row=row,
+                col=1,
+            )
+        for window in view.windows(result):
+            grade = window_grade(window.rms_um, tolerance)
+            _, label, colour = WINDOW_GRADES[grade]
+            fig.add_vrect(
+                x0=window.start_s / 3600.0,
+                x1=window.end_s / 3600.0,
+                fillcolor=colour,
+                line_width=0,
+                layer="below",
+                name=label,
+                legendgroup=f"grade{grade}",
+                legendrank=1000 + grade,  # grades in order, after the lines
+                showlegend=grade not in graded,
+                row=row,
+                col=1,
+            )
+            graded.add(grade)
+        fig.update_yaxes(title_text="residue (um)", row=row, col=1, secondary_y=False)
+        _overlay_candidate(fig, report, run, output, row)
+    fig.update_layout(
+        height=_HEIGHT_PX + 60 + 260 * (len(runs) - 1),
+        legend={"y": 1.04, "x": 0.0, "xanchor": "left"},  # under the title, however long
     )
-    title = (
-        f"{output}: residue (measured − simulated); {failing}, RMS limit ±{tolerance:.2f} um dashed"
+    fig.update_xaxes(title_text="")
+    fig.update_xaxes(title_text="time (h)", row=len(runs), col=1)
+    for annotation in fig.layout.annotations:  # subplot titles: left, as the figure's
+        annotation.update(x=0.0, xanchor="left", font={"size": 13})
+    # make_subplots narrows the plot for the second y axis; its ticks and
+    # title go in the right margin instead, so this plot lines up with the rest.
+    fig.update_xaxes(domain=[0.0, 1.0])
+    fig = _time_axis(fig, report)
+    # the title at the very top, two rows of legend between it and the plot
+    fig.update_layout(margin={"t": 110}, title={"yref": "container", "y": 0.99, "yanchor": "top"})
+    return fig
+
+
+def _residue_title(run: ModelRun, output: str) -> str:
+    result = run.outputs[output].windows
+    count = len(view.windows(result))
+    return (
+        f"{run.name}: {count} of {result.window_count} windows above the "
+        f"±{view.tolerance_um(result):.2f} um RMS limit (dashed)"
     )
-    return _layout(fig, title, "residue (um)")
+
+
+def top_candidate(run: ModelRun, output: str) -> str | None:
+    """The signal the diagnosis of ``run``'s residue ranks first, or None without a ranking."""
+    ranked = view.candidates(run.outputs[output].diagnosis)
+    return ranked[0].signal if ranked else None
+
+
+def _overlay_candidate(
+    fig: go.Figure, report: ReportData, run: ModelRun, output: str, row: int
+) -> None:
+    """The top-ranked candidate signal on the panel's second y axis, in its own unit."""
+    signal = top_candidate(run, output)
+    if signal is None:
+        return
+    values = report.data.column(signal)
+    _, unit = column_unit(signal, declared_units(*(r.evaluation for r in report.runs)))
+    fig.add_trace(
+        go.Scatter(
+            x=time_h(report)[_kept(values)],
+            y=drawn(values[_kept(values)]),
+            name=f"top candidate: {signal}",
+            mode="lines",
+            line={"color": CANDIDATE_COLOUR, "width": 0.9},
+            opacity=0.6,
+            hovertemplate=f"%{{y:.4g}} {unit}",
+        ),
+        row=row,
+        col=1,
+        secondary_y=True,
+    )
+    fig.update_yaxes(
+        title_text=f"{signal} ({unit})" if unit else signal,
+        title_font={"color": CANDIDATE_COLOUR},
+        showgrid=False,
+        row=row,
+        col=1,
+        secondary_y=True,
+    )
 
 
 def contributions(report: ReportData, run: ModelRun, output: str) -> go.Figure:
@@ -116,7 +234,9 @@ def contributions(report: ReportData, run: ModelRun, output: str) -> go.Figure:
     parts = run.contributions(output)
     measured = report.data.column(run.outputs[output].measured_column)
     total = run.evaluation.predicted(output)
-    index = minmax_indices([*parts.values(), total, measured], DEFAULT_BUCKETS)
+    # Stacked areas must share one x: the union of every part's extremes,
+    # with fewer buckets per part so the union stays as light as one line.
+    index = minmax_indices(list(parts.values()), max(100, DEFAULT_BUCKETS // max(1, len(parts))))
     fig = go.Figure()
     palette = ("#7fb3d5", "#f1948a", "#82e0aa", "#f8c471", "#bb8fce", "#85c1e9", "#f0b27a")
     # Mixed signs do not stack readably in one pile: positive parts pile up
@@ -141,17 +261,18 @@ def contributions(report: ReportData, run: ModelRun, output: str) -> go.Figure:
                     hovertemplate="%{y:.2f} um",
                 )
             )
-    fig.add_trace(_line(x, total, index, "sum (simulated)", "#000000", opacity=0.8))
+    fig.add_trace(_line(x, total, _kept(total), "sum (simulated)", "#000000", opacity=0.8))
     fig.add_trace(
-        _line(x, measured, index, "measured", MEASURED_COLOUR, opacity=0.5).update(
+        _line(x, measured, _kept(measured), "measured", MEASURED_COLOUR, opacity=0.5).update(
             line={"dash": "dot"}
         )
     )
-    return _layout(
+    fig = _layout(
         fig,
         f"{output}: sub-model contributions of {run.name} (stacked; negative parts below zero)",
         "displacement (um)",
     )
+    return _time_axis(fig, report)
 
 
 def candidates(run: ModelRun, output: str) -> go.Figure | None:
@@ -188,24 +309,23 @@ def candidates(run: ModelRun, output: str) -> go.Figure | None:
 
 
 def conditions(report: ReportData) -> go.Figure | None:
-    """Operating conditions as small multiples, one axis per unit, sharing the time axis."""
+    """Operating conditions as small multiples: one panel per unit, sharing the time axis.
+
+    Each panel has its own legend at its top (plotly's multiple legends), so
+    a signal's name sits by the panel it is drawn in.
+    """
     groups = report.conditions
     if not groups:
         return None
     x = time_h(report)
     data = report.data
-    fig = make_subplots(
-        rows=len(groups),
-        cols=1,
-        shared_xaxes=True,
-        vertical_spacing=0.04,
-        subplot_titles=[_axis_title(g.label, g.unit) for g in groups],
-    )
+    fig = make_subplots(rows=len(groups), cols=1, shared_xaxes=True, vertical_spacing=0.07)
     palette = ("#1f5fa8", "#d1495b", "#2a9d8f", "#e9c46a", "#6a4c93", "#f4a261", "#264653")
     for row, group in enumerate(groups, start=1):
-        series = [data.column(c) for c in group.columns]
-        index = minmax_indices(series, DEFAULT_BUCKETS)
-        for i, (name, y) in enumerate(zip(group.columns, series, strict=True)):
+        legend = "legend" if row == 1 else f"legend{row}"
+        for i, name in enumerate(group.columns):
+            y = data.column(name)
+            index = _kept(y)
             fig.add_trace(
                 go.Scatter(
                     x=x[index],
@@ -213,22 +333,31 @@ def conditions(report: ReportData) -> go.Figure | None:
                     name=name,
                     mode="lines",
                     line={"width": 1.2, "color": palette[i % len(palette)]},
-                    legendgroup=str(row),
+                    legend=legend,
                     hovertemplate=f"%{{y:.3g}} {group.unit}",
                 ),
                 row=row,
                 col=1,
             )
-        fig.update_yaxes(title_text=group.unit or group.label, row=row, col=1)
+        fig.update_yaxes(title_text=_axis_title(group.label, group.unit), row=row, col=1)
     fig.update_xaxes(title_text="time (h)", row=len(groups), col=1)
     fig.update_layout(
         template="plotly_white",
-        height=70 + 170 * len(groups),
-        margin={"l": 70, "r": 20, "t": 40, "b": 50},
+        height=70 + 190 * len(groups),
         hovermode="x unified",
-        legend={"tracegroupgap": 120},
+        showlegend=True,  # plotly hides a legend of one trace otherwise
     )
-    return fig
+    for row in range(1, len(groups) + 1):
+        axis = fig.layout["yaxis" if row == 1 else f"yaxis{row}"]
+        fig.layout["legend" if row == 1 else f"legend{row}"] = {
+            "orientation": "h",
+            "x": 0.0,
+            "xanchor": "left",
+            "y": axis.domain[1],
+            "yanchor": "bottom",
+            "font": {"size": 11},
+        }
+    return _time_axis(fig, report)
 
 
 def _axis_title(label: str, unit: str) -> str:

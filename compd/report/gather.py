@@ -213,6 +213,15 @@ def column_unit(name: str, declared: Mapping[str, str]) -> tuple[str, str]:
     return name, ""
 
 
+def declared_units(*evaluations: Evaluation | None) -> dict[str, str]:
+    """Signal -> unit as the models declare them (``signals.<name>.unit``), later models last."""
+    declared: dict[str, str] = {}
+    for ev in evaluations:
+        if ev is not None and ev.model_file.doc.signals:
+            declared.update({k: v.unit for k, v in ev.model_file.doc.signals.items()})
+    return declared
+
+
 def condition_groups(
     evaluation: Evaluation, other: Evaluation | None = None
 ) -> tuple[ConditionGroup, ...]:
@@ -221,10 +230,7 @@ def condition_groups(
     Columns with only the values 0 and 1 (door open, coolant on) share one
     on/off axis; a column whose unit is unknown gets an axis of its own.
     """
-    declared: dict[str, str] = {}
-    for ev in (evaluation, other):
-        if ev is not None and ev.model_file.doc.signals:
-            declared.update({k: v.unit for k, v in ev.model_file.doc.signals.items()})
+    declared = declared_units(evaluation, other)
     groups: dict[tuple[str, str], list[str]] = {}
     for name, values in evaluation.data.columns.items():
         label, unit = column_unit(name, declared)

@@ -1,7 +1,8 @@
 """The report page: one self-contained HTML file from gathered report data.
 
-plotly.js is inlined once in the page head (no CDN: the file opens on a
-shop-floor PC without internet); each figure is a ``div`` with the script
+plotly.js (its basic partial bundle, :mod:`compd.report.plotlyjs`) is
+inlined once in the page head (no CDN: the file opens on a shop-floor PC
+without internet); each figure is a ``div`` with the script
 that draws it. The ``compare --json`` object of each model is embedded as
 ``<script type="application/json" id="compd-summary">`` (and
 ``compd-summary-compare`` for ``--compare``) so scripts read the same numbers
@@ -18,11 +19,11 @@ from string import Template
 
 import plotly.graph_objects as go
 import plotly.io as pio
-from plotly.offline import get_plotlyjs
 
 from compd import __version__
 from compd.report import figures, tables
 from compd.report.gather import ReportData, gather
+from compd.report.plotlyjs import plotly_js
 from compd.toolkit.evaluate import Evaluation
 from compd.toolkit.summary import json_finite
 
@@ -134,7 +135,7 @@ def build_html(report: ReportData) -> str:
     return _PAGE.substitute(
         version=escape(__version__),
         title=title,
-        plotlyjs=get_plotlyjs(),
+        plotlyjs=plotly_js(),
         meta=meta,
         nav="".join(nav),
         plural="s" if len(report.runs) > 1 else "",

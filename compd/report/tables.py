@@ -13,6 +13,7 @@ from fnmatch import fnmatchcase
 from html import escape
 
 from compd.report import analysis_view as view
+from compd.report.figures import WINDOW_GRADES, window_grade
 from compd.report.gather import ModelRun, ReportData
 from compd.toolkit.analysis import CONDITION_PATTERNS
 from compd.toolkit.summary import fmt
@@ -126,16 +127,27 @@ def windows_table(run: ModelRun, output: str) -> str:
             for n in shown
         )
         outside = ", ".join(escape(s) for s in w.outside_calibration) or "—"
+        # the grade's colour, as the window is shaded in the residue plot
+        colour = WINDOW_GRADES[window_grade(w.rms_um, result.tolerance_um)][2]
         rows.append(
             [
                 str(k),
                 f"{clock(w.start_s)} – {clock(w.end_s)}",
                 f"{w.rms_um:.2f}",
+                f'<span class="swatch" style="background: {colour}"></span>'
+                f"{w.rms_um / result.tolerance_um:.1f}×",
                 conditions,
                 outside,
             ]
         )
-    head = ["#", "span (h:mm)", "residue RMS (um)", "mean conditions", "outside calibration"]
+    head = [
+        "#",
+        "span (h:mm)",
+        "residue RMS (um)",
+        "× limit",
+        "mean conditions",
+        "outside calibration",
+    ]
     return caption + collapsed(table(head, rows, cls="windows"), f"{len(rows)} failing windows")
 
 

@@ -25,7 +25,7 @@ from compd.errors import DataFileError
 from compd.files.data import DataSet
 from compd.files.effects import EffectCatalogue, load_catalogue
 from compd.model.diagnose import Diagnosis, diagnose_residue
-from compd.model.windows import FailingWindow, failing_windows
+from compd.model.windows import FailingWindow, failing_windows, window_count
 from compd.toolkit.candidates import EXTEND_MARGIN_POINTS
 from compd.toolkit.evaluate import Evaluation
 
@@ -51,7 +51,7 @@ class WindowsResult:
     """``given`` (``--tolerance-um``), ``calibration`` (2x its RMS) or ``record`` (2x this record's RMS)."""
     windows: tuple[FailingWindow, ...]
     window_count: int
-    """Windows in the record (the last may be shorter)."""
+    """Windows in the record (the last may be shorter; one of zero length is not counted)."""
     conditions: tuple[str, ...]
     """Condition signals averaged per window (matching :data:`CONDITION_PATTERNS`, then model signals)."""
     calibration_ranges: Mapping[str, tuple[float, float]] = field(default_factory=dict)
@@ -178,7 +178,7 @@ def find_failing_windows(
         tolerance_um=tolerance,
         tolerance_source=source,
         windows=tuple(windows),
-        window_count=int((data.time_s[-1] - data.time_s[0]) // window_s) + 1,
+        window_count=window_count(data.time_s, window_s),
         conditions=names,
         calibration_ranges=MappingProxyType(ranges),
         notes=tuple(notes),

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from compd.model.windows import failing_windows
+from compd.model.windows import failing_windows, window_count
 
 SAMPLE_TIME_S = 10.0
 
@@ -104,3 +104,20 @@ def test_sensor_noise_beyond_a_narrow_range_is_not_outside_calibration(record: d
         ranges={"T_coolant_degC": (21.45, 21.55)},  # narrower than the noise
     )
     assert windows and all(w.outside_calibration == () for w in windows)
+
+
+def test_a_last_window_of_zero_length_is_neither_judged_nor_counted() -> None:
+    """16 h at 1 Hz ends with a lone sample at 16:00: 64 windows of 15 min, none of them [16:00, 16:00]."""
+    t = np.arange(0.0, 16 * 3600.0 + 1.0, 1.0)  # 57,601 samples, the last one at exactly 16:00
+    residue = np.full(len(t), 3.0)
+    windows = failing_windows(t, residue, tolerance_um=1.0, window_s=900.0)
+    assert len(windows) == 64 == window_count(t, 900.0)
+    assert all(w.end_s > w.start_s for w in windows)
+    assert windows[-1].start_s == 15.75 * 3600.0
+
+
+def test_window_count_counts_a_shorter_last_window_and_agrees_with_the_windows() -> None:
+    """A record of 990 s has two windows of 900 s (the second 90 s long); one of 900 s has one."""
+    assert window_count(np.arange(0.0, 1000.0, SAMPLE_TIME_S), 900.0) == 2
+    assert window_count(np.arange(0.0, 910.0, SAMPLE_TIME_S), 900.0) == 1
+    assert window_count(np.array([5.0]), 900.0) == 0

@@ -7,10 +7,11 @@ from typing import Any
 
 import pytest
 
+from compd.report import figures
 from compd.report.page import FIGURE_CLASS
 from compd.report.tables import METRICS
 from compd.toolkit.summary import fmt
-from tests.report.conftest import Written
+from tests.report.conftest import DATA, Written, cli_json
 from tests.report_screenshot import chromium, chromium_missing, wait_for_plots
 
 DIGITS = {key: digits for key, _, digits in METRICS}
@@ -101,11 +102,77 @@ def test_report_in_chromium(browser: Any, fixture: str, request: pytest.FixtureR
         _numbers_equal_compare_json(loaded, written)
         output = next(iter(written.summaries[0]["outputs"]))
         n_models = len(written.summaries)
-        # measured + one simulation per model; one residue per model
+        # measured + one simulation per model; per model its residue and its top candidate
         assert loaded.count(f"#fig-{output}-measured .scatterlayer .trace") == 1 + n_models
-        assert loaded.count(f"#fig-{output}-residue .scatterlayer .trace") == n_models
-        failing = [w for w in written.summaries[0]["failing_windows"] if w["output"] == output]
-        shaded = loaded.count(f"#fig-{output}-residue .layer-below .shapelayer path")
-        assert shaded == len(failing)
+        assert loaded.count(f"#fig-{output}-residue .scatterlayer .trace") == 2 * n_models
+        _failing_windows_are_graded(loaded, written, output)
+        _top_candidates_are_drawn_over_the_residue(loaded, written, output)
+        _time_axes_line_up(loaded)
     finally:
         loaded.page.close()
+
+
+def _failing_windows_are_graded(loaded: Loaded, written: Written, output: str) -> None:
+    """Every model's failing windows are shaded in the residue figure, coloured by how far each exceeds the limit."""
+    expected = []
+    for summary in written.summaries:
+        tolerance = summary["outputs"][output]["window_tolerance_um"]
+        expected += [
+            figures.WINDOW_GRADES[figures.window_grade(w["rms_um"], tolerance)][2]
+            for w in summary["failing_windows"]
+            if w["output"] == output
+        ]
+    assert expected, "the fixtures make windows fail"
+    fills = loaded.page.evaluate(
+        "id => document.getElementById(id).layout.shapes"
+        ".filter(s => s.type === 'rect').map(s => s.fillcolor)",
+        f"fig-{output}-residue",
+    )
+    assert fills == expected
+    drawn = loaded.page.eval_on_selector_all(
+        f"#fig-{output}-residue .shapelayer path",
+        # closed paths: the windows' rectangles, not the dashed limit lines
+        "nodes => nodes.filter(n => n.getAttribute('d').endsWith('Z'))"
+        ".map(n => getComputedStyle(n).fill)",
+    )
+    assert len(drawn) == len(expected)
+    assert len(set(drawn)) == len(set(expected))
+    legend = loaded.page.eval_on_selector_all(
+        f"#fig-{output}-residue .legendtext", "nodes => nodes.map(n => n.textContent)"
+    )
+    grades = {figures.WINDOW_GRADES[k][1] for k in range(len(figures.WINDOW_GRADES))}
+    assert {t for t in legend if t in grades} == {
+        label for _, label, colour in figures.WINDOW_GRADES if colour in expected
+    }
+
+
+def _top_candidates_are_drawn_over_the_residue(
+    loaded: Loaded, written: Written, output: str
+) -> None:
+    """Each model's residue panel carries the signal ``compd diagnose`` ranks first, named in the legend."""
+    residue_traces = loaded.page.evaluate(
+        "id => document.getElementById(id).data.map(t => [t.name, t.yaxis])",
+        f"fig-{output}-residue",
+    )
+    legend = loaded.page.eval_on_selector_all(
+        f"#fig-{output}-residue .legendtext", "nodes => nodes.map(n => n.textContent)"
+    )
+    for row, model in enumerate(written.models, start=1):
+        ranked = cli_json("diagnose", model, DATA, "--json")["candidates"]
+        name = f"top candidate: {ranked[0]['signal']}"
+        assert [name, f"y{2 * row}"] in residue_traces  # the panel's second y axis
+        assert name in legend
+
+
+def _time_axes_line_up(loaded: Loaded) -> None:
+    """Every figure with a time axis draws it at the same left and right pixel edges."""
+    edges = loaded.page.evaluate(
+        """() => Array.from(document.querySelectorAll('.js-plotly-plot')).flatMap(gd => {
+            const full = gd._fullLayout;
+            const time = Object.keys(full).filter(k => /^xaxis\\d*$/.test(k))
+                .map(k => full[k]).filter(ax => ((ax.title || {}).text || '').startsWith('time'));
+            return time.map(ax => [gd.id, Math.round(ax._offset), Math.round(ax._length)]);
+        })"""
+    )
+    assert len(edges) >= 4, edges
+    assert len({(left, length) for _, left, length in edges}) == 1, edges

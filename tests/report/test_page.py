@@ -81,20 +81,22 @@ def test_report_is_self_contained(single_report: Written) -> None:
         r"""<(script|link|img|iframe)[^>]+(src|href)\s*=\s*["']?(https?:)?//""", html, re.I
     )
     assert not re.search(r"@import|url\(\s*['\"]?(https?:)?//", html, re.I)
-    assert html.count("* plotly.js v") == 1
+    assert len(re.findall(r"\* plotly\.js (\(basic - minified\) )?v\d", html)) == 1
     assert html.count(f'class="{FIGURE_CLASS}"') == 5
 
 
 def test_failing_windows_are_tabled(single_report: Written) -> None:
-    """Each failing window of compare --json is one row of the windows table, with its span and RMS."""
+    """Each failing window of compare --json is one row of the windows table: span, RMS, times the limit."""
     failing = single_report.summaries[0]["failing_windows"]
     assert failing, "the fixture's 2.5 um limit makes some windows fail"
     html = single_report.html
     table = html[html.index('<table class="windows">') :]
     table = table[: table.index("</table>")]
     assert table.count("<tr>") == 1 + len(failing)
+    tolerance = single_report.summaries[0]["outputs"][failing[0]["output"]]["window_tolerance_um"]
     for w in failing:
         assert f"<td>{w['rms_um']:.2f}</td>" in table
+        assert f"{w['rms_um'] / tolerance:.1f}×</td>" in table  # how far over the limit
 
 
 def test_embedded_summary_is_compare_json(single_report: Written, compare_report: Written) -> None:
@@ -153,11 +155,27 @@ def day_at_1hz() -> DataSet:
 
 
 def test_day_long_record_gives_a_small_file(day_at_1hz: DataSet) -> None:
-    """A 24 h record at 1 Hz gives a report of a few MB (lines decimated), diagnosis included.
+    """A 24 h record at 1 Hz gives a report under 2 MB: plotly.js's basic bundle, decimated lines.
 
     Its time is measured by benchmarks/bench_report.py, not here.
     """
     html = build_html(gather(evaluate(load_model(GATED), day_at_1hz)))
     size_mb = len(html.encode()) / 1e6
     assert 'class="candidates"' in html
-    assert size_mb < 8.0, size_mb
+    assert "plotly.js (basic - minified)" in html
+    assert size_mb < 2.0, size_mb
+
+
+def test_the_basic_bundle_draws_every_trace_the_report_uses(compare_report: Written) -> None:
+    """Every trace type in the report is one the inlined basic bundle has, of plotly's plotly.js major version."""
+    from plotly.offline import get_plotlyjs_version
+
+    from compd.report.plotlyjs import BASIC_TRACES, basic_version
+
+    html = compare_report.html
+    used = set()
+    for call in re.finditer(r'Plotly\.newPlot\(\s*"[^"]+",\s*', html):
+        traces, _ = json.JSONDecoder().raw_decode(html, call.end())
+        used |= {t.get("type", "scatter") for t in traces}
+    assert used and used <= BASIC_TRACES
+    assert basic_version().split(".")[0] == get_plotlyjs_version().split(".")[0]
