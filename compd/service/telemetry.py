@@ -60,6 +60,9 @@ from compd.service.compensator import TickRecord
 log = structlog.get_logger("compd.service.telemetry")
 
 SCHEMA = "compd.telemetry/1"
+#: Messages handed to paho and not yet acknowledged, at most: beyond, the rest wait in the
+#: bounded queue (where the oldest are dropped), not in paho's (which would grow without bound).
+MAX_UNACKNOWLEDGED = 100
 #: Longest a clean stop waits for the queue to drain and the death message's acknowledgement (s).
 STOP_TIMEOUT_S = 5.0
 
@@ -137,9 +140,10 @@ class Telemetry:
         self._events: deque[tuple[float, Event]] = deque(maxlen=queue_size)
         self._seq = 0
         self._birth_due = False
+        self._waiting_for_acks = False
         self._fault = FaultLog(log, broker=f"{broker.host}:{broker.port}")
         self._fault.sink = self.event  # the broker's own faults are events, published on return
-        self._client = self._make_client(queue_size)
+        self._client = self._make_client()
         self._wake: asyncio.Event | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread = 0
@@ -150,10 +154,10 @@ class Telemetry:
         """The broker is away (unreachable, refusing, or the connection lost) and has not come back."""
         return self._fault.active
 
-    def _make_client(self, queue_size: int) -> mqtt.Client:
+    def _make_client(self) -> mqtt.Client:
         b = self.broker
         client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=b.client_id)
-        client.max_queued_messages_set(queue_size)
+        client.max_queued_messages_set(MAX_UNACKNOWLEDGED + 10)  # + the death, at stop
         client.reconnect_delay_set(b.reconnect_min_s, b.reconnect_max_s)
         if b.username is not None:
             client.username_pw_set(b.username, b.password)
@@ -217,6 +221,9 @@ class Telemetry:
             self._wake.clear()
             sent = 0
             while self.counters.connected:
+                self._waiting_for_acks = self._unacknowledged >= MAX_UNACKNOWLEDGED
+                if self._waiting_for_acks:
+                    break  # _on_publish wakes this task again
                 if self._birth_due:
                     self._birth_due = False
                     self._publish("birth", self._birth(), retain=True)
@@ -230,6 +237,10 @@ class Telemetry:
                 sent += 1
                 if sent % 50 == 0:
                     await asyncio.sleep(0)  # a backlog never holds up a tick
+
+    @property
+    def _unacknowledged(self) -> int:
+        return self.counters.published - self.counters.acknowledged
 
     def _publish(self, kind: str, payload: dict[str, Any], *, retain: bool = False) -> bool:
         try:
@@ -313,6 +324,9 @@ class Telemetry:
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
         self.counters.acknowledged += 1
+        if self._waiting_for_acks and self._unacknowledged < MAX_UNACKNOWLEDGED // 2:
+            self._waiting_for_acks = False
+            self._notify()
 
     # -- payloads ---------------------------------------------------------------------------------
 
