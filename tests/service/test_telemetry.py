@@ -244,3 +244,21 @@ def test_a_machine_id_with_a_wildcard_is_refused(tmp_path: Path):
     """``machine_id`` is one topic level: '#', '+' or '/' are config errors."""
     with pytest.raises(ConfigFileError, match="machine_id"):
         machine_config(tmp_path, telemetry={"machine_id": "mill/#"})
+
+
+def test_no_broker_at_all_is_a_telemetry_fault_only(tmp_path: Path):
+    """Nothing listening: the shift runs as without telemetry, the queue drops its oldest and counts them."""
+    telemetry = {"machine_id": "mill-x", "host": "127.0.0.1", "port": free_port(), "queue_size": 10}
+    config = machine_config(tmp_path, telemetry=telemetry)
+
+    def unreachable(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
+        if service.compensator.counters.ticks == 2:
+            t = service.telemetry
+            assert t is not None
+            wait_until(lambda: t.fault_active)
+
+    result = simulate(config, 30, on_tick=unreachable)
+    assert result.status["counters"]["ticks"] == 31
+    assert result.status["telemetry"] == {
+        "connected": False, "published": 0, "acknowledged": 0, "dropped": 21, "connections": 0,
+    }  # fmt: skip
