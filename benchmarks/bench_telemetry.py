@@ -18,7 +18,7 @@
    from the tick's time stamp to the subscriber's receipt, p50/p99 (target
    p99 < 50 ms on one machine).
 
-Run: ``PYTHONPATH=.:benchmarks python benchmarks/bench_telemetry.py [--ticks N] [--period-s P] [--fleet-s S]``
+Run: ``PYTHONPATH=. python benchmarks/bench_telemetry.py [--ticks N] [--period-s P] [--fleet-s S]``
 (quick: ``--ticks 300 --period-s 0.1 --fleet-s 20``). Needs mosquitto
 (``.ci/install-system-packages``).
 """
