@@ -119,7 +119,7 @@ class Service:
         self._control = (
             ControlServer(
                 config.control_socket,
-                {"status": self._status, "load": self._load},
+                {"status": self._status, "load": self.load_model},
                 access={"load": doc.load_access.access()},
             )
             if control
@@ -280,7 +280,13 @@ class Service:
             await self.telemetry.stop(ticks=self.compensator.counters.ticks)
         log.info("stopped", ticks=self.compensator.counters.ticks, overruns=self.timing.overruns)
 
-    async def _load(self, message: dict[str, Any]) -> dict[str, Any]:
+    async def load_model(self, message: dict[str, Any]) -> dict[str, Any]:
+        """Check, install and switch to the model in ``message`` (the control socket's ``load``).
+
+        ``message`` is :func:`compd.service.modelload.load_request`'s; raises
+        CompdError if the model is refused, the running one untouched. The
+        entry point for anything else that delivers a model (a fleet roll-out).
+        """
         slot = await self.loader.accept(message)
         self.compensator.load(slot)
         path = slot.model_file.path

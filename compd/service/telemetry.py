@@ -34,6 +34,13 @@ network I/O. A broker that goes away is a fault of the telemetry, logged once
 (:class:`compd.faultlog.FaultLog`) and counted, never of the compensation:
 the queue fills and drops its oldest entries, paho reconnects with backoff,
 and the birth (then the queued backlog) is published again.
+
+Publishing only: nothing here acts on a message from the broker. A fleet
+roll-out (a model loaded remotely) is to come; what it can build on is the
+``model_loaded`` / ``model_switched`` / ``model_failed`` events and the
+re-birth naming the new model's sha256, which tell the sender that each
+machine took the model; the load itself is the control socket's ``load``
+(:meth:`compd.service.daemon.Service.load_model`), whatever carries it.
 """
 
 from __future__ import annotations

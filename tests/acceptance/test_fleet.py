@@ -150,7 +150,8 @@ def test_a_roll_out_reaches_every_machine(fleet: list[Machine], broker: Mosquitt
     ``model_loaded`` (accepted and installed), then ``model_switched``, then
     a new retained ``birth`` whose ``model.sha256`` is the rolled-out model's.
     Start the machines with ``start(machine, "--time-scale", "60")`` so there
-    is time to roll out while they run.
+    is time to roll out while they run. On the daemon's side a delivered model
+    goes through ``Service.load_model`` (the control socket's ``load``).
     """
 
 
