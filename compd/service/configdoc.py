@@ -360,6 +360,11 @@ class TelemetryDoc(_Strict):
             raise ValueError("'reconnect_max_s' must be at least 'reconnect_min_s'")
         return self
 
+    @property
+    def broker_port(self) -> int:
+        """``port``, else MQTT's: 1883, or 8883 with TLS."""
+        return self.port or (1883 if self.tls is None else 8883)
+
     def files(self) -> dict[str, str]:
         """The files this section names, by key (``tls.ca_file``...), to check before start."""
         named = {"password_file": self.password_file}
@@ -384,7 +389,7 @@ class TelemetryDoc(_Strict):
         tls = self.tls
         broker = Broker(
             host=self.host,
-            port=self.port or (1883 if tls is None else 8883),
+            port=self.broker_port,
             client_id=self.client_id or f"compd-{self.machine_id}",
             keepalive_s=self.keepalive_s,
             reconnect_min_s=self.reconnect_min_s,
