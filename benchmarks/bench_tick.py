@@ -37,7 +37,7 @@ from common import build_model, environment, verdict, week_signals
 
 from compd.service.clock import RealClock
 from compd.service.compensator import TickRecord
-from compd.service.config import load_config
+from compd.service.config import Config, load_config
 from compd.service.daemon import Service
 from compd.service.recorder import Recorder
 
@@ -157,25 +157,29 @@ def write_config(directory: Path, n_ticks: int) -> Path:
 def measure(n_ticks: int, period_s: float) -> tuple[list[float], float]:
     """Run the service for ``n_ticks``; returns per-tick lateness (ms) and CPU ms per tick."""
     with tempfile.TemporaryDirectory(prefix="compd-bench-", dir="/tmp") as tmp:
-        config = load_config(write_config(Path(tmp), n_ticks))
-        scale = 1.0 / period_s  # the config's period is 1 s; the clock runs 1/period_s faster
-        clock = RealClock(scale)
-        lateness_ms: list[float] = []
-        cpu_s: list[float] = []
-        service = Service(config, clock=clock)
+        return measure_config(load_config(write_config(Path(tmp), n_ticks)), n_ticks, period_s)
 
-        def on_tick(_: TickRecord) -> None:
-            lateness_ms.append(service.timing.last_lateness_s / scale * 1e3)
-            cpu_s.append(time.process_time())
 
-        service.on_tick = on_tick
-        asyncio.run(service.run(duration_s=float(n_ticks - 1)))
-        # From the first tick's end to the last's: start-up (imports, compile,
-        # the one full garbage collection) is not a tick's cost.
-        cpu_ms = (cpu_s[-1] - cpu_s[0]) * 1e3 / (len(cpu_s) - 1)
-        if service.timing.overruns:
-            print(f"overruns: {service.timing.overruns}")
-        return lateness_ms, cpu_ms
+def measure_config(config: Config, n_ticks: int, period_s: float) -> tuple[list[float], float]:
+    """:func:`measure` on a config of :func:`write_config` (``bench_telemetry`` adds a section)."""
+    scale = 1.0 / period_s  # the config's period is 1 s; the clock runs 1/period_s faster
+    clock = RealClock(scale)
+    lateness_ms: list[float] = []
+    cpu_s: list[float] = []
+    service = Service(config, clock=clock)
+
+    def on_tick(_: TickRecord) -> None:
+        lateness_ms.append(service.timing.last_lateness_s / scale * 1e3)
+        cpu_s.append(time.process_time())
+
+    service.on_tick = on_tick
+    asyncio.run(service.run(duration_s=float(n_ticks - 1)))
+    # From the first tick's end to the last's: start-up (imports, compile,
+    # the one full garbage collection) is not a tick's cost.
+    cpu_ms = (cpu_s[-1] - cpu_s[0]) * 1e3 / (len(cpu_s) - 1)
+    if service.timing.overruns:
+        print(f"overruns: {service.timing.overruns}")
+    return lateness_ms, cpu_ms
 
 
 def main() -> int:

@@ -32,11 +32,16 @@ SCRIPTS = (
     "bench_serial.py",
     "bench_all_drivers.py",
     "bench_startup.py",
+    "bench_telemetry.py",
     "soak_faults.py",
 )
 #: Arguments per script: the tick benchmark's quick run (600 ticks at 0.1 s, 1 minute);
 #: its full run (600 real 1 Hz ticks, 10 minutes) is ``python benchmarks/bench_tick.py``.
-ARGS = {"bench_tick.py": ["--ticks", "600", "--period-s", "0.1"]}
+ARGS = {
+    "bench_tick.py": ["--ticks", "600", "--period-s", "0.1"],
+    # Quick as well (2 x 30 s + 20 s); the full run is 2 x 600 real 1 Hz ticks and 60 s of fleet.
+    "bench_telemetry.py": ["--ticks", "300", "--period-s", "0.1", "--fleet-s", "20"],
+}
 
 
 def main() -> int:

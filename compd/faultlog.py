@@ -6,11 +6,35 @@ first failure of an episode is news for the operator, its repeats are
 detail for whoever debugs, and the recovery is news again. Every place that
 can fail over and over reports through one :class:`FaultLog`, so the rule
 holds everywhere and is tested once.
+
+The same episodes, with model loads and failures, are also told to an
+:data:`EventSink` where one is attached (the MQTT telemetry,
+:mod:`compd.service.telemetry`): structured events, never parsed from the log.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something an operator's dashboard should hear of at once, beside the journal.
+
+    ``kind``: ``fault`` (an episode starts), ``cleared`` (it ends),
+    ``model_loaded``, ``model_switched``, ``model_failed``, ``reconnected``;
+    ``message``: the log line's event; ``details``: its JSON-able fields.
+    """
+
+    kind: str
+    message: str
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+#: Where events go: called in the loop's thread, it must return at once (queue, never I/O).
+EventSink = Callable[[Event], None]
 
 
 class FaultLog:
@@ -28,6 +52,8 @@ class FaultLog:
         self.active = False
         #: Episodes so far (each one logged at ERROR once).
         self.episodes = 0
+        #: Told of each episode's start and end, where attached.
+        self.sink: EventSink | None = None
 
     def failed(self, event: str, **details: Any) -> None:
         """A failure: ERROR (``level``) ``event`` if it starts an episode, else DEBUG ``event`` + " again"."""
@@ -37,9 +63,13 @@ class FaultLog:
         self.active = True
         self.episodes += 1
         self._start(event, **self._context, **details)
+        if self.sink is not None:
+            self.sink(Event("fault", event, {**self._context, **details}))
 
-    def cleared(self, event: str, **details: Any) -> None:
-        """A success: INFO ``event`` if it ends an episode, nothing otherwise."""
+    def cleared(self, event: str, *, kind: str = "cleared", **details: Any) -> None:
+        """A success: INFO ``event`` if it ends an episode, nothing otherwise; ``kind``: the event's."""
         if self.active:
             self.active = False
             self._log.info(event, **self._context, **details)
+            if self.sink is not None:
+                self.sink(Event(kind, event, {**self._context, **details}))

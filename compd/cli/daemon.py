@@ -71,6 +71,12 @@ def check_config_command(args: argparse.Namespace) -> int:
         )
     out.print(f"  state {config.state_dir}, recorder {config.recorder_dir or 'off'}")
     out.print(f"  control socket {config.control_socket}")
+    if (t := doc.telemetry) is not None:
+        scheme = "mqtts" if t.tls else "mqtt"
+        out.print(
+            f"  telemetry {scheme}://{t.host}:{t.broker_port} as {t.topic_prefix}/{t.machine_id}/..., "
+            f"a status every {t.every_ticks} tick(s), QoS {t.qos}"
+        )
     return 0
 
 

@@ -70,4 +70,11 @@ def status_command(args: argparse.Namespace) -> int:
         + "; drivers "
         + ", ".join(f"{k} {v}" for k, v in reply["drivers"].items())
     )
+    telemetry = reply.get("telemetry")
+    if telemetry:
+        state = "connected" if telemetry["connected"] else "[red]not connected[/red]"
+        out.print(
+            f"  telemetry {state}: published {telemetry['published']}, "
+            f"acknowledged {telemetry['acknowledged']}, dropped {telemetry['dropped']}"
+        )
     return 0

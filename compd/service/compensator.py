@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import structlog
 
+from compd.faultlog import Event, EventSink
 from compd.model.compiled import ModelState
 from compd.service.links import DriverLink
 from compd.service.offsets import AxisPoint, HeldOffsets
@@ -139,6 +140,8 @@ class Compensator:
             model.start(initial_state)
         #: What each offset point holds, as far as compd knows (:mod:`compd.service.offsets`).
         self.held = HeldOffsets(self.axes, self.safety)
+        #: Told of signal faults and model events (the telemetry), where attached.
+        self.events: EventSink | None = None
 
     # The model slots as the status and the tests see them (:class:`ModelSlots`).
     @property
@@ -169,6 +172,14 @@ class Compensator:
             raise ValueError("a data logger runs no model")
         self.models.load(slot)
 
+    def report_to(self, sink: EventSink) -> None:
+        """Tell ``sink`` of signal faults and the models' switches, failures and faults."""
+        self.events = self.models.events = sink
+
+    def _tell(self, kind: str, message: str, **details: object) -> None:
+        if self.events is not None:
+            self.events(Event(kind, message, details))
+
     async def tick(self, t_s: float) -> TickRecord:
         values, held = await self.points.read()
         mismatches = self.held.read_back(held)
@@ -180,6 +191,9 @@ class Compensator:
             readings[point.name] = reading = monitor.update(t_s, values.get(point.name))
             if reading.health is Health.FAULTED and was is not Health.FAULTED:
                 self.counters.signal_faults += 1
+                self._tell("fault", "signal faulted", signal=point.name, reason=reading.reason)
+            elif was is Health.FAULTED and reading.health is not Health.FAULTED:
+                self._tell("cleared", "signal usable again", signal=point.name)
         checked = {name: r.value for name, r in readings.items()}
         if self.schedule is not None:
             key = readings[self.schedule.table.signal]

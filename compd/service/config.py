@@ -183,6 +183,7 @@ def parse_config(text: str, path: Path) -> Config:
     check_written(doc, types, settings, at.error)
     readback = output_readback(doc, types, settings, at.error)
     _check_load_access(doc, at.error)
+    _check_telemetry_files(doc, path.parent, at.error)
     state_dir = paths.state_dir(doc.state.directory, path.parent)
     recorder_dir = None
     if doc.recorder.enabled:
@@ -357,6 +358,23 @@ def _check_load_access(doc: ConfigDoc, error: ErrorAt) -> None:
         raise error(
             ("load_access",), f"no such user or group: {exc}", "Give an existing name or a number"
         ) from exc
+
+
+def _check_telemetry_files(doc: ConfigDoc, base_dir: Path, error: ErrorAt) -> None:
+    """Every file the telemetry names exists and is readable; the password's text is never shown."""
+    if doc.telemetry is None:
+        return
+    for key, name in doc.telemetry.files().items():
+        file = resolve_path(name, base_dir)
+        try:
+            with file.open("rb"):
+                pass
+        except OSError as exc:
+            raise error(
+                ("telemetry", *key.split(".")),
+                f"cannot read {file} ({exc.strerror or type(exc).__name__})",
+                f"Give the path of a readable file (relative paths start at {base_dir})",
+            ) from None
 
 
 def check_model(config: Config, model_file: ModelFile, compiled: CompiledModel) -> None:

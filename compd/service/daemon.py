@@ -30,7 +30,7 @@ import structlog
 
 from compd.drivers.base import Driver
 from compd.errors import RecorderError
-from compd.faultlog import FaultLog
+from compd.faultlog import Event, FaultLog
 from compd.service.clock import Clock
 from compd.service.compensator import Compensator, TickRecord
 from compd.service.config import Config
@@ -121,7 +121,7 @@ class Service:
         self._control = (
             ControlServer(
                 config.control_socket,
-                {"status": self._status, "load": self._load},
+                {"status": self._status, "load": self.load_model},
                 access={"load": doc.load_access.access()},
             )
             if control
@@ -133,6 +133,18 @@ class Service:
         self._recorder_fault = FaultLog(log)
         self._save_fault = FaultLog(log)  # saves fail every save_every_ticks: log once
         self._saving: asyncio.Future[None] | None = None
+        #: MQTT telemetry (:mod:`compd.service.telemetry`) where the config asks for it.
+        self.telemetry = (
+            doc.telemetry.telemetry(config.base_dir, identity=self._identity, wall=clock.wall)
+            if doc.telemetry is not None
+            else None
+        )
+        if self.telemetry is not None:
+            sink = self.telemetry.event
+            for link in self.links.values():
+                link.report_to(sink)
+            self.compensator.report_to(sink)
+            self._recorder_fault.sink = self._save_fault.sink = sink
 
     async def run(self, *, duration_s: float | None = None) -> TickTiming:
         """Run until :meth:`stop` (or ``duration_s`` of clock time); then shut down cleanly."""
@@ -141,6 +153,8 @@ class Service:
         if self._control is not None:
             self.config.control_socket.parent.mkdir(parents=True, exist_ok=True)
             await self._control.start()
+        if self.telemetry is not None:
+            self.telemetry.start()  # connects in the background: a broker away delays nothing
         await asyncio.gather(*(link.open() for link in self.links.values()))
         # Everything allocated so far (numpy, scipy, pandas, the model) lives as
         # long as the process: moved out of the collector's reach, a full
@@ -232,6 +246,9 @@ class Service:
             self._record(record)
         if ticks % self.config.doc.state.save_every_ticks == 0:
             self._save_in_background()
+        telemetry = self.telemetry
+        if telemetry is not None and ticks % telemetry.every_ticks == 0:
+            telemetry.tick(record, self._tick_counters(), self.compensator.active.compiled.name)
         if self.on_tick is not None:
             self.on_tick(record)
 
@@ -281,13 +298,24 @@ class Service:
                 self.recorder.close()
             except RecorderError as exc:
                 log.error("recorder close failed", error=str(exc))
+        if self.telemetry is not None:
+            await self.telemetry.stop(ticks=self.compensator.counters.ticks)
         log.info("stopped", ticks=self.compensator.counters.ticks, overruns=self.timing.overruns)
 
-    async def _load(self, message: dict[str, Any]) -> dict[str, Any]:
+    async def load_model(self, message: dict[str, Any]) -> dict[str, Any]:
+        """Check, install and switch to the model in ``message`` (the control socket's ``load``).
+
+        ``message`` is :func:`compd.service.modelload.load_request`'s; raises
+        CompdError if the model is refused, the running one untouched. The
+        entry point for anything else that delivers a model (a fleet roll-out).
+        """
         slot = await self.loader.accept(message)
         self.compensator.load(slot)
         path = slot.model_file.path
         log.info("model loading", name=slot.compiled.name, sha256=slot.sha256, path=path)
+        if self.telemetry is not None:
+            details = {"model": slot.compiled.name, "sha256": slot.sha256, "path": path}
+            self.telemetry.event(Event("model_loaded", "model loading", details))
         return {
             "model": slot.compiled.name,
             "sha256": slot.sha256,
@@ -306,7 +334,33 @@ class Service:
             self.timing,
             resumed=self.resumed,
             started_unix_s=self.started_unix_s,
+            telemetry=None if self.telemetry is None else self.telemetry.status_counters(),
         )
+
+    def _tick_counters(self) -> dict[str, int]:
+        """The counters a telemetry status message carries (as ``compd status``'s)."""
+        links = self.links.values()
+        return vars(self.compensator.counters) | {
+            "overruns": self.timing.overruns,
+            "driver_faults": sum(link.faults for link in links),
+            "reconnects": sum(link.reconnects for link in links),
+        }
+
+    def _identity(self) -> dict[str, Any]:
+        """The telemetry birth's description of this daemon: model, signals, axes, period."""
+        doc, slot = self.config.doc, self.compensator.active
+        return {
+            "model": {"name": slot.compiled.name, "sha256": slot.sha256},
+            "period_s": doc.period_s,
+            "started": self.started_unix_s,
+            "signals": {
+                n: {"unit": s.unit, "description": s.description} for n, s in doc.signals.items()
+            },
+            "axes": {
+                axis: {"model_output": out.model_output, "max_offset_um": out.max_offset_um}
+                for axis, out in doc.outputs.items()
+            },
+        }
 
 
 def _summary(record: TickRecord) -> str:

@@ -21,7 +21,7 @@ import structlog
 
 from compd.drivers.base import Driver
 from compd.errors import DriverError
-from compd.faultlog import FaultLog
+from compd.faultlog import EventSink, FaultLog
 from compd.service.clock import Clock
 
 log = structlog.get_logger("compd.service.links")
@@ -61,6 +61,10 @@ class DriverLink:
     def faults(self) -> int:
         """Fault episodes so far: from a first failure to the next successful read or write."""
         return self._fault.episodes
+
+    def report_to(self, sink: EventSink) -> None:
+        """Tell ``sink`` of each fault episode's start and end (:class:`compd.faultlog.Event`)."""
+        self._fault.sink = sink
 
     @property
     def connecting(self) -> bool:
@@ -138,7 +142,8 @@ class DriverLink:
     def _succeeded(self) -> None:
         if self._fault.active:
             event = "driver reconnected" if self._ever_up else "driver connected"
-            self._fault.cleared(event, after_failures=self.failures)
+            kind = "reconnected" if self._ever_up else "cleared"
+            self._fault.cleared(event, kind=kind, after_failures=self.failures)
             self.failures, self._ever_up = 0, True
 
     def _failed(self, action: str, exc: BaseException) -> None:

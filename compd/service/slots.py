@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import structlog
 
+from compd.faultlog import Event, EventSink
 from compd.files.modelfile import ModelFile
 from compd.model.compiled import CompiledModel, ModelState, qualified_names
 from compd.model.handover import SignalHistory, handover_state
@@ -99,6 +100,12 @@ class ModelSlots:
         self.counters = counters
         #: The inputs of the last ``history_ticks`` ticks, to start a newly loaded model warm.
         self.history = SignalHistory(list(signals), history_ticks)
+        #: Told of model switches, failures and faults (the telemetry), where attached.
+        self.events: EventSink | None = None
+
+    def _tell(self, kind: str, message: str, **details: object) -> None:
+        if self.events is not None:
+            self.events(Event(kind, message, details))
 
     def load(self, slot: ModelSlot) -> None:
         """Switch to ``slot`` at the next tick whose inputs are complete, blending bumplessly."""
@@ -134,6 +141,10 @@ class ModelSlots:
                     self.previous, self.blend_start_s = self.active, t_s
                 self.fallback, self.active = self.active, pending
                 self.counters.model_loads += 1
+                self._tell(
+                    "model_switched", "model switched in", model=pending.compiled.name,
+                    sha256=pending.sha256, blending=self.previous is not None,
+                )  # fmt: skip
         for slot in (self.active, self.previous):
             if slot is None:
                 continue
@@ -189,6 +200,10 @@ class ModelSlots:
             restored=restored.compiled.name,
         )
         message = f"model {failed.compiled.name!r} {why}; restored {restored.compiled.name!r}"
+        self._tell(
+            "model_failed", "model failed and was unloaded", model=failed.compiled.name,
+            sha256=failed.sha256, reason=why, restored=restored.compiled.name,
+        )  # fmt: skip
         self.fault = message  # logged here: the latch only follows it (DEBUG, then INFO)
         if self.on_failure is not None:
             self.on_failure(failed, restored)
@@ -198,10 +213,12 @@ class ModelSlots:
         """ERROR once when a model fault starts, DEBUG while it lasts, INFO when it ends."""
         if fault is not None and self.fault is None:
             log.error("model fault: the axes hold their offsets", reason=fault)
+            self._tell("fault", "model fault: the axes hold their offsets", reason=fault)
         elif fault is not None:
             log.debug("model fault goes on", reason=fault)
         elif self.fault is not None and np.all(np.isfinite(self.active.outputs)):
             log.info("model outputs are finite again", model=self.active.compiled.name)
+            self._tell("cleared", "model outputs are finite again", model=self.active.compiled.name)
         else:
             return
         self.fault = fault

@@ -25,8 +25,9 @@ def status_snapshot(
     *,
     resumed: bool,
     started_unix_s: float,
+    telemetry: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """A JSON-able snapshot: model, last tick, inputs and health, offsets, counters."""
+    """A JSON-able snapshot: model, last tick, inputs and health, offsets, counters, telemetry."""
     last, counters = comp.last, comp.counters
     return {
         # None: a data logger (no outputs, no model), recording its signals.
@@ -50,6 +51,8 @@ def status_snapshot(
             for name, m in comp.monitors.items()
         },
         "drivers": {name: ("up" if link.up else "down") for name, link in links.items()},
+        # MQTT telemetry: connected, messages published, acknowledged, dropped; None when off.
+        "telemetry": None if telemetry is None else dict(telemetry),
         "counters": {
             "ticks": counters.ticks,
             "overruns": timing.overruns,

@@ -7,7 +7,7 @@ import asyncio
 import structlog
 from structlog.testing import capture_logs
 
-from compd.faultlog import FaultLog
+from compd.faultlog import Event, FaultLog
 from compd.service.clock import VirtualClock
 from compd.service.daemon import Service
 from compd.service.state import STATE_FILE
@@ -31,6 +31,20 @@ def test_one_error_per_episode_debug_while_it_lasts_info_when_it_clears():
         ("info", "works again"),
     ]
     assert all(e["driver"] == "plc" for e in events) and fault.episodes == 2 and not fault.active
+
+
+def test_an_attached_sink_hears_each_episode_once_start_and_end():
+    """The event sink (the telemetry) is told of an episode's start and end, not of its repeats."""
+    fault = FaultLog(structlog.get_logger("test"), driver="plc")
+    heard: list[Event] = []
+    fault.sink = heard.append
+    for _ in range(3):
+        fault.failed("read failed", error="gone")
+    fault.cleared("driver reconnected", kind="reconnected", after_failures=3)
+    assert heard == [
+        Event("fault", "read failed", {"driver": "plc", "error": "gone"}),
+        Event("reconnected", "driver reconnected", {"driver": "plc", "after_failures": 3}),
+    ]
 
 
 def test_failing_state_saves_log_one_error_then_info_when_they_work_again(tmp_path):

@@ -1,0 +1,409 @@
+"""MQTT telemetry: each machine's birth, status, events and death, published beside the loop.
+
+A fleet's dashboard wants every machine's inputs, model output, offsets and
+status word without asking each daemon's control socket. This module
+publishes them to an MQTT broker (paho-mqtt 2.x, its own network thread)
+under ``<prefix>/<machine_id>/``:
+
+``birth`` (retained)
+    on each connection: who is publishing (machine, compd version, model,
+    signals and their units, axes, period) and the ``session`` number;
+``status``
+    every ``every_ticks`` ticks: inputs with health, model outputs, offsets
+    the stage gives and those the PLC acknowledged, status word, counters;
+``event``
+    fault episodes (start, end), driver reconnects, model loads, switches and
+    failures, as they happen (:class:`compd.faultlog.Event`);
+``death`` (retained)
+    ``reason: stopped`` on a clean stop (with the final counters), else the
+    broker's last will, ``reason: connection lost``, when the daemon dies or
+    its network goes.
+
+Payloads are JSON objects with ``schema: compd.telemetry/1``. Birth and
+death follow Sparkplug B's rule without its protobuf payload: both carry the
+``session`` (Sparkplug's bdSeq), and a machine is online while its retained
+birth's session is newer than its retained death's. The session grows with
+every connection, so the will registered for a connection names that
+connection's session.
+
+Publishing never delays a tick: the tick appends a snapshot (references to
+the tick's fresh record, no serialisation) to a bounded deque that drops the
+oldest entry and counts it when full; an asyncio task serialises and hands
+messages to paho while the broker is connected; paho's thread does the
+network I/O. A broker that goes away is a fault of the telemetry, logged once
+(:class:`compd.faultlog.FaultLog`) and counted, never of the compensation:
+the queue fills and drops its oldest entries, paho reconnects with backoff,
+and the birth (then the queued backlog) is published again.
+
+Publishing only: nothing here acts on a message from the broker. A fleet
+roll-out (a model loaded remotely) is to come; what it can build on is the
+``model_loaded`` / ``model_switched`` / ``model_failed`` events and the
+re-birth naming the new model's sha256, which tell the sender that each
+machine took the model; the load itself is the control socket's ``load``
+(:meth:`compd.service.daemon.Service.load_model`), whatever carries it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+import paho.mqtt.client as mqtt
+import structlog
+from paho.mqtt.enums import CallbackAPIVersion, MQTTErrorCode
+
+from compd.faultlog import Event, FaultLog
+from compd.service.compensator import TickRecord
+
+log = structlog.get_logger("compd.service.telemetry")
+
+SCHEMA = "compd.telemetry/1"
+#: Messages handed to paho and not yet acknowledged, at most: beyond, the rest wait in the
+#: bounded queue (where the oldest are dropped), not in paho's (which would grow without bound).
+MAX_UNACKNOWLEDGED = 100
+#: Longest a clean stop waits for the queue to drain and the death message's acknowledgement (s).
+STOP_TIMEOUT_S = 5.0
+
+
+@dataclass(frozen=True)
+class Broker:
+    """Where and how to connect: host, port, TLS files, the user and the password (already read)."""
+
+    host: str
+    port: int
+    client_id: str
+    keepalive_s: int = 15
+    reconnect_min_s: int = 1
+    reconnect_max_s: int = 30
+    username: str | None = None
+    password: str | None = field(default=None, repr=False)
+    ca_file: Path | None = None
+    cert_file: Path | None = None
+    key_file: Path | None = None
+
+
+@dataclass(frozen=True)
+class Topics:
+    """``<prefix>/<machine_id>/{birth,status,event,death}``."""
+
+    prefix: str
+    machine_id: str
+
+    def of(self, kind: str) -> str:
+        return f"{self.prefix}/{self.machine_id}/{kind}"
+
+
+@dataclass
+class TelemetryCounters:
+    """What the telemetry did: messages handed to paho, acknowledged, dropped; connections."""
+
+    queued: int = 0
+    published: int = 0
+    acknowledged: int = 0
+    #: Snapshots and events dropped: the oldest of a full queue, or refused by paho.
+    dropped: int = 0
+    connections: int = 0
+    connected: bool = False
+
+
+class Telemetry:
+    """One machine's MQTT publisher; :meth:`start`, then :meth:`tick` and :meth:`event`, then :meth:`stop`.
+
+    ``identity()`` gives the birth's description of the machine (model,
+    signals, axes), read when a birth is published; ``wall()`` the time
+    stamped on events (the service's clock, virtual in a simulation).
+    """
+
+    def __init__(
+        self,
+        broker: Broker,
+        topics: Topics,
+        *,
+        qos: int = 1,
+        every_ticks: int = 1,
+        queue_size: int = 1000,
+        identity: Callable[[], dict[str, Any]] = dict,
+        wall: Callable[[], float] = time.time,
+    ) -> None:
+        self.broker = broker
+        self.topics = topics
+        self.qos = qos
+        self.every_ticks = every_ticks
+        self.identity = identity
+        self.wall = wall
+        self.counters = TelemetryCounters()
+        # Sparkplug's bdSeq: numbers the connections, across restarts too (milliseconds at start).
+        self.session = int(time.time() * 1000)
+        self._statuses: deque[tuple[TickRecord, dict[str, int], str]] = deque(maxlen=queue_size)
+        self._events: deque[tuple[float, Event]] = deque(maxlen=queue_size)
+        self._seq = 0
+        self._birth_due = False
+        self._waiting_for_acks = False
+        self._fault = FaultLog(log, broker=f"{broker.host}:{broker.port}")
+        self._fault.sink = self.event  # the broker's own faults are events, published on return
+        self._client = self._make_client()
+        self._wake: asyncio.Event | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._loop_thread = 0
+        self._task: asyncio.Task[None] | None = None
+
+    @property
+    def fault_active(self) -> bool:
+        """The broker is away (unreachable, refusing, or the connection lost) and has not come back."""
+        return self._fault.active
+
+    def _make_client(self) -> mqtt.Client:
+        b = self.broker
+        client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=b.client_id)
+        client.max_queued_messages_set(MAX_UNACKNOWLEDGED + 10)  # + the death, at stop
+        client.reconnect_delay_set(b.reconnect_min_s, b.reconnect_max_s)
+        if b.username is not None:
+            client.username_pw_set(b.username, b.password)
+        if b.ca_file is not None:
+            client.tls_set(
+                ca_certs=str(b.ca_file),
+                certfile=None if b.cert_file is None else str(b.cert_file),
+                keyfile=None if b.key_file is None else str(b.key_file),
+            )
+        client.on_connect = self._on_connect
+        client.on_connect_fail = self._on_connect_fail
+        client.on_disconnect = self._on_disconnect
+        client.on_publish = self._on_publish
+        self._set_will(client)
+        return client
+
+    # -- the loop's side --------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Connect in the background (paho's thread) and start the publishing task; never blocks."""
+        self._loop = asyncio.get_running_loop()
+        self._loop_thread = threading.get_ident()
+        self._wake = asyncio.Event()
+        self._client.connect_async(self.broker.host, self.broker.port, self.broker.keepalive_s)
+        self._client.loop_start()
+        self._task = self._loop.create_task(self._publish_queued(), name="compd-telemetry")
+
+    def tick(self, record: TickRecord, counters: dict[str, int], model: str) -> None:
+        """Queue the tick's status (cheap: no serialisation here); the oldest goes when full."""
+        queue = self._statuses
+        if len(queue) == queue.maxlen:
+            self.counters.dropped += 1
+        queue.append((record, counters, model))
+        self.counters.queued += 1
+        self._notify()
+
+    def event(self, event: Event) -> None:
+        """Queue an event (any thread); the oldest goes when full."""
+        queue = self._events
+        if len(queue) == queue.maxlen:
+            self.counters.dropped += 1
+        queue.append((self.wall(), event))
+        self.counters.queued += 1
+        if event.kind == "model_switched":
+            self._birth_due = True  # the retained birth names the running model
+        self._notify()
+
+    def _notify(self) -> None:
+        if self._wake is None or self._loop is None:
+            return
+        if threading.get_ident() == self._loop_thread:
+            self._wake.set()
+        elif not self._loop.is_closed():
+            self._loop.call_soon_threadsafe(self._wake.set)
+
+    async def _publish_queued(self) -> None:
+        """Hand queued messages to paho while connected: the birth first, then events, then statuses."""
+        assert self._wake is not None
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            sent = 0
+            while self.counters.connected:
+                self._waiting_for_acks = self._unacknowledged >= MAX_UNACKNOWLEDGED
+                if self._waiting_for_acks:
+                    break  # _on_publish wakes this task again
+                if self._birth_due:
+                    self._birth_due = False
+                    self._publish("birth", self._birth(), retain=True)
+                elif self._events:
+                    at_s, event = self._events.popleft()
+                    self._publish("event", self._event_payload(at_s, event))
+                elif self._statuses:
+                    self._publish("status", self._status_payload(*self._statuses.popleft()))
+                else:
+                    break
+                sent += 1
+                if sent % 50 == 0:
+                    await asyncio.sleep(0)  # a backlog never holds up a tick
+
+    @property
+    def _unacknowledged(self) -> int:
+        return self.counters.published - self.counters.acknowledged
+
+    def _publish(self, kind: str, payload: dict[str, Any], *, retain: bool = False) -> bool:
+        try:
+            data = _dumps(payload)
+        except ValueError as exc:  # a NaN in an event's details: that message only is lost
+            log.error("telemetry message not serialisable", kind=kind, error=str(exc))
+            self.counters.dropped += 1
+            return False
+        info = self._client.publish(self.topics.of(kind), data, self.qos, retain)
+        if info.rc != MQTTErrorCode.MQTT_ERR_SUCCESS:
+            self.counters.dropped += 1  # lost the connection meanwhile, or paho's queue is full
+            return False
+        self.counters.published += 1
+        return True
+
+    async def stop(self, *, ticks: int | None = None) -> None:
+        """Publish what is queued and the retained death (``stopped``), then disconnect; bounded in time."""
+        if self._loop is None:
+            return
+        deadline = time.monotonic() + STOP_TIMEOUT_S
+        while self.counters.connected and (self._events or self._statuses or self._birth_due):
+            if time.monotonic() > deadline:
+                break
+            self._notify()
+            await asyncio.sleep(0.01)
+        if self.counters.connected:
+            death = self._header("death") | {"reason": "stopped", "ticks": ticks}
+            death["telemetry"] = self.status_counters()
+            info = self._client.publish(self.topics.of("death"), _dumps(death), self.qos, True)
+            self.counters.published += 1
+            remaining_s = max(0.1, deadline - time.monotonic())
+            await asyncio.to_thread(_wait_published, info, remaining_s)
+        self._client.disconnect()
+        await asyncio.to_thread(self._client.loop_stop)
+        if self._task is not None:
+            self._task.cancel()
+        log.info("telemetry stopped", **self.status_counters())
+
+    def status_counters(self) -> dict[str, Any]:
+        """For ``compd status`` and the death message."""
+        c = self.counters
+        return {
+            "connected": c.connected,
+            "published": c.published,
+            "acknowledged": c.acknowledged,
+            "dropped": c.dropped,
+            "connections": c.connections,
+        }
+
+    # -- paho's thread --------------------------------------------------------------------------
+
+    def _set_will(self, client: mqtt.Client) -> None:
+        will = self._header("death") | {"reason": "connection lost"}
+        del will["time"]  # the broker sends it when it notices, at a time nobody can stamp here
+        client.will_set(self.topics.of("death"), _dumps(will), self.qos, retain=True)
+
+    def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+        if reason.is_failure:
+            self._fault.failed("telemetry broker refused the connection", reason=str(reason))
+            return
+        self.counters.connections += 1
+        self.counters.connected = True
+        self._birth_due = True
+        if self.counters.connections == 1 and not self._fault.active:
+            log.info("telemetry connected", broker=f"{self.broker.host}:{self.broker.port}")
+        self._fault.cleared("telemetry broker connected again", kind="reconnected")
+        self._notify()
+
+    def _on_connect_fail(self, client: Any, userdata: Any) -> None:
+        self._fault.failed("telemetry broker unreachable")
+
+    def _on_disconnect(
+        self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any
+    ) -> None:
+        self.counters.connected = False
+        if reason.is_failure:
+            self._fault.failed("telemetry broker connection lost", reason=str(reason))
+        # The next connection is a new session, and its will must say so.
+        self.session += 1
+        self._set_will(client)
+
+    def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
+        self.counters.acknowledged += 1
+        if self._waiting_for_acks and self._unacknowledged < MAX_UNACKNOWLEDGED // 2:
+            self._waiting_for_acks = False
+            self._notify()
+
+    # -- payloads ---------------------------------------------------------------------------------
+
+    def _header(self, kind: str) -> dict[str, Any]:
+        self._seq += 1
+        return {
+            "schema": SCHEMA,
+            "kind": kind,
+            "machine_id": self.topics.machine_id,
+            "session": self.session,
+            "seq": self._seq,
+            "time": self.wall(),
+        }
+
+    def _birth(self) -> dict[str, Any]:
+        birth = self._header("birth")
+        birth |= {"compd_version": _compd_version(), "every_ticks": self.every_ticks}
+        return birth | self.identity()
+
+    def _event_payload(self, at_s: float, event: Event) -> dict[str, Any]:
+        payload = self._header("event") | {"time": at_s}
+        return payload | {"event": event.kind, "message": event.message, "details": event.details}
+
+    def _status_payload(
+        self, record: TickRecord, counters: dict[str, int], model: str
+    ) -> dict[str, Any]:
+        payload = self._header("status") | {"time": record.wall_unix_s}
+        return payload | {
+            "t_s": record.t_s,
+            "model": model,
+            "inputs": {
+                name: {
+                    "value": _finite(value),
+                    "health": record.health[name].name.lower(),
+                    "reason": record.reasons.get(name, ""),
+                }
+                for name, value in record.values.items()
+            },
+            "model_outputs": _finites(record.model_outputs),
+            "targets_um": _finites(record.targets_um),
+            "offsets_um": _finites(record.offsets_um),
+            "acknowledged_um": _finites(record.acknowledged_um),
+            "written": record.written,
+            "status_word": record.status,
+            "heartbeat": record.heartbeat,
+            "counters": counters | {"telemetry_dropped": self.counters.dropped},
+        }
+
+
+def _wait_published(info: mqtt.MQTTMessageInfo, timeout_s: float) -> None:
+    try:
+        info.wait_for_publish(timeout_s)
+    except (RuntimeError, ValueError) as exc:  # the connection went meanwhile
+        log.warning("telemetry death message not confirmed", error=str(exc))
+
+
+def _dumps(payload: Mapping[str, Any]) -> bytes:
+    return json.dumps(payload, separators=(",", ":"), allow_nan=False, default=str).encode()
+
+
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+def _finites(values: Mapping[str, float]) -> dict[str, float | None]:
+    return {k: _finite(v) for k, v in values.items()}
+
+
+def _compd_version() -> str:
+    try:
+        return version("compd")
+    except PackageNotFoundError:
+        return "unknown"
