@@ -70,7 +70,7 @@ def check_config_command(args: argparse.Namespace) -> int:
 def run_command(args: argparse.Namespace) -> int:
     config = config_from_arg(args.config)
     json_lines = {"auto": None, "json": True, "console": False}[args.log_format]
-    configure_logging(json_lines=json_lines)
+    configure_logging(json_lines=json_lines, level=args.log_level.upper())
     live_every = args.live_every
     if config.simulation is not None:
         from compd.cli.simulate import run_simulated  # the twin only where a config has one

@@ -43,7 +43,15 @@ def register(commands: Any) -> None:
         "--log-format",
         choices=("auto", "json", "console"),
         default="auto",
-        help="JSON lines (journald) or human-readable; auto: human-readable on a terminal",
+        help="logs on stderr as JSON lines (journald) or human-readable; auto: human-readable "
+        "on a terminal",
+    )
+    run.add_argument(
+        "--log-level",
+        choices=("debug", "info", "warning", "error"),
+        default="info",
+        help="the least severe log records shown (default info); the protocol libraries' "
+        "own logs stay capped at WARNING",
     )
     run.set_defaults(handler=_run)
 

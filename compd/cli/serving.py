@@ -19,12 +19,14 @@ def config_from_arg(text: str) -> Config:
 
 
 def configure_logging(*, json_lines: bool | None = None, level: str = "INFO") -> None:
-    """structlog: JSON lines (stdout, journald) by default, human-readable on a terminal.
+    """structlog on stderr: JSON lines (journald) by default, human-readable on a terminal.
 
+    stderr, never stdout: stdout carries what a command prints (the live view,
+    the summary tables), which a log line would break up or corrupt when piped.
     Standard-library loggers (the control socket, the recorder) go through the same renderer.
     """
     if json_lines is None:
-        json_lines = not sys.stdout.isatty()
+        json_lines = not sys.stderr.isatty()
     shared: list[Any] = [
         structlog.stdlib.add_log_level,
         structlog.stdlib.add_logger_name,
@@ -45,7 +47,7 @@ def configure_logging(*, json_lines: bool | None = None, level: str = "INFO") ->
         foreign_pre_chain=shared,
         processors=[structlog.stdlib.ProcessorFormatter.remove_processors_meta, renderer],
     )
-    handler = logging.StreamHandler(sys.stdout)
+    handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(formatter)
     root = logging.getLogger()
     root.handlers = [handler]

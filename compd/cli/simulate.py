@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import signal
 import time
 from typing import Any
 
-from rich.live import Live
-
 from compd.cli.args import positive_float
+from compd.cli.livescreen import LiveScreen
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import console
 from compd.service.compensator import TickRecord
@@ -53,21 +53,32 @@ def run_simulated(
     """``compd run`` for a config with a simulated machine: live view, then the summary."""
     out = console()
     units = {name: s.unit for name, s in config.doc.signals.items()}
+    signs = {axis: o.sign for axis, o in config.doc.outputs.items()}
     started = time.perf_counter()
-    live = Live(console=out, auto_refresh=False, transient=False) if out.is_terminal else None
+    screen = LiveScreen(out) if out.is_terminal else None
     last_frame = 0.0
     count = 0
 
+    latest: tuple[Service, SimulatedMachine, TickRecord] | None = None
+
+    def draw(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
+        assert screen is not None
+        counters = service.status()["counters"]
+        shown = {k: counters[k] for k in ("ticks", "signal_faults", "reconnects")}
+        # Progress counts to where this run stops: --duration-s, else the scenario's end.
+        end_s = duration_s if duration_s is not None else machine.duration_s
+        view = live_view(machine, record, units, shown, started, signs=signs, duration_s=end_s)
+        screen.show(view)
+
     def on_tick(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
-        nonlocal last_frame, count
+        nonlocal last_frame, count, latest
         count += 1
-        if live is not None:
+        if screen is not None:
+            latest = (service, machine, record)
             now = time.perf_counter()
             if now - last_frame >= FRAME_S:
                 last_frame = now
-                counters = service.status()["counters"]
-                shown = {k: counters[k] for k in ("ticks", "signal_faults", "reconnects")}
-                live.update(live_view(machine, record, units, shown, started), refresh=True)
+                draw(service, machine, record)
         elif live_every and count % live_every == 0:
             true_um = machine.truth_now()
             print(
@@ -85,9 +96,7 @@ def run_simulated(
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, service.stop)
 
-    if live is not None:
-        live.start()
-    try:
+    with screen if screen is not None else contextlib.nullcontext():
         result = asyncio.run(
             run_simulation(
                 config,
@@ -97,9 +106,8 @@ def run_simulated(
                 service_hook=hook,
             )
         )
-    finally:
-        if live is not None:
-            live.stop()
+        if latest is not None:  # the last tick's frame stays on the screen
+            draw(*latest)
     print_summary(result)
     return 0
 

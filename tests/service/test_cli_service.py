@@ -33,7 +33,7 @@ def test_check_config_error_exits_2_naming_the_place(tmp_path, capsys):
 
 
 def test_run_stops_after_duration_and_saves_state(tmp_path):
-    """compd run --time-scale --duration-s exits 0 after the given clock time, logging JSON lines and saving state."""
+    """compd run --time-scale --duration-s exits 0 after the given clock time, logging JSON lines on stderr, saving state."""
     config = write_config(
         tmp_path, {"control_socket": str(short_socket()), "recorder": {"enabled": True}}
     )
@@ -53,7 +53,8 @@ def test_run_stops_after_duration_and_saves_state(tmp_path):
         timeout=120,
     )
     assert done.returncode == 0, done.stderr
-    events = [json.loads(line)["event"] for line in done.stdout.splitlines()]
+    assert done.stdout == "", "logs go to stderr, never stdout"
+    events = [json.loads(line)["event"] for line in done.stderr.splitlines()]
     assert events[0] == "model" and events[-1] == "stopped"
     assert (config.state_dir / "state.json").is_file()
     assert list((config.state_dir / "records").glob("compd-*.csv"))
@@ -120,5 +121,5 @@ def test_status_model_load_and_sigterm_on_a_running_daemon(tmp_path, capsys):
         daemon.send_signal(signal.SIGTERM)
         stdout, stderr = daemon.communicate(timeout=30)
     assert daemon.returncode == 0, stderr
-    assert json.loads(stdout.splitlines()[-1])["event"] == "stopped"
+    assert json.loads(stderr.splitlines()[-1])["event"] == "stopped"
     assert (config.state_dir / "state.json").is_file()
