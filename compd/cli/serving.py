@@ -9,6 +9,7 @@ from typing import Any
 
 import structlog
 
+from compd.drivers.library_logs import quiet_library
 from compd.files.yamlplace import resolve_path
 from compd.service.config import Config, load_config
 
@@ -52,3 +53,7 @@ def configure_logging(*, json_lines: bool | None = None, level: str = "INFO") ->
     root = logging.getLogger()
     root.handlers = [handler]
     root.setLevel(level)
+    # Capped whichever drivers a config loads (and before any is imported): a library's
+    # per-frame debug is never compd's, even at --log-level debug.
+    for library in ("pymodbus", "asyncua"):
+        quiet_library(library)
