@@ -142,6 +142,13 @@ async def model_load(config: Config, model_path: Path) -> int:
         return 0
     if not reply.get("ok"):
         raise CompdError(f"the daemon refused the model: {reply.get('error')}")
+    if reply.get("already_running") or reply.get("already_loading"):
+        doing = "running" if reply.get("already_running") else "switching to"
+        print(
+            f"the daemon is already {doing} {slot.compiled.name} (sha256 {slot.sha256[:12]}): "
+            "nothing loaded, no blend"
+        )
+        return 0
     print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {reply.get('installed')}")
     print(f"the daemon is switching to it, blended over {reply.get('blend_s', 0):g} s")
     return 0

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import gc
+import hashlib
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -35,7 +36,7 @@ from compd.service.clock import Clock
 from compd.service.compensator import Compensator, TickRecord
 from compd.service.config import Config
 from compd.service.control import ControlServer
-from compd.service.modelload import ModelLoader, startup_slots
+from compd.service.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.notify import SystemdNotifier
 from compd.service.safety import HEARTBEAT_MODULO
 from compd.service.slots import ModelSlot
@@ -262,6 +263,19 @@ class Service:
         log.info("stopped", ticks=self.compensator.counters.ticks, overruns=self.timing.overruns)
 
     async def _load(self, message: dict[str, Any]) -> dict[str, Any]:
+        raw, _ = request_bytes(message)
+        sha256 = hashlib.sha256(raw).hexdigest()
+        comp = self.compensator
+        for slot, state in ((comp.pending, "already_loading"), (comp.active, "already_running")):
+            # The model that runs (or is about to) again: nothing to check, install or blend.
+            if slot is not None and slot.sha256 == sha256:
+                log.info(f"model load: {state.replace('_', ' ')}", name=slot.compiled.name)
+                return {
+                    "model": slot.compiled.name,
+                    "sha256": sha256,
+                    "installed": slot.model_file.path,
+                    state: True,
+                }
         slot = await self.loader.accept(message)
         self.compensator.load(slot)
         path = slot.model_file.path
@@ -282,6 +296,8 @@ class Service:
             self.compensator,
             self.links,
             self.timing,
+            clock=self.clock,
+            units={name: signal.unit for name, signal in self.config.doc.signals.items()},
             resumed=self.resumed,
             started_unix_s=self.started_unix_s,
         )
