@@ -108,19 +108,25 @@ def test_start_hint_names_the_unit_only_where_it_is_installed(tmp_path):
     assert start_hint(elsewhere, (units,)) == f"start it with: compd run --config {elsewhere}"
 
 
-def test_status_under_time_scale_and_loading_the_running_model(tmp_path, capsys):
-    """At --time-scale 100: units, the last tick's age, no future times; loading the running model: a no-op."""
-    config = write_config(tmp_path, {"control_socket": str(short_socket()), "blend_s": 5})
+def start_daemon(config, time_scale: float) -> subprocess.Popen[str]:
+    """``compd run`` on ``config`` at ``time_scale``, once its control socket is there."""
     daemon = subprocess.Popen(
-        [*RUN, str(config.path), "--time-scale", "100", "--log-format", "json"],
+        [*RUN, str(config.path), "--time-scale", str(time_scale), "--log-format", "json"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
+    deadline = time.monotonic() + 60
+    while not config.control_socket.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return daemon
+
+
+def test_status_under_time_scale_and_loading_the_running_model(tmp_path, capsys):
+    """At --time-scale 100: units, the last tick's age, no future times; loading the running model: a no-op."""
+    config = write_config(tmp_path, {"control_socket": str(short_socket()), "blend_s": 5})
+    daemon = start_daemon(config, time_scale=100)
     try:
-        deadline = time.monotonic() + 60
-        while not config.control_socket.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
         time.sleep(1.0)  # 100 clock seconds: the scaled clock is well ahead of the wall's
         assert main(["status", "--config", str(config.path), "--json"]) == 0
         reply = json.loads(capsys.readouterr().out)
@@ -152,16 +158,8 @@ def test_status_under_time_scale_and_loading_the_running_model(tmp_path, capsys)
 def test_status_model_load_and_sigterm_on_a_running_daemon(tmp_path, capsys):
     """Against a running daemon: status shows it, model load switches it, SIGTERM stops it cleanly with state saved."""
     config = write_config(tmp_path, {"control_socket": str(short_socket()), "blend_s": 5})
-    daemon = subprocess.Popen(
-        [*RUN, str(config.path), "--time-scale", "10", "--log-format", "json"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    daemon = start_daemon(config, time_scale=10)
     try:
-        deadline = time.monotonic() + 60
-        while not config.control_socket.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
         time.sleep(0.5)  # a few ticks
         assert main(["status", "--config", str(config.path)]) == 0
         out = capsys.readouterr().out
