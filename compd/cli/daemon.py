@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import math
 import signal
 import sys
+import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import console
@@ -29,6 +32,9 @@ from compd.service.notify import SystemdNotifier
 from compd.service.safety import Level
 from compd.service.signals import Health
 from compd.service.state import install_model_bytes, installed_model
+
+if TYPE_CHECKING:
+    from compd.cli.livescreen import LiveScreen
 
 
 def check_config_command(args: argparse.Namespace) -> int:
@@ -81,8 +87,6 @@ def run_command(args: argparse.Namespace) -> int:
             f"--time-scale max runs on virtual time: only for a simulated machine, and "
             f"{config.path} has no 'simulation' section; give a factor such as 600"
         )
-    if live_every is None and sys.stdout.isatty():
-        live_every = config.doc.live_every_ticks
     return asyncio.run(_serve(config, args.time_scale, args.duration_s, live_every))
 
 
@@ -90,14 +94,65 @@ async def _serve(
     config: Config, time_scale: float, duration_s: float | None, live_every: int | None
 ) -> int:
     clock = RealClock(time_scale)
-    live = _live_printer(live_every) if live_every else None
-    service = Service(config, clock=clock, notifier=SystemdNotifier(), on_tick=live)
-    install_signal_handlers(service)
-    await service.run(duration_s=duration_s)
+    # On a terminal with no --live-every: the live view; else a line every N ticks, if asked.
+    screen = None
+    if live_every is None and sys.stdout.isatty():
+        from compd.cli.livescreen import LiveScreen  # rich.live: only a terminal needs it
+
+        screen = LiveScreen(console())
+    # The view first: what the start-up logs (a saved state ignored) goes to its panel.
+    with screen if screen is not None else contextlib.nullcontext():
+        service = Service(config, clock=clock, notifier=SystemdNotifier())
+        if screen is not None:
+            service.on_tick = _live_view(service, screen, duration_s)
+        elif live_every:
+            service.on_tick = _live_printer(live_every, config)
+        install_signal_handlers(service)
+        await service.run(duration_s=duration_s)
     return 0
 
 
-def _live_printer(every: int) -> Any:
+def _live_view(service: Service, screen: LiveScreen, duration_s: float | None) -> Any:
+    """A frame at most every ``FRAME_S`` real seconds, and the last tick's at the end."""
+    from rich.text import Text
+
+    from compd.cli.livescreen import FRAME_S
+    from compd.cli.tickview import level_text, progress, tick_view
+
+    doc = service.config.doc
+    units = {name: signal.unit for name, signal in doc.signals.items()}
+    signs = {axis: output.sign for axis, output in doc.outputs.items()}
+    last_frame_s = -math.inf
+    first_t_s: float | None = None  # the run's clock time starts at its first tick
+
+    def show(record: TickRecord) -> None:
+        nonlocal last_frame_s, first_t_s
+        if first_t_s is None:
+            first_t_s = record.t_s
+        run_s = record.t_s - first_t_s
+        now_s = time.perf_counter()
+        ending = duration_s is not None and run_s + doc.period_s > duration_s
+        if now_s - last_frame_s < FRAME_S and not ending:
+            return
+        last_frame_s = now_s
+        comp = service.compensator
+        head = Text.assemble(
+            ("compd ", "bold"),
+            f"model {comp.active.compiled.name}  {progress(run_s, duration_s)}  status ",
+            level_text(record),
+        )
+        counters = {
+            "ticks": comp.counters.ticks,
+            "signal_faults": comp.counters.signal_faults,
+            "reconnects": sum(link.reconnects for link in service.links.values()),
+        }
+        screen.show(tick_view(head, record, units, signs, counters))
+
+    return show
+
+
+def _live_printer(every: int, config: Config) -> Any:
+    signs = {axis: output.sign for axis, output in config.doc.outputs.items()}
     count = 0
 
     def show(record: TickRecord) -> None:
@@ -105,7 +160,10 @@ def _live_printer(every: int) -> Any:
         count += 1
         if count % every:
             return
-        offsets = "  ".join(f"{axis} {v:+8.3f} um" for axis, v in record.offsets_um.items())
+        offsets = "  ".join(
+            f"{axis} offset written {v:+8.3f} um (sign {signs.get(axis, 1):+g} x drift)"
+            for axis, v in record.offsets_um.items()
+        )
         bad = [n for n, h in record.health.items() if h is not Health.OK]
         level = Level(record.status & 0b11).name.lower()
         print(

@@ -25,6 +25,9 @@ from rich.live import Live
 from rich.panel import Panel
 from rich.text import Text
 
+#: Real seconds between two frames of a live view.
+FRAME_S = 0.25
+
 #: Records kept while the view runs, handed on in full when it ends.
 KEEP_RECORDS = 2000
 

@@ -16,19 +16,19 @@ import signal
 import time
 from typing import Any
 
+from rich.text import Text
+
 from compd.cli.args import positive_float
-from compd.cli.livescreen import LiveScreen
+from compd.cli.livescreen import FRAME_S, LiveScreen
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import console
+from compd.cli.tickview import level_text, progress, tick_view
 from compd.service.compensator import TickRecord
 from compd.service.config import Config
 from compd.service.daemon import Service
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import SimulationResult, run_simulation, serve_machine
-from compd.sim.plc.view import fault_table, live_view, summary_table
-
-#: Real seconds between two frames of the live view.
-FRAME_S = 0.25
+from compd.sim.plc.view import fault_table, summary_table
 
 
 def register(commands: Any) -> None:
@@ -67,8 +67,19 @@ def run_simulated(
         shown = {k: counters[k] for k in ("ticks", "signal_faults", "reconnects")}
         # Progress counts to where this run stops: --duration-s, else the scenario's end.
         end_s = duration_s if duration_s is not None else machine.duration_s
-        view = live_view(machine, record, units, shown, started, signs=signs, duration_s=end_s)
-        screen.show(view)
+        elapsed_s = max(time.perf_counter() - started, 1e-9)
+        head = Text.assemble(
+            ("simulated machine ", "bold"),
+            f"{machine.doc.scenario} (seed {machine.doc.seed})  {progress(machine.now_s, end_s)}  ",
+            f"x{machine.now_s / elapsed_s:,.0f} real time  status ",
+            level_text(record),
+        )
+        truth = machine.truth_now()
+        twin = {
+            "true error um": {axis: f"{t:+.2f}" for axis, (t, _, _) in truth.items()},
+            "compensated um": {axis: f"{c:+.2f}" for axis, (_, _, c) in truth.items()},
+        }
+        screen.show(tick_view(head, record, units, signs, shown, twin))
 
     def on_tick(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
         nonlocal last_frame, count, latest

@@ -13,8 +13,9 @@ import yaml
 
 from compd.files.yamlplace import resolve_path
 from tests.acceptance.conftest import free_port
+from tests.service.daemon_setup import write_config
 
-from .terminal import run_in_terminal
+from .terminal import Screen, run_in_terminal
 
 HEADER = "simulated machine production"
 LOG_LINE = re.compile(r"\[\s*(debug|info|warning|error|critical)\s*\]|\"log_level\"")
@@ -41,24 +42,31 @@ def simulated_config(directory: Path, **simulation: object) -> Path:
     return path
 
 
+def one_view(argv: list[str], header: str) -> tuple[Screen, int, int]:
+    """Run at 120x40; the screen, its one header's line and its log panel's, no log line between."""
+    screen = run_in_terminal(argv, columns=120, rows=40)
+    text = "\n".join(screen.lines)
+    assert screen.returncode == 0, text
+    headers = [i for i, line in enumerate(screen.lines) if header in line]
+    assert len(headers) == 1, f"{len(headers)} copies of the header:\n{text}"
+    head = headers[0]
+    panel = next(
+        i for i in range(head, len(screen.lines)) if "warnings and errors" in screen.lines[i]
+    )
+    view = screen.lines[head:panel]
+    assert not [line for line in view if LOG_LINE.search(line)], "\n".join(view)
+    return screen, head, panel
+
+
 def test_live_view_is_drawn_once_with_the_fault_in_its_warnings_panel(short_dir: Path) -> None:
     """At 120x40: one header in all the scrollback, the fault's error in the panel, no log in the view."""
     config = simulated_config(
         short_dir, faults=[{"kind": "drop", "driver": "plc", "at_s": 120, "duration_s": 40}]
     )
     argv = ["run", "--config", str(config), "--time-scale", "max", "--duration-s", "600"]
-    screen = run_in_terminal(argv, columns=120, rows=40)
-    text = "\n".join(screen.lines)
-    assert screen.returncode == 0, text
-    headers = [i for i, line in enumerate(screen.lines) if HEADER in line]
-    assert len(headers) == 1, f"{len(headers)} copies of the header:\n{text}"
-    head = headers[0]
+    screen, head, panel = one_view(argv, HEADER)
     assert "/ 0:10:00 (100 %)" in screen.lines[head], screen.lines[head]
-    panel = next(
-        i for i in range(head, len(screen.lines)) if "warnings and errors" in screen.lines[i]
-    )
     view = screen.lines[head:panel]
-    assert not [line for line in view if LOG_LINE.search(line)], "\n".join(view)
     assert any("offset written um (sign x drift" in line for line in view), "\n".join(view)
     panel_end = next(i for i in range(panel + 1, len(screen.lines)) if "╰" in screen.lines[i])
     shown = "\n".join(screen.lines[panel:panel_end])
@@ -66,3 +74,20 @@ def test_live_view_is_drawn_once_with_the_fault_in_its_warnings_panel(short_dir:
     # After the view: the summary, and the records kept while it ran, in full.
     after = "\n".join(screen.lines[panel_end:])
     assert "thermal error at the tool centre point" in after and "driver reconnected" in after
+
+
+def test_run_on_a_real_machine_config_shows_the_same_live_view(short_dir: Path) -> None:
+    """Without a simulation (the replay driver): one header, progress to --duration-s, the warning in the panel."""
+    config = write_config(short_dir, {"control_socket": str(short_dir / "c.sock")})
+    config.state_dir.mkdir(parents=True, exist_ok=True)
+    (config.state_dir / "state.json").write_text("{ not json")  # a WARNING at start
+    argv = ["run", "--config", str(config.path), "--time-scale", "50", "--duration-s", "120"]
+    screen, head, panel = one_view(argv, "compd model example-gated-arx-y")
+    text = "\n".join(screen.lines)
+    assert "t 0:02:00 / 0:02:00 (100 %)" in screen.lines[head], screen.lines[head]
+    view = screen.lines[head:panel]
+    assert any("model drift um  sign  offset written um (sign x drift" in line for line in view)
+    # Logged before the first frame: not over the view but in the panel, then in full after it.
+    assert re.search(r"warnings and errors \([1-9]", screen.lines[panel]), text
+    assert not any("saved state ignored" in line for line in screen.lines[:head]), text
+    assert any("saved state ignored" in line for line in screen.lines[panel:]), text
