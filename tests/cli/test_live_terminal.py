@@ -91,3 +91,14 @@ def test_run_on_a_real_machine_config_shows_the_same_live_view(short_dir: Path) 
     assert re.search(r"warnings and errors \([1-9]", screen.lines[panel]), text
     assert not any("saved state ignored" in line for line in screen.lines[:head]), text
     assert any("saved state ignored" in line for line in screen.lines[panel:]), text
+
+
+def test_a_view_taller_than_the_terminal_is_cropped_not_scrolled(short_dir: Path) -> None:
+    """At 80x10 the view does not fit: frames are cropped, so the scrollback still has one header."""
+    config = simulated_config(short_dir)
+    argv = ["run", "--config", str(config), "--time-scale", "max", "--duration-s", "600"]
+    screen = run_in_terminal(argv, columns=80, rows=10)
+    text = "\n".join(screen.lines)
+    assert screen.returncode == 0, text
+    assert sum(HEADER in line for line in screen.lines) == 1, text
+    assert "thermal error at the tool centre point" in text
