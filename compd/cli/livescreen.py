@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import threading
 from collections import deque
 from types import TracebackType
 from typing import Any, Self
@@ -46,6 +47,7 @@ class LogPanel(logging.Handler):
         self.dropped = 0
         self.warnings = 0
         self.lines: deque[tuple[int, str]] = deque(maxlen=shown)
+        self._lines_lock = threading.Lock()
 
     def emit(self, record: logging.LogRecord) -> None:
         if len(self.records) == self.records.maxlen:
@@ -57,7 +59,9 @@ class LogPanel(logging.Handler):
         self.records.append((record.levelno, text))
         if record.levelno >= logging.WARNING:
             self.warnings += 1
-            self.lines.append((record.levelno, Text.from_ansi(text.split("\n", 1)[0]).plain))
+            line = Text.from_ansi(text.split("\n", 1)[0]).plain
+            with self._lines_lock:
+                self.lines.append((record.levelno, line))
 
     def panel(self, rows: int) -> Panel | None:
         """The last ``rows`` warning lines in a panel of ``rows + 2`` lines; None when nothing to show."""
@@ -66,8 +70,10 @@ class LogPanel(logging.Handler):
         if not self.lines:
             body = Text("none so far", "dim")
         else:
+            with self._lines_lock:  # records come from worker threads too
+                lines = list(self.lines)[-rows:]
             body = Text()
-            for i, (level, line) in enumerate(list(self.lines)[-rows:]):
+            for i, (level, line) in enumerate(lines):
                 body.append(("\n" if i else "") + line, _STYLE.get(level, "yellow"))
             body.no_wrap = True
             body.overflow = "ellipsis"

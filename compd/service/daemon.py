@@ -325,7 +325,8 @@ def _resumable(
         now_unix_s,
         config.doc.state.resume_max_age_s,
         real_now_unix_s=time.time(),
-        time_scale=getattr(clock, "time_scale", 1.0),
+        # A scaled clock's time_scale; virtual time (None, or none given) counts as real.
+        time_scale=getattr(clock, "time_scale", None) or 1.0,
         max_offsets_um={axis: out.max_offset_um for axis, out in config.doc.outputs.items()},
     )
     log.info(
