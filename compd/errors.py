@@ -67,6 +67,10 @@ class ControlError(CompdError):
     """The control socket cannot be served or reached (no daemon, stale socket, no reply)."""
 
 
+class NotRunningError(ControlError):
+    """No daemon listens on the control socket (no socket file, or a stale one)."""
+
+
 class ConfigFileError(InputFileError):
     """A daemon configuration file (YAML) that compd refuses to start with."""
 

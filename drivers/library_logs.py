@@ -10,6 +10,13 @@ dozens of errors and hex dumps per link drop. So a library's logger is set to
 WARNING (nothing below is even formatted) and what it still logs stops there
 (no propagation to the root handlers) and becomes one DEBUG event of compd,
 first line only, for whoever debugs the bus.
+
+Records below WARNING never reach compd's log, whatever level a library's
+logger or one of its children is given (``pymodbus.logging`` at DEBUG logs a
+hex dump of every frame sent and received, several lines per tick): with
+``compd run --log-level debug`` the journal gets compd's own debug, not the
+bus traffic. Whoever wants the frames turns on the library's own logging
+(``pymodbus.pymodbus_apply_logging_config("DEBUG")``), which writes them itself.
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ class _ToDebug(logging.Handler):
     """Log a library record's first line (no frame dump, no traceback) at DEBUG through compd's log."""
 
     def __init__(self, library: str) -> None:
-        super().__init__()
+        super().__init__(level=logging.WARNING)  # below: frame dumps, a line per read
         self.library = library
 
     def emit(self, record: logging.LogRecord) -> None:
@@ -36,7 +43,10 @@ class _ToDebug(logging.Handler):
 
 
 def quiet_library(name: str) -> None:
-    """``name`` and its child loggers at WARNING (unless set on purpose), passed on at DEBUG; idempotent."""
+    """``name`` and its child loggers at WARNING (unless set on purpose), passed on at DEBUG; idempotent.
+
+    Whatever the loggers' levels, only records at WARNING and up are passed on.
+    """
     logger = logging.getLogger(name)
     if logger.level == logging.NOTSET:  # a level set on purpose (debugging the bus) stays
         logger.setLevel(logging.WARNING)

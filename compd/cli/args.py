@@ -43,7 +43,7 @@ def daemon_options(parser: argparse.ArgumentParser) -> None:
 
 
 def clock_options(parser: argparse.ArgumentParser) -> None:
-    """``--time-scale`` and ``--log-format`` of a command that runs the service (run, record)."""
+    """``--time-scale``, ``--log-format`` and ``--log-level`` of a command that runs the service."""
     parser.add_argument(
         "--time-scale",
         type=time_scale_arg,
@@ -56,5 +56,13 @@ def clock_options(parser: argparse.ArgumentParser) -> None:
         "--log-format",
         choices=("auto", "json", "console"),
         default="auto",
-        help="JSON lines (journald) or human-readable; auto: human-readable on a terminal",
+        help="logs on stderr as JSON lines (journald) or human-readable; auto: human-readable "
+        "on a terminal",
+    )
+    parser.add_argument(
+        "--log-level",
+        choices=("debug", "info", "warning", "error"),
+        default="info",
+        help="the least severe log records shown (default info); the protocol libraries' "
+        "own logs stay capped at WARNING",
     )

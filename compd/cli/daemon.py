@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import math
 import signal
 import sys
+import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import console
@@ -29,6 +32,9 @@ from compd.service.notify import SystemdNotifier
 from compd.service.safety import Level
 from compd.service.signals import Health
 from compd.service.state import install_model_bytes, installed_model
+
+if TYPE_CHECKING:
+    from compd.cli.livescreen import LiveScreen
 
 
 def check_config_command(args: argparse.Namespace) -> int:
@@ -83,7 +89,7 @@ def check_config_command(args: argparse.Namespace) -> int:
 def run_command(args: argparse.Namespace) -> int:
     config = config_from_arg(args.config)
     json_lines = {"auto": None, "json": True, "console": False}[args.log_format]
-    configure_logging(json_lines=json_lines)
+    configure_logging(json_lines=json_lines, level=args.log_level.upper())
     live_every = args.live_every
     if config.simulation is not None:
         from compd.cli.simulate import run_simulated  # the twin only where a config has one
@@ -94,8 +100,6 @@ def run_command(args: argparse.Namespace) -> int:
             f"--time-scale max runs on virtual time: only for a simulated machine, and "
             f"{config.path} has no 'simulation' section; give a factor such as 600"
         )
-    if live_every is None and sys.stdout.isatty():
-        live_every = config.doc.live_every_ticks
     return asyncio.run(_serve(config, args.time_scale, args.duration_s, live_every))
 
 
@@ -103,14 +107,65 @@ async def _serve(
     config: Config, time_scale: float, duration_s: float | None, live_every: int | None
 ) -> int:
     clock = RealClock(time_scale)
-    live = _live_printer(live_every) if live_every else None
-    service = Service(config, clock=clock, notifier=SystemdNotifier(), on_tick=live)
-    install_signal_handlers(service)
-    await service.run(duration_s=duration_s)
+    # On a terminal with no --live-every: the live view; else a line every N ticks, if asked.
+    screen = None
+    if live_every is None and sys.stdout.isatty():
+        from compd.cli.livescreen import LiveScreen  # rich.live: only a terminal needs it
+
+        screen = LiveScreen(console())
+    # The view first: what the start-up logs (a saved state ignored) goes to its panel.
+    with screen if screen is not None else contextlib.nullcontext():
+        service = Service(config, clock=clock, notifier=SystemdNotifier())
+        if screen is not None:
+            service.on_tick = _live_view(service, screen, duration_s)
+        elif live_every:
+            service.on_tick = _live_printer(live_every, config)
+        install_signal_handlers(service)
+        await service.run(duration_s=duration_s)
     return 0
 
 
-def _live_printer(every: int) -> Any:
+def _live_view(service: Service, screen: LiveScreen, duration_s: float | None) -> Any:
+    """A frame at most every ``FRAME_S`` real seconds, and the last tick's at the end."""
+    from rich.text import Text
+
+    from compd.cli.livescreen import FRAME_S
+    from compd.cli.tickview import level_text, progress, tick_view
+
+    doc = service.config.doc
+    units = {name: signal.unit for name, signal in doc.signals.items()}
+    signs = {axis: output.sign for axis, output in doc.outputs.items()}
+    last_frame_s = -math.inf
+    first_t_s: float | None = None  # the run's clock time starts at its first tick
+
+    def show(record: TickRecord) -> None:
+        nonlocal last_frame_s, first_t_s
+        if first_t_s is None:
+            first_t_s = record.t_s
+        run_s = record.t_s - first_t_s
+        now_s = time.perf_counter()
+        ending = duration_s is not None and run_s + doc.period_s > duration_s
+        if now_s - last_frame_s < FRAME_S and not ending:
+            return
+        last_frame_s = now_s
+        comp = service.compensator
+        head = Text.assemble(
+            ("compd ", "bold"),
+            f"model {comp.active.compiled.name}  {progress(run_s, duration_s)}  status ",
+            level_text(record),
+        )
+        counters = {
+            "ticks": comp.counters.ticks,
+            "signal_faults": comp.counters.signal_faults,
+            "reconnects": sum(link.reconnects for link in service.links.values()),
+        }
+        screen.show(tick_view(head, record, units, signs, counters))
+
+    return show
+
+
+def _live_printer(every: int, config: Config) -> Any:
+    signs = {axis: output.sign for axis, output in config.doc.outputs.items()}
     count = 0
 
     def show(record: TickRecord) -> None:
@@ -118,7 +173,10 @@ def _live_printer(every: int) -> Any:
         count += 1
         if count % every:
             return
-        offsets = "  ".join(f"{axis} {v:+8.3f} um" for axis, v in record.offsets_um.items())
+        offsets = "  ".join(
+            f"{axis} offset written {v:+8.3f} um (sign {signs.get(axis, 1):+g} x drift)"
+            for axis, v in record.offsets_um.items()
+        )
         bad = [n for n, h in record.health.items() if h is not Health.OK]
         level = Level(record.status & 0b11).name.lower()
         print(
@@ -155,6 +213,13 @@ async def model_load(config: Config, model_path: Path) -> int:
         return 0
     if not reply.get("ok"):
         raise CompdError(f"the daemon refused the model: {reply.get('error')}")
+    if reply.get("already_running") or reply.get("already_loading"):
+        doing = "running" if reply.get("already_running") else "switching to"
+        print(
+            f"the daemon is already {doing} {slot.compiled.name} (sha256 {slot.sha256[:12]}): "
+            "nothing loaded, no blend"
+        )
+        return 0
     print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {reply.get('installed')}")
     print(f"the daemon is switching to it, blended over {reply.get('blend_s', 0):g} s")
     return 0

@@ -41,6 +41,7 @@ def register(commands: Any) -> None:
         "per recording up to 1 GB, then the next",
     )
     clock_options(record)
+    record.set_defaults(log_level="warning")  # record prints its own progress
     record.set_defaults(handler=_record)
 
 

@@ -44,7 +44,7 @@ def recordings(directory: Path) -> list[Path]:
 def record_command(args: argparse.Namespace) -> int:
     config = config_from_arg(args.config)
     json_lines = {"auto": None, "json": True, "console": False}[args.log_format]
-    configure_logging(json_lines=json_lines, level="WARNING")
+    configure_logging(json_lines=json_lines, level=args.log_level.upper())
     out_dir = args.out.expanduser().absolute()
     if recordings(out_dir):
         raise CompdError(

@@ -28,8 +28,8 @@ def register(commands: Any) -> None:
         "--live-every",
         type=int,
         metavar="N",
-        help="print a live line every N ticks (default: the config's live_every_ticks, "
-        "on a terminal only)",
+        help="print a line every N ticks instead of the live view (default: the live view on "
+        "a terminal, nothing otherwise)",
     )
     clock_options(run)
     run.set_defaults(handler=_run)

@@ -9,6 +9,7 @@ from typing import Any
 
 import structlog
 
+from compd.drivers.library_logs import quiet_library
 from compd.files.yamlplace import resolve_path
 from compd.service.config import Config, load_config
 
@@ -19,12 +20,14 @@ def config_from_arg(text: str) -> Config:
 
 
 def configure_logging(*, json_lines: bool | None = None, level: str = "INFO") -> None:
-    """structlog: JSON lines (stdout, journald) by default, human-readable on a terminal.
+    """structlog on stderr: JSON lines (journald) by default, human-readable on a terminal.
 
+    stderr, never stdout: stdout carries what a command prints (the live view,
+    the summary tables), which a log line would break up or corrupt when piped.
     Standard-library loggers (the control socket, the recorder) go through the same renderer.
     """
     if json_lines is None:
-        json_lines = not sys.stdout.isatty()
+        json_lines = not sys.stderr.isatty()
     shared: list[Any] = [
         structlog.stdlib.add_log_level,
         structlog.stdlib.add_logger_name,
@@ -45,8 +48,12 @@ def configure_logging(*, json_lines: bool | None = None, level: str = "INFO") ->
         foreign_pre_chain=shared,
         processors=[structlog.stdlib.ProcessorFormatter.remove_processors_meta, renderer],
     )
-    handler = logging.StreamHandler(sys.stdout)
+    handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(formatter)
     root = logging.getLogger()
     root.handlers = [handler]
     root.setLevel(level)
+    # Capped whichever drivers a config loads (and before any is imported): a library's
+    # per-frame debug is never compd's, even at --log-level debug.
+    for library in ("pymodbus", "asyncua"):
+        quiet_library(library)

@@ -11,24 +11,24 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import signal
 import time
 from typing import Any
 
-from rich.live import Live
+from rich.text import Text
 
 from compd.cli.args import positive_float
+from compd.cli.livescreen import FRAME_S, LiveScreen
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import console
+from compd.cli.tickview import level_text, progress, tick_view
 from compd.service.compensator import TickRecord
 from compd.service.config import Config
 from compd.service.daemon import Service
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import SimulationResult, run_simulation, serve_machine
-from compd.sim.plc.view import fault_table, live_view, summary_table
-
-#: Real seconds between two frames of the live view.
-FRAME_S = 0.25
+from compd.sim.plc.view import fault_table, summary_table
 
 
 def register(commands: Any) -> None:
@@ -53,21 +53,43 @@ def run_simulated(
     """``compd run`` for a config with a simulated machine: live view, then the summary."""
     out = console()
     units = {name: s.unit for name, s in config.doc.signals.items()}
+    signs = {axis: o.sign for axis, o in config.doc.outputs.items()}
     started = time.perf_counter()
-    live = Live(console=out, auto_refresh=False, transient=False) if out.is_terminal else None
+    screen = LiveScreen(out) if out.is_terminal else None
     last_frame = 0.0
     count = 0
 
+    latest: tuple[Service, SimulatedMachine, TickRecord] | None = None
+
+    def draw(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
+        assert screen is not None
+        counters = service.status()["counters"]
+        shown = {k: counters[k] for k in ("ticks", "signal_faults", "reconnects")}
+        # Progress counts to where this run stops: --duration-s, else the scenario's end.
+        end_s = duration_s if duration_s is not None else machine.duration_s
+        elapsed_s = max(time.perf_counter() - started, 1e-9)
+        head = Text.assemble(
+            ("simulated machine ", "bold"),
+            f"{machine.doc.scenario} (seed {machine.doc.seed})  {progress(machine.now_s, end_s)}  ",
+            f"x{machine.now_s / elapsed_s:,.0f} real time  status ",
+            level_text(record),
+        )
+        truth = machine.truth_now()
+        twin = {
+            "true error um": {axis: f"{t:+.2f}" for axis, (t, _, _) in truth.items()},
+            "compensated um": {axis: f"{c:+.2f}" for axis, (_, _, c) in truth.items()},
+        }
+        screen.show(tick_view(head, record, units, signs, shown, twin))
+
     def on_tick(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
-        nonlocal last_frame, count
+        nonlocal last_frame, count, latest
         count += 1
-        if live is not None:
+        if screen is not None:
+            latest = (service, machine, record)
             now = time.perf_counter()
             if now - last_frame >= FRAME_S:
                 last_frame = now
-                counters = service.status()["counters"]
-                shown = {k: counters[k] for k in ("ticks", "signal_faults", "reconnects")}
-                live.update(live_view(machine, record, units, shown, started), refresh=True)
+                draw(service, machine, record)
         elif live_every and count % live_every == 0:
             true_um = machine.truth_now()
             print(
@@ -85,9 +107,7 @@ def run_simulated(
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, service.stop)
 
-    if live is not None:
-        live.start()
-    try:
+    with screen if screen is not None else contextlib.nullcontext():
         result = asyncio.run(
             run_simulation(
                 config,
@@ -97,9 +117,8 @@ def run_simulated(
                 service_hook=hook,
             )
         )
-    finally:
-        if live is not None:
-            live.stop()
+        if latest is not None:  # the last tick's frame stays on the screen
+            draw(*latest)
     print_summary(result)
     return 0
 

@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 
 from compd.cli.terminal import console
-from compd.errors import CompdError, ConfigFileError
+from compd.errors import CompdError, ConfigFileError, NotRunningError
 from compd.files.yamlplace import parse_yaml, read_limited, resolve_path
 from compd.service.control import request_sync
 from compd.service.paths import control_socket_of
@@ -33,7 +33,14 @@ def control_socket(config_text: str) -> Path:
 
 
 def status_command(args: argparse.Namespace) -> int:
-    reply = request_sync(control_socket(args.config), {"cmd": "status"})
+    try:
+        reply = request_sync(control_socket(args.config), {"cmd": "status"})
+    except NotRunningError as exc:
+        from compd.cli.starthint import start_hint
+
+        raise NotRunningError(
+            f"{exc}; {start_hint(resolve_path(args.config, Path.cwd()))}"
+        ) from None
     if not reply.get("ok"):
         raise CompdError(f"the daemon refused: {reply.get('error')}")
     if args.json:
@@ -53,15 +60,34 @@ def status_command(args: argparse.Namespace) -> int:
     if model is not None and model.get("fault"):
         out.print(f"[red]model fault[/red]: {model['fault']}")
     out.print(
-        f"last tick {reply['last_tick']}  status word {reply['status_word']}  "
+        f"last tick {_tick_age(reply)}  status word {reply['status_word']}  "
         f"heartbeat {reply['heartbeat']}"
     )
+    scale = reply.get("clock", {}).get("time_scale", 1)
+    if scale != 1:
+        virtual = scale == "max"
+        note = (
+            "virtual time: the times above are the machine's"
+            if virtual
+            else "times above are wall-clock"
+        )
+        out.print(
+            f"clock x{scale if virtual else format(scale, 'g')}: "
+            f"machine time {reply['clock']['machine_time']} ({note})"
+        )
+    signs = reply.get("signs", {})
     for axis, value in reply["offsets_um"].items():
         target = reply["targets_um"].get(axis)
-        model = "not started" if target is None else f"{target:+.3f} um"
-        out.print(f"  offset {axis}: {value:+.3f} um (model {model})")
+        sign = signs.get(axis, 1)
+        why = (
+            "model not started"
+            if target is None
+            else f"target {target:+.3f} um = sign {sign:+g} x model drift {target * sign:+.3f} um"
+        )
+        out.print(f"  offset {axis}: {value:+.3f} um ({why})")
     for name, info in reply["inputs"].items():
-        value = "n/a" if info["value"] is None else f"{info['value']:.3f}"
+        unit = f" {info['unit']}" if info.get("unit") else ""
+        value = "n/a" if info["value"] is None else f"{info['value']:.3f}{unit}"
         reason = f"  {info['reason']}" if info["reason"] else ""
         out.print(f"  {name}: {value}  {info['health']}{reason}")
     out.print(
@@ -78,3 +104,11 @@ def status_command(args: argparse.Namespace) -> int:
             f"acknowledged {telemetry['acknowledged']}, dropped {telemetry['dropped']}"
         )
     return 0
+
+
+def _tick_age(reply: dict[str, object]) -> str:
+    """``0.8 s ago (2026-11-24T06:00:01+00:00)``, or ``none yet``."""
+    age_s = reply.get("last_tick_age_s")
+    if reply.get("last_tick") is None or not isinstance(age_s, int | float):
+        return "none yet"
+    return f"{age_s:.1f} s ago ({reply['last_tick']})"

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from compd.errors import CompdError, ControlError
+from compd.errors import CompdError, ControlError, NotRunningError
 
 log = logging.getLogger(__name__)
 
@@ -246,12 +246,10 @@ async def request(path: Path, message: dict[str, Any], *, timeout_s: float = 5.0
                     os.fspath(path), limit=MAX_LINE_BYTES
                 )
             except FileNotFoundError:
-                raise ControlError(
-                    f"is compd running? socket {path} not found "
-                    "(start it with: systemctl start compd)"
-                ) from None
+                # How to start it depends on the install: the command line adds the hint.
+                raise NotRunningError(f"is compd running? socket {path} not found") from None
             except ConnectionRefusedError:
-                raise ControlError(
+                raise NotRunningError(
                     f"is compd running? nothing listens on {path} (a stale socket)"
                 ) from None
             except PermissionError:

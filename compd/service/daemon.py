@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import gc
+import hashlib
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -35,7 +36,7 @@ from compd.service.clock import Clock
 from compd.service.compensator import Compensator, TickRecord
 from compd.service.config import Config
 from compd.service.control import ControlServer
-from compd.service.modelload import ModelLoader, startup_slots
+from compd.service.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.notify import SystemdNotifier
 from compd.service.safety import HEARTBEAT_MODULO
 from compd.service.slots import ModelSlot
@@ -309,6 +310,24 @@ class Service:
         CompdError if the model is refused, the running one untouched. The
         entry point for anything else that delivers a model (a fleet roll-out).
         """
+        raw, _ = request_bytes(message)
+        sha256 = hashlib.sha256(raw).hexdigest()
+        comp = self.compensator
+        running = (
+            ()
+            if comp.models is None
+            else ((comp.pending, "already_loading"), (comp.active, "already_running"))
+        )
+        for slot, state in running:
+            # The model that runs (or is about to) again: nothing to check, install or blend.
+            if slot is not None and slot.sha256 == sha256:
+                log.info(f"model load: {state.replace('_', ' ')}", name=slot.compiled.name)
+                return {
+                    "model": slot.compiled.name,
+                    "sha256": sha256,
+                    "installed": slot.model_file.path,
+                    state: True,
+                }
         slot = await self.loader.accept(message)
         self.compensator.load(slot)
         path = slot.model_file.path
@@ -332,6 +351,8 @@ class Service:
             self.compensator,
             self.links,
             self.timing,
+            clock=self.clock,
+            units={name: signal.unit for name, signal in self.config.doc.signals.items()},
             resumed=self.resumed,
             started_unix_s=self.started_unix_s,
             telemetry=None if self.telemetry is None else self.telemetry.status_counters(),
@@ -385,7 +406,8 @@ def _resumable(
         now_unix_s,
         config.doc.state.resume_max_age_s,
         real_now_unix_s=time.time(),
-        time_scale=getattr(clock, "time_scale", 1.0),
+        # A scaled clock's time_scale; virtual time (None, or none given) counts as real.
+        time_scale=getattr(clock, "time_scale", None) or 1.0,
         max_offsets_um={axis: out.max_offset_um for axis, out in config.doc.outputs.items()},
     )
     log.info(

@@ -293,6 +293,24 @@ def test_link_drops_log_one_error_each_and_no_pymodbus_dumps():
     assert logging.getLogger("pymodbus").getEffectiveLevel() == logging.WARNING
 
 
+def test_pymodbus_frame_dumps_never_reach_compds_debug_log(server):
+    """At compd's DEBUG, with pymodbus's frame logger at DEBUG too, compd's log carries no frame hex dump."""
+    root, frames = logging.getLogger(), logging.getLogger("pymodbus.logging")
+    levels = root.level, frames.level
+    root.setLevel(logging.DEBUG)
+    frames.setLevel(logging.DEBUG)  # as a dictConfig or pymodbus's Log.setLevel would
+    try:
+        with capture_logs() as events:
+            assert run(make_driver(server), ("read", ["input:0:int16"])) == [
+                {"input:0:int16": -1234.0}
+            ]
+    finally:
+        root.setLevel(levels[0])
+        frames.setLevel(levels[1])
+    assert [e for e in events if e["event"] == "pymodbus"] == []
+    assert not any("0x" in str(e) for e in events)
+
+
 def test_a_peer_that_connects_but_never_answers_is_one_fault():
     """A server that connects but never answers (another device id) is one ERROR, however often it reconnects."""
     link, thread = link_to_new_server(request_timeout_s=0.1, device_id=9)

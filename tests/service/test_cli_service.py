@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
 import time
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
 
 from compd.cli import main
+from compd.cli.starthint import start_hint
 from compd.service.state import installed_model
 
 from .daemon_setup import short_socket, write_config
@@ -33,7 +37,7 @@ def test_check_config_error_exits_2_naming_the_place(tmp_path, capsys):
 
 
 def test_run_stops_after_duration_and_saves_state(tmp_path):
-    """compd run --time-scale --duration-s exits 0 after the given clock time, logging JSON lines and saving state."""
+    """compd run --time-scale --duration-s exits 0 after the clock time, JSON logs on stderr, state saved."""
     config = write_config(
         tmp_path, {"control_socket": str(short_socket()), "recorder": {"enabled": True}}
     )
@@ -53,7 +57,8 @@ def test_run_stops_after_duration_and_saves_state(tmp_path):
         timeout=120,
     )
     assert done.returncode == 0, done.stderr
-    events = [json.loads(line)["event"] for line in done.stdout.splitlines()]
+    assert done.stdout == "", "logs go to stderr, never stdout"
+    events = [json.loads(line)["event"] for line in done.stderr.splitlines()]
     assert events[0] == "model" and events[-1] == "stopped"
     assert (config.state_dir / "state.json").is_file()
     assert list((config.state_dir / "records").glob("compd-*.csv"))
@@ -80,25 +85,81 @@ def test_model_load_refuses_a_bad_model(tmp_path, capsys):
 
 
 def test_status_without_a_daemon(tmp_path, capsys):
-    """status with no daemon running exits 2 asking whether compd runs."""
+    """status with no daemon running exits 2 asking whether compd runs, and how to start this config's."""
     config = write_config(tmp_path, {"control_socket": str(short_socket())})
     assert main(["status", "--config", str(config.path)]) == 2
-    assert "is compd running?" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "is compd running?" in err and f"start it with: compd run --config {config.path}" in err
+    assert "systemctl" not in err, "no unit runs a config outside /etc/compd"
+
+
+def test_start_hint_names_the_unit_only_where_it_is_installed(tmp_path):
+    """systemctl start compd / compd@NAME where the unit file is installed, else compd run --config."""
+    units = tmp_path / "system"
+    units.mkdir()
+    default, line2 = Path("/etc/compd/compd.yaml"), Path("/etc/compd/line2.yaml")
+    assert start_hint(default, (units,)) == f"start it with: compd run --config {default}"
+    (units / "compd@.service").write_text("[Service]\n")
+    assert start_hint(line2, (units,)) == "start it with: systemctl start compd@line2"
+    assert start_hint(default, (units,)) == "start it with: systemctl start compd@compd"
+    (units / "compd.service").write_text("[Service]\n")
+    assert start_hint(default, (units,)) == "start it with: systemctl start compd"
+    elsewhere = tmp_path / "compd.yaml"
+    assert start_hint(elsewhere, (units,)) == f"start it with: compd run --config {elsewhere}"
+
+
+def start_daemon(config, time_scale: float) -> subprocess.Popen[str]:
+    """``compd run`` on ``config`` at ``time_scale``, once its control socket is there."""
+    daemon = subprocess.Popen(
+        [*RUN, str(config.path), "--time-scale", str(time_scale), "--log-format", "json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 60
+    while not config.control_socket.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return daemon
+
+
+def test_status_under_time_scale_and_loading_the_running_model(tmp_path, capsys):
+    """At --time-scale 100: units, the last tick's age, no future times; loading the running model: a no-op."""
+    config = write_config(tmp_path, {"control_socket": str(short_socket()), "blend_s": 5})
+    daemon = start_daemon(config, time_scale=100)
+    try:
+        time.sleep(1.0)  # 100 clock seconds: the scaled clock is well ahead of the wall's
+        assert main(["status", "--config", str(config.path), "--json"]) == 0
+        reply = json.loads(capsys.readouterr().out)
+        now = datetime.now(UTC) + timedelta(seconds=1)  # stamps are cut to whole seconds
+        for stamp in (reply["last_tick"], reply["started"], reply["model"]["loaded"]):
+            assert datetime.fromisoformat(stamp) <= now, f"{stamp} is in the future"
+        assert reply["clock"]["time_scale"] == 100 and 0 <= reply["last_tick_age_s"] < 60
+        assert reply["inputs"]["T_spindle_degC"]["unit"] == "degC"
+
+        assert main(["status", "--config", str(config.path)]) == 0
+        out = capsys.readouterr().out
+        assert re.search(r"last tick \d+\.\d s ago \(", out), out
+        assert re.search(r"T_spindle_degC: -?\d+\.\d+ degC", out), out
+        assert "clock x100: machine time" in out and re.search(r"sign [+-]1 x model drift", out)
+
+        assert main(["model", "load", str(config.model_path), "--config", str(config.path)]) == 0
+        out = capsys.readouterr().out
+        assert "already running example-gated-arx-y" in out and "no blend" in out
+        assert main(["status", "--config", str(config.path), "--json"]) == 0
+        model = json.loads(capsys.readouterr().out)
+        assert model["counters"]["model_loads"] == 0
+        assert model["model"]["pending"] is None and model["model"]["blending_from"] is None
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        _, stderr = daemon.communicate(timeout=30)
+    assert daemon.returncode == 0, stderr
 
 
 def test_status_model_load_and_sigterm_on_a_running_daemon(tmp_path, capsys):
     """Against a running daemon: status shows it, model load switches it, SIGTERM stops it cleanly with state saved."""
     config = write_config(tmp_path, {"control_socket": str(short_socket()), "blend_s": 5})
-    daemon = subprocess.Popen(
-        [*RUN, str(config.path), "--time-scale", "10", "--log-format", "json"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    daemon = start_daemon(config, time_scale=10)
     try:
-        deadline = time.monotonic() + 60
-        while not config.control_socket.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
         time.sleep(0.5)  # a few ticks
         assert main(["status", "--config", str(config.path)]) == 0
         out = capsys.readouterr().out
@@ -118,7 +179,7 @@ def test_status_model_load_and_sigterm_on_a_running_daemon(tmp_path, capsys):
         assert status["model"]["name"] == "retuned" and status["counters"]["model_loads"] == 1
     finally:
         daemon.send_signal(signal.SIGTERM)
-        stdout, stderr = daemon.communicate(timeout=30)
+        _, stderr = daemon.communicate(timeout=30)
     assert daemon.returncode == 0, stderr
-    assert json.loads(stdout.splitlines()[-1])["event"] == "stopped"
+    assert json.loads(stderr.splitlines()[-1])["event"] == "stopped"
     assert (config.state_dir / "state.json").is_file()

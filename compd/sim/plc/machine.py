@@ -327,6 +327,12 @@ class MachineClock:
         self.machine = machine
         self.settle = settle
 
+    @property
+    def time_scale(self) -> float | None:
+        """The base clock's ``time_scale``; None on virtual time (``--time-scale max``)."""
+        scale: float | None = getattr(self.base, "time_scale", None)
+        return scale
+
     def now(self) -> float:
         return self.base.now()
 

@@ -1,67 +1,13 @@
-"""The terminal view of a simulated run: live inputs, model, offsets and true errors; a summary at the end."""
+"""The end of a simulated run on the terminal: the error per axis, the faults (the live view is ``compd.cli``'s)."""
 
 from __future__ import annotations
 
-import time
 from collections.abc import Mapping
 from typing import Any
 
-from rich.console import Group
 from rich.table import Table
-from rich.text import Text
 
-from compd.service.compensator import TickRecord
-from compd.service.safety import Level
-from compd.service.signals import Health
 from compd.sim.plc.machine import AxisSummary, SimulatedMachine
-
-_HEALTH_STYLE = {Health.OK: "green", Health.HELD: "yellow", Health.FAULTED: "bold red"}
-_LEVEL_STYLE = {Level.OK: "green", Level.DEGRADED: "yellow", Level.FAULTED: "bold red"}
-
-
-def live_view(
-    machine: SimulatedMachine,
-    record: TickRecord,
-    units: Mapping[str, str],
-    counters: Mapping[str, int],
-    started_wall_s: float,
-) -> Group:
-    """One frame: where the run is, every input with its health, every axis with its true error."""
-    level = Level(record.status & 0b11)
-    elapsed = max(time.perf_counter() - started_wall_s, 1e-9)
-    head = Text.assemble(
-        ("simulated machine ", "bold"),
-        f"{machine.doc.scenario} (seed {machine.doc.seed})  ",
-        f"t {_hms(machine.now_s)} / {_hms(machine.duration_s)}  ",
-        f"x{machine.now_s / elapsed:,.0f} real time  status ",
-        (level.name.lower(), _LEVEL_STYLE[level]),
-    )
-    inputs = Table(box=None, pad_edge=False, header_style="bold")
-    inputs.add_column("input")
-    inputs.add_column("value", justify="right")
-    inputs.add_column("health")
-    for name, value in record.values.items():
-        health = record.health[name]
-        reason = record.reasons.get(name, "")
-        inputs.add_row(
-            name,
-            f"{value:.3f} {units.get(name, '')}",
-            Text(health.name.lower() + (f" ({reason})" if reason else ""), _HEALTH_STYLE[health]),
-        )
-    axes = Table(box=None, pad_edge=False, header_style="bold")
-    for column in ("axis", "model um", "offset um", "true error um", "compensated um"):
-        axes.add_column(column, justify="right" if column != "axis" else "left")
-    truth = machine.truth_now()
-    for axis, (true_um, _, comp_um) in truth.items():
-        axes.add_row(
-            axis,
-            f"{record.targets_um.get(axis, float('nan')):+.2f}",
-            f"{record.offsets_um.get(axis, float('nan')):+.2f}",
-            f"{true_um:+.2f}",
-            f"{comp_um:+.2f}",
-        )
-    counts = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counters.items())
-    return Group(head, inputs, axes, Text(counts, "dim"))
 
 
 def summary_table(rows: list[AxisSummary]) -> Table:
@@ -100,8 +46,3 @@ def fault_table(status: Mapping[str, Any], machine: SimulatedMachine) -> Table:
     table.add_row("PLC: heartbeat timeouts", str(machine.plc.heartbeat_timeouts))
     table.add_row("PLC: values written", str(machine.plc.writes))
     return table
-
-
-def _hms(seconds: float) -> str:
-    s = int(seconds)
-    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"

@@ -1,0 +1,104 @@
+"""`compd run` on a terminal: one live view, redrawn in place, with the logs in a panel under it."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import yaml
+
+from compd.files.yamlplace import resolve_path
+from tests.acceptance.conftest import free_port
+from tests.service.daemon_setup import write_config
+
+from .terminal import Screen, run_in_terminal
+
+HEADER = "simulated machine production"
+LOG_LINE = re.compile(r"\[\s*(debug|info|warning|error|critical)\s*\]|\"log_level\"")
+
+
+@pytest.fixture
+def short_dir() -> Iterator[Path]:
+    directory = Path(tempfile.mkdtemp(prefix="compd-tty-", dir="/tmp"))
+    yield directory
+    shutil.rmtree(directory, ignore_errors=True)
+
+
+def simulated_config(directory: Path, **simulation: object) -> Path:
+    """bundled:simulated.yaml with its model, on a free port, its files under ``directory``."""
+    bundled = resolve_path("bundled:simulated.yaml", Path("."))
+    doc = yaml.safe_load(bundled.read_text())
+    doc["model"] = str(bundled.parent / doc["model"])
+    doc["drivers"]["plc"]["settings"]["port"] = free_port()
+    doc["state"] = {"directory": str(directory / "state"), "save_every_ticks": 60}
+    doc["control_socket"] = str(directory / "c.sock")
+    doc["simulation"] |= simulation
+    path = directory / "sim.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def one_view(argv: list[str], header: str) -> tuple[Screen, int, int]:
+    """Run at 120x40; the screen, its one header's line and its log panel's, no log line between."""
+    screen = run_in_terminal(argv, columns=120, rows=40)
+    text = "\n".join(screen.lines)
+    assert screen.returncode == 0, text
+    headers = [i for i, line in enumerate(screen.lines) if header in line]
+    assert len(headers) == 1, f"{len(headers)} copies of the header:\n{text}"
+    head = headers[0]
+    panel = next(
+        i for i in range(head, len(screen.lines)) if "warnings and errors" in screen.lines[i]
+    )
+    view = screen.lines[head:panel]
+    assert not [line for line in view if LOG_LINE.search(line)], "\n".join(view)
+    return screen, head, panel
+
+
+def test_live_view_is_drawn_once_with_the_fault_in_its_warnings_panel(short_dir: Path) -> None:
+    """At 120x40: one header in all the scrollback, the fault's error in the panel, no log in the view."""
+    config = simulated_config(
+        short_dir, faults=[{"kind": "drop", "driver": "plc", "at_s": 120, "duration_s": 40}]
+    )
+    argv = ["run", "--config", str(config), "--time-scale", "max", "--duration-s", "600"]
+    screen, head, panel = one_view(argv, HEADER)
+    assert "/ 0:10:00 (100 %)" in screen.lines[head], screen.lines[head]
+    view = screen.lines[head:panel]
+    assert any("offset written um (sign x drift" in line for line in view), "\n".join(view)
+    panel_end = next(i for i in range(panel + 1, len(screen.lines)) if "╰" in screen.lines[i])
+    shown = "\n".join(screen.lines[panel:panel_end])
+    assert "driver read failed" in shown or "driver open failed" in shown, shown
+    # After the view: the summary, and the records kept while it ran, in full.
+    after = "\n".join(screen.lines[panel_end:])
+    assert "thermal error at the tool centre point" in after and "driver reconnected" in after
+
+
+def test_run_on_a_real_machine_config_shows_the_same_live_view(short_dir: Path) -> None:
+    """Without a simulation (the replay driver): one header, progress to --duration-s, the warning in the panel."""
+    config = write_config(short_dir, {"control_socket": str(short_dir / "c.sock")})
+    config.state_dir.mkdir(parents=True, exist_ok=True)
+    (config.state_dir / "state.json").write_text("{ not json")  # a WARNING at start
+    argv = ["run", "--config", str(config.path), "--time-scale", "50", "--duration-s", "120"]
+    screen, head, panel = one_view(argv, "compd model example-gated-arx-y")
+    text = "\n".join(screen.lines)
+    assert "t 0:02:00 / 0:02:00 (100 %)" in screen.lines[head], screen.lines[head]
+    view = screen.lines[head:panel]
+    assert any("model drift um  sign  offset written um (sign x drift" in line for line in view)
+    # Logged before the first frame: not over the view but in the panel, then in full after it.
+    assert re.search(r"warnings and errors \([1-9]", screen.lines[panel]), text
+    assert not any("saved state ignored" in line for line in screen.lines[:head]), text
+    assert any("saved state ignored" in line for line in screen.lines[panel:]), text
+
+
+def test_a_view_taller_than_the_terminal_is_cropped_not_scrolled(short_dir: Path) -> None:
+    """At 80x10 the view does not fit: frames are cropped, so the scrollback still has one header."""
+    config = simulated_config(short_dir)
+    argv = ["run", "--config", str(config), "--time-scale", "max", "--duration-s", "600"]
+    screen = run_in_terminal(argv, columns=80, rows=10)
+    text = "\n".join(screen.lines)
+    assert screen.returncode == 0, text
+    assert sum(HEADER in line for line in screen.lines) == 1, text
+    assert "thermal error at the tool centre point" in text
