@@ -35,7 +35,7 @@ from compd.service.schedule import GainRow, GainScheduler, GainTable
 from compd.service.signals import Checks, SignalMonitor
 
 if TYPE_CHECKING:
-    from compd.service.telemetry import Telemetry
+    from compd.service.telemetry import Broker, Telemetry
 
 SCHEMA = CONFIG_SCHEMA
 #: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31); the
@@ -352,6 +352,9 @@ class TelemetryDoc(_Strict):
     username: str | None = None
     password_file: str | None = None
     tls: TelemetryTlsDoc | None = None
+    #: Load models sent to ``<prefix>/<machine_id>/cmd/model_load`` (``compd model rollout``).
+    #: Off unless asked: a machine takes no model from the network unless configured to.
+    accept_models: bool = False
 
     @model_validator(mode="after")
     def _consistent(self) -> TelemetryDoc:
@@ -381,17 +384,31 @@ class TelemetryDoc(_Strict):
         wall: Callable[[], float],
     ) -> Telemetry:
         """The publisher, not yet connected; paho is imported here, only for a config that asks."""
-        from compd.service.telemetry import Broker, Telemetry, Topics
+        from compd.service.telemetry import Telemetry, Topics
+
+        return Telemetry(
+            self.broker(base_dir, self.client_id or f"compd-{self.machine_id}"),
+            Topics(self.topic_prefix, self.machine_id),
+            qos=self.qos,
+            every_ticks=self.every_ticks,
+            queue_size=self.queue_size,
+            identity=identity,
+            wall=wall,
+        )
+
+    def broker(self, base_dir: Path, client_id: str) -> Broker:
+        """Where and as whom to connect (the password file read now); also the roll-out's."""
+        from compd.service.telemetry import Broker
 
         def path(name: str | None) -> Path | None:
             return None if name is None else resolve_path(name, base_dir)
 
         password_path = path(self.password_file)
         tls = self.tls
-        broker = Broker(
+        return Broker(
             host=self.host,
             port=self.broker_port,
-            client_id=self.client_id or f"compd-{self.machine_id}",
+            client_id=client_id,
             keepalive_s=self.keepalive_s,
             reconnect_min_s=self.reconnect_min_s,
             reconnect_max_s=self.reconnect_max_s,
@@ -400,15 +417,6 @@ class TelemetryDoc(_Strict):
             ca_file=None if tls is None else path(tls.ca_file),
             cert_file=None if tls is None else path(tls.cert_file),
             key_file=None if tls is None else path(tls.key_file),
-        )
-        return Telemetry(
-            broker,
-            Topics(self.topic_prefix, self.machine_id),
-            qos=self.qos,
-            every_ticks=self.every_ticks,
-            queue_size=self.queue_size,
-            identity=identity,
-            wall=wall,
         )
 
 

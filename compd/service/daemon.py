@@ -38,6 +38,7 @@ from compd.service.config import Config
 from compd.service.control import ControlServer
 from compd.service.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.notify import SystemdNotifier
+from compd.service.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
 from compd.service.safety import HEARTBEAT_MODULO
 from compd.service.slots import ModelSlot
 from compd.service.state import (
@@ -146,6 +147,9 @@ class Service:
                 link.report_to(sink)
             self.compensator.report_to(sink)
             self._recorder_fault.sink = self._save_fault.sink = sink
+            if doc.telemetry is not None and doc.telemetry.accept_models:
+                remote = RemoteLoads(self.load_model, self.telemetry.reply, sink)
+                self.telemetry.listen(COMMAND, remote.handle, max_bytes=MAX_PAYLOAD_BYTES)
 
     async def run(self, *, duration_s: float | None = None) -> TickTiming:
         """Run until :meth:`stop` (or ``duration_s`` of clock time); then shut down cleanly."""

@@ -35,23 +35,24 @@ network I/O. A broker that goes away is a fault of the telemetry, logged once
 the queue fills and drops its oldest entries, paho reconnects with backoff,
 and the birth (then the queued backlog) is published again.
 
-Publishing only: nothing here acts on a message from the broker. A fleet
-roll-out (a model loaded remotely) is to come; what it can build on is the
-``model_loaded`` / ``model_switched`` / ``model_failed`` events and the
-re-birth naming the new model's sha256, which tell the sender that each
-machine took the model; the load itself is the control socket's ``load``
-(:meth:`compd.service.daemon.Service.load_model`), whatever carries it.
+Commands: with ``accept_models: true`` (never by default) the daemon also
+subscribes to ``<prefix>/<machine_id>/cmd/<kind>`` (:meth:`Telemetry.listen`)
+and answers on ``<prefix>/<machine_id>/reply/<request_id>``
+(:meth:`Telemetry.reply`); :mod:`compd.service.remoteload` is the one
+command, a model rolled out to the fleet. A command's payload is bounded and
+handed from paho's thread to the event loop, never acted on in paho's thread.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -155,6 +156,9 @@ class Telemetry:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread = 0
         self._task: asyncio.Task[None] | None = None
+        #: cmd/<kind> -> (handler, largest payload in bytes); see :meth:`listen`.
+        self._commands: dict[str, tuple[Callable[[bytes], Awaitable[None]], int]] = {}
+        self._handling: set[asyncio.Task[None]] = set()
 
     @property
     def fault_active(self) -> bool:
@@ -178,6 +182,7 @@ class Telemetry:
         client.on_connect_fail = self._on_connect_fail
         client.on_disconnect = self._on_disconnect
         client.on_publish = self._on_publish
+        client.on_message = self._on_message
         self._set_will(client)
         return client
 
@@ -286,6 +291,21 @@ class Telemetry:
             self._task.cancel()
         log.info("telemetry stopped", **self.status_counters())
 
+    def listen(
+        self, kind: str, handler: Callable[[bytes], Awaitable[None]], *, max_bytes: int
+    ) -> None:
+        """Act on ``<prefix>/<machine_id>/cmd/<kind>``: ``await handler(payload)`` on the event loop.
+
+        Subscribed (QoS 1) on every connection; before :meth:`start`. A payload
+        over ``max_bytes`` is dropped unread, logged and told as a ``fault``
+        event (there is no request id to answer to without reading it).
+        """
+        self._commands[kind] = (handler, max_bytes)
+
+    def reply(self, request_id: str, payload: dict[str, Any]) -> bool:
+        """Publish the answer to a command on ``reply/<request_id>`` (the loop's thread; QoS 1)."""
+        return self._publish(f"reply/{request_id}", self._header("reply") | payload)
+
     def status_counters(self) -> dict[str, Any]:
         """For ``compd status`` and the death message."""
         c = self.counters
@@ -311,6 +331,8 @@ class Telemetry:
         self.counters.connections += 1
         self.counters.connected = True
         self._birth_due = True
+        for kind in self._commands:  # a clean session: subscribed again on every connection
+            client.subscribe(self.topics.of(f"cmd/{kind}"), qos=1)
         if self.counters.connections == 1 and not self._fault.active:
             log.info("telemetry connected", broker=f"{self.broker.host}:{self.broker.port}")
         self._fault.cleared("telemetry broker connected again", kind="reconnected")
@@ -328,6 +350,24 @@ class Telemetry:
         # The next connection is a new session, and its will must say so.
         self.session += 1
         self._set_will(client)
+
+    def _on_message(self, client: Any, userdata: Any, message: mqtt.MQTTMessage) -> None:
+        kind = message.topic.removeprefix(self.topics.of("cmd/"))
+        handler, max_bytes = self._commands.get(kind, (None, 0))
+        if handler is None or self._loop is None:
+            return
+        if len(message.payload) > max_bytes:
+            log.error("command refused: too large", topic=message.topic, bytes=len(message.payload))
+            details = {"topic": message.topic, "bytes": len(message.payload), "max": max_bytes}
+            self.event(Event("fault", "command refused: too large", details))
+            return
+        with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
+            self._loop.call_soon_threadsafe(self._handle, handler, bytes(message.payload))
+
+    def _handle(self, handler: Callable[[bytes], Awaitable[None]], payload: bytes) -> None:
+        task = asyncio.ensure_future(handler(payload))
+        self._handling.add(task)  # a reference until done: the loop keeps only weak ones
+        task.add_done_callback(self._handling.discard)
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
         self.counters.acknowledged += 1

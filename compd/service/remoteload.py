@@ -1,0 +1,113 @@
+"""Models rolled out over the broker: ``cmd/model_load`` in, the same load as the control socket's.
+
+``compd model rollout`` publishes, to each machine's
+``<prefix>/<machine_id>/cmd/model_load`` (QoS 1, not retained), a JSON
+object::
+
+    {"schema": "compd.model_load/1", "request_id": "...", "name": "twin-z.yaml",
+     "model_base64": "...", "sha256": "<hex of the model file's bytes>",
+     "requested_by": "who@where"}
+
+A daemon whose telemetry section says ``accept_models: true`` (off by
+default) takes it through :meth:`compd.service.daemon.Service.load_model`,
+the control socket's ``load``: the same checks, install, blend and refusal,
+off the tick. It answers on ``<prefix>/<machine_id>/reply/<request_id>``
+with ``result``: ``accepted`` (with ``blend_s``), ``already_running`` /
+``already_loading`` (nothing loaded, no blend) or ``refused`` (with
+``reason``, the running model untouched); the ``model_switched`` event and
+the re-birth naming the new sha256 then tell that it is switched in.
+
+Who may send is the broker's business: each machine logs in as its own user,
+and the broker's ACL lets only the roll-out user write ``<prefix>/+/cmd/#``
+(README "Many machines"). Here the payload is bounded (a model file's
+:data:`~compd.files.yamlplace.MAX_YAML_BYTES`, base64) and must carry the
+sha256 of the bytes it delivers, so a truncated or altered model is refused
+before it is parsed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import structlog
+
+from compd.errors import CompdError
+from compd.faultlog import Event, EventSink
+from compd.files.yamlplace import MAX_YAML_BYTES, shorten
+from compd.service.modelload import load_request, request_bytes
+
+log = structlog.get_logger("compd.service.remoteload")
+
+SCHEMA = "compd.model_load/1"
+#: The command's topic level: ``<prefix>/<machine_id>/cmd/model_load``.
+COMMAND = "model_load"
+#: The largest payload read: a model file at its size limit, base64-encoded, and the rest.
+MAX_PAYLOAD_BYTES = 4 * (MAX_YAML_BYTES // 3 + 1) + 4096
+#: A request id is one topic level of the reply's topic: no wildcards, no separators.
+REQUEST_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,100}$")
+
+Load = Callable[[dict[str, Any]], Awaitable[dict[str, Any]]]
+Reply = Callable[[str, dict[str, Any]], object]
+
+
+class RemoteLoads:
+    """Handles ``cmd/model_load`` payloads: ``load`` is ``Service.load_model``, ``reply`` publishes."""
+
+    def __init__(self, load: Load, reply: Reply, events: EventSink) -> None:
+        self.load = load
+        self.reply = reply
+        self.events = events
+
+    async def handle(self, payload: bytes) -> None:
+        """Parse, check and load one request; answer it (a request without a usable id: log only)."""
+        try:
+            request = _parse(payload)
+        except CompdError as exc:
+            log.error("remote model load ignored", error=str(exc))
+            self.events(Event("model_refused", "remote model load ignored", {"reason": str(exc)}))
+            return
+        request_id = request["request_id"]
+        by = shorten(str(request.get("requested_by", "?")), 200)
+        answer: dict[str, Any] = {"request_id": request_id, "sha256": request.get("sha256")}
+        try:
+            answer |= await self._load(request, by)
+        except CompdError as exc:
+            answer |= {"result": "refused", "reason": str(exc)}
+            details = {"reason": str(exc), "sha256": answer["sha256"], "requested_by": by}
+            self.events(Event("model_refused", "remote model load refused", details))
+        self.reply(request_id, answer)
+
+    async def _load(self, request: dict[str, Any], by: str) -> dict[str, Any]:
+        if request.get("schema") != SCHEMA:
+            raise CompdError(f"the request's schema is {request.get('schema')!r}, not {SCHEMA!r}")
+        raw, name = request_bytes(request)
+        sha256 = hashlib.sha256(raw).hexdigest()
+        if sha256 != request.get("sha256"):
+            raise CompdError(
+                f"the model's sha256 is {sha256}, the request says {request.get('sha256')}: "
+                "altered or truncated on the way; it was not loaded"
+            )
+        log.info("remote model load", name=name, sha256=sha256, requested_by=by)
+        reply = await self.load(load_request(raw, name))
+        for state in ("already_running", "already_loading"):
+            if reply.get(state):
+                return {"result": state, "model": reply["model"]}
+        return {"result": "accepted", "model": reply["model"], "blend_s": reply["blend_s"]}
+
+
+def _parse(payload: bytes) -> dict[str, Any]:
+    """The request as a dict with a usable ``request_id``; raises CompdError saying what is wrong."""
+    try:
+        request = json.loads(payload)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CompdError(f"the request is not JSON ({exc})") from exc
+    if not isinstance(request, dict):
+        raise CompdError("the request is not a JSON object")
+    request_id = request.get("request_id")
+    if not isinstance(request_id, str) or not REQUEST_ID.match(request_id):
+        raise CompdError("the request's request_id is not 1-100 letters, digits, _ . : -")
+    return request
