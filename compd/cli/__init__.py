@@ -32,7 +32,10 @@ VERSION = f"compd {__version__}\nmodel files: {MODEL_SCHEMA}\nconfig files: {CON
 #: registers it and its one-line help (checked against the module by the tests).
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("compd.cli.demo", "compare the bundled example models with bundled example data"),
-    "model": ("compd.cli.model", "model files: check one, load one into the running daemon"),
+    "model": (
+        "compd.cli.model",
+        "model files: check one, load one into the running daemon, roll one out",
+    ),
     "simulate": ("compd.cli.evaluate", "model output and each sub-model's contribution per sample"),
     "compare": ("compd.cli.evaluate", "model against measurement: fit %%, residue, reduction"),
     "fit": (

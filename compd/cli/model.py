@@ -12,7 +12,7 @@ from compd.cli.args import daemon_options
 
 def register(commands: Any) -> None:
     model = commands.add_parser(
-        "model", help="model files: check one, load one into the running daemon"
+        "model", help="model files: check one, load one into the running daemon, roll one out"
     ).add_subparsers(metavar="ACTION")
     check = model.add_parser("check", help="validate and compile a model file; show its sub-models")
     check.add_argument("model", type=Path, metavar="MODEL.yaml")
@@ -26,6 +26,40 @@ def register(commands: Any) -> None:
     load.add_argument("model", type=Path, metavar="MODEL.yaml")
     daemon_options(load)
     load.set_defaults(handler=_load)
+    rollout = model.add_parser(
+        "rollout",
+        help="check a model file, send it to many machines through the fleet's MQTT broker",
+        description="Check MODEL.yaml, then send it to each machine's "
+        "<prefix>/<machine_id>/cmd/model_load (machines with telemetry.accept_models: true); "
+        "print each machine's answer. Exit status 1 if any refused or did not answer.",
+    )
+    rollout.add_argument("model", type=Path, metavar="MODEL.yaml")
+    rollout.add_argument(
+        "--broker-config",
+        "--telemetry-config",
+        type=Path,
+        required=True,
+        metavar="FILE.yaml",
+        help="the broker: a compd config's 'telemetry:' section, or such a section alone "
+        "(host, port, tls, username, password_file, topic_prefix)",
+    )
+    rollout.add_argument(
+        "--machines", required=True, metavar="M1,M2,...", help="the machine_ids to send it to"
+    )
+    rollout.add_argument(
+        "--timeout-s", type=float, default=60.0, help="wait this long for the answers (default 60)"
+    )
+    rollout.add_argument(
+        "--wait-blend",
+        action="store_true",
+        help="also wait until each machine that accepted it has switched to it",
+    )
+    rollout.add_argument(
+        "--no-local-check",
+        action="store_true",
+        help="send without checking here first (the machines still check it)",
+    )
+    rollout.set_defaults(handler=_rollout)
 
 
 def _check(args: argparse.Namespace) -> int:
@@ -75,6 +109,12 @@ def _check(args: argparse.Namespace) -> int:
         print(finding.describe(), file=sys.stderr)
     out.print("[green]ok[/green]: compiles, causal and stable")
     return 0
+
+
+def _rollout(args: argparse.Namespace) -> int:
+    from compd.cli.rollout import rollout_command
+
+    return rollout_command(args)
 
 
 def _load(args: argparse.Namespace) -> int:

@@ -166,18 +166,8 @@ class Telemetry:
         return self._fault.active
 
     def _make_client(self) -> mqtt.Client:
-        b = self.broker
-        client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=b.client_id)
+        client = mqtt_client(self.broker)
         client.max_queued_messages_set(MAX_UNACKNOWLEDGED + 10)  # + the death, at stop
-        client.reconnect_delay_set(b.reconnect_min_s, b.reconnect_max_s)
-        if b.username is not None:
-            client.username_pw_set(b.username, b.password)
-        if b.ca_file is not None:
-            client.tls_set(
-                ca_certs=str(b.ca_file),
-                certfile=None if b.cert_file is None else str(b.cert_file),
-                keyfile=None if b.key_file is None else str(b.key_file),
-            )
         client.on_connect = self._on_connect
         client.on_connect_fail = self._on_connect_fail
         client.on_disconnect = self._on_disconnect
@@ -421,6 +411,21 @@ class Telemetry:
             "heartbeat": record.heartbeat,
             "counters": counters | {"telemetry_dropped": self.counters.dropped},
         }
+
+
+def mqtt_client(broker: Broker) -> mqtt.Client:
+    """A paho client for ``broker``: its id, user and password, TLS files, reconnect backoff."""
+    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=broker.client_id)
+    client.reconnect_delay_set(broker.reconnect_min_s, broker.reconnect_max_s)
+    if broker.username is not None:
+        client.username_pw_set(broker.username, broker.password)
+    if broker.ca_file is not None:
+        client.tls_set(
+            ca_certs=str(broker.ca_file),
+            certfile=None if broker.cert_file is None else str(broker.cert_file),
+            keyfile=None if broker.key_file is None else str(broker.key_file),
+        )
+    return client
 
 
 def _wait_published(info: mqtt.MQTTMessageInfo, timeout_s: float) -> None:

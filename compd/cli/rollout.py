@@ -1,0 +1,237 @@
+"""``compd model rollout``: one model file to many machines through the fleet's MQTT broker.
+
+The model is checked here first (as ``compd model check`` does), then sent to
+each machine's ``<prefix>/<machine_id>/cmd/model_load``
+(:mod:`compd.service.remoteload`: the daemon's own checks, install, blend and
+refusal follow). The answers come back on ``reply/<request_id>``; with
+``--wait-blend`` the ``model_switched`` event (or the re-birth naming the new
+sha256) says each machine switched to it. A machine that does not answer in
+time is shown with what its retained birth and death say: online, offline
+since its death, or never seen on this broker.
+"""
+
+from __future__ import annotations
+
+import getpass
+import hashlib
+import json
+import os
+import socket
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+
+from compd.errors import CompdError, ConfigFileError, ModelFileError
+from compd.files.yamlplace import parse_yaml, read_limited
+from compd.service.config import validation_error
+from compd.service.configdoc import TelemetryDoc
+from compd.service.modelload import load_request
+from compd.service.remoteload import COMMAND, REQUEST_ID, SCHEMA
+from compd.service.telemetry import mqtt_client
+
+#: What each outcome means for the exit status: these are a success.
+SUCCEEDED = ("accepted", "already_running", "already_loading")
+
+
+@dataclass
+class Outcome:
+    """One machine's part of a roll-out."""
+
+    machine_id: str
+    #: ``accepted``, ``already_running``, ``already_loading``, ``refused`` or ``no answer``.
+    result: str = "no answer"
+    reason: str = ""
+    blend_s: float | None = None
+    #: ``model_switched`` heard (or a birth naming the model); None: not waited for.
+    blended_in: bool | None = None
+    #: From the retained birth and death: ``online``, ``offline (...)``, ``never seen``.
+    presence: str = "never seen"
+
+    @property
+    def ok(self) -> bool:
+        return self.result in SUCCEEDED and self.blended_in is not False
+
+
+def broker_section(path: Path) -> tuple[TelemetryDoc, Path]:
+    """The broker settings of ``path``: a compd config's ``telemetry:`` section, or such a section alone.
+
+    ``machine_id`` may be left out (the roll-out is not a machine); files
+    (``password_file``, TLS) are relative to ``path``'s folder.
+    """
+    raw = read_limited(path, ConfigFileError)
+    doc, root = parse_yaml(raw.decode("utf-8", errors="replace"), path, ConfigFileError)
+    prefix: tuple[str | int, ...] = ()
+    if isinstance(doc, dict) and "telemetry" in doc:
+        doc, prefix = doc["telemetry"], ("telemetry",)
+    if not isinstance(doc, dict):
+        raise ConfigFileError(
+            path, "no broker settings", fix="Give a 'telemetry:' section: host, port, tls..."
+        )
+    try:
+        section = TelemetryDoc.model_validate({"machine_id": "rollout"} | doc)
+    except ValidationError as exc:
+        raise validation_error(exc, path, root, prefix) from None
+    return section, path.parent
+
+
+class _Listener:
+    """What the broker says about the machines: retained birth and death, replies, events."""
+
+    def __init__(self, prefix: str, machines: list[str]) -> None:
+        self.prefix = prefix
+        self.machines = machines
+        self.lock = threading.Lock()
+        self.heard: dict[tuple[str, str], list[dict[str, Any]]] = {}
+        self.subscribed = threading.Event()
+
+    def topics(self) -> list[tuple[str, int]]:
+        kinds = ("birth", "death", "event", "reply/#")
+        return [(f"{self.prefix}/{m}/{kind}", 1) for m in self.machines for kind in kinds]
+
+    def on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+        if not reason.is_failure:
+            client.subscribe(self.topics())
+
+    def on_subscribe(self, *args: Any) -> None:
+        self.subscribed.set()
+
+    def on_message(self, client: Any, userdata: Any, message: Any) -> None:
+        parts = message.topic.removeprefix(f"{self.prefix}/").split("/")
+        try:
+            payload = json.loads(message.payload)
+        except ValueError:
+            return
+        kind = "reply" if parts[1:2] == ["reply"] else parts[1]
+        with self.lock:
+            self.heard.setdefault((parts[0], kind), []).append(payload)
+
+    def of(self, machine: str, kind: str) -> list[dict[str, Any]]:
+        with self.lock:
+            return list(self.heard.get((machine, kind), []))
+
+
+def rollout(
+    section: TelemetryDoc,
+    base_dir: Path,
+    raw: bytes,
+    name: str,
+    machines: list[str],
+    *,
+    timeout_s: float,
+    wait_blend: bool,
+) -> list[Outcome]:
+    """Send ``raw`` to every machine; their outcomes once all answered (and switched) or ``timeout_s``."""
+    sha256 = hashlib.sha256(raw).hexdigest()
+    broker = section.broker(base_dir, f"compd-rollout-{uuid.uuid4().hex[:12]}")
+    listener = _Listener(section.topic_prefix, machines)
+    client = mqtt_client(broker)
+    client.on_connect = listener.on_connect
+    client.on_subscribe = listener.on_subscribe
+    client.on_message = listener.on_message
+    try:
+        client.connect(broker.host, broker.port, broker.keepalive_s)
+    except (OSError, ValueError) as exc:
+        raise CompdError(
+            f"cannot connect to the broker {broker.host}:{broker.port} ({exc})"
+        ) from exc
+    client.loop_start()
+    try:
+        if not listener.subscribed.wait(timeout_s):
+            raise CompdError(f"the broker {broker.host}:{broker.port} did not accept the login")
+        request = load_request(raw, name) | {"schema": SCHEMA, "sha256": sha256}
+        del request["cmd"]  # the control socket's word; the topic says it here
+        request["requested_by"] = f"{getpass.getuser()}@{socket.gethostname()}"
+        ids = {m: uuid.uuid4().hex for m in machines}
+        for machine in machines:
+            payload = json.dumps(request | {"request_id": ids[machine]}).encode()
+            topic = f"{section.topic_prefix}/{machine}/cmd/{COMMAND}"
+            client.publish(topic, payload, qos=1).wait_for_publish(timeout_s)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            outcomes = [_outcome(listener, m, ids[m], sha256, wait_blend) for m in machines]
+            if all(_settled(o) for o in outcomes) or time.monotonic() > deadline:
+                return outcomes
+            time.sleep(0.05)
+    finally:
+        client.disconnect()
+        client.loop_stop()
+
+
+def _outcome(
+    listener: _Listener, machine: str, request_id: str, sha256: str, wait: bool
+) -> Outcome:
+    outcome = Outcome(machine, presence=_presence(listener, machine))
+    for reply in listener.of(machine, "reply"):
+        if reply.get("request_id") == request_id:
+            outcome.result = str(reply.get("result", "refused"))
+            outcome.reason = str(reply.get("reason", ""))
+            outcome.blend_s = reply.get("blend_s")
+    if wait and outcome.result in SUCCEEDED:
+        switched = any(
+            e.get("event") == "model_switched" and e.get("details", {}).get("sha256") == sha256
+            for e in listener.of(machine, "event")
+        )
+        births = listener.of(machine, "birth")
+        running = bool(births) and births[-1].get("model", {}).get("sha256") == sha256
+        outcome.blended_in = switched or running
+    return outcome
+
+
+def _settled(outcome: Outcome) -> bool:
+    return outcome.result != "no answer" and outcome.blended_in is not False
+
+
+def _presence(listener: _Listener, machine: str) -> str:
+    """Sparkplug's rule: online while the newest birth's session is newer than the newest death's."""
+    births, deaths = listener.of(machine, "birth"), listener.of(machine, "death")
+    if not births:
+        return "never seen"
+    if deaths and deaths[-1].get("session", 0) >= births[-1].get("session", 0):
+        return f"offline ({deaths[-1].get('reason', '?')})"
+    return "online"
+
+
+def rollout_command(args: Any) -> int:
+    """The handler of ``compd model rollout``: check, send, wait, print the table."""
+    from rich.table import Table
+
+    from compd.cli.terminal import console
+    from compd.files.modelfile import load_model
+
+    raw = read_limited(args.model, ModelFileError)
+    if not args.no_local_check:
+        model_file = load_model(args.model)
+        model_file.compile(None)
+        model_file.check_plausible()
+    section, base_dir = broker_section(args.broker_config)
+    machines = [m.strip() for m in args.machines.split(",") if m.strip()]
+    for machine in machines:
+        if not REQUEST_ID.match(machine):
+            raise CompdError(
+                f"--machines: {machine!r} is not a machine_id (letters, digits, _ . : -)"
+            )
+    outcomes = rollout(
+        section,
+        base_dir,
+        raw,
+        os.path.basename(args.model),
+        machines,
+        timeout_s=args.timeout_s,
+        wait_blend=args.wait_blend,
+    )
+    table = Table("machine", "result", "reason", "blend (s)", "blended in", "broker says")
+    for o in outcomes:
+        blended = {None: "-", True: "yes", False: "not yet"}[o.blended_in]
+        blend = "-" if o.blend_s is None else f"{o.blend_s:g}"
+        style = "green" if o.ok else "red"
+        result = f"[{style}]{o.result.replace('_', ' ')}[/{style}]"
+        table.add_row(o.machine_id, result, o.reason, blend, blended, o.presence)
+    out = console()
+    out.print(f"{args.model} (sha256 {hashlib.sha256(raw).hexdigest()[:12]}) to {len(machines)}")
+    out.print(table)
+    return 0 if all(o.ok for o in outcomes) else 1
