@@ -10,6 +10,7 @@ offsets are those of a run without telemetry, and the counters show the drops.
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import subprocess
 import sys
 import time
@@ -21,13 +22,22 @@ from typing import Any
 import pytest
 import yaml
 
+from compd.cli import main
+from compd.cli.args import EXIT_INPUT_ERROR
 from compd.files.yamlplace import resolve_path
 from compd.service.compensator import TickRecord
 from compd.service.config import Config, load_config
 from compd.service.daemon import Service
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
-from tests.mosquitto import WAIT_S, Mosquitto, Subscriber, free_port, mosquitto_binary
+from tests.mosquitto import (
+    WAIT_S,
+    Mosquitto,
+    Subscriber,
+    free_port,
+    make_pki,
+    mosquitto_binary,
+)
 
 pytestmark = pytest.mark.skipif(
     mosquitto_binary() is None,
@@ -90,6 +100,7 @@ def fleet(broker: Mosquitto, tmp_path: Path) -> Iterator[list[Machine]]:
             "host": "127.0.0.1",
             "port": broker.port,
             "every_ticks": EVERY_TICKS,
+            "accept_models": True,
         }
         config = machine_config(tmp_path / machine_id, simulation=simulation, telemetry=telemetry)
         machines.append(Machine(machine_id, config))
@@ -142,17 +153,219 @@ def test_a_fleet_of_three_is_born_reports_and_dies(fleet: list[Machine], broker:
     assert len(set(finals.values())) == len(fleet), "three machines, three thermal histories"
 
 
-@pytest.mark.skip(reason="the roll-out (a model loaded remotely on every machine) comes later")
-def test_a_roll_out_reaches_every_machine(fleet: list[Machine], broker: Mosquitto):
-    """Hook for the roll-out: one model sent to the fleet is loaded and switched in on every machine.
+def test_a_roll_out_reaches_every_machine(
+    fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """One model rolled out to three running machines: each accepts it and switches; sent again, a no-op."""
+    new = _variant(tmp_path, "rolled-out.yaml")
+    settings = _broker_settings(tmp_path, broker.port)
+    with Subscriber(broker.port, "compd/#") as sub:
+        _start_and_wait_for_births(fleet, sub)
+        code = main(["model", "rollout", str(new), *settings, *ALL, "--wait-blend"])
+        table = capsys.readouterr().out
+        assert code == 0, table
+        for machine in fleet:
+            assert _row(table, machine.machine_id)[:2] == ["accepted", "60"], table
+            assert _row(table, machine.machine_id)[-2:] == ["yes", "online"], table
+        sha256 = hashlib.sha256(new.read_bytes()).hexdigest()
+        sub.wait_for(
+            lambda s: all(_running(s, m.machine_id) == sha256 for m in fleet),
+            "every machine's re-birth naming the rolled-out model",
+        )
+        for machine in fleet:
+            events = [e["event"] for e in sub.of("event", machine.machine_id)]
+            assert events.count("model_loaded") == 1 and events.count("model_switched") == 1
 
-    What the telemetry already gives it to check, per machine: an ``event``
-    ``model_loaded`` (accepted and installed), then ``model_switched``, then
-    a new retained ``birth`` whose ``model.sha256`` is the rolled-out model's.
-    Start the machines with ``start(machine, "--time-scale", "60")`` so there
-    is time to roll out while they run. On the daemon's side a delivered model
-    goes through ``Service.load_model`` (the control socket's ``load``).
-    """
+        code = main(["model", "rollout", str(new), *settings, *ALL])
+        table = capsys.readouterr().out
+        assert code == 0, table
+        for machine in fleet:
+            assert _row(table, machine.machine_id)[:2] == ["already", "running"], table
+        events = [e["event"] for e in sub.of("event")]
+        assert events.count("model_loaded") == len(fleet), "sent again: nothing loaded"
+
+
+def test_a_bad_model_is_refused_by_every_machine_and_a_machine_away_does_not_answer(
+    fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """Unstable model: refused here before sending, and by every machine when sent; a stopped one: no answer."""
+    bad = _variant(tmp_path, "unstable.yaml", unstable=True)
+    settings = _broker_settings(tmp_path, broker.port)
+    with Subscriber(broker.port, "compd/#") as sub:
+        _start_and_wait_for_births(fleet, sub)
+        assert main(["model", "rollout", str(bad), *settings, *ALL]) == EXIT_INPUT_ERROR
+        assert "stable" in capsys.readouterr().err
+        assert not [m for m in sub.messages if "/cmd/" in m.topic], "refused before sending"
+
+        code = main(["model", "rollout", str(bad), *settings, *ALL, "--no-local-check"])
+        table = capsys.readouterr().out
+        assert code == 1, table
+        for machine in fleet:
+            assert _row(table, machine.machine_id)[0] == "refused", table
+        assert table.count("stable") >= len(fleet), "the reason, per machine"
+        refused = [e for e in sub.of("event") if e["event"] == "model_refused"]
+        assert len(refused) == len(fleet)
+        assert all(_running(sub, m.machine_id) == _running(sub, "mill-a") for m in fleet)
+
+        away = fleet[2]
+        assert away.process is not None
+        away.process.terminate()
+        assert away.process.wait(timeout=WAIT_S) == 0
+        sub.wait_for(lambda s: s.of("death", away.machine_id), "the stopped machine's death")
+        new = _variant(tmp_path, "rolled-out.yaml")
+        code = main(["model", "rollout", str(new), *settings, *ALL, "--timeout-s", "5"])
+        table = capsys.readouterr().out
+        assert code == 1, table
+        assert _row(table, away.machine_id) == ["no", "answer", "-", "-", "offline", "(stopped)"]
+        for machine in fleet[:2]:
+            assert _row(table, machine.machine_id)[0] == "accepted", table
+
+
+def test_only_the_roll_out_user_can_send_a_model_over_tls(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """Per-machine users and an ACL over TLS: another machine or a user without the right is never heard."""
+    pki = make_pki(tmp_path)
+    passwords = tmp_path / "mosquitto.passwd"
+    users = ["mill-a", "mill-b", "rollout", "viewer"]
+    for k, user in enumerate(users):
+        create = ["-c"] if k == 0 else []
+        subprocess.run(
+            ["mosquitto_passwd", *create, "-b", str(passwords), user, f"{user}-pw"],
+            check=True,
+            capture_output=True,
+        )
+        (tmp_path / f"{user}.password").write_text(f"{user}-pw\n")
+    acl = tmp_path / "mosquitto.acl"
+    acl.write_text(ACL)
+    secure = free_port()
+    folder = tmp_path / "broker"
+    folder.mkdir()
+    broker = Mosquitto(
+        folder,
+        extra=[
+            f"listener {secure} 127.0.0.1",
+            f"cafile {pki.ca}",
+            f"certfile {pki.server_cert}",
+            f"keyfile {pki.server_key}",
+            "allow_anonymous false",
+            f"password_file {passwords}",
+            f"acl_file {acl}",
+        ],
+    ).start()
+    tls = {"ca_file": str(pki.ca)}
+    machines = []
+    for machine_id, seed, variant in FLEET[:2]:
+        telemetry = {
+            "machine_id": machine_id,
+            "host": "127.0.0.1",
+            "port": secure,
+            "username": machine_id,
+            "password_file": str(tmp_path / f"{machine_id}.password"),
+            "tls": tls,
+            "every_ticks": EVERY_TICKS,
+            "accept_models": True,
+        }
+        simulation = {"scenario": "production", "hours": 1, "seed": seed, "variant": variant}
+        config = machine_config(tmp_path / machine_id, simulation=simulation, telemetry=telemetry)
+        machines.append(Machine(machine_id, config))
+
+    def as_user(user: str) -> list[str]:
+        section = {
+            "host": "127.0.0.1",
+            "port": secure,
+            "username": user,
+            "password_file": f"{user}.password",
+            "tls": tls,
+        }
+        path = tmp_path / f"{user}-broker.yaml"
+        path.write_text(yaml.safe_dump({"telemetry": section}))
+        return ["--broker-config", str(path)]
+
+    new = _variant(tmp_path, "rolled-out.yaml")
+    try:
+        with Subscriber(broker.port, "compd/#") as sub:  # on the plain listener: hears everything
+            _start_and_wait_for_births(machines, sub)
+            for user, target in (("viewer", "mill-a,mill-b"), ("mill-b", "mill-a")):
+                rollout = ["model", "rollout", str(new), *as_user(user), "--timeout-s", "3"]
+                code = main([*rollout, "--machines", target])
+                table = capsys.readouterr().out
+                assert code == 1, table
+                assert all(_row(table, m)[:2] == ["no", "answer"] for m in target.split(",")), table
+            assert not sub.of("reply") and not sub.of("event"), "nothing delivered, nothing loaded"
+
+            rollout = ["model", "rollout", str(new), *as_user("rollout"), "--wait-blend"]
+            code = main([*rollout, "--machines", "mill-a,mill-b"])
+            table = capsys.readouterr().out
+            assert code == 0, table
+            for machine in machines:
+                row = _row(table, machine.machine_id)
+                assert row[0] == "accepted" and row[-2:] == ["yes", "online"], table
+    finally:
+        for machine in machines:
+            if machine.process is not None and machine.process.poll() is None:
+                machine.process.kill()
+                machine.process.wait()
+        broker.stop()
+
+
+#: The broker's ACL for a fleet (README "Many machines"): each machine, logged in as its
+#: machine_id, reads its own commands and writes its own topics; only the roll-out user
+#: writes commands, and reads the answers, events, births and deaths.
+ACL = """\
+pattern read compd/%u/cmd/#
+pattern write compd/%u/#
+
+user rollout
+topic write compd/+/cmd/#
+topic read compd/+/reply/#
+topic read compd/+/event
+topic read compd/+/birth
+topic read compd/+/death
+"""
+ALL = ["--machines", ",".join(machine_id for machine_id, _, _ in FLEET)]
+
+
+def _variant(folder: Path, name: str, *, unstable: bool = False) -> Path:
+    """The machines' model with one more comment line (a new sha256), or with an unstable pole."""
+    text = MODEL.read_text() + "\n# rolled out to the fleet\n"
+    if unstable:
+        stable = "den: [1.0, -0.9847232396390742, 1.3537078705442153e-05]"
+        assert stable in text
+        text = text.replace(stable, "den: [1.0, -2.5, 1.0]")  # poles 2 and 0.5
+    path = folder / name
+    path.write_text(text)
+    return path
+
+
+def _broker_settings(folder: Path, port: int) -> list[str]:
+    path = folder / "broker.yaml"
+    path.write_text(yaml.safe_dump({"host": "127.0.0.1", "port": port}))
+    return ["--broker-config", str(path), "--timeout-s", str(WAIT_S)]
+
+
+def _start_and_wait_for_births(machines: list[Machine], sub: Subscriber) -> None:
+    """Start each machine at 60x (a blend of 60 s takes 1 s) and wait until all are born."""
+    for machine in machines:
+        start(machine, "--time-scale", "60", "--duration-s", "36000")
+    sub.wait_for(
+        lambda s: all(s.of("birth", m.machine_id) for m in machines), "every machine's birth"
+    )
+
+
+def _running(sub: Subscriber, machine_id: str) -> str:
+    """The sha256 of the model the machine's latest birth names."""
+    births = sub.of("birth", machine_id)
+    return births[-1]["model"]["sha256"] if births else ""
+
+
+def _row(table: str, machine_id: str) -> list[str]:
+    """The words of the machine's row in the roll-out's table, after its name."""
+    for line in table.splitlines():
+        words = line.replace("│", " ").replace("┃", " ").split()
+        if words and words[0] == machine_id:
+            return words[1:]
+    raise AssertionError(f"no row for {machine_id} in:\n{table}")
 
 
 def test_pulling_the_broker_changes_nothing_in_the_compensation(tmp_path: Path):
