@@ -292,6 +292,11 @@ class Telemetry:
         """
         self._commands[kind] = (handler, max_bytes)
 
+    @property
+    def listening(self) -> tuple[str, ...]:
+        """The command kinds this daemon acts on (none unless the config says ``accept_models``)."""
+        return tuple(self._commands)
+
     def reply(self, request_id: str, payload: dict[str, Any]) -> bool:
         """Publish the answer to a command on ``reply/<request_id>`` (the loop's thread; QoS 1)."""
         return self._publish(f"reply/{request_id}", self._header("reply") | payload)
