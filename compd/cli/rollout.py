@@ -17,6 +17,7 @@ import hashlib
 import json
 import os
 import socket
+import sys
 import threading
 import time
 import uuid
@@ -88,13 +89,17 @@ class _Listener:
         self.lock = threading.Lock()
         self.heard: dict[tuple[str, str], list[dict[str, Any]]] = {}
         self.subscribed = threading.Event()
+        self.refused = ""
 
     def topics(self) -> list[tuple[str, int]]:
         kinds = ("birth", "death", "event", "reply/#")
         return [(f"{self.prefix}/{m}/{kind}", 1) for m in self.machines for kind in kinds]
 
     def on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
-        if not reason.is_failure:
+        if reason.is_failure:  # a wrong password, an unknown user: say so at once
+            self.refused = str(reason)
+            self.subscribed.set()
+        else:
             client.subscribe(self.topics())
 
     def on_subscribe(self, *args: Any) -> None:
@@ -141,8 +146,9 @@ def rollout(
         ) from exc
     client.loop_start()
     try:
-        if not listener.subscribed.wait(timeout_s):
-            raise CompdError(f"the broker {broker.host}:{broker.port} did not accept the login")
+        if not listener.subscribed.wait(timeout_s) or listener.refused:
+            why = listener.refused or f"no answer in {timeout_s:g} s"
+            raise CompdError(f"the broker {broker.host}:{broker.port} refused the login ({why})")
         request = load_request(raw, name) | {"schema": SCHEMA, "sha256": sha256}
         del request["cmd"]  # the control socket's word; the topic says it here
         request["requested_by"] = f"{getpass.getuser()}@{socket.gethostname()}"
@@ -207,7 +213,8 @@ def rollout_command(args: Any) -> int:
     if not args.no_local_check:
         model_file = load_model(args.model)
         model_file.compile(None)
-        model_file.check_plausible()
+        for finding in model_file.check_plausible():
+            print(finding.describe(), file=sys.stderr)
     section, base_dir = broker_section(args.broker_config)
     machines = [m.strip() for m in args.machines.split(",") if m.strip()]
     for machine in machines:

@@ -286,6 +286,12 @@ def test_only_the_roll_out_user_can_send_a_model_over_tls(
     try:
         with Subscriber(broker.port, "compd/#") as sub:  # on the plain listener: hears everything
             _start_and_wait_for_births(machines, sub)
+            (tmp_path / "intruder.password").write_text("guess\n")
+            code = main(
+                ["model", "rollout", str(new), *as_user("intruder"), "--machines", "mill-a"]
+            )
+            assert code == EXIT_INPUT_ERROR
+            assert "refused the login" in capsys.readouterr().err
             for user, target in (("viewer", "mill-a,mill-b"), ("mill-b", "mill-a")):
                 rollout = ["model", "rollout", str(new), *as_user(user), "--timeout-s", "3"]
                 code = main([*rollout, "--machines", target])
