@@ -42,8 +42,9 @@ from common import environment, verdict
 
 from compd.service.compensator import TickRecord
 from compd.service.config import load_config
+from compd.service.mqttlink import Broker, Topics
 from compd.service.signals import Health
-from compd.service.telemetry import Broker, Telemetry, Topics
+from compd.service.telemetry import Telemetry
 from tests.mosquitto import Mosquitto, Subscriber
 
 MAX_P99_GROWTH_MS = 1.0

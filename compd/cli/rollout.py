@@ -32,8 +32,8 @@ from compd.files.yamlplace import parse_yaml, read_limited
 from compd.service.config import validation_error
 from compd.service.configdoc import TelemetryDoc
 from compd.service.modelload import load_request
+from compd.service.mqttlink import mqtt_client
 from compd.service.remoteload import COMMAND, REQUEST_ID, SCHEMA
-from compd.service.telemetry import mqtt_client
 
 #: What each outcome means for the exit status: these are a success.
 SUCCEEDED = ("accepted", "already_running", "already_loading")

@@ -35,7 +35,8 @@ from compd.service.schedule import GainRow, GainScheduler, GainTable
 from compd.service.signals import Checks, SignalMonitor
 
 if TYPE_CHECKING:
-    from compd.service.telemetry import Broker, Telemetry
+    from compd.service.mqttlink import Broker
+    from compd.service.telemetry import Telemetry
 
 SCHEMA = CONFIG_SCHEMA
 #: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31); the
@@ -384,7 +385,8 @@ class TelemetryDoc(_Strict):
         wall: Callable[[], float],
     ) -> Telemetry:
         """The publisher, not yet connected; paho is imported here, only for a config that asks."""
-        from compd.service.telemetry import Telemetry, Topics
+        from compd.service.mqttlink import Topics
+        from compd.service.telemetry import Telemetry
 
         return Telemetry(
             self.broker(base_dir, self.client_id or f"compd-{self.machine_id}"),
@@ -398,7 +400,7 @@ class TelemetryDoc(_Strict):
 
     def broker(self, base_dir: Path, client_id: str) -> Broker:
         """Where and as whom to connect (the password file read now); also the roll-out's."""
-        from compd.service.telemetry import Broker
+        from compd.service.mqttlink import Broker
 
         def path(name: str | None) -> Path | None:
             return None if name is None else resolve_path(name, base_dir)

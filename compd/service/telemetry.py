@@ -47,60 +47,29 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
-import math
 import threading
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable, Mapping
-from dataclasses import dataclass, field
-from importlib.metadata import PackageNotFoundError, version
-from pathlib import Path
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
 from typing import Any
 
 import paho.mqtt.client as mqtt
 import structlog
-from paho.mqtt.enums import CallbackAPIVersion, MQTTErrorCode
+from paho.mqtt.enums import MQTTErrorCode
 
 from compd.faultlog import Event, FaultLog
 from compd.service.compensator import TickRecord
+from compd.service.mqttlink import Broker, Topics, mqtt_client
+from compd.service.telemetryjson import SCHEMA, compd_version, dumps, finite, finites
 
 log = structlog.get_logger("compd.service.telemetry")
 
-SCHEMA = "compd.telemetry/1"
 #: Messages handed to paho and not yet acknowledged, at most: beyond, the rest wait in the
 #: bounded queue (where the oldest are dropped), not in paho's (which would grow without bound).
 MAX_UNACKNOWLEDGED = 100
 #: Longest a clean stop waits for the queue to drain and the death message's acknowledgement (s).
 STOP_TIMEOUT_S = 5.0
-
-
-@dataclass(frozen=True)
-class Broker:
-    """Where and how to connect: host, port, TLS files, the user and the password (already read)."""
-
-    host: str
-    port: int
-    client_id: str
-    keepalive_s: int = 15
-    reconnect_min_s: int = 1
-    reconnect_max_s: int = 30
-    username: str | None = None
-    password: str | None = field(default=None, repr=False)
-    ca_file: Path | None = None
-    cert_file: Path | None = None
-    key_file: Path | None = None
-
-
-@dataclass(frozen=True)
-class Topics:
-    """``<prefix>/<machine_id>/{birth,status,event,death}``."""
-
-    prefix: str
-    machine_id: str
-
-    def of(self, kind: str) -> str:
-        return f"{self.prefix}/{self.machine_id}/{kind}"
 
 
 @dataclass
@@ -246,7 +215,7 @@ class Telemetry:
 
     def _publish(self, kind: str, payload: dict[str, Any], *, retain: bool = False) -> bool:
         try:
-            data = _dumps(payload)
+            data = dumps(payload)
         except ValueError as exc:  # a NaN in an event's details: that message only is lost
             log.error("telemetry message not serialisable", kind=kind, error=str(exc))
             self.counters.dropped += 1
@@ -271,7 +240,7 @@ class Telemetry:
         if self.counters.connected:
             death = self._header("death") | {"reason": "stopped", "ticks": ticks}
             death["telemetry"] = self.status_counters()
-            info = self._client.publish(self.topics.of("death"), _dumps(death), self.qos, True)
+            info = self._client.publish(self.topics.of("death"), dumps(death), self.qos, True)
             self.counters.published += 1
             remaining_s = max(0.1, deadline - time.monotonic())
             await asyncio.to_thread(_wait_published, info, remaining_s)
@@ -317,7 +286,7 @@ class Telemetry:
     def _set_will(self, client: mqtt.Client) -> None:
         will = self._header("death") | {"reason": "connection lost"}
         del will["time"]  # the broker sends it when it notices, at a time nobody can stamp here
-        client.will_set(self.topics.of("death"), _dumps(will), self.qos, retain=True)
+        client.will_set(self.topics.of("death"), dumps(will), self.qos, retain=True)
 
     def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         if reason.is_failure:
@@ -385,7 +354,7 @@ class Telemetry:
 
     def _birth(self) -> dict[str, Any]:
         birth = self._header("birth")
-        birth |= {"compd_version": _compd_version(), "every_ticks": self.every_ticks}
+        birth |= {"compd_version": compd_version(), "every_ticks": self.every_ticks}
         return birth | self.identity()
 
     def _event_payload(self, at_s: float, event: Event) -> dict[str, Any]:
@@ -401,16 +370,16 @@ class Telemetry:
             "model": model,
             "inputs": {
                 name: {
-                    "value": _finite(value),
+                    "value": finite(value),
                     "health": record.health[name].name.lower(),
                     "reason": record.reasons.get(name, ""),
                 }
                 for name, value in record.values.items()
             },
-            "model_outputs": _finites(record.model_outputs),
-            "targets_um": _finites(record.targets_um),
-            "offsets_um": _finites(record.offsets_um),
-            "acknowledged_um": _finites(record.acknowledged_um),
+            "model_outputs": finites(record.model_outputs),
+            "targets_um": finites(record.targets_um),
+            "offsets_um": finites(record.offsets_um),
+            "acknowledged_um": finites(record.acknowledged_um),
             "written": record.written,
             "status_word": record.status,
             "heartbeat": record.heartbeat,
@@ -418,42 +387,8 @@ class Telemetry:
         }
 
 
-def mqtt_client(broker: Broker) -> mqtt.Client:
-    """A paho client for ``broker``: its id, user and password, TLS files, reconnect backoff."""
-    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=broker.client_id)
-    client.reconnect_delay_set(broker.reconnect_min_s, broker.reconnect_max_s)
-    if broker.username is not None:
-        client.username_pw_set(broker.username, broker.password)
-    if broker.ca_file is not None:
-        client.tls_set(
-            ca_certs=str(broker.ca_file),
-            certfile=None if broker.cert_file is None else str(broker.cert_file),
-            keyfile=None if broker.key_file is None else str(broker.key_file),
-        )
-    return client
-
-
 def _wait_published(info: mqtt.MQTTMessageInfo, timeout_s: float) -> None:
     try:
         info.wait_for_publish(timeout_s)
     except (RuntimeError, ValueError) as exc:  # the connection went meanwhile
         log.warning("telemetry death message not confirmed", error=str(exc))
-
-
-def _dumps(payload: Mapping[str, Any]) -> bytes:
-    return json.dumps(payload, separators=(",", ":"), allow_nan=False, default=str).encode()
-
-
-def _finite(value: float) -> float | None:
-    return value if math.isfinite(value) else None
-
-
-def _finites(values: Mapping[str, float]) -> dict[str, float | None]:
-    return {k: _finite(v) for k, v in values.items()}
-
-
-def _compd_version() -> str:
-    try:
-        return version("compd")
-    except PackageNotFoundError:
-        return "unknown"

@@ -24,8 +24,9 @@ from compd.faultlog import Event
 from compd.files.yamlplace import MAX_YAML_BYTES
 from compd.service.clock import VirtualClock
 from compd.service.daemon import Service
+from compd.service.mqttlink import Broker, Topics
 from compd.service.remoteload import MAX_PAYLOAD_BYTES, SCHEMA, RemoteLoads
-from compd.service.telemetry import Broker, Telemetry, Topics
+from compd.service.telemetry import Telemetry
 from tests.mosquitto import WAIT_S, Mosquitto, Subscriber, mosquitto_binary
 from tests.service.test_telemetry import MODEL, machine_config
 
