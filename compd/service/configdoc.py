@@ -14,7 +14,7 @@ across sections (references, addresses, written points) is
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -28,6 +28,7 @@ from compd.service.links import DriverLink
 from compd.service.offsets import AxisPoint
 from compd.service.points import SignalPoint, StatusPoint
 from compd.service.recorder import Recorder
+from compd.service.recorder_parquet import DEFAULT_FLUSH_EVERY_ROWS, ParquetRecorder
 from compd.service.safety import AxisLimits, AxisSafety, FaultMode
 from compd.service.schedule import GainRow, GainScheduler, GainTable
 from compd.service.signals import Checks, SignalMonitor
@@ -189,8 +190,15 @@ class StateDoc(_Strict):
 
 
 class RecorderDoc(_Strict):
+    """``recorder:``: where and how each tick is logged (:mod:`compd.service.recorder`)."""
+
     enabled: bool = True
     directory: str | None = None
+    #: ``csv`` (a row is on disk when written) or ``parquet`` (typed, compressed; a row group
+    #: every ``flush_every_rows`` rows, :mod:`compd.service.recorder_parquet`).
+    format: Literal["csv", "parquet"] = "csv"
+    #: Rows gathered per write: default 1 for CSV, 60 for Parquet; a crash loses at most these.
+    flush_every_rows: int | None = Field(default=None, ge=1, le=86_400)
     max_file_bytes: int = Field(default=20_000_000, ge=1024)
     max_file_age_s: Positive = 86_400.0
     max_total_bytes: int = Field(default=2_000_000_000, ge=1024)
@@ -204,13 +212,23 @@ class RecorderDoc(_Strict):
             )
         return self
 
-    def recorder(self, directory: Path) -> Recorder:
-        """The recorder writing into ``directory`` (resolved by :mod:`compd.service.paths`)."""
-        return Recorder(
+    def recorder(
+        self, directory: Path, metadata: Mapping[str, str] | None = None
+    ) -> Recorder | ParquetRecorder:
+        """The recorder writing into ``directory`` (resolved by :mod:`compd.service.paths`).
+
+        ``metadata`` (machine id, compd version, config path) goes into every file.
+        """
+        # pyarrow is imported by the Parquet recorder's first write, so only when configured.
+        kind = ParquetRecorder if self.format == "parquet" else Recorder
+        default_rows = DEFAULT_FLUSH_EVERY_ROWS if self.format == "parquet" else 1
+        return kind(
             directory,
             max_file_bytes=self.max_file_bytes,
             max_file_age_s=self.max_file_age_s,
             max_total_bytes=self.max_total_bytes,
+            flush_every_rows=self.flush_every_rows or default_rows,
+            metadata=metadata,
         )
 
 
@@ -310,6 +328,10 @@ class LoadAccessDoc(_Strict):
 
 class ConfigDoc(_Strict):
     schema_: Literal["compd.config/1"] = Field(alias="schema")
+    #: This machine's name across a fleet: in every recording's metadata (and telemetry's topics).
+    machine_id: (
+        Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")] | None
+    ) = None
     model: str
     period_s: Positive = 1.0
     blend_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
