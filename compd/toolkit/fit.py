@@ -132,6 +132,7 @@ def fit_data(
             _check_several(several[0].path, method, span, phase_gate, position, denoise)
             stacked = stack(several)
             data, starts = stacked.data, stacked.starts
+            span = None  # a whole span of one file (checked above): the whole of every file
         else:
             data = several[0]
     first = 0
