@@ -10,11 +10,14 @@ initial state at each file's start, the fit takes no lag across files
 (:mod:`compd.model.experiments`), and cross-validation leaves one file out.
 
 The files must be alike: the same columns (a file without a column another
-has is refused, naming both) and the same sample time.
+has is refused, naming both) and the same sample time. In a folder, a file
+of fewer than two rows (a recorder stopped just after it rotated) is left
+out with a note: it holds no time step, so no experiment.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -32,16 +35,28 @@ FOLDER_SUFFIXES = (".csv", *PARQUET_SUFFIXES)
 SAMPLE_TIME_TOLERANCE = 1e-6
 
 
-def data_paths(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
-    """The files ``paths`` name: a file as given, a folder as its CSV and Parquet files sorted by name."""
+def data_paths(
+    paths: Sequence[str | os.PathLike[str]], notes: list[str] | None = None
+) -> list[Path]:
+    """The files ``paths`` name: a file as given, a folder as its CSV and Parquet files sorted by name.
+
+    A folder's files of fewer than two rows are left out, each with a line in ``notes``.
+    """
     found: list[Path] = []
     for given in map(Path, paths):
         if not given.is_dir():
             found.append(given)  # a missing file is named by load_data
             continue
-        inside = sorted(
-            p for p in given.iterdir() if p.is_file() and p.suffix.lower() in FOLDER_SUFFIXES
-        )
+        inside = []
+        for path in sorted(given.iterdir()):
+            if not path.is_file() or path.suffix.lower() not in FOLDER_SUFFIXES:
+                continue
+            rows = _row_count(path)
+            if rows is not None and rows < 2:
+                if notes is not None:
+                    notes.append(f"left out {path}: {rows} row(s), too short to be an experiment")
+                continue
+            inside.append(path)
         if not inside:
             raise DataFileError(
                 str(given),
@@ -63,11 +78,33 @@ def load_experiments(
     paths: Sequence[str | os.PathLike[str]], *, max_gap_s: float = 60.0, resample: bool = False
 ) -> list[DataSet]:
     """Each file of ``paths`` (:func:`data_paths`) loaded as its own experiment; refused unless alike."""
+    notes: list[str] = []
     experiments = [
-        load_data(path, max_gap_s=max_gap_s, resample=resample) for path in data_paths(paths)
+        load_data(path, max_gap_s=max_gap_s, resample=resample) for path in data_paths(paths, notes)
     ]
     check_alike(experiments)
+    if notes:  # said once, with the first experiment's notes (the commands print those)
+        first = experiments[0]
+        experiments[0] = dataclasses.replace(first, notes=(*first.notes, *notes))
     return experiments
+
+
+def _row_count(path: Path) -> int | None:
+    """Data rows in a file, cheaply (Parquet's footer; a CSV's lines); None if it cannot tell."""
+    try:
+        if path.suffix.lower() in PARQUET_SUFFIXES:
+            import pyarrow.parquet as pq
+
+            return int(pq.ParquetFile(path).metadata.num_rows)
+        with open(path, "rb") as handle:
+            lines = 0  # the header and up to two rows, after the metadata comments
+            for line in handle:
+                lines += not (lines == 0 and line.startswith(b"#"))
+                if lines == 3:
+                    return None  # two rows or more: load_data counts them
+    except Exception:  # pyarrow's errors too: load_data reads the file again and names them
+        return None
+    return max(lines - 1, 0)
 
 
 def check_alike(experiments: Sequence[DataSet]) -> None:

@@ -95,6 +95,7 @@ class ParquetRecorder:
         self._times_s: list[float] = []
         self._rows: list[list[Cell]] = []
         self._metadata_changed = False
+        self._file_metadata: dict[str, str] = {}
 
     @property
     def path(self) -> Path | None:
@@ -170,6 +171,7 @@ class ParquetRecorder:
         except OSError as exc:
             raise error(f"cannot create a recording in {self.directory}", exc) from exc
         self._path, self._opened_s, self._size = path, now_s, 0
+        self._file_metadata = dict(self.metadata)  # as at the file's first row, to its last
         delete_oldest(self.directory, path, self.max_file_bytes, self.max_total_bytes)
 
     def _close_file(self) -> None:
@@ -192,7 +194,7 @@ class ParquetRecorder:
         import pyarrow.parquet as pq
 
         assert self._path is not None
-        schema = self._groups[0].schema.with_metadata(self.metadata)
+        schema = self._groups[0].schema.with_metadata(self._file_metadata)
         temporary = self._path.with_name(self._path.name + ".tmp")
         try:
             with pq.ParquetWriter(temporary, schema, compression="zstd") as writer:
