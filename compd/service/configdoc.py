@@ -13,6 +13,7 @@ across sections (references, addresses, written points) is
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -202,6 +203,16 @@ class RecorderDoc(_Strict):
     max_file_bytes: int = Field(default=20_000_000, ge=1024)
     max_file_age_s: Positive = 86_400.0
     max_total_bytes: int = Field(default=2_000_000_000, ge=1024)
+
+    @model_validator(mode="after")
+    def _parquet_needs_pyarrow(self) -> RecorderDoc:
+        # Found, not imported: the daemon loads pyarrow at the first write only.
+        if self.format == "parquet" and importlib.util.find_spec("pyarrow") is None:
+            raise ValueError(
+                "'format: parquet' needs pyarrow, which is not installed: "
+                "pip install 'compd[parquet]', or use 'format: csv'"
+            )
+        return self
 
     @model_validator(mode="after")
     def _total_holds_a_file(self) -> RecorderDoc:

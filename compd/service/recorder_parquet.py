@@ -9,21 +9,24 @@ footer: ``machine_id``, ``compd_version``, ``model``, ``model_sha256`` and
 **Crash safety.** A Parquet file is readable only once its footer is written,
 so a file left open by a SIGKILL or a power cut would be lost whole. This
 recorder therefore never leaves a file without its footer: rows are gathered
-in memory and every ``flush_every_rows`` rows (default 60: one minute at
-1 Hz) they become a new row group, and the open file is written again,
-complete with every row group so far and its footer, to ``<name>.tmp`` and
-renamed over ``<name>`` (``rename(2)`` is atomic). A crash loses at most the
-rows gathered since the last flush (``flush_every_rows - 1``); every
-``compd-*.parquet`` on disk is a whole file up to its last flushed row group.
-A ``.tmp`` left by a crash during a write is deleted when the next file opens.
+in memory, and every ``flush_every_rows`` rows (default 60: one minute at
+1 Hz) the open file is written again, whole, footer included, to
+``<name>.tmp`` and renamed over ``<name>`` (``rename(2)`` is atomic). Every
+``compd-*.parquet`` on disk is therefore a complete file up to its last
+write. The write runs on the recorder's own thread, so the tick does not
+wait for the disk; a crash loses the rows gathered since the last completed
+write: fewer than ``flush_every_rows`` (59 at the default) once it is done,
+fewer than twice that while one is in progress (a write takes milliseconds
+to a few hundred). A ``.tmp`` left by a crash during a write is deleted when
+the next file opens.
 
-Writing the open file again costs time in proportion to its size, so its
+Writing the open file again costs time in proportion to its length, so its
 length is bounded like the CSV recorder's: ``max_file_age_s`` and
-``max_file_bytes`` rotate it (the bytes counted are those of the last write);
-an hour at 1 Hz (3,600 rows) is a good file length, and the default
-``max_file_age_s`` of 86,400 s makes each minute's flush write up to a day
-of rows again (``benchmarks/bench_recorder_parquet.py`` has the figures).
-The open file's rows stay in memory as Arrow arrays (8 bytes a cell).
+``max_file_bytes`` rotate it (the bytes counted are those of the last
+write). An hour at 1 Hz (3,600 rows, one row group) is a good file length;
+the default ``max_file_age_s`` of 86,400 s makes each minute's write take
+up to a day of rows (``benchmarks/bench_recorder_parquet.py`` has the
+figures). The open file's rows stay in memory as Arrow arrays (8 bytes a cell).
 
 pyarrow is imported when the first file is written, so a daemon recording
 CSV never loads it.
@@ -37,6 +40,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -55,8 +59,10 @@ from compd.service.recorder import (
 log = logging.getLogger(__name__)
 
 SUFFIX = "parquet"
-#: Rows per row group (and per rewrite of the open file) unless the config says otherwise.
+#: Rows per rewrite of the open file unless the config says otherwise: a crash loses fewer.
 DEFAULT_FLUSH_EVERY_ROWS = 60
+#: Rows per row group: an hour at 1 Hz, so a reader can take a long file an hour at a time.
+ROW_GROUP_ROWS = 3600
 
 
 class ParquetRecorder:
@@ -96,6 +102,8 @@ class ParquetRecorder:
         self._rows: list[list[Cell]] = []
         self._metadata_changed = False
         self._file_metadata: dict[str, str] = {}
+        self._worker: ThreadPoolExecutor | None = None
+        self._writing: Future[int] | None = None
 
     @property
     def path(self) -> Path | None:
@@ -133,23 +141,28 @@ class ParquetRecorder:
             self.flush()
 
     def flush(self) -> None:
-        """Make the gathered rows a row group and write the open file again, whole."""
+        """Make the gathered rows a batch and have the open file written again, whole.
+
+        The write runs on the recorder's own thread (pyarrow releases the
+        GIL), so the tick that gathered the rows does not wait for the disk;
+        the next flush waits for it first and raises the error it met.
+        """
         if not self._rows or self._path is None:
             return
         self._groups.append(self._batch())
         self._times_s, self._rows = [], []
-        try:
-            self._write()
-        except OSError as exc:
-            path = self._path
-            self._groups.pop()  # the file on disk still holds the earlier row groups
-            self._close_file()
-            raise error(f"cannot write to {path}", exc) from exc
+        self._wait()
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix="compd-recorder")
+        self._writing = self._worker.submit(
+            _write_file, self._path, list(self._groups), dict(self._file_metadata)
+        )
 
     def close(self) -> None:
-        """Write what is gathered and close the file; the next row opens a new one."""
+        """Write what is gathered, wait for the write and close the file; the next row opens a new one."""
         try:
             self.flush()
+            self._wait()
         finally:
             self._close_file()
 
@@ -174,7 +187,21 @@ class ParquetRecorder:
         self._file_metadata = dict(self.metadata)  # as at the file's first row, to its last
         delete_oldest(self.directory, path, self.max_file_bytes, self.max_total_bytes)
 
+    def _wait(self) -> None:
+        """Wait for the write in progress; its error is raised here (its rows are written again next time)."""
+        if self._writing is None:
+            return
+        writing, self._writing = self._writing, None
+        try:
+            self._size = writing.result()
+        except OSError as exc:
+            raise error(f"cannot write to {self._path}", exc) from exc
+
     def _close_file(self) -> None:
+        if self._writing is not None:  # closing after an error: let the write finish, quietly
+            with contextlib.suppress(OSError):
+                self._writing.result()
+            self._writing = None
         self._path = None
         self._groups, self._times_s, self._rows = [], [], []
 
@@ -190,22 +217,26 @@ class ParquetRecorder:
                 arrays.append(pa.array([_number(c) for c in cells], pa.float64()))
         return pa.RecordBatch.from_arrays(arrays, names=[TIME_COLUMN, *self._columns])
 
-    def _write(self) -> None:
-        import pyarrow.parquet as pq
 
-        assert self._path is not None
-        schema = self._groups[0].schema.with_metadata(self._file_metadata)
-        temporary = self._path.with_name(self._path.name + ".tmp")
-        try:
-            with pq.ParquetWriter(temporary, schema, compression="zstd") as writer:
-                for group in self._groups:
-                    writer.write_batch(group)
-            os.replace(temporary, self._path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                temporary.unlink()
-            raise
-        self._size = self._path.stat().st_size
+def _write_file(path: Path, batches: list[Any], metadata: dict[str, str]) -> int:
+    """Write ``batches`` to ``path`` as a whole Parquet file, atomically; its size in bytes.
+
+    Row groups of up to :data:`ROW_GROUP_ROWS` rows: a row group per flush
+    (60 rows) made files 3x larger and 6x slower to write.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_batches(batches).replace_schema_metadata(metadata)
+    temporary = path.with_name(path.name + ".tmp")
+    try:
+        pq.write_table(table, temporary, compression="zstd", row_group_size=ROW_GROUP_ROWS)
+        os.replace(temporary, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
+        raise
+    return path.stat().st_size
 
 
 def _number(cell: Cell) -> float:
