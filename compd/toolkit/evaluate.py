@@ -7,8 +7,8 @@ pairs model outputs with measured columns for comparison.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
@@ -144,7 +144,9 @@ def compare(evaluation: Evaluation, column: str | None = None) -> list[Compariso
     ]
 
 
-def pooled_comparisons(evaluations: Sequence[Evaluation], column: str | None = None) -> list[Comparison]:
+def pooled_comparisons(
+    evaluations: Sequence[Evaluation], column: str | None = None
+) -> list[Comparison]:
     """Each paired output over several experiments: every file's measurement and prediction end to end.
 
     Each prediction is its own file's run (from its initial state at that
