@@ -23,6 +23,7 @@ SCRIPTS = (
     "bench_identify.py",
     "bench_real_identify.py",
     "bench_tick.py",
+    "bench_recorder_parquet.py",
     "bench_diagnose.py",
     "bench_residual.py",
     "bench_report.py",

@@ -10,6 +10,7 @@ from pathlib import Path
 from rich.table import Table
 
 from compd.cli.args import positive_float
+from compd.errors import DataFileError
 from compd.files.data import DataSet, load_data
 from compd.files.yamlplace import BUNDLED, resolve_path
 from compd.model.metrics import Comparison
@@ -126,6 +127,41 @@ def load_data_from_args(
     if str(path).startswith(BUNDLED):  # as provenance records a bundled file
         path = resolve_path(str(path), Path("."))
     return load_data(path, max_gap_s=args.max_gap_s, resample=args.resample)
+
+
+def load_experiments_from_args(args: argparse.Namespace) -> list[DataSet]:
+    """``args.data``, files and folders, as experiments (:mod:`compd.files.experiments`).
+
+    One file is one experiment, read as ``load_data`` reads it; folders and
+    several files are checked to be alike.
+    """
+    from compd.files.experiments import load_experiments
+
+    paths = args.data if isinstance(args.data, list) else [args.data]
+    if len(paths) == 1 and not os.path.isdir(paths[0]):
+        return [load_data_from_args(args, paths[0])]
+    return load_experiments(paths, max_gap_s=args.max_gap_s, resample=args.resample)
+
+
+def refuse_with_several(experiments: list[DataSet], options: dict[str, object]) -> None:
+    """Refuse the options (name -> value given) that work on one record when there are several."""
+    if len(experiments) < 2:
+        return
+    for option, value in options.items():
+        if value:
+            raise DataFileError(
+                ", ".join(d.path for d in experiments),
+                f"{option} works on one record, and {len(experiments)} data files were given",
+                where=option,
+                fix=f"Give one data file with {option}, or leave {option} out",
+            )
+
+
+def experiments_label(experiments: list[DataSet]) -> str:
+    """How titles name the data: the file, or ``N files (first .. last)``."""
+    if len(experiments) == 1:
+        return experiments[0].path
+    return f"{len(experiments)} files ({experiments[0].path} .. {experiments[-1].path})"
 
 
 def print_notes(evaluation: Evaluation) -> None:

@@ -4,17 +4,25 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from rich.table import Table
 
-from compd.cli.common import data_options, load_data_from_args, span_from_args
+from compd.cli.common import (
+    data_options,
+    load_experiments_from_args,
+    refuse_with_several,
+    span_from_args,
+)
 from compd.cli.terminal import console
-from compd.files.effects import load_catalogue
+from compd.files.data import DataSet
+from compd.files.effects import EffectCatalogue, load_catalogue
 from compd.files.modelfile import load_model
 from compd.toolkit.analysis import DiagnosisResult, diagnose_evaluation
-from compd.toolkit.evaluate import measured_columns
+from compd.toolkit.evaluate import evaluate, measured_columns
 from compd.toolkit.selection import select_columns
 from compd.toolkit.span import evaluate_span
 from compd.toolkit.summary import fmt, json_clean, json_text
@@ -34,7 +42,14 @@ def register(commands: Any) -> None:
         "cross-correlation against its 99 % Bartlett bound as evidence.",
     )
     diag.add_argument("model", type=Path, metavar="MODEL.yaml")
-    diag.add_argument("data", type=Path, metavar="DATA.csv")
+    diag.add_argument(
+        "data",
+        type=Path,
+        nargs="+",
+        metavar="DATA",
+        help="data files or folders; several are separate experiments, each diagnosed on its "
+        "own (the model run from its initial state at each file's start), then summed up",
+    )
     diag.add_argument(
         "--output",
         metavar="COLUMN",
@@ -69,7 +84,10 @@ def register(commands: Any) -> None:
 
 def _diagnose(args: argparse.Namespace) -> int:
     catalogue = load_catalogue(args.catalogue)  # a bad catalogue fails before the long work
-    data = load_data_from_args(args)
+    experiments = load_experiments_from_args(args)
+    if len(experiments) > 1:
+        return _diagnose_several(args, experiments, catalogue)
+    data = experiments[0]
     span = span_from_args(args, data, min_samples=MIN_SAMPLES)
     evaluation = evaluate_span(load_model(args.model), data, span, init=args.init)
     output, measured = next(iter(measured_columns(evaluation, args.output).items()))
@@ -104,6 +122,66 @@ def _diagnose(args: argparse.Namespace) -> int:
     out.print(f"[bold {colour}]{result.verdict}[/bold {colour}]")
     if not span.whole:
         out.print(span.describe("diagnosed"))
+    return 0
+
+
+def _diagnose_several(
+    args: argparse.Namespace, experiments: list[DataSet], catalogue: EffectCatalogue | None
+) -> int:
+    """Each file diagnosed alone, then which missing effect the files agree on, and the pooled residue."""
+    refuse_with_several(
+        experiments, {"--from": args.from_s is not None, "--until": args.until_s is not None}
+    )
+    model_file = load_model(args.model)
+    results = []
+    for data in experiments:
+        evaluation = evaluate(model_file, data, init=args.init)
+        output, measured = next(iter(measured_columns(evaluation, args.output).items()))
+        candidates = (
+            None
+            if args.candidates is None
+            else select_columns(
+                data,
+                args.candidates,
+                option="--candidates",
+                exclude=[*evaluation.compiled.output_names, measured],
+            )
+        )
+        result = diagnose_evaluation(
+            evaluation, output, measured, candidates=candidates, catalogue=catalogue
+        )
+        residue = data.column(measured) - evaluation.predicted(output)
+        results.append((evaluation, result, residue))
+    residue = np.concatenate([r for _, _, r in results])
+    pooled_rms_um = float(np.sqrt(np.mean((residue - residue.mean()) ** 2)))
+    found = Counter(
+        r.diagnosis.missing_effect.signal for _, r, _ in results if r.diagnosis.missing_effect
+    )
+    name = results[0][0].compiled.name
+    if args.json:
+        summary = {
+            "model": name,
+            "experiments": [
+                {"data": e.data.path, **diagnosis_json(name, r)} for e, r, _ in results
+            ],
+            "pooled": {
+                "residue_rms_um": pooled_rms_um,
+                "missing_effects": dict(found.most_common()),
+            },
+        }
+        print(json_text(summary))
+        return 0
+    out = console()
+    for evaluation, result, _ in results:
+        for note in (*evaluation.data.notes, *evaluation.notes, *result.notes):
+            print(f"note: {evaluation.data.path}: {note}", file=sys.stderr)
+        out.print(diagnosis_table(name, evaluation.data.path, result, args.top))
+        out.print(result.verdict)
+    agreed = ", ".join(f"{signal} in {count}" for signal, count in found.most_common()) or "none"
+    out.print(
+        f"pooled over {len(results)} files: residue RMS {pooled_rms_um:.2f} um about its mean; "
+        f"a missing effect found: {agreed} of {len(results)} files"
+    )
     return 0
 
 

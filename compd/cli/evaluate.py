@@ -19,6 +19,7 @@ from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 from rich.console import Console
 from rich.table import Table
@@ -26,22 +27,31 @@ from rich.table import Table
 from compd.cli.common import (
     comparison_table,
     data_options,
-    load_data_from_args,
+    load_experiments_from_args,
     print_notes,
+    refuse_with_several,
     span_from_args,
     window_options,
 )
 from compd.cli.terminal import console
+from compd.files.data import DataSet
 from compd.files.modelfile import load_model
 from compd.model.compiled import qualified_names
+from compd.model.metrics import Comparison
 from compd.toolkit.analysis import (
     CONDITION_PATTERNS,
     WindowsResult,
     find_failing_windows,
 )
-from compd.toolkit.evaluate import compare, evaluate, measured_columns
+from compd.toolkit.evaluate import (
+    Evaluation,
+    compare,
+    evaluate,
+    measured_columns,
+    pooled_comparisons,
+)
 from compd.toolkit.span import evaluate_span
-from compd.toolkit.summary import compare_summary, json_text
+from compd.toolkit.summary import compare_summary, fmt, json_text
 
 
 def register(commands: Any) -> None:
@@ -49,7 +59,14 @@ def register(commands: Any) -> None:
         "simulate", help="model output and each sub-model's contribution per sample"
     )
     sim.add_argument("model", type=Path, metavar="MODEL.yaml")
-    sim.add_argument("data", type=Path, metavar="DATA.csv")
+    sim.add_argument(
+        "data",
+        type=Path,
+        nargs="+",
+        metavar="DATA",
+        help="data files or folders; several are separate experiments, the model run from its "
+        "initial state at each file's start (an 'experiment' column numbers them)",
+    )
     sim.add_argument("--out", type=Path, required=True, metavar="PRED.csv")
     data_options(sim)
     sim.set_defaults(handler=_simulate)
@@ -58,7 +75,14 @@ def register(commands: Any) -> None:
         "compare", help="model against measurement: fit %%, residue, reduction"
     )
     cmp_.add_argument("model", type=Path, metavar="MODEL.yaml")
-    cmp_.add_argument("data", type=Path, metavar="DATA.csv")
+    cmp_.add_argument(
+        "data",
+        type=Path,
+        nargs="+",
+        metavar="DATA",
+        help="data files or folders (their *.csv and *.parquet, sorted by name); several are "
+        "separate experiments, each run from the initial state and judged alone, then pooled",
+    )
     cmp_.add_argument(
         "--json", action="store_true", help="print one JSON object instead of a table"
     )
@@ -80,23 +104,36 @@ def register(commands: Any) -> None:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    evaluation = evaluate(load_model(args.model), load_data_from_args(args), init=args.init)
-    columns = {"time_s": evaluation.data.time_s}
-    for i, name in enumerate(evaluation.compiled.output_names):
-        columns[name] = evaluation.result.outputs[:, i]
-    for i, name in enumerate(qualified_names(evaluation.compiled)):
-        columns[name.replace("/", ".")] = evaluation.result.contributions[:, i]
-    for r, (out_i, _) in enumerate(evaluation.compiled.residuals):  # seed 004's forest terms
-        name = f"{evaluation.compiled.output_names[out_i]}.residual"
-        columns[name] = evaluation.result.residuals[:, r]  # type: ignore[index]
-    pd.DataFrame(columns).to_csv(args.out, index=False, float_format="%.6f")
-    print_notes(evaluation)
-    print(f"wrote {len(evaluation.data)} samples x {len(columns) - 1} columns to {args.out}")
+    experiments = load_experiments_from_args(args)
+    model_file = load_model(args.model)
+    frames = []
+    for number, data in enumerate(experiments):
+        evaluation = evaluate(model_file, data, init=args.init)
+        columns = {"time_s": evaluation.data.time_s}
+        if len(experiments) > 1:
+            columns["experiment"] = np.full(len(data), number)
+        for i, name in enumerate(evaluation.compiled.output_names):
+            columns[name] = evaluation.result.outputs[:, i]
+        for i, name in enumerate(qualified_names(evaluation.compiled)):
+            columns[name.replace("/", ".")] = evaluation.result.contributions[:, i]
+        for r, (out_i, _) in enumerate(evaluation.compiled.residuals):  # seed 004's forest terms
+            name = f"{evaluation.compiled.output_names[out_i]}.residual"
+            columns[name] = evaluation.result.residuals[:, r]  # type: ignore[index]
+        frames.append(pd.DataFrame(columns))
+        print_notes(evaluation)
+        if len(experiments) > 1:
+            print(f"experiment {number}: {data.path}", file=sys.stderr)
+    frame = pd.concat(frames, ignore_index=True)
+    frame.to_csv(args.out, index=False, float_format="%.6f")
+    print(f"wrote {len(frame)} samples x {frame.shape[1] - 1} columns to {args.out}")
     return 0
 
 
 def _compare(args: argparse.Namespace) -> int:
-    data = load_data_from_args(args)
+    experiments = load_experiments_from_args(args)
+    if len(experiments) > 1:
+        return _compare_several(args, experiments)
+    data = experiments[0]
     span = span_from_args(args, data)
     evaluation = evaluate_span(load_model(args.model), data, span, init=args.init)
     comparisons = compare(evaluation, args.output)
@@ -141,6 +178,78 @@ def _compare(args: argparse.Namespace) -> int:
     if not span.whole:
         out.print(span.describe("judged"))
     return 0
+
+
+def _compare_several(args: argparse.Namespace, experiments: list[DataSet]) -> int:
+    """Each file judged alone (the model run from its initial state at the file's start), then pooled."""
+    refuse_with_several(
+        experiments,
+        {
+            "--from": args.from_s is not None,
+            "--until": args.until_s is not None,
+            "--report": args.report,
+        },
+    )
+    model_file = load_model(args.model)
+    evaluations = [evaluate(model_file, data, init=args.init) for data in experiments]
+    per_file = []
+    for evaluation in evaluations:
+        comparisons = compare(evaluation, args.output)
+        windows = [
+            find_failing_windows(
+                evaluation, output, measured, tolerance_um=args.tolerance_um, window_s=args.window_s
+            )
+            for output, measured in measured_columns(evaluation, args.output).items()
+        ]
+        per_file.append((evaluation, comparisons, windows))
+    pooled = pooled_comparisons(evaluations, args.output)
+    if args.json:
+        summary = {
+            "model": evaluations[0].compiled.name,
+            "experiments": [
+                {"data": e.data.path, "machine_id": e.data.metadata.get("machine_id")}
+                | compare_summary(e, c, w)
+                for e, c, w in per_file
+            ],
+            "pooled": {"outputs": {c.output: c.as_dict() for c in pooled}},
+        }
+        print(json_text(summary))
+        return 0
+    out = console()
+    for evaluation, comparisons, windows in per_file:
+        print_notes(evaluation)
+        out.print(comparison_table(evaluation, comparisons))
+        for result in windows:
+            out.print(windows_summary(result))
+            if result.windows:
+                out.print(windows_table(result))
+    out.print(pooled_table(evaluations, pooled))
+    return 0
+
+
+def pooled_table(evaluations: list[Evaluation], pooled: list[Comparison]) -> Table:
+    """Every experiment's figures as one: fit % and residue over all files, each run on its own."""
+    samples = sum(len(e.data) for e in evaluations)
+    table = Table(
+        "output",
+        "fit %",
+        "residue RMS",
+        "residue p-p",
+        "uncomp. RMS",
+        "RMS reduction",
+        title=f"{evaluations[0].compiled.name} pooled over {len(evaluations)} files "
+        f"({samples} samples; each file run from the initial state at its start); errors in um",
+    )
+    for c in pooled:
+        table.add_row(
+            c.output,
+            fmt(c.fit_percent, 1),
+            fmt(c.residue.rms_um),
+            fmt(c.residue.peak_to_peak_um),
+            fmt(c.uncompensated.rms_um),
+            f"{fmt(c.rms_reduction_percent, 1)} %",
+        )
+    return table
 
 
 _SOURCES = {

@@ -10,7 +10,13 @@ from typing import Any
 
 from rich.table import Table
 
-from compd.cli.common import data_options, load_data_from_args, span_from_args
+from compd.cli.common import (
+    data_options,
+    experiments_label,
+    load_experiments_from_args,
+    refuse_with_several,
+    span_from_args,
+)
 from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
 from compd.cli.terminal import console
@@ -33,7 +39,14 @@ def register(commands: Any) -> None:
         "free-run simulation fit (seed 001 eq. 2), the figure compd compare reproduces.",
     )
     parser.add_argument(
-        "--data", type=Path, required=True, metavar="CALIB.csv", help="calibration data file"
+        "--data",
+        type=Path,
+        required=True,
+        nargs="+",
+        metavar="CALIB",
+        help="calibration data: a file, or several files and folders (their *.csv and *.parquet, "
+        "sorted by name) as separate experiments: inputs referenced to each file's first values, "
+        "no lag across files, cross-validation leaving one file out",
     )
     parser.add_argument(
         "--output", required=True, metavar="COLUMN", help="measured displacement (um)"
@@ -154,7 +167,7 @@ def _order(args: argparse.Namespace) -> int | str:
         return int(text)
     except ValueError:
         raise DataFileError(
-            args.data,
+            str(args.data[0]),
             f"order {args.order!r} is not a number",
             where="--order",
             fix="Use auto or 1..3",
@@ -163,16 +176,27 @@ def _order(args: argparse.Namespace) -> int | str:
 
 def _fit(args: argparse.Namespace) -> int:
     order = _order(args)
-    data = load_data_from_args(args)
-    for note in data.notes:
-        print(f"note: {note}", file=sys.stderr)
+    experiments = load_experiments_from_args(args)
+    refuse_with_several(
+        experiments,
+        {
+            "--from": args.from_s is not None,
+            "--until": args.until_s is not None,
+            "--residual-model": getattr(args, "residual_model", None),
+        },
+    )
+    data = experiments[0]
+    args.data_label = experiments_label(experiments)
+    for experiment in experiments:
+        for note in experiment.notes:
+            print(f"note: {note}", file=sys.stderr)
     span = span_from_args(args, data, min_samples=MIN_SAMPLES)
     taken = [args.output, *([args.position] if args.position else [])]
     inputs = select_columns(data, args.inputs, option="--inputs", exclude=taken)
     command = shlex.join(["compd", *sys.argv[1:]]) if sys.argv[1:] else None
     with progress_reporter() as progress:
         result = fit_data(
-            data,
+            experiments,
             output=args.output,
             inputs=inputs,
             method=args.method,
@@ -233,7 +257,7 @@ def _lag_bank_table(result: FitResult, args: argparse.Namespace) -> Table:
         *[("gain" if t == 0 else f"lag {t:g} s") for t in taus],
         "static gain (um/unit)",
         "share of output",
-        title=f"{result.model.name}: lag bank on {args.data} "
+        title=f"{result.model.name}: lag bank on {args.data_label} "
         f"({len(identification.simulated_um)} samples, {identification.sample_time_s:g} s); "
         "um per input unit",
     )
@@ -267,7 +291,7 @@ def _report(result: FitResult, args: argparse.Namespace) -> None:
         "nk",
         "time constants (s)",
         "static gain (um/unit)",
-        title=f"{result.model.name}: {identification.method} on {args.data} "
+        title=f"{result.model.name}: {identification.method} on {args.data_label} "
         f"({len(identification.simulated_um)} samples, {sample_s:g} s)",
     )
     for sub, channel in zip(

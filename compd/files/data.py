@@ -25,7 +25,7 @@ import math
 import os
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime
 from types import MappingProxyType
 
@@ -66,6 +66,10 @@ class DataSet:
     columns: Mapping[str, np.ndarray]
     start_time: datetime | None
     notes: tuple[str, ...]
+    #: Where the rows come from, as the file says: ``machine_id``, ``compd_version``,
+    #: ``model``, ``model_sha256``, ``config`` (CSV ``# key: value`` lines before the
+    #: header; Parquet key-value metadata). Empty for a file that says nothing.
+    metadata: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
 
     def __len__(self) -> int:
         return len(self.time_s)
@@ -106,7 +110,7 @@ def load_data(
         )
     _check_file_size(path_text)
     reader = _read_parquet if path_text.lower().endswith(PARQUET_SUFFIXES) else _read_csv
-    frame, rows = reader(path_text)
+    frame, rows, metadata = reader(path_text)
     signals = [name for name in frame.columns if name != rows.time_name]
     time_s, start_time, notes = times(frame, rows)
     values = np.vstack([numbers(frame[name], rows) for name in signals])
@@ -128,7 +132,15 @@ def load_data(
     grid_s.flags.writeable = False
     grid.flags.writeable = False  # before the rows are taken, so every column is read-only
     columns = MappingProxyType(dict(zip(signals, grid, strict=True)))
-    return DataSet(path_text, grid_s, sample_time_s, columns, start_time, tuple(notes))
+    return DataSet(
+        path_text,
+        grid_s,
+        sample_time_s,
+        columns,
+        start_time,
+        tuple(notes),
+        MappingProxyType(metadata),
+    )
 
 
 def _check_file_size(path: str) -> None:
@@ -145,16 +157,24 @@ def _check_file_size(path: str) -> None:
         )
 
 
-def _read_csv(path: str) -> tuple[pd.DataFrame, checks.Rows]:
+def _read_csv(path: str) -> tuple[pd.DataFrame, checks.Rows, dict[str, str]]:
+    metadata: dict[str, str] = {}
+    comments = 0  # "# key: value" lines before the header (the recorder's metadata)
     try:
         with open(path, encoding="utf-8-sig", newline="") as handle:
             # Bounded: a header of 10^8 short names would be a list of 10^8 strings.
             first = handle.readline(MAX_HEADER_CHARS + 1)
+            while first.startswith("#") and len(first) <= MAX_HEADER_CHARS:
+                key, colon, value = first[1:].partition(":")
+                if colon and key.strip():
+                    metadata[key.strip()] = value.strip()
+                comments += 1
+                first = handle.readline(MAX_HEADER_CHARS + 1)
             if len(first) > MAX_HEADER_CHARS:
                 raise DataFileError(
                     path,
                     f"the header line is longer than {MAX_HEADER_CHARS:,} characters",
-                    where="line 1",
+                    where=f"line {comments + 1}",
                     fix=_HEADER_FIX,
                 )
             lines = itertools.chain([first], handle)  # a quoted name may span lines
@@ -167,14 +187,18 @@ def _read_csv(path: str) -> tuple[pd.DataFrame, checks.Rows]:
         ) from exc
     except csv.Error as exc:  # e.g. a header cell longer than the csv module's field limit
         raise DataFileError(
-            path, f"the header is not a CSV row ({exc})", where="line 1", fix=_HEADER_FIX
+            path,
+            f"the header is not a CSV row ({exc})",
+            where=f"line {comments + 1}",
+            fix=_HEADER_FIX,
         ) from exc
-    time_name = _check_header(path, header, "line 1")
+    time_name = _check_header(path, header, f"line {comments + 1}")
     gap_texts = {name: [""] if name == time_name else list(GAP_TEXTS) for name in header}
     try:
         frame = pd.read_csv(
             path,
             header=0,
+            skiprows=comments,
             names=header,
             index_col=False,
             encoding="utf-8-sig",
@@ -198,14 +222,15 @@ def _read_csv(path: str) -> tuple[pd.DataFrame, checks.Rows]:
         raise DataFileError(
             path, f"cannot be read as CSV ({exc})", fix="Export it as CSV in UTF-8"
         ) from exc
-    places = frame.index.to_numpy() + 2
+    places = frame.index.to_numpy() + 2 + comments
     blank = frame.isna().all(axis=1).to_numpy()
     if blank.any():  # blank lines carry no data; dropping them keeps the other rows' lines
         frame, places = frame[~blank], places[~blank]
-    return _with_rows(path, frame.reset_index(drop=True), time_name, places, "line")
+    frame, rows = _with_rows(path, frame.reset_index(drop=True), time_name, places, "line")
+    return frame, rows, metadata
 
 
-def _read_parquet(path: str) -> tuple[pd.DataFrame, checks.Rows]:
+def _read_parquet(path: str) -> tuple[pd.DataFrame, checks.Rows, dict[str, str]]:
     try:
         import pyarrow.parquet as pq
     except ImportError:
@@ -216,6 +241,12 @@ def _read_parquet(path: str) -> tuple[pd.DataFrame, checks.Rows]:
         ) from None
     try:
         parquet = pq.ParquetFile(path)
+        stored = parquet.schema_arrow.metadata or {}
+        metadata = {
+            key.decode(errors="replace"): value.decode(errors="replace")
+            for key, value in stored.items()
+            if not key.startswith(b"pandas") and key != b"ARROW:schema"
+        }
         _check_header(path, [str(name).strip() for name in parquet.schema_arrow.names], "schema")
         frame = parquet.read().to_pandas()  # restores a stored pandas index as the index
         if any(name is not None for name in frame.index.names):
@@ -231,7 +262,8 @@ def _read_parquet(path: str) -> tuple[pd.DataFrame, checks.Rows]:
     header = [str(name).strip() for name in frame.columns]
     time_name = _check_header(path, header, "schema")
     frame = frame.set_axis(header, axis=1).reset_index(drop=True)
-    return _with_rows(path, frame, time_name, np.arange(len(frame)) + 1, "row")
+    frame, rows = _with_rows(path, frame, time_name, np.arange(len(frame)) + 1, "row")
+    return frame, rows, metadata
 
 
 def _check_header(path: str, header: list[str], where: str) -> str:

@@ -28,6 +28,8 @@ matrix, which is what makes the automatic order search
 
 from __future__ import annotations
 
+import functools
+import operator
 from collections.abc import Sequence
 from dataclasses import dataclass
 from math import comb
@@ -37,6 +39,7 @@ import scipy.linalg
 import scipy.signal
 
 from compd.errors import ModelError
+from compd.model.experiments import ONE, each, spans
 
 #: Poles this close to the unit circle are refused (as in DiscreteTF.check_stable).
 UNIT_CIRCLE_MARGIN = 1e-9
@@ -284,21 +287,33 @@ def fit_arx(
     nk: Sequence[int],
     *,
     first_sample: int = 0,
+    starts: Sequence[int] = ONE,
 ) -> ArxParameters:
     """MISO ARX at fixed orders over the record's rows from ``first_sample`` on (where every lag exists).
 
-    ``inputs`` is (N, n_inputs). Raises :class:`ModelError` with advice when
-    the estimated denominator is unstable, rather than flipping poles.
+    ``inputs`` is (N, n_inputs). With several ``starts`` (stacked experiments,
+    :mod:`compd.model.experiments`) the normal equations are summed over the
+    experiments, each from its own first row where every lag lies inside it:
+    no regressor spans two experiments (``first_sample`` must then be 0).
+    Raises :class:`ModelError` with advice when the estimated denominator is
+    unstable, rather than flipping poles.
     """
+    y = np.asarray(y, dtype=float)
     inputs = np.asarray(inputs, dtype=float).reshape(len(y), -1)
-    regression, _ = build_regression(
-        np.asarray(y, dtype=float),
-        inputs,
-        na_max=na,
-        nb_max=max(nb),
-        delays=sorted(set(nk)),
-        first_sample=first_sample,
-    )
+    if len(starts) > 1 and first_sample:
+        raise ModelError("a first sample and several experiments together are not supported")
+    parts = [
+        build_regression(
+            y[part],
+            inputs[part],
+            na_max=na,
+            nb_max=max(nb),
+            delays=sorted(set(nk)),
+            first_sample=first_sample,
+        )[0]
+        for part in spans(len(y), starts)
+    ]
+    regression = functools.reduce(operator.add, parts)
     parameters = solve_arx(regression, na, nb, nk)
     if not parameters.stable():
         raise ModelError(
@@ -309,14 +324,20 @@ def fit_arx(
     return parameters
 
 
-def simulate_arx(parameters: ArxParameters, inputs: np.ndarray) -> np.ndarray:
-    """Free-run output ``sum_i B_i q^-nk_i / A u_i`` from rest (um).
+def simulate_arx(
+    parameters: ArxParameters, inputs: np.ndarray, starts: Sequence[int] = ONE
+) -> np.ndarray:
+    """Free-run output ``sum_i B_i q^-nk_i / A u_i`` from rest (um), again at each of ``starts``.
 
     ``sum_i`` of the finite impulse responses first, then one recursion with
     ``1/A``: the same output as one ``lfilter(b_i, a, u_i)`` per input (what
     ``compd compare`` runs), at a fraction of the cost.
     """
     inputs = np.asarray(inputs, dtype=float)
+    return each(lambda part: _simulate_arx(parameters, part), inputs, starts)
+
+
+def _simulate_arx(parameters: ArxParameters, inputs: np.ndarray) -> np.ndarray:
     total = np.zeros(inputs.shape[0])
     for i, b in enumerate(parameters.full_numerators()):
         total += scipy.signal.lfilter(b, [1.0], inputs[:, i])

@@ -19,12 +19,13 @@ counts by its size, not averaged away.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from compd.errors import ModelError
+from compd.model.experiments import spans
 from compd.model.metrics import fit_percent
 
 #: A fold that holds fewer samples than this is merged into its neighbour.
@@ -99,6 +100,18 @@ def cycle_folds(
     else:
         labels = cycle_of
     return Folds(labels.astype(int), f"operating cycles of {name}")
+
+
+def experiment_folds(n_samples: int, starts: Sequence[int], max_folds: int = 6) -> Folds:
+    """Leave one experiment out: each stacked experiment is a fold (neighbours merged beyond ``max_folds``).
+
+    Experiments are the natural folds of several records: a model that holds
+    on a day, a machine or a programme it was not fitted on.
+    """
+    parts = spans(n_samples, starts)
+    experiment = np.repeat(np.arange(len(parts)), [p.stop - p.start for p in parts])
+    labels = (experiment * min(max_folds, len(parts))) // len(parts)
+    return Folds(labels.astype(int), "experiments (files)")
 
 
 def cross_validated_prediction(

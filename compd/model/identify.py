@@ -53,7 +53,7 @@ holds the model's state and the inputs' references of the whole log.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -62,6 +62,7 @@ import scipy.signal
 
 from compd.errors import ModelError
 from compd.model.arx import simulate_arx
+from compd.model.experiments import ONE, spans
 from compd.model.metrics import fit_percent
 from compd.model.orderfit import MAX_ORDER, Orders, Progress, fit_arx_order, fit_oe_order
 from compd.model.position import (
@@ -174,6 +175,7 @@ def identify(
     position: np.ndarray | None = None,
     progress: Progress | None = None,
     first_sample: int = 0,
+    starts: Sequence[int] = ONE,
 ) -> Identification:
     """Identify TFs from ``inputs`` (changes from start) to ``y`` (um), sampled every ``sample_time_s``.
 
@@ -183,7 +185,10 @@ def identify(
     ``position``: ``P - P_ref`` in mm (seed 003 slope channels), at two or
     more distinct values; not together with ``gate``. ``first_sample``: the
     first sample fitted and scored (see the module docstring); the model
-    still runs from rest at sample 0.
+    still runs from rest at sample 0. ``starts``: the first sample of each
+    stacked experiment (:mod:`compd.model.experiments`), where the model
+    restarts from rest and no ARX regressor reaches back across; ``mlr`` and
+    ``arx`` at a given order only.
     Raises :class:`ModelError` on bad arguments and on a fixed-order fit that
     is unstable.
     """
@@ -207,6 +212,12 @@ def identify(
         raise ModelError(
             "a phase gate and a position together are not supported; fit the axis with one"
         )
+    several = len(spans(y.size, starts)) > 1
+    if several and (method == "oe" or gate is not None or position is not None):
+        raise ModelError(
+            "several experiments are fitted by mlr, arx (at a given order) or the lag bank; "
+            "OE, a phase gate and a position need one record"
+        )
     scale = None if position is None else check_position(position, y.size)
     names, u = _channels(inputs, _check_gate(gate, y.size), y.size, scale)
 
@@ -221,13 +232,13 @@ def identify(
         orders = Orders(0, (1,) * len(names), (0,) * len(names), (0,) * len(names))
         simulated = u @ gains
     elif method == "arx":
-        arx, orders, validation = fit_arx_order(y, u, order, report, first_sample)
+        arx, orders, validation = fit_arx_order(y, u, order, report, first_sample, starts)
         tfs = [
             DiscreteTF.from_coefficients(b, arx.a, nk) for b, nk in zip(arx.b, arx.nk, strict=True)
         ]
         # One recursion for the shared denominator: the same output as one
         # lfilter per channel (what compare runs) to rounding, in half the time.
-        simulated = simulate_arx(arx, u)
+        simulated = simulate_arx(arx, u, starts)
     else:
         oe, orders, validation = fit_oe_order(y, u, order, report, first_sample)
         tfs = [

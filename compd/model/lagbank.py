@@ -38,6 +38,7 @@ import scipy.signal
 
 from compd.errors import ModelError
 from compd.model.crossval import Folds, cross_validated_prediction, pooled_fit_percent
+from compd.model.experiments import ONE, each
 from compd.model.metrics import fit_percent
 from compd.model.transfer import DiscreteTF
 
@@ -103,10 +104,22 @@ def lag_tf(gain: float, time_constant_s: float, sample_time_s: float) -> Discret
 
 
 def lag_features(
+    u: np.ndarray,
+    time_constants_s: Sequence[float],
+    sample_time_s: float,
+    starts: Sequence[int] = ONE,
+) -> np.ndarray:
+    """``(n, p * n_tau)`` columns ``L_j(u_i)``, grouped by time constant (all inputs at tau_0 first).
+
+    Each lag starts from rest at every experiment's start (:mod:`compd.model.experiments`).
+    """
+    u = np.asarray(u, dtype=float)
+    return each(lambda part: _lag_features(part, time_constants_s, sample_time_s), u, starts)
+
+
+def _lag_features(
     u: np.ndarray, time_constants_s: Sequence[float], sample_time_s: float
 ) -> np.ndarray:
-    """``(n, p * n_tau)`` columns ``L_j(u_i)``, grouped by time constant (all inputs at tau_0 first)."""
-    u = np.asarray(u, dtype=float)
     columns = []
     for tau in time_constants_s:
         if tau == 0.0:
@@ -134,11 +147,13 @@ class _Design:
         fitted: np.ndarray,
         time_constants_s: Sequence[float],
         sample_time_s: float,
+        starts: Sequence[int] = ONE,
     ) -> None:
         self.directions = _principal_directions(u, fitted)
         self.n_taus = len(time_constants_s)
         self.max_modes = self.directions.shape[1]
-        features = lag_features(u @ self.directions, time_constants_s, sample_time_s)
+        self.starts = tuple(starts)
+        features = lag_features(u @ self.directions, time_constants_s, sample_time_s, starts)
         scale = features[fitted].std(axis=0)
         self.scale = np.where(scale > 0.0, scale, 1.0)
         self.features = features / self.scale
@@ -156,7 +171,7 @@ class _Design:
         self, u: np.ndarray, time_constants_s: Sequence[float], sample_time_s: float
     ) -> None:
         """Rebuild the feature matrix dropped by :meth:`release`."""
-        features = lag_features(u @ self.directions, time_constants_s, sample_time_s)
+        features = lag_features(u @ self.directions, time_constants_s, sample_time_s, self.starts)
         self.features = features / self.scale
 
     def columns(self, n_modes: int) -> np.ndarray:
@@ -195,6 +210,7 @@ def fit_lag_bank(
     ridge_weights: Sequence[float] = DEFAULT_RIDGE_WEIGHTS,
     max_modes: int | None = None,
     max_reach_ratio: float = MAX_REACH_RATIO,
+    starts: Sequence[int] = ONE,
 ) -> LagBankFit:
     """Fit ``y`` (um) from the columns of ``u`` (changes from the record's start), settings chosen by CV.
 
@@ -207,7 +223,8 @@ def fit_lag_bank(
     fitted samples, stays within ``max_reach_ratio`` times the output's range
     are eligible: beyond it, inputs balance each other with large opposite
     gains, which held-out cycles of the same programme do not expose but the
-    next programme does.
+    next programme does. ``starts``: the first sample of each stacked
+    experiment, where every lag restarts from rest (:mod:`compd.model.experiments`).
     """
     y = np.asarray(y, dtype=float)
     u = np.asarray(u, dtype=float)
@@ -234,7 +251,7 @@ def fit_lag_bank(
         if not held.any() or train.sum() < 2:
             continue
         scored |= held
-        design = _Design(u, y, train, taus, sample_time_s)
+        design = _Design(u, y, train, taus, sample_time_s, starts)
         designs.append((held, design))
         for m in modes:
             for w, coefficients in zip(weights, design.solve(m, weights), strict=True):
@@ -246,7 +263,7 @@ def fit_lag_bank(
     spread = float(np.linalg.norm(y[scored] - y[scored].mean()))
     if spread == 0.0:
         raise ModelError("the output does not vary on the held-out samples")
-    design = _Design(u, y, fitted, taus, sample_time_s)
+    design = _Design(u, y, fitted, taus, sample_time_s, starts)
     solutions = {
         (m, w): c for m in modes for w, c in zip(weights, design.solve(m, weights), strict=True)
     }

@@ -11,7 +11,7 @@ Steiglitz-McBride. Progress is reported per stage (one bar each).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -19,6 +19,7 @@ import numpy as np
 
 from compd.errors import ModelError
 from compd.model.arx import ArxParameters, fit_arx, solve_arx
+from compd.model.experiments import ONE
 from compd.model.metrics import fit_percent
 from compd.model.oe import OeParameters, fit_oe, oe_from_arx, simulate_oe, steiglitz_mcbride
 from compd.model.orders import (
@@ -56,16 +57,32 @@ class Orders:
 
 
 def fit_arx_order(
-    y: np.ndarray, u: np.ndarray, order: int | Literal["auto"], report: Progress, first: int
+    y: np.ndarray,
+    u: np.ndarray,
+    order: int | Literal["auto"],
+    report: Progress,
+    first: int,
+    starts: Sequence[int] = ONE,
 ) -> tuple[ArxParameters, Orders, float | None]:
-    """ARX on channels ``u`` (columns), its orders, and the held-back fit % when chosen."""
+    """ARX on channels ``u`` (columns), its orders, and the held-back fit % when chosen.
+
+    Over several stacked experiments (``starts``) only at a given order: the
+    held-back last third of the order search would be part of one experiment.
+    """
     n_channels = u.shape[1]
     if order != "auto":
         n = int(order)
         report(f"ARX least squares, order {n}", 0.0)
-        arx = fit_arx(y, u, n, [n] * n_channels, [1] * n_channels, first_sample=first)
+        arx = fit_arx(
+            y, u, n, [n] * n_channels, [1] * n_channels, first_sample=first, starts=starts
+        )
         report(f"ARX least squares, order {n}", 1.0)
         return arx, Orders(n, (n,) * n_channels, (n,) * n_channels, (1,) * n_channels), None
+    if len(starts) > 1:
+        raise ModelError(
+            "ARX orders are chosen on the held-back last third of one record, not over several "
+            "experiments: give the order (--order 1, 2 or 3)"
+        )
     search = search_arx(
         y, u, na_max=MAX_ORDER, nb_max=MAX_ORDER, progress=report, first_sample=first
     )

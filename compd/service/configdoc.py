@@ -13,8 +13,9 @@ across sections (references, addresses, written points) is
 
 from __future__ import annotations
 
+import importlib.util
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
@@ -30,6 +31,7 @@ from compd.service.links import DriverLink
 from compd.service.offsets import AxisPoint
 from compd.service.points import SignalPoint, StatusPoint
 from compd.service.recorder import Recorder
+from compd.service.recorder_parquet import DEFAULT_FLUSH_EVERY_ROWS, ParquetRecorder
 from compd.service.safety import AxisLimits, AxisSafety, FaultMode
 from compd.service.schedule import GainRow, GainScheduler, GainTable
 from compd.service.signals import Checks, SignalMonitor
@@ -195,11 +197,28 @@ class StateDoc(_Strict):
 
 
 class RecorderDoc(_Strict):
+    """``recorder:``: where and how each tick is logged (:mod:`compd.service.recorder`)."""
+
     enabled: bool = True
     directory: str | None = None
+    #: ``csv`` (a row is on disk when written) or ``parquet`` (typed, compressed; a row group
+    #: every ``flush_every_rows`` rows, :mod:`compd.service.recorder_parquet`).
+    format: Literal["csv", "parquet"] = "csv"
+    #: Rows gathered per write: default 1 for CSV, 60 for Parquet; a crash loses at most these.
+    flush_every_rows: int | None = Field(default=None, ge=1, le=86_400)
     max_file_bytes: int = Field(default=20_000_000, ge=1024)
     max_file_age_s: Positive = 86_400.0
     max_total_bytes: int = Field(default=2_000_000_000, ge=1024)
+
+    @model_validator(mode="after")
+    def _parquet_needs_pyarrow(self) -> RecorderDoc:
+        # Found, not imported: the daemon loads pyarrow at the first write only.
+        if self.format == "parquet" and importlib.util.find_spec("pyarrow") is None:
+            raise ValueError(
+                "'format: parquet' needs pyarrow, which is not installed: "
+                "pip install 'compd[parquet]', or use 'format: csv'"
+            )
+        return self
 
     @model_validator(mode="after")
     def _total_holds_a_file(self) -> RecorderDoc:
@@ -210,13 +229,23 @@ class RecorderDoc(_Strict):
             )
         return self
 
-    def recorder(self, directory: Path) -> Recorder:
-        """The recorder writing into ``directory`` (resolved by :mod:`compd.service.paths`)."""
-        return Recorder(
+    def recorder(
+        self, directory: Path, metadata: Mapping[str, str] | None = None
+    ) -> Recorder | ParquetRecorder:
+        """The recorder writing into ``directory`` (resolved by :mod:`compd.service.paths`).
+
+        ``metadata`` (machine id, compd version, config path) goes into every file.
+        """
+        # pyarrow is imported by the Parquet recorder's first write, so only when configured.
+        kind = ParquetRecorder if self.format == "parquet" else Recorder
+        default_rows = DEFAULT_FLUSH_EVERY_ROWS if self.format == "parquet" else 1
+        return kind(
             directory,
             max_file_bytes=self.max_file_bytes,
             max_file_age_s=self.max_file_age_s,
             max_total_bytes=self.max_total_bytes,
+            flush_every_rows=self.flush_every_rows or default_rows,
+            metadata=metadata,
         )
 
 
@@ -429,6 +458,10 @@ def read_secret(path: Path) -> str:
 
 class ConfigDoc(_Strict):
     schema_: Literal["compd.config/1"] = Field(alias="schema")
+    #: This machine's name across a fleet: in every recording's metadata (and telemetry's topics).
+    machine_id: (
+        Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")] | None
+    ) = None
     #: The model file; a config without ``outputs`` (a data logger, ``compd record``) needs none.
     model: str | None = None
     period_s: Positive = 1.0
@@ -450,3 +483,20 @@ class ConfigDoc(_Strict):
     telemetry: TelemetryDoc | None = None
     #: The simulated machine this config runs against (:mod:`compd.sim.plc.settings`).
     simulation: dict[str, Any] | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_machine_id(cls, data: Any) -> Any:
+        """Telemetry's topics name the machine as its recordings do: ``telemetry.machine_id``
+        defaults to the top-level ``machine_id``, and the two may not differ."""
+        if not isinstance(data, dict) or not isinstance(data.get("telemetry"), dict):
+            return data
+        top, own = data.get("machine_id"), data["telemetry"].get("machine_id")
+        if own is None and top is not None:
+            return data | {"telemetry": data["telemetry"] | {"machine_id": top}}
+        if own is not None and top is not None and own != top:
+            raise ValueError(
+                f"telemetry.machine_id {own!r} differs from machine_id {top!r}: name the "
+                "machine once, at the top"
+            )
+        return data

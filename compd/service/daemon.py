@@ -29,6 +29,7 @@ from typing import Any
 
 import structlog
 
+from compd import __version__
 from compd.drivers.base import Driver
 from compd.errors import RecorderError
 from compd.faultlog import Event, FaultLog
@@ -130,7 +131,9 @@ class Service:
             else None
         )
         self.recorder = (
-            doc.recorder.recorder(config.recorder_dir) if config.recorder_dir is not None else None
+            doc.recorder.recorder(config.recorder_dir, _recording_metadata(config))
+            if config.recorder_dir is not None
+            else None
         )
         self._recorder_fault = FaultLog(log)
         self._save_fault = FaultLog(log)  # saves fail every save_every_ticks: log once
@@ -269,7 +272,9 @@ class Service:
         row |= {f"readback.{k}_um": v for k, v in record.readback_um.items()}
         row |= {f"gain.{k}": v for k, v in record.gains.items()}
         row |= {"status": record.status, "heartbeat": record.heartbeat}
+        active = self.compensator.active
         try:
+            self.recorder.set_model(active.compiled.name, active.sha256)
             self.recorder.record(row, at_s=record.wall_unix_s)
         except RecorderError as exc:
             self._recorder_fault.failed("recorder failed", error=str(exc))
@@ -386,6 +391,14 @@ class Service:
                 for axis, out in doc.outputs.items()
             },
         }
+
+
+def _recording_metadata(config: Config) -> dict[str, str]:
+    """What every recording says about where it comes from (the model is added per file)."""
+    metadata = {"compd_version": __version__, "config": str(config.path)}
+    if config.doc.machine_id is not None:
+        metadata = {"machine_id": config.doc.machine_id, **metadata}
+    return metadata
 
 
 def _summary(record: TickRecord) -> str:

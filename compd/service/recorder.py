@@ -1,17 +1,25 @@
 """Recorder: the service's signals and offsets, one CSV row per tick, in rotating files.
 
+(``recorder.format: parquet`` writes Parquet instead: :mod:`compd.service.recorder_parquet`,
+which shares this module's naming, rotation and disk budget.)
+
 What the loop read and wrote is the evidence for every later question (did
 the model drift? what did the machine see when the part was out of
 tolerance?), and it is the input of ``compd compare`` and re-identification.
 So the files are exactly what :func:`compd.files.data.load_data` reads: a header,
 a ``timestamp`` column first with UTC ISO-8601 times carrying their offset
 (``2026-11-23T10:15:00.000+00:00``), then one column per key of the row.
+Before the header, ``# key: value`` comment lines say where the rows come
+from: ``machine_id`` (the config's top-level ``machine_id``), ``compd_version``,
+``model`` and ``model_sha256`` (the active model), ``config`` (its path).
+The loader reads them into :attr:`compd.files.data.DataSet.metadata`.
 
 Files are named by their first row's UTC time (``compd-20261123T101500Z.csv``)
 and rotated when they reach ``max_file_bytes`` or ``max_file_age_s``, when
 the row's keys change (a new model with other outputs: a file has one
-header), and when the time does not increase (the clock was set back: the
-loader refuses times that go backwards). The oldest files are deleted so that the directory never holds more
+header) or the active model changes (a file names one model), and when
+the time does not increase (the clock was set back: the loader refuses
+times that go backwards). The oldest files are deleted so that the directory never holds more
 than ``max_total_bytes`` of recordings, the open file included: an edge PC's
 disk must not fill up over months of unattended running. Only files with
 this naming pattern are ever deleted.
@@ -43,7 +51,8 @@ log = logging.getLogger(__name__)
 
 TIME_COLUMN = "timestamp"
 PREFIX = "compd"
-_NAME = re.compile(rf"^{PREFIX}-(\d{{8}}T\d{{6}}Z)(?:-(\d+))?\.csv$")
+#: A recording's name: its first row's UTC time, a sequence number within that second, the format.
+NAME = re.compile(rf"^{PREFIX}-(\d{{8}}T\d{{6}}Z)(?:-(\d+))?\.(csv|parquet)$")
 _QUOTED = re.compile(r'[,"\r\n]')
 
 Cell = float | int | str
@@ -69,6 +78,8 @@ class Recorder:
         default) loses nothing but the row being written on a crash.
     clock:
         Seconds since the epoch, UTC (``time.time``); tests pass a fake.
+    metadata:
+        ``key: value`` pairs written at the top of every file (see the module docstring).
     """
 
     def __init__(
@@ -80,16 +91,9 @@ class Recorder:
         max_total_bytes: int,
         flush_every_rows: int = 1,
         clock: Callable[[], float] = time.time,
+        metadata: Mapping[str, str] | None = None,
     ) -> None:
-        if max_file_bytes <= 0 or max_file_age_s <= 0 or flush_every_rows < 1:
-            raise ValueError(
-                "max_file_bytes and max_file_age_s must be above 0, flush_every_rows at least 1"
-            )
-        if max_total_bytes < max_file_bytes:
-            raise ValueError(
-                f"max_total_bytes ({max_total_bytes}) must be at least "
-                f"max_file_bytes ({max_file_bytes}): the open file alone may reach that size"
-            )
+        check_limits(max_file_bytes, max_file_age_s, max_total_bytes, flush_every_rows)
         self.directory = Path(directory)
         self.max_file_bytes = max_file_bytes
         self.max_file_age_s = max_file_age_s
@@ -105,6 +109,12 @@ class Recorder:
         self._written = 0  # bytes of complete lines known to be in the open file
         self._pending: list[bytes] = []
         self._rows_in_file = 0
+        self.metadata: dict[str, str] = dict(metadata or {})
+        self._metadata_changed = False
+
+    def set_model(self, name: str, sha256: str) -> None:
+        """Name the active model in the files; a change starts a new file at the next row."""
+        self._metadata_changed |= set_model(self.metadata, name, sha256)
 
     @property
     def path(self) -> Path | None:
@@ -130,7 +140,7 @@ class Recorder:
             same = len(row) == len(values)
         except KeyError:
             same = False
-        if not same or not values:
+        if not same or not values or self._metadata_changed:
             self._start_columns(row)
             values = [row[name] for name in self._columns]
         stamp = datetime.fromtimestamp(now_s, UTC).isoformat(timespec="milliseconds")
@@ -162,7 +172,7 @@ class Recorder:
         except OSError as exc:
             path = self._path
             self._abandon()
-            raise _error(f"cannot write to {path}", exc) from exc
+            raise error(f"cannot write to {path}", exc) from exc
         self._written += len(data)
 
     def close(self) -> None:
@@ -179,33 +189,28 @@ class Recorder:
         self.close()
 
     def _start_columns(self, row: Mapping[str, Cell]) -> None:
-        columns = tuple(row)
-        if not columns:
-            raise RecorderError("cannot record an empty row: a data file needs a signal column")
-        clash = [name for name in columns if name in TIME_NAMES]
-        if clash:
-            raise RecorderError(
-                f"cannot record a signal named {clash[0]!r}: "
-                f"{', '.join(TIME_NAMES)} name the time column of a data file. "
-                "Rename the signal in the configuration"
-            )
-        self.close()  # a file has one header: new columns, new file
+        columns = check_columns(row)
+        self.close()  # a file has one header and one model: new columns, new file
         self._columns = columns
+        self._metadata_changed = False
 
     def _open(self, now_s: float) -> None:
         self.close()
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
-            path, fd = _create(self.directory, now_s)
+            path, fd = create(self.directory, now_s, "csv")
         except OSError as exc:
-            raise _error(f"cannot create a recording in {self.directory}", exc) from exc
+            raise error(f"cannot create a recording in {self.directory}", exc) from exc
         self._fd, self._path, self._opened_s = fd, path, now_s
         self._rows_in_file = 0
-        header = ",".join(map(_cell, (TIME_COLUMN, *self._columns))) + "\n"
+        comments = "".join(
+            f"# {key}: {' '.join(value.split())}\n" for key, value in self.metadata.items()
+        )
+        header = comments + ",".join(map(_cell, (TIME_COLUMN, *self._columns))) + "\n"
         self._pending = [header.encode()]
         self._size = len(self._pending[0])
         self._written = 0
-        self._delete_oldest()
+        delete_oldest(self.directory, path, self.max_file_bytes, self.max_total_bytes)
 
     def _close_file(self) -> None:
         if self._fd is None:
@@ -239,44 +244,86 @@ class Recorder:
             except OSError as exc:
                 log.debug("cannot remove the empty recording %s: %s", path, exc)
 
-    def _delete_oldest(self) -> None:
-        """Delete the oldest recordings until closed files plus one full file fit the budget."""
+
+def check_limits(
+    max_file_bytes: int, max_file_age_s: float, max_total_bytes: int, flush_every_rows: int
+) -> None:
+    """Refuse rotation limits no recorder can keep (the config schema checks them first)."""
+    if max_file_bytes <= 0 or max_file_age_s <= 0 or flush_every_rows < 1:
+        raise ValueError(
+            "max_file_bytes and max_file_age_s must be above 0, flush_every_rows at least 1"
+        )
+    if max_total_bytes < max_file_bytes:
+        raise ValueError(
+            f"max_total_bytes ({max_total_bytes}) must be at least "
+            f"max_file_bytes ({max_file_bytes}): the open file alone may reach that size"
+        )
+
+
+def set_model(metadata: dict[str, str], name: str, sha256: str) -> bool:
+    """Put the active model into ``metadata``; True if that changed it."""
+    if metadata.get("model") == name and metadata.get("model_sha256") == sha256:
+        return False
+    metadata["model"], metadata["model_sha256"] = name, sha256
+    return True
+
+
+def check_columns(row: Mapping[str, Cell]) -> tuple[str, ...]:
+    """The row's keys, refused if there are none or one would be read as the time column."""
+    columns = tuple(row)
+    if not columns:
+        raise RecorderError("cannot record an empty row: a data file needs a signal column")
+    clash = [name for name in columns if name in TIME_NAMES]
+    if clash:
+        raise RecorderError(
+            f"cannot record a signal named {clash[0]!r}: "
+            f"{', '.join(TIME_NAMES)} name the time column of a data file. "
+            "Rename the signal in the configuration"
+        )
+    return columns
+
+
+def delete_oldest(
+    directory: Path, open_path: Path | None, max_file_bytes: int, max_total_bytes: int
+) -> None:
+    """Delete the oldest recordings until closed files plus one full file fit the budget.
+
+    Only files named like a recording (:data:`NAME`, either format) count and are deleted.
+    """
+    try:
+        found = [
+            (_order(match), entry.path, entry.stat().st_size)
+            for entry in os.scandir(directory)
+            if (match := NAME.match(entry.name)) and entry.path != str(open_path)
+        ]
+    except OSError as exc:
+        raise error(f"cannot list the recordings in {directory}", exc) from exc
+    found.sort()
+    total = sum(size for _, _, size in found) + max_file_bytes
+    for _, path, size in found:
+        if total <= max_total_bytes:
+            break
         try:
-            found = [
-                (_order(match), entry.path, entry.stat().st_size)
-                for entry in os.scandir(self.directory)
-                if (match := _NAME.match(entry.name)) and entry.path != str(self._path)
-            ]
+            os.unlink(path)
+        except FileNotFoundError:
+            pass
         except OSError as exc:
-            raise _error(f"cannot list the recordings in {self.directory}", exc) from exc
-        found.sort()
-        total = sum(size for _, _, size in found) + self.max_file_bytes
-        for _, path, size in found:
-            if total <= self.max_total_bytes:
-                break
-            try:
-                os.unlink(path)
-            except FileNotFoundError:
-                pass
-            except OSError as exc:
-                raise _error(f"cannot delete the old recording {path}", exc) from exc
-            total -= size
-            log.info(
-                "deleted the oldest recording %s (%d bytes) to stay under the limit", path, size
-            )
+            raise error(f"cannot delete the old recording {path}", exc) from exc
+        total -= size
+        log.info("deleted the oldest recording %s (%d bytes) to stay under the limit", path, size)
 
 
-def _create(directory: Path, now_s: float) -> tuple[Path, int]:
-    """A new file named by ``now_s`` in UTC; ``-1``, ``-2``... if that second is taken."""
+def create(directory: Path, now_s: float, suffix: str) -> tuple[Path, int]:
+    """A new file ``compd-<UTC time>.<suffix>`` named by ``now_s``; ``-1``, ``-2``... if that second is taken."""
     stem = f"{PREFIX}-{datetime.fromtimestamp(now_s, UTC):%Y%m%dT%H%M%SZ}"
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND | os.O_CLOEXEC
     for n in range(1000):
-        path = directory / (f"{stem}.csv" if n == 0 else f"{stem}-{n}.csv")
+        path = directory / (f"{stem}.{suffix}" if n == 0 else f"{stem}-{n}.{suffix}")
         try:
             return path, os.open(path, flags, 0o644)
         except FileExistsError:
             continue
-    raise FileExistsError(f"{directory / stem}-*.csv: 1000 files in one second")
+    raise FileExistsError(f"{directory / stem}-*.{suffix}: 1000 files in one second")
 
 
 def _order(match: re.Match[str]) -> tuple[str, int]:
@@ -299,5 +346,5 @@ def _cell(value: Cell) -> str:
     return text
 
 
-def _error(what: str, exc: OSError) -> RecorderError:
+def error(what: str, exc: OSError) -> RecorderError:
     return RecorderError(f"{what}: {exc.strerror or exc}; recording is paused until it succeeds")

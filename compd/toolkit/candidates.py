@@ -28,6 +28,7 @@ from compd.files.modelschema import CrossValidationDoc
 from compd.model.collinear import contribution_shares
 from compd.model.compiled import compile_model, qualified_names
 from compd.model.crossval import Folds, blocked_folds, cycle_folds
+from compd.model.experiments import ONE, each
 from compd.model.guards import Finding, Severity, check_model
 from compd.model.identify import Identification, IdentifiedTF
 from compd.model.lagbank import (
@@ -102,16 +103,20 @@ def compare_candidates(
     candidates: Sequence[str],
     time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S,
     first_sample: int = 0,
+    starts: Sequence[int] = ONE,
 ) -> Selection:
     """Score ``candidates`` (of ``lagbank``, ``mlr``) by cross-validation; keep the best held-out fit.
 
-    Only samples from ``first_sample`` on are fitted and scored; the models run from the record's start.
+    Only samples from ``first_sample`` on are fitted and scored; the models run from the record's
+    start (from each experiment's, with several ``starts``).
     """
     # Hundreds of small (80 x 80) solves: BLAS threads only spin against each other there,
     # and on a busy 2-core PC they made the search 15x slower (0.25 s -> 3.4 s CPU).
     with threadpool_limits(limits=1, user_api="blas"):
         fitted = np.arange(len(y)) >= first_sample
-        return _select(y, changes, sample_time_s, folds, candidates, time_constants_s, fitted)
+        return _select(
+            y, changes, sample_time_s, folds, candidates, time_constants_s, fitted, starts
+        )
 
 
 def _select(
@@ -122,6 +127,7 @@ def _select(
     candidates: Sequence[str],
     time_constants_s: Sequence[float],
     fitted: np.ndarray,
+    starts: Sequence[int],
 ) -> Selection:
     u = np.column_stack([np.asarray(v, dtype=float) for v in changes.values()])
     scores = []
@@ -134,6 +140,7 @@ def _select(
             folds=folds,
             fitted=fitted,
             time_constants_s=time_constants_s,
+            starts=starts,
         )
         scores.append(CandidateScore("lagbank", lag_bank.fit_percent, lag_bank.cv_fit_percent))
     gains, regression_cv_percent = regression_cv(y, u, folds, fitted)
@@ -167,6 +174,7 @@ def select_inputs(
     time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S,
     first_sample: int = 0,
     min_gain_points: float = SELECTION_MIN_GAIN_POINTS,
+    starts: Sequence[int] = ONE,
 ) -> list[SelectionStep]:
     """Inputs added one at a time, each the one that raises the lag bank's held-out fit most.
 
@@ -192,6 +200,7 @@ def select_inputs(
                     folds=folds,
                     fitted=fitted,
                     time_constants_s=time_constants_s,
+                    starts=starts,
                 )
                 trials[j] = bank.cv_fit_percent if bank.cv_fit_percent is not None else -np.inf
             j = max(trials, key=trials.__getitem__)
@@ -241,15 +250,22 @@ def describe_lag_bank(fit: LagBankFit) -> str:
 Contributions = dict[str, dict[str, np.ndarray]]
 
 
-def contributions_of(data: DataSet, model: Model) -> Contributions:
-    """Each sub-model's contribution (um) over ``data``, run from rest at the record's start."""
+def contributions_of(data: DataSet, model: Model, starts: Sequence[int] = ONE) -> Contributions:
+    """Each sub-model's contribution (um) over ``data``, run from rest at the record's start.
+
+    With several ``starts`` (stacked experiments), from rest at each experiment's start.
+    """
     compiled = compile_model(model, data.sample_time_s)
     signals = np.column_stack([data.column(name) for name in compiled.signals])
-    result = simulate(compiled, signals, compiled.rest_state(signals[0]))
+
+    def run(part: np.ndarray) -> np.ndarray:
+        return simulate(compiled, part, compiled.rest_state(part[0])).contributions
+
+    terms = each(run, signals, starts)
     contributions: Contributions = {}
     for index, qualified in enumerate(qualified_names(compiled)):
         output, _, sub = qualified.partition("/")
-        contributions.setdefault(output, {})[sub] = result.contributions[:, index]
+        contributions.setdefault(output, {})[sub] = terms[:, index]
     return contributions
 
 

@@ -7,6 +7,7 @@ pairs model outputs with measured columns for comparison.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
@@ -141,3 +142,23 @@ def compare(evaluation: Evaluation, column: str | None = None) -> list[Compariso
         Comparison.of(output, evaluation.data.column(measured), evaluation.predicted(output))
         for output, measured in measured_columns(evaluation, column).items()
     ]
+
+
+def pooled_comparisons(
+    evaluations: Sequence[Evaluation], column: str | None = None
+) -> list[Comparison]:
+    """Each paired output over several experiments: every file's measurement and prediction end to end.
+
+    Each prediction is its own file's run (from its initial state at that
+    file's start), so pooling joins the figures, never the model's state.
+    """
+    pooled = []
+    for output, measured in measured_columns(evaluations[0], column).items():
+        pooled.append(
+            Comparison.of(
+                output,
+                np.concatenate([e.data.column(measured) for e in evaluations]),
+                np.concatenate([e.predicted(output) for e in evaluations]),
+            )
+        )
+    return pooled

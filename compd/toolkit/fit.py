@@ -26,9 +26,12 @@ import numpy as np
 
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
+from compd.files.experiments import stack
 from compd.files.modelschema import ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.collinear import collinear_groups
+from compd.model.crossval import experiment_folds
+from compd.model.experiments import ONE
 from compd.model.guards import Finding
 from compd.model.identify import Identification, identify
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
@@ -79,7 +82,7 @@ class FitResult:
 
 
 def fit_data(
-    data: DataSet,
+    data: DataSet | Sequence[DataSet],
     *,
     output: str,
     inputs: Sequence[str],
@@ -113,9 +116,25 @@ def fit_data(
     regression is refused unless ``force``. With a phase gate, a position or
     denoising, ``auto`` is ``oe`` (the lag bank has none of them yet).
 
+    ``data`` may be several experiments (:func:`~compd.files.experiments.load_experiments`):
+    inputs are then changes from each file's first values, the lag bank's
+    lags and ARX's regressors restart at each file, the model is simulated
+    from rest at each file's start, and cross-validation leaves one file out
+    (methods ``auto``, ``lagbank``, ``mlr`` and ``arx`` at a given order).
+
     Raises :class:`~compd.errors.DataFileError` (naming the file, the option or
     column, and the fix) for bad arguments and for data the method cannot fit.
     """
+    starts: tuple[int, ...] = ONE
+    if not isinstance(data, DataSet):
+        several = list(data)
+        if len(several) > 1:
+            _check_several(several[0].path, method, span, phase_gate, position, denoise)
+            stacked = stack(several)
+            data, starts = stacked.data, stacked.starts
+            span = None  # a whole span of one file (checked above): the whole of every file
+        else:
+            data = several[0]
     first = 0
     if span is not None:
         data, first = until_stop(data, span), span.start
@@ -140,7 +159,7 @@ def fit_data(
     denoised = denoise_columns(data, denoise, inputs, denoise_imfs) if denoise else {}
     changes = {
         column: (denoised[column].emd if column in denoised else data.column(column))
-        - data.column(column)[0]
+        - _references(data.column(column), starts)
         for column in inputs
     }
     gate = None
@@ -167,7 +186,11 @@ def fit_data(
             where="--method lagbank",
             fix="Use --method oe or arx for those structures, or drop them",
         )
-    folds = folds_of(data, operating_signal(data, cycles, phase_gate))
+    folds = (
+        folds_of(data, operating_signal(data, cycles, phase_gate))
+        if len(starts) == 1
+        else experiment_folds(len(data), starts)
+    )
     steps: list[SelectionStep] = []
     if select_inputs_first:
         if structured or method not in ("auto", "lagbank"):
@@ -184,6 +207,7 @@ def fit_data(
             folds=folds,
             time_constants_s=time_constants_s,
             first_sample=first,
+            starts=starts,
         )
         changes = {step.input: changes[step.input] for step in steps}
         inputs = list(changes)
@@ -200,6 +224,7 @@ def fit_data(
             candidates=candidates,
             time_constants_s=time_constants_s,
             first_sample=first,
+            starts=starts,
         )
     except ModelError as exc:
         raise DataFileError(data.path, exc.message, where="--time-constants-s") from exc
@@ -224,6 +249,7 @@ def fit_data(
                 position=None if slope is None else data.column(slope.signal) - slope.reference_mm,
                 progress=progress,
                 first_sample=first,
+                starts=starts,
             )
     except ModelError as exc:
         where = f"--phase-gate {phase_gate}" if "phase-gate" in exc.message else ""
@@ -242,7 +268,7 @@ def fit_data(
         baked = bake_lowpasses(model, identification, data, denoised, units)
         model, identification, denoise_doc = baked.model, baked.identification, baked.doc
     comparison = Comparison.of(output, y[first:], identification.simulated_um[first:])
-    contributions = contributions_of(data, model)
+    contributions = contributions_of(data, model, starts)
     findings = guard_findings(data, model, contributions)
     if not force:
         refuse_errors(
@@ -255,6 +281,12 @@ def fit_data(
     provenance = provenance.model_copy(
         update={"cross_validation": cross_validation_doc(output, selection)}
     )
+    if len(starts) > 1:
+        notes = (
+            f"{provenance.notes}; {len(starts)} experiments (files), each run from rest at its "
+            "start with inputs as changes from its first values; no lag spans two files"
+        )
+        provenance = provenance.model_copy(update={"notes": notes})
     if selection.lag_bank is not None and chosen == "lagbank":
         notes = f"{provenance.notes}; {describe_lag_bank(selection.lag_bank)}"
         provenance = provenance.model_copy(update={"notes": notes})
@@ -280,3 +312,41 @@ def fit_data(
         input_shares=input_shares(model, contributions),
         selection_steps=steps,
     )
+
+
+def _references(values: np.ndarray, starts: Sequence[int]) -> np.ndarray:
+    """Each sample's reference: the first value of its experiment (of the record, for one)."""
+    if len(starts) == 1:
+        return values[0]  # type: ignore[no-any-return]
+    lengths = np.diff([*starts, values.size])
+    return np.repeat(values[list(starts)], lengths)
+
+
+def _check_several(
+    path: str,
+    method: str,
+    span: Span | None,
+    phase_gate: str | None,
+    position: str | None,
+    denoise: Sequence[str],
+) -> None:
+    """Refuse what a fit over several files does not do yet, before any work."""
+    given = [
+        option
+        for option, used in (
+            ("--from/--until", span is not None and not span.whole),
+            ("--phase-gate", phase_gate is not None),
+            ("--position", position is not None),
+            ("--denoise", bool(denoise)),
+            ("--method oe", method == "oe"),
+        )
+        if used
+    ]
+    if given:
+        raise DataFileError(
+            path,
+            f"{given[0]} works on one record, and several data files were given",
+            where=given[0].split()[0],
+            fix="Fit several files with --method auto, lagbank, mlr or arx --order N, "
+            f"or fit one file with {given[0]}",
+        )

@@ -1,0 +1,257 @@
+"""Parquet recorder: the CSV recorder's rows, named, rotated and budgeted alike, as Parquet.
+
+A fleet's recordings are copied off many edge PCs and read by pandas,
+pyarrow, Spark or DuckDB; Parquet is typed, compressed (a 1 Hz day of 40
+signals is a few MB instead of tens) and carries key-value metadata in its
+footer: ``machine_id``, ``compd_version``, ``model``, ``model_sha256`` and
+``config``, as the CSV recorder's comment lines do.
+
+**Crash safety.** A Parquet file is readable only once its footer is written,
+so a file left open by a SIGKILL or a power cut would be lost whole. This
+recorder therefore never leaves a file without its footer: rows are gathered
+in memory, and every ``flush_every_rows`` rows (default 60: one minute at
+1 Hz) the open file is written again, whole, footer included, to
+``<name>.tmp`` and renamed over ``<name>`` (``rename(2)`` is atomic). Every
+``compd-*.parquet`` on disk is therefore a complete file up to its last
+write. The write runs on the recorder's own thread, so the tick does not
+wait for the disk; a crash loses the rows gathered since the last completed
+write: fewer than ``flush_every_rows`` (59 at the default) once it is done,
+fewer than twice that while one is in progress (a write takes milliseconds
+to a few hundred). A ``.tmp`` left by a crash during a write is deleted when
+the next file opens.
+
+Writing the open file again costs time in proportion to its length, so its
+length is bounded like the CSV recorder's: ``max_file_age_s`` and
+``max_file_bytes`` rotate it (the bytes counted are those of the last
+write). An hour at 1 Hz (3,600 rows, one row group) is a good file length;
+the default ``max_file_age_s`` of 86,400 s makes each minute's write take
+up to a day of rows (``benchmarks/bench_recorder_parquet.py`` has the
+figures). The open file's rows stay in memory as Arrow arrays (8 bytes a cell).
+
+pyarrow is imported when the first file is written, so a daemon recording
+CSV never loads it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import time
+from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+from compd.errors import RecorderError
+from compd.service.recorder import (
+    TIME_COLUMN,
+    Cell,
+    check_columns,
+    check_limits,
+    create,
+    delete_oldest,
+    error,
+    set_model,
+)
+
+log = logging.getLogger(__name__)
+
+SUFFIX = "parquet"
+#: Rows per rewrite of the open file unless the config says otherwise: a crash loses fewer.
+DEFAULT_FLUSH_EVERY_ROWS = 60
+#: Rows per row group: an hour at 1 Hz, so a reader can take a long file an hour at a time.
+ROW_GROUP_ROWS = 3600
+
+
+class ParquetRecorder:
+    """Write rows to rotating Parquet files in ``directory``.
+
+    The parameters are :class:`~compd.service.recorder.Recorder`'s;
+    ``flush_every_rows`` is the row group's size and the most rows a crash loses.
+    """
+
+    def __init__(
+        self,
+        directory: Path,
+        *,
+        max_file_bytes: int,
+        max_file_age_s: float,
+        max_total_bytes: int,
+        flush_every_rows: int = DEFAULT_FLUSH_EVERY_ROWS,
+        clock: Callable[[], float] = time.time,
+        metadata: Mapping[str, str] | None = None,
+    ) -> None:
+        check_limits(max_file_bytes, max_file_age_s, max_total_bytes, flush_every_rows)
+        self.directory = Path(directory)
+        self.max_file_bytes = max_file_bytes
+        self.max_file_age_s = max_file_age_s
+        self.max_total_bytes = max_total_bytes
+        self.flush_every_rows = flush_every_rows
+        self.metadata: dict[str, str] = dict(metadata or {})
+        self._clock = clock
+        self._columns: tuple[str, ...] = ()
+        self._text: frozenset[str] = frozenset()  # columns whose first value was text
+        self._path: Path | None = None
+        self._opened_s = 0.0
+        self._last_s = -math.inf
+        self._size = 0  # bytes of the open file at its last write
+        self._groups: list[Any] = []  # the open file's row groups (pyarrow.RecordBatch)
+        self._times_s: list[float] = []
+        self._rows: list[list[Cell]] = []
+        self._metadata_changed = False
+        self._file_metadata: dict[str, str] = {}
+        self._worker: ThreadPoolExecutor | None = None
+        self._writing: Future[int] | None = None
+
+    @property
+    def path(self) -> Path | None:
+        """The file being written, or None before the first row and after :meth:`close`."""
+        return self._path
+
+    def set_model(self, name: str, sha256: str) -> None:
+        """Name the active model in the files; a change starts a new file at the next row."""
+        self._metadata_changed |= set_model(self.metadata, name, sha256)
+
+    def record(self, row: Mapping[str, Cell], *, at_s: float | None = None) -> None:
+        """Append one row stamped ``at_s`` (s since the epoch, default the clock's now).
+
+        Numbers and bools are stored as float64 (NaN a gap), a column whose
+        first value is text as strings. Raises
+        :class:`~compd.errors.RecorderError` when the files cannot be written.
+        """
+        now_s = self._clock() if at_s is None else at_s
+        if tuple(row) != self._columns or self._metadata_changed:
+            columns = check_columns(row)
+            self.close()  # one schema and one model per file
+            self._columns = columns
+            self._text = frozenset(k for k, v in row.items() if isinstance(v, str))
+            self._metadata_changed = False
+        if self._path is None or (
+            self._size > self.max_file_bytes
+            or now_s - self._opened_s >= self.max_file_age_s
+            or now_s <= self._last_s  # the clock stepped back: times must increase in a file
+        ):
+            self._open(now_s)
+        self._last_s = now_s
+        self._times_s.append(now_s)
+        self._rows.append([row[name] for name in self._columns])
+        if len(self._rows) >= self.flush_every_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        """Make the gathered rows a batch and have the open file written again, whole.
+
+        The write runs on the recorder's own thread (pyarrow releases the
+        GIL), so the tick that gathered the rows does not wait for the disk;
+        the next flush waits for it first and raises the error it met.
+        """
+        if not self._rows or self._path is None:
+            return
+        self._groups.append(self._batch())
+        self._times_s, self._rows = [], []
+        self._wait()
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix="compd-recorder")
+        self._writing = self._worker.submit(
+            _write_file, self._path, list(self._groups), dict(self._file_metadata)
+        )
+
+    def close(self) -> None:
+        """Write what is gathered, wait for the write and close the file; the next row opens a new one."""
+        try:
+            self.flush()
+            self._wait()
+        finally:
+            self._close_file()
+
+    def __enter__(self) -> ParquetRecorder:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def _open(self, now_s: float) -> None:
+        self.close()
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            _remove_leftovers(self.directory)
+            # The name only: the first flush writes the file, so a crash before it leaves none.
+            path, fd = create(self.directory, now_s, SUFFIX)
+            os.close(fd)
+            path.unlink()
+        except OSError as exc:
+            raise error(f"cannot create a recording in {self.directory}", exc) from exc
+        self._path, self._opened_s, self._size = path, now_s, 0
+        self._file_metadata = dict(self.metadata)  # as at the file's first row, to its last
+        delete_oldest(self.directory, path, self.max_file_bytes, self.max_total_bytes)
+
+    def _wait(self) -> None:
+        """Wait for the write in progress; its error is raised here (its rows are written again next time)."""
+        if self._writing is None:
+            return
+        writing, self._writing = self._writing, None
+        try:
+            self._size = writing.result()
+        except OSError as exc:
+            raise error(f"cannot write to {self._path}", exc) from exc
+
+    def _close_file(self) -> None:
+        if self._writing is not None:  # closing after an error: let the write finish, quietly
+            with contextlib.suppress(OSError):
+                self._writing.result()
+            self._writing = None
+        self._path = None
+        self._groups, self._times_s, self._rows = [], [], []
+
+    def _batch(self) -> Any:
+        import pyarrow as pa
+
+        arrays = [pa.array([round(t * 1000) for t in self._times_s], pa.timestamp("ms", "UTC"))]
+        for i, name in enumerate(self._columns):
+            cells = [row[i] for row in self._rows]
+            if name in self._text:
+                arrays.append(pa.array([str(c) for c in cells], pa.string()))
+            else:
+                arrays.append(pa.array([_number(c) for c in cells], pa.float64()))
+        return pa.RecordBatch.from_arrays(arrays, names=[TIME_COLUMN, *self._columns])
+
+
+def _write_file(path: Path, batches: list[Any], metadata: dict[str, str]) -> int:
+    """Write ``batches`` to ``path`` as a whole Parquet file, atomically; its size in bytes.
+
+    Row groups of up to :data:`ROW_GROUP_ROWS` rows: a row group per flush
+    (60 rows) made files 3x larger and 6x slower to write.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_batches(batches).replace_schema_metadata(metadata)
+    temporary = path.with_name(path.name + ".tmp")
+    try:
+        pq.write_table(table, temporary, compression="zstd", row_group_size=ROW_GROUP_ROWS)
+        os.replace(temporary, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
+        raise
+    return path.stat().st_size
+
+
+def _number(cell: Cell) -> float:
+    try:
+        return float(cell)
+    except ValueError:  # text in a numeric column: a gap, as the loader reads unreadable cells
+        return math.nan
+
+
+def _remove_leftovers(directory: Path) -> None:
+    """Delete the ``.tmp`` a crash during a write left (its file holds the rows up to the flush before)."""
+    for leftover in directory.glob(f"compd-*.{SUFFIX}.tmp"):
+        log.info("removing %s, left by a crash during a write", leftover)
+        with contextlib.suppress(OSError):
+            leftover.unlink()
+
+
+__all__ = ["DEFAULT_FLUSH_EVERY_ROWS", "ParquetRecorder", "RecorderError"]

@@ -1,0 +1,135 @@
+"""Parquet recorder: row groups, footer metadata, rotation, and files that survive a SIGKILL."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from numpy.testing import assert_allclose
+
+from compd.files.data import load_data
+from compd.files.experiments import load_experiments
+from compd.service.configdoc import RecorderDoc
+from compd.service.recorder import Recorder
+from compd.service.recorder_parquet import ParquetRecorder
+
+T0_S = 1_795_428_900.0  # 2026-11-23T10:15:00Z
+BIG = 1 << 30
+META = {"machine_id": "lathe-3", "compd_version": "0.1.0", "config": "/etc/compd/compd.yaml"}
+
+
+def make(directory: Path, **options: float) -> ParquetRecorder:
+    limits = {"max_file_bytes": BIG, "max_file_age_s": 1e6, "max_total_bytes": 4 * BIG}
+    return ParquetRecorder(directory, metadata=META, **(limits | options))  # type: ignore[arg-type]
+
+
+def row(k: int) -> dict[str, float | int | str]:
+    return {"T_spindle_degC": 20.0 + 0.01 * k, "status": k % 3, "model.disp_z_um": -0.5 * k}
+
+
+def test_a_file_holds_every_row_and_names_the_machine_in_its_footer(tmp_path: Path) -> None:
+    """Rows written every flush_every_rows and at close; the footer names machine, compd, model, config."""
+    with make(tmp_path, flush_every_rows=10) as rec:
+        rec.set_model("twin-z", "ab" * 32)
+        for k in range(35):
+            rec.record(row(k), at_s=T0_S + k)
+    (path,) = tmp_path.glob("compd-*.parquet")
+    assert path.name == "compd-20261123T101500Z.parquet"
+    parquet = pq.ParquetFile(path)
+    assert parquet.metadata.num_row_groups == 1  # up to an hour's rows in one
+    assert parquet.metadata.num_rows == 35
+    metadata = {k.decode(): v.decode() for k, v in parquet.schema_arrow.metadata.items()}
+    assert metadata == META | {"model": "twin-z", "model_sha256": "ab" * 32}
+    data = load_data(path)
+    assert dict(data.metadata) == metadata
+    assert data.sample_time_s == 1.0 and data.start_time is not None
+    assert data.start_time.timestamp() == T0_S
+    assert_allclose(data.column("model.disp_z_um"), [-0.5 * k for k in range(35)])
+    assert_allclose(data.column("status"), [k % 3 for k in range(35)])
+
+
+def test_files_rotate_by_age_and_on_a_new_model_and_load_as_experiments(tmp_path: Path) -> None:
+    """Age and a model change start new files; the folder loads as one experiment per file."""
+    with make(tmp_path, flush_every_rows=7, max_file_age_s=50) as rec:
+        rec.set_model("a", "1" * 64)
+        for k in range(120):
+            if k == 100:
+                rec.set_model("b", "2" * 64)
+            rec.record(row(k), at_s=T0_S + k)
+    experiments = load_experiments([tmp_path])
+    assert [len(e) for e in experiments] == [50, 50, 20]
+    assert [e.metadata["model"] for e in experiments] == ["a", "a", "b"]
+
+
+def test_the_disk_budget_counts_both_formats(tmp_path: Path) -> None:
+    """Old recordings are deleted to stay under max_total_bytes, whichever format wrote them."""
+    old = tmp_path / "compd-20200101T000000Z.csv"
+    old.write_bytes(b"x" * 5000)
+    with make(tmp_path, max_file_bytes=2048, max_total_bytes=4096, flush_every_rows=5) as rec:
+        for k in range(10):
+            rec.record(row(k), at_s=T0_S + k)
+    assert not old.exists()
+    assert len(list(tmp_path.glob("compd-*.parquet"))) == 1
+
+
+def test_the_config_builds_the_parquet_recorder(tmp_path: Path) -> None:
+    """recorder.format: parquet builds it, flushing every 60 rows unless told; csv stays the default."""
+    doc = RecorderDoc.model_validate({"format": "parquet"})
+    recorder = doc.recorder(tmp_path, {"machine_id": "m1"})
+    assert isinstance(recorder, ParquetRecorder) and recorder.flush_every_rows == 60
+    assert recorder.metadata == {"machine_id": "m1"}
+    assert isinstance(RecorderDoc().recorder(tmp_path), Recorder)
+    with pytest.raises(ValueError, match="format"):
+        RecorderDoc.model_validate({"format": "xlsx"})
+
+
+WRITER = textwrap.dedent(
+    """
+    import sys
+    from pathlib import Path
+    from compd.service.recorder_parquet import ParquetRecorder
+
+    rec = ParquetRecorder(
+        Path(sys.argv[1]), max_file_bytes=1 << 30, max_file_age_s=300,
+        max_total_bytes=1 << 32, flush_every_rows=20, metadata={"machine_id": "kill-me"},
+    )
+    k = 0
+    while True:  # until SIGKILL: 1 s rows, a file every 300 rows
+        rec.record({"T_degC": 20.0 + 0.001 * k, "x_um": float(k)}, at_s=1.8e9 + k)
+        k += 1
+    """
+)
+
+
+def test_a_sigkilled_recorder_leaves_files_readable_up_to_their_last_flush(
+    tmp_path: Path,
+) -> None:
+    """SIGKILL mid-run: every file on disk loads, holds whole row groups, and names its machine."""
+    records = tmp_path / "records"
+    child = subprocess.Popen(
+        [sys.executable, "-c", WRITER, str(records)], cwd=Path(__file__).parents[2]
+    )
+    try:
+        deadline = time.monotonic() + 120  # a safety net, not an assertion on speed
+        while len(list(records.glob("compd-*.parquet"))) < 3 and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        os.kill(child.pid, signal.SIGKILL)
+        child.wait()
+    assert child.returncode == -signal.SIGKILL
+    files = sorted(records.glob("compd-*.parquet"))
+    assert len(files) >= 3, "the writer did not get far enough"
+    experiments = load_experiments([records])
+    sizes = [len(e) for e in experiments]
+    assert sizes[:-1] == [300] * (len(sizes) - 1)  # closed files: whole
+    assert sizes[-1] % 20 == 0 and sizes[-1] >= 20  # the open one: up to its last row group
+    assert all(e.metadata["machine_id"] == "kill-me" for e in experiments)
+    first = experiments[0].column("x_um")
+    assert_allclose(first, range(300))  # no row lost or repeated before the crash
