@@ -30,7 +30,7 @@ from pydantic import ValidationError
 from compd.errors import CompdError, ConfigFileError, ModelFileError
 from compd.files.yamlplace import parse_yaml, read_limited
 from compd.service.config import validation_error
-from compd.service.configdoc import TelemetryDoc
+from compd.service.fleetdoc import TelemetryDoc
 from compd.service.modelload import load_request
 from compd.service.mqttlink import mqtt_client
 from compd.service.remoteload import COMMAND, REQUEST_ID, SCHEMA

@@ -17,16 +17,17 @@ import importlib.util
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
+from pydantic import BaseModel, Field, StrictInt, model_validator
 
 from compd.drivers.base import Driver
 from compd.drivers.registry import load_driver_type
-from compd.files.yamlplace import resolve_path
 from compd.schemas import CONFIG_SCHEMA
 from compd.service.clock import Clock
 from compd.service.control import Access
+from compd.service.docbase import FiniteFloat, Positive, Strict
+from compd.service.fleetdoc import TelemetryDoc
 from compd.service.links import DriverLink
 from compd.service.offsets import AxisPoint
 from compd.service.points import SignalPoint, StatusPoint
@@ -36,24 +37,13 @@ from compd.service.safety import AxisLimits, AxisSafety, FaultMode
 from compd.service.schedule import GainRow, GainScheduler, GainTable
 from compd.service.signals import Checks, SignalMonitor
 
-if TYPE_CHECKING:
-    from compd.service.mqttlink import Broker
-    from compd.service.telemetry import Telemetry
-
 SCHEMA = CONFIG_SCHEMA
 #: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31); the
 #: readback-mismatch and model-fault bits follow them where bits are left (:mod:`compd.service.safety`).
 MAX_SIGNALS = 24
 
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class ChecksDoc(_Strict):
+class ChecksDoc(Strict):
     """Per-signal plausibility checks (see :mod:`compd.service.signals`), in the signal's unit."""
 
     min: FiniteFloat | None = None
@@ -74,7 +64,7 @@ class ChecksDoc(_Strict):
         return Checks(**self.model_dump())
 
 
-class SignalDoc(_Strict):
+class SignalDoc(Strict):
     """``value = raw * scale + offset`` in ``unit``."""
 
     driver: str
@@ -95,14 +85,14 @@ class SignalDoc(_Strict):
         return SignalMonitor(name, self.checks.checks())
 
 
-class EncodingDoc(_Strict):
+class EncodingDoc(Strict):
     """How an offset in um is written: ``round(offset_um * scale)`` for ``int``."""
 
     type: Literal["float", "int"] = "float"
     scale: Positive = 1.0
 
 
-class OutputDoc(_Strict):
+class OutputDoc(Strict):
     """One compensated axis: ``offset_um = sign * model_output`` after the safety stage."""
 
     model_output: str
@@ -144,7 +134,7 @@ class OutputDoc(_Strict):
         )
 
 
-class StatusDoc(_Strict):
+class StatusDoc(Strict):
     """Where the status word and the heartbeat counter go, for the PLC's supervision."""
 
     driver: str
@@ -162,7 +152,7 @@ class StatusDoc(_Strict):
         )
 
 
-class DriverDoc(_Strict):
+class DriverDoc(Strict):
     type: str
     settings: dict[str, Any] = Field(default_factory=dict)
     timeout_s: Positive = 0.5
@@ -185,18 +175,18 @@ class DriverDoc(_Strict):
         )
 
 
-class SafetyDoc(_Strict):
+class SafetyDoc(Strict):
     on_fault: Literal["ramp", "freeze"] = "ramp"
     fault_ramp_after_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
 
 
-class StateDoc(_Strict):
+class StateDoc(Strict):
     directory: str | None = None
     save_every_ticks: int = Field(default=60, ge=1)
     resume_max_age_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 900.0
 
 
-class RecorderDoc(_Strict):
+class RecorderDoc(Strict):
     """``recorder:``: where and how each tick is logged (:mod:`compd.service.recorder`)."""
 
     enabled: bool = True
@@ -249,14 +239,14 @@ class RecorderDoc(_Strict):
         )
 
 
-class EffectDoc(_Strict):
+class EffectDoc(Strict):
     """An entry of the effect catalogue: a physical effect and the signals that excite it."""
 
     description: str = ""
     signals: list[str] = Field(default_factory=list)
 
 
-class WhenDoc(_Strict):
+class WhenDoc(Strict):
     """A gain-table key: ``when: 2`` (a whole number) or ``when: {min: 0, max: 250}`` (``min <= key < max``)."""
 
     value: StrictInt | None = None
@@ -284,7 +274,7 @@ class WhenDoc(_Strict):
         return self
 
 
-class GainRowDoc(_Strict):
+class GainRowDoc(Strict):
     """A row of the gain table: ``gains`` (gain_name -> value) while the key matches ``when``."""
 
     when: WhenDoc
@@ -300,7 +290,7 @@ class GainRowDoc(_Strict):
         )
 
 
-class GainScheduleDoc(_Strict):
+class GainScheduleDoc(Strict):
     """Gains by operating condition (see :mod:`compd.service.schedule`)."""
 
     signal: str
@@ -316,7 +306,7 @@ class GainScheduleDoc(_Strict):
         return GainScheduler(self.gain_table())
 
 
-class LoadAccessDoc(_Strict):
+class LoadAccessDoc(Strict):
     """Who may switch the running model over the control socket (``compd model load``).
 
     Users and groups by name or number; a client is allowed when its uid is
@@ -343,120 +333,7 @@ class LoadAccessDoc(_Strict):
         return Access(*self.ids())
 
 
-class TelemetryTlsDoc(_Strict):
-    """TLS to the broker: the CA that signed its certificate; a client certificate if it asks for one."""
-
-    ca_file: str = Field(min_length=1)
-    cert_file: str | None = None
-    key_file: str | None = None
-
-    @model_validator(mode="after")
-    def _pair(self) -> TelemetryTlsDoc:
-        if (self.cert_file is None) != (self.key_file is None):
-            raise ValueError(
-                "give both 'cert_file' and 'key_file' (a client certificate), or neither"
-            )
-        return self
-
-
-#: An MQTT topic level compd writes: no wildcards, no separators, no spaces.
-TopicLevel = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.:-]+$", max_length=100)]
-
-
-class TelemetryDoc(_Strict):
-    """MQTT telemetry (:mod:`compd.service.telemetry`): where, as whom, how often, how much to queue."""
-
-    machine_id: TopicLevel
-    host: str = Field(default="localhost", min_length=1)
-    port: int | None = Field(
-        default=None, ge=1, le=65535, description="default: 1883, 8883 with tls"
-    )
-    topic_prefix: Annotated[str, Field(pattern=r"^[A-Za-z0-9_.:-]+(/[A-Za-z0-9_.:-]+)*$")] = "compd"
-    every_ticks: int = Field(default=1, ge=1)
-    queue_size: int = Field(default=1000, ge=1)
-    qos: Literal[0, 1, 2] = 1
-    keepalive_s: int = Field(default=15, ge=5)
-    reconnect_min_s: int = Field(default=1, ge=1)
-    reconnect_max_s: int = Field(default=30, ge=1)
-    client_id: str | None = None
-    username: str | None = None
-    password_file: str | None = None
-    tls: TelemetryTlsDoc | None = None
-    #: Load models sent to ``<prefix>/<machine_id>/cmd/model_load`` (``compd model rollout``).
-    #: Off unless asked: a machine takes no model from the network unless configured to.
-    accept_models: bool = False
-
-    @model_validator(mode="after")
-    def _consistent(self) -> TelemetryDoc:
-        if self.password_file is not None and self.username is None:
-            raise ValueError("'password_file' needs 'username'")
-        if self.reconnect_max_s < self.reconnect_min_s:
-            raise ValueError("'reconnect_max_s' must be at least 'reconnect_min_s'")
-        return self
-
-    @property
-    def broker_port(self) -> int:
-        """``port``, else MQTT's: 1883, or 8883 with TLS."""
-        return self.port or (1883 if self.tls is None else 8883)
-
-    def files(self) -> dict[str, str]:
-        """The files this section names, by key (``tls.ca_file``...), to check before start."""
-        named = {"password_file": self.password_file}
-        if self.tls is not None:
-            named |= {f"tls.{k}": v for k, v in self.tls.model_dump().items()}
-        return {k: v for k, v in named.items() if v is not None}
-
-    def telemetry(
-        self,
-        base_dir: Path,
-        *,
-        identity: Callable[[], dict[str, Any]],
-        wall: Callable[[], float],
-    ) -> Telemetry:
-        """The publisher, not yet connected; paho is imported here, only for a config that asks."""
-        from compd.service.mqttlink import Topics
-        from compd.service.telemetry import Telemetry
-
-        return Telemetry(
-            self.broker(base_dir, self.client_id or f"compd-{self.machine_id}"),
-            Topics(self.topic_prefix, self.machine_id),
-            qos=self.qos,
-            every_ticks=self.every_ticks,
-            queue_size=self.queue_size,
-            identity=identity,
-            wall=wall,
-        )
-
-    def broker(self, base_dir: Path, client_id: str) -> Broker:
-        """Where and as whom to connect (the password file read now); also the roll-out's."""
-        from compd.service.mqttlink import Broker
-
-        def path(name: str | None) -> Path | None:
-            return None if name is None else resolve_path(name, base_dir)
-
-        password_path = path(self.password_file)
-        tls = self.tls
-        return Broker(
-            host=self.host,
-            port=self.broker_port,
-            client_id=client_id,
-            keepalive_s=self.keepalive_s,
-            reconnect_min_s=self.reconnect_min_s,
-            reconnect_max_s=self.reconnect_max_s,
-            username=self.username,
-            password=None if password_path is None else read_secret(password_path),
-            ca_file=None if tls is None else path(tls.ca_file),
-            cert_file=None if tls is None else path(tls.cert_file),
-            key_file=None if tls is None else path(tls.key_file),
-        )
-
-
-def read_secret(path: Path) -> str:
-    """A password file's first line (its line ending stripped); OSError names the file, never the text."""
-    return path.read_text(encoding="utf-8").rstrip("\r\n")
-
-
-class ConfigDoc(_Strict):
+class ConfigDoc(Strict):
     schema_: Literal["compd.config/1"] = Field(alias="schema")
     #: This machine's name across a fleet: in every recording's metadata (and telemetry's topics).
     machine_id: (

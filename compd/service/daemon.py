@@ -272,9 +272,10 @@ class Service:
         row |= {f"readback.{k}_um": v for k, v in record.readback_um.items()}
         row |= {f"gain.{k}": v for k, v in record.gains.items()}
         row |= {"status": record.status, "heartbeat": record.heartbeat}
-        active = self.compensator.active
         try:
-            self.recorder.set_model(active.compiled.name, active.sha256)
+            if self.compensator.models is not None:  # a data logger names no model
+                active = self.compensator.active
+                self.recorder.set_model(active.compiled.name, active.sha256)
             self.recorder.record(row, at_s=record.wall_unix_s)
         except RecorderError as exc:
             self._recorder_fault.failed("recorder failed", error=str(exc))
