@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
@@ -31,6 +31,10 @@ from compd.service.recorder import Recorder
 from compd.service.safety import AxisLimits, AxisSafety, FaultMode
 from compd.service.schedule import GainRow, GainScheduler, GainTable
 from compd.service.signals import Checks, SignalMonitor
+
+if TYPE_CHECKING:
+    from compd.service.daemon import Service
+    from compd.service.httpserver import StatusServer
 
 SCHEMA = "compd.config/1"
 #: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31); the
@@ -308,6 +312,30 @@ class LoadAccessDoc(_Strict):
         return Access(*self.ids())
 
 
+class HttpDoc(_Strict):
+    """The read-only HTTP server: Prometheus metrics at ``/metrics`` and the status page at ``/``.
+
+    It listens on the loopback address unless told otherwise: the page shows the
+    machine's state to whoever reaches the port, so opening it to a network is
+    a decision made in the config (``listen: 0.0.0.0``), never a default.
+    """
+
+    enabled: bool = True
+    listen: str = Field(default="127.0.0.1", min_length=1)
+    #: 0: any free port (tests); the port taken is logged.
+    port: int = Field(default=9780, ge=0, le=65535)
+
+    def server(self, service: Service) -> StatusServer:
+        """The server for ``service`` (:class:`compd.service.httpserver.StatusServer`), not yet started.
+
+        Its module (aiohttp, prometheus_client) is imported here: a config without
+        ``http`` loads neither.
+        """
+        from compd.service.httpserver import StatusServer
+
+        return StatusServer(service, host=self.listen, port=self.port)
+
+
 class ConfigDoc(_Strict):
     schema_: Literal["compd.config/1"] = Field(alias="schema")
     model: str
@@ -325,5 +353,7 @@ class ConfigDoc(_Strict):
     recorder: RecorderDoc = RecorderDoc()
     effects: dict[str, EffectDoc] = Field(default_factory=dict)
     gain_schedule: GainScheduleDoc | None = None
+    #: Prometheus metrics and the read-only status page (:mod:`compd.service.httpserver`).
+    http: HttpDoc | None = None
     #: The simulated machine this config runs against (:mod:`compd.sim.plc.settings`).
     simulation: dict[str, Any] | None = None

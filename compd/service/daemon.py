@@ -24,7 +24,7 @@ import asyncio
 import gc
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
@@ -48,6 +48,9 @@ from compd.service.state import (
 )
 from compd.service.statusview import status_snapshot
 from compd.service.ticks import TickTiming, run_periodic
+
+if TYPE_CHECKING:
+    from compd.service.httpserver import StatusServer
 
 log = structlog.get_logger("compd.service.daemon")
 
@@ -131,6 +134,10 @@ class Service:
         self._recorder_fault = FaultLog(log)
         self._save_fault = FaultLog(log)  # saves fail every save_every_ticks: log once
         self._saving: asyncio.Future[None] | None = None
+        #: Metrics and the status page (config ``http``); None without one: nothing measured then.
+        self.http: StatusServer | None = (
+            doc.http.server(self) if doc.http is not None and doc.http.enabled else None
+        )
 
     async def run(self, *, duration_s: float | None = None) -> TickTiming:
         """Run until :meth:`stop` (or ``duration_s`` of clock time); then shut down cleanly."""
@@ -139,6 +146,13 @@ class Service:
         if self._control is not None:
             self.config.control_socket.parent.mkdir(parents=True, exist_ok=True)
             await self._control.start()
+        if self.http is not None:
+            try:
+                await self.http.start()
+            except BaseException:
+                if self._control is not None:
+                    await self._control.close()
+                raise
         await asyncio.gather(*(link.open() for link in self.links.values()))
         # Everything allocated so far (numpy, scipy, pandas, the model) lives as
         # long as the process: moved out of the collector's reach, a full
@@ -206,6 +220,7 @@ class Service:
 
     async def _tick(self, t_s: float) -> None:
         started_s = self.clock.now()
+        cpu_started_s = time.thread_time()
         record = await self.compensator.tick(t_s)
         ticks = self.compensator.counters.ticks
         if ticks == 1:
@@ -223,6 +238,9 @@ class Service:
             self._record(record)
         if ticks % self.config.doc.state.save_every_ticks == 0:
             self._save_in_background()
+        if self.http is not None:
+            cpu_s = time.thread_time() - cpu_started_s
+            self.http.tick(record, self.timing.last_lateness_s, cpu_s)
         if self.on_tick is not None:
             self.on_tick(record)
 
@@ -254,6 +272,8 @@ class Service:
         await asyncio.gather(*(link.close() for link in self.links.values()))
         if self._control is not None:
             await self._control.close()
+        if self.http is not None:
+            await self.http.close()
         if self.recorder is not None:
             try:
                 self.recorder.close()
