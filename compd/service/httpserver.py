@@ -47,6 +47,7 @@ PAGE_FILES = {
     "/": ("index.html", "text/html"),
     "/page.js": ("page.js", "text/javascript"),
     "/page.css": ("page.css", "text/css"),
+    "/favicon.svg": ("favicon.svg", "image/svg+xml"),
 }
 #: Most rows ``/history.json`` answers with, whatever ``points`` asks.
 MAX_POINTS = 3600

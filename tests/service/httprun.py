@@ -37,7 +37,7 @@ FAULTS = [
 ]
 
 
-def http_config(directory: Path, **http: Any) -> Path:
+def http_config(directory: Path, model: Path = BUNDLED_MODEL, **http: Any) -> Path:
     """The bundled simulated machine with ``http`` on a free port (``port: 0``) and two faults."""
     simulation = {
         "scenario": "production",
@@ -46,7 +46,7 @@ def http_config(directory: Path, **http: Any) -> Path:
         "sample_time_s": 1.0,
         "faults": FAULTS,
     }
-    doc = machine_doc(directory, BUNDLED_MODEL, simulation=simulation, http={"port": 0, **http})
+    doc = machine_doc(directory, model, simulation=simulation, http={"port": 0, **http})
     path = directory / "compd.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
