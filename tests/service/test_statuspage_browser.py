@@ -1,4 +1,4 @@
-"""The status page in a real headless browser (Debian chromium): it shows the running compd, draws its hour, changes nothing."""
+"""The status page in headless Debian chromium: it shows the running compd, draws its hour, changes nothing."""
 
 from __future__ import annotations
 
