@@ -23,6 +23,7 @@ SCRIPTS = (
     "bench_identify.py",
     "bench_real_identify.py",
     "bench_tick.py",
+    "bench_metrics.py",
     "bench_diagnose.py",
     "bench_residual.py",
     "bench_report.py",
@@ -35,7 +36,10 @@ SCRIPTS = (
 )
 #: Arguments per script: the tick benchmark's quick run (600 ticks at 0.1 s, 1 minute);
 #: its full run (600 real 1 Hz ticks, 10 minutes) is ``python benchmarks/bench_tick.py``.
-ARGS = {"bench_tick.py": ["--ticks", "600", "--period-s", "0.1"]}
+ARGS = {
+    "bench_tick.py": ["--ticks", "600", "--period-s", "0.1"],
+    "bench_metrics.py": ["--ticks", "60"],  # 2 minutes; the full run is 2 x 600 ticks at 1 Hz
+}
 
 
 def main() -> int:

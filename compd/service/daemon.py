@@ -220,7 +220,7 @@ class Service:
 
     async def _tick(self, t_s: float) -> None:
         started_s = self.clock.now()
-        cpu_started_s = time.thread_time()
+        cpu_started_s, real_started_s = time.thread_time(), time.perf_counter()
         record = await self.compensator.tick(t_s)
         ticks = self.compensator.counters.ticks
         if ticks == 1:
@@ -240,7 +240,7 @@ class Service:
             self._save_in_background()
         if self.http is not None:
             cpu_s = time.thread_time() - cpu_started_s
-            self.http.tick(record, self.timing.last_lateness_s, cpu_s)
+            self.http.tick(record, self.timing.last_lateness_s, cpu_s, real_started_s)
         if self.on_tick is not None:
             self.on_tick(record)
 

@@ -21,7 +21,9 @@ files, so the page sets them as text, never as markup.
 
 from __future__ import annotations
 
+import asyncio
 import json
+import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -52,6 +54,8 @@ PAGE_FILES = {
 #: Most rows ``/history.json`` answers with, whatever ``points`` asks.
 MAX_POINTS = 3600
 READ_ONLY = frozenset({"GET", "HEAD"})
+#: An answer asked for this close to the next tick (real s, either side) waits for that tick to finish.
+TICK_GUARD_S = 0.05
 HEADERS = {
     "Content-Security-Policy": (
         "default-src 'none'; script-src 'self'; style-src 'self'; connect-src 'self'; "
@@ -82,7 +86,11 @@ class StatusServer:
             route: (((PAGE_DIR / file).read_bytes()), kind)
             for route, (file, kind) in PAGE_FILES.items()
         }
-        self.app = web.Application(middlewares=[_read_only])
+        #: The real period (s), to foresee the next tick: a scaled clock's where known.
+        self._period_real_s = doc.period_s / float(getattr(service.clock, "time_scale", 1.0))
+        self._next_tick_real_s = -float("inf")  # time.perf_counter() time
+        self._ticked = asyncio.Event()
+        self.app = web.Application(middlewares=[_read_only, self._clear_of_ticks])
         for route in PAGE_FILES:
             self.app.router.add_get(route, self._page)
         self.app.router.add_get("/metrics", self._metrics)
@@ -91,11 +99,19 @@ class StatusServer:
         self.app.router.add_get("/page.json", self._page_json)
         self._runner: web.AppRunner | None = None
 
-    def tick(self, record: TickRecord, lateness_s: float, cpu_s: float) -> None:
-        """What each tick leaves here: its lateness and CPU (s), and a row of history."""
+    def tick(
+        self, record: TickRecord, lateness_s: float, cpu_s: float, started_real_s: float
+    ) -> None:
+        """What each tick leaves here: its lateness and CPU (s), a row of history; answers held for it go on.
+
+        ``started_real_s``: when the tick started, ``time.perf_counter()`` time.
+        """
         self.metrics.observe_tick(lateness_s, cpu_s)
         self.history.append(record)
         self.faults.update(record, self.service.compensator, self.service.links)
+        self._next_tick_real_s = started_real_s + self._period_real_s
+        self._ticked.set()
+        self._ticked = asyncio.Event()
 
     @property
     def port(self) -> int:
@@ -128,6 +144,25 @@ class StatusServer:
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
+
+    @web.middleware
+    async def _clear_of_ticks(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        """Answer in the gap after a tick, never in the last moments before one.
+
+        Building an answer takes about a millisecond of the loop; one started just
+        before a deadline would make that tick late, and a scraper whose interval
+        equals the period would hit the same phase every time. So a request that
+        arrives within :data:`TICK_GUARD_S` of the next tick waits (at most twice
+        that) for it to finish first: Prometheus's timeout is seconds.
+        """
+        to_tick_s = self._next_tick_real_s - time.perf_counter()
+        if -TICK_GUARD_S < to_tick_s < TICK_GUARD_S:
+            try:
+                async with asyncio.timeout(2 * TICK_GUARD_S):
+                    await self._ticked.wait()
+            except TimeoutError:
+                pass  # the tick is late or the clock stands still (a test): answer anyway
+        return await handler(request)
 
     async def _page(self, request: web.Request) -> web.Response:
         body, kind = self._pages[request.path]
