@@ -210,3 +210,18 @@ def test_a_port_in_use_stops_the_start_naming_the_option(tmp_path: Path) -> None
         run.thread.join(300)
     assert isinstance(run.error, CompdError)
     assert str(path) in str(run.error) and "'http.port'" in str(run.error)
+
+
+def test_page_files_ship_in_the_wheel() -> None:
+    """Each file the server serves exists and matches pyproject's package-data for compd.service."""
+    import fnmatch
+    import tomllib
+
+    from compd.service.httpserver import PAGE_DIR, PAGE_FILES
+
+    root = Path(__file__).parents[2]
+    setuptools = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
+    patterns = setuptools["package-data"]["compd.service"]
+    for file, _ in PAGE_FILES.values():
+        assert (PAGE_DIR / file).is_file()
+        assert any(fnmatch.fnmatch(f"statuspage/{file}", p) for p in patterns), file
