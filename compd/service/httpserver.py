@@ -86,8 +86,9 @@ class StatusServer:
             route: (((PAGE_DIR / file).read_bytes()), kind)
             for route, (file, kind) in PAGE_FILES.items()
         }
-        #: The real period (s), to foresee the next tick: a scaled clock's where known.
-        self._period_real_s = doc.period_s / float(getattr(service.clock, "time_scale", 1.0))
+        #: When the last tick started and the next is due (``time.perf_counter()`` s): the
+        #: real period is measured, as the clock may be scaled or virtual.
+        self._last_tick_real_s: float | None = None
         self._next_tick_real_s = -float("inf")  # time.perf_counter() time
         self._ticked = asyncio.Event()
         self.app = web.Application(middlewares=[_read_only, self._clear_of_ticks])
@@ -109,7 +110,9 @@ class StatusServer:
         self.metrics.observe_tick(lateness_s, cpu_s)
         self.history.append(record)
         self.faults.update(record, self.service.compensator, self.service.links)
-        self._next_tick_real_s = started_real_s + self._period_real_s
+        if self._last_tick_real_s is not None:
+            self._next_tick_real_s = 2 * started_real_s - self._last_tick_real_s
+        self._last_tick_real_s = started_real_s
         self._ticked.set()
         self._ticked = asyncio.Event()
 

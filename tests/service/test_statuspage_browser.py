@@ -42,10 +42,10 @@ class Shown:
         self.page.on("pageerror", lambda e: self.errors.append(str(e)))
         self.page.on("request", lambda r: self.requests.append(r.url))
         self.page.goto(run.url)
-        self.page.wait_for_function(
-            "document.body.dataset.loaded && "
-            "document.querySelectorAll('#chart-offsets polyline').length > 0",
-            timeout=LOAD_TIMEOUT_MS,
+        # Locators, not wait_for_function: its predicate is eval'd, which the page's policy forbids.
+        self.page.locator("body[data-loaded]").wait_for(state="attached", timeout=LOAD_TIMEOUT_MS)
+        self.page.locator("#chart-offsets polyline").first.wait_for(
+            state="attached", timeout=LOAD_TIMEOUT_MS
         )
 
     def text(self, selector: str) -> str:
