@@ -24,6 +24,7 @@ SCRIPTS = (
     "bench_real_identify.py",
     "bench_tick.py",
     "bench_recorder_parquet.py",
+    "bench_metrics.py",
     "bench_diagnose.py",
     "bench_residual.py",
     "bench_report.py",
@@ -42,6 +43,7 @@ ARGS = {
     "bench_tick.py": ["--ticks", "600", "--period-s", "0.1"],
     # Quick as well (2 x 30 s + 20 s); the full run is 2 x 600 real 1 Hz ticks and 60 s of fleet.
     "bench_telemetry.py": ["--ticks", "300", "--period-s", "0.1", "--fleet-s", "20"],
+    "bench_metrics.py": ["--ticks", "60"],  # 2 minutes; the full run is 2 x 600 ticks at 1 Hz
 }
 
 

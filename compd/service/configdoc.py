@@ -27,7 +27,7 @@ from compd.schemas import CONFIG_SCHEMA
 from compd.service.clock import Clock
 from compd.service.control import Access
 from compd.service.docbase import FiniteFloat, Positive, Strict
-from compd.service.fleetdoc import TelemetryDoc
+from compd.service.fleetdoc import HttpDoc, TelemetryDoc
 from compd.service.links import DriverLink
 from compd.service.offsets import AxisPoint
 from compd.service.points import SignalPoint, StatusPoint
@@ -358,6 +358,8 @@ class ConfigDoc(Strict):
     gain_schedule: GainScheduleDoc | None = None
     #: MQTT telemetry to a fleet's broker (:mod:`compd.service.telemetry`); none without.
     telemetry: TelemetryDoc | None = None
+    #: Prometheus metrics and the read-only status page (:mod:`compd.service.httpserver`).
+    http: HttpDoc | None = None
     #: The simulated machine this config runs against (:mod:`compd.sim.plc.settings`).
     simulation: dict[str, Any] | None = None
 

@@ -306,16 +306,16 @@ async def _remove_stale(path: Path) -> None:
 
 
 def _encode(message: dict[str, Any]) -> bytes:
-    return (json.dumps(_jsonable(message), allow_nan=False) + "\n").encode()
+    return (json.dumps(jsonable(message), allow_nan=False) + "\n").encode()
 
 
-def _jsonable(value: Any) -> Any:
+def jsonable(value: Any) -> Any:
     """``value`` in JSON's types: NaN and infinities become null (JSON has neither), numpy
     scalars Python numbers, paths strings; anything else raises TypeError."""
     if isinstance(value, dict):
-        return {str(key): _jsonable(item) for key, item in value.items()}
+        return {str(key): jsonable(item) for key, item in value.items()}
     if isinstance(value, list | tuple):
-        return [_jsonable(item) for item in value]
+        return [jsonable(item) for item in value]
     if isinstance(value, str | bool | int) or value is None:
         return value
     if isinstance(value, float):
@@ -324,7 +324,7 @@ def _jsonable(value: Any) -> Any:
         return os.fspath(value)
     item = getattr(value, "item", None)  # numpy scalars
     if callable(item):
-        return _jsonable(item())
+        return jsonable(item())
     raise TypeError(f"{type(value).__name__} is not JSON serialisable")
 
 

@@ -25,7 +25,7 @@ import gc
 import hashlib
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
@@ -51,6 +51,9 @@ from compd.service.state import (
 )
 from compd.service.statusview import status_snapshot
 from compd.service.ticks import TickTiming, run_periodic
+
+if TYPE_CHECKING:
+    from compd.service.httpserver import StatusServer
 
 log = structlog.get_logger("compd.service.daemon")
 
@@ -153,6 +156,10 @@ class Service:
             if doc.telemetry is not None and doc.telemetry.accept_models:
                 remote = RemoteLoads(self.load_model, self.telemetry.reply, sink)
                 self.telemetry.listen(COMMAND, remote.handle, max_bytes=MAX_PAYLOAD_BYTES)
+        #: Metrics and the status page (config ``http``); None without one: nothing measured then.
+        self.http: StatusServer | None = (
+            doc.http.server(self) if doc.http is not None and doc.http.enabled else None
+        )
 
     async def run(self, *, duration_s: float | None = None) -> TickTiming:
         """Run until :meth:`stop` (or ``duration_s`` of clock time); then shut down cleanly."""
@@ -161,6 +168,13 @@ class Service:
         if self._control is not None:
             self.config.control_socket.parent.mkdir(parents=True, exist_ok=True)
             await self._control.start()
+        if self.http is not None:
+            try:
+                await self.http.start()
+            except BaseException:
+                if self._control is not None:
+                    await self._control.close()
+                raise
         if self.telemetry is not None:
             self.telemetry.start()  # connects in the background: a broker away delays nothing
         await asyncio.gather(*(link.open() for link in self.links.values()))
@@ -232,6 +246,7 @@ class Service:
 
     async def _tick(self, t_s: float) -> None:
         started_s = self.clock.now()
+        cpu_started_s, real_started_s = time.thread_time(), time.perf_counter()
         record = await self.compensator.tick(t_s)
         ticks = self.compensator.counters.ticks
         if ticks == 1:
@@ -257,6 +272,9 @@ class Service:
         telemetry = self.telemetry
         if telemetry is not None and ticks % telemetry.every_ticks == 0:
             telemetry.tick(record, self._tick_counters(), self.compensator.active.compiled.name)
+        if self.http is not None:
+            cpu_s = time.thread_time() - cpu_started_s
+            self.http.tick(record, self.timing.last_lateness_s, cpu_s, real_started_s)
         if self.on_tick is not None:
             self.on_tick(record)
 
@@ -304,6 +322,8 @@ class Service:
         await asyncio.gather(*(link.close() for link in self.links.values()))
         if self._control is not None:
             await self._control.close()
+        if self.http is not None:
+            await self.http.close()
         if self.recorder is not None:
             try:
                 self.recorder.close()

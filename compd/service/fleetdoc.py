@@ -1,4 +1,4 @@
-"""The config sections that connect a machine to its fleet: MQTT telemetry (and model roll-outs).
+"""The config sections that connect a machine to its fleet: MQTT telemetry and roll-outs, metrics and the status page.
 
 Each builds its runtime object as :mod:`compd.service.configdoc`'s sections
 do; paho is imported only when a config has the section.
@@ -16,6 +16,8 @@ from compd.files.yamlplace import resolve_path
 from compd.service.docbase import Strict
 
 if TYPE_CHECKING:
+    from compd.service.daemon import Service
+    from compd.service.httpserver import StatusServer
     from compd.service.mqttlink import Broker
     from compd.service.telemetry import Telemetry
 
@@ -131,3 +133,27 @@ class TelemetryDoc(Strict):
 def read_secret(path: Path) -> str:
     """A password file's first line (its line ending stripped); OSError names the file, never the text."""
     return path.read_text(encoding="utf-8").rstrip("\r\n")
+
+
+class HttpDoc(Strict):
+    """The read-only HTTP server: Prometheus metrics at ``/metrics`` and the status page at ``/``.
+
+    It listens on the loopback address unless told otherwise: the page shows the
+    machine's state to whoever reaches the port, so opening it to a network is
+    a decision made in the config (``listen: 0.0.0.0``), never a default.
+    """
+
+    enabled: bool = True
+    listen: str = Field(default="127.0.0.1", min_length=1)
+    #: 0: any free port (tests); the port taken is logged.
+    port: int = Field(default=9780, ge=0, le=65535)
+
+    def server(self, service: Service) -> StatusServer:
+        """The server for ``service`` (:class:`compd.service.httpserver.StatusServer`), not yet started.
+
+        Its module (aiohttp, prometheus_client) is imported here: a config without
+        ``http`` loads neither.
+        """
+        from compd.service.httpserver import StatusServer
+
+        return StatusServer(service, host=self.listen, port=self.port)

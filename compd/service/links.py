@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import Mapping, Sequence
+import time
+from collections.abc import Callable, Mapping, Sequence
 
 import structlog
 
@@ -56,6 +57,8 @@ class DriverLink:
         self.next_attempt_s = -math.inf
         self._connecting: asyncio.Task[None] | None = None
         self._ever_up = False
+        #: Told ``(operation, seconds)`` after each read or write, failed ones too (:mod:`compd.service.metrics`).
+        self.observe: Callable[[str, float], None] | None = None
 
     @property
     def faults(self) -> int:
@@ -106,12 +109,16 @@ class DriverLink:
         if not self.up:
             self.poll()
             return {}
+        started_s = time.perf_counter()
         try:
             async with asyncio.timeout(self.timeout_s):
                 values: dict[str, float] = await self.driver.read(points)
         except (DriverError, TimeoutError, OSError) as exc:
             self._failed("read", exc)
             return {}
+        finally:
+            if self.observe is not None:
+                self.observe("read", time.perf_counter() - started_s)
         self._succeeded()
         return values
 
@@ -120,12 +127,16 @@ class DriverLink:
         if not self.up:
             self.poll()
             return False
+        started_s = time.perf_counter()
         try:
             async with asyncio.timeout(self.timeout_s):
                 await self.driver.write(values)
         except (DriverError, TimeoutError, OSError) as exc:
             self._failed("write", exc)
             return False
+        finally:
+            if self.observe is not None:
+                self.observe("write", time.perf_counter() - started_s)
         self._succeeded()
         return True
 

@@ -81,7 +81,9 @@ def test_a_logger_records_every_tick_and_writes_nothing_to_the_plc(tmp_path):
     files = sorted(config.recorder_dir.glob("compd-*.csv"))
     assert len(files) == 1
     with files[0].open() as f:
-        rows = list(csv.DictReader(line for line in f if not line.startswith("#")))  # metadata lines
+        rows = list(
+            csv.DictReader(line for line in f if not line.startswith("#"))
+        )  # metadata lines
     assert len(rows) == ticks and "disp_z_um" in rows[0] and "health.disp_z_um" in rows[0]
     data = load_data(files[0])
     assert data.sample_time_s == 10.0 and len(data) == ticks and "disp_z_um" in data.columns
