@@ -46,7 +46,7 @@ from typing import Any
 import bench_modbus
 from common import environment, verdict
 from compd.drivers.gateway import GatewayDriver, GatewaySettings
-from compd.drivers.modbus import ModbusSettings
+from compd.drivers.modbus_settings import ModbusSettings
 
 from compd.service.clock import RealClock
 from compd.service.links import DriverLink

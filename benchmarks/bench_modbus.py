@@ -33,7 +33,8 @@ from multiprocessing.synchronize import Event
 from pathlib import Path
 
 from common import environment, verdict
-from compd.drivers.modbus import ModbusDriver, ModbusSettings
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_settings import ModbusSettings
 
 from compd.service.clock import RealClock
 from compd.service.links import DriverLink

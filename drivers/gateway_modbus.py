@@ -16,7 +16,8 @@ from pathlib import Path
 
 from compd.drivers.gateway_settings import GatewaySettings
 from compd.drivers.gateway_status import StatusWatch
-from compd.drivers.modbus import ModbusDriver, ModbusSettings
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_settings import ModbusSettings
 
 
 class ModbusTransport:

@@ -39,7 +39,7 @@ import contextlib
 import struct
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from compd.drivers.base import RawReading
 from compd.drivers.library_logs import quiet_library
@@ -50,8 +50,8 @@ from compd.drivers.modbus_addresses import (
     Table,
     parse_address,
 )
+from compd.drivers.modbus_settings import ModbusSettings
 from compd.drivers.points import INT_RANGES
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
@@ -66,32 +66,6 @@ quiet_library("pymodbus")  # its per-attempt errors and hex dumps: see compd.dri
 
 _MAX_BITS_PER_REQUEST = 2000  # Modbus limit for read coils / discrete inputs
 _MAX_WRITE_REGISTERS = 123  # Modbus limit for write multiple registers
-
-
-class ModbusSettings(BaseModel):
-    """``drivers.<name>.settings`` of a ``type: modbus`` driver."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    transport: Literal["tcp", "rtu"] = "tcp"
-    host: str | None = Field(default=None, description="tcp: PLC host name or IP")
-    port: int = Field(default=502, ge=1, le=65535, description="tcp: port")
-    serial_port: str | None = Field(default=None, description="rtu: e.g. /dev/ttyUSB0")
-    baudrate: int = Field(default=19200, gt=0)
-    parity: Literal["N", "E", "O"] = "N"
-    stopbits: Literal[1, 2] = 1
-    bytesize: Literal[7, 8] = 8
-    device_id: int = Field(default=1, ge=0, le=247, description="default device (unit) id")
-    request_timeout_s: float = Field(default=0.5, gt=0, description="per request")
-    max_registers_per_request: int = Field(default=125, ge=1, le=125)
-
-    @model_validator(mode="after")
-    def _transport_needs(self) -> ModbusSettings:
-        if self.transport == "tcp" and not self.host:
-            raise ValueError("transport 'tcp' needs 'host'")
-        if self.transport == "rtu" and not self.serial_port:
-            raise ValueError("transport 'rtu' needs 'serial_port'")
-        return self
 
 
 def _spans(

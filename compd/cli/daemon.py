@@ -24,9 +24,10 @@ from compd.files.modelfile import load_model
 from compd.files.yamlplace import read_limited
 from compd.service.clock import RealClock
 from compd.service.compensator import TickRecord
-from compd.service.config import Config, check_model
+from compd.service.config import Config
 from compd.service.control import request
 from compd.service.daemon import Service
+from compd.service.modelcheck import check_model
 from compd.service.modelload import LOAD_TIMEOUT_S, load_request, slot_from_bytes
 from compd.service.notify import SystemdNotifier
 from compd.service.safety import Level

@@ -45,10 +45,10 @@ from compd.files.yamlplace import (
     where,
 )
 from compd.service import paths
-from compd.service.configdoc import SCHEMA, ConfigDoc, GainScheduleDoc
+from compd.service.configdoc import SCHEMA, ConfigDoc
 from compd.service.offsets import AxisPoint
 from compd.service.points import StatusPoint
-from compd.service.schedule import first_overlap, model_gains
+from compd.service.schedule import first_overlap
 from compd.service.writepoints import (
     ErrorAt,
     check_written,
@@ -60,8 +60,7 @@ from compd.service.writepoints import (
 )
 
 if TYPE_CHECKING:  # annotations only: a config is read without loading the model stack
-    from compd.files.modelfile import ModelFile
-    from compd.model.compiled import CompiledModel
+    pass
 
 
 @dataclass(frozen=True)
@@ -375,55 +374,6 @@ def _check_telemetry_files(doc: ConfigDoc, base_dir: Path, error: ErrorAt) -> No
                 f"cannot read {file} ({exc.strerror or type(exc).__name__})",
                 f"Give the path of a readable file (relative paths start at {base_dir})",
             ) from None
-
-
-def check_model(config: Config, model_file: ModelFile, compiled: CompiledModel) -> None:
-    """Refuse a model this config cannot run: an input without a signal, an axis without an output."""
-    missing = [s for s in compiled.signals if s not in config.doc.signals]
-    if missing:
-        raise ConfigFileError(
-            config.path,
-            f"model {model_file.path} reads signal(s) {missing} that are not defined",
-            where="signals",
-            fix=f"Add them under 'signals' (defined: {sorted(config.doc.signals)})",
-        )
-    for axis, output in config.doc.outputs.items():
-        if output.model_output not in compiled.output_names:
-            raise ConfigFileError(
-                config.path,
-                f"model {model_file.path} has no output {output.model_output!r}",
-                where=f"outputs.{axis}.model_output",
-                fix=f"Use one of {list(compiled.output_names)}",
-            )
-    if config.doc.gain_schedule is not None:
-        _check_gain_names(config, config.doc.gain_schedule, model_file, compiled)
-
-
-def _check_gain_names(
-    config: Config, schedule: GainScheduleDoc, model_file: ModelFile, compiled: CompiledModel
-) -> None:
-    """Every gain the schedule sets must be a ``gain_name`` of the model."""
-    known = model_gains(compiled)
-    places: list[tuple[tuple[str | int, ...], dict[str, float]]] = [
-        (("gain_schedule", "table", i, "gains"), row.gains) for i, row in enumerate(schedule.table)
-    ]
-    if schedule.default is not None:
-        places.append((("gain_schedule", "default"), schedule.default))
-    for location, gains in places:
-        for name in gains:
-            if name not in known:
-                fix = (
-                    f"Use one of {sorted(known)}"
-                    if known
-                    else "Name the gains in the model file ('gain_name: g1' on the sub-models "
-                    "they scale, seed 002 eq. 6), or remove 'gain_schedule'"
-                )
-                raise ConfigFileError(
-                    config.path,
-                    f"model {model_file.path} has no gain named {name!r}",
-                    where=where(config.root, (*location, name)),
-                    fix=fix,
-                )
 
 
 def validation_error(

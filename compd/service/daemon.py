@@ -29,7 +29,6 @@ from typing import TYPE_CHECKING, Any
 
 import structlog
 
-from compd import __version__
 from compd.drivers.base import Driver
 from compd.errors import RecorderError
 from compd.faultlog import Event, FaultLog
@@ -37,18 +36,12 @@ from compd.service.clock import Clock
 from compd.service.compensator import Compensator, TickRecord
 from compd.service.config import Config
 from compd.service.control import ControlServer
+from compd.service.identity import identity, recording_metadata
 from compd.service.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.notify import SystemdNotifier
 from compd.service.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
 from compd.service.safety import HEARTBEAT_MODULO
-from compd.service.slots import ModelSlot
-from compd.service.state import (
-    SavedState,
-    StateError,
-    load_state,
-    resume_decision,
-    save_state,
-)
+from compd.service.state import SavedState, resumable_state, save_state
 from compd.service.statusview import status_snapshot
 from compd.service.ticks import TickTiming, run_periodic
 
@@ -91,7 +84,7 @@ class Service:
         now_unix = clock.wall()
         slot, fallback = startup_slots(config, now_unix)
         self.drivers = dict(drivers) if drivers is not None else config.build_drivers(clock.now)
-        resume = _resumable(config, slot, clock, now_unix) if slot is not None else None
+        resume = resumable_state(config, slot, clock, now_unix) if slot is not None else None
         self.resumed = resume is not None
         offsets = dict(resume.offsets_um) if resume is not None else {}
         self.links = {
@@ -134,7 +127,7 @@ class Service:
             else None
         )
         self.recorder = (
-            doc.recorder.recorder(config.recorder_dir, _recording_metadata(config))
+            doc.recorder.recorder(config.recorder_dir, recording_metadata(config))
             if config.recorder_dir is not None
             else None
         )
@@ -143,7 +136,7 @@ class Service:
         self._saving: asyncio.Future[None] | None = None
         #: MQTT telemetry (:mod:`compd.service.telemetry`) where the config asks for it.
         self.telemetry = (
-            doc.telemetry.telemetry(config.base_dir, identity=self._identity, wall=clock.wall)
+            doc.telemetry.telemetry(config.base_dir, identity=self._describe, wall=clock.wall)
             if doc.telemetry is not None
             else None
         )
@@ -388,6 +381,9 @@ class Service:
             telemetry=None if self.telemetry is None else self.telemetry.status_counters(),
         )
 
+    def _describe(self) -> dict[str, Any]:
+        return identity(self.config, self.compensator.active, self.started_unix_s)
+
     def _tick_counters(self) -> dict[str, int]:
         """The counters a telemetry status message carries (as ``compd status``'s)."""
         links = self.links.values()
@@ -397,63 +393,8 @@ class Service:
             "reconnects": sum(link.reconnects for link in links),
         }
 
-    def _identity(self) -> dict[str, Any]:
-        """The telemetry birth's description of this daemon: model, signals, axes, period."""
-        doc, slot = self.config.doc, self.compensator.active
-        return {
-            "model": {"name": slot.compiled.name, "sha256": slot.sha256},
-            "period_s": doc.period_s,
-            "started": self.started_unix_s,
-            "signals": {
-                n: {"unit": s.unit, "description": s.description} for n, s in doc.signals.items()
-            },
-            "axes": {
-                axis: {"model_output": out.model_output, "max_offset_um": out.max_offset_um}
-                for axis, out in doc.outputs.items()
-            },
-        }
-
-
-def _recording_metadata(config: Config) -> dict[str, str]:
-    """What every recording says about where it comes from (the model is added per file)."""
-    metadata = {"compd_version": __version__, "config": str(config.path)}
-    if config.doc.machine_id is not None:
-        metadata = {"machine_id": config.doc.machine_id, **metadata}
-    return metadata
-
 
 def _summary(record: TickRecord) -> str:
     """One line for ``systemctl status``: offsets and the status level."""
     offsets = ", ".join(f"{axis} {value:+.2f} um" for axis, value in record.offsets_um.items())
     return f"{offsets}; status word {record.status}"
-
-
-def _resumable(
-    config: Config, slot: ModelSlot, clock: Clock, now_unix_s: float
-) -> SavedState | None:
-    """The saved state to resume from, if it belongs to this model and is recent and sane enough."""
-    try:
-        saved = load_state(config.state_dir)
-    except StateError as exc:
-        log.warning("saved state ignored", reason=str(exc))
-        saved = None
-    decision = resume_decision(
-        saved,
-        slot.sha256,
-        slot.compiled,
-        now_unix_s,
-        config.doc.state.resume_max_age_s,
-        real_now_unix_s=time.time(),
-        # A scaled clock's time_scale; virtual time (None, or none given) counts as real.
-        time_scale=getattr(clock, "time_scale", None) or 1.0,
-        max_offsets_um={axis: out.max_offset_um for axis, out in config.doc.outputs.items()},
-    )
-    log.info(
-        "model",
-        name=slot.compiled.name,
-        sha256=slot.sha256,
-        path=slot.model_file.path,
-        resume=decision.resume,
-        reason=decision.reason,
-    )
-    return saved if decision.resume else None

@@ -32,7 +32,8 @@ import structlog
 from compd.errors import CompdError, ConfigFileError, ModelFileError
 from compd.files.modelfile import parse_model_bytes
 from compd.files.yamlplace import MAX_YAML_BYTES, read_limited, shorten
-from compd.service.config import Config, check_model
+from compd.service.config import Config
+from compd.service.modelcheck import check_model
 from compd.service.slots import ModelSlot
 from compd.service.state import install_model_bytes, installed_model, reinstate_model
 

@@ -20,13 +20,23 @@ import hashlib
 import json
 import os
 import tempfile
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import structlog
 
 from compd.errors import CompdError, ModelError
 from compd.model.compiled import CompiledModel, ModelState
+
+if TYPE_CHECKING:
+    from compd.service.clock import Clock
+    from compd.service.config import Config
+    from compd.service.slots import ModelSlot
+
+log = structlog.get_logger("compd.service.state")
 
 STATE_FILE = "state.json"
 MODELS_DIR = "models"
@@ -222,3 +232,34 @@ def reinstate_model(state_dir: Path, model_path: Path) -> None:
         write_atomic(state_dir / CURRENT_MODEL, f"{MODELS_DIR}/{model_path.name}\n".encode())
     else:
         (state_dir / CURRENT_MODEL).unlink(missing_ok=True)
+
+
+def resumable_state(
+    config: Config, slot: ModelSlot, clock: Clock, now_unix_s: float
+) -> SavedState | None:
+    """The saved state to resume from, if it belongs to this model and is recent and sane enough."""
+    try:
+        saved = load_state(config.state_dir)
+    except StateError as exc:
+        log.warning("saved state ignored", reason=str(exc))
+        saved = None
+    decision = resume_decision(
+        saved,
+        slot.sha256,
+        slot.compiled,
+        now_unix_s,
+        config.doc.state.resume_max_age_s,
+        real_now_unix_s=time.time(),
+        # A scaled clock's time_scale; virtual time (None, or none given) counts as real.
+        time_scale=getattr(clock, "time_scale", None) or 1.0,
+        max_offsets_um={axis: out.max_offset_um for axis, out in config.doc.outputs.items()},
+    )
+    log.info(
+        "model",
+        name=slot.compiled.name,
+        sha256=slot.sha256,
+        path=slot.model_file.path,
+        resume=decision.resume,
+        reason=decision.reason,
+    )
+    return saved if decision.resume else None

@@ -18,7 +18,8 @@ from typing import Any
 import pytest
 import serial
 import yaml
-from compd.drivers.modbus import ModbusDriver, ModbusSettings
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_settings import ModbusSettings
 
 from compd.cli import main
 from tests.drivers.instrument import PtyInstrument

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 from compd.drivers.gateway import GatewayDriver, GatewaySettings
-from compd.drivers.modbus import ModbusDriver, ModbusSettings
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_settings import ModbusSettings
 
 from compd.errors import ConfigFileError, DriverProtocolError, DriverTimeoutError
 from compd.service.clock import RealClock

@@ -14,7 +14,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from compd.drivers.modbus import ModbusDriver, ModbusSettings
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_settings import ModbusSettings
 from compd.drivers.registry import load_driver_type
 from structlog.testing import capture_logs
 

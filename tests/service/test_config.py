@@ -7,12 +7,14 @@ from pathlib import Path
 import pytest
 import yaml
 from compd.drivers.gateway import GatewayDriver
-from compd.drivers.modbus import ModbusDriver, ModbusSettings
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_settings import ModbusSettings
 
 from compd.errors import ConfigFileError
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import resolve_path
-from compd.service.config import check_model, load_config, parse_config
+from compd.service.config import load_config, parse_config
+from compd.service.modelcheck import check_model
 
 from .daemon_setup import BUNDLED_SIMULATED, simulated_doc, write_config
 

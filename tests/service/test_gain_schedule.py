@@ -16,7 +16,8 @@ from compd.files.modelfile import load_model
 from compd.files.modelwriter import model_to_yaml
 from compd.model import InputSpec, Model, Output, SubModel, compile_model
 from compd.model.run import TickRunner, simulate
-from compd.service.config import Config, check_model
+from compd.service.config import Config
+from compd.service.modelcheck import check_model
 from compd.service.safety import Flag
 from compd.service.schedule import GainRow, GainScheduler, GainTable, first_overlap
 from tests.model.conftest import first_order

@@ -11,8 +11,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from compd.drivers.modbus import ModbusDriver, ModbusSettings
+from compd.drivers.modbus import ModbusDriver
 from compd.drivers.modbus_addresses import parse_address
+from compd.drivers.modbus_settings import ModbusSettings
 from pymodbus.client import AsyncModbusTcpClient
 
 from compd.errors import DriverProtocolError

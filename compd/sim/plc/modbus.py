@@ -40,8 +40,8 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simcore import SimCore
 
-from compd.drivers.modbus import ModbusSettings
 from compd.drivers.modbus_addresses import WRITABLE_TABLES, ModbusPoint, parse_address
+from compd.drivers.modbus_settings import ModbusSettings
 from compd.errors import DriverProtocolError
 from compd.sim.plc.server import PlcServerType, WriteSink, servable
 
