@@ -174,7 +174,9 @@ class Compensator:
 
     def report_to(self, sink: EventSink) -> None:
         """Tell ``sink`` of signal faults and the models' switches, failures and faults."""
-        self.events = self.models.events = sink
+        self.events = sink
+        if self.models is not None:  # a data logger has none
+            self.models.events = sink
 
     def _tell(self, kind: str, message: str, **details: object) -> None:
         if self.events is not None:

@@ -119,6 +119,7 @@ class Soak:
         self._restart: asyncio.Future[str] | None = None
         self._loads: list[asyncio.Task[None]] = []
         self._ends: list[tuple[float, Callable[[], Awaitable[None]]]] = []
+        assert config.model_path is not None, "a soak runs a compensating config, not a logger"
         self._bad = bad_models(config.model_path.read_bytes())
         self._variant = ""
 
