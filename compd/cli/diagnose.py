@@ -90,20 +90,7 @@ def _diagnose(args: argparse.Namespace) -> int:
     data = experiments[0]
     span = span_from_args(args, data, min_samples=MIN_SAMPLES)
     evaluation = evaluate_span(load_model(args.model), data, span, init=args.init)
-    output, measured = next(iter(measured_columns(evaluation, args.output).items()))
-    candidates = (
-        None
-        if args.candidates is None
-        else select_columns(
-            data,
-            args.candidates,
-            option="--candidates",
-            exclude=[*evaluation.compiled.output_names, measured],
-        )
-    )
-    result = diagnose_evaluation(
-        evaluation, output, measured, candidates=candidates, catalogue=catalogue
-    )
+    output, _, result = _diagnose_one(evaluation, data, args, catalogue)
     if args.json:
         summary = {**diagnosis_json(evaluation.compiled.name, result), **span.json()}
         print(json_text(summary))
@@ -136,20 +123,7 @@ def _diagnose_several(
     results = []
     for data in experiments:
         evaluation = evaluate(model_file, data, init=args.init)
-        output, measured = next(iter(measured_columns(evaluation, args.output).items()))
-        candidates = (
-            None
-            if args.candidates is None
-            else select_columns(
-                data,
-                args.candidates,
-                option="--candidates",
-                exclude=[*evaluation.compiled.output_names, measured],
-            )
-        )
-        result = diagnose_evaluation(
-            evaluation, output, measured, candidates=candidates, catalogue=catalogue
-        )
+        output, measured, result = _diagnose_one(evaluation, data, args, catalogue)
         residue = data.column(measured) - evaluation.predicted(output)
         results.append((evaluation, result, residue))
     residue = np.concatenate([r for _, _, r in results])
@@ -266,3 +240,24 @@ def _duration(seconds: float) -> str:
     if seconds < 7200.0:
         return f"{seconds / 60:.1f} min"
     return f"{seconds / 3600:.2f} h"
+
+
+def _diagnose_one(
+    evaluation: Any, data: Any, args: argparse.Namespace, catalogue: Any
+) -> tuple[str, str, Any]:
+    """One record's diagnosis: the output, its measured column and the ranked candidates."""
+    output, measured = next(iter(measured_columns(evaluation, args.output).items()))
+    candidates = (
+        None
+        if args.candidates is None
+        else select_columns(
+            data,
+            args.candidates,
+            option="--candidates",
+            exclude=[*evaluation.compiled.output_names, measured],
+        )
+    )
+    result = diagnose_evaluation(
+        evaluation, output, measured, candidates=candidates, catalogue=catalogue
+    )
+    return output, measured, result
