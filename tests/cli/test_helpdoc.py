@@ -184,7 +184,7 @@ def test_bash_completes_a_commands_options(bash_script: Path) -> None:
 def test_other_shells_scripts_parse(shell: str, tmp_path: Path) -> None:
     """The zsh and fish scripts are valid syntax for their shell (``-n``: parse, do not run)."""
     if shutil.which(shell) is None:
-        pytest.skip(f"{shell} is not installed (zsh: see {SYSTEM_PACKAGES})")
+        pytest.skip(f"{shell} is not installed (see {SYSTEM_PACKAGES})")
     script = written(tmp_path / f"compd.{shell}", "completion", shell)
     checked = subprocess.run([shell, "-n", str(script)], capture_output=True, text=True)
     assert checked.returncode == 0, checked.stderr
