@@ -264,7 +264,9 @@ class Service:
             self._save_in_background()
         telemetry = self.telemetry
         if telemetry is not None and ticks % telemetry.every_ticks == 0:
-            telemetry.tick(record, self._tick_counters(), self.compensator.active.compiled.name)
+            comp = self.compensator
+            model = None if comp.models is None else comp.active.compiled.name
+            telemetry.tick(record, self._tick_counters(), model)
         if self.http is not None:
             cpu_s = time.thread_time() - cpu_started_s
             self.http.tick(record, self.timing.last_lateness_s, cpu_s, real_started_s)
@@ -382,7 +384,10 @@ class Service:
         )
 
     def _describe(self) -> dict[str, Any]:
-        return identity(self.config, self.compensator.active, self.started_unix_s)
+        comp = self.compensator
+        return identity(
+            self.config, None if comp.models is None else comp.active, self.started_unix_s
+        )
 
     def _tick_counters(self) -> dict[str, int]:
         """The counters a telemetry status message carries (as ``compd status``'s)."""

@@ -40,6 +40,7 @@ from compd.service.safety import Flag, Level
 
 if TYPE_CHECKING:
     from compd.service.daemon import Service
+    from compd.service.slots import ModelSlot
 
 log = structlog.get_logger("compd.service.httpserver")
 
@@ -198,37 +199,43 @@ class StatusServer:
     async def _page_json(self, request: web.Request) -> web.Response:
         """What the page shows beside ``/status.json``: the model's provenance, the status bits, the faults."""
         service = self.service
-        slot = service.compensator.active
-        model_doc = slot.model_file.doc
-        provenance = model_doc.provenance
-        held_out = provenance.cross_validation
-        last = service.compensator.last
+        comp = service.compensator
+        last = comp.last
         return _json(
             {
                 "config": str(service.config.path),
                 "period_s": service.config.doc.period_s,
-                "model": {
-                    "name": slot.compiled.name,
-                    "sha256": slot.sha256,
-                    "path": str(slot.model_file.path),
-                    "description": model_doc.description,
-                    "method": provenance.method,
-                    "created": provenance.created,
-                    "data": provenance.data,
-                    "command": provenance.command,
-                    "compd_version": provenance.compd_version,
-                    "fit_percent": provenance.fit_percent,
-                    "held_out_fit_percent": (
-                        None if held_out is None else held_out.fit_percent.get(held_out.kept)
-                    ),
-                    "updates": len(provenance.updates),
-                    "extensions": len(provenance.extensions),
-                },
+                # None: a data logger (no model).
+                "model": None if comp.models is None else _model_json(comp.active),
                 "status": _status_bits(None if last is None else last.status),
                 "units": {name: s.unit for name, s in service.config.doc.signals.items()},
                 "faults": self.faults.as_json(),
             }
         )
+
+
+def _model_json(slot: ModelSlot) -> dict[str, object]:
+    """The running model and its provenance, as the page shows them."""
+    model_doc = slot.model_file.doc
+    provenance = model_doc.provenance
+    held_out = provenance.cross_validation
+    return {
+        "name": slot.compiled.name,
+        "sha256": slot.sha256,
+        "path": str(slot.model_file.path),
+        "description": model_doc.description,
+        "method": provenance.method,
+        "created": provenance.created,
+        "data": provenance.data,
+        "command": provenance.command,
+        "compd_version": provenance.compd_version,
+        "fit_percent": provenance.fit_percent,
+        "held_out_fit_percent": (
+            None if held_out is None else held_out.fit_percent.get(held_out.kept)
+        ),
+        "updates": len(provenance.updates),
+        "extensions": len(provenance.extensions),
+    }
 
 
 def _status_bits(word: int | None) -> dict[str, object]:

@@ -11,11 +11,11 @@ if TYPE_CHECKING:
     from compd.service.slots import ModelSlot
 
 
-def identity(config: Config, slot: ModelSlot, started_unix_s: float) -> dict[str, Any]:
-    """The telemetry birth's description of this daemon: model, signals, axes, period."""
+def identity(config: Config, slot: ModelSlot | None, started_unix_s: float) -> dict[str, Any]:
+    """The telemetry birth's description of this daemon: model (None: a data logger), signals, axes, period."""
     doc = config.doc
     return {
-        "model": {"name": slot.compiled.name, "sha256": slot.sha256},
+        "model": None if slot is None else {"name": slot.compiled.name, "sha256": slot.sha256},
         "period_s": doc.period_s,
         "started": started_unix_s,
         "signals": {

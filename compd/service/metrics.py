@@ -206,6 +206,8 @@ class LiveCollector(Collector):
 def _model_metrics(service: Service) -> Iterator[Metric]:
     """The model running, its fit % as its provenance records it, loads and failures."""
     comp = service.compensator
+    if comp.models is None:  # a data logger runs no model
+        return
     slot = comp.active
     name, sha = slot.compiled.name, slot.sha256
     info = GaugeMetricFamily(

@@ -113,7 +113,7 @@ class Telemetry:
         self.counters = TelemetryCounters()
         # Sparkplug's bdSeq: numbers the connections, across restarts too (milliseconds at start).
         self.session = int(time.time() * 1000)
-        self._statuses: deque[tuple[TickRecord, dict[str, int], str]] = deque(maxlen=queue_size)
+        self._statuses: deque[tuple[TickRecord, dict[str, int], str | None]] = deque(maxlen=queue_size)
         self._events: deque[tuple[float, Event]] = deque(maxlen=queue_size)
         self._seq = 0
         self._birth_due = False
@@ -156,7 +156,7 @@ class Telemetry:
         self._client.loop_start()
         self._task = self._loop.create_task(self._publish_queued(), name="compd-telemetry")
 
-    def tick(self, record: TickRecord, counters: dict[str, int], model: str) -> None:
+    def tick(self, record: TickRecord, counters: dict[str, int], model: str | None) -> None:
         """Queue the tick's status (cheap: no serialisation here); the oldest goes when full."""
         queue = self._statuses
         if len(queue) == queue.maxlen:
@@ -362,7 +362,7 @@ class Telemetry:
         return payload | {"event": event.kind, "message": event.message, "details": event.details}
 
     def _status_payload(
-        self, record: TickRecord, counters: dict[str, int], model: str
+        self, record: TickRecord, counters: dict[str, int], model: str | None
     ) -> dict[str, Any]:
         payload = self._header("status") | {"time": record.wall_unix_s}
         return payload | {

@@ -129,3 +129,56 @@ def test_the_bundled_logger_config_checks(capsys):
     assert main(["check-config", "bundled:record.yaml"]) == 0
     out = capsys.readouterr().out
     assert "a data logger at 10 s" in out and "disp_z_um" in out and "calibration, 24 h" in out
+
+
+def test_a_logger_publishes_telemetry_and_serves_its_page_without_a_model(tmp_path):
+    """A data logger with telemetry and the HTTP server: birth and statuses name no model; the page says so."""
+    import json
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    from tests.mosquitto import Mosquitto, Subscriber, mosquitto_binary
+
+    if mosquitto_binary() is None:
+        pytest.skip("mosquitto is not installed (.ci/install-system-packages)")
+    broker = Mosquitto(tmp_path).start()
+    http_port = free_port()
+    config = machine_config(
+        tmp_path,
+        RECORD,
+        machine_id="logger-1",
+        telemetry={"host": "127.0.0.1", "port": broker.port, "every_ticks": 1},
+        http={"port": http_port},
+    )
+    command = [sys.executable, "-m", "compd.cli", "run", "--config", str(config.path)]
+    command += ["--time-scale", "10", "--duration-s", "150", "--log-format", "json"]
+    pages: dict[str, Any] = {}
+    try:
+        with Subscriber(broker.port, "compd/logger-1/#") as heard:
+            daemon = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+            deadline = time.monotonic() + 60
+            while "metrics" not in pages and time.monotonic() < deadline and daemon.poll() is None:
+                try:
+                    base = f"http://127.0.0.1:{http_port}/"
+                    with urllib.request.urlopen(base + "page.json", timeout=5) as answer:
+                        page = json.load(answer)
+                    if page["status"]["word"] is None:
+                        raise OSError("no tick yet")
+                    pages["page"] = page
+                    with urllib.request.urlopen(base + "metrics", timeout=5) as answer:
+                        pages["metrics"] = answer.read().decode()
+                except OSError:
+                    time.sleep(0.2)
+            _, err = daemon.communicate(timeout=120)
+            assert daemon.returncode == 0, err.decode()[-3000:]
+            messages = list(heard.messages)
+    finally:
+        broker.stop()
+    assert pages["page"]["model"] is None
+    assert "compd_ticks" in pages["metrics"] and "compd_model_info" not in pages["metrics"]
+    births = [m for m in messages if m.topic.endswith("/birth")]
+    statuses = [m for m in messages if m.topic.endswith("/status")]
+    assert births and births[0].payload["model"] is None
+    assert statuses and all(m.payload["model"] is None for m in statuses)

@@ -42,7 +42,8 @@ function fillList(id, pairs) {
 }
 
 function showStatus(status, page) {
-  document.getElementById("model-name").textContent = status.model.name;
+  // A data logger (no outputs) runs no model: status.model and page.model are null.
+  document.getElementById("model-name").textContent = status.model ? status.model.name : "recording (a data logger, no model)";
   document.getElementById("last-tick").textContent = status.last_tick || "not yet";
   const level = document.getElementById("level");
   level.textContent = page.status.level || "starting";
@@ -76,6 +77,10 @@ function showStatus(status, page) {
   document.getElementById("no-faults").hidden = faults.length > 0;
 
   const m = page.model;
+  if (!m) {
+    fillList("model", [["model", "none: a data logger, recording its signals"]]);
+    return;
+  }
   const fits = Object.entries(m.fit_percent).map(([out, pct]) => `${out} ${num(pct, 1)} %`).join(", ");
   fillList("model", [
     ["name", m.name],
