@@ -152,6 +152,11 @@ class Compensator:
         return self.models.active
 
     @property
+    def running(self) -> ModelSlot | None:
+        """The active model, or None for a data logger."""
+        return None if self.models is None else self.models.active
+
+    @property
     def previous(self) -> ModelSlot | None:
         """The model being blended out, if a blend runs."""
         return None if self.models is None else self.models.previous

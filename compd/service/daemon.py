@@ -36,7 +36,7 @@ from compd.service.clock import Clock
 from compd.service.compensator import Compensator, TickRecord
 from compd.service.config import Config
 from compd.service.control import ControlServer
-from compd.service.identity import identity, recording_metadata
+from compd.service.identity import identity, recording_metadata, systemd_summary
 from compd.service.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.notify import SystemdNotifier
 from compd.service.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
@@ -257,15 +257,15 @@ class Service:
         if self.clock.now() - started_s < self.config.doc.period_s:
             self.notifier.watchdog()
         if ticks % self.config.doc.live_every_ticks == 0:
-            self.notifier.status(_summary(record))
+            self.notifier.status(systemd_summary(record))
         if self.recorder is not None:
             self._record(record)
         if ticks % self.config.doc.state.save_every_ticks == 0:
             self._save_in_background()
         telemetry = self.telemetry
         if telemetry is not None and ticks % telemetry.every_ticks == 0:
-            comp = self.compensator
-            model = None if comp.models is None else comp.active.compiled.name
+            running = self.compensator.running
+            model = None if running is None else running.compiled.name
             telemetry.tick(record, self._tick_counters(), model)
         if self.http is not None:
             cpu_s = time.thread_time() - cpu_started_s
@@ -286,9 +286,8 @@ class Service:
         row |= {f"gain.{k}": v for k, v in record.gains.items()}
         row |= {"status": record.status, "heartbeat": record.heartbeat}
         try:
-            if self.compensator.models is not None:  # a data logger names no model
-                active = self.compensator.active
-                self.recorder.set_model(active.compiled.name, active.sha256)
+            if (running := self.compensator.running) is not None:  # a logger names no model
+                self.recorder.set_model(running.compiled.name, running.sha256)
             self.recorder.record(row, at_s=record.wall_unix_s)
         except RecorderError as exc:
             self._recorder_fault.failed("recorder failed", error=str(exc))
@@ -384,10 +383,7 @@ class Service:
         )
 
     def _describe(self) -> dict[str, Any]:
-        comp = self.compensator
-        return identity(
-            self.config, None if comp.models is None else comp.active, self.started_unix_s
-        )
+        return identity(self.config, self.compensator.running, self.started_unix_s)
 
     def _tick_counters(self) -> dict[str, int]:
         """The counters a telemetry status message carries (as ``compd status``'s)."""
@@ -397,9 +393,3 @@ class Service:
             "driver_faults": sum(link.faults for link in links),
             "reconnects": sum(link.reconnects for link in links),
         }
-
-
-def _summary(record: TickRecord) -> str:
-    """One line for ``systemctl status``: offsets and the status level."""
-    offsets = ", ".join(f"{axis} {value:+.2f} um" for axis, value in record.offsets_um.items())
-    return f"{offsets}; status word {record.status}"

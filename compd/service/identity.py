@@ -1,4 +1,4 @@
-"""How a daemon describes itself: the telemetry birth's identity and every recording's metadata."""
+"""How a daemon describes itself: its telemetry identity, its recordings' metadata, its systemd status line."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any
 from compd import __version__
 
 if TYPE_CHECKING:
+    from compd.service.compensator import TickRecord
     from compd.service.config import Config
     from compd.service.slots import ModelSlot
 
@@ -34,3 +35,9 @@ def recording_metadata(config: Config) -> dict[str, str]:
     if config.doc.machine_id is not None:
         metadata = {"machine_id": config.doc.machine_id, **metadata}
     return metadata
+
+
+def systemd_summary(record: TickRecord) -> str:
+    """One line for ``systemctl status``: offsets and the status level."""
+    offsets = ", ".join(f"{axis} {value:+.2f} um" for axis, value in record.offsets_um.items())
+    return f"{offsets}; status word {record.status}"

@@ -113,7 +113,9 @@ class Telemetry:
         self.counters = TelemetryCounters()
         # Sparkplug's bdSeq: numbers the connections, across restarts too (milliseconds at start).
         self.session = int(time.time() * 1000)
-        self._statuses: deque[tuple[TickRecord, dict[str, int], str | None]] = deque(maxlen=queue_size)
+        self._statuses: deque[tuple[TickRecord, dict[str, int], str | None]] = deque(
+            maxlen=queue_size
+        )
         self._events: deque[tuple[float, Event]] = deque(maxlen=queue_size)
         self._seq = 0
         self._birth_due = False
