@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 import scipy.signal
 
-from compd.model import compile_model, simulate
 from compd.files.modelfile import load_model
+from compd.model import compile_model, simulate
 
 HERE = Path(__file__).parent
 SAMPLE_TIME_S = 10.0
