@@ -1,0 +1,29 @@
+"""Waiting for a DriverLink to come back, on the link's own clock, so no test depends on machine speed."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Sequence
+
+from compd.service.clock import VirtualClock
+from compd.service.links import DriverLink
+
+#: Link-clock seconds between polls, as ticks would be.
+POLL_S = 0.05
+#: Polls before giving up: 100 s of the link's clock.
+MAX_POLLS = 2000
+
+
+async def seconds_until_read(link: DriverLink, clock: VirtualClock, points: Sequence[str]) -> float:
+    """Poll ``link`` every :data:`POLL_S` of ``clock`` (its backoff's clock) until it reads again.
+
+    Returns the link-clock seconds that took: the retries the link's backoff
+    made, not how long a busy machine took to run them.
+    """
+    start = clock.now()
+    for _ in range(MAX_POLLS):
+        if await link.read(points):
+            return clock.now() - start
+        clock.advance(POLL_S)
+        await asyncio.sleep(0.005)  # the real I/O of an attempt under way
+    raise AssertionError(f"no reconnect within {MAX_POLLS * POLL_S:g} s of the link's clock")
