@@ -4,9 +4,14 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 import structlog
+
+if TYPE_CHECKING:
+    from tests.mosquitto import Mosquitto
 
 
 @pytest.fixture(autouse=True)
@@ -18,3 +23,15 @@ def _isolated_logging() -> Iterator[None]:
     structlog.reset_defaults()
     root.handlers = handlers
     root.setLevel(level)
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Iterator[Mosquitto]:
+    """A mosquitto of the test's own, on a free port (the telemetry, roll-out and fleet tests)."""
+    from tests.mosquitto import Mosquitto  # paho only for the tests that ask
+
+    folder = tmp_path / "broker"
+    folder.mkdir()
+    mosquitto = Mosquitto(folder).start()
+    yield mosquitto
+    mosquitto.stop()

@@ -21,7 +21,11 @@ from pathlib import Path
 from typing import Any
 
 import paho.mqtt.client as mqtt
+import yaml
 from paho.mqtt.enums import CallbackAPIVersion
+
+from compd.files.yamlplace import resolve_path
+from compd.service.config import Config, load_config
 
 #: Real-time bound of the waits below: generous, a busy CI machine must not fail them.
 WAIT_S = 30.0
@@ -240,3 +244,31 @@ def make_pki(folder: Path) -> Pki:
         folder / "client.crt",
         folder / "client.key",
     )
+
+
+#: The bundled simulated machine and its model, which the telemetry and fleet tests run.
+SIMULATED = resolve_path("bundled:simulated.yaml", Path("."))
+MODEL = resolve_path("bundled:simulated_model.yaml", Path("."))
+
+
+def machine_config(
+    directory: Path,
+    *,
+    telemetry: dict[str, Any] | None,
+    simulation: dict[str, Any] | None = None,
+    name: str = "compd.yaml",
+) -> Config:
+    """The bundled simulated machine on a free port, its files under ``directory``, with ``telemetry``."""
+    directory.mkdir(parents=True, exist_ok=True)
+    doc: dict[str, Any] = yaml.safe_load(SIMULATED.read_text())
+    doc["model"] = str(MODEL)
+    doc["drivers"]["plc"]["settings"]["port"] = free_port()
+    doc["state"] = {"directory": str(directory / "state")}
+    doc["recorder"] = {"enabled": False}
+    doc["control_socket"] = str(directory / "c.sock")
+    doc["simulation"] = simulation or {"scenario": "production", "hours": 1, "seed": 3}
+    if telemetry is not None:
+        doc["telemetry"] = telemetry
+    path = directory / name
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return load_config(path)

@@ -24,17 +24,18 @@ import yaml
 
 from compd.cli import main
 from compd.cli.args import EXIT_INPUT_ERROR
-from compd.files.yamlplace import resolve_path
 from compd.service.compensator import TickRecord
-from compd.service.config import Config, load_config
+from compd.service.config import Config
 from compd.service.daemon import Service
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from tests.mosquitto import (
+    MODEL,
     WAIT_S,
     Mosquitto,
     Subscriber,
     free_port,
+    machine_config,
     make_pki,
     mosquitto_binary,
 )
@@ -44,42 +45,12 @@ pytestmark = pytest.mark.skipif(
     reason="mosquitto is not installed: run .ci/install-system-packages",
 )
 
-SIMULATED = resolve_path("bundled:simulated.yaml", Path("."))
-MODEL = resolve_path("bundled:simulated_model.yaml", Path("."))
 #: (machine_id, seed, variant) of the fleet's three machines.
 FLEET = [("mill-a", 11, "reference"), ("mill-b", 12, "spindle-head"), ("mill-c", 13, "long-nose")]
 FLEET_SHIFT_S = 600
 EVERY_TICKS = 20
 #: The shift of the broker-pull test, the ticks at which the broker goes and comes back.
 PULL_SHIFT_S, PULLED_AT, BACK_AT = 1200, 400, 900
-
-
-@pytest.fixture
-def broker(tmp_path: Path) -> Iterator[Mosquitto]:
-    folder = tmp_path / "broker"
-    folder.mkdir()
-    mosquitto = Mosquitto(folder).start()
-    yield mosquitto
-    mosquitto.stop()
-
-
-def machine_config(
-    directory: Path, *, simulation: dict[str, Any], telemetry: dict[str, Any] | None
-) -> Config:
-    """The bundled simulated machine on a free port, its files under ``directory``."""
-    directory.mkdir(parents=True, exist_ok=True)
-    doc: dict[str, Any] = yaml.safe_load(SIMULATED.read_text())
-    doc["model"] = str(MODEL)
-    doc["drivers"]["plc"]["settings"]["port"] = free_port()
-    doc["state"] = {"directory": str(directory / "state")}
-    doc["recorder"] = {"enabled": False}
-    doc["control_socket"] = str(directory / "c.sock")
-    doc["simulation"] = simulation
-    if telemetry is not None:
-        doc["telemetry"] = telemetry
-    path = directory / "compd.yaml"
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return load_config(path)
 
 
 @dataclass

@@ -27,8 +27,7 @@ from compd.service.daemon import Service
 from compd.service.mqttlink import Broker, Topics
 from compd.service.remoteload import MAX_PAYLOAD_BYTES, SCHEMA, RemoteLoads
 from compd.service.telemetry import Telemetry
-from tests.mosquitto import WAIT_S, Mosquitto, Subscriber, mosquitto_binary
-from tests.service.test_telemetry import MODEL, machine_config
+from tests.mosquitto import MODEL, WAIT_S, Mosquitto, Subscriber, machine_config, mosquitto_binary
 
 RAW = MODEL.read_bytes()
 

@@ -13,62 +13,32 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
 
 from compd.errors import ConfigFileError
-from compd.files.yamlplace import resolve_path
 from compd.service.compensator import TickRecord
-from compd.service.config import Config, load_config
+from compd.service.config import Config
 from compd.service.daemon import Service
 from compd.service.modelload import load_slot
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import SimulationResult, run_simulation
-from tests.mosquitto import WAIT_S, Mosquitto, Subscriber, free_port, make_pki, mosquitto_binary
+from tests.mosquitto import (
+    WAIT_S,
+    Mosquitto,
+    Subscriber,
+    free_port,
+    machine_config,
+    make_pki,
+    mosquitto_binary,
+)
 
 pytestmark = pytest.mark.skipif(
     mosquitto_binary() is None,
     reason="mosquitto is not installed: run .ci/install-system-packages",
 )
-
-SIMULATED = resolve_path("bundled:simulated.yaml", Path("."))
-MODEL = resolve_path("bundled:simulated_model.yaml", Path("."))
-
-
-@pytest.fixture
-def broker(tmp_path: Path) -> Iterator[Mosquitto]:
-    folder = tmp_path / "broker"
-    folder.mkdir()
-    mosquitto = Mosquitto(folder).start()
-    yield mosquitto
-    mosquitto.stop()
-
-
-def machine_config(
-    directory: Path,
-    *,
-    telemetry: dict[str, Any] | None,
-    simulation: dict[str, Any] | None = None,
-    name: str = "compd.yaml",
-) -> Config:
-    """The bundled simulated machine on a free port, its files under ``directory``, with ``telemetry``."""
-    directory.mkdir(parents=True, exist_ok=True)
-    doc: dict[str, Any] = yaml.safe_load(SIMULATED.read_text())
-    doc["model"] = str(MODEL)
-    doc["drivers"]["plc"]["settings"]["port"] = free_port()
-    doc["state"] = {"directory": str(directory / "state")}
-    doc["recorder"] = {"enabled": False}
-    doc["control_socket"] = str(directory / "c.sock")
-    doc["simulation"] = simulation or {"scenario": "production", "hours": 1, "seed": 3}
-    if telemetry is not None:
-        doc["telemetry"] = telemetry
-    path = directory / name
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return load_config(path)
 
 
 def simulate(config: Config, duration_s: float, **kwargs: Any) -> SimulationResult:
