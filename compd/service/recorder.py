@@ -43,6 +43,7 @@ import time
 from collections.abc import Callable, Mapping
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Self
 
 from compd.errors import RecorderError
 from compd.files.columns import TIME_NAMES
@@ -58,8 +59,8 @@ _QUOTED = re.compile(r'[,"\r\n]')
 Cell = float | int | str
 
 
-class Recorder:
-    """Write rows to rotating CSV files in ``directory``.
+class RecordingFiles:
+    """What both recorders share: the folder, the rotation limits, the clock, the files' metadata.
 
     Parameters
     ----------
@@ -74,13 +75,60 @@ class Recorder:
         Recordings in ``directory`` (closed files plus the open file's limit,
         ``max_file_bytes``) are kept under this by deleting the oldest files.
     flush_every_rows:
-        Rows gathered before they are written with one system call; 1 (the
-        default) loses nothing but the row being written on a crash.
+        Rows gathered before they are written (the most a crash loses).
     clock:
         Seconds since the epoch, UTC (``time.time``); tests pass a fake.
     metadata:
-        ``key: value`` pairs written at the top of every file (see the module docstring).
+        ``key: value`` pairs stored in every file (see the module docstring).
     """
+
+    def __init__(
+        self,
+        directory: Path,
+        *,
+        max_file_bytes: int,
+        max_file_age_s: float,
+        max_total_bytes: int,
+        flush_every_rows: int,
+        clock: Callable[[], float] = time.time,
+        metadata: Mapping[str, str] | None = None,
+    ) -> None:
+        check_limits(max_file_bytes, max_file_age_s, max_total_bytes, flush_every_rows)
+        self.directory = Path(directory)
+        self.max_file_bytes = max_file_bytes
+        self.max_file_age_s = max_file_age_s
+        self.max_total_bytes = max_total_bytes
+        self.flush_every_rows = flush_every_rows
+        self.metadata: dict[str, str] = dict(metadata or {})
+        self._clock = clock
+        self._columns: tuple[str, ...] = ()
+        self._path: Path | None = None
+        self._opened_s = 0.0
+        self._last_s = -math.inf
+        self._metadata_changed = False
+
+    def set_model(self, name: str, sha256: str) -> None:
+        """Name the active model in the files; a change starts a new file at the next row."""
+        self._metadata_changed |= set_model(self.metadata, name, sha256)
+
+    @property
+    def path(self) -> Path | None:
+        """The file being written, or None before the first row and after :meth:`close`."""
+        return self._path
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
+class Recorder(RecordingFiles):
+    """Write rows to rotating CSV files in ``directory`` (parameters: :class:`RecordingFiles`;
+    ``flush_every_rows`` defaults to 1, which loses nothing but the row being written on a crash)."""
 
     def __init__(
         self,
@@ -93,33 +141,20 @@ class Recorder:
         clock: Callable[[], float] = time.time,
         metadata: Mapping[str, str] | None = None,
     ) -> None:
-        check_limits(max_file_bytes, max_file_age_s, max_total_bytes, flush_every_rows)
-        self.directory = Path(directory)
-        self.max_file_bytes = max_file_bytes
-        self.max_file_age_s = max_file_age_s
-        self.max_total_bytes = max_total_bytes
-        self.flush_every_rows = flush_every_rows
-        self._clock = clock
-        self._columns: tuple[str, ...] = ()
+        super().__init__(
+            directory,
+            max_file_bytes=max_file_bytes,
+            max_file_age_s=max_file_age_s,
+            max_total_bytes=max_total_bytes,
+            flush_every_rows=flush_every_rows,
+            clock=clock,
+            metadata=metadata,
+        )
         self._fd: int | None = None
-        self._path: Path | None = None
-        self._opened_s = 0.0
-        self._last_s = -math.inf
         self._size = 0  # bytes of the open file, pending lines included
         self._written = 0  # bytes of complete lines known to be in the open file
         self._pending: list[bytes] = []
         self._rows_in_file = 0
-        self.metadata: dict[str, str] = dict(metadata or {})
-        self._metadata_changed = False
-
-    def set_model(self, name: str, sha256: str) -> None:
-        """Name the active model in the files; a change starts a new file at the next row."""
-        self._metadata_changed |= set_model(self.metadata, name, sha256)
-
-    @property
-    def path(self) -> Path | None:
-        """The file being written, or None before the first row and after :meth:`close`."""
-        return self._path
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -181,12 +216,6 @@ class Recorder:
             self.flush()
         finally:
             self._close_file()
-
-    def __enter__(self) -> Recorder:
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
 
     def _start_columns(self, row: Mapping[str, Cell]) -> None:
         columns = check_columns(row)

@@ -48,12 +48,11 @@ from compd.errors import RecorderError
 from compd.service.recorder import (
     TIME_COLUMN,
     Cell,
+    RecordingFiles,
     check_columns,
-    check_limits,
     create,
     delete_oldest,
     error,
-    set_model,
 )
 
 log = logging.getLogger(__name__)
@@ -65,7 +64,7 @@ DEFAULT_FLUSH_EVERY_ROWS = 60
 ROW_GROUP_ROWS = 3600
 
 
-class ParquetRecorder:
+class ParquetRecorder(RecordingFiles):
     """Write rows to rotating Parquet files in ``directory``.
 
     The parameters are :class:`~compd.service.recorder.Recorder`'s;
@@ -83,36 +82,23 @@ class ParquetRecorder:
         clock: Callable[[], float] = time.time,
         metadata: Mapping[str, str] | None = None,
     ) -> None:
-        check_limits(max_file_bytes, max_file_age_s, max_total_bytes, flush_every_rows)
-        self.directory = Path(directory)
-        self.max_file_bytes = max_file_bytes
-        self.max_file_age_s = max_file_age_s
-        self.max_total_bytes = max_total_bytes
-        self.flush_every_rows = flush_every_rows
-        self.metadata: dict[str, str] = dict(metadata or {})
-        self._clock = clock
-        self._columns: tuple[str, ...] = ()
+        super().__init__(
+            directory,
+            max_file_bytes=max_file_bytes,
+            max_file_age_s=max_file_age_s,
+            max_total_bytes=max_total_bytes,
+            flush_every_rows=flush_every_rows,
+            clock=clock,
+            metadata=metadata,
+        )
         self._text: frozenset[str] = frozenset()  # columns whose first value was text
-        self._path: Path | None = None
-        self._opened_s = 0.0
-        self._last_s = -math.inf
         self._size = 0  # bytes of the open file at its last write
         self._groups: list[Any] = []  # the open file's row groups (pyarrow.RecordBatch)
         self._times_s: list[float] = []
         self._rows: list[list[Cell]] = []
-        self._metadata_changed = False
         self._file_metadata: dict[str, str] = {}
         self._worker: ThreadPoolExecutor | None = None
         self._writing: Future[int] | None = None
-
-    @property
-    def path(self) -> Path | None:
-        """The file being written, or None before the first row and after :meth:`close`."""
-        return self._path
-
-    def set_model(self, name: str, sha256: str) -> None:
-        """Name the active model in the files; a change starts a new file at the next row."""
-        self._metadata_changed |= set_model(self.metadata, name, sha256)
 
     def record(self, row: Mapping[str, Cell], *, at_s: float | None = None) -> None:
         """Append one row stamped ``at_s`` (s since the epoch, default the clock's now).
@@ -165,12 +151,6 @@ class ParquetRecorder:
             self._wait()
         finally:
             self._close_file()
-
-    def __enter__(self) -> ParquetRecorder:
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
 
     def _open(self, now_s: float) -> None:
         self.close()
