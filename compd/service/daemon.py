@@ -195,9 +195,9 @@ class Service:
 
     def snapshot(self) -> SavedState | None:
         """What :meth:`save_state` writes: the active model's state and the offsets, now."""
-        if self.compensator.models is None:
+        slot = self.compensator.running
+        if slot is None:
             return None  # a data logger: no model state to save
-        slot = self.compensator.active
         if slot.runner is None:
             return None  # nothing learned yet: keep whatever was saved before
         return SavedState(
@@ -337,12 +337,7 @@ class Service:
         raw, _ = request_bytes(message)
         sha256 = hashlib.sha256(raw).hexdigest()
         comp = self.compensator
-        running = (
-            ()
-            if comp.models is None
-            else ((comp.pending, "already_loading"), (comp.active, "already_running"))
-        )
-        for slot, state in running:
+        for slot, state in ((comp.pending, "already_loading"), (comp.running, "already_running")):
             # The model that runs (or is about to) again: nothing to check, install or blend.
             if slot is not None and slot.sha256 == sha256:
                 log.info(f"model load: {state.replace('_', ' ')}", name=slot.compiled.name)

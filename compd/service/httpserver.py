@@ -206,7 +206,7 @@ class StatusServer:
                 "config": str(service.config.path),
                 "period_s": service.config.doc.period_s,
                 # None: a data logger (no model).
-                "model": None if comp.models is None else _model_json(comp.active),
+                "model": None if (running := comp.running) is None else _model_json(running),
                 "status": _status_bits(None if last is None else last.status),
                 "units": {name: s.unit for name, s in service.config.doc.signals.items()},
                 "faults": self.faults.as_json(),

@@ -206,9 +206,9 @@ class LiveCollector(Collector):
 def _model_metrics(service: Service) -> Iterator[Metric]:
     """The model running, its fit % as its provenance records it, loads and failures."""
     comp = service.compensator
-    if comp.models is None:  # a data logger runs no model
+    slot = comp.running
+    if slot is None:  # a data logger runs no model
         return
-    slot = comp.active
     name, sha = slot.compiled.name, slot.sha256
     info = GaugeMetricFamily(
         "compd_model_info",
