@@ -265,9 +265,20 @@ def man_page() -> str:
         ("SEE ALSO", "compd help TOPIC for the config and model-file keys; README.md"),
     ]
     text = str(page).replace("%%", "%").rstrip("\n") + "\n"  # argparse escapes, unexpanded
+    text = escape_quote_lines(text)
     for title, body in sections:
         text += f".SH {_roff_quote(title)}\n.nf\n{_roff_text(body)}\n.fi\n"
     return text
+
+
+def escape_quote_lines(roff: str) -> str:
+    """Roff with no text line read as a control line: a help line wrapped to start with ``'``.
+
+    argparse-manpage writes its macros with ``.``, never ``'``, but wraps help
+    text wherever the width falls: a line such as ``'experiment' column ...``
+    would be read as the undefined macro ``experiment'`` and its text lost.
+    """
+    return "\n".join("\\&" + line if line.startswith("'") else line for line in roff.split("\n"))
 
 
 def _roff_quote(text: str) -> str:

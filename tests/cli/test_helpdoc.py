@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import subprocess
 import sys
@@ -139,6 +140,26 @@ def test_man_page_renders_without_warnings(man_page: Path) -> None:
     assert "--max-offset-um" not in done.stdout  # config keys are not options
     assert "compd fit" in done.stdout and "--data" in done.stdout  # each command's options
     assert "%%" not in done.stdout
+
+
+@pytest.mark.parametrize("columns", ["40", "120"])
+def test_man_page_keeps_help_lines_that_wrap_to_start_with_a_quote(tmp_path: Path, columns: str) -> None:
+    """At any terminal width no help line becomes a roff control line: ``'experiment' column`` is kept."""
+    if shutil.which("man") is None or shutil.which("groff") is None:
+        pytest.skip(f"man-db is not installed (see {SYSTEM_PACKAGES})")
+    done = subprocess.run(
+        [sys.executable, "-m", "compd.cli", "help", "--man"], capture_output=True, text=True,
+        timeout=300, env={**os.environ, "COLUMNS": columns},
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    page = tmp_path / "compd.1"
+    page.write_text(done.stdout)
+    shown = subprocess.run(
+        ["man", "--warnings=all", "-l", str(page)], capture_output=True, text=True,
+        timeout=120, env={"MANWIDTH": "100", "MANPAGER": "cat", "PATH": "/usr/bin:/bin"},
+    )  # fmt: skip
+    assert shown.stderr == ""
+    assert "'experiment' column" in " ".join(shown.stdout.split())
 
 
 def _bash_completions(script: Path, line: str) -> list[str]:

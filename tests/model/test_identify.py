@@ -155,9 +155,11 @@ def test_a_later_part_is_fitted_on_a_run_from_the_records_start(arx_case, method
         identify(y, arx_case.named(), sample_time_s=TS, method=method, order=2, first_sample=first)
         for y in (arx_case.y, spoiled)
     ]
+    # Equal to the optimiser's rounding (BLAS kernels differ by the arrays' alignment):
+    # spoiled outputs that were read would move the coefficients by far more.
     for clean, other in zip(results[0].channels, results[1].channels, strict=True):
-        assert_allclose(other.tf.b, clean.tf.b, rtol=1e-9, atol=1e-15)
-        assert_allclose(other.tf.a, clean.tf.a, rtol=1e-9)
+        assert_allclose(other.tf.b, clean.tf.b, rtol=1e-7, atol=1e-12)
+        assert_allclose(other.tf.a, clean.tf.a, rtol=1e-7)
     simulated = simulate_channels([c.tf for c in results[1].channels], arx_case.inputs)
     assert results[1].fit_percent == pytest.approx(
         fit_percent(arx_case.y[first:], simulated[first:]), rel=1e-9
