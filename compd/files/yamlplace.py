@@ -102,7 +102,10 @@ def parse_yaml(
             # libyaml >= 0.2.6 (PyYAML 6.0.4's wheels) stops deep nesting in its scanner,
             # which reads ahead of the events walked above: the same refusal, compd's words.
             raise error(
-                path, f"nested deeper than {MAX_YAML_DEPTH} levels", where=where, fix="Flatten the structure"
+                path,
+                f"nested deeper than {MAX_YAML_DEPTH} levels",
+                where=where,
+                fix="Flatten the structure",
             ) from exc
         raise error(path, f"not valid YAML: {problem}", where=where) from exc
 

@@ -143,7 +143,9 @@ def test_man_page_renders_without_warnings(man_page: Path) -> None:
 
 
 @pytest.mark.parametrize("columns", ["40", "120"])
-def test_man_page_keeps_help_lines_that_wrap_to_start_with_a_quote(tmp_path: Path, columns: str) -> None:
+def test_man_page_keeps_help_lines_that_wrap_to_start_with_a_quote(
+    tmp_path: Path, columns: str
+) -> None:
     """At any terminal width no help line becomes a roff control line: ``'experiment' column`` is kept."""
     if shutil.which("man") is None or shutil.which("groff") is None:
         pytest.skip(f"man-db is not installed (see {SYSTEM_PACKAGES})")
