@@ -16,7 +16,8 @@ um):
   a fit the guard rails refuse counts as a failure, below everything);
 - ``mlr``, ``arx``, ``lagbank``: ``--method`` each, forced (candidates in
   hindsight: the best of them on the verify data is what a perfect choice
-  would have had).
+  would have had); ARX over several files at ``--order 2``, else 1 (it
+  chooses its orders on one record only).
 
 Figures, beside their targets (issue 20 item 4):
 
@@ -73,6 +74,8 @@ GAP_TARGET_POINTS = 5.0
 ESTIMATE_TARGET_POINTS = 5.0
 #: The default "is not below" mlr when within this many points of it.
 TIE_POINTS = 0.1
+#: ``--order`` for ARX over several files, tried in turn (it chooses orders on one record only).
+ARX_ORDERS_OF_SEVERAL = (2, 1)
 #: A failed fit (refused, or an error) scores this on the verify data.
 FAILED_FIT_PERCENT = -1000.0
 
@@ -146,29 +149,39 @@ def _judge_method(
     calibration: list[DataSet],
     verify: list[DataSet],
 ) -> MethodResult:
+    """Fit ``method`` as the user would and judge it; a refusal or error is a failed fit."""
     judged = MethodResult()
     started = time.perf_counter()
-    try:
-        fitted = fit_data(
-            calibration,
-            output=output,
-            inputs=list(inputs),
-            method="auto" if method == "default" else method,
-            force=method != "default",
+    # ARX chooses its orders on one record; over several files a user gives one, and a lower
+    # one when the fit says the order is unstable (its fix).
+    orders: tuple[int | str, ...] = ("auto",)
+    if method == "arx" and len(calibration) > 1:
+        orders = ARX_ORDERS_OF_SEVERAL
+    for order in orders:
+        try:
+            fitted = fit_data(
+                calibration,
+                output=output,
+                inputs=list(inputs),
+                method="auto" if method == "default" else method,
+                order=order,
+                force=method != "default",
+            )
+            model = parse_model(fitted.yaml_text)
+            pooled = pooled_comparisons([evaluate(model, data) for data in verify], output)[0]
+        except (CompdError, ValueError, np.linalg.LinAlgError) as exc:
+            text = getattr(exc, "message", str(exc))
+            judged.error = f"{type(exc).__name__}: {' '.join(text.split())[:300]}"
+            continue
+        judged.error = ""
+        judged.fit_percent = (
+            float(pooled.fit_percent) if np.isfinite(pooled.fit_percent) else FAILED_FIT_PERCENT
         )
-        model = parse_model(fitted.yaml_text)
-        pooled = pooled_comparisons([evaluate(model, data) for data in verify], output)[0]
-    except (CompdError, ValueError, np.linalg.LinAlgError) as exc:
-        judged.error = f"{type(exc).__name__}: {str(exc).splitlines()[0][:160]}"
-        judged.fit_s = time.perf_counter() - started
-        return judged
+        judged.rms_um = float(pooled.residue.rms_um)
+        judged.estimate_percent = printed_estimate(fitted)
+        judged.kept = fitted.identification.method
+        break
     judged.fit_s = time.perf_counter() - started
-    judged.fit_percent = (
-        float(pooled.fit_percent) if np.isfinite(pooled.fit_percent) else FAILED_FIT_PERCENT
-    )
-    judged.rms_um = float(pooled.residue.rms_um)
-    judged.estimate_percent = printed_estimate(fitted)
-    judged.kept = fitted.identification.method
     return judged
 
 

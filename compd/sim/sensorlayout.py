@@ -5,7 +5,9 @@ A layout of ``n`` sensors (4-24) mixes four kinds, in a shuffled column order
 
 - ``part``: a Pt100 on a part that moves the tool (bearings, motor, headstock,
   column front or back, bed, table, enclosure air), reading 5-35 % of the air
-  or shop around it, with a lag of 20-300 s;
+  or shop around it, with a lag of 20-300 s; a machine's sensors sit on only
+  2-6 of these parts (where someone could reach), so the part that moves the
+  tool most may have none and a model has to infer it from the others' history;
 - ``duplicate``: a near-duplicate of a ``part`` sensor a few cm away: the same
   lag within 30 %, 3-8 % of a neighbouring part, its own offset and noise;
 - ``ambient``: the shop floor only (a guard, a cabinet wall, a pillar), lagging
@@ -73,10 +75,16 @@ class SensorPlan:
         return tuple(f"T{k}" for k in range(1, len(self.specs) + 1))
 
 
-def _part_spec(rng: np.random.Generator) -> SensorSpec:
+def _reachable_parts(rng: np.random.Generator) -> list[str]:
+    """The 2-6 parts someone put sensors on (weighted: the spindle and column most)."""
     parts = list(_PART_WEIGHTS)
     weights = np.array([_PART_WEIGHTS[p] for p in parts], dtype=float)
-    part = str(rng.choice(parts, p=weights / weights.sum()))
+    size = int(rng.integers(2, 7))
+    return [str(p) for p in rng.choice(parts, size=size, replace=False, p=weights / weights.sum())]
+
+
+def _part_spec(rng: np.random.Generator, parts: list[str]) -> SensorSpec:
+    part = str(rng.choice(parts))
     if part == "air":
         return SensorSpec({"air": 1.0}, rng.uniform(60.0, 300.0), rng.uniform(0.005, 0.03))
     around = rng.uniform(0.05, 0.35)
@@ -102,7 +110,8 @@ def draw_sensors(rng: np.random.Generator, n: int) -> SensorPlan:
     rest = n - n_ambient - n_unrelated
     n_duplicate = int(rng.integers(0, rest // 2 + 1)) if rest > 2 else 0
     n_part = rest - n_duplicate
-    specs: list[SensorSpec] = [_part_spec(rng) for _ in range(n_part)]
+    parts = _reachable_parts(rng)
+    specs: list[SensorSpec] = [_part_spec(rng, parts) for _ in range(n_part)]
     kinds = ["part"] * n_part
     faulty = int(rng.integers(n_part)) if rng.random() < 0.25 else None
     if faulty is not None:
