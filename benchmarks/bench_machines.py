@@ -51,9 +51,11 @@ import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from collections import Counter  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 from dataclasses import asdict, dataclass, field  # noqa: E402
 from multiprocessing import Pool  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 from common import environment, verdict  # noqa: E402
@@ -63,6 +65,7 @@ from compd.files.data import DataSet, load_data  # noqa: E402
 from compd.files.experiments import load_experiments  # noqa: E402
 from compd.files.modelfile import parse_model  # noqa: E402
 from compd.sim.machines import random_machine, write_case  # noqa: E402
+from compd.sim.programmes import PROGRAMMES  # noqa: E402
 from compd.toolkit.evaluate import evaluate, pooled_comparisons  # noqa: E402
 from compd.toolkit.fit import FitResult, fit_data  # noqa: E402
 
@@ -98,6 +101,8 @@ class CaseResult:
     description: str
     generate_s: float
     uncompensated_rms_um: float = float("nan")
+    #: What the generator drew (:attr:`compd.sim.machines.MachineCase.facts`), for reading the worst.
+    facts: dict[str, object] = field(default_factory=dict)
     methods: dict[str, MethodResult] = field(default_factory=dict)
 
 
@@ -129,7 +134,7 @@ def judge(seed: int) -> CaseResult:
     """Draw machine ``seed``, write its files, fit every method on them and judge it on its verify files."""
     started = time.perf_counter()
     case = random_machine(seed)
-    result = CaseResult(seed, case.description, time.perf_counter() - started)
+    result = CaseResult(seed, case.description, time.perf_counter() - started, facts=case.facts)
     with tempfile.TemporaryDirectory() as tmp:
         calibration_paths, verify_paths = write_case(case, Path(tmp))
         calibration, verify = _load(calibration_paths), _load(verify_paths)
@@ -260,12 +265,39 @@ def summarise(results: list[CaseResult], wall_s: float) -> bool:
         f"runtime: generation {np.mean(generate):.3f} s per case (max {max(generate):.3f}), "
         f"whole run {wall_s:.0f} s"
     )
+    _breakdown(results, not_below, gap)
     _worst(results, fit, gap)
     return (
         share >= SHARE_TARGET_PERCENT
         and median_gap <= GAP_TARGET_POINTS
         and abs(median_error) <= ESTIMATE_TARGET_POINTS
     )
+
+
+#: Groups of machines the breakdown prints: label -> what a machine's facts must say.
+GROUPS: dict[str, Callable[[dict[str, Any]], bool]] = {
+    "one record": lambda f: bool(f["continuous"]),
+    "warm-up runs": lambda f: not f["continuous"],
+    "rises": lambda f: bool(f["rises"]),
+    "absolute": lambda f: not f["rises"],
+    "creep": lambda f: bool(f["creep"]),
+    "cutting or door": lambda f: bool(f["effects"]),
+    ">= 16 sensors": lambda f: len(f["kinds"]) >= 16,
+    "< 8 sensors": lambda f: len(f["kinds"]) < 8,
+    **{f"calibration {k}": (lambda f, k=k: f["calibration_kind"] == k) for k in PROGRAMMES},
+}
+
+
+def _breakdown(results: list[CaseResult], not_below: np.ndarray, gap: np.ndarray) -> None:
+    """The two figures per group of machines (where the default loses, for whoever improves it)."""
+    print("\nby group: machines, default not below mlr %, median gap (points)")
+    for label, member in GROUPS.items():
+        inside = np.array([member(r.facts) for r in results], dtype=bool)
+        if inside.any():
+            share = 100.0 * float(np.mean(not_below[inside]))
+            print(
+                f"  {label:<22} {int(inside.sum()):>4} {share:>6.0f} {np.median(gap[inside]):>7.1f}"
+            )
 
 
 def _figure(label: str, value: str, target: str = "", passed: bool | None = None) -> None:

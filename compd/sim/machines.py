@@ -20,6 +20,8 @@ through:
 - verify data on a *different* programme (:mod:`compd.sim.programmes`): the
   record's later part split off as its own file (time from 0, displacement
   re-zeroed, machine not in equilibrium), or 1-2 later warm-up runs;
+- sometimes heavy cutting or door openings (heat into the table, shaft and
+  enclosure air that no sensor sees: :mod:`compd.sim.scenarios`);
 - one displacement axis scaled to 2-100 um peak to peak over the
   calibration, probe noise of 0.02-0.2 um and 0.01 or 0.1 um quantisation,
   and sometimes an unmodelled creep of 5-25 % of that.
@@ -33,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -122,7 +125,7 @@ class _Plan:
     sample_time_s: float
     files: tuple[tuple[float, float], ...]
     n_calibration: int
-    speed_rpm_of: object  # callable time_s -> rpm
+    speed_rpm_of: Callable[[np.ndarray], np.ndarray]
     total_s: float
     calibration_kind: str
     verify_kind: str
@@ -189,6 +192,36 @@ def _creep_um(rng: np.random.Generator, time_s: np.ndarray, size_um: float) -> n
     return np.asarray(rng.choice([-1.0, 1.0]) * size_um * shape / max(float(shape[-1]), 1e-9))
 
 
+def _blocks(
+    rng: np.random.Generator,
+    time_s: np.ndarray,
+    on_s: tuple[float, float],
+    off_s: tuple[float, float],
+) -> np.ndarray:
+    """1 in blocks of ``on_s`` (uniform range, s) separated by ``off_s``, 0 elsewhere; a level per block."""
+    out = np.zeros_like(time_s)
+    now_s = rng.uniform(*off_s)
+    while now_s < time_s[-1]:
+        length_s = rng.uniform(*on_s)
+        out[(time_s >= now_s) & (time_s < now_s + length_s)] = rng.uniform(0.3, 1.0)
+        now_s += length_s + rng.uniform(*off_s)
+    return out
+
+
+def _hidden_effects(
+    rng: np.random.Generator, time_s: np.ndarray, speed_rpm: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Sometimes heavy cutting (1.5-5 kW in 5-30 min phases) and door openings: heat no sensor sees."""
+    cutting_kw, door, effects = np.zeros_like(time_s), np.zeros_like(time_s), []
+    if rng.random() < 0.2:
+        cutting_kw = 5.0 * _blocks(rng, time_s, (300.0, 1800.0), (600.0, 5400.0)) * (speed_rpm > 0)
+        effects.append("cutting")
+    if rng.random() < 0.2:
+        door = (_blocks(rng, time_s, (180.0, 600.0), (1200.0, 5400.0)) > 0).astype(float)
+        effects.append("door")
+    return cutting_kw, door, effects
+
+
 def random_machine(seed: int) -> MachineCase:
     """The machine, logging and programmes of ``seed``: the same seed gives the same case."""
     rng = np.random.default_rng([seed, 20, 4])
@@ -199,7 +232,7 @@ def random_machine(seed: int) -> MachineCase:
     substeps = math.ceil(ts / MAX_STEP_S)
     step_s = ts / substeps
     time_s = np.arange(round(plan.total_s / step_s) + 1) * step_s
-    speed = plan.speed_rpm_of(time_s)  # type: ignore[operator]
+    speed = plan.speed_rpm_of(time_s)
     ambient = shop_ambient_degc(rng, time_s)
     if rng.random() < 0.3:  # a climate-controlled hall: a tenth of the swing
         ambient = ambient[0] + 0.1 * (ambient - ambient[0])
@@ -210,8 +243,9 @@ def random_machine(seed: int) -> MachineCase:
         else lag(ambient, 2 * _H, step_s) + rng.uniform(0.0, 1.5)
     )
     zero = np.zeros_like(time_s)
+    cutting_kw, door, effects = _hidden_effects(np.random.default_rng([seed, 20, 7]), time_s, speed)
     record = simulate_record(
-        InputRecord(ambient, coolant, speed, zero, zero, zero, zero), step_s, params=params
+        InputRecord(ambient, coolant, speed, cutting_kw, zero, zero, door), step_s, params=params
     )
     read = slice(None, None, substeps)
     time_s, speed = time_s[read], speed[read]
@@ -262,7 +296,7 @@ def random_machine(seed: int) -> MachineCase:
         f"{runs} ({plan.calibration_kind}) -> verify {len(verify)} file(s) of "
         f"{_mean_h(verify, ts):.1f} h ({plan.verify_kind}), "
         f"{'rises' if rises else 'absolute'}, {amplitude_um:.1f} um {axis}"
-        f"{', creep' if creep else ''}, {variant}"
+        f"{', creep' if creep else ''}{''.join(', ' + e for e in effects)}, {variant}"
     )
     facts: dict[str, object] = {
         "variant": variant,
@@ -272,6 +306,7 @@ def random_machine(seed: int) -> MachineCase:
         "rises": rises,
         "amplitude_um": amplitude_um,
         "creep": creep,
+        "effects": effects,
         "axis": axis,
         "with_speed": with_speed,
         "kinds": plan_sensors.kinds,

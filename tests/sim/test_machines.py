@@ -137,3 +137,13 @@ def test_written_files_load_as_the_experiments_compd_fit_reads(tmp_path: Path) -
     assert np.allclose(data.column(case.output), case.verify[0][case.output], atol=1e-6)
     if case.facts["with_speed"]:
         assert data.has(SPEED_COLUMN)
+
+
+def test_creep_and_hidden_effects_occur_on_a_minority_of_machines(cases: list[MachineCase]) -> None:
+    """Unmodelled creep, cutting and door openings each occur on some machines, never on most."""
+    for has in (
+        lambda c: c.facts["creep"],
+        lambda c: "cutting" in c.facts["effects"],
+        lambda c: "door" in c.facts["effects"],
+    ):
+        assert 1 <= sum(bool(has(c)) for c in cases) <= len(cases) // 2
