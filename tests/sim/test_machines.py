@@ -8,6 +8,7 @@ import pytest
 
 from compd.files.data import load_data
 from compd.files.experiments import load_experiments
+from compd.files.modelfile import parse_model
 from compd.sim.machines import (
     AMPLITUDE_UM,
     MAX_RECORD_H,
@@ -18,6 +19,8 @@ from compd.sim.machines import (
     random_machine,
     write_case,
 )
+from compd.toolkit.evaluate import evaluate, pooled_comparisons
+from compd.toolkit.fit import fit_data
 
 SEEDS = range(30)
 
@@ -147,3 +150,18 @@ def test_creep_and_hidden_effects_occur_on_a_minority_of_machines(cases: list[Ma
         lambda c: "door" in c.facts["effects"],
     ):
         assert 1 <= sum(bool(has(c)) for c in cases) <= len(cases) // 2
+
+
+def test_a_case_fits_on_its_calibration_files_and_compares_on_its_verify_files(
+    tmp_path: Path,
+) -> None:
+    """The written files go through fit (all inputs, one experiment per file) and a pooled compare."""
+    case = random_machine(5)  # four warm-up runs at 5 min: a small fit
+    calibration, verify = write_case(case, tmp_path)
+    fitted = fit_data(
+        load_experiments(calibration), output=case.output, inputs=case.inputs, method="mlr"
+    )
+    model = parse_model(fitted.yaml_text)
+    pooled = pooled_comparisons([evaluate(model, load_data(p)) for p in verify], case.output)
+    assert len(calibration) == 4 and np.isfinite(pooled[0].fit_percent)
+    assert pooled[0].residue.rms_um < pooled[0].uncompensated.rms_um
