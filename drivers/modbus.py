@@ -318,9 +318,13 @@ class ModbusDriver:
         what = f"read {table} {start}..{start + count - 1} of device {device}"
         reply = await self._call(calls[table](start, count=count, device_id=device), what)
         words: list[int] | list[bool] = reply.bits if table in BIT_TABLES else reply.registers
-        if len(words) < count:
+        # A reply of another length than asked is not an answer to this request;
+        # bits come in whole bytes, so a bit reply holds count rounded up to 8.
+        expected = -(-count // 8) * 8 if table in BIT_TABLES else count
+        if len(words) != expected:
+            kind = "short" if len(words) < expected else "long"
             raise DriverProtocolError(
-                f"Modbus {self._where()}: {what}: short reply ({len(words)} of {count})"
+                f"Modbus {self._where()}: {what}: {kind} reply ({len(words)} of {expected})"
             )
         return words
 
