@@ -139,7 +139,11 @@ class OpcUaDriver:
             node_id = None
         if node_id is None:
             return "a browse path"
-        return "a NodeId with a namespace URI" if isinstance(node_id, ua.ExpandedNodeId) else "a NodeId"
+        return (
+            "a NodeId with a namespace URI"
+            if isinstance(node_id, ua.ExpandedNodeId)
+            else "a NodeId"
+        )
 
     @staticmethod
     def reads_back(settings: OpcUaSettings) -> bool:

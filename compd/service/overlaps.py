@@ -117,7 +117,9 @@ def _clash(use: _Use, other: _Use) -> bool:
     return not (area and use.driver == other.driver)
 
 
-def _overlap(use: _Use, other: _Use, endpoint: Hashable, error: ErrorAt, place: PlaceOf) -> Exception:
+def _overlap(
+    use: _Use, other: _Use, endpoint: Hashable, error: ErrorAt, place: PlaceOf
+) -> Exception:
     """The refusal of ``use`` for a cell ``other`` (earlier in the file) holds."""
     verb = "written" if other.written else "read"
     reach = "" if use.driver == other.driver else f": both drivers reach {_describe(endpoint)}"

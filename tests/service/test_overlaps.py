@@ -59,7 +59,7 @@ def refusal(tmp_path: Path, doc: dict[str, Any]) -> str:
 
 
 def test_a_status_word_inside_the_offset_through_a_second_entry_is_refused(tmp_path, capsys):
-    """check-config refuses a second entry on the PLC's host:port writing inside the int32 offset, naming both places."""
+    """check-config refuses a second entry on the PLC's host:port writing inside the int32 offset, naming both."""
     doc = issue_doc()
     path = tmp_path / "compd.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
@@ -84,7 +84,7 @@ def test_every_spelling_of_this_machine_is_one_host(tmp_path, host):
 
 
 def test_unit_ids_on_modbus_tcp_reach_one_device_unless_declared_separate(tmp_path):
-    """holding:101:device=0 beside device 1 is refused on Modbus TCP, in one entry or two, unless both say unit_ids: separate."""
+    """Beside device 1, holding:101:device=0 on Modbus TCP is refused unless both entries say unit_ids: separate."""
     doc = machine_doc()
     doc["status"]["status_address"] = "holding:101:device=0"
     assert "'holding:101:device=0' on driver 'plc' overlaps 'holding:100:int32'" in refusal(
@@ -132,7 +132,7 @@ def rtu_doc(tmp_path: Path, port: str, device: int) -> dict[str, Any]:
 
 
 def test_unit_ids_on_a_serial_line_are_addresses_and_zero_is_broadcast(tmp_path):
-    """On one RTU line (here through a symlink) device 2 is another device; device 1 and the broadcast id 0 are refused."""
+    """On one RTU line (here through a symlink) device 2 is another device; device 1 and broadcast 0 are refused."""
     link = tmp_path / "by-id"
     link.symlink_to(tmp_path / "ttyUSB0")
     assert write_config(tmp_path, doc=rtu_doc(tmp_path, str(link), 2)).doc.status.driver == "plc2"
@@ -215,7 +215,7 @@ def opcua_entry(host: str) -> dict[str, Any]:
 
 
 def opcua_doc(status: str, heartbeat: str, *, reader: str = "ns=2;s=Machine.T") -> dict[str, Any]:
-    """The Z offset through Modbus; status and heartbeat through ``ua``; a signal read through ``ua2`` on the same server."""
+    """The Z offset on Modbus; status and heartbeat through ``ua``; a signal read through ``ua2``, same server."""
     doc = machine_doc()
     doc["drivers"] |= {"ua": opcua_entry("127.0.0.1"), "ua2": opcua_entry("localhost")}
     doc["status"] = {"driver": "ua", "status_address": status, "heartbeat_address": heartbeat}
@@ -224,7 +224,7 @@ def opcua_doc(status: str, heartbeat: str, *, reader: str = "ns=2;s=Machine.T") 
 
 
 def test_an_opc_ua_node_written_through_one_entry_and_read_through_another_is_refused(tmp_path):
-    """Two entries on one OPC UA server (127.0.0.1 and localhost): a node written by one and read by the other is refused."""
+    """Two entries on one OPC UA server (127.0.0.1, localhost): a node written by one, read by the other: refused."""
     doc = opcua_doc("ns=2;s=Machine.T", "ns=2;s=Machine.hb")
     message = refusal(tmp_path, doc)
     assert "'ns=2;s=Machine.T' on driver 'ua2', read at line" in message
