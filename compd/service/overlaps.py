@@ -86,7 +86,7 @@ def check_overlaps(
     uses += [_Use(location, d, address, True) for location, d, address in written_points(doc)]
     writers = dict.fromkeys(use.driver for use in uses if use.written)
     uses += [_Use(("drivers", d), d, None, True) for d in writers]
-    claims: dict[Hashable, list[_Use]] = {}
+    claims: dict[Hashable, tuple[_Use, ...]] = {}
     namings: dict[Hashable, list[tuple[_Use, Hashable]]] = {}
     for use in uses:
         if use.address is None:
@@ -99,12 +99,14 @@ def check_overlaps(
             if named is not None:
                 for endpoint in {cell[0] for cell in cells}:
                     namings.setdefault(endpoint, []).append((use, named))
-        for cell in sorted(cells, key=repr):
-            clash = next((other for other in claims.get(cell, ()) if _clash(use, other)), None)
+        # Set operations: a Modbus TCP value spans every unit id, hundreds of cells.
+        shared = cells & claims.keys()
+        for cell in sorted(shared, key=repr):
+            clash = next((other for other in claims[cell] if _clash(use, other)), None)
             if clash is not None:
                 raise _overlap(use, clash, cell[0], error, place)
-        for cell in cells:
-            claims.setdefault(cell, []).append(use)
+            claims[cell] += (use,)
+        claims.update(dict.fromkeys(cells - shared, (use,)))
     for endpoint, named in namings.items():
         _check_one_naming(endpoint, named, error, place)
 
