@@ -125,7 +125,10 @@ def _overlap(
     """The refusal of ``use`` for a cell ``other`` (earlier in the file) holds."""
     verb = "written" if other.written else "read"
     reach = "" if use.driver == other.driver else f": both drivers reach {_describe(endpoint)}"
-    units = _UNIT_IDS if _modbus_tcp(endpoint) and use.driver != other.driver else ""
+    devices = use.driver != other.driver or any(
+        "device=" in (u.address or "") for u in (use, other)
+    )
+    units = _UNIT_IDS if _modbus_tcp(endpoint) and devices else ""
     if use.address is None:  # areas come last: ``other`` is a point or another entry's area
         inside = (
             f"so does driver {other.driver!r} at {place(other.location)}"

@@ -87,9 +87,9 @@ def test_unit_ids_on_modbus_tcp_reach_one_device_unless_declared_separate(tmp_pa
     """Beside device 1, holding:101:device=0 on Modbus TCP is refused unless both entries say unit_ids: separate."""
     doc = machine_doc()
     doc["status"]["status_address"] = "holding:101:device=0"
-    assert "'holding:101:device=0' on driver 'plc' overlaps 'holding:100:int32'" in refusal(
-        tmp_path, doc
-    )
+    message = refusal(tmp_path, doc)
+    assert "'holding:101:device=0' on driver 'plc' overlaps 'holding:100:int32'" in message
+    assert "unit ids on one Modbus TCP host:port count as one device" in message
     doc = issue_doc(device_id=0)
     assert "unit_ids: separate" in refusal(tmp_path, doc)
     doc["drivers"]["plc2"]["settings"]["unit_ids"] = "separate"
