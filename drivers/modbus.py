@@ -37,11 +37,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import struct
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Hashable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from compd.drivers.base import RawReading
+from compd.drivers.endpoints import modbus_units
 from compd.drivers.library_logs import quiet_library
 from compd.drivers.modbus_addresses import (
     BIT_TABLES,
@@ -116,12 +117,21 @@ class ModbusDriver:
             raise ValueError(f"a {point.table} cannot be written; use holding or coil")
 
     @staticmethod
-    def footprint(address: str, settings: ModbusSettings) -> frozenset[tuple[int, str, int]]:
-        """The ``(device, table, register or bit)`` cells a value at ``address`` spans."""
+    def footprint(address: str, settings: ModbusSettings) -> frozenset[tuple[Hashable, ...]]:
+        """The ``(endpoint, unit, table, register or bit)`` cells a value at ``address`` spans.
+
+        The unit ids a value may reach are those of :func:`compd.drivers.endpoints.modbus_units`:
+        on Modbus TCP every one unless ``unit_ids: separate``, on a serial
+        line its own (every one for the broadcast id 0).
+        """
         point = parse_address(address)
         device = settings.device_id if point.device_id is None else point.device_id
+        where = settings.endpoint()
         span = range(point.address, point.address + point.count)
-        return frozenset((device, point.table, a) for a in span)
+        units = modbus_units(
+            device, serial=settings.transport == "rtu", separate=settings.unit_ids == "separate"
+        )
+        return frozenset((where, unit, point.table, a) for unit in units for a in span)
 
     @staticmethod
     def raw_range(address: str, settings: ModbusSettings) -> tuple[int, int] | None:

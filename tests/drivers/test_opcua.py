@@ -301,7 +301,9 @@ def test_writes_use_the_node_type(certs, server):
 def test_a_string_node_id_with_slashes_is_a_node_id_not_a_browse_path(certs, server):
     """ns=N;s=/Plc/DB9000.DBD10:DINT (SINUMERIK's form) writes and reads back that node."""
     address = f"ns={server.namespace_index};s={SINUMERIK_DBD}"
-    assert OpcUaDriver.footprint(address, None) == frozenset({address})
+    settings = OpcUaSettings.model_validate({"url": server.url, "security": "none"})
+    assert OpcUaDriver.naming(address, settings) == "a NodeId"
+    assert {cell[-1] for cell in OpcUaDriver.footprint(address, settings)} == {address}
 
     async def scenario() -> dict[str, float]:
         driver = await opened(make_driver(certs, server.url))
