@@ -254,7 +254,9 @@ class Compensator:
             level,
             flags,
             bad,
-            mismatch=bool(mismatches or out_of_clamp) and status is not None and status.mismatch_bit,
+            mismatch=bool(mismatches or out_of_clamp)
+            and status is not None
+            and status.mismatch_bit,
             model_fault=self.model_fault is not None
             and status is not None
             and status.model_fault_bit,

@@ -68,7 +68,7 @@ class AxisPoint:
         return raw / self.scale
 
     def within(self, raw: float, max_offset_um: float) -> bool:
-        """Whether ``raw`` is finite and no further out than ``±max_offset_um`` as written (a count, float32's precision)."""
+        """Whether ``raw`` is finite and within ``±max_offset_um`` as written (to a count, or float32's precision)."""
         if not math.isfinite(raw):
             return False
         reach = abs(self.encode(max_offset_um))

@@ -70,7 +70,7 @@ def clamped(policy: OutOfClamp, offset_um: float = 3.0) -> HeldOffsets:
 
 
 def test_a_value_read_back_outside_the_clamp_is_replaced_not_followed():
-    """500 um, -3000 um, 1e30, 3e38, NaN or inf held at start: hold writes the seed exactly, never a step from the held value."""
+    """500 um, -3000 um, 1e30, 3e38, NaN or inf held at start: hold writes the seed exactly, never a step from it."""
     for raw in (5000.0, -30000.0, 1e31, 3e38, math.nan, -math.inf):
         offsets = clamped(OutOfClamp.HOLD)
         assert offsets.read_back({"Z": raw}) == 0

@@ -24,10 +24,10 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from compd.drivers.modbus import ModbusDriver
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from compd.drivers.modbus import ModbusDriver
 from compd.drivers.modbus_addresses import parse_address
 from compd.files.yamlplace import resolve_path
 from compd.service.clock import VirtualClock

@@ -81,7 +81,7 @@ def start_holding(plc: Plc, raw: float, seconds: float = 8.0) -> tuple[Any, list
 
 @pytest.mark.parametrize(("kind", "raw"), CASES, ids=[f"{k}-{r:g}" for k, r in CASES])
 def test_a_start_on_an_out_of_clamp_register_writes_the_last_valid_offset(tmp_path, kind, raw):
-    """PLC holding 500/-3000 um, 1e30, 3e38, NaN or inf at start: compd writes 0 (no valid offset known), flags it, and slews on."""
+    """PLC at 500/-3000 um, 1e30, 3e38, NaN or inf at start: compd writes 0 (the last valid), flags it, slews on."""
     plc = clamp_plc(tmp_path, kind)
     service, records = start_holding(plc, raw)
     written = written_um(plc)
@@ -94,13 +94,13 @@ def test_a_start_on_an_out_of_clamp_register_writes_the_last_valid_offset(tmp_pa
 
 
 def test_an_out_of_clamp_value_mid_run_is_replaced_by_the_last_offset_written(tmp_path):
-    """A PLC program writing -3000 um (int32) while compd runs: the next write is what compd wrote last, not -2999 um."""
+    """A PLC program writing -3000 um (int32) mid-run: the next write is what compd wrote last, not -2999 um."""
     plc = clamp_plc(tmp_path, "int32")
 
     async def bogus() -> None:
         await plc.program(-3000.0)
 
-    service, records = run_against(plc, 30.0, held_um=40.0, before_tick={10: bogus})
+    _, records = run_against(plc, 30.0, held_um=40.0, before_tick={10: bogus})
     offsets = plc.offsets()
     at = offsets.index((-30000.0, False))
     before, after = offsets[at - 1], offsets[at + 1]
@@ -118,15 +118,13 @@ def test_the_edge_policy_ramps_from_the_nearest_clamp_edge(tmp_path):
 
 
 def test_the_refuse_policy_writes_no_offset_until_the_plc_holds_one_within_the_clamp(tmp_path):
-    """With refuse, an int32 register at 500 um is left alone and flagged each tick; 12 um set by the PLC is followed from there."""
+    """With refuse, an int32 register at 500 um is left alone, flagged each tick; 12 um set by the PLC is followed."""
     plc = clamp_plc(tmp_path, "int32", policy="refuse")
 
     async def fixed_by_the_plc() -> None:
         await plc.program(12.0)
 
-    service, records = run_against(
-        plc, 12.0, held_um=500.0, before_tick={6: fixed_by_the_plc}
-    )
+    service, records = run_against(plc, 12.0, held_um=500.0, before_tick={6: fixed_by_the_plc})
     assert all(faulted(r) and not r.written for r in records[:6])
     written = written_um(plc)
     assert abs(written[0] - 12.0) <= 1.0 and all(abs(w) <= MAX_UM for w in written)

@@ -92,7 +92,7 @@ def test_nan_target_holds_the_last_offset():
     targets_um=st.lists(targets, min_size=1, max_size=20),
 )
 def test_the_stage_never_starts_or_slews_outside_the_clamp(seed_um, policy, targets_um):
-    """Whatever it is loaded or recovers from (500, -3000, 1e30, 3e38, NaN, inf um), the stage's offset stays within ±max."""
+    """Whatever it is loaded with or recovers from (500, -3000, 3e38, NaN, inf um), its offset stays within ±max."""
     stage = AxisSafety(LIMITS, 1.0, offset_um=seed_um, on_out_of_clamp=policy)
     assert stage.within(stage.offset_um)
     stage.load(seed_um)
@@ -104,7 +104,7 @@ def test_the_stage_never_starts_or_slews_outside_the_clamp(seed_um, policy, targ
 
 
 def test_a_value_beyond_the_clamp_is_replaced_by_the_policy_s_value():
-    """Held 500, -3000, 3e38 or NaN um beyond a 20 um clamp: hold keeps the last valid offset, edge the nearest edge, refuse none."""
+    """500, -3000, 3e38 or NaN um held, 20 um clamp: hold keeps the last valid offset, edge the edge, refuse none."""
     for held_um, edge_um in ((500.0, 20.0), (-3000.0, -20.0), (3e38, 20.0), (math.nan, 4.0)):
         hold = AxisSafety(LIMITS, 1.0, offset_um=4.0)
         assert hold.recover(held_um) == 4.0 and hold.hold().offset_um == 4.0
