@@ -18,10 +18,10 @@ service, :mod:`compd.service.offsets`).
 
 The stage never starts outside the clamp: ``last`` is always finite and
 within ``±M`` (:meth:`AxisSafety.load` clips a value beyond, NaN gives 0). An
-offset point that reads back a value outside ``±M`` (to a count, or float32's
-precision), or one that is not finite (NaN, inf, 3e38 in a float32 register),
-holds a value compd never wrote and no slew limit can vouch for: it is a
-fault, not a seed. The axis then writes, on that tick and without a model
+offset point that reads back a value outside ``±M`` (500 um, or 3e38 in a
+float32 register; to a count, or float32's precision), or one that is not
+finite (NaN, inf), holds a value compd never wrote and no slew limit can
+vouch for: it is a fault, not a seed. The axis then writes, on that tick and without a model
 step, exactly the value :meth:`AxisSafety.recover` names for the configured
 policy (``safety.on_offset_out_of_clamp``, :class:`OutOfClamp`):
 
