@@ -13,9 +13,13 @@ peer, while ``status`` stays open to the whole group.
 
 The server must never be the reason the compensation loop stops: a malformed
 line, an unknown command, a handler that raises or a client that vanishes
-is answered (if it can be) and logged, and the server goes on serving; at
-most 16 clients are connected at once, each dropped after 5 minutes of
-silence, so a runaway script cannot lock the operators out. A socket file
+is answered (if it can be) and logged, and the server goes on serving. No
+peer can lock the operators out: at most 16 clients are connected at once
+(fewer where the open-files limit is low, :mod:`compd.service.peers`), one
+user who may not load models holds at most 4 of them, 4 are kept for the
+users who may, and a client that has not sent a whole request within 10 s
+is dropped. A client turned away is told why (``busy: ...``), and the
+episode is logged once. A socket file
 left by a crashed daemon is replaced; a socket with a live daemon behind it
 is refused, so a second ``compd run`` cannot hijack the first one's controls.
 """
@@ -36,7 +40,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import structlog
+
 from compd.errors import CompdError, ControlError, NotRunningError
+from compd.faultlog import FaultLog
+from compd.service.peers import FdBudget, Listener
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +54,10 @@ DEFAULT_SOCKET_PATH = Path("/run/compd/control.sock")
 SOCKET_MODE = 0o660
 MAX_LINE_BYTES = 2 << 20  # a command and a few options; at most a model file (1 MiB, base64)
 MAX_CONNECTIONS = 16  # a few operators and scripts; more is a runaway client
-IDLE_TIMEOUT_S = 300.0  # a client silent this long is disconnected, so it cannot hold a slot
+MAX_PER_PEER = 4  # connections one user who may not load models holds at once
+RESERVED_FOR_ACCESS = 4  # connections only users allowed a guarded command (load) may take
+IDLE_TIMEOUT_S = 10.0  # a client that sends no whole request this long is disconnected
+BACKLOG = 64  # clients the kernel queues while the server is judging others
 
 Handler = Callable[[dict[str, Any]], Awaitable[dict[str, Any]]]
 """A command: takes the request object, returns the reply's fields (``ok`` is added)."""
@@ -74,7 +85,11 @@ class Access:
 
 def peer_of(writer: asyncio.StreamWriter) -> Peer | None:
     """The connected process's credentials (``SO_PEERCRED``), or None where the OS has none."""
-    sock = writer.get_extra_info("socket")
+    return peer_of_socket(writer.get_extra_info("socket"))
+
+
+def peer_of_socket(sock: Any) -> Peer | None:
+    """:func:`peer_of` for a connected unix socket."""
     option = getattr(socket, "SO_PEERCRED", None)
     if sock is None or option is None:
         return None
@@ -94,6 +109,11 @@ class ControlServer:
     message is the reply's ``error``); any other exception is a bug, logged
     with its traceback and answered as ``internal error``. A command named in
     ``access`` runs only for the peers its :class:`Access` allows.
+
+    Of the ``max_connections``, a peer no :class:`Access` allows (a
+    status-only user) may hold ``max_per_peer``, and such peers together all
+    but ``reserved`` of them: those are kept for the allowed peers. ``budget``
+    may lower ``max_connections`` to what the open-files limit leaves.
     """
 
     def __init__(
@@ -105,16 +125,24 @@ class ControlServer:
         max_connections: int = MAX_CONNECTIONS,
         idle_timeout_s: float = IDLE_TIMEOUT_S,
         access: Mapping[str, Access] | None = None,
+        max_per_peer: int = MAX_PER_PEER,
+        reserved: int = RESERVED_FOR_ACCESS,
+        budget: FdBudget | None = None,
     ) -> None:
         self.path = Path(path)
         self.handlers = dict(handlers)
         self.access = dict(access or {})
         self.mode = mode
         self.max_connections = max_connections
+        self.max_per_peer = max_per_peer
+        self.reserved = reserved
         self.idle_timeout_s = idle_timeout_s
-        self._server: asyncio.Server | None = None
+        self.budget = budget
+        self._listener: Listener | None = None
         self._inode: tuple[int, int] | None = None
-        self._connections: set[asyncio.Task[None]] = set()
+        #: The connections being served, and the peer of each.
+        self._connections: dict[asyncio.Task[None], Peer | None] = {}
+        self._busy = FaultLog(structlog.get_logger(__name__), level="warning")
 
     async def start(self) -> None:
         """Bind the socket (replacing a stale one), set its mode, and accept connections.
@@ -123,7 +151,7 @@ class ControlServer:
         listens on ``path``, when ``path`` is not a socket, or when it cannot
         be bound.
         """
-        if self._server is not None:
+        if self._listener is not None:
             return
         await _remove_stale(self.path)
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -132,25 +160,28 @@ class ControlServer:
             # Before listen(): nobody can connect while the mode is still the umask's.
             os.chmod(self.path, self.mode)
             info = os.stat(self.path)
-            self._server = await asyncio.start_unix_server(
-                self._serve, sock=sock, limit=MAX_LINE_BYTES
-            )
+            sock.listen(BACKLOG)
         except OSError as exc:
             sock.close()
             raise ControlError(f"cannot listen on {self.path}: {exc.strerror or exc}") from exc
         self._inode = (info.st_dev, info.st_ino)
+        # One slot beyond the most served: a client over the limit is accepted, told
+        # "busy" and closed at once, instead of waiting unanswered in the queue.
+        cap = (self.budget or FdBudget()).take(self.max_connections + 1, "control socket")
+        self.max_connections = max(1, cap - 1)
+        self._listener = Listener(sock, self.max_connections + 1, self._admit, name="control")
+        self._listener.start()
         log.info("control socket listening on %s", self.path)
 
     async def close(self) -> None:
         """Stop accepting, end open connections and remove the socket file (if still ours)."""
-        server, self._server = self._server, None
-        if server is None:
+        listener, self._listener = self._listener, None
+        if listener is None:
             return
-        server.close()
+        await listener.close()
         for task in list(self._connections):
             task.cancel()
         await asyncio.gather(*self._connections, return_exceptions=True)
-        await server.wait_closed()
         with contextlib.suppress(OSError):
             info = os.stat(self.path)
             if (info.st_dev, info.st_ino) == self._inode:  # a newer daemon's socket stays
@@ -164,17 +195,59 @@ class ControlServer:
     async def __aexit__(self, *exc_info: object) -> None:
         await self.close()
 
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    def _privileged(self, peer: Peer | None) -> bool:
+        """Whether ``peer`` may run a guarded command (one given an :class:`Access`)."""
+        return any(access.allows(peer) for access in self.access.values())
+
+    def _turned_away(self, peer: Peer | None) -> str | None:
+        """Why a new connection from ``peer`` is refused, or None if it is served."""
+        if len(self._connections) >= self.max_connections:
+            return f"busy: {self.max_connections} clients connected"
+        if self._privileged(peer):
+            return None
+        others = [p for p in self._connections.values() if not self._privileged(p)]
+        # Kept for the allowed peers (none to keep where no command is guarded).
+        kept = min(self.reserved, self.max_connections - 1) if self.access else 0
+        if len(others) >= self.max_connections - kept:
+            commands = ", ".join(sorted(self.access))
+            return (
+                f"busy: {len(others)} clients connected; the other {kept} connections are "
+                f"kept for the users who may run {commands}"
+            )
+        uid = None if peer is None else peer.uid
+        mine = sum(1 for p in others if (None if p is None else p.uid) == uid)
+        if mine >= self.max_per_peer:
+            return (
+                f"busy: {'this user' if uid is None else f'uid {uid}'} already has {mine} "
+                f"connections, the most one user may hold; close one first"
+            )
+        return None
+
+    def _admit(self, conn: socket.socket, release: Callable[[], None]) -> None:
+        """Serve the accepted ``conn`` (the :class:`Listener`'s), or tell it why not and close it."""
+        peer = peer_of_socket(conn)
+        refusal = self._turned_away(peer)
+        if refusal is None:
+            task = asyncio.get_running_loop().create_task(self._serve(conn, peer, release))
+            self._connections[task] = peer
+            return
+        self._busy.failed("control socket busy: clients turned away", reason=refusal)
+        with contextlib.suppress(OSError):  # a few bytes: the socket's buffer takes them
+            conn.send(_encode(_refusal(refusal)))
+        conn.close()
+        release()
+
+    async def _serve(
+        self, conn: socket.socket, peer: Peer | None, release: Callable[[], None]
+    ) -> None:
         task = asyncio.current_task()
         assert task is not None
-        self._connections.add(task)
-        peer = peer_of(writer)
+        writer: asyncio.StreamWriter | None = None
         try:
-            if len(self._connections) > self.max_connections:
-                await _send(writer, _refusal(f"busy: {self.max_connections} clients connected"))
-                return
+            reader, writer = await asyncio.open_unix_connection(sock=conn, limit=MAX_LINE_BYTES)
             while True:
                 try:
+                    # The whole line within the timeout: a client sending it slowly is cut too.
                     async with asyncio.timeout(self.idle_timeout_s):
                         line = await reader.readline()
                 except (ValueError, asyncio.LimitOverrunError):
@@ -189,10 +262,16 @@ class ControlServer:
         except (ConnectionError, asyncio.CancelledError):
             pass  # the client went away, or the server is closing
         finally:
-            self._connections.discard(task)
-            writer.close()
-            with contextlib.suppress(Exception):
-                await writer.wait_closed()
+            self._connections.pop(task, None)
+            if writer is None:
+                conn.close()
+            else:
+                writer.close()
+                with contextlib.suppress(Exception):
+                    await writer.wait_closed()
+            release()
+            if not self._connections:
+                self._busy.cleared("control socket serving every client again")
 
     async def answer(self, line: bytes, peer: Peer | None = None) -> dict[str, Any]:
         """The reply to one request line from ``peer``; never raises."""

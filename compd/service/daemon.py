@@ -36,6 +36,7 @@ from compd.service.clock import Clock
 from compd.service.compensator import Compensator, TickRecord
 from compd.service.config import Config
 from compd.service.control import ControlServer
+from compd.service.peers import FdBudget
 from compd.service.identity import identity, recording_metadata, systemd_summary
 from compd.service.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.notify import SystemdNotifier
@@ -117,11 +118,14 @@ class Service:
         self.stop_event = asyncio.Event()
         self.started_unix_s = now_unix
         self._killed = False
+        #: The descriptors the control socket and the HTTP server may spend on clients.
+        self.fd_budget = FdBudget()
         self._control = (
             ControlServer(
                 config.control_socket,
                 {"status": self._status, "load": self.load_model},
                 access={"load": doc.load_access.access()},
+                budget=self.fd_budget,
             )
             if control
             else None
