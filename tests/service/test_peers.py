@@ -1,0 +1,132 @@
+"""Slow and greedy peers against a real ``compd run``: half-sent HTTP requests under a low open-files limit."""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import select
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+from compd.cli import main
+
+from .daemon_setup import short_socket, write_config
+
+#: The daemon's open-files limit (soft and hard): far below systemd's 1024, so a few
+#: hundred connections exhaust it, as 1,100 exhaust 1024.
+FD_LIMIT = 128
+#: Half-sent requests: more than the limit allows descriptors.
+ATTACKERS = FD_LIMIT + 72
+#: A guard against a hang, not a timing: generous for a busy CI machine.
+HANG_S = 120.0
+HALF_REQUEST = b"GET /status.json HTTP/1.1\r\nHost: compd\r\n"  # no blank line: never complete
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def limit_fds() -> None:
+    resource.setrlimit(resource.RLIMIT_NOFILE, (FD_LIMIT, FD_LIMIT))
+
+
+def get(url: str) -> tuple[int, bytes]:
+    with urllib.request.urlopen(url, timeout=HANG_S) as response:
+        return response.status, response.read()
+
+
+def wait_for_http(url: str, daemon: subprocess.Popen[str]) -> None:
+    deadline = time.monotonic() + HANG_S
+    while time.monotonic() < deadline:
+        assert daemon.poll() is None, daemon.communicate()[1]
+        try:
+            get(url)
+            return
+        except OSError:
+            time.sleep(0.1)
+    raise AssertionError(f"compd never answered on {url}")
+
+
+def half_sent_requests(port: int, count: int) -> list[socket.socket]:
+    """``count`` connections to ``port``, each with a request whose headers never end."""
+    clients = []
+    for _ in range(count):
+        client = socket.socket()
+        client.setblocking(False)
+        client.connect_ex(("127.0.0.1", port))
+        clients.append(client)
+    pending = list(clients)
+    deadline = time.monotonic() + HANG_S
+    while pending and time.monotonic() < deadline:
+        _, writable, _ = select.select([], pending, [], 1.0)
+        for client in writable:
+            client.send(HALF_REQUEST)
+            pending.remove(client)
+    assert not pending, f"{len(pending)} connections never completed the handshake"
+    return clients
+
+
+def wait_closed_by_server(clients: list[socket.socket]) -> None:
+    """Until the server has closed every one of ``clients`` (end of stream or reset)."""
+    open_ = list(clients)
+    deadline = time.monotonic() + HANG_S
+    while open_ and time.monotonic() < deadline:
+        readable, _, _ = select.select(open_, [], [], 1.0)
+        for client in readable:
+            try:
+                data = client.recv(4096)
+            except ConnectionError:
+                data = b""
+            assert data == b"", f"a half-sent request was answered: {data[:100]!r}"
+            open_.remove(client)
+    assert not open_, f"{len(open_)} slow clients were never disconnected"
+
+
+def test_half_sent_http_requests_never_take_the_descriptors_the_daemon_needs(tmp_path: Path) -> None:
+    """With the open-files limit at 128, 200 half-sent HTTP requests leave status, state saves and the limit's reserve untouched, each is cut by the idle timeout, and the cap is logged once."""
+    port = free_port()
+    changes = {
+        "control_socket": str(short_socket()),
+        "http": {"port": port, "idle_timeout_s": 1},
+        "state": {"save_every_ticks": 1},
+    }
+    config = write_config(tmp_path, changes)
+    daemon = subprocess.Popen(
+        [sys.executable, "-m", "compd.cli", "run", "--config", str(config.path)]
+        + ["--time-scale", "1", "--log-format", "json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=limit_fds,
+    )
+    url = f"http://127.0.0.1:{port}/"
+    try:
+        wait_for_http(url + "status.json", daemon)
+        clients = half_sent_requests(port, ATTACKERS)
+        try:
+            # The control socket still has descriptors to answer with.
+            assert main(["status", "--config", str(config.path), "--json"]) == 0
+            assert len(os.listdir(f"/proc/{daemon.pid}/fd")) < FD_LIMIT - 16
+            wait_closed_by_server(clients)
+        finally:
+            for client in clients:
+                client.close()
+        status, body = get(url + "status.json")
+        assert status == 200 and json.loads(body)["counters"]["ticks"] > 0
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        _, stderr = daemon.communicate(timeout=HANG_S)
+    assert daemon.returncode == 0, stderr
+    assert "Too many open files" not in stderr and "Traceback" not in stderr, stderr[-3000:]
+    events = [json.loads(line) for line in stderr.splitlines()]
+    assert not [e for e in events if e["event"].startswith("cannot save state")]
+    capped = [e for e in events if e["event"].startswith("too many connections")]
+    assert [e["listener"] for e in capped] == ["http"], capped
