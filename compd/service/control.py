@@ -262,16 +262,17 @@ class ControlServer:
         except (ConnectionError, asyncio.CancelledError):
             pass  # the client went away, or the server is closing
         finally:
+            # The slot first: a client that sees the end of the stream finds it free.
             self._connections.pop(task, None)
+            release()
+            if not self._connections:
+                self._busy.cleared("control socket serving every client again")
             if writer is None:
                 conn.close()
             else:
                 writer.close()
                 with contextlib.suppress(Exception):
                     await writer.wait_closed()
-            release()
-            if not self._connections:
-                self._busy.cleared("control socket serving every client again")
 
     async def answer(self, line: bytes, peer: Peer | None = None) -> dict[str, Any]:
         """The reply to one request line from ``peer``; never raises."""
@@ -318,12 +319,13 @@ async def request(path: Path, message: dict[str, Any], *, timeout_s: float = 5.0
     access is denied, and when no reply comes within ``timeout_s``.
     """
     path = Path(path)
+    loop = asyncio.get_running_loop()
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.setblocking(False)
     try:
         async with asyncio.timeout(timeout_s):
             try:
-                reader, writer = await asyncio.open_unix_connection(
-                    os.fspath(path), limit=MAX_LINE_BYTES
-                )
+                await loop.sock_connect(sock, os.fspath(path))
             except FileNotFoundError:
                 # How to start it depends on the install: the command line adds the hint.
                 raise NotRunningError(f"is compd running? socket {path} not found") from None
@@ -335,16 +337,17 @@ async def request(path: Path, message: dict[str, Any], *, timeout_s: float = 5.0
                 raise ControlError(
                     f"permission denied on {path}: run as root or as a member of the socket's group"
                 ) from None
-            try:
-                writer.write(_encode(message))
-                await writer.drain()
-                line = await reader.readline()
-            finally:
-                writer.close()
+            # A busy server answers and closes before it reads the request: the write
+            # may fail, and the answer is still there to read (plain sockets keep it).
+            with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+                await loop.sock_sendall(sock, _encode(message))
+            line = await _read_line(loop, sock, path)
     except TimeoutError:
         raise ControlError(f"no reply from compd on {path} within {timeout_s:g} s") from None
     except OSError as exc:
         raise ControlError(f"cannot talk to compd on {path}: {exc.strerror or exc}") from exc
+    finally:
+        sock.close()
     if not line:
         raise ControlError(f"compd closed the connection on {path} without a reply")
     try:
@@ -354,6 +357,19 @@ async def request(path: Path, message: dict[str, Any], *, timeout_s: float = 5.0
     if not isinstance(reply, dict):
         raise ControlError(f"compd sent a reply that is not an object on {path}: {reply!r}")
     return reply
+
+
+async def _read_line(loop: asyncio.AbstractEventLoop, sock: socket.socket, path: Path) -> bytes:
+    """One reply line (empty if the server closed first), at most :data:`MAX_LINE_BYTES`."""
+    data = bytearray()
+    while b"\n" not in data:
+        chunk = await loop.sock_recv(sock, 1 << 16)
+        if not chunk:
+            return bytes(data)
+        data += chunk
+        if len(data) > MAX_LINE_BYTES:
+            raise ControlError(f"compd sent a reply longer than {MAX_LINE_BYTES} bytes on {path}")
+    return bytes(data[: data.index(b"\n") + 1])
 
 
 def request_sync(path: Path, message: dict[str, Any], *, timeout_s: float = 5.0) -> dict[str, Any]:
