@@ -345,6 +345,8 @@ class Service:
             # The model that runs (or is about to) again: nothing to check, install or blend.
             if slot is not None and slot.sha256 == sha256:
                 log.info(f"model load: {state.replace('_', ' ')}", name=slot.compiled.name)
+                if comp.pending is None:  # the running model, with no switch under way
+                    await self.loader.keep(slot)
                 return {
                     "model": slot.compiled.name,
                     "sha256": sha256,
