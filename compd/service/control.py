@@ -38,13 +38,13 @@ import struct
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
-import structlog
+from typing import TYPE_CHECKING, Any
 
 from compd.errors import CompdError, ControlError, NotRunningError
 from compd.faultlog import FaultLog
-from compd.service.peers import FdBudget, Listener
+
+if TYPE_CHECKING:  # the server's only: `compd status` imports the client, and no structlog
+    from compd.service.peers import FdBudget, Listener
 
 log = logging.getLogger(__name__)
 
@@ -142,7 +142,7 @@ class ControlServer:
         self._inode: tuple[int, int] | None = None
         #: The connections being served, and the peer of each.
         self._connections: dict[asyncio.Task[None], Peer | None] = {}
-        self._busy = FaultLog(structlog.get_logger(__name__), level="warning")
+        self._busy = FaultLog(_structlog(), level="warning")
 
     async def start(self) -> None:
         """Bind the socket (replacing a stale one), set its mode, and accept connections.
@@ -165,6 +165,8 @@ class ControlServer:
             sock.close()
             raise ControlError(f"cannot listen on {self.path}: {exc.strerror or exc}") from exc
         self._inode = (info.st_dev, info.st_ino)
+        from compd.service.peers import FdBudget, Listener
+
         # One slot beyond the most served: a client over the limit is accepted, told
         # "busy" and closed at once, instead of waiting unanswered in the queue.
         cap = (self.budget or FdBudget()).take(self.max_connections + 1, "control socket")
@@ -431,6 +433,12 @@ async def _send(writer: asyncio.StreamWriter, reply: dict[str, Any]) -> None:
         data = _encode(_refusal(f"internal error: the reply cannot be sent as JSON ({exc})"))
     writer.write(data)
     await writer.drain()
+
+
+def _structlog() -> Any:
+    import structlog  # the server's: the command line's client needs none
+
+    return structlog.get_logger(__name__)
 
 
 def _refusal(error: str) -> dict[str, Any]:

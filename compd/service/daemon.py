@@ -36,10 +36,10 @@ from compd.service.clock import Clock
 from compd.service.compensator import Compensator, TickRecord
 from compd.service.config import Config
 from compd.service.control import ControlServer
-from compd.service.peers import FdBudget
 from compd.service.identity import identity, recording_metadata, systemd_summary
 from compd.service.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.notify import SystemdNotifier
+from compd.service.peers import FdBudget
 from compd.service.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
 from compd.service.safety import HEARTBEAT_MODULO
 from compd.service.state import SavedState, resumable_state, save_state

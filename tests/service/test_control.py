@@ -308,7 +308,7 @@ def test_the_server_reads_the_peers_credentials(sock_path):
 
 
 def test_one_status_only_user_holds_at_most_max_per_peer_connections(sock_path):
-    """A user who may not load holds at most 4 connections (max_per_peer); the next is told so, a freed one serves again."""
+    """A user who may not load holds at most 4 connections; the next is told so, a freed one serves again."""
     me, other = os.getuid(), os.getuid() + 12345
     access = {"model.load": Access(frozenset({other}))}
 
