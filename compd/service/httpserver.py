@@ -22,7 +22,8 @@ No client can starve the daemon (:mod:`compd.service.peers`): at most
 ``http.max_connections`` are open at once (fewer where the open-files limit
 is low), the rest wait in the kernel's queue, and a connection with no
 request under way for ``http.idle_timeout_s`` (one sending its headers
-slowly, or idle between requests) is closed.
+slowly, or idle between requests) is closed, as is one that leaves an
+answer unread that long.
 """
 
 from __future__ import annotations
@@ -147,6 +148,11 @@ class StatusServer:
         return int(self._listener.sock.getsockname()[1])
 
     @property
+    def connections(self) -> int:
+        """The clients connected now (at most the cap; others wait in the kernel's queue)."""
+        return 0 if self._listener is None else self._listener.open
+
+    @property
     def url(self) -> str:
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"http://{host}:{self.port}/"
@@ -175,7 +181,8 @@ class StatusServer:
         budget = self.budget or FdBudget()
         cap = budget.take(self.max_connections, "http")
         assert runner.server is not None
-        self._listener = Listener(sock, cap, serve_protocol(runner.server), name="http")
+        admit = serve_protocol(runner.server, stall_timeout_s=self.idle_timeout_s)
+        self._listener = Listener(sock, cap, admit, name="http")
         self._listener.start()
         self._runner = runner
         log.info(

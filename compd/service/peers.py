@@ -29,6 +29,7 @@ import errno
 import os
 import resource
 import socket
+import struct
 from collections.abc import Callable
 
 import structlog
@@ -172,13 +173,24 @@ class Listener:
 
 
 class Counted(asyncio.Protocol):
-    """``inner``, a connection's protocol, that calls ``release`` when the connection is lost."""
+    """``inner``, a connection's protocol, that gives its slot back when the connection is lost.
 
-    def __init__(self, inner: asyncio.Protocol, release: Callable[[], None]) -> None:
+    It also cuts a client that stops reading: answers wait for a client whose
+    buffers are full (flow control pauses the writer), and one that keeps
+    them full for ``stall_timeout_s`` is aborted instead of holding its slot.
+    """
+
+    def __init__(
+        self, inner: asyncio.Protocol, release: Callable[[], None], stall_timeout_s: float
+    ) -> None:
         self.inner = inner
         self.release = release
+        self.stall_timeout_s = stall_timeout_s
+        self._transport: asyncio.BaseTransport | None = None
+        self._stalled: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self._transport = transport
         self.inner.connection_made(transport)
 
     def data_received(self, data: bytes) -> None:
@@ -188,24 +200,45 @@ class Counted(asyncio.Protocol):
         return self.inner.eof_received()
 
     def pause_writing(self) -> None:
+        if self._transport is not None and self._stalled is None:
+            loop = asyncio.get_running_loop()
+            self._stalled = loop.call_later(self.stall_timeout_s, self._cut)
         self.inner.pause_writing()
 
+    def _cut(self) -> None:
+        """Abort a stalled connection with a reset: the kernel drops what it still holds for it."""
+        transport = self._transport
+        assert transport is not None
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        getattr(transport, "abort", transport.close)()
+
     def resume_writing(self) -> None:
+        if self._stalled is not None:
+            self._stalled.cancel()
+            self._stalled = None
         self.inner.resume_writing()
 
     def connection_lost(self, exc: Exception | None) -> None:
+        if self._stalled is not None:
+            self._stalled.cancel()
         try:
             self.inner.connection_lost(exc)
         finally:
             self.release()
 
 
-def serve_protocol(factory: Callable[[], asyncio.Protocol]) -> Admit:
-    """An :data:`Admit` that serves each connection with a new ``factory()`` protocol."""
+def serve_protocol(factory: Callable[[], asyncio.Protocol], *, stall_timeout_s: float) -> Admit:
+    """An :data:`Admit` that serves each connection with a new ``factory()`` protocol.
+
+    ``stall_timeout_s``: the longest a client may leave an answer unread (:class:`Counted`).
+    """
 
     def admit(conn: socket.socket, release: Callable[[], None]) -> None:
         loop = asyncio.get_running_loop()
-        protocol = Counted(factory(), release)
+        protocol = Counted(factory(), release, stall_timeout_s)
         task = loop.create_task(loop.connect_accepted_socket(lambda: protocol, conn))
 
         def settled(task: asyncio.Task[object]) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import resource
@@ -17,6 +18,7 @@ from pathlib import Path
 from compd.cli import main
 
 from .daemon_setup import short_socket, write_config
+from .httprun import http_config, running_compd
 
 #: The daemon's open-files limit (soft and hard): far below systemd's 1024, so a few
 #: hundred connections exhaust it, as 1,100 exhaust 1024.
@@ -26,6 +28,7 @@ ATTACKERS = FD_LIMIT + 72
 #: A guard against a hang, not a timing: generous for a busy CI machine.
 HANG_S = 120.0
 RUN = [sys.executable, "-m", "compd.cli", "run", "--config"]
+ESTABLISHED = 1  # TCP_ESTABLISHED, linux/tcp_states.h
 HALF_REQUEST = b"GET /status.json HTTP/1.1\r\nHost: compd\r\n"  # no blank line: never complete
 
 
@@ -132,3 +135,114 @@ def test_half_sent_http_requests_never_take_the_descriptors_the_daemon_needs(
     assert not [e for e in events if e["event"].startswith("cannot save state")]
     capped = [e for e in events if e["event"].startswith("too many connections")]
     assert [e["listener"] for e in capped] == ["http"], capped
+
+
+def tcp_state(client: socket.socket) -> int:
+    """The kernel's TCP state of ``client`` (``tcp_info.tcpi_state``: 1 established, 7 closed)."""
+    return client.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 8)[0]
+
+
+def test_a_client_that_never_reads_its_answers_is_cut(tmp_path: Path) -> None:
+    """Pipelined requests whose answers are never read hold their connection only idle_timeout_s, not for ever."""
+    with running_compd(http_config(tmp_path, idle_timeout_s=1), hold_at=5) as run:
+        port = int(run.url.rsplit(":", 1)[1].rstrip("/"))
+        client = socket.socket()
+        client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        client.connect(("127.0.0.1", port))
+        client.setblocking(False)
+        try:
+            requests = b"GET /page.js HTTP/1.1\r\nHost: compd\r\n\r\n" * 2000  # ~16 MB of answers
+            with contextlib.suppress(BlockingIOError):
+                client.send(requests)
+            deadline = time.monotonic() + HANG_S
+            while tcp_state(client) == ESTABLISHED and time.monotonic() < deadline:
+                time.sleep(0.1)
+            assert tcp_state(client) != ESTABLISHED, "the server still holds the connection"
+            assert run.service is not None and run.service.http is not None
+            assert run.service.http.connections == 0
+            assert run.get("/status.json")[0] == 200
+        finally:
+            client.close()
+
+
+#: A control socket in a process whose descriptors something else used up, then gave back.
+STARVED_SERVER = """
+import asyncio, concurrent.futures.thread, logging, os, resource, sys
+from pathlib import Path
+import structlog
+from compd.service.control import ControlServer
+
+structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.INFO))
+resource.setrlimit(resource.RLIMIT_NOFILE, (128, 128))
+
+async def status(message):
+    return {"state": "up"}
+
+async def main():
+    async with ControlServer(Path(sys.argv[1]), {"status": status}):
+        hog = []
+        try:
+            while True:
+                hog.append(open(os.devnull))
+        except OSError:
+            pass
+        print("full", flush=True)
+        await asyncio.to_thread(sys.stdin.readline)
+        for file in hog:
+            file.close()
+        await asyncio.to_thread(sys.stdin.readline)
+
+asyncio.run(main())
+"""
+
+
+def read_until(process: subprocess.Popen[str], word: str) -> list[str]:
+    """``process``'s output lines up to the first that holds ``word``."""
+    lines: list[str] = []
+    assert process.stdout is not None
+    while not lines or word not in lines[-1]:
+        ready, _, _ = select.select([process.stdout], [], [], HANG_S)
+        assert ready, f"no {word!r} in {lines}"
+        line = process.stdout.readline()
+        assert line, f"the server ended before {word!r}: {lines}"
+        lines.append(line)
+    return lines
+
+
+def test_running_out_of_descriptors_is_logged_once_and_the_clients_are_served_after() -> None:
+    """With every descriptor taken, clients wait in the queue, one line says so; once freed they are answered."""
+    path = short_socket()
+    server = subprocess.Popen(
+        [sys.executable, "-c", STARVED_SERVER, str(path)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    assert server.stdin is not None
+    clients = []
+    try:
+        read_until(server, "full")
+        for _ in range(3):
+            client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            client.connect(str(path))
+            client.sendall(b'{"cmd": "status"}\n')
+            clients.append(client)
+        starved = read_until(server, "accept")
+        server.stdin.write("free\n")
+        server.stdin.flush()
+        for client in clients:
+            client.settimeout(HANG_S)
+            assert json.loads(client.makefile().readline()) == {"ok": True, "state": "up"}
+        server.stdin.write("stop\n")
+        server.stdin.flush()
+        rest, _ = server.communicate(timeout=HANG_S)
+    finally:
+        for client in clients:
+            client.close()
+        server.kill()
+        server.wait()
+    assert "cannot accept a connection" in starved[-1], starved
+    output = "".join(starved) + rest
+    assert "Traceback" not in output, output
+    assert output.count("cannot accept a connection") == 1, output
