@@ -7,6 +7,7 @@ import json
 import os
 import resource
 import select
+import selectors
 import signal
 import socket
 import subprocess
@@ -67,31 +68,33 @@ def half_sent_requests(port: int, count: int) -> list[socket.socket]:
         client.setblocking(False)
         client.connect_ex(("127.0.0.1", port))
         clients.append(client)
-    pending = list(clients)
-    deadline = time.monotonic() + HANG_S
-    while pending and time.monotonic() < deadline:
-        _, writable, _ = select.select([], pending, [], 1.0)
-        for client in writable:
-            client.send(HALF_REQUEST)
-            pending.remove(client)
-    assert not pending, f"{len(pending)} connections never completed the handshake"
+    with selectors.DefaultSelector() as pending:  # poll(): select() stops at fd 1024
+        for client in clients:
+            pending.register(client, selectors.EVENT_WRITE)
+        deadline = time.monotonic() + HANG_S
+        while pending.get_map() and time.monotonic() < deadline:
+            for key, _ in pending.select(1.0):
+                key.fileobj.send(HALF_REQUEST)  # type: ignore[union-attr]
+                pending.unregister(key.fileobj)
+        assert not pending.get_map(), f"{len(pending.get_map())} never completed the handshake"
     return clients
 
 
 def wait_closed_by_server(clients: list[socket.socket]) -> None:
     """Until the server has closed every one of ``clients`` (end of stream or reset)."""
-    open_ = list(clients)
-    deadline = time.monotonic() + HANG_S
-    while open_ and time.monotonic() < deadline:
-        readable, _, _ = select.select(open_, [], [], 1.0)
-        for client in readable:
-            try:
-                data = client.recv(4096)
-            except ConnectionError:
-                data = b""
-            assert data == b"", f"a half-sent request was answered: {data[:100]!r}"
-            open_.remove(client)
-    assert not open_, f"{len(open_)} slow clients were never disconnected"
+    with selectors.DefaultSelector() as open_:
+        for client in clients:
+            open_.register(client, selectors.EVENT_READ)
+        deadline = time.monotonic() + HANG_S
+        while open_.get_map() and time.monotonic() < deadline:
+            for key, _ in open_.select(1.0):
+                try:
+                    data = key.fileobj.recv(4096)  # type: ignore[union-attr]
+                except ConnectionError:
+                    data = b""
+                assert data == b"", f"a half-sent request was answered: {data[:100]!r}"
+                open_.unregister(key.fileobj)
+        assert not open_.get_map(), f"{len(open_.get_map())} slow clients were never disconnected"
 
 
 def test_half_sent_http_requests_never_take_the_descriptors_the_daemon_needs(
