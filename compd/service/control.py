@@ -34,14 +34,13 @@ import math
 import os
 import socket
 import stat
-import struct
 from collections.abc import Awaitable, Callable, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from compd.errors import CompdError, ControlError, NotRunningError
 from compd.faultlog import FaultLog
+from compd.service.admission import Access, Admission, Peer, peer_of
 
 if TYPE_CHECKING:  # the server's only: `compd status` imports the client, and no structlog
     from compd.service.peers import FdBudget, Listener
@@ -61,43 +60,6 @@ BACKLOG = 64  # clients the kernel queues while the server is judging others
 
 Handler = Callable[[dict[str, Any]], Awaitable[dict[str, Any]]]
 """A command: takes the request object, returns the reply's fields (``ok`` is added)."""
-
-
-@dataclass(frozen=True)
-class Peer:
-    """The process at the other end of a connection, as the kernel saw it connect."""
-
-    pid: int
-    uid: int
-    gid: int
-
-
-@dataclass(frozen=True)
-class Access:
-    """Who may run a command: a peer whose uid is in ``uids`` or whose (primary) gid is in ``gids``."""
-
-    uids: frozenset[int]
-    gids: frozenset[int] = frozenset()
-
-    def allows(self, peer: Peer | None) -> bool:
-        return peer is not None and (peer.uid in self.uids or peer.gid in self.gids)
-
-
-def peer_of(writer: asyncio.StreamWriter) -> Peer | None:
-    """The connected process's credentials (``SO_PEERCRED``), or None where the OS has none."""
-    return peer_of_socket(writer.get_extra_info("socket"))
-
-
-def peer_of_socket(sock: Any) -> Peer | None:
-    """:func:`peer_of` for a connected unix socket."""
-    option = getattr(socket, "SO_PEERCRED", None)
-    if sock is None or option is None:
-        return None
-    try:
-        raw = sock.getsockopt(socket.SOL_SOCKET, option, struct.calcsize("3i"))
-    except OSError:
-        return None
-    return Peer(*struct.unpack("3i", raw))
 
 
 class ControlServer:
@@ -133,9 +95,8 @@ class ControlServer:
         self.handlers = dict(handlers)
         self.access = dict(access or {})
         self.mode = mode
-        self.max_connections = max_connections
-        self.max_per_peer = max_per_peer
-        self.reserved = reserved
+        #: Who is served, turned away, kept room for (:mod:`compd.service.admission`).
+        self.admission = Admission(max_connections, max_per_peer, reserved, self.access)
         self.idle_timeout_s = idle_timeout_s
         self.budget = budget
         self._listener: Listener | None = None
@@ -169,9 +130,10 @@ class ControlServer:
 
         # One slot beyond the most served: a client over the limit is accepted, told
         # "busy" and closed at once, instead of waiting unanswered in the queue.
-        cap = (self.budget or FdBudget()).take(self.max_connections + 1, "control socket")
-        self.max_connections = max(1, cap - 1)
-        self._listener = Listener(sock, self.max_connections + 1, self._admit, name="control")
+        admission = self.admission
+        cap = (self.budget or FdBudget()).take(admission.max_connections + 1, "control socket")
+        admission.max_connections = max(1, cap - 1)
+        self._listener = Listener(sock, admission.max_connections + 1, self._admit, name="control")
         self._listener.start()
         log.info("control socket listening on %s", self.path)
 
@@ -197,38 +159,10 @@ class ControlServer:
     async def __aexit__(self, *exc_info: object) -> None:
         await self.close()
 
-    def _privileged(self, peer: Peer | None) -> bool:
-        """Whether ``peer`` may run a guarded command (one given an :class:`Access`)."""
-        return any(access.allows(peer) for access in self.access.values())
-
-    def _turned_away(self, peer: Peer | None) -> str | None:
-        """Why a new connection from ``peer`` is refused, or None if it is served."""
-        if len(self._connections) >= self.max_connections:
-            return f"busy: {self.max_connections} clients connected"
-        if self._privileged(peer):
-            return None
-        others = [p for p in self._connections.values() if not self._privileged(p)]
-        # Kept for the allowed peers (none to keep where no command is guarded).
-        kept = min(self.reserved, self.max_connections - 1) if self.access else 0
-        if len(others) >= self.max_connections - kept:
-            commands = ", ".join(sorted(self.access))
-            return (
-                f"busy: {len(others)} clients connected; the other {kept} connections are "
-                f"kept for the users who may run {commands}"
-            )
-        uid = None if peer is None else peer.uid
-        mine = sum(1 for p in others if (None if p is None else p.uid) == uid)
-        if mine >= self.max_per_peer:
-            return (
-                f"busy: {'this user' if uid is None else f'uid {uid}'} already has {mine} "
-                f"connections, the most one user may hold; close one first"
-            )
-        return None
-
     def _admit(self, conn: socket.socket, release: Callable[[], None]) -> None:
         """Serve the accepted ``conn`` (the :class:`Listener`'s), or tell it why not and close it."""
-        peer = peer_of_socket(conn)
-        refusal = self._turned_away(peer)
+        peer = peer_of(conn)
+        refusal = self.admission.turned_away(peer, self._connections.values())
         if refusal is None:
             task = asyncio.get_running_loop().create_task(self._serve(conn, peer, release))
             self._connections[task] = peer

@@ -20,7 +20,8 @@ from typing import Any
 import pytest
 
 from compd.errors import ControlError, ModelFileError
-from compd.service.control import MAX_LINE_BYTES, Access, ControlServer, Peer, request, request_sync
+from compd.service.admission import Access, Peer
+from compd.service.control import MAX_LINE_BYTES, ControlServer, request, request_sync
 
 
 @pytest.fixture
