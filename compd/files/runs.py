@@ -50,16 +50,8 @@ from typing import Literal
 
 import numpy as np
 
+from compd.files.columns import MACHINE_ID, RUN_FILE, RUN_ID, RUN_PREVIOUS, RUN_REASON
 from compd.files.data import DataSet
-
-RUN_ID = "run_id"
-RUN_FILE = "run_file"
-RUN_PREVIOUS = "run_previous"
-RUN_REASON = "run_reason"
-RUN_GAP_S = "run_gap_s"
-MACHINE_ID = "machine_id"
-#: ``unit.<column>``: the column's unit, as the config's signal names it.
-UNIT_PREFIX = "unit."
 
 #: How the files of several become experiments: each its own, a recorded run's joined, or
 #: every file that continues the one before it in time.
@@ -94,6 +86,8 @@ def join_runs(
     for data in _in_run_order(experiments):
         target = _predecessor_chain(chains, data, how)
         if target is None:
+            if chains and RUN_ID in data.metadata and _file_number(data) == 1:
+                notes.append(f"{data.path} starts another run (compd was started again)")
             chains.append([data])
             continue
         link = continues(target[-1], data, how=how, max_gap_s=max_gap_s)
@@ -112,7 +106,7 @@ def continues(before: DataSet, data: DataSet, *, how: Joining, max_gap_s: float)
         return Link(0, f"another machine ({_machine(before)} and {_machine(data)})")
     if how == "per-run":
         if data.metadata.get(RUN_ID) != before.metadata.get(RUN_ID):
-            return Link(0, "another run (the daemon restarted)")
+            return Link(0, "another run (compd was started again)")
         if (
             data.metadata.get(RUN_PREVIOUS) != Path(before.path).name
             or _file_number(data) != _file_number(before) + 1
@@ -135,11 +129,11 @@ def continues(before: DataSet, data: DataSet, *, how: Joining, max_gap_s: float)
     if abs(steps - whole) > GRID_TOLERANCE:
         return Link(0, f"its samples are off the previous file's {before.sample_time_s:g} s grid")
     missing = whole - 1
-    if missing * before.sample_time_s > max_gap_s:
+    if missing * before.sample_time_s > max_gap_s:  # the loader's rule for a gap in a file
         return Link(
             missing,
-            f"a gap of {_duration(gap_s)}, longer than --max-gap-s {max_gap_s:g} "
-            "(give a larger --max-gap-s to interpolate it)",
+            f"a gap of {_duration(missing * before.sample_time_s)} ({missing} missing samples), "
+            f"longer than --max-gap-s {max_gap_s:g} (give a larger one to interpolate it)",
         )
     return Link(missing, None)
 
@@ -198,7 +192,9 @@ def summary(experiments: Sequence[DataSet], how: Joining) -> str:
         hours = ", ".join(map(_duration, lengths))
     else:
         hours = f"{_duration(min(lengths))} to {_duration(max(lengths))}"
-    what = "run" if how == "per-run" else "experiment"
+    runs = {d.metadata.get(RUN_ID) for d in experiments}
+    whole_runs = how == "per-run" and None not in runs and len(runs) == len(experiments)
+    what = "run" if whole_runs else "experiment"
     counted = f"{len(experiments)} {what}{'s' if len(experiments) != 1 else ''}"
     text = f"{files} files, {counted} of {hours}{source}"
     if how == "per-file":
@@ -260,16 +256,4 @@ def _duration(seconds: float) -> str:
     return f"{seconds:g} s"
 
 
-__all__ = [
-    "JOININGS",
-    "MACHINE_ID",
-    "RUN_FILE",
-    "RUN_GAP_S",
-    "RUN_ID",
-    "RUN_PREVIOUS",
-    "RUN_REASON",
-    "UNIT_PREFIX",
-    "Joining",
-    "join",
-    "join_runs",
-]
+__all__ = ["JOININGS", "Joining", "join", "join_runs", "summary"]

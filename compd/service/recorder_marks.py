@@ -15,7 +15,7 @@ import uuid
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from compd.files.runs import RUN_FILE, RUN_GAP_S, RUN_ID, RUN_PREVIOUS, RUN_REASON, UNIT_PREFIX
+from compd.files.columns import RUN_FILE, RUN_GAP_S, RUN_ID, RUN_PREVIOUS, RUN_REASON, UNIT_PREFIX
 
 #: A column's unit, or None to say nothing about it.
 Units = Callable[[str], str | None]
