@@ -197,9 +197,11 @@ def refuse_with_several(experiments: list[DataSet], options: dict[str, object]) 
         if value:
             raise DataFileError(
                 ", ".join(d.path for d in experiments),
-                f"{option} works on one record, and {len(experiments)} data files were given",
+                f"{option} works on one record, and the data make {len(experiments)} experiments "
+                "(separate files or runs; a note says which)",
                 where=option,
-                fix=f"Give one data file with {option}, or leave {option} out",
+                fix=f"Give one data file (or one recorded run's files) with {option}, or leave "
+                f"{option} out",
             )
 
 

@@ -64,9 +64,8 @@ def register(commands: Any) -> None:
         type=Path,
         nargs="+",
         metavar="DATA",
-        help="data files or folders; a recorded run's files are one record, others separate "
-        "experiments, the model run from its initial state at each one's start (an 'experiment' "
-        "column numbers them)",
+        help="data files or folders; several are separate experiments, the model run from its "
+        "initial state at each file's start (an 'experiment' column numbers them)",
     )
     sim.add_argument("--out", type=Path, required=True, metavar="PRED.csv")
     data_options(sim)
