@@ -55,7 +55,7 @@ from typing import Self
 
 from compd.errors import RecorderError
 from compd.files.columns import TIME_NAMES
-from compd.service.recorder_marks import RunMarks, tidy
+from compd.service.recorder_marks import RunMarks
 
 log = logging.getLogger(__name__)
 
@@ -195,9 +195,10 @@ class Recorder(RecordingFiles):
         """Append one row, stamped ``at_s`` (s since the epoch, default the clock's now).
 
         Cells are written as ``str(value)``, floats to 15 significant digits
-        (:func:`~compd.service.recorder_marks.tidy`), bools as 1/0, NaN as
-        ``nan`` (a gap to :func:`~compd.files.data.load_data`), text quoted
-        when it holds a comma, quote or newline. Raises
+        (``%.15g``: ``21.15``, ``20``; :func:`~compd.service.recorder_marks.tidy`
+        says why), bools as 1/0, NaN as ``nan`` (a gap to
+        :func:`~compd.files.data.load_data`), text quoted when it holds a comma,
+        quote or newline. Raises
         :class:`~compd.errors.RecorderError` when the files cannot be written.
         """
         now_s = self._clock() if at_s is None else at_s
@@ -408,7 +409,8 @@ def _write_all(fd: int, data: bytes) -> None:
 def _cell(value: Cell) -> str:
     if value is True or value is False:
         return "1" if value else "0"
-    text = repr(tidy(value)) if isinstance(value, float) else str(value)
+    # 15 digits (recorder_marks.tidy says why); "%" is the quickest; + 0.0 turns -0.0 into 0.0.
+    text = "%.15g" % (value + 0.0) if isinstance(value, float) else str(value)
     if isinstance(value, str) and _QUOTED.search(text):
         return '"' + text.replace('"', '""') + '"'
     return text

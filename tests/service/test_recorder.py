@@ -63,7 +63,7 @@ def test_a_recording_loads_with_load_data(tmp_path):
     assert path.name == "compd-20261123T101500Z.csv"
     assert body(path)[:2] == [
         "timestamp,T_spindle_degC,speed_rpm,offset_z_um",
-        "2026-11-23T10:15:00.000+00:00,20.0,0,-1.5",
+        "2026-11-23T10:15:00.000+00:00,20,0,-1.5",
     ]
     data = load_data(path)
     assert data.sample_time_s == 1.0 and len(data) == 10

@@ -58,7 +58,7 @@ def test_a_new_recorder_is_a_new_run(tmp_path: Path) -> None:
 
 
 def test_numbers_are_written_without_binary_noise(tmp_path: Path) -> None:
-    """2115 counts x 0.01 is written 21.15, not 21.150000000000002; -0.0 as 0.0; whole numbers as they are."""
+    """2115 counts x 0.01 is written 21.15, not 21.150000000000002; -0.0 as 0."""
     with Recorder(tmp_path, **LIMITS) as rec:  # type: ignore[arg-type]
         for k in range(2):
             rec.record(
@@ -66,7 +66,7 @@ def test_numbers_are_written_without_binary_noise(tmp_path: Path) -> None:
             )
     (path,) = tmp_path.iterdir()
     row = path.read_text().splitlines()[-1]
-    assert row == "2026-11-23T10:15:01.000+00:00,21.15,0.0,0.3,3"
+    assert row == "2026-11-23T10:15:01.000+00:00,21.15,0,0.3,3"
 
 
 def test_parquet_stores_whole_numbers_as_integers_and_each_columns_unit(tmp_path: Path) -> None:
