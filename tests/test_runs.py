@@ -128,6 +128,7 @@ def test_files_without_run_marks_stay_one_experiment_each_unless_contiguous(
     frame.iloc[60:].to_csv(tmp_path / "b.csv", index=False)
     experiments = load_experiments([tmp_path])
     assert [len(e) for e in experiments] == [60, 60]
+    assert "1 file(s) without run marks continue the file before them" in experiments[0].notes[-2]
     assert "--experiments contiguous joins" in experiments[0].notes[-1]
     assert [len(e) for e in load_experiments([tmp_path], joining="contiguous")] == [120]
 

@@ -83,11 +83,15 @@ def join_runs(
     if how == "per-file" or len(experiments) < 2:
         return list(experiments), [summary(list(experiments), how)] if len(experiments) > 1 else []
     chains: list[list[DataSet]] = []
+    unmarked = 0  # files without run marks that continue the file before them in time
     for data in _in_run_order(experiments):
         target = _predecessor_chain(chains, data, how)
         if target is None:
             if chains and RUN_ID in data.metadata and _file_number(data) == 1:
                 notes.append(f"{data.path} starts another run (compd was started again)")
+            elif chains and RUN_ID not in data.metadata and RUN_ID not in chains[-1][-1].metadata:
+                link = continues(chains[-1][-1], data, how="contiguous", max_gap_s=max_gap_s)
+                unmarked += link.why is None
             chains.append([data])
             continue
         link = continues(target[-1], data, how=how, max_gap_s=max_gap_s)
@@ -96,6 +100,11 @@ def join_runs(
         else:
             notes.append(f"{data.path} does not continue {Path(target[-1].path).name}: {link.why}")
             chains.append([data])
+    if unmarked:  # an older recording's rotated files, most likely: say so, join only when asked
+        notes.append(
+            f"{unmarked} file(s) without run marks continue the file before them in time, as "
+            "one run's files would; --experiments contiguous joins them into one record"
+        )
     joined = [join(chain, max_gap_s=max_gap_s) for chain in chains]
     return joined, [*notes, summary(joined, how)]
 
