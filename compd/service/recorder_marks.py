@@ -15,6 +15,9 @@ import uuid
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+import numpy as np
+import numpy.typing as npt
+
 from compd.files.columns import RUN_FILE, RUN_GAP_S, RUN_ID, RUN_PREVIOUS, RUN_REASON, UNIT_PREFIX
 
 #: A column's unit, or None to say nothing about it.
@@ -86,3 +89,25 @@ def tidy(value: float) -> float:
     if not math.isfinite(value):
         return value  # nan (a gap to the loader), inf, -inf
     return float(f"{value:.15g}") + 0.0  # + 0.0: -0.0 becomes 0.0
+
+
+#: Where :func:`tidy_array` rounds: 10**k is exact for k <= 22, so |x| >= 1e-8 with 15 digits;
+#: at 1e15 and above a double holds no fraction worth tidying.
+_TIDY_RANGE = (1e-8, 1e15)
+
+
+def tidy_array(values: npt.ArrayLike) -> np.ndarray:
+    """:func:`tidy` for a column of values at once, as quick as numpy (the Parquet recorder's rows).
+
+    ``round(x * 10**k) / 10**k`` with ``k = 14 - floor(log10 |x|)``: an
+    integer below 2**53 divided by an exact power of ten is the double
+    nearest a decimal of 15 significant digits, so it prints short (21.15).
+    Where ``x`` lies half-way between two such decimals the product's
+    rounding may pick the other one: a change in the 15th digit. Values
+    outside :data:`_TIDY_RANGE` are kept as they are, NaN too.
+    """
+    x = np.asarray(values, dtype=float)
+    size = np.abs(x)
+    inside = (size >= _TIDY_RANGE[0]) & (size < _TIDY_RANGE[1])  # False for NaN and inf
+    scale = 10.0 ** (14 - np.floor(np.log10(np.where(inside, size, 1.0))))
+    return np.where(inside, np.round(x * scale) / scale, x) + 0.0
