@@ -154,8 +154,8 @@ def two_runs(tmp_path: Path) -> Path:
     return folder
 
 
-def test_commands_say_what_they_joined_and_take_the_override(two_runs: Path) -> None:
-    """simulate over a folder of two runs: two experiments; per-file: four; the notes say so."""
+def test_commands_join_runs_and_take_the_override(two_runs: Path) -> None:
+    """simulate over a folder of two runs of two files each: two experiments; per-file: four."""
     model = two_runs.parent / "m.yaml"
     compd("fit", "--data", two_runs, "--output", "disp_um", "--inputs", "T_degC",
           "--method", "mlr", "--out", model)  # fmt: skip

@@ -11,6 +11,8 @@ same rows in one file.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
@@ -19,6 +21,7 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 
+from compd.cli import main
 from compd.files.yamlplace import resolve_path
 from tests.clirun import compd
 
@@ -78,3 +81,13 @@ def test_the_recorded_files_carry_integers_and_units(day: Path) -> None:
     metadata = {k.decode(): v.decode() for k, v in (schema.metadata or {}).items()}
     assert metadata["unit.T_spindle_degC"] == "degC" and metadata["unit.disp_z_um"] == "um"
     assert metadata["machine_id"] == "mill-a" and metadata["run_reason"] == "start"
+
+
+def test_the_commands_say_what_they_joined(day: Path) -> None:
+    """A note says how many files made how many runs of how long, from which machine."""
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        code = main(["fit", "--data", str(day / "records"), "--output", "disp_z_um",
+                     "--inputs", INPUTS, "--method", "mlr", "--out", str(day / "mlr.yaml")])  # fmt: skip
+    assert code == 0, err.getvalue()
+    assert "note: 24 files, 1 run of 24.0 h from mill-a" in err.getvalue()
