@@ -61,7 +61,7 @@ log = logging.getLogger(__name__)
 
 TIME_COLUMN = "timestamp"
 PREFIX = "compd"
-#: A recording's name: its first row's UTC time, a sequence number within that second, the format.
+#: A recording's name: its machine (if named), its first row's UTC time, a number within that second, the format.
 NAME = re.compile(
     rf"^{PREFIX}-(?:(?P<machine>[A-Za-z0-9._-]+)-)?(?P<time>\d{{8}}T\d{{6}}Z)"
     r"(?:-(?P<number>\d+))?\.(?P<format>csv|parquet)$"
