@@ -47,8 +47,9 @@ def register(commands: Any) -> None:
         type=Path,
         nargs="+",
         metavar="DATA",
-        help="data files or folders; several are separate experiments, each diagnosed on its "
-        "own (the model run from its initial state at each file's start), then summed up",
+        help="data files or folders; a recorded run's files are one record, others separate "
+        "experiments, each diagnosed on its own (the model run from its initial state at each "
+        "one's start), then summed up",
     )
     diag.add_argument(
         "--output",

@@ -28,7 +28,13 @@ def register(commands: Any) -> None:
         help="identify a sub-model from an effect's signal to the residue and add it (seed 001 4.3)",
     )
     extend.add_argument("model", type=Path, metavar="MODEL.yaml")
-    extend.add_argument("data", type=Path, metavar="DATA.csv", help="a record with the effect")
+    extend.add_argument(
+        "data",
+        type=Path,
+        nargs="+",
+        metavar="DATA",
+        help="a record with the effect: a file, or the files (a folder) of one recorded run",
+    )
     extend.add_argument(
         "--effect", required=True, metavar="SIGNAL", help="the excitation: a column of DATA.csv"
     )
@@ -79,6 +85,8 @@ def _extend(args: argparse.Namespace) -> int:
     parent = load_model(args.model)
     data = load_data_from_args(args)
     span = span_from_args(args, data, min_samples=MIN_SAMPLES)
+    for note in data.notes:  # what was joined, repaired or left out
+        print(f"note: {note}", file=sys.stderr)
     verify_data = load_data_from_args(args, args.verify) if args.verify else None
     effect = load_catalogue(args.catalogue).effect_for(args.effect)
     command = (
@@ -175,7 +183,7 @@ def _extend(args: argparse.Namespace) -> int:
     )
     held = extension.held_out
     rows = [
-        (str(args.data), extension.fit_before, extension.fit_after),
+        (data.path, extension.fit_before, extension.fit_after),
         (f"held-out parts of it ({held.folds}; regularised)", held.before, held.after),
     ]
     if verified is not None:
