@@ -22,6 +22,7 @@ from compd.files.data import DataSet
 from compd.files.effects import EffectCatalogue, load_catalogue
 from compd.files.modelfile import load_model
 from compd.toolkit.analysis import DiagnosisResult, diagnose_evaluation
+from compd.toolkit.extendjudge import RULE, held_out_json
 from compd.toolkit.evaluate import evaluate, measured_columns
 from compd.toolkit.selection import select_columns
 from compd.toolkit.span import evaluate_span
@@ -178,6 +179,8 @@ def diagnosis_json(model_name: str, result: DiagnosisResult) -> dict[str, object
         "naive_bound": d.naive_bound,
         "missing_effect": None if found is None else found.signal,
         "verdict": result.verdict,
+        "rule": RULE,
+        "tied": list(result.tied),
         "notes": list(result.notes),
         "candidates": [
             {
@@ -194,6 +197,9 @@ def diagnosis_json(model_name: str, result: DiagnosisResult) -> dict[str, object
                 "xcorr_peak": c.xcorr_peak,
                 "xcorr_bound": json_clean(c.xcorr_bound),
                 "significant": c.significant,
+                "extended": None
+                if c.signal not in result.extended
+                else held_out_json(result.extended[c.signal]),
             }
             for c in d.candidates
         ],
@@ -208,6 +214,8 @@ def diagnosis_table(model_name: str, data_path: str, result: DiagnosisResult, to
         "effect",
         "explained %",
         "chance %",
+        "held-out fit % with it",
+        "error removed %",
         "time constant",
         "gain (um/unit)",
         "sign",
@@ -224,6 +232,8 @@ def diagnosis_table(model_name: str, data_path: str, result: DiagnosisResult, to
             result.effects[c.signal],
             fmt(c.explained_percent, 1),
             fmt(c.chance_percent, 1),
+            _extended_cell(result, c.signal),
+            _removed_cell(result, c.signal),
             " + ".join(_duration(t) for t in c.time_constants_s),
             f"{c.gain_um_per_unit:.4g}",
             "+" if c.sign > 0 else "-",
@@ -232,6 +242,19 @@ def diagnosis_table(model_name: str, data_path: str, result: DiagnosisResult, to
             "[green]yes[/green]" if c.significant else "no",
         )
     return table
+
+
+def _extended_cell(result: DiagnosisResult, signal: str) -> str:
+    held = result.extended.get(signal)
+    return "-" if held is None else f"{held.before:.1f} -> {held.after:.1f}"
+
+
+def _removed_cell(result: DiagnosisResult, signal: str) -> str:
+    held = result.extended.get(signal)
+    if held is None:
+        return "-"
+    mark = "" if held.accepted else " (refused)"
+    return f"{held.error_removed_percent:.0f} ({held.folds_improved}/{held.n_folds} folds){mark}"
 
 
 def _duration(seconds: float) -> str:
