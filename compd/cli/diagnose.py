@@ -107,7 +107,8 @@ def _diagnose(args: argparse.Namespace) -> int:
         f"(up to {d.whiteness_allowed} by chance): {'white' if d.residue_white else 'not white'}"
     )
     colour = "green" if d.missing_effect is not None else "yellow"
-    out.print(f"[bold {colour}]{result.verdict}[/bold {colour}]")
+    # One line however long (a terminal wraps it; a script reads it whole).
+    out.print(f"[bold {colour}]{result.verdict}[/bold {colour}]", soft_wrap=True)
     if not span.whole:
         out.print(span.describe("diagnosed"))
     return 0
@@ -151,7 +152,7 @@ def _diagnose_several(
         for note in (*evaluation.data.notes, *evaluation.notes, *result.notes):
             print(f"note: {evaluation.data.path}: {note}", file=sys.stderr)
         out.print(diagnosis_table(name, evaluation.data.path, result, args.top))
-        out.print(result.verdict)
+        out.print(result.verdict, soft_wrap=True)
     agreed = ", ".join(f"{signal} in {count}" for signal, count in found.most_common()) or "none"
     out.print(
         f"pooled over {len(results)} files: residue RMS {pooled_rms_um:.2f} um about its mean; "
