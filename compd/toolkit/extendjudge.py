@@ -30,6 +30,7 @@ from threadpoolctl import threadpool_limits
 
 from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile
+from compd.files.yamlplace import resolve_path
 from compd.model.crossval import Folds
 from compd.model.lagbank import LagBankFit, fit_lag_bank
 from compd.model.lagscore import fit_candidate, time_constant_bank
@@ -121,15 +122,18 @@ def same_record_extensions(parent: ModelFile, output: str, data: DataSet, signal
     """The parent's extensions of ``output`` fitted on ``data``'s file, other than on ``signal``.
 
     An extension on another record stays as it is: refitting it here would
-    lose what that record taught it.
+    lose what that record taught it. A recorded path is relative to the
+    model file's folder (:mod:`compd.files.provenancepaths`); an unsaved
+    model's, as the command named it.
     """
     here = _resolved(data.path)
+    folder = Path(parent.path).parent if parent.path and Path(parent.path).exists() else Path()
     present = {s.name: s for o in parent.model.outputs if o.name == output for s in o.submodels}
     signals: list[str] = []
     submodels: list[str] = []
     effects: dict[str, str] = {}
     for ext in parent.doc.provenance.extensions:
-        if _resolved(ext.data) != here:
+        if _resolved(ext.data) != here and _resolved(ext.data, folder) != here:
             continue
         for name in ext.submodels:
             sub = present.get(name)
@@ -293,9 +297,9 @@ def follow_percent(data: DataSet, leader: str, follower: str, first_sample: int 
     return float(fit.explained_percent)
 
 
-def _resolved(path: str) -> str:
+def _resolved(path: str, folder: Path | None = None) -> str:
     try:
-        return str(Path(path).resolve())
+        return str(resolve_path(path, folder or Path()).resolve())
     except OSError:  # an unreadable path is compared as written
         return path
 
