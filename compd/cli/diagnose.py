@@ -22,8 +22,8 @@ from compd.files.data import DataSet
 from compd.files.effects import EffectCatalogue, load_catalogue
 from compd.files.modelfile import load_model
 from compd.toolkit.analysis import DiagnosisResult, diagnose_evaluation
-from compd.toolkit.extendjudge import RULE, held_out_json
 from compd.toolkit.evaluate import evaluate, measured_columns
+from compd.toolkit.extendjudge import RULE, held_out_json
 from compd.toolkit.selection import select_columns
 from compd.toolkit.span import evaluate_span
 from compd.toolkit.summary import fmt, json_clean, json_text

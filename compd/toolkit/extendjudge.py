@@ -81,7 +81,9 @@ class HeldOut:
 
     @property
     def folds_improved(self) -> int:
-        return sum(a < b for a, b in zip(self.fold_rms_after_um, self.fold_rms_before_um, strict=True))
+        return sum(
+            a < b for a, b in zip(self.fold_rms_after_um, self.fold_rms_before_um, strict=True)
+        )
 
     @property
     def n_folds(self) -> int:
@@ -187,7 +189,11 @@ def judge_signal(
         )
         before = (
             fit_lag_bank(
-                residue, changes[:, :-1], sample_time_s=data.sample_time_s, folds=folds, fitted=fitted
+                residue,
+                changes[:, :-1],
+                sample_time_s=data.sample_time_s,
+                folds=folds,
+                fitted=fitted,
             ).cv_predicted_um
             if prior.signals
             else np.zeros_like(residue)
@@ -226,7 +232,7 @@ def tied(first: HeldOut, second: HeldOut) -> bool:
     diff = b - a  # > 0 where the first is better
     if 2 * int(np.sum(diff > 0)) <= diff.size:
         return True
-    spread = float(np.std(diff, ddof=1)) / np.sqrt(diff.size)
+    spread = float(np.std(diff, ddof=1)) / float(np.sqrt(diff.size))
     return float(np.mean(diff)) <= TIE_STANDARD_ERRORS * spread
 
 
