@@ -40,7 +40,9 @@ def register(commands: Any) -> None:
         description="Rank candidate signals by the share of the residue RMS that one or two "
         "first-order lags of each explain on held-out data (blocked cross-validation), against "
         "the share reached by chance (the signal shifted in time), with the residue/input "
-        "cross-correlation against its 99 % Bartlett bound as evidence.",
+        "cross-correlation against its 99 % Bartlett bound as evidence. The first three are "
+        "then ranked by the model's fit on held-out cycles with the extension each would make "
+        "(as compd extend judges it), and two within the noise of the folds are called a tie.",
     )
     diag.add_argument("model", type=Path, metavar="MODEL.yaml")
     diag.add_argument(

@@ -137,8 +137,13 @@ def _extend(args: argparse.Namespace) -> int:
         for sub, tf, tau in zip(extension.submodels, tfs, taus, strict=True)
     ]
     first = described[0]
-    static_gain = float(sum(tf.static_gain() for tf in tfs))  # the signal's, all lags together
-    time_constants = sorted({t for tau in taus for t in tau}, reverse=True)
+    own = [
+        (tf, tau)
+        for sub, tf, tau in zip(extension.submodels, tfs, taus, strict=True)
+        if sub.input.signal == signal
+    ]
+    static_gain = float(sum(tf.static_gain() for tf, _ in own))  # the signal's, all lags together
+    time_constants = sorted({t for _, tau in own for t in tau}, reverse=True)
     summary: dict[str, object] = {
         "model": str(args.model),
         "model_sha256": parent.sha256,
@@ -203,6 +208,11 @@ def _extend(args: argparse.Namespace) -> int:
     for name, before, after in rows:
         table.add_row(name, fmt(before, 1), fmt(after, 1), fmt(after - before, 1))
     out.print(table)
+    if args.method == "auto" and extension.identification.method == "lagbank":
+        out.print(
+            "the oe sub-model failed the guard rails: the regularised lag bank of the held-out "
+            "check was added instead"
+        )
     if extension.refitted:
         out.print(
             f"re-identified together with it: {', '.join(extension.refitted)} (extended on this "

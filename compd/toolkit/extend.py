@@ -140,7 +140,9 @@ def extend_model(
                 progress=progress,
                 first_sample=first,
             )
-        return found, _submodels(found, effects, taken, data, parent)
+        made = _submodels(found, effects, taken, data, parent)
+        # The new signal's sub-models first, then those refitted with it.
+        return found, tuple(sorted(made, key=lambda sub: sub.input.signal != signal))
 
     identification, submodels = submodels_by("oe" if method == "auto" else method)
     if method == "auto" and _guard_errors(data, parent, output, submodels, signal, prior):
