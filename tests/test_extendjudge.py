@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import scipy.signal
 
@@ -76,3 +78,13 @@ def test_of_two_tied_signals_the_one_the_other_follows_is_first() -> None:
     }
     ranking = rank_judged(judged, data)
     assert ranking.order == ("door_open", "T_door_degC") and ranking.tied == ranking.order
+
+
+def test_an_offset_in_disguise_is_refused() -> None:
+    """A gain on a near-constant signal removes error only as a constant offset would: refused."""
+    judged = dataclasses.replace(
+        held(50.0, 65.0, (7.0,) * 6, (5.0,) * 6), rms_before_um=7.1, rms_after_um=4.96
+    )
+    assert judged.accepted
+    disguised = dataclasses.replace(judged, rms_offset_um=5.07)
+    assert not disguised.accepted and "a constant offset alone would leave" in disguised.describe()

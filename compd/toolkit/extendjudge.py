@@ -43,7 +43,8 @@ MIN_ERROR_REMOVED_PERCENT = 10.0
 #: The rule, as printed with every judgement.
 RULE = (
     f"an extension is kept when it removes at least {MIN_ERROR_REMOVED_PERCENT:g} % of the "
-    "remaining error on held-out cycles and lowers it on most of them"
+    "remaining error on held-out cycles (and as much beyond what a constant offset would) and "
+    "lowers it on most of them"
 )
 #: Two candidates whose extended fits differ by less than this many standard errors of the
 #: per-fold differences are presented as tied.
@@ -67,6 +68,8 @@ class HeldOut:
     rms_after_um: float = float("nan")
     fold_rms_before_um: tuple[float, ...] = ()
     fold_rms_after_um: tuple[float, ...] = ()
+    rms_offset_um: float = float("nan")
+    """The held-out error with a constant offset instead (each fold's from the others' mean)."""
 
     @property
     def rise_points(self) -> float:
@@ -90,10 +93,18 @@ class HeldOut:
         return len(self.fold_rms_before_um)
 
     @property
+    def beyond_offset_percent(self) -> float:
+        """``100 (1 - RMS_after / RMS_offset)``: what the signal removes beyond a constant offset."""
+        if not self.rms_offset_um > 0.0:
+            return self.error_removed_percent
+        return 100.0 * (1.0 - self.rms_after_um / self.rms_offset_um)
+
+    @property
     def accepted(self) -> bool:
-        """:data:`RULE`: enough of the error removed, and on most folds."""
+        """:data:`RULE`: enough of the error removed, more than an offset would, on most folds."""
         return (
             self.error_removed_percent >= MIN_ERROR_REMOVED_PERCENT
+            and not self.beyond_offset_percent < MIN_ERROR_REMOVED_PERCENT
             and 2 * self.folds_improved > self.n_folds
         )
 
@@ -104,6 +115,12 @@ class HeldOut:
             f"(RMS {self.rms_before_um:.3g} -> {self.rms_after_um:.3g} um, fit "
             f"{self.before:.1f} % -> {self.after:.1f} %, {self.rise_points:+.1f} points) and lowers "
             f"it on {self.folds_improved} of {self.n_folds} folds ({self.folds})"
+            + (
+                f"; a constant offset alone would leave {self.rms_offset_um:.3g} um, so the "
+                f"signal itself removes {self.beyond_offset_percent:.0f} %"
+                if self.beyond_offset_percent < MIN_ERROR_REMOVED_PERCENT
+                else ""
+            )
         )
 
 
@@ -207,6 +224,13 @@ def judge_signal(
         tuple(_rms(e[held][labels == k]) for k in np.unique(labels))
         for e in (error_before, error_after)
     ]
+    offset = np.zeros_like(residue)
+    for k in range(folds.n_folds):
+        inside = folds.labels == k
+        training = fitted & ~inside & np.isfinite(before)
+        if training.any():
+            offset[inside] = np.mean((residue - before)[training])
+    error_offset = error_before - offset
     judged = HeldOut(
         folds=folds.describe(),
         before=float(fit_percent(measured[held], measured[held] - error_before[held])),
@@ -215,6 +239,7 @@ def judge_signal(
         rms_after_um=_rms(error_after[held]),
         fold_rms_before_um=fold_rms[0],
         fold_rms_after_um=fold_rms[1],
+        rms_offset_um=_rms(error_offset[held]),
     )
     return judged, after
 

@@ -193,3 +193,14 @@ def test_an_effect_on_another_axis_is_refused_with_the_rule_and_its_figures(
     )
     assert "folds" in message and "at least 10 %" in message
     assert not (folder / "x.yaml").exists()
+
+
+def test_a_signal_that_only_supplies_an_offset_is_refused(
+    base: Path, door_runs: tuple[Path, Path], folder: Path
+) -> None:
+    """On the door run the coolant is constant but for noise: its sub-model would be an offset, refused."""
+    run, _ = door_runs
+    out = folder / "coolant-offset.yaml"
+    with pytest.raises(AssertionError) as refused:
+        compd_json("extend", base, run, "--effect", "T_coolant_degC", "--out", out)
+    assert "a constant offset alone would leave" in str(refused.value) and not out.exists()
