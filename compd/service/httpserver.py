@@ -231,7 +231,7 @@ def _model_json(slot: ModelSlot) -> dict[str, object]:
         "compd_version": provenance.compd_version,
         "fit_percent": provenance.fit_percent,
         "held_out_fit_percent": (
-            None if held_out is None else held_out.fit_percent.get(held_out.kept)
+            None if held_out is None else held_out.expected_percent()
         ),
         "updates": len(provenance.updates),
         "extensions": len(provenance.extensions),

@@ -30,12 +30,13 @@ from compd.files.experiments import stack
 from compd.files.modelschema import ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.collinear import collinear_groups
-from compd.model.crossval import experiment_folds
+from compd.model.crossval import MIN_FOLD_SAMPLES, blocked_folds, experiment_folds
 from compd.model.experiments import ONE
 from compd.model.guards import Finding
 from compd.model.identify import Identification, identify
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 from compd.model.metrics import Comparison
+from compd.model.nested import MIN_FOLDS_FOR_NESTED
 from compd.model.orderfit import Progress
 from compd.model.structure import Model, Position
 from compd.toolkit.candidates import (
@@ -52,7 +53,6 @@ from compd.toolkit.candidates import (
     lag_bank_identification,
     operating_signal,
     refuse_errors,
-    select_inputs,
 )
 from compd.toolkit.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.toolkit.fitchecks import check_arguments, check_position
@@ -191,26 +191,16 @@ def fit_data(
         if len(starts) == 1
         else experiment_folds(len(data), starts)
     )
-    steps: list[SelectionStep] = []
-    if select_inputs_first:
-        if structured or method not in ("auto", "lagbank"):
-            raise DataFileError(
-                data.path,
-                "--select-inputs chooses inputs for the lag bank",
-                where="--select-inputs",
-                fix="Use it with --method auto or lagbank, without --phase-gate/--position/--denoise",
-            )
-        steps = select_inputs(
-            y,
-            changes,
-            sample_time_s=data.sample_time_s,
-            folds=folds,
-            time_constants_s=time_constants_s,
-            first_sample=first,
-            starts=starts,
+    if folds.n_folds < MIN_FOLDS_FOR_NESTED and len(data) - first >= 4 * MIN_FOLD_SAMPLES:
+        # Two experiments: a training set of one cannot choose settings; four blocks can.
+        folds = blocked_folds(len(data))
+    if select_inputs_first and (structured or method not in ("auto", "lagbank")):
+        raise DataFileError(
+            data.path,
+            "--select-inputs chooses inputs for the lag bank",
+            where="--select-inputs",
+            fix="Use it with --method auto or lagbank, without --phase-gate/--position/--denoise",
         )
-        changes = {step.input: changes[step.input] for step in steps}
-        inputs = list(changes)
     # The regression is always scored: every fit is printed beside it.
     candidates = (
         ("lagbank", "mlr") if method in ("auto", "lagbank") and not structured else ("mlr",)
@@ -225,9 +215,14 @@ def fit_data(
             time_constants_s=time_constants_s,
             first_sample=first,
             starts=starts,
+            choose_inputs=select_inputs_first,
         )
     except ModelError as exc:
         raise DataFileError(data.path, exc.message, where="--time-constants-s") from exc
+    steps = list(selection.steps)
+    if select_inputs_first:
+        changes = {step.input: changes[step.input] for step in steps}
+        inputs = list(changes)
     chosen = method
     if method == "auto":
         chosen = "oe" if structured else selection.kept
