@@ -37,6 +37,7 @@ import numpy as np
 from compd.errors import ModelError
 from compd.model.crossval import Folds
 from compd.model.experiments import ONE
+from compd.model.guards import CANCEL_SIZE_RATIO, CANCEL_SUM_FRACTION, GAIN_WARNING_RATIO
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S, LagBankFit, lag_features
 from compd.model.metrics import fit_percent
 
@@ -148,18 +149,22 @@ class ShrunkBank:
             raise ModelError("no fitted samples to fit the lag bank on")
         weights = SHRINK_WEIGHTS
         cv_predicted = np.full(self.y.size, np.nan)
-        chosen = len(weights) - 1
         cv_percent = None
+        solutions = self._solve(inner, weights, columns)
+        eligible = [plausible(self, c, columns, train) for c in solutions]
+        if not any(eligible):  # the regression part itself balances collinear inputs
+            return self._fit_all_penalised(train, inputs)
+        chosen = max(np.flatnonzero(eligible))
         if len(inner) >= 2:
             errors = np.zeros((len(inner), len(weights)))
             held_out = []
             for i, fold in enumerate(inner):
                 held = train & (labels == fold)
-                solutions = self._solve([f for f in inner if f != fold], weights, columns)
-                predictions = self.predict(np.column_stack(solutions), columns, held)
+                trained = self._solve([f for f in inner if f != fold], weights, columns)
+                predictions = self.predict(np.column_stack(trained), columns, held)
                 errors[i] = np.sum((self.y[held, None] - predictions) ** 2, axis=0)
                 held_out.append((held, predictions))
-            total = errors.sum(axis=0)
+            total = np.where(eligible, errors.sum(axis=0), np.inf)
             best = int(np.argmin(total))
             standard_error = float(np.std(errors[:, best]) * np.sqrt(len(inner)))
             chosen = int(np.flatnonzero(total <= total[best] + standard_error).max())
@@ -168,7 +173,7 @@ class ShrunkBank:
             scored = np.isfinite(cv_predicted)
             cv_percent = float(fit_percent(self.y[scored], cv_predicted[scored]))
         coefficients = np.zeros(self.features.shape[1])
-        coefficients[columns] = self._solve(inner, [weights[chosen]], columns)[0]
+        coefficients[columns] = solutions[chosen]
         predicted = self.predict(coefficients[columns], columns)
         gains = coefficients.reshape(len(self.taus), self.n_inputs).T  # (input, tau)
         return LagBankFit(
@@ -181,3 +186,73 @@ class ShrunkBank:
             predicted_um=predicted,
             cv_predicted_um=cv_predicted,
         )
+
+    def _fit_all_penalised(self, train: np.ndarray, inputs: Sequence[int] | None) -> LagBankFit:
+        """The fallback when even the regression part is implausible: the input itself penalised too."""
+        if np.all(self.penalty == 1.0):
+            raise ModelError("no penalty weight gives a plausible lag bank")
+        saved = self.penalty
+        self.penalty = np.ones_like(saved)
+        try:
+            return self.fit(train, inputs)
+        finally:
+            self.penalty = saved
+
+
+def plausible(
+    bank: ShrunkBank, coefficients: np.ndarray, columns: np.ndarray, train: np.ndarray
+) -> bool:
+    """The guard rails (:mod:`compd.model.guards`) on a candidate's coefficients, over ``train``.
+
+    No input's static gain times its range beyond :data:`GAIN_WARNING_RATIO`
+    times the output's range, and no two inputs' contributions each
+    :data:`CANCEL_SIZE_RATIO` times the model's yet cancelling: the model
+    ``compd fit`` would refuse or warn about is not a candidate.
+    """
+    n_taus = len(bank.taus)
+    per_input = np.zeros((bank.n_inputs, n_taus))
+    full = np.zeros(bank.features.shape[1])
+    full[columns] = coefficients
+    per_input[:] = full.reshape(n_taus, bank.n_inputs).T
+    used = np.flatnonzero(np.any(per_input != 0.0, axis=1))
+    y = bank.y[train]
+    output_range = float(np.ptp(y)) if y.size else 0.0
+    if output_range <= 0.0 or used.size == 0:
+        return True
+    features = bank.features[train]
+    if 0.0 in bank.taus:  # the inputs themselves are among the features
+        first = bank.taus.index(0.0) * bank.n_inputs
+        inputs = features[:, first + used]
+        if reaches_too_far(per_input[used].sum(axis=1), inputs, output_range):
+            return False
+    terms = np.column_stack(
+        [features[:, [j * bank.n_inputs + i for j in range(n_taus)]] @ per_input[i] for i in used]
+    )
+    return not cancelling(terms)
+
+
+def regression_plausible(y: np.ndarray, u: np.ndarray, gains: np.ndarray) -> bool:
+    """:func:`plausible` for the static regression ``y = u @ gains`` over the rows given."""
+    output_range = float(np.ptp(y))
+    if output_range <= 0.0:
+        return True
+    return not reaches_too_far(gains, u, output_range) and not cancelling(u * gains)
+
+
+def reaches_too_far(static_gains: np.ndarray, inputs: np.ndarray, output_range: float) -> bool:
+    """Whether an input's static gain times its range exceeds the guard rails' warning ratio."""
+    reach = np.abs(static_gains) * np.ptp(inputs, axis=0)
+    return bool(np.any(reach > GAIN_WARNING_RATIO * output_range))
+
+
+def cancelling(terms: np.ndarray) -> bool:
+    """Whether two columns of ``terms`` (contributions) are each large against their sum and cancel."""
+    rms = np.sqrt(np.mean(terms**2, axis=0))
+    size = float(np.sqrt(np.mean(terms.sum(axis=1) ** 2)))
+    big = np.flatnonzero(rms >= CANCEL_SIZE_RATIO * size)
+    for a_index, a in enumerate(big):
+        for b in big[a_index + 1 :]:
+            together = float(np.sqrt(np.mean((terms[:, a] + terms[:, b]) ** 2)))
+            if together < CANCEL_SUM_FRACTION * max(rms[a], rms[b]):
+                return True
+    return False

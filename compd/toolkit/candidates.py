@@ -28,7 +28,7 @@ from compd.files.data import DataSet
 from compd.files.modelschema import CrossValidationDoc
 from compd.model.collinear import contribution_shares
 from compd.model.compiled import compile_model, qualified_names
-from compd.model.crossval import Folds, blocked_folds, cycle_folds
+from compd.model.crossval import Folds, blocked_folds, cross_validated_prediction, cycle_folds
 from compd.model.experiments import ONE, each
 from compd.model.guards import Finding, Severity, check_model
 from compd.model.identify import Identification, IdentifiedTF
@@ -37,7 +37,7 @@ from compd.model.metrics import fit_percent
 from compd.model.nested import nested_prediction, scored_fit_percent
 from compd.model.orderfit import Orders
 from compd.model.run import simulate
-from compd.model.shrinkbank import ShrunkBank
+from compd.model.shrinkbank import ShrunkBank, regression_plausible
 from compd.model.structure import Model
 
 #: What ``compd fit --method`` accepts; ``auto`` compares lagbank and mlr by cross-validation.
@@ -152,6 +152,7 @@ def compare_candidates(
         u = np.column_stack([np.asarray(v, dtype=float) for v in changes.values()])
         scores = []
         lag_bank = None
+        nested = None
         steps: tuple[SelectionStep, ...] = ()
         if "lagbank" in candidates or choose_inputs:
             bank = ShrunkBank(
@@ -192,8 +193,47 @@ def compare_candidates(
             CandidateScore("mlr", regression_fit, regression_cv_percent, regression_cv_percent)
         )
     judged = [s for s in scores if s.method in candidates]
+    if len(judged) > 1 and not regression_plausible(y[fitted], u[fitted], gains):
+        judged = [s for s in judged if s.method != "mlr"]  # the guard rails would refuse it
     kept = max(judged, key=_preference).method
+    if kept == "lagbank" and "mlr" in {s.method for s in judged}:
+        kept = "lagbank" if _consistently_better(y, nested, u, folds, fitted) else "mlr"
     return Selection(folds, tuple(scores), kept, lag_bank, steps)
+
+
+#: The lag bank is kept over the regression only when its nested improvement, fold by fold,
+#: is at least this many standard errors above zero.
+MARGIN_STANDARD_ERRORS = 1.0
+
+
+def _consistently_better(
+    y: np.ndarray, nested: np.ndarray | None, u: np.ndarray, folds: Folds, fitted: np.ndarray
+) -> bool:
+    """Whether the lag bank's nested errors beat the regression's by a standard error, fold by fold.
+
+    The one-standard-error rule again, now between methods: a dynamic model
+    that wins on two folds and loses on two is a coin toss that travels worse.
+    """
+    if nested is None:
+        return True
+
+    def regression(train: np.ndarray) -> np.ndarray:
+        return np.asarray(u @ np.linalg.lstsq(u[train], y[train], rcond=None)[0])
+
+    baseline = cross_validated_prediction(regression, folds, fitted)
+    gains = []
+    for fold in range(folds.n_folds):
+        held = fitted & (folds.labels == fold) & np.isfinite(nested) & np.isfinite(baseline)
+        if held.any():
+            gains.append(
+                float(
+                    np.sum((y[held] - baseline[held]) ** 2) - np.sum((y[held] - nested[held]) ** 2)
+                )
+            )
+    if len(gains) < 2:
+        return True
+    spread = float(np.std(gains, ddof=1) * np.sqrt(len(gains)))
+    return float(np.sum(gains)) > MARGIN_STANDARD_ERRORS * spread
 
 
 def _restricted(fit: LagBankFit, inputs: Sequence[int] | None) -> LagBankFit:
