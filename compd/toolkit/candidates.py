@@ -194,7 +194,9 @@ def compare_candidates(
         )
     judged = [s for s in scores if s.method in candidates]
     if len(judged) > 1 and not regression_plausible(y[fitted], u[fitted], gains):
-        judged = [s for s in judged if s.method != "mlr"]  # the guard rails would refuse it
+        # The guard rails would refuse the regression (collinear inputs balanced against each
+        # other); the lag bank, plausible by construction, is the model to write.
+        judged = [s for s in judged if s.method != "mlr"]
     kept = max(judged, key=_preference).method
     if kept == "lagbank" and "mlr" in {s.method for s in judged}:
         kept = "lagbank" if _consistently_better(y, nested, u, folds, fitted) else "mlr"

@@ -226,7 +226,8 @@ def fit_data(
     chosen = method
     if method == "auto":
         chosen = "oe" if structured else selection.kept
-    check_against_regression(data, selection, chosen, force)
+    if method != "auto":  # auto chose by these figures already (and never a refused regression)
+        check_against_regression(data, selection, chosen, force)
     try:
         if chosen == "lagbank":
             assert selection.lag_bank is not None
