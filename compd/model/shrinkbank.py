@@ -78,6 +78,14 @@ class ShrunkBank:
         self.folds = folds
         self.fitted = np.ones(y.size, dtype=bool) if fitted is None else np.asarray(fitted, bool)
         self.features = lag_features(u, taus, sample_time_s, starts)
+        # Held-out folds are judged as new recordings: run from rest at the fold's start, inputs
+        # and displacement as changes from there (a fold that is a whole file already is one).
+        cuts = fresh_starts(folds, starts)
+        self.fresh_u = u - _first_of_segment(u, cuts)
+        self.fresh_y = y - np.where(
+            np.isin(_segment_start(y.size, cuts), starts), 0.0, _first_of_segment(y, cuts)
+        )
+        self.fresh_features = lag_features(self.fresh_u, taus, sample_time_s, cuts)
         penalised = np.repeat([t != 0.0 for t in taus], self.n_inputs)
         self.penalty = penalised.astype(float)
         # Per fold over its fitted samples: count, sums, sums of squares, Gram matrix, X^T y.
@@ -161,8 +169,8 @@ class ShrunkBank:
             for i, fold in enumerate(inner):
                 held = train & (labels == fold)
                 trained = self._solve([f for f in inner if f != fold], weights, columns)
-                predictions = self.predict(np.column_stack(trained), columns, held)
-                errors[i] = np.sum((self.y[held, None] - predictions) ** 2, axis=0)
+                predictions = self.fresh_features[np.ix_(held, columns)] @ np.column_stack(trained)
+                errors[i] = np.sum((self.fresh_y[held, None] - predictions) ** 2, axis=0)
                 held_out.append((held, predictions))
             total = np.where(eligible, errors.sum(axis=0), np.inf)
             best = int(np.argmin(total))
@@ -171,7 +179,7 @@ class ShrunkBank:
             for held, predictions in held_out:
                 cv_predicted[held] = predictions[:, chosen]
             scored = np.isfinite(cv_predicted)
-            cv_percent = float(fit_percent(self.y[scored], cv_predicted[scored]))
+            cv_percent = float(fit_percent(self.fresh_y[scored], cv_predicted[scored]))
         coefficients = np.zeros(self.features.shape[1])
         coefficients[columns] = solutions[chosen]
         predicted = self.predict(coefficients[columns], columns)
@@ -187,6 +195,10 @@ class ShrunkBank:
             cv_predicted_um=cv_predicted,
         )
 
+    def fresh_prediction(self, fit: LagBankFit) -> np.ndarray:
+        """``fit``'s output with every fold run as a new recording (compare with :attr:`fresh_y`)."""
+        return np.asarray(self.fresh_features @ fit.gains.T.reshape(-1))
+
     def _fit_all_penalised(self, train: np.ndarray, inputs: Sequence[int] | None) -> LagBankFit:
         """The fallback when even the regression part is implausible: the input itself penalised too."""
         if np.all(self.penalty == 1.0):
@@ -197,6 +209,23 @@ class ShrunkBank:
             return self.fit(train, inputs)
         finally:
             self.penalty = saved
+
+
+def fresh_starts(folds: Folds, starts: Sequence[int]) -> tuple[int, ...]:
+    """Where a new recording starts: every experiment's start and every fold boundary."""
+    boundaries = np.flatnonzero(np.diff(folds.labels) != 0) + 1
+    return tuple(sorted({0, *(int(s) for s in starts), *(int(b) for b in boundaries)}))
+
+
+def _segment_start(n: int, cuts: Sequence[int]) -> np.ndarray:
+    """Each sample's segment start (the last cut at or before it)."""
+    bounds = np.asarray(cuts)
+    return np.asarray(bounds[np.searchsorted(bounds, np.arange(n), side="right") - 1])
+
+
+def _first_of_segment(x: np.ndarray, cuts: Sequence[int]) -> np.ndarray:
+    """Each sample's segment's first value (rows of ``x``)."""
+    return np.asarray(x[_segment_start(len(x), cuts)])
 
 
 def plausible(

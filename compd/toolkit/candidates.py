@@ -176,19 +176,30 @@ def compare_candidates(
                 u = u[:, inputs]
             lag_bank = _restricted(bank.fit(fitted, inputs), inputs)
             nested = nested_prediction(
-                lambda train: bank.fit(train, chosen(train)).predicted_um, folds, fitted
+                lambda train: bank.fresh_prediction(bank.fit(train, chosen(train))), folds, fitted
             )
             scores.append(
                 CandidateScore(
                     "lagbank",
                     lag_bank.fit_percent,
                     lag_bank.cv_fit_percent,
-                    scored_fit_percent(y, nested),
+                    scored_fit_percent(bank.fresh_y, nested),
                 )
             )
-        gains, regression_cv_percent = regression_cv(y, u, folds, fitted)
+            fresh_u, fresh_y = bank.fresh_u, bank.fresh_y
+        else:
+            fresh_u, fresh_y = u, y
+        if steps:
+            fresh_u = fresh_u[:, [names.index(step.input) for step in steps]]
+        gains, _ = regression_cv(y, u, folds, fitted)
         regression_fit = float(fit_percent(y[fitted], (u @ gains)[fitted]))
+        baseline = cross_validated_prediction(
+            lambda train: fresh_u @ np.linalg.lstsq(u[train], y[train], rcond=None)[0],
+            folds,
+            fitted,
+        )
         # The regression has no settings to choose: its nested figure is its cross-validated one.
+        regression_cv_percent = scored_fit_percent(fresh_y, baseline)
         scores.append(
             CandidateScore("mlr", regression_fit, regression_cv_percent, regression_cv_percent)
         )
@@ -199,7 +210,7 @@ def compare_candidates(
         judged = [s for s in judged if s.method != "mlr"]
     kept = max(judged, key=_preference).method
     if kept == "lagbank" and "mlr" in {s.method for s in judged}:
-        kept = "lagbank" if _consistently_better(y, nested, u, folds, fitted) else "mlr"
+        kept = "lagbank" if _consistently_better(fresh_y, nested, baseline, folds) else "mlr"
     return Selection(folds, tuple(scores), kept, lag_bank, steps)
 
 
@@ -209,7 +220,7 @@ MARGIN_STANDARD_ERRORS = 1.0
 
 
 def _consistently_better(
-    y: np.ndarray, nested: np.ndarray | None, u: np.ndarray, folds: Folds, fitted: np.ndarray
+    y: np.ndarray, nested: np.ndarray | None, baseline: np.ndarray, folds: Folds
 ) -> bool:
     """Whether the lag bank's nested errors beat the regression's by a standard error, fold by fold.
 
@@ -218,14 +229,9 @@ def _consistently_better(
     """
     if nested is None:
         return True
-
-    def regression(train: np.ndarray) -> np.ndarray:
-        return np.asarray(u @ np.linalg.lstsq(u[train], y[train], rcond=None)[0])
-
-    baseline = cross_validated_prediction(regression, folds, fitted)
     gains = []
     for fold in range(folds.n_folds):
-        held = fitted & (folds.labels == fold) & np.isfinite(nested) & np.isfinite(baseline)
+        held = (folds.labels == fold) & np.isfinite(nested) & np.isfinite(baseline)
         if held.any():
             gains.append(
                 float(
