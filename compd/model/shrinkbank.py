@@ -58,6 +58,7 @@ class ShrunkBank:
         fitted: np.ndarray | None = None,
         time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S,
         starts: Sequence[int] = ONE,
+        new_recordings: bool = False,
     ) -> None:
         y = np.asarray(y, dtype=float)
         u = np.asarray(u, dtype=float)
@@ -78,14 +79,18 @@ class ShrunkBank:
         self.folds = folds
         self.fitted = np.ones(y.size, dtype=bool) if fitted is None else np.asarray(fitted, bool)
         self.features = lag_features(u, taus, sample_time_s, starts)
-        # Held-out folds are judged as new recordings: run from rest at the fold's start, inputs
+        # How held-out samples are judged: by default as the record continued (the model run
+        # through it, its state carried: leave-one-cycle-out as compd defines it); with
+        # ``new_recordings`` each fold as a new recording, run from rest at its start with inputs
         # and displacement as changes from there (a fold that is a whole file already is one).
-        cuts = fresh_starts(folds, starts)
-        self.fresh_u = u - _first_of_segment(u, cuts)
-        self.fresh_y = y - np.where(
-            np.isin(_segment_start(y.size, cuts), starts), 0.0, _first_of_segment(y, cuts)
-        )
-        self.fresh_features = lag_features(self.fresh_u, taus, sample_time_s, cuts)
+        self.fresh_u, self.fresh_y, self.fresh_features = u, y, self.features
+        if new_recordings:
+            cuts = fresh_starts(folds, starts)
+            self.fresh_u = u - _first_of_segment(u, cuts)
+            self.fresh_y = y - np.where(
+                np.isin(_segment_start(y.size, cuts), starts), 0.0, _first_of_segment(y, cuts)
+            )
+            self.fresh_features = lag_features(self.fresh_u, taus, sample_time_s, cuts)
         penalised = np.repeat([t != 0.0 for t in taus], self.n_inputs)
         self.penalty = penalised.astype(float)
         # Per fold over its fitted samples: count, sums, sums of squares, Gram matrix, X^T y.

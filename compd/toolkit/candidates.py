@@ -133,6 +133,8 @@ def compare_candidates(
     first_sample: int = 0,
     starts: Sequence[int] = ONE,
     choose_inputs: bool = False,
+    fitted: np.ndarray | None = None,
+    new_recordings: bool = False,
 ) -> Selection:
     """Score ``candidates`` (of ``lagbank``, ``mlr``) by nested cross-validation; keep the best.
 
@@ -143,11 +145,15 @@ def compare_candidates(
     ``choose_inputs``: the lag bank's inputs by forward selection
     (:func:`forward_selection`), redone inside each training set for the
     nested figure; the regression is then scored on the chosen inputs.
+    ``fitted``: a mask of the samples to fit and score (default all), with ``first_sample``.
+    ``new_recordings``: judge each held-out fold of one record as a new recording
+    (:class:`~compd.model.shrinkbank.ShrunkBank`) instead of the record continued.
     """
     # Many small solves: BLAS threads only spin against each other there (on a busy
     # 2-core PC they made the search 15x slower).
     with threadpool_limits(limits=1, user_api="blas"):
-        fitted = np.arange(len(y)) >= first_sample
+        mask = np.ones(len(y), dtype=bool) if fitted is None else np.asarray(fitted, dtype=bool)
+        fitted = mask & (np.arange(len(y)) >= first_sample)
         names = list(changes)
         u = np.column_stack([np.asarray(v, dtype=float) for v in changes.values()])
         scores = []
@@ -163,6 +169,7 @@ def compare_candidates(
                 fitted=fitted,
                 time_constants_s=time_constants_s,
                 starts=starts,
+                new_recordings=new_recordings,
             )
 
             def chosen(train: np.ndarray) -> list[int] | None:
