@@ -30,13 +30,12 @@ from compd.files.experiments import stack
 from compd.files.modelschema import ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.collinear import collinear_groups
-from compd.model.crossval import MIN_FOLD_SAMPLES, blocked_folds, experiment_folds
+from compd.model.crossval import experiment_folds
 from compd.model.experiments import ONE
 from compd.model.guards import Finding
 from compd.model.identify import Identification, identify
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 from compd.model.metrics import Comparison
-from compd.model.nested import MIN_FOLDS_FOR_NESTED
 from compd.model.orderfit import Progress
 from compd.model.structure import Model, Position
 from compd.toolkit.candidates import (
@@ -191,9 +190,6 @@ def fit_data(
         if len(starts) == 1
         else experiment_folds(len(data), starts)
     )
-    if folds.n_folds < MIN_FOLDS_FOR_NESTED and len(data) - first >= 4 * MIN_FOLD_SAMPLES:
-        # Two experiments: a training set of one cannot choose settings; four blocks can.
-        folds = blocked_folds(len(data))
     if select_inputs_first and (structured or method not in ("auto", "lagbank")):
         raise DataFileError(
             data.path,
