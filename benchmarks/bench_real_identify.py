@@ -56,7 +56,7 @@ from compd.model.lagbank import (  # noqa: E402
 )
 from compd.model.metrics import fit_percent  # noqa: E402
 from compd.model.shrinkbank import ShrunkBank  # noqa: E402
-from compd.toolkit.candidates import compare_candidates  # noqa: E402
+from compd.toolkit.nestedselect import compare_candidates  # noqa: E402
 
 RECORD = Path(__file__).resolve().parents[1] / "tests" / "data" / "fl_thermal_train.csv"
 ISSUE_REGRESSION = (17, 14, 73, 73, 27)

@@ -39,10 +39,7 @@ from compd.model.metrics import Comparison
 from compd.model.orderfit import Progress
 from compd.model.structure import Model, Position
 from compd.toolkit.candidates import (
-    Selection,
-    SelectionStep,
     check_against_regression,
-    compare_candidates,
     contributions_of,
     cross_validation_doc,
     describe_lag_bank,
@@ -56,6 +53,7 @@ from compd.toolkit.candidates import (
 from compd.toolkit.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.toolkit.fitchecks import check_arguments, check_position
 from compd.toolkit.fitmodel import fit_provenance, identification_to_model, unit_of
+from compd.toolkit.nestedselect import Selection, SelectionStep, compare_candidates
 from compd.toolkit.span import Span, until_stop
 
 
