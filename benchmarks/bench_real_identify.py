@@ -35,6 +35,7 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import sys  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -68,7 +69,7 @@ def _ridge_raw(y: np.ndarray, u: np.ndarray, folds: Folds, dt_s: float) -> tuple
     """The issue's baseline: ridge on standardised raw-sensor lags, the weight of the best LOCO."""
     x = lag_features(u, DEFAULT_TIME_CONSTANTS_S, dt_s)
 
-    def fitter(weight: float):
+    def fitter(weight: float) -> Callable[[np.ndarray], np.ndarray]:
         def fit_predict(train: np.ndarray) -> np.ndarray:
             scale = x[train].std(axis=0)
             z = x[train] / scale

@@ -167,7 +167,7 @@ class ShrunkBank:
         eligible = [plausible(self, c, columns, train) for c in solutions]
         if not any(eligible):  # the regression part itself balances collinear inputs
             return self._fit_all_penalised(train, inputs)
-        chosen = max(np.flatnonzero(eligible))
+        chosen = int(np.flatnonzero(eligible).max())
         if len(inner) >= 2:
             errors = np.zeros((len(inner), len(weights)))
             held_out = []
