@@ -165,8 +165,12 @@ class ShrunkBank:
         cv_percent = None
         solutions = self._solve(inner, weights, columns)
         eligible = [plausible(self, c, columns, train) for c in solutions]
-        if not any(eligible):  # the regression part itself balances collinear inputs
-            return self._fit_all_penalised(train, inputs)
+        if not any(eligible):
+            if np.any(self.penalty == 0.0):  # the regression part itself balances collinear inputs
+                return self._fit_all_penalised(train, inputs)
+            # Nothing passes even fully penalised (an output that barely moves): the strongest
+            # shrinkage, and the guard rails judge the written model.
+            eligible[-1] = True
         chosen = int(np.flatnonzero(eligible).max())
         if len(inner) >= 2:
             errors = np.zeros((len(inner), len(weights)))
@@ -206,8 +210,6 @@ class ShrunkBank:
 
     def _fit_all_penalised(self, train: np.ndarray, inputs: Sequence[int] | None) -> LagBankFit:
         """The fallback when even the regression part is implausible: the input itself penalised too."""
-        if np.all(self.penalty == 1.0):
-            raise ModelError("no penalty weight gives a plausible lag bank")
         saved = self.penalty
         self.penalty = np.ones_like(saved)
         try:
