@@ -150,3 +150,40 @@ def test_bad_input_exits_2_naming_file_place_and_fix(
     assert str(calibration_csv) in error
     assert message in error
     assert not out.exists()
+
+
+def test_the_expected_fit_on_new_data_is_printed_first_and_stored(
+    calibration_csv, tmp_path, capsys
+):
+    """fit leads with the nested figure beside the in-sample one, stores it, and model check leads with it."""
+    model = tmp_path / "auto.yaml"
+    assert _fit(calibration_csv, model) == 0
+    printed = " ".join(capsys.readouterr().out.split())  # as read, whatever the wrapping
+    held_out = load_model(model).doc.provenance.cross_validation
+    assert held_out is not None
+    expected = held_out.nested_fit_percent[held_out.kept]
+    assert set(held_out.nested_fit_percent) == {"lagbank", "mlr"}
+    assert f"expected fit on new data {expected:.1f} % (nested cross-validation)" in printed
+    assert main(["model", "check", str(model)]) == 0
+    checked = capsys.readouterr().out.splitlines()
+    assert checked[1].startswith(f"expected fit on new data: {expected:.1f} %")
+
+
+def test_a_model_file_without_the_nested_figure_still_loads_and_says_its_figure_is_optimistic(
+    calibration_csv, tmp_path, capsys
+):
+    """A file written before the nested figure existed loads; model check labels its figure as optimistic."""
+    model = tmp_path / "auto.yaml"
+    assert _fit(calibration_csv, model) == 0
+    capsys.readouterr()
+    text = model.read_text()
+    start = text.index("    nested_fit_percent:")
+    end = text.index("    calibration_fit_percent:")
+    old = tmp_path / "old.yaml"
+    old.write_text(text[:start] + text[end:])
+    held_out = load_model(old).doc.provenance.cross_validation
+    assert held_out is not None and held_out.nested_fit_percent == {}
+    assert held_out.expected_percent() == held_out.fit_percent[held_out.kept]
+    assert main(["model", "check", str(old)]) == 0
+    checked = " ".join(capsys.readouterr().out.split())
+    assert "settings chosen on the same folds (optimistic)" in checked

@@ -237,15 +237,25 @@ class CrossValidationDoc(_Strict):
     """How the candidates held on operating cycles they were not fitted on (``compd fit``).
 
     ``fit_percent``: pooled held-out fit % per candidate method (``mlr`` is
-    the static regression on the same inputs); ``calibration_fit_percent``
-    the same candidates' fit on all the data they were fitted on.
+    the static regression on the same inputs), settings chosen by the same
+    folds; ``nested_fit_percent``: the same with every setting chosen inside
+    each training set only (nested cross-validation), the figure to expect on
+    new data (absent in files written before compd recorded it);
+    ``calibration_fit_percent`` the same candidates' fit on all the data they
+    were fitted on.
     """
 
     output: str
     folds: str
     kept: str
     fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+    nested_fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
     calibration_fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+
+    def expected_percent(self, method: str | None = None) -> float | None:
+        """The kept (or ``method``'s) figure to expect on new data: nested, else cross-validated."""
+        name = self.kept if method is None else method
+        return self.nested_fit_percent.get(name, self.fit_percent.get(name))
 
 
 class ProvenanceDoc(_Strict):

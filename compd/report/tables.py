@@ -233,6 +233,15 @@ def provenance(run: ModelRun) -> str:
     """Where the model came from: its fit on calibration data and its extension history."""
     prov = run.evaluation.model_file.doc.provenance
     lines = []
+    held_out = prov.cross_validation
+    expected = None if held_out is None else held_out.expected_percent()
+    if held_out is not None and expected is not None:
+        nested = held_out.kept in held_out.nested_fit_percent
+        lines.append(
+            f"<li><b>expected fit on new data: {expected:.1f} %</b> ({escape(held_out.kept)}, "
+            f"{'nested cross-validation' if nested else 'cross-validation'}, "
+            f"{escape(held_out.folds)}); the fits below are on the data it was fitted on</li>"
+        )
     for label, value in (
         ("data", prov.data),
         ("command", prov.command),
