@@ -171,9 +171,7 @@ def _compare(args: argparse.Namespace) -> int:
         if result.windows:
             table = windows_table(result, width=None if args.wide else out.width)
             if args.wide:  # the table's own width, not squeezed into the terminal's
-                wide = Console(
-                    file=out.file, emoji=False, width=max(out.width, table_width(table))
-                )
+                wide = Console(file=out.file, emoji=False, width=max(out.width, table_width(table)))
                 wide.print(table, crop=False)
             else:
                 out.print(table)

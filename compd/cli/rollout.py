@@ -152,6 +152,7 @@ def rollout(
         request = load_request(raw, name) | {"schema": SCHEMA, "sha256": sha256}
         del request["cmd"]  # the control socket's word; the topic says it here
         request["requested_by"] = f"{getpass.getuser()}@{socket.gethostname()}"
+        request["sent_unix_s"] = time.time()  # the machines take it within seenrequests.WINDOW_S
         ids = {m: uuid.uuid4().hex for m in machines}
         for machine in machines:
             payload = json.dumps(request | {"request_id": ids[machine]}).encode()

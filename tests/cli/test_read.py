@@ -19,10 +19,10 @@ from typing import Any
 import pytest
 import serial
 import yaml
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
 
 from compd.cli import main
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_settings import ModbusSettings
 from tests.drivers.instrument import PtyInstrument
 from tests.drivers.modbus_server import free_port, tcp_server
 from tests.drivers.test_modbus_rtu import pty_pair  # noqa: F401  (a fixture: socat's pty pair)
@@ -219,7 +219,7 @@ def test_probe_write_with_yes_lands_in_the_servers_registers(plc):
 
 
 def probe_on_terminal(port: int, address: str, value: int, answer: str) -> tuple[int, bytes]:
-    """``compd probe ... ADDRESS --write VALUE`` on a pty, ``answer`` typed at its prompt: exit status, all it showed."""
+    """``compd probe ... ADDRESS --write VALUE`` on a pty, ``answer`` typed at its prompt: exit status, output."""
     main_fd, terminal = os.openpty()
     argv = ["probe", "modbus", "--set", "host=127.0.0.1", "--set", f"port={port}", address,
             "--write", str(value)]  # fmt: skip
