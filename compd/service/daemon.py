@@ -295,7 +295,9 @@ class Service:
         except RecorderError as exc:
             self._recorder_fault.failed("recorder failed", error=str(exc))
         else:
-            self._recorder_fault.cleared("recorder works again")
+            if self._recorder_fault.active:  # once, at the end of the episode
+                lost = self.recorder.take_lost_rows()
+                self._recorder_fault.cleared("recorder works again", lost_rows=lost)
 
     def leave_as_killed(self) -> None:
         """Make the end of ``run`` what SIGKILL would leave: sockets closed, nothing saved or written.
