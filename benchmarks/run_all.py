@@ -22,6 +22,7 @@ SCRIPTS = (
     "bench_simulate.py",
     "bench_identify.py",
     "bench_real_identify.py",
+    "bench_machines.py",
     "bench_tick.py",
     "bench_recorder_parquet.py",
     "bench_metrics.py",

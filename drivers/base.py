@@ -21,8 +21,18 @@ driver type's addresses mean; a type without them gets the cautious answer
     the grammar, shown as the fix when ``validate_address`` refuses;
 
 ``footprint(address, settings) -> frozenset``
-    the cells (registers, bytes or bits, nodes) a written value occupies,
-    so that ``check-config`` refuses two written values sharing one;
+    the cells (registers, bytes or bits, nodes) a value occupies, each a
+    tuple starting with the endpoint it lives on
+    (:mod:`compd.drivers.endpoints`: host and port, serial line, CAN bus),
+    so that ``check-config`` refuses a written value sharing a cell with
+    another value, read or written, of any driver entry reaching that device;
+``write_area(settings) -> frozenset``
+    the cells an instance rewrites whole whenever it writes at all (a
+    gateway's output area), which no other driver entry may use;
+``naming(address, settings) -> Hashable``
+    how an address names its node where only the device can tell whether
+    two namings meet (an OPC UA NodeId and a browse path): on an endpoint
+    compd writes to, every address must be named one way;
 ``raw_range(address, settings) -> tuple[int, int] | None``
     the whole numbers an integer point holds (``None``: a float, or not known
     before connecting), so that ``check-config`` refuses an offset, status
@@ -136,13 +146,27 @@ def address_syntax(kind: DriverType) -> str:
     return str(getattr(kind, "address_syntax", DEFAULT_ADDRESS_SYNTAX))
 
 
-def write_footprint(kind: DriverType, address: str, settings: BaseModel) -> frozenset[Hashable]:
-    """The cells a value written at ``address`` occupies; without the hook, the address itself."""
+def write_footprint(
+    kind: DriverType, address: str, settings: BaseModel, *, instance: str
+) -> frozenset[tuple[Hashable, ...]]:
+    """The cells a value at ``address`` occupies; without the hook, the address on this instance alone."""
     footprint = getattr(kind, "footprint", None)
     if footprint is None:
-        return frozenset({address})
-    cells: frozenset[Hashable] = footprint(address, settings)
+        return frozenset({(("instance", instance), address)})
+    cells: frozenset[tuple[Hashable, ...]] = footprint(address, settings)
     return cells
+
+
+def write_area(kind: DriverType, settings: BaseModel) -> frozenset[tuple[Hashable, ...]]:
+    """The cells an instance rewrites whole on every write; without the hook, none."""
+    hook = getattr(kind, "write_area", None)
+    return frozenset() if hook is None else frozenset(hook(settings))
+
+
+def naming(kind: DriverType, address: str, settings: BaseModel) -> Hashable:
+    """How ``address`` names its node, where namings may not be compared offline; without the hook, None."""
+    hook = getattr(kind, "naming", None)
+    return None if hook is None else hook(address, settings)
 
 
 def reads_back(kind: DriverType, settings: BaseModel) -> bool:

@@ -51,11 +51,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from pathlib import Path
 from typing import Protocol
 
 from compd.drivers.base import RawReading
+from compd.drivers.endpoints import modbus_units
 from compd.drivers.gateway_image import (
     BYTE_TYPES,
     SYNTAX,
@@ -132,12 +133,28 @@ class GatewayDriver:
             )
 
     @staticmethod
-    def footprint(address: str, settings: GatewaySettings) -> frozenset[tuple[str, int, int]]:
-        """The ``(area, byte, bit)`` cells of a value: its one bit, or every bit of its bytes."""
+    def footprint(address: str, settings: GatewaySettings) -> frozenset[tuple[Hashable, ...]]:
+        """The ``(endpoint, image, area, byte, bit)`` cells of a value: its one bit, or every bit of its bytes."""
         parsed = parse_address(address)
         bits = range(8) if parsed.bit is None else (parsed.bit,)
+        where, image = settings.endpoint(), settings.image()
         return frozenset(
-            (parsed.area, byte, bit) for byte in range(parsed.offset, parsed.end) for bit in bits
+            (where, image, parsed.area, byte, bit)
+            for byte in range(parsed.offset, parsed.end)
+            for bit in bits
+        )
+
+    @staticmethod
+    def write_area(settings: GatewaySettings) -> frozenset[tuple[Hashable, ...]]:
+        """The output area, written whole on every write: its holding registers (every unit id), or its CAN frames."""
+        where = settings.endpoint()
+        if settings.transport == "can":
+            return frozenset((where, "frame", can_id) for can_id in settings.can_ids("out"))
+        first = settings.output_register
+        return frozenset(
+            (where, unit, "holding", register)
+            for unit in modbus_units(settings.device_id, serial=False)
+            for register in range(first, first + settings.output_bytes // 2)
         )
 
     @staticmethod

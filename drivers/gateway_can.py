@@ -6,7 +6,8 @@ interfaces without a descriptor, e.g. ``virtual``, a reader thread handing
 each frame to the loop), so nothing blocks the loop. Frame ``k`` of an area carries image bytes
 ``8k .. 8k+7``; the latest frame of each id is copied into the input image
 with its arrival time. A frame whose length differs from its PDO's mapped
-length is not used, and the next read raises DriverProtocolError naming it.
+length (its DLC or its data) is not used, and the next read raises
+DriverProtocolError naming it.
 python-can exceptions become compd's DriverError family here.
 """
 
@@ -119,9 +120,12 @@ class CanTransport:
         if k is None or msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
             return
         size = self._in_sizes[k]
-        if msg.dlc != size:
+        if msg.dlc != size or len(msg.data) != size:
+            # The data's own length too: a frame whose DLC says 8 over 1 byte of data
+            # would shift every byte of the image behind it.
+            carried = f"{len(msg.data)}" + ("" if msg.dlc == len(msg.data) else f" (DLC {msg.dlc})")
             self.malformed = (
-                f"frame 0x{msg.arbitration_id:03X} carried {msg.dlc} bytes, expected {size}"
+                f"frame 0x{msg.arbitration_id:03X} carried {carried} bytes, expected {size}"
             )
             return
         # Arrival on the bus, not here: frames queued while the loop was busy are that old.

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Literal
 
+from compd.drivers.endpoints import Endpoint, can_endpoint, tcp_endpoint
 from compd.drivers.gateway_image import MAX_AREA_BYTES
 from compd.drivers.points import Order
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -133,6 +134,20 @@ class GatewaySettings(BaseModel):
                 raise ValueError(f"{name} must be 11-bit CAN ids 0x001..0x7FF")
         if len(set(self.input_ids) | set(self.output_ids)) != n_in + n_out:
             raise ValueError("input_ids and output_ids must all differ")
+
+    def endpoint(self) -> Endpoint:
+        """The gateway's host and port (Modbus, as a Modbus driver's), or its CAN bus."""
+        if self.transport == "can":
+            assert self.channel is not None  # checked above
+            return can_endpoint(self.interface, self.channel)
+        assert self.host is not None
+        return tcp_endpoint("modbus", self.host, self.port)
+
+    def image(self) -> tuple[object, ...]:
+        """Which image of the endpoint: its first registers, or its node's (or raw) frame ids."""
+        if self.transport == "modbus_tcp":
+            return ("registers", self.input_register, self.output_register)
+        return ("frames", self.can_ids("in"), self.can_ids("out"))
 
     def frames(self, area: Literal["in", "out"]) -> int:
         """CAN frames (PDOs) carrying an area."""

@@ -48,10 +48,18 @@ import math
 import re
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from compd.drivers.base import RawReading
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictFloat,
+    TypeAdapter,
+    ValidationError,
+)
 
 from compd.errors import (
     DriverDisconnectedError,
@@ -67,6 +75,31 @@ _HAL_NAME = re.compile(r"[A-Za-z0-9_.:-]{1,41}")
 _S32 = (-(2**31), 2**31 - 1)
 _UM_PER_UNIT = {"mm": 1000.0, "inch": 25400.0}
 _ENDED = "the HAL helper ended (LinuxCNC shut down, or halcmd unload removed the component)"
+
+
+class _Done(BaseModel):
+    """A served request's reply line: ``{"ok": PAYLOAD}`` (the payload checked per request)."""
+
+    model_config = ConfigDict(extra="forbid")
+    ok: Any
+
+
+class _Refused(BaseModel):
+    """A refused request's reply line: ``{"error": TEXT, "kind": KIND}``."""
+
+    model_config = ConfigDict(extra="forbid")
+    error: str
+    kind: str = "disconnected"
+
+
+#: Every reply line the helper may send (``linuxcnc_hal.py``'s docstring). pydantic's
+#: JSON parser bounds nesting: a line of 60,000 ``[`` is a validation error, not a RecursionError.
+_REPLY: TypeAdapter[_Done | _Refused] = TypeAdapter(_Done | _Refused)
+#: A HAL value: a bit, an s32 or u32, or a float.
+_HalValue = StrictBool | Annotated[int, Field(strict=True, ge=_S32[0], le=2**32 - 1)] | StrictFloat
+#: The payload of each request's ``ok``: the values read by address, or nothing.
+_READ: TypeAdapter[dict[str, bool | int | float]] = TypeAdapter(dict[str, _HalValue])
+_NOTHING: TypeAdapter[None] = TypeAdapter(None)
 
 
 class LinuxCncSettings(BaseModel):
@@ -161,7 +194,7 @@ class LinuxCncDriver:
         self._stderr_task = asyncio.create_task(self._keep_stderr(process))
         scale = s.count_um / _UM_PER_UNIT[s.linear_units]
         try:
-            await self._request({"open": {"scale": scale}})
+            await self._request({"open": {"scale": scale}}, _NOTHING)
         except DriverError:
             await self.close()
             raise
@@ -178,7 +211,10 @@ class LinuxCncDriver:
         for address in points:
             if not _HAL_NAME.fullmatch(address):
                 raise DriverProtocolError(f"LinuxCNC: {address!r} is not a HAL name (<= 41 chars)")
-        values: dict[str, Any] = await self._request({"read": list(points)})
+        values: dict[str, bool | int | float] = await self._request({"read": list(points)}, _READ)
+        if not values.keys() <= set(points):
+            unasked = sorted(values.keys() - set(points))[:3]
+            raise DriverProtocolError(f"LinuxCNC: the HAL helper answered for unasked {unasked}")
         return values
 
     async def write(self, values: Mapping[str, float]) -> None:
@@ -190,7 +226,7 @@ class LinuxCncDriver:
                 raise DriverProtocolError(f"LinuxCNC: {address}: {value} counts do not fit s32")
             self._check_axis(address[5:])
             counts[address] = round(value)
-        await self._request({"write": counts})
+        await self._request({"write": counts}, _NOTHING)
 
     async def close(self) -> None:
         process, self._process = self._process, None
@@ -211,8 +247,12 @@ class LinuxCncDriver:
 
     # -- internals ----------------------------------------------------------
 
-    async def _request(self, request: dict[str, Any]) -> Any:
-        """Send one request line, await its reply line; failures become DriverError."""
+    async def _request(self, request: dict[str, Any], payload: TypeAdapter[Any]) -> Any:
+        """Send one request line, await its reply line, check it; failures become DriverError.
+
+        ``payload`` is the schema of the reply's ``ok``: a reply of any other
+        shape is a :class:`~compd.errors.DriverProtocolError`.
+        """
         process, lock = self._process, self._lock
         if process is None or lock is None:
             raise DriverDisconnectedError("LinuxCNC driver is not open")
@@ -241,15 +281,16 @@ class LinuxCncDriver:
                     await asyncio.wait_for(asyncio.shield(task), 1.0)
             raise DriverDisconnectedError(self._gone(_ENDED))
         try:
-            reply = json.loads(line)
-        except ValueError as exc:
-            raise DriverProtocolError(f"LinuxCNC: the HAL helper said {line[:200]!r}") from exc
-        if "error" in reply:
-            kind = (
-                DriverProtocolError if reply.get("kind") == "protocol" else DriverDisconnectedError
-            )
-            raise kind(f"LinuxCNC: {reply['error']}")
-        return reply["ok"]
+            reply = _REPLY.validate_json(line)
+            if isinstance(reply, _Refused):
+                kind = DriverProtocolError if reply.kind == "protocol" else DriverDisconnectedError
+                raise kind(f"LinuxCNC: {reply.error}")
+            return payload.validate_python(reply.ok)
+        except ValidationError as exc:
+            raise DriverProtocolError(
+                f"LinuxCNC: the HAL helper's reply {line[:200]!r} is not a reply to "
+                f"{next(iter(request))}: {_first_error(exc)}"
+            ) from exc
 
     def _gone(self, what: str) -> str:
         tail = " | ".join(self._stderr)
@@ -278,3 +319,10 @@ class LinuxCncDriver:
                 f"so LinuxCNC ignores external offsets on {axis.upper()}; set it (e.g. 0.1)"
             )
         self._checked_axes.add(axis)
+
+
+def _first_error(exc: ValidationError) -> str:
+    """The first thing pydantic found wrong, with where (``ok.<address>``) when it is inside."""
+    first = exc.errors()[0]
+    where = ".".join(str(part) for part in first["loc"] if part not in ("_Done", "_Refused"))
+    return first["msg"] + (f" (at {where})" if where else "")

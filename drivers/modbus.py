@@ -37,11 +37,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import struct
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Hashable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from compd.drivers.base import RawReading
+from compd.drivers.endpoints import modbus_units
 from compd.drivers.library_logs import quiet_library
 from compd.drivers.modbus_addresses import (
     BIT_TABLES,
@@ -116,12 +117,21 @@ class ModbusDriver:
             raise ValueError(f"a {point.table} cannot be written; use holding or coil")
 
     @staticmethod
-    def footprint(address: str, settings: ModbusSettings) -> frozenset[tuple[int, str, int]]:
-        """The ``(device, table, register or bit)`` cells a value at ``address`` spans."""
+    def footprint(address: str, settings: ModbusSettings) -> frozenset[tuple[Hashable, ...]]:
+        """The ``(endpoint, unit, table, register or bit)`` cells a value at ``address`` spans.
+
+        The unit ids a value may reach are those of :func:`compd.drivers.endpoints.modbus_units`:
+        on Modbus TCP every one unless ``unit_ids: separate``, on a serial
+        line its own (every one for the broadcast id 0).
+        """
         point = parse_address(address)
         device = settings.device_id if point.device_id is None else point.device_id
+        where = settings.endpoint()
         span = range(point.address, point.address + point.count)
-        return frozenset((device, point.table, a) for a in span)
+        units = modbus_units(
+            device, serial=settings.transport == "rtu", separate=settings.unit_ids == "separate"
+        )
+        return frozenset((where, unit, point.table, a) for unit in units for a in span)
 
     @staticmethod
     def raw_range(address: str, settings: ModbusSettings) -> tuple[int, int] | None:
@@ -318,9 +328,13 @@ class ModbusDriver:
         what = f"read {table} {start}..{start + count - 1} of device {device}"
         reply = await self._call(calls[table](start, count=count, device_id=device), what)
         words: list[int] | list[bool] = reply.bits if table in BIT_TABLES else reply.registers
-        if len(words) < count:
+        # A reply of another length than asked is not an answer to this request;
+        # bits come in whole bytes, so a bit reply holds count rounded up to 8.
+        expected = -(-count // 8) * 8 if table in BIT_TABLES else count
+        if len(words) != expected:
+            kind = "short" if len(words) < expected else "long"
             raise DriverProtocolError(
-                f"Modbus {self._where()}: {what}: short reply ({len(words)} of {count})"
+                f"Modbus {self._where()}: {what}: {kind} reply ({len(words)} of {expected})"
             )
         return words
 

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import asyncio
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from pathlib import Path
 
 import structlog
@@ -116,17 +116,34 @@ class OpcUaDriver:
     settings_model = OpcUaSettings
 
     @staticmethod
-    def footprint(address: str, settings: OpcUaSettings) -> frozenset[str]:
-        """The node: a NodeId in its canonical form (``ns=2;s=X``), else the browse path.
+    def footprint(address: str, settings: OpcUaSettings) -> frozenset[tuple[Hashable, ...]]:
+        """The node on the server: a NodeId in its canonical form (``ns=2;s=X``), else the browse path.
 
         A NodeId and a browse path naming the same node are told apart only
-        by the server, so only the same spelling counts as the same node here.
+        by the server: :meth:`naming` says which way an address names its
+        node, and ``check-config`` refuses a mix where compd writes.
         """
         try:
             node_id = _node_id(address)
         except DriverProtocolError:  # not a NodeId: its text is all there is to compare
-            return frozenset({address})
-        return frozenset({node_id.to_string() if node_id is not None else address.lstrip("/")})
+            node_id = None
+        text = node_id.to_string() if node_id is not None else address.lstrip("/")
+        return frozenset({(settings.endpoint(), "node", text)})
+
+    @staticmethod
+    def naming(address: str, settings: OpcUaSettings) -> str:
+        """``a NodeId``, ``a NodeId with a namespace URI`` or ``a browse path``."""
+        try:
+            node_id = _node_id(address)
+        except DriverProtocolError:
+            node_id = None
+        if node_id is None:
+            return "a browse path"
+        return (
+            "a NodeId with a namespace URI"
+            if isinstance(node_id, ua.ExpandedNodeId)
+            else "a NodeId"
+        )
 
     @staticmethod
     def reads_back(settings: OpcUaSettings) -> bool:

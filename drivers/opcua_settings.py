@@ -9,8 +9,10 @@ password, which would otherwise cross the wire in clear.
 from __future__ import annotations
 
 from typing import Literal
+from urllib.parse import urlsplit
 
 from asyncua.crypto import security_policies
+from compd.drivers.endpoints import Endpoint, tcp_endpoint
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 #: Security policies offered in ``security.policy``, by their OPC UA names.
@@ -18,6 +20,8 @@ POLICIES: dict[str, type[security_policies.SecurityPolicy]] = {
     "Basic256Sha256": security_policies.SecurityPolicyBasic256Sha256,
     "Aes256_Sha256_RsaPss": security_policies.SecurityPolicyAes256Sha256RsaPss,
 }
+#: OPC UA's registered TCP port, where a URL names none.
+DEFAULT_PORT = 4840
 #: The fix named when ``security`` is missing, or ``none`` with a password.
 _SECURITY_FIX = (
     "give security.certificate, security.private_key and security.server_certificate "
@@ -55,6 +59,15 @@ class OpcUaSettings(BaseModel):
     password_file: str | None = Field(default=None, description="file holding the password")
     password_env: str | None = Field(default=None, description="environment variable")
     request_timeout_s: float = Field(default=2.0, gt=0, description="per OPC UA request")
+
+    def endpoint(self) -> Endpoint:
+        """The server's host and port (4840 unless the URL says otherwise); the path names no other server."""
+        url = urlsplit(self.url)
+        try:
+            port = url.port or DEFAULT_PORT
+        except ValueError:  # not a number: connecting fails; compare the text meanwhile
+            return ("opc.tcp", url.netloc.lower())
+        return tcp_endpoint("opc.tcp", url.hostname or "", port)
 
     @model_validator(mode="before")
     @classmethod

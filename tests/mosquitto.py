@@ -28,7 +28,7 @@ from compd.files.yamlplace import resolve_path
 from compd.service.config import Config, load_config
 
 #: Real-time bound of the waits below: generous, a busy CI machine must not fail them.
-WAIT_S = 30.0
+WAIT_S = 90.0  # a failure guard only: three daemons start on a loaded 2-core machine
 
 
 def mosquitto_binary() -> str | None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -102,6 +103,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CompdError as exc:
         print(f"compd: error: {exc}", file=sys.stderr)
         return EXIT_INPUT_ERROR
+    except BrokenPipeError:
+        return _reader_went_away()
+
+
+#: A shell's exit status for a command ended by SIGPIPE (128 + 13), as `yes | head` gives.
+EXIT_BROKEN_PIPE = 141
+
+
+def _reader_went_away() -> int:
+    """``compd help | head``: the reader closed the pipe; end quietly, as a filter does.
+
+    Python's own recipe: point stdout at /dev/null, so that the interpreter's
+    final flush does not raise the same error again as it exits.
+    """
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    return EXIT_BROKEN_PIPE
 
 
 def build_parser(module: str | None = None) -> argparse.ArgumentParser:

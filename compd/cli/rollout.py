@@ -109,7 +109,7 @@ class _Listener:
         parts = message.topic.removeprefix(f"{self.prefix}/").split("/")
         try:
             payload = json.loads(message.payload)
-        except ValueError:
+        except (ValueError, RecursionError):  # not a reply compd sent: nesting too deep to parse
             return
         kind = "reply" if parts[1:2] == ["reply"] else parts[1]
         with self.lock:

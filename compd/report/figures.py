@@ -319,7 +319,13 @@ def conditions(report: ReportData) -> go.Figure | None:
         return None
     x = time_h(report)
     data = report.data
-    fig = make_subplots(rows=len(groups), cols=1, shared_xaxes=True, vertical_spacing=0.07)
+    height_px = 70 + 190 * len(groups)
+    fig = make_subplots(
+        rows=len(groups),
+        cols=1,
+        shared_xaxes=True,
+        vertical_spacing=_panel_gap(len(groups), height_px),
+    )
     palette = ("#1f5fa8", "#d1495b", "#2a9d8f", "#e9c46a", "#6a4c93", "#f4a261", "#264653")
     for row, group in enumerate(groups, start=1):
         legend = "legend" if row == 1 else f"legend{row}"
@@ -343,7 +349,7 @@ def conditions(report: ReportData) -> go.Figure | None:
     fig.update_xaxes(title_text="time (h)", row=len(groups), col=1)
     fig.update_layout(
         template="plotly_white",
-        height=70 + 190 * len(groups),
+        height=height_px,
         hovermode="x unified",
         showlegend=True,  # plotly hides a legend of one trace otherwise
     )
@@ -358,6 +364,17 @@ def conditions(report: ReportData) -> go.Figure | None:
             "font": {"size": 11},
         }
     return _time_axis(fig, report)
+
+
+def _panel_gap(rows: int, height_px: int) -> float:
+    """The gap between stacked panels as plotly wants it: a share of the height, < 1 / (rows - 1).
+
+    About 50 px whatever the number of panels: room for the next panel's
+    legend, which sits at its top.
+    """
+    if rows < 2:
+        return 0.0
+    return min(50.0 / height_px, 0.5 / (rows - 1))
 
 
 def _axis_title(label: str, unit: str) -> str:

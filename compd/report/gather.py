@@ -213,6 +213,21 @@ def column_unit(name: str, declared: Mapping[str, str]) -> tuple[str, str]:
     return name, ""
 
 
+def _constant(values: np.ndarray) -> bool:
+    return values.size == 0 or bool(np.ptp(values) == 0.0)
+
+
+def _family(name: str) -> str:
+    """A unit-less column's axis: its name without a trailing number (``T12`` -> ``T*``).
+
+    A real record logged by someone else often names its sensors ``T1`` ..
+    ``T16`` or ``temp_3``: one family, one axis. A name without a number keeps
+    an axis of its own.
+    """
+    stem = re.sub(r"[\s_\-.]*\d+$", "", name)
+    return f"{stem}*" if stem and stem != name else name
+
+
 def declared_units(*evaluations: Evaluation | None) -> dict[str, str]:
     """Signal -> unit as the models declare them (``signals.<name>.unit``), later models last."""
     declared: dict[str, str] = {}
@@ -234,10 +249,12 @@ def condition_groups(
     groups: dict[tuple[str, str], list[str]] = {}
     for name, values in evaluation.data.columns.items():
         label, unit = column_unit(name, declared)
-        if unit == "um":
-            continue
+        if unit == "um" or _constant(values):
+            continue  # displacements are the outputs; a constant signal would be an empty panel
         if np.isin(values, (0.0, 1.0)).all() and not re.search(r"_(rpm|kw)$", name, re.I):
             label, unit = "on/off", "0/1"
+        elif not unit:
+            label = _family(name)  # T1 .. T16 on one axis, not sixteen
         groups.setdefault((label, unit), []).append(name)
 
     def rank(key: tuple[str, str]) -> tuple[int, str]:

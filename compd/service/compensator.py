@@ -63,6 +63,8 @@ class Counters:
     offset_mismatches: int = 0
     #: Models that failed while running (an exception, a state gone NaN/inf) and were unloaded.
     model_failures: int = 0
+    #: Offsets read back (per axis and tick) outside the clamp or not finite, replaced not followed.
+    offsets_out_of_clamp: int = 0
 
 
 class Compensator:
@@ -78,7 +80,9 @@ class Compensator:
        ``on_model_failure`` is told); a model fault sets the model-fault bit and level
        faulted;
     4. per axis ``target = sign * output``, through the safety stage, frozen while an
-       input the axis depends on is faulted;
+       input the axis depends on is faulted; an axis whose offset read back outside its
+       clamp (or not finite) writes its stage's recovery value instead (level faulted
+       and the mismatch bit, :mod:`compd.service.safety`);
     5. write offsets, status word and heartbeat, all drivers concurrently.
 
     Without a model (``model=None``: a data logger, no axes) steps 3 and 4 are
@@ -191,6 +195,8 @@ class Compensator:
         values, held = await self.points.read()
         mismatches = self.held.read_back(held)
         self.counters.offset_mismatches += mismatches
+        out_of_clamp = self.held.out_of_clamp
+        self.counters.offsets_out_of_clamp += len(out_of_clamp)
         readings = {}
         for point in self.signals:
             monitor = self.monitors[point.name]
@@ -222,9 +228,12 @@ class Compensator:
             depends = self.active.depends[axis.model_output]
             faulted = any(readings[s].health is Health.FAULTED for s in depends)
             targets[axis.name] = target = axis.sign * output
-            result = self.safety[axis.name].step(target, t_s, faulted=faulted)
+            stage = self.safety[axis.name]
+            # An offset read back outside the clamp: this tick writes the policy's value as is.
+            clamp_fault = axis.name in out_of_clamp
+            result = stage.hold() if clamp_fault else stage.step(target, t_s, faulted=faulted)
             offsets[axis.name] = result.offset_um
-            any_frozen |= faulted
+            any_frozen |= faulted or clamp_fault
             if result.clamped:
                 flags.add(Flag.CLAMPED)
             if result.slewed:
@@ -245,7 +254,9 @@ class Compensator:
             level,
             flags,
             bad,
-            mismatch=mismatches > 0 and status is not None and status.mismatch_bit,
+            mismatch=bool(mismatches or out_of_clamp)
+            and status is not None
+            and status.mismatch_bit,
             model_fault=self.model_fault is not None
             and status is not None
             and status.model_fault_bit,

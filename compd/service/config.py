@@ -47,6 +47,7 @@ from compd.files.yamlplace import (
 from compd.service import paths
 from compd.service.configdoc import SCHEMA, ConfigDoc
 from compd.service.offsets import AxisPoint
+from compd.service.overlaps import check_overlaps
 from compd.service.points import StatusPoint
 from compd.service.schedule import first_overlap
 from compd.service.writepoints import (
@@ -179,6 +180,7 @@ def parse_config(text: str, path: Path) -> Config:
     _check_effect_signals(doc, at.error)
     _check_gain_schedule(doc, at.error)
     _check_addresses(doc, types, settings, at.error)
+    check_overlaps(doc, types, settings, at.error, at.place)
     check_written(doc, types, settings, at.error)
     readback = output_readback(doc, types, settings, at.error)
     _check_load_access(doc, at.error)
@@ -213,6 +215,10 @@ class _Places:
 
     def error(self, location: tuple[str | int, ...], message: str, fix: str) -> ConfigFileError:
         return ConfigFileError(self.path, message, where=where(self.root, location), fix=fix)
+
+    def place(self, location: tuple[str | int, ...]) -> str:
+        """``line N (a.b.c)``: a place named in another place's error."""
+        return where(self.root, location)
 
     def invalid(self, exc: ValidationError, prefix: tuple[str | int, ...]) -> ConfigFileError:
         return validation_error(exc, self.path, self.root, prefix)

@@ -33,7 +33,7 @@ from compd.service.offsets import AxisPoint
 from compd.service.points import SignalPoint, StatusPoint
 from compd.service.recorder import Recorder
 from compd.service.recorder_parquet import DEFAULT_FLUSH_EVERY_ROWS, ParquetRecorder
-from compd.service.safety import AxisLimits, AxisSafety, FaultMode
+from compd.service.safety import AxisLimits, AxisSafety, FaultMode, OutOfClamp
 from compd.service.schedule import GainRow, GainScheduler, GainTable
 from compd.service.signals import Checks, SignalMonitor
 
@@ -131,6 +131,7 @@ class OutputDoc(Strict):
             on_fault=FaultMode(safety.on_fault),
             fault_ramp_after_s=safety.fault_ramp_after_s,
             offset_um=offset_um,
+            on_out_of_clamp=OutOfClamp(safety.on_offset_out_of_clamp),
         )
 
 
@@ -176,8 +177,15 @@ class DriverDoc(Strict):
 
 
 class SafetyDoc(Strict):
+    """``safety:``: what every axis's stage does on a faulted input and on an offset read back out of clamp."""
+
     on_fault: Literal["ramp", "freeze"] = "ramp"
     fault_ramp_after_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
+    #: An offset read back outside ``±max_offset_um`` or not finite is a fault, never followed;
+    #: written instead: ``hold`` the last valid offset (at start the resumed one, else 0),
+    #: ``edge`` the nearest clamp edge (then slewing on), ``refuse`` nothing until the PLC
+    #: holds a value within the clamp (:class:`compd.service.safety.OutOfClamp`).
+    on_offset_out_of_clamp: Literal["hold", "edge", "refuse"] = "hold"
 
 
 class StateDoc(Strict):

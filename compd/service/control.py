@@ -47,6 +47,8 @@ SOCKET_MODE = 0o660
 MAX_LINE_BYTES = 2 << 20  # a command and a few options; at most a model file (1 MiB, base64)
 MAX_CONNECTIONS = 16  # a few operators and scripts; more is a runaway client
 IDLE_TIMEOUT_S = 300.0  # a client silent this long is disconnected, so it cannot hold a slot
+#: Why JSON nested deeper than Python's parser can follow (a RecursionError) is refused.
+TOO_DEEP = "arrays or objects nested too deeply to parse (a request is one flat JSON object)"
 
 Handler = Callable[[dict[str, Any]], Awaitable[dict[str, Any]]]
 """A command: takes the request object, returns the reply's fields (``ok`` is added)."""
@@ -200,6 +202,8 @@ class ControlServer:
             request = json.loads(line)
         except (ValueError, UnicodeDecodeError) as exc:
             return _refusal(f"malformed JSON request: {exc}")
+        except RecursionError:  # json's parser recurses per [ or {: a line of 2 MiB "[" ends here
+            return _refusal(f"malformed JSON request: {TOO_DEEP}")
         if not isinstance(request, dict):
             return _refusal('a request is a JSON object such as {"cmd": "status"}')
         command = request.get("cmd")
@@ -270,8 +274,9 @@ async def request(path: Path, message: dict[str, Any], *, timeout_s: float = 5.0
         raise ControlError(f"compd closed the connection on {path} without a reply")
     try:
         reply = json.loads(line)
-    except ValueError as exc:
-        raise ControlError(f"compd sent a malformed reply on {path}: {exc}") from exc
+    except (ValueError, RecursionError) as exc:
+        what = TOO_DEEP if isinstance(exc, RecursionError) else exc
+        raise ControlError(f"compd sent a malformed reply on {path}: {what}") from exc
     if not isinstance(reply, dict):
         raise ControlError(f"compd sent a reply that is not an object on {path}: {reply!r}")
     return reply

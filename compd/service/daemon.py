@@ -309,7 +309,7 @@ class Service:
 
     async def _shutdown(self) -> None:
         if self._killed:  # the OS closes the sockets; the socket file stays (stale)
-            await asyncio.gather(*(link.driver.close() for link in self.links.values()))
+            await asyncio.gather(*(link.close() for link in self.links.values()))
             if self._control is not None:
                 await self._control.close()
             return

@@ -110,7 +110,8 @@ class RecentFaults:
 
     Kinds as in ``compd_faults_total``: ``signal`` (an input turned held or
     faulted), ``driver`` (a link went down), ``write`` (a tick's writes
-    failed), ``model`` (the model faulted), ``readback_mismatch``. Only the
+    failed), ``model`` (the model faulted), ``readback_mismatch``,
+    ``offset_out_of_clamp``. Only the
     start of an episode is listed, so a fault lasting an hour is one line.
     """
 
@@ -121,6 +122,7 @@ class RecentFaults:
         self._model_fault: str | None = None
         self._written = True
         self._mismatches = 0
+        self._out_of_clamp = 0
 
     def update(
         self, record: TickRecord, comp: Compensator, links: Mapping[str, DriverLink]
@@ -153,6 +155,15 @@ class RecentFaults:
                 at, "readback_mismatch", "offsets", "an offset read back was not what compd wrote"
             )
         self._mismatches = mismatches
+        out_of_clamp = comp.counters.offsets_out_of_clamp
+        if out_of_clamp > self._out_of_clamp:
+            self._add(
+                at,
+                "offset_out_of_clamp",
+                ", ".join(sorted(comp.held.out_of_clamp)) or "offsets",
+                "an offset read back outside its clamp or not finite was replaced, not followed",
+            )
+        self._out_of_clamp = out_of_clamp
 
     def _add(self, at_unix_s: float, kind: str, source: str, message: str) -> None:
         self.events.appendleft(FaultEvent(at_unix_s, kind, source, message))

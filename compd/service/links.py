@@ -9,19 +9,30 @@ logs ERROR, repeats log DEBUG, the recovery logs INFO
 episode ends with the first read or write that succeeds after it, so a peer
 that accepts connections but never answers is one fault, not one per
 reconnect, and its reconnects keep backing off.
+
+Drivers raise only compd's :class:`~compd.errors.DriverError` family, and a
+read returns floats for the addresses asked. A driver that breaks that
+contract (a ``TypeError`` from a reply of the wrong shape, a string for a
+value) has a bug, but one bad reply must not end the loop: the link takes
+any :class:`Exception` from a driver call, and a read of the wrong shape, as
+a driver fault like any other (it goes down and reconnects), and logs the
+unexpected exception's type with its traceback once per link.
+``CancelledError`` and ``KeyboardInterrupt`` are not :class:`Exception` and
+pass through.
 """
 
 from __future__ import annotations
 
 import asyncio
 import math
+import numbers
 import time
 from collections.abc import Callable, Mapping, Sequence
 
 import structlog
 
 from compd.drivers.base import Driver
-from compd.errors import DriverError
+from compd.errors import DriverError, DriverProtocolError
 from compd.faultlog import EventSink, FaultLog
 from compd.service.clock import Clock
 
@@ -57,6 +68,7 @@ class DriverLink:
         self.next_attempt_s = -math.inf
         self._connecting: asyncio.Task[None] | None = None
         self._ever_up = False
+        self._unexpected: set[type[BaseException]] = set()  # exception types logged once
         #: Told ``(operation, seconds)`` after each read or write, failed ones too (:mod:`compd.service.metrics`).
         self.observe: Callable[[str, float], None] | None = None
 
@@ -92,7 +104,7 @@ class DriverLink:
         try:
             async with asyncio.timeout(self.timeout_s):
                 await self.driver.open()
-        except (DriverError, TimeoutError, OSError) as exc:
+        except Exception as exc:  # any driver fault reconnects (module docstring)
             self._failed("open", exc)
             return
         if self._ever_up:
@@ -112,8 +124,8 @@ class DriverLink:
         started_s = time.perf_counter()
         try:
             async with asyncio.timeout(self.timeout_s):
-                values: dict[str, float] = await self.driver.read(points)
-        except (DriverError, TimeoutError, OSError) as exc:
+                values = _floats(await self.driver.read(points), points)
+        except Exception as exc:  # any driver fault reconnects (module docstring)
             self._failed("read", exc)
             return {}
         finally:
@@ -131,7 +143,7 @@ class DriverLink:
         try:
             async with asyncio.timeout(self.timeout_s):
                 await self.driver.write(values)
-        except (DriverError, TimeoutError, OSError) as exc:
+        except Exception as exc:  # any driver fault reconnects (module docstring)
             self._failed("write", exc)
             return False
         finally:
@@ -146,7 +158,7 @@ class DriverLink:
         try:
             async with asyncio.timeout(self.timeout_s):
                 await self.driver.close()
-        except (DriverError, TimeoutError, OSError) as exc:
+        except Exception as exc:  # close() never raises into the loop
             log.debug("driver close failed", driver=self.name, error=repr(exc))
         self.up = False
 
@@ -157,12 +169,48 @@ class DriverLink:
             self._fault.cleared(event, kind=kind, after_failures=self.failures)
             self.failures, self._ever_up = 0, True
 
-    def _failed(self, action: str, exc: BaseException) -> None:
+    def _failed(self, action: str, exc: Exception) -> None:
+        if not isinstance(exc, (DriverError, TimeoutError, OSError)):
+            self._log_unexpected(action, exc)
         self._fault.failed(f"driver {action} failed", error=_text(exc))
         self.up = False
         self.failures += 1
         backoff_s = min(self.backoff_max_s, self.backoff_min_s * 2 ** (self.failures - 1))
         self.next_attempt_s = self.clock.now() + backoff_s
+
+    def _log_unexpected(self, action: str, exc: Exception) -> None:
+        """Once per exception type: the traceback of a driver raising outside its contract."""
+        if type(exc) in self._unexpected:
+            return
+        self._unexpected.add(type(exc))
+        log.error(
+            f"driver {action} raised {type(exc).__name__}, not a DriverError: a bug in the "
+            "driver; the link treats it as a fault and reconnects",
+            driver=self.name,
+            exc_info=exc,
+        )
+
+
+def _floats(values: object, points: Sequence[str]) -> dict[str, float]:
+    """A read's values as floats, for the addresses asked (others dropped); a non-number is a fault."""
+    if not isinstance(values, Mapping):
+        raise DriverProtocolError(f"read returned {type(values).__name__}, not values by address")
+    floats = {}
+    for address in points:
+        if address not in values:
+            continue
+        value = values[address]
+        if not isinstance(value, numbers.Real):  # numpy's scalars are Real too
+            raise DriverProtocolError(
+                f"read returned {type(value).__name__} {value!r:.40} for {address!r}, not a number"
+            )
+        try:
+            floats[address] = float(value)
+        except OverflowError as exc:  # an int beyond any float
+            raise DriverProtocolError(
+                f"read returned an integer beyond any float for {address!r}"
+            ) from exc
+    return floats
 
 
 def _text(exc: BaseException) -> str:

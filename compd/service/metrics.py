@@ -114,7 +114,8 @@ class LiveCollector(Collector):
             "compd_faults",
             "Fault episodes by kind: signal (an input faulted), driver (a link failed), "
             "write (a tick's writes failed), model (a model failed and was unloaded), "
-            "readback_mismatch (an offset read back was not what compd wrote).",
+            "readback_mismatch (an offset read back was not what compd wrote), "
+            "offset_out_of_clamp (an offset read back outside its clamp or not finite).",
             labels=["kind"],
         )
         faults.add_metric(["signal"], counters.signal_faults)
@@ -122,6 +123,7 @@ class LiveCollector(Collector):
         faults.add_metric(["write"], counters.write_failures)
         faults.add_metric(["model"], counters.model_failures)
         faults.add_metric(["readback_mismatch"], counters.offset_mismatches)
+        faults.add_metric(["offset_out_of_clamp"], counters.offsets_out_of_clamp)
         yield faults
 
         driver_faults = CounterMetricFamily(

@@ -13,6 +13,12 @@ per axis :class:`HeldOffsets` keeps the raw value the device holds:
   the next write is one slew step from what the PLC holds. While it cannot
   be read, the axis's offset is not written at all: never a step from a
   value nobody knows.
+- a value read back outside the axis's clamp (:meth:`AxisPoint.within`), or
+  not finite, is never a seed: it is a fault (:attr:`HeldOffsets.out_of_clamp`),
+  logged at ERROR once per episode, and the axis writes what the stage's
+  policy names instead (:meth:`compd.service.safety.AxisSafety.recover`: the
+  last valid offset, the clamp edge, or nothing). compd then knows no valid
+  value the point holds until it reads one back or a write is acknowledged.
 - without readback, the last acknowledged write; at start the stage's seed
   (a validated saved state, else 0).
 
@@ -30,6 +36,7 @@ from dataclasses import dataclass
 
 import structlog
 
+from compd.faultlog import FaultLog
 from compd.service.safety import AxisSafety
 
 log = structlog.get_logger("compd.service.offsets")
@@ -59,6 +66,13 @@ class AxisPoint:
     def decode(self, raw: float) -> float:
         """The offset (um) a raw value at the point stands for."""
         return raw / self.scale
+
+    def within(self, raw: float, max_offset_um: float) -> bool:
+        """Whether ``raw`` is finite and within ``±max_offset_um`` as written (to a count, or float32's precision)."""
+        if not math.isfinite(raw):
+            return False
+        reach = abs(self.encode(max_offset_um))
+        return abs(raw) <= reach or self.same(abs(raw), reach)
 
     def same(self, raw: float, other: float) -> bool:
         """Two raw values are one offset: equal counts, or equal to float32's precision."""
@@ -93,10 +107,16 @@ class HeldOffsets:
         self._mismatching: set[str] = set()
         #: Readback axes whose value could not be read this tick: not written.
         self.unknown: set[str] = set()
+        #: Readback axes whose value this tick was outside the clamp or not finite, and the
+        #: offset (um) written instead (None: none, ``refuse``); reset by each :meth:`read_back`.
+        self.out_of_clamp: dict[str, float | None] = {}
+        #: One fault-episode log per axis for values read back outside the clamp.
+        self.clamp_faults = {a.name: FaultLog(log, axis=a.name) for a in self.axes}
 
     def read_back(self, held: Mapping[str, float]) -> int:
         """Take in the raw offsets read back (by axis name); returns how many mismatched."""
         mismatches = 0
+        self.out_of_clamp = {}
         for axis in self.axes:
             if not axis.readback:
                 continue
@@ -107,16 +127,22 @@ class HeldOffsets:
             if axis.name in self.unknown:
                 self.unknown.discard(axis.name)
                 log.info("offset read back again", axis=axis.name, held_um=axis.decode(raw))
+            stage, fault = self.safety[axis.name], self.clamp_faults[axis.name]
+            if not axis.within(raw, stage.limits.max_offset_um):
+                self._out_of_clamp(axis, raw)
+                continue
             known, sent = self.raw[axis.name], self._sent[axis.name]
+            recovered = fault.active
+            fault.cleared("offset read back within the clamp again", held_um=axis.decode(raw))
             if known is None:
-                log.info("offset seeded from the PLC", axis=axis.name, held_um=axis.decode(raw))
+                if not recovered:
+                    log.info("offset seeded from the PLC", axis=axis.name, held_um=axis.decode(raw))
             elif not axis.same(raw, known) and not (sent is not None and axis.same(raw, sent)):
                 mismatches += 1
                 self._mismatch(axis, raw, known)
             elif axis.name in self._mismatching:
                 self._mismatching.discard(axis.name)
                 log.info("offset read back as written again", axis=axis.name)
-            stage = self.safety[axis.name]
             if not axis.same(raw, axis.encode(stage.offset_um)):
                 stage.load(axis.decode(raw))
             self.raw[axis.name], self._sent[axis.name] = raw, None
@@ -126,7 +152,8 @@ class HeldOffsets:
         """Raw value to write per axis: the stage's offset, in counts no further than a step; unknown axes left out."""
         raws = {}
         for axis in self.axes:
-            if axis.name not in self.unknown:
+            refused = axis.name in self.out_of_clamp and self.out_of_clamp[axis.name] is None
+            if axis.name not in self.unknown and not refused:
                 step_um = self.safety[axis.name].max_step_um
                 raw = axis.encode(offsets_um[axis.name])
                 raws[axis.name] = axis.toward(raw, self.raw[axis.name], step_um)
@@ -159,6 +186,22 @@ class HeldOffsets:
                 address=axis.address,
             )
         self.unknown.add(axis.name)
+
+    def _out_of_clamp(self, axis: AxisPoint, raw: float) -> None:
+        """A value compd cannot have written: replaced as the stage's policy says, never a seed."""
+        stage = self.safety[axis.name]
+        held_um = axis.decode(raw)
+        self.out_of_clamp[axis.name] = written_um = stage.recover(held_um)
+        # What the point holds is no valid offset: nothing to slew from, nothing to save.
+        self.raw[axis.name] = self._sent[axis.name] = None
+        self.clamp_faults[axis.name].failed(
+            "offset read back outside the clamp or not finite: not followed, "
+            + ("left unwritten" if written_um is None else "replaced"),
+            held_um=held_um,
+            max_offset_um=stage.limits.max_offset_um,
+            policy=str(stage.on_out_of_clamp),
+            written_um=written_um,
+        )
 
     def _mismatch(self, axis: AxisPoint, raw: float, known: float) -> None:
         if axis.name in self._mismatching:

@@ -81,7 +81,13 @@ class DriverBatches:
         }
 
     async def read(self) -> tuple[dict[str, float], dict[str, float]]:
-        """Signal values by name, and the raw offsets read back by axis name."""
+        """Signal values by name, and the raw offsets read back by axis name.
+
+        An offset read back is passed on whatever it is -- NaN, inf and a value
+        that is no number (as NaN) included: what the PLC holds is judged by
+        :class:`~compd.service.offsets.HeldOffsets`, which takes such a value as
+        a fault, never as "not read" (which would leave it in place unflagged).
+        """
         drivers = list(self._reads)
         results = await _all([self.links[d].read(self._addresses[d]) for d in drivers])
         values: dict[str, float] = {}
@@ -91,9 +97,8 @@ class DriverBatches:
                 if point.address in raw:
                     values[point.name] = point.convert(raw[point.address])
             for axis in self._readbacks.get(driver, []):
-                value = raw.get(axis.address)
-                if value is not None and math.isfinite(value):
-                    held[axis.name] = value
+                if axis.address in raw:
+                    held[axis.name] = _number(raw[axis.address])
         return values, held
 
     async def write(self, raws: Mapping[str, float], word: int, heartbeat: int) -> dict[str, bool]:
@@ -117,6 +122,16 @@ class DriverBatches:
             return False
         batch = {point.status_address: float(word), point.heartbeat_address: float(heartbeat)}
         return await self.links[point.driver].write(batch)
+
+
+def _number(value: object) -> float:
+    """``value`` as a float; NaN for what is none (a string, None, an int beyond float's range)."""
+    if isinstance(value, str | bytes):
+        return math.nan
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError, OverflowError):
+        return math.nan
 
 
 async def _all(calls: list[Coroutine[Any, Any, T]]) -> list[T]:

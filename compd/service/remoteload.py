@@ -50,6 +50,7 @@ import structlog
 from compd.errors import CompdError
 from compd.faultlog import Event, EventSink
 from compd.files.yamlplace import MAX_YAML_BYTES, shorten
+from compd.service.control import TOO_DEEP
 from compd.service.modelload import load_request, request_bytes
 from compd.service.seenrequests import SeenRequests
 
@@ -167,6 +168,8 @@ def _parse(payload: bytes) -> dict[str, Any]:
         request = json.loads(payload)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CompdError(f"the request is not JSON ({exc})") from exc
+    except RecursionError as exc:  # json's parser recurses per [ or {: 1M "[" ends here
+        raise CompdError(f"the request is not JSON compd reads: {TOO_DEEP}") from exc
     if not isinstance(request, dict):
         raise CompdError("the request is not a JSON object")
     request_id = request.get("request_id")

@@ -14,9 +14,31 @@ so no written offset is ever NaN or inf, and no two consecutive offsets
 differ by more than ``R*T`` -- at start, at a model change, on recovery,
 always. ``last`` is what the machine holds: :meth:`AxisSafety.load` re-seeds
 it at start and whenever the offset point reads back something else (the
-service, :mod:`compd.service.offsets`). An offset loaded outside ``±M`` (held by the PLC,
-or saved under a larger limit) walks into range at the slew rate rather than
-jumping.
+service, :mod:`compd.service.offsets`).
+
+The stage never starts outside the clamp: ``last`` is always finite and
+within ``±M`` (:meth:`AxisSafety.load` clips a value beyond, NaN gives 0). An
+offset point that reads back a value outside ``±M`` (500 um, or 3e38 in a
+float32 register; to a count, or float32's precision), or one that is not
+finite (NaN, inf), holds a value compd never wrote and no slew limit can
+vouch for: it is a fault, not a seed. The axis then writes, on that tick and without a model
+step, exactly the value :meth:`AxisSafety.recover` names for the configured
+policy (``safety.on_offset_out_of_clamp``, :class:`OutOfClamp`):
+
+- ``hold`` (default): ``last``, the last valid offset compd knows -- what it
+  last wrote or read back within the clamp; at start the resumed offset
+  (range-checked, :mod:`compd.service.state`), else 0 (no compensation);
+- ``edge``: the clamp edge nearest the value read (``+M`` for 500 um or
+  3e38, ``-M`` for -3000 um; a NaN as ``hold``), and the stage slews on from
+  there towards the model's target;
+- ``refuse``: nothing; the axis is not written until its point holds a value
+  within the clamp again (set by the PLC or an operator), and the stage keeps ``last``.
+
+That write is the one step the slew limit does not bound: the register
+already holds a value outside the limits, and the jump back into them is the
+correction. The tick is flagged faulted (level 2) with the readback-mismatch
+bit, counted (``offsets_out_of_clamp``) and logged at ERROR once per episode
+(:mod:`compd.service.offsets`); a value read back within the clamp ends it.
 
 The status word written beside the offsets lets the PLC supervise compd:
 
@@ -28,7 +50,8 @@ The status word written beside the offsets lets the PLC supervise compd:
 - the bit after the last signal's (bit ``8 + n`` for ``n`` signals, when ``n < 24``):
   offset readback mismatch -- an axis's offset point did not hold what compd last
   wrote (a PLC restart that cleared it, another writer), and its slew limit was
-  re-seeded from what it did hold. Placed there, not at bit 31, so that a
+  re-seeded from what it did hold; or, with level 2, it held a value outside the
+  clamp or not finite, which was replaced as above. Placed there, not at bit 31, so that a
   16-bit status register has it for up to 7 signals; where the register has
   no bit left, the mismatch is only logged and counted;
 - the bit after that (``8 + n + 1``): model fault -- the model's output is not
@@ -74,6 +97,14 @@ class FaultMode(StrEnum):
     FREEZE = "freeze"  # hold the last offset until the input recovers
 
 
+class OutOfClamp(StrEnum):
+    """What an axis writes when its offset point reads back a value outside ``±M`` or not finite."""
+
+    HOLD = "hold"  # the last valid offset compd knows (at start: the resumed one, else 0)
+    EDGE = "edge"  # the clamp edge nearest the value read (NaN: as hold), slewing on from there
+    REFUSE = "refuse"  # nothing, until the point holds a value within the clamp again
+
+
 @dataclass(frozen=True)
 class AxisLimits:
     max_offset_um: float
@@ -101,18 +132,47 @@ class AxisSafety:
         on_fault: FaultMode = FaultMode.RAMP,
         fault_ramp_after_s: float = 60.0,
         offset_um: float = 0.0,
+        on_out_of_clamp: OutOfClamp = OutOfClamp.HOLD,
     ) -> None:
         self.limits = limits
         self.max_step_um = limits.max_rate_um_per_s * period_s
         self.on_fault = FaultMode(on_fault)
+        self.on_out_of_clamp = OutOfClamp(on_out_of_clamp)
         self.fault_ramp_after_s = fault_ramp_after_s
         self.offset_um = 0.0
         self.fault_since: float | None = None
         self.load(offset_um)
 
     def load(self, offset_um: float) -> None:
-        """Re-seed the last output (the offset the machine already holds), e.g. on resume."""
-        self.offset_um = offset_um if math.isfinite(offset_um) else 0.0
+        """Re-seed the last output (the offset the machine already holds), e.g. on resume.
+
+        Never outside the clamp: a value beyond ``±M`` is clipped to it, a NaN
+        or inf gives 0. Callers that may see such a value decide first what
+        it means (:meth:`within`, :meth:`recover`).
+        """
+        m = self.limits.max_offset_um
+        self.offset_um = min(max(offset_um, -m), m) if math.isfinite(offset_um) else 0.0
+
+    def within(self, offset_um: float) -> bool:
+        """Whether ``offset_um`` is finite and within the clamp ``±M``."""
+        return abs(offset_um) <= self.limits.max_offset_um  # False for NaN and inf
+
+    def recover(self, held_um: float) -> float | None:
+        """The offset to write in place of ``held_um``, read back outside the clamp; None: write none.
+
+        Seeds the stage with it (:class:`OutOfClamp`, the module docstring):
+        ``hold`` and ``refuse`` keep the last valid offset, ``edge`` moves to the
+        clamp edge nearest ``held_um``. The result is always within the clamp.
+        """
+        if self.on_out_of_clamp is OutOfClamp.REFUSE:
+            return None
+        if self.on_out_of_clamp is OutOfClamp.EDGE and not math.isnan(held_um):
+            self.offset_um = math.copysign(self.limits.max_offset_um, held_um)
+        return self.offset_um
+
+    def hold(self) -> AxisOutput:
+        """This tick's output without a model step: the last offset, as :meth:`recover` left it."""
+        return AxisOutput(self.offset_um, frozen=True)
 
     def step(self, target_um: float, now_s: float, *, faulted: bool = False) -> AxisOutput:
         """The offset to write for model target ``target_um`` at time ``now_s`` (s)."""

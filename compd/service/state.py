@@ -143,6 +143,8 @@ def load_state(state_dir: Path) -> SavedState | None:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise StateError(f"{path}: not JSON ({exc})") from exc
+    except RecursionError as exc:  # json's parser recurses per [ or {
+        raise StateError(f"{path}: not a state file (arrays nested too deeply to parse)") from exc
     if not isinstance(data, dict):
         raise StateError(f"{path}: expected a JSON object")
     return SavedState.from_dict(data)

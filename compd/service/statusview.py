@@ -95,6 +95,7 @@ def status_snapshot(
             "write_failures": counters.write_failures,
             "model_loads": counters.model_loads,
             "offset_mismatches": counters.offset_mismatches,
+            "offsets_out_of_clamp": counters.offsets_out_of_clamp,
             "model_failures": counters.model_failures,
         },
     }

@@ -1,13 +1,12 @@
 """The values compd writes to a machine, checked together: no overlap, a fine enough encoding, readback.
 
-Three rules ``check-config`` (and ``compd run``) apply to the written points
+The rules ``check-config`` (and ``compd run``) apply to the written points
 of a config -- the axis offsets, the status word and the heartbeat:
 
-- no two may share a register, byte, bit or node of one driver (each driver
-  type says which cells an address occupies,
-  :func:`compd.drivers.base.write_footprint`): a status word at
-  ``holding:101`` inside an int32 offset at ``holding:100`` makes the PLC read
-  garbage for both;
+- no two may share a register, byte, bit or node of a device, nor share one
+  with a signal, through one driver entry or several
+  (:mod:`compd.service.overlaps`): a status word at ``holding:101`` inside
+  an int32 offset at ``holding:100`` makes the PLC read garbage for both;
 - an integer-encoded offset (or one written to an integer register) must
   resolve one slew step: with a resolution ``1 / scale`` um coarser than
   ``max_rate_um_per_s * period_s``, the offset moves in steps of a whole
@@ -24,7 +23,7 @@ of a config -- the axis offsets, the status word and the heartbeat:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Hashable, Mapping
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING
 
 from pydantic import BaseModel
@@ -61,8 +60,8 @@ def check_written(
     settings: Mapping[str, BaseModel],
     error: ErrorAt,
 ) -> None:
-    """Raise for written points that overlap, an offset coarser than a slew step, a value that cannot fit."""
-    from compd.drivers.base import write_footprint, write_range
+    """Raise for an offset coarser than a slew step, or a value that cannot fit its point."""
+    from compd.drivers.base import write_range
 
     def bounds(driver: str, address: str) -> tuple[int, int] | None:
         found: tuple[int, int] | None = write_range(
@@ -70,22 +69,6 @@ def check_written(
         )
         return found
 
-    owners: dict[tuple[str, Hashable], tuple[str, str]] = {}
-    for location, driver, address in written_points(doc):
-        cells = write_footprint(types[doc.drivers[driver].type], address, settings[driver])
-        clash = next(
-            (owners[(driver, c)] for c in sorted(cells, key=str) if (driver, c) in owners), None
-        )
-        if clash is not None:
-            owner, other = clash
-            shared = "" if other == address else f" (it overlaps {other!r})"
-            raise error(
-                location,
-                f"address {address!r} on driver {driver!r} is already written by {owner}{shared}",
-                "Give every written value its own registers, bytes or node",
-            )
-        owner = ".".join(map(str, location[:2]))
-        owners.update({(driver, c): (owner, address) for c in cells})
     _check_offsets(doc, bounds, error)
     if doc.status is not None:
         _check_status(doc, bounds, error)

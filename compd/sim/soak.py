@@ -15,7 +15,10 @@ Every few (virtual) minutes a fault drawn with a seeded generator strikes:
 - ``kill``: the service is dropped as SIGKILL leaves a process -- no final
   state save, no STOPPED word, its sockets closed -- between two ticks or in
   the middle of a write (the PLC applies it, compd never hears back), and a
-  new one is started on the same state directory.
+  new one is started on the same state directory;
+- ``out_of_clamp``: the PLC's own program puts a value outside the clamp into
+  the offset register (500 um, -3000 um, the int32 extremes), which compd must
+  replace with a value within it, never slew from.
 
 The draw and the makings of each fault are :mod:`compd.sim.soakfaults`; the
 witness below is :mod:`compd.sim.soakwitness`.
@@ -23,10 +26,11 @@ witness below is :mod:`compd.sim.soakwitness`.
 A witness on the PLC's write path sees every value the offset register
 receives and judges it against what the register held just before (after
 any reset): the soak counts crashes (an exception out of the service, or a
-service that cannot be built), steps above the slew limit
-(``max_rate_um_per_s * period_s``), and offsets the service reports as
-acknowledged (:attr:`~compd.service.compensator.TickRecord.acknowledged_um`, what the
-recorder writes) that the PLC never received. Targets: 0, 0, 0.
+service that cannot be built), writes outside the clamp, steps above the
+slew limit (``max_rate_um_per_s * period_s``) from a value within the clamp,
+and offsets the service reports as acknowledged
+(:attr:`~compd.service.compensator.TickRecord.acknowledged_um`, what the
+recorder writes) that the PLC never received. Targets: 0, 0, 0, 0.
 """
 
 from __future__ import annotations
@@ -58,7 +62,14 @@ from compd.sim.plc.build import build_machine
 from compd.sim.plc.machine import MachineClock, SimulatedMachine
 from compd.sim.plc.modbus import ModbusPlcServer
 from compd.sim.plc.run import settle, start_machine
-from compd.sim.soakfaults import RESTARTS, Fault, bad_models, corrupt_state, garbage_server
+from compd.sim.soakfaults import (
+    OUT_OF_CLAMP_UM,
+    RESTARTS,
+    Fault,
+    bad_models,
+    corrupt_state,
+    garbage_server,
+)
 from compd.sim.soakwitness import SoakResult, Witness
 
 #: Virtual seconds between the end of one service and the start of the next.
@@ -111,7 +122,11 @@ class Soak:
         self.driver = out.driver
         self.machine = build_machine(config)
         self.witness = Witness(
-            out.address, out.encoding.scale, out.max_rate_um_per_s * doc.period_s, self.result
+            out.address,
+            out.encoding.scale,
+            out.max_rate_um_per_s * doc.period_s,
+            self.result,
+            max_offset_um=out.max_offset_um,
         )
         self._replace_server()
         self.clock = SoakClock(self.machine, self._strike)
@@ -178,7 +193,9 @@ class Soak:
                     await task
                 if task.exception() is not None:
                     self._crash(f"service failed: {task.exception()!r}")
-            self.result.offset_mismatches += service.compensator.counters.offset_mismatches
+            counters = service.compensator.counters
+            self.result.offset_mismatches += counters.offset_mismatches
+            self.result.offsets_out_of_clamp += counters.offsets_out_of_clamp
             self.service = None
             if how is None and task.exception() is None:
                 return  # the shift is over
@@ -282,6 +299,8 @@ class Soak:
                 await self.server.start()
 
             self._ends.append((t_s + fault.duration_s, back))
+        elif fault.kind == "out_of_clamp":
+            await self._program(OUT_OF_CLAMP_UM[fault.variant])
         elif fault.kind == "bad_model":
             assert self.service is not None
             self._loads.append(asyncio.create_task(self._load_bad(self.service, fault.variant)))

@@ -7,7 +7,9 @@ random bytes, a frame header with the wrong protocol and length, or a
 connection closed at once), ``state_corrupt`` (the state file damaged between
 a stop and a restart), ``bad_model`` (a model file ``load`` must refuse) and
 ``kill`` (the service dropped as SIGKILL leaves it: between two ticks, or in
-the middle of a write, which the PLC applies and compd never hears back).
+the middle of a write, which the PLC applies and compd never hears back) and
+``out_of_clamp`` (the PLC's own program puts a value outside the clamp into
+the offset register: 500 um, -3000 um, or the int32 register's extremes).
 """
 
 from __future__ import annotations
@@ -21,7 +23,15 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-FAULT_KINDS = ("plc_reset", "link_drop", "garbage", "state_corrupt", "bad_model", "kill")
+FAULT_KINDS = (
+    "plc_reset",
+    "link_drop",
+    "garbage",
+    "state_corrupt",
+    "bad_model",
+    "kill",
+    "out_of_clamp",
+)
 #: Faults that stop the service (the others strike while it runs).
 RESTARTS = ("state_corrupt", "kill")
 
@@ -105,6 +115,15 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "state_corrupt": ("garbage", "truncated", "empty", "offset_1e9", "offset_nan", "other_model"),
     "bad_model": ("gain_1e308", "nk_1e6", "unstable", "garbage"),
     "kill": ("between_ticks", "mid_write"),
+    "out_of_clamp": ("500um", "-3000um", "int32_max", "int32_min"),
+}
+#: What the PLC's program puts into the offset register (um) for each ``out_of_clamp`` variant;
+#: at the bundled config's 0.1 um counts the extremes are the int32 register's.
+OUT_OF_CLAMP_UM = {
+    "500um": 500.0,
+    "-3000um": -3000.0,
+    "int32_max": (2**31 - 1) / 10,
+    "int32_min": -(2**31) / 10,
 }
 
 

@@ -1,8 +1,10 @@
 """The soak's judge on the PLC's side (:mod:`compd.sim.soak`): every value the offset register receives.
 
 The :class:`Witness` sits on the PLC's write path and judges each write
-against what the register held just before (after any reset): steps above
-the slew limit, and offsets the service reports as acknowledged
+against what the register held just before (after any reset): writes
+outside the clamp, steps above the slew limit (from a value within the
+clamp: the write that replaces a value outside it is a correction, counted
+apart, and must land within the clamp), and offsets the service reports as acknowledged
 (:attr:`~compd.service.compensator.TickRecord.acknowledged_um`) that the PLC never
 received. The counts go into a :class:`SoakResult`.
 """
@@ -27,6 +29,10 @@ class SoakResult:
     faults: Counter[str] = field(default_factory=Counter)
     crashes: int = 0
     slew_violations: int = 0
+    #: Offsets written outside ``±max_offset_um`` (or not finite).
+    outside_clamp: int = 0
+    #: Writes that replaced a value outside the clamp the register held (not judged as steps).
+    corrections: int = 0
     unacknowledged: int = 0
     #: Writes that reached the PLC while the service counted them failed (allowed: re-seeded).
     landed_unacknowledged: int = 0
@@ -37,6 +43,8 @@ class SoakResult:
     bad_models_refused: int = 0
     bad_models_accepted: int = 0
     offset_mismatches: int = 0
+    #: Offsets the services read back outside the clamp (their ``offsets_out_of_clamp``).
+    offsets_out_of_clamp: int = 0
     #: Why each bad model was refused (the daemon's reply).
     refusals: list[str] = field(default_factory=list)
     simulated_s: float = 0.0
@@ -48,6 +56,7 @@ class SoakResult:
         return (
             self.crashes == 0
             and self.slew_violations == 0
+            and self.outside_clamp == 0
             and self.unacknowledged == 0
             and self.bad_models_accepted == 0
         )
@@ -56,10 +65,19 @@ class SoakResult:
 class Witness:
     """The PLC's side: every value the offset register receives, judged against what it held."""
 
-    def __init__(self, address: str, scale: float, max_step_um: float, result: SoakResult) -> None:
+    def __init__(
+        self,
+        address: str,
+        scale: float,
+        max_step_um: float,
+        result: SoakResult,
+        *,
+        max_offset_um: float = math.inf,
+    ) -> None:
         self.address = address
         self.scale = scale
         self.max_step_um = max_step_um
+        self.max_offset_um = max_offset_um
         self.result = result
         self.held_raw = 0.0  # the register starts cleared
         self.programming = False  # the PLC's own program is writing
@@ -76,15 +94,26 @@ class Witness:
     def _offset(self, raw: float) -> None:
         if not self.programming:
             step_um = abs(raw - self.held_raw) / self.scale
-            self.result.largest_step_um = max(self.result.largest_step_um, step_um)
-            if step_um > self.max_step_um + STEP_TOLERANCE_UM:
-                self.result.slew_violations += 1
-                self.result.errors.append(
-                    f"step of {step_um:g} um: {self.held_raw / self.scale:g} -> {raw / self.scale:g}"
-                )
+            if not self._within(raw):
+                self.result.outside_clamp += 1
+                self.result.errors.append(f"offset {raw / self.scale:g} um outside the clamp")
+            if not self._within(self.held_raw):
+                self.result.corrections += 1
+            else:
+                self.result.largest_step_um = max(self.result.largest_step_um, step_um)
+                if step_um > self.max_step_um + STEP_TOLERANCE_UM:
+                    self.result.slew_violations += 1
+                    self.result.errors.append(
+                        f"step of {step_um:g} um: {self.held_raw / self.scale:g} -> "
+                        f"{raw / self.scale:g}"
+                    )
             self.result.offsets_received += 1
             self._since_tick.append(raw)
         self.held_raw = raw
+
+    def _within(self, raw: float) -> bool:
+        """Within the clamp, to half a count (the register holds whole counts)."""
+        return abs(raw / self.scale) <= self.max_offset_um + 0.5 / self.scale
 
     def abandon(self) -> None:
         """The service died mid-tick: what reached the PLC meanwhile was never acknowledged."""

@@ -83,11 +83,13 @@ def test_the_shift_through_secured_opc_ua_matches_modbus(
         "reconnect_min_s": 0.5,
         "reconnect_max_s": 2.0,
     }
+    # Every node named one way: compd cannot tell a NodeId and a browse path apart offline
+    # on a server it writes to (compd.service.overlaps); the driver tests take browse paths.
     addresses = {name: f"ns=2;s=Machine.{name}" for name in doc["signals"]}
     addresses |= {
         "Z": "ns=2;s=Machine.comp_z_um",
         "status": "ns=2;s=Machine.compd_status",
-        "heartbeat": "0:Objects/2:Machine/2:compd_heartbeat",
+        "heartbeat": "ns=2;s=Machine.compd_heartbeat",
     }
     rewire(doc, opcua, addresses)
     doc["outputs"]["Z"]["encoding"] = {"type": "float", "scale": 1.0}

@@ -3,7 +3,8 @@
 compd's service runs against the simulated machine's Modbus PLC on virtual
 time (:mod:`compd.sim.soak`) while PLC restarts that clear the offset
 register, link drops, a garbage server on the port, corrupted state files
-between restarts, bad model loads and hard kills strike in a seeded order.
+between restarts, bad model loads, hard kills and values outside the clamp
+set by the PLC's program strike in a seeded order.
 A witness on the PLC's write path judges every value the offset register
 receives. The 8-hour run is ``benchmarks/soak_faults.py``.
 """
@@ -23,13 +24,16 @@ SEED = 14
 def test_a_faulted_shift_ends_with_no_crash_no_jump_and_no_unacknowledged_offset(
     short_dir: Path,
 ) -> None:
-    """90 min, a fault every 3-7 min, each kind at least once: 0 crashes, 0 slew steps exceeded, 0 unacknowledged."""
+    """90 min, a fault every 3-7 min, every kind: 0 crashes, writes out of clamp, over-limit steps, unacknowledged."""
     faults = draw_faults(HOURS * 3600, SEED, every_s=(180.0, 420.0))
     result = asyncio.run(Soak(soak_config(short_dir, hours=HOURS, seed=SEED), faults).run())
 
     assert set(result.faults) == set(FAULT_KINDS) and result.faults.total() == len(faults)
     assert result.crashes == 0, result.errors
     assert result.slew_violations == 0, result.errors
+    assert result.outside_clamp == 0, result.errors
+    # Each value set outside the clamp is read back as such and replaced by one write.
+    assert result.offsets_out_of_clamp == result.corrections == result.faults["out_of_clamp"]
     assert result.unacknowledged == 0, result.errors
     assert (
         result.bad_models_accepted == 0 and result.bad_models_refused == result.faults["bad_model"]

@@ -211,3 +211,14 @@ def test_other_shells_scripts_parse(shell: str, tmp_path: Path) -> None:
     script = written(tmp_path / f"compd.{shell}", "completion", shell)
     checked = subprocess.run([shell, "-n", str(script)], capture_output=True, text=True)
     assert checked.returncode == 0, checked.stderr
+
+
+@pytest.mark.parametrize("argv", ["help", "help config", "help --man", "completion bash"])
+def test_a_reader_that_stops_early_gets_no_traceback(argv: str) -> None:
+    """``compd help | head -c 1`` ends quietly: no BrokenPipeError traceback on stderr."""
+    done = subprocess.run(
+        ["bash", "-c", f"{sys.executable} -m compd.cli {argv} | head -c 1 >/dev/null; exit ${{PIPESTATUS[0]}}"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert "Traceback" not in done.stderr and "BrokenPipe" not in done.stderr, done.stderr
+    assert done.returncode in (0, 141)

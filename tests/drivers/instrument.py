@@ -13,7 +13,8 @@ set) is answered ``1=+23.456,2=+24.101,3=+22.870\\r\\n``, with ``*HH`` (XOR
 of the payload) before the terminator when ``checksum`` is set. An unknown
 channel is answered ``ERR unknown channel 9``. ``mode`` injects faults into
 the following replies: ``garbled``, ``partial`` (the first half of the line,
-never finished), ``silent`` (no reply), ``bad_checksum``.
+never finished), ``silent`` (no reply), ``bad_checksum``; ``reply_override``
+replaces every reply with the bytes a test chose.
 """
 
 from __future__ import annotations
@@ -77,6 +78,8 @@ class PtyInstrument:
         self.values = dict(values)
         self.checksum = checksum
         self.mode: Mode = "ok"
+        #: When set, the bytes sent back for every request instead of the answer.
+        self.reply_override: bytes | None = None
         #: Requests received (decoded, without terminator), in order.
         self.requests: list[str] = []
         self._master = self._slave = -1
@@ -126,6 +129,8 @@ class PtyInstrument:
     def reply_for(self, request: str) -> bytes | None:
         """The bytes sent back for one request line (None: no reply); the request is recorded."""
         self.requests.append(request)
+        if self.reply_override is not None:
+            return self.reply_override
         return answer(request, self.values, checksum=self.checksum, mode=self.mode)
 
     def _serve(self) -> None:

@@ -41,6 +41,7 @@ VARIABLES: dict[str, tuple[ua.VariantType, Any, bool]] = {
     "running": (ua.VariantType.Boolean, True, False),
     "label": (ua.VariantType.String, "not a number", False),
     "T_faulty_degC": (ua.VariantType.Double, 99.0, False),  # quality set Bad at start
+    "T_fuzzed_degC": (ua.VariantType.Double, 20.0, False),  # holds any variant (set_variant)
     "comp_x_um": (ua.VariantType.Double, 0.0, True),
     "comp_y_0p1um": (ua.VariantType.Int16, 0, True),
     "comp_z_0p1um": (ua.VariantType.Int32, 0, True),
@@ -174,6 +175,21 @@ class OpcUaTestServer:
     def set_value(self, name: str, value: Any) -> None:
         vtype = VARIABLES[name][0]
         self._call(self.nodes[name].write_value(ua.Variant(value, vtype)))
+
+    def set_variant(self, name: str, variant: ua.Variant) -> None:
+        """Serve ``variant`` as variable ``name``'s value, of its data type or not (a server breaking its own model).
+
+        asyncua refuses to store a value of another type than the one held,
+        so the value is served through the address space's read callback.
+        """
+        assert self._server is not None
+        nodeid, value = self.nodes[name].nodeid, ua.DataValue(variant)
+
+        async def serve() -> None:
+            aspace = self._server.iserver.aspace  # type: ignore[union-attr]
+            aspace.set_attribute_value_callback(nodeid, ua.AttributeIds.Value, lambda *_: value)
+
+        self._call(serve())
 
     def proxy(self) -> TcpProxy:
         """A started TCP forwarder to this server, run on the server's loop; break it to cut the link."""

@@ -7,15 +7,18 @@ import contextlib
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import can
 import pytest
 import yaml
+from hypothesis import given
+from hypothesis import settings as settings_
+from hypothesis import strategies as st
 
 from compd.drivers.gateway import GatewayDriver, GatewaySettings
 from compd.drivers.registry import load_driver_type
-from compd.errors import DriverProtocolError, DriverTimeoutError
+from compd.errors import DriverError, DriverProtocolError, DriverTimeoutError
 from compd.service.clock import VirtualClock
 from compd.service.links import DriverLink
 from compd.sim.plc.gateway import GatewayServer
@@ -403,3 +406,79 @@ def test_the_commented_example_config_is_valid():
     for address in ("in:0:int16", "in:8:float32:word=big", "in:30.2"):
         GatewayDriver.validate_address(address, writable=False, settings=settings)
     GatewayDriver.validate_address("out:0:int32", writable=True, settings=settings)
+
+
+@st.composite
+def _malformed(draw: st.DrawFn, ids: tuple[int, ...]) -> can.Message:
+    """A good input frame with one thing wrong: its data's length, its DLC, a flag, or its id."""
+    fields: dict[str, Any] = {
+        "arbitration_id": draw(st.sampled_from(ids)),
+        "data": draw(st.binary(min_size=8, max_size=8)),
+        "dlc": 8,
+        "is_extended_id": False,
+    }
+    wrong = draw(
+        st.sampled_from(
+            ["data", "dlc", "is_extended_id", "is_remote_frame", "is_error_frame", "arbitration_id"]
+        )
+    )
+    fields[wrong] = draw(
+        {
+            "data": st.binary(max_size=64).filter(lambda data: len(data) != 8),
+            "dlc": st.integers(0, 15).filter(lambda dlc: dlc != 8),
+            "arbitration_id": st.integers(0, 0x7FF).filter(lambda i: i not in ids),
+        }.get(wrong, st.just(True))
+    )
+    return can.Message(**fields, check=False)
+
+
+def test_malformed_frames_never_shift_the_image():
+    """Whatever malformed frames arrive between good ones, a read gives the published values or raises DriverError."""
+    settings = can_settings(channel_name(), status=None)
+    ids = settings.can_ids("in")
+    image = bytes(make_server(settings).input_image)  # INPUTS as the gateway encodes them
+    good = [
+        can.Message(arbitration_id=i, data=image[8 * k : 8 * k + 8], is_extended_id=False)
+        for k, i in enumerate(ids)
+    ]
+    gateway = can.Bus(interface="virtual", channel=settings.channel)
+    driver = make_driver(settings)
+
+    async def delivered(frames: list[can.Message]) -> None:
+        """Send ``frames`` then a good second frame, and wait until the driver has taken that one in."""
+        counts = driver._transport.counts  # the driver's own count of frames used, per frame
+        before = counts[1]
+        for msg in [*frames, good[1]]:
+            gateway.send(msg)
+        deadline = time.monotonic() + 10  # a hang guard only
+        while counts[1] == before:
+            assert time.monotonic() < deadline, "the driver took in no frame"
+            await asyncio.sleep(0.001)
+
+    async def opened() -> None:
+        opening = asyncio.ensure_future(driver.open())
+        while not opening.done():  # open waits for one whole input image
+            for msg in good:
+                gateway.send(msg)
+            await asyncio.sleep(0.01)
+        await opening
+
+    with asyncio.Runner() as runner:
+        runner.run(opened())
+
+        @settings_(max_examples=40, deadline=None)
+        @given(frames=st.lists(_malformed(ids), min_size=1, max_size=4))
+        def check(frames: list[can.Message]) -> None:
+            runner.run(delivered([*good, *frames]))
+            for _ in range(2):  # the first read may name a malformed frame, the next goes on
+                try:
+                    values = runner.run(driver.read(list(INPUTS)))
+                except DriverError:
+                    continue
+                assert values == {a: v for a, v in INPUTS.items() if a in values}
+
+        try:
+            check()
+        finally:
+            runner.run(driver.close())
+            gateway.shutdown()

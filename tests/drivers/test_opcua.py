@@ -17,9 +17,13 @@ from pathlib import Path
 import pytest
 import structlog
 import yaml
+from asyncua import ua
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from compd.drivers.opcua import OpcUaDriver, OpcUaSettings
+from compd.drivers.opcua_values import NUMERIC_TYPES
 from compd.drivers.registry import driver_names, load_driver_type
 from compd.errors import (
     ConfigFileError,
@@ -297,7 +301,9 @@ def test_writes_use_the_node_type(certs, server):
 def test_a_string_node_id_with_slashes_is_a_node_id_not_a_browse_path(certs, server):
     """ns=N;s=/Plc/DB9000.DBD10:DINT (SINUMERIK's form) writes and reads back that node."""
     address = f"ns={server.namespace_index};s={SINUMERIK_DBD}"
-    assert OpcUaDriver.footprint(address, None) == frozenset({address})
+    settings = OpcUaSettings.model_validate({"url": server.url, "security": "none"})
+    assert OpcUaDriver.naming(address, settings) == "a NodeId"
+    assert {cell[-1] for cell in OpcUaDriver.footprint(address, settings)} == {address}
 
     async def scenario() -> dict[str, float]:
         driver = await opened(make_driver(certs, server.url))
@@ -545,3 +551,56 @@ def test_asyncua_logs_nothing_above_debug(certs, server):
         root.removeHandler(handler)
     assert [r.getMessage() for r in reached if r.name.startswith("asyncua")] == []
     assert all(e["log_level"] == "debug" for e in events)
+
+
+#: Variant types and values a Double variable must never be read as: not a number, or many.
+_NOT_NUMBERS = st.one_of(
+    st.text(max_size=20).map(lambda v: ua.Variant(v, ua.VariantType.String)),
+    st.binary(max_size=20).map(lambda v: ua.Variant(v, ua.VariantType.ByteString)),
+    st.datetimes().map(lambda v: ua.Variant(v, ua.VariantType.DateTime)),
+    st.uuids().map(lambda v: ua.Variant(v, ua.VariantType.Guid)),
+    st.text(max_size=10).map(
+        lambda v: ua.Variant(ua.LocalizedText(v), ua.VariantType.LocalizedText)
+    ),
+    st.text(max_size=10).map(
+        lambda v: ua.Variant(ua.QualifiedName(v, 0), ua.VariantType.QualifiedName)
+    ),
+    st.integers(0, 2**16).map(lambda v: ua.Variant(ua.NodeId(v, 0), ua.VariantType.NodeId)),
+    st.lists(st.floats(), max_size=4).map(lambda v: ua.Variant(v, ua.VariantType.Double)),
+    st.lists(st.integers(-(2**31), 2**31 - 1), max_size=4).map(
+        lambda v: ua.Variant(v, ua.VariantType.Int32)
+    ),
+    st.just(ua.Variant()),
+)
+#: Numbers of another type than the variable's: still one number, read as a float.
+_OTHER_NUMBERS = st.one_of(
+    st.integers(-(2**63), 2**63 - 1).map(lambda v: ua.Variant(v, ua.VariantType.Int64)),
+    st.integers(0, 2**64 - 1).map(lambda v: ua.Variant(v, ua.VariantType.UInt64)),
+    st.floats(width=32).map(lambda v: ua.Variant(v, ua.VariantType.Float)),
+    st.booleans().map(lambda v: ua.Variant(v, ua.VariantType.Boolean)),
+)
+
+
+def test_a_variable_of_the_wrong_variant_type_is_a_protocol_error(certs, server):
+    """A Double variable holding a string, a date, an array or nothing is a DriverProtocolError; numbers are floats."""
+    node = server.node_id("T_fuzzed_degC")
+    driver = make_driver(certs, server.url)
+    with asyncio.Runner() as runner:
+        runner.run(driver.open())
+
+        @settings(max_examples=40, deadline=None)
+        @given(variant=_NOT_NUMBERS | _OTHER_NUMBERS)
+        def check(variant: ua.Variant) -> None:
+            server.set_variant("T_fuzzed_degC", variant)
+            if variant.VariantType in NUMERIC_TYPES and not variant.is_array:
+                (value,) = runner.run(driver.read([node])).values()
+                assert type(value) is float
+            else:
+                with pytest.raises(DriverProtocolError, match="not a number"):
+                    runner.run(driver.read([node]))
+
+        try:
+            check()
+        finally:
+            runner.run(driver.close())
+            server.set_variant("T_fuzzed_degC", ua.Variant(20.0, ua.VariantType.Double))

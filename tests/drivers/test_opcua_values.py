@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 from asyncua import ua
 from compd.drivers.opcua_values import INT_RANGES, to_float, to_variant, variant_type
@@ -43,3 +45,9 @@ def test_read_values_and_data_types():
     assert variant_type(ua.NodeId(4, 0)) == ua.VariantType.Int16
     assert variant_type(ua.NodeId(3002, 0)) is None  # not builtin: a structure or enum
     assert variant_type(ua.NodeId("MyType", 2)) is None
+
+
+def test_non_finite_and_absurd_numbers_read_as_they_are():
+    """NaN, inf, 3e38 and 2**64 read through unchanged: the service judges an offset read back, not the driver."""
+    values = [to_float("p", v) for v in (float("nan"), float("-inf"), 3e38, 2**64)]
+    assert math.isnan(values[0]) and values[1:] == [float("-inf"), 3e38, 2.0**64]

@@ -15,6 +15,8 @@ from compd.drivers.base import Driver
 from compd.drivers.registry import driver_names, load_driver_type
 from compd.drivers.serial_lines import SerialSensorSettings
 from compd.drivers.serial_sensor import SerialSensorDriver
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from structlog.testing import capture_logs
 
 from compd.errors import (
@@ -491,3 +493,39 @@ class TestSerialSensorContract(DriverContract):
         read_error, write_error = asyncio.run(scenario())
         assert isinstance(read_error, DriverDisconnectedError | DriverTimeoutError)
         assert isinstance(write_error, DriverProtocolError)
+
+
+@st.composite
+def _garbage_lines(draw: st.DrawFn) -> bytes:
+    """A reply line of garbage: any bytes, or a payload of wrong fields under a true XOR checksum."""
+    if draw(st.booleans()):
+        return draw(st.binary(max_size=120)) + b"\r\n"
+    field = st.text(st.characters(min_codepoint=32, max_codepoint=126), max_size=12)
+    channel = st.sampled_from(["1", "2", "9", ""]) | field
+    value = st.sampled_from(["nan", "-inf", "1e999", "1_0", "0x10", "+", ""]) | field
+    items = draw(st.lists(st.tuples(channel, value), max_size=4))
+    payload = ",".join(f"{c}={v}" for c, v in items).encode()
+    return payload + b"*" + xor_hex(payload).encode() + b"\r\n"
+
+
+def test_garbage_lines_raise_only_driver_errors(scanner):
+    """Whatever line a scanner sends back, a read gives floats for asked channels or raises DriverError."""
+    driver = checked(scanner.port, max_missed_replies=1)
+    with asyncio.Runner() as runner:
+        runner.run(driver.open())
+
+        @settings(max_examples=60, deadline=None)
+        @given(line=_garbage_lines() | st.just(b"1" * 5000))
+        def check(line: bytes) -> None:
+            scanner.reply_override = line
+            try:
+                values = runner.run(driver.read(["1", "2"]))
+            except DriverError:
+                return
+            assert set(values) <= {"1", "2"} and all(type(v) is float for v in values.values())
+
+        try:
+            check()
+        finally:
+            scanner.reply_override = None
+            runner.run(driver.close())

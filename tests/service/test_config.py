@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 import yaml
 from compd.drivers.gateway import GatewayDriver
+from compd.drivers.gateway_settings import GatewaySettings
 from compd.drivers.modbus import ModbusDriver
 from compd.drivers.modbus_settings import ModbusSettings
 
@@ -103,8 +105,8 @@ def test_two_values_written_to_one_address(tmp_path):
         tmp_path, bundled_text_with("status_address: compd_status", "status_address: comp_y_um")
     )
     assert (
-        "(status.status_address): address 'comp_y_um' on driver 'machine' is already written"
-        in message
+        "(status.status_address): address 'comp_y_um' on driver 'machine' is already written "
+        "at line 44 (outputs.Y.address)" in message
     )
 
 
@@ -171,18 +173,22 @@ def machine_config_error(tmp_path: Path, changes: dict) -> str:
 def test_a_status_word_inside_an_int32_offset_is_refused(tmp_path):
     """A status word at holding:101 overlaps the int32 offset at holding:100-101: refused, naming both."""
     message = machine_config_error(tmp_path, {"status": {"status_address": "holding:101"}})
-    assert (
-        "(status.status_address): address 'holding:101' on driver 'plc' is already written "
-        "by outputs.Z (it overlaps 'holding:100:int32')" in message
+    assert re.search(
+        r"\(status\.status_address\): address 'holding:101' on driver 'plc' overlaps "
+        r"'holding:100:int32' on driver 'plc', written at line \d+ \(outputs\.Z\.address\)",
+        message,
     )
 
 
 @pytest.mark.parametrize(
-    "status", ["holding:102", "holding:101:device=2"], ids=["next-register", "other-device"]
+    ("status", "unit_ids"),
+    [("holding:102", "shared"), ("holding:101:device=2", "separate")],
+    ids=["next-register", "other-device"],
 )
-def test_written_points_in_other_registers_or_devices_pass(tmp_path, status):
-    """Written points that share no register of one device are accepted."""
+def test_written_points_in_other_registers_or_devices_pass(tmp_path, status, unit_ids):
+    """Written points that share no register of one device (unit ids declared separate) are accepted."""
     doc = yaml.safe_load(SIMULATED_MACHINE.read_text())
+    doc["drivers"]["plc"]["settings"]["unit_ids"] = unit_ids
     config = write_config(tmp_path, {"status": {"status_address": status}}, doc=doc)
     assert config.doc.status.status_address == status
 
@@ -218,12 +224,12 @@ def test_gateway_bytes_overlap_per_area(tmp_path):
     doc = gateway_doc()
     assert write_config(tmp_path, doc=doc).doc.status.status_address == "out:4:uint16"
     doc["status"]["status_address"] = "out:2:uint16"
-    with pytest.raises(ConfigFileError, match=r"already written by outputs\.Z \(it overlaps"):
+    with pytest.raises(ConfigFileError, match=r"overlaps 'out:0:int32' on driver 'plc', written"):
         write_config(tmp_path, doc=doc)
-    assert not GatewayDriver.footprint("in:0:int32", doc) & GatewayDriver.footprint(
-        "out:0:int32", doc
-    )
-    assert GatewayDriver.footprint("out:3.7", doc) <= GatewayDriver.footprint("out:0:int32", doc)
+    settings = GatewaySettings.model_validate(doc["drivers"]["plc"]["settings"])
+    int32 = GatewayDriver.footprint("out:0:int32", settings)
+    assert not GatewayDriver.footprint("in:0:int32", settings) & int32
+    assert GatewayDriver.footprint("out:3.7", settings) <= int32
 
 
 def test_an_integer_offset_coarser_than_a_slew_step_is_refused(tmp_path):

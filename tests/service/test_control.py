@@ -19,7 +19,15 @@ from typing import Any
 import pytest
 
 from compd.errors import ControlError, ModelFileError
-from compd.service.control import MAX_LINE_BYTES, Access, ControlServer, Peer, request, request_sync
+from compd.service.control import (
+    MAX_LINE_BYTES,
+    TOO_DEEP,
+    Access,
+    ControlServer,
+    Peer,
+    request,
+    request_sync,
+)
 
 
 @pytest.fixture
@@ -124,6 +132,14 @@ def test_an_oversized_request_is_refused(sock_path):
     line = b'{"cmd": "status", "x": "' + b"a" * (MAX_LINE_BYTES + 10) + b'"}\n'
     (reply,) = serve(sock_path, lambda: raw_exchange(sock_path, line))
     assert not reply["ok"] and "longer than" in reply["error"]
+
+
+def test_a_line_nested_too_deeply_is_refused_and_the_connection_goes_on(sock_path):
+    """A request of 2 MiB "[" (deeper than the JSON parser recurses) is refused, naming why; the next is answered."""
+    deep = b"[" * (MAX_LINE_BYTES - 1) + b"\n"
+    replies = serve(sock_path, lambda: raw_exchange(sock_path, deep, b'{"cmd": "status"}\n'))
+    assert replies[0] == {"ok": False, "error": f"malformed JSON request: {TOO_DEEP}"}
+    assert replies[1]["ok"]
 
 
 def test_socket_is_group_accessible_only_and_removed_on_close(sock_path):

@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+from structlog.testing import capture_logs
+
 from compd.service.offsets import AxisPoint, HeldOffsets
-from compd.service.safety import AxisLimits, AxisSafety
+from compd.service.safety import AxisLimits, AxisSafety, OutOfClamp
 
 LIMITS = AxisLimits(max_offset_um=50.0, max_rate_um_per_s=1.0)
 
@@ -55,3 +60,60 @@ def test_integer_counts_never_add_up_to_more_than_a_slew_step():
     offsets.read_back({"Z": 1.0})  # the PLC holds 0.3 um; the stage, re-seeded, steps to 1.3
     assert offsets.to_write({"Z": 1.3}) == {"Z": 4.0}
     assert axis.toward(axis.encode(1.5), 1.0, 1.0) == 4.0  # round(5.0) = 5 is 4 counts away: 4
+
+
+def clamped(policy: OutOfClamp, offset_um: float = 3.0) -> HeldOffsets:
+    """Z in int32 counts of 0.1 um, read back, a 50 um clamp, seeded at ``offset_um``."""
+    axis = AxisPoint("Z", "disp_z_um", "plc", "z", scale=10.0, integer=True, readback=True)
+    stage = AxisSafety(LIMITS, 1.0, offset_um=offset_um, on_out_of_clamp=policy)
+    return HeldOffsets([axis], {"Z": stage})
+
+
+def test_a_value_read_back_outside_the_clamp_is_replaced_not_followed():
+    """500 um, -3000 um, 1e30, 3e38, NaN or inf held at start: hold writes the seed exactly, never a step from it."""
+    for raw in (5000.0, -30000.0, 1e31, 3e38, math.nan, -math.inf):
+        offsets = clamped(OutOfClamp.HOLD)
+        assert offsets.read_back({"Z": raw}) == 0
+        assert offsets.out_of_clamp == {"Z": 3.0}
+        assert offsets.safety["Z"].offset_um == 3.0  # not seeded from what the PLC holds
+        assert offsets.to_write({"Z": offsets.safety["Z"].hold().offset_um}) == {"Z": 30.0}
+        assert offsets.known_um() == {}  # nothing valid known: nothing saved as held
+
+
+def test_edge_and_refuse_write_the_clamp_edge_or_nothing():
+    """With edge the register gets the clamp edge nearest the held value; with refuse, nothing."""
+    edge = clamped(OutOfClamp.EDGE)
+    edge.read_back({"Z": -30000.0})
+    assert edge.to_write({"Z": edge.safety["Z"].hold().offset_um}) == {"Z": -500.0}
+    refuse = clamped(OutOfClamp.REFUSE)
+    refuse.read_back({"Z": 5000.0})
+    assert refuse.out_of_clamp == {"Z": None}
+    assert refuse.to_write({"Z": 3.0}) == {}
+    refuse.read_back({"Z": 120.0})  # the PLC holds 12 um again: followed from there
+    assert refuse.out_of_clamp == {} and refuse.safety["Z"].offset_um == 12.0
+
+
+def test_an_out_of_clamp_episode_is_logged_once():
+    """A register stuck at 500 um for three ticks: one ERROR, then INFO when it holds a value within the clamp."""
+    offsets = clamped(OutOfClamp.HOLD)
+    with capture_logs() as logs:
+        for raw in (5000.0, 5000.0, 5000.0, 30.0):
+            offsets.read_back({"Z": raw})
+    levels = [(e["log_level"], e["event"].split(":")[0]) for e in logs]
+    assert levels == [
+        ("error", "offset read back outside the clamp or not finite"),
+        ("debug", "offset read back outside the clamp or not finite"),
+        ("debug", "offset read back outside the clamp or not finite"),
+        ("info", "offset read back within the clamp again"),
+    ]
+
+
+def test_a_count_rounded_at_the_clamp_is_within_it():
+    """In 0.3 um counts a 50 um clamp is written as 167 counts (50.1 um): read back, that is no fault."""
+    axis = AxisPoint("Z", "disp_z_um", "plc", "z", scale=1 / 0.3, integer=True, readback=True)
+    offsets = held(axis)
+    assert offsets.read_back({"Z": axis.encode(50.0)}) == 0 and offsets.out_of_clamp == {}
+    assert offsets.read_back({"Z": axis.encode(50.0) + 1}) == 0 and offsets.out_of_clamp
+    floats = AxisPoint("Z", "disp_z_um", "plc", "z", readback=True)
+    assert float(np.float32(0.3)) > 0.3 and floats.within(float(np.float32(0.3)), 0.3)
+    assert not floats.within(0.31, 0.3)

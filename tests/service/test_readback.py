@@ -16,6 +16,7 @@ import csv
 import json
 import math
 import socket
+import struct
 import tempfile
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
@@ -23,10 +24,11 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from compd.drivers.modbus import ModbusDriver
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_addresses import parse_address
 from compd.files.yamlplace import resolve_path
 from compd.service.clock import VirtualClock
 from compd.service.compensator import TickRecord
@@ -77,6 +79,8 @@ class Plc:
     """A Modbus PLC that logs what it receives; ``program`` writes the offset register like a PLC program."""
 
     config: Config
+    #: Where the offset is written (the config's ``outputs.Z.address``).
+    offset: str = OFFSET
     #: (address, raw, by compd?) for every value written, in order.
     received: list[tuple[str, float, bool]] = field(default_factory=list)
     server: ModbusPlcServer = field(init=False)
@@ -86,7 +90,7 @@ class Plc:
         self.server = ModbusPlcServer(
             self.config.driver_settings["plc"],  # type: ignore[arg-type]
             inputs=list(INPUTS),
-            outputs=[OFFSET, STATUS, HEARTBEAT],
+            outputs=[self.offset, STATUS, HEARTBEAT],
             on_write=lambda address, raw: self.received.append(
                 (address, raw, not self._programming)
             ),
@@ -99,22 +103,28 @@ class Plc:
 
     async def program(self, offset_um: float) -> None:
         """The PLC itself sets its offset register (a restart that clears it, its own program)."""
-        driver = ModbusDriver(
-            self.config.driver_settings["plc"],  # type: ignore[arg-type]
-            now=lambda: 0.0,
-            base_dir=Path(),
-        )
+        await self.program_raw(round(offset_um * 10))
+
+    async def program_raw(self, raw: float) -> None:
+        """The PLC's program puts ``raw`` into the offset register as is: NaN, inf and 3e38 too."""
+        settings = self.config.driver_settings["plc"]
+        point = parse_address(self.offset)
+        code = {"int16": "h", "int32": "i", "float32": "f", "float64": "d"}[point.codec.type]
+        data = struct.pack(">" + code, raw if code in "fd" else int(raw))
+        words = [int.from_bytes(data[i : i + 2], "big") for i in range(0, len(data), 2)]
+        driver = ModbusDriver(settings, now=lambda: 0.0, base_dir=Path())  # type: ignore[arg-type]
         await driver.open()
         self._programming = True
         try:
-            await driver.write({OFFSET: round(offset_um * 10)})
+            device = settings.device_id  # type: ignore[attr-defined]
+            await driver.write_registers(point.address, words, device=device, what="PLC program")
         finally:
             self._programming = False
             await driver.close()
 
     def offsets(self) -> list[tuple[float, bool]]:
         """Every value the offset register received (raw counts), and whether compd sent it."""
-        return [(raw, by_compd) for address, raw, by_compd in self.received if address == OFFSET]
+        return [(raw, ours) for address, raw, ours in self.received if address == self.offset]
 
     def largest_step_counts(self) -> float:
         """The largest change compd made to what the register held (counts); 0 before the first write."""

@@ -23,6 +23,7 @@ from compd.errors import CompdError
 from compd.faultlog import Event
 from compd.files.yamlplace import MAX_YAML_BYTES
 from compd.service.clock import VirtualClock
+from compd.service.control import TOO_DEEP
 from compd.service.daemon import Service
 from compd.service.mqttlink import Broker, Topics
 from compd.service.remoteload import MAX_PAYLOAD_BYTES, SCHEMA, RemoteLoads
@@ -130,6 +131,17 @@ def test_a_request_without_a_usable_id_gets_no_answer_but_an_event(payload: byte
     daemon.handle(payload)
     assert not daemon.loads and not daemon.replies
     assert [e.kind for e in daemon.events] == ["model_refused"]
+
+
+def test_a_request_nested_too_deeply_is_refused_as_an_event_not_a_traceback():
+    """A payload of 1M "[" (inside the size bound, deeper than Python's JSON parser recurses) is refused as an event."""
+    payload = b"[" * 1_000_000
+    assert len(payload) <= MAX_PAYLOAD_BYTES
+    daemon = Daemon(ACCEPTED)
+    daemon.handle(payload)
+    assert not daemon.loads and not daemon.replies
+    (event,) = daemon.events
+    assert event.kind == "model_refused" and TOO_DEEP in event.details["reason"]
 
 
 def test_models_from_the_network_are_off_unless_the_config_says_so(tmp_path: Path):

@@ -14,6 +14,7 @@ from compd.service.safety import (
     FaultMode,
     Flag,
     Level,
+    OutOfClamp,
     status_word,
 )
 
@@ -85,10 +86,42 @@ def test_nan_target_holds_the_last_offset():
     assert stage.step(math.inf, 1.0).frozen
 
 
-def test_loaded_offset_outside_the_limit_walks_in():
-    """An offset loaded beyond ±max (saved under a larger limit) returns into range at the slew rate, never jumps."""
+@given(
+    seed_um=st.floats(allow_nan=True, allow_infinity=True),
+    policy=st.sampled_from(list(OutOfClamp)),
+    targets_um=st.lists(targets, min_size=1, max_size=20),
+)
+def test_the_stage_never_starts_or_slews_outside_the_clamp(seed_um, policy, targets_um):
+    """Whatever it is loaded with or recovers from (500, -3000, 3e38, NaN, inf um), its offset stays within ±max."""
+    stage = AxisSafety(LIMITS, 1.0, offset_um=seed_um, on_out_of_clamp=policy)
+    assert stage.within(stage.offset_um)
+    stage.load(seed_um)
+    assert stage.within(stage.offset_um)
+    recovered = stage.recover(seed_um)
+    assert recovered is None or stage.within(recovered)
+    for k, target in enumerate(targets_um):
+        assert stage.within(stage.step(target, float(k)).offset_um)
+
+
+def test_a_value_beyond_the_clamp_is_replaced_by_the_policy_s_value():
+    """500, -3000, 3e38 or NaN um held, 20 um clamp: hold keeps the last valid offset, edge the edge, refuse none."""
+    for held_um, edge_um in ((500.0, 20.0), (-3000.0, -20.0), (3e38, 20.0), (math.nan, 4.0)):
+        hold = AxisSafety(LIMITS, 1.0, offset_um=4.0)
+        assert hold.recover(held_um) == 4.0 and hold.hold().offset_um == 4.0
+        edge = AxisSafety(LIMITS, 1.0, offset_um=4.0, on_out_of_clamp=OutOfClamp.EDGE)
+        assert edge.recover(held_um) == edge_um == edge.offset_um
+        refuse = AxisSafety(LIMITS, 1.0, offset_um=4.0, on_out_of_clamp=OutOfClamp.REFUSE)
+        assert refuse.recover(held_um) is None and refuse.offset_um == 4.0
+    edge = AxisSafety(LIMITS, 1.0, on_out_of_clamp=OutOfClamp.EDGE)
+    edge.recover(500.0)
+    assert [edge.step(0.0, float(k)).offset_um for k in range(3)] == [19.0, 18.0, 17.0]
+
+
+def test_an_offset_loaded_outside_the_clamp_is_clipped_not_walked_in():
+    """An offset loaded beyond ±max (saved under a larger limit) starts at the clamp, not outside it."""
     stage = AxisSafety(LIMITS, 1.0, offset_um=23.0)
-    assert [stage.step(0.0, float(k)).offset_um for k in range(3)] == [22.0, 21.0, 20.0]
+    assert stage.offset_um == 20.0
+    assert [stage.step(0.0, float(k)).offset_um for k in range(3)] == [19.0, 18.0, 17.0]
 
 
 def test_status_word_packs_level_flags_and_signal_bits():

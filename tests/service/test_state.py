@@ -98,6 +98,13 @@ def test_a_state_file_that_is_not_text_is_a_state_error(tmp_path):
         load_state(tmp_path)
 
 
+def test_a_state_file_nested_too_deeply_is_a_state_error(tmp_path):
+    """A state file of 1M "[" (deeper than Python's JSON parser recurses) is a StateError, not a RecursionError."""
+    (tmp_path / STATE_FILE).write_text("[" * 1_000_000)
+    with pytest.raises(StateError, match="nested too deeply"):
+        load_state(tmp_path)
+
+
 @pytest.mark.parametrize("offset_um", [140.0, -50.5, 1e9, float("nan"), float("inf")])
 def test_a_saved_offset_beyond_its_clamp_is_not_resumed(model, offset_um):
     """A saved offset that is not finite or lies beyond the axis's clamp makes the state unusable."""

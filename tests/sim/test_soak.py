@@ -48,3 +48,21 @@ def test_an_acknowledged_offset_the_plc_never_received_is_counted():
     sink(OFFSET, 7.0)
     w.tick(record(math.nan), "Z")  # it landed, but the service counts the write failed
     assert (result.unacknowledged, result.landed_unacknowledged, result.ticks) == (1, 1, 3)
+
+
+def test_a_write_outside_the_clamp_is_counted_and_a_correction_is_no_step():
+    """With a 150 um clamp: 500 um set by the PLC, then 0 written is a correction; 150.1 um written is outside."""
+    result = SoakResult()
+    w = Witness(OFFSET, scale=10.0, max_step_um=1.0, result=result, max_offset_um=150.0)
+    sink = w.sink(lambda address, raw: None)
+    w.programming = True
+    sink(OFFSET, 5000.0)  # the PLC's program: 500 um
+    w.programming = False
+    sink(OFFSET, 0.0)  # compd replaces it: a jump, but into the clamp
+    sink(OFFSET, 10.0)
+    assert (result.corrections, result.slew_violations, result.outside_clamp) == (1, 0, 0)
+    w.programming = True
+    sink(OFFSET, 1500.0)
+    w.programming = False
+    sink(OFFSET, 1501.0)  # 150.1 um: a step of 0.1 um, but outside the clamp
+    assert (result.outside_clamp, result.slew_violations, result.passed) == (1, 0, False)
