@@ -19,7 +19,7 @@ from pathlib import Path
 
 from compd.cli.daemon import install_signal_handlers
 from compd.cli.serving import config_from_arg, configure_logging
-from compd.cli.terminal import console
+from compd.cli.terminal import Text, console
 from compd.errors import CompdError
 from compd.service.clock import RealClock
 from compd.service.compensator import TickRecord
@@ -140,13 +140,21 @@ def _print_result(config: Config, out_dir: Path, ticks: int) -> None:
     data = files[0] if len(files) == 1 else out_dir / "joined.csv"
     if len(files) > 1:
         out.print(
-            "  several files: join them into one for compd fit (the header once), e.g. "
-            f"[bold]awk 'FNR > 1 || NR == 1' {out_dir}/compd-*.csv > {data}[/bold]"
+            Text.assemble(
+                "  several files: join them into one for compd fit (the header once), e.g. ",
+                (f"awk 'FNR > 1 || NR == 1' {out_dir}/compd-*.csv > {data}", "bold"),
+            )
         )
     if outputs:
         out.print(
-            "next: [bold]compd fit --data "
-            f"{data} --output {outputs[0]} --inputs {','.join(inputs)} --out model.yaml[/bold]"
+            Text.assemble(
+                "next: ",
+                (
+                    f"compd fit --data {data} --output {outputs[0]} "
+                    f"--inputs {','.join(inputs)} --out model.yaml",
+                    "bold",
+                ),
+            )
         )
     else:
         out.print(

@@ -206,6 +206,7 @@ def _presence(listener: _Listener, machine: str) -> str:
 def rollout_command(args: Any) -> int:
     """The handler of ``compd model rollout``: check, send, wait, print the table."""
     from rich.table import Table
+    from rich.text import Text
 
     from compd.cli.terminal import console
     from compd.files.modelfile import load_model
@@ -236,8 +237,7 @@ def rollout_command(args: Any) -> int:
     for o in outcomes:
         blended = {None: "-", True: "yes", False: "not yet"}[o.blended_in]
         blend = "-" if o.blend_s is None else f"{o.blend_s:g}"
-        style = "green" if o.ok else "red"
-        result = f"[{style}]{o.result.replace('_', ' ')}[/{style}]"
+        result = Text(o.result.replace("_", " "), style="green" if o.ok else "red")
         table.add_row(o.machine_id, result, o.reason, blend, blended, o.presence)
     out = console()
     out.print(f"{args.model} (sha256 {hashlib.sha256(raw).hexdigest()[:12]}) to {len(machines)}")
