@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import Text, console
-from compd.errors import CompdError, ControlError, ModelFileError
+from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import read_limited
 from compd.service.clock import RealClock
@@ -198,8 +198,11 @@ async def model_load(config: Config, model_path: Path) -> int:
 
     The client reads the file (with its own rights, size-limited) and checks
     it first, for a quick message naming the file; the daemon checks it
-    again and installs it. With no daemon running, the client installs it
-    for the next start.
+    again and installs it. With no daemon running (no socket, or nobody
+    listening on it), the client installs it for the next start. A daemon
+    that runs but cannot be told (busy, no answer, no permission) is an
+    error, and nothing is installed: the installed model and the running
+    one never disagree.
     """
     raw = read_limited(model_path, ModelFileError)
     slot = slot_from_bytes(config, raw, model_path, 0.0)
@@ -207,11 +210,17 @@ async def model_load(config: Config, model_path: Path) -> int:
         reply = await request(
             config.control_socket, load_request(raw, model_path), timeout_s=LOAD_TIMEOUT_S + 10
         )
-    except ControlError as exc:
+    except NotRunningError as exc:
         installed = install_model_bytes(config.state_dir, raw)
         print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {installed}")
-        print(f"the daemon was not told ({exc}); it will start with this model", file=sys.stderr)
+        print(f"no daemon runs ({exc}); it will start with this model", file=sys.stderr)
         return 0
+    except ControlError as exc:
+        raise ControlError(
+            f"{model_path} was not loaded and nothing was installed: the daemon on "
+            f"{config.control_socket} was not told ({exc}); it goes on with its model. "
+            "Try again ('compd status' shows what it runs)"
+        ) from None
     if not reply.get("ok"):
         raise CompdError(f"the daemon refused the model: {reply.get('error')}")
     if reply.get("already_running") or reply.get("already_loading"):

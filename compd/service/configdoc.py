@@ -24,8 +24,8 @@ from pydantic import BaseModel, Field, StrictInt, model_validator
 from compd.drivers.base import Driver
 from compd.drivers.registry import load_driver_type
 from compd.schemas import CONFIG_SCHEMA
+from compd.service.admission import Access
 from compd.service.clock import Clock
-from compd.service.control import Access
 from compd.service.docbase import FiniteFloat, Positive, Strict
 from compd.service.fleetdoc import HttpDoc, TelemetryDoc
 from compd.service.links import DriverLink

@@ -13,9 +13,13 @@ peer, while ``status`` stays open to the whole group.
 
 The server must never be the reason the compensation loop stops: a malformed
 line, an unknown command, a handler that raises or a client that vanishes
-is answered (if it can be) and logged, and the server goes on serving; at
-most 16 clients are connected at once, each dropped after 5 minutes of
-silence, so a runaway script cannot lock the operators out. A socket file
+is answered (if it can be) and logged, and the server goes on serving. No
+peer can lock the operators out: at most 16 clients are connected at once
+(fewer where the open-files limit is low, :mod:`compd.service.peers`), one
+user who may not load models holds at most 4 of them, 4 are kept for the
+users who may, and a client that has not sent a whole request within 10 s
+is dropped. A client turned away is told why (``busy: ...``), and the
+episode is logged once. A socket file
 left by a crashed daemon is replaced; a socket with a live daemon behind it
 is refused, so a second ``compd run`` cannot hijack the first one's controls.
 """
@@ -30,13 +34,16 @@ import math
 import os
 import socket
 import stat
-import struct
 from collections.abc import Awaitable, Callable, Mapping
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from compd.errors import CompdError, ControlError, NotRunningError
+from compd.faultlog import FaultLog
+from compd.service.admission import Access, Admission, Peer, peer_of
+
+if TYPE_CHECKING:  # the server's only: `compd status` imports the client, and no structlog
+    from compd.service.peers import FdBudget, Listener
 
 log = logging.getLogger(__name__)
 
@@ -46,45 +53,15 @@ DEFAULT_SOCKET_PATH = Path("/run/compd/control.sock")
 SOCKET_MODE = 0o660
 MAX_LINE_BYTES = 2 << 20  # a command and a few options; at most a model file (1 MiB, base64)
 MAX_CONNECTIONS = 16  # a few operators and scripts; more is a runaway client
-IDLE_TIMEOUT_S = 300.0  # a client silent this long is disconnected, so it cannot hold a slot
+MAX_PER_PEER = 4  # connections one user who may not load models holds at once
+RESERVED_FOR_ACCESS = 4  # connections only users allowed a guarded command (load) may take
+IDLE_TIMEOUT_S = 10.0  # a client that sends no whole request this long is disconnected
+BACKLOG = 64  # clients the kernel queues while the server is judging others
 #: Why JSON nested deeper than Python's parser can follow (a RecursionError) is refused.
 TOO_DEEP = "arrays or objects nested too deeply to parse (a request is one flat JSON object)"
 
 Handler = Callable[[dict[str, Any]], Awaitable[dict[str, Any]]]
 """A command: takes the request object, returns the reply's fields (``ok`` is added)."""
-
-
-@dataclass(frozen=True)
-class Peer:
-    """The process at the other end of a connection, as the kernel saw it connect."""
-
-    pid: int
-    uid: int
-    gid: int
-
-
-@dataclass(frozen=True)
-class Access:
-    """Who may run a command: a peer whose uid is in ``uids`` or whose (primary) gid is in ``gids``."""
-
-    uids: frozenset[int]
-    gids: frozenset[int] = frozenset()
-
-    def allows(self, peer: Peer | None) -> bool:
-        return peer is not None and (peer.uid in self.uids or peer.gid in self.gids)
-
-
-def peer_of(writer: asyncio.StreamWriter) -> Peer | None:
-    """The connected process's credentials (``SO_PEERCRED``), or None where the OS has none."""
-    sock = writer.get_extra_info("socket")
-    option = getattr(socket, "SO_PEERCRED", None)
-    if sock is None or option is None:
-        return None
-    try:
-        raw = sock.getsockopt(socket.SOL_SOCKET, option, struct.calcsize("3i"))
-    except OSError:
-        return None
-    return Peer(*struct.unpack("3i", raw))
 
 
 class ControlServer:
@@ -96,6 +73,11 @@ class ControlServer:
     message is the reply's ``error``); any other exception is a bug, logged
     with its traceback and answered as ``internal error``. A command named in
     ``access`` runs only for the peers its :class:`Access` allows.
+
+    Of the ``max_connections``, a peer no :class:`Access` allows (a
+    status-only user) may hold ``max_per_peer``, and such peers together all
+    but ``reserved`` of them: those are kept for the allowed peers. ``budget``
+    may lower ``max_connections`` to what the open-files limit leaves.
     """
 
     def __init__(
@@ -107,16 +89,23 @@ class ControlServer:
         max_connections: int = MAX_CONNECTIONS,
         idle_timeout_s: float = IDLE_TIMEOUT_S,
         access: Mapping[str, Access] | None = None,
+        max_per_peer: int = MAX_PER_PEER,
+        reserved: int = RESERVED_FOR_ACCESS,
+        budget: FdBudget | None = None,
     ) -> None:
         self.path = Path(path)
         self.handlers = dict(handlers)
         self.access = dict(access or {})
         self.mode = mode
-        self.max_connections = max_connections
+        #: Who is served, turned away, kept room for (:mod:`compd.service.admission`).
+        self.admission = Admission(max_connections, max_per_peer, reserved, self.access)
         self.idle_timeout_s = idle_timeout_s
-        self._server: asyncio.Server | None = None
+        self.budget = budget
+        self._listener: Listener | None = None
         self._inode: tuple[int, int] | None = None
-        self._connections: set[asyncio.Task[None]] = set()
+        #: The connections being served, and the peer of each.
+        self._connections: dict[asyncio.Task[None], Peer | None] = {}
+        self._busy = FaultLog(_structlog(), level="warning")
 
     async def start(self) -> None:
         """Bind the socket (replacing a stale one), set its mode, and accept connections.
@@ -125,7 +114,7 @@ class ControlServer:
         listens on ``path``, when ``path`` is not a socket, or when it cannot
         be bound.
         """
-        if self._server is not None:
+        if self._listener is not None:
             return
         await _remove_stale(self.path)
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -134,25 +123,31 @@ class ControlServer:
             # Before listen(): nobody can connect while the mode is still the umask's.
             os.chmod(self.path, self.mode)
             info = os.stat(self.path)
-            self._server = await asyncio.start_unix_server(
-                self._serve, sock=sock, limit=MAX_LINE_BYTES
-            )
+            sock.listen(BACKLOG)
         except OSError as exc:
             sock.close()
             raise ControlError(f"cannot listen on {self.path}: {exc.strerror or exc}") from exc
         self._inode = (info.st_dev, info.st_ino)
+        from compd.service.peers import FdBudget, Listener
+
+        # One slot beyond the most served: a client over the limit is accepted, told
+        # "busy" and closed at once, instead of waiting unanswered in the queue.
+        admission = self.admission
+        cap = (self.budget or FdBudget()).take(admission.max_connections + 1, "control socket")
+        admission.max_connections = max(1, cap - 1)
+        self._listener = Listener(sock, admission.max_connections + 1, self._admit, name="control")
+        self._listener.start()
         log.info("control socket listening on %s", self.path)
 
     async def close(self) -> None:
         """Stop accepting, end open connections and remove the socket file (if still ours)."""
-        server, self._server = self._server, None
-        if server is None:
+        listener, self._listener = self._listener, None
+        if listener is None:
             return
-        server.close()
+        await listener.close()
         for task in list(self._connections):
             task.cancel()
         await asyncio.gather(*self._connections, return_exceptions=True)
-        await server.wait_closed()
         with contextlib.suppress(OSError):
             info = os.stat(self.path)
             if (info.st_dev, info.st_ino) == self._inode:  # a newer daemon's socket stays
@@ -166,17 +161,31 @@ class ControlServer:
     async def __aexit__(self, *exc_info: object) -> None:
         await self.close()
 
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    def _admit(self, conn: socket.socket, release: Callable[[], None]) -> None:
+        """Serve the accepted ``conn`` (the :class:`Listener`'s), or tell it why not and close it."""
+        peer = peer_of(conn)
+        refusal = self.admission.turned_away(peer, self._connections.values())
+        if refusal is None:
+            task = asyncio.get_running_loop().create_task(self._serve(conn, peer, release))
+            self._connections[task] = peer
+            return
+        self._busy.failed("control socket busy: clients turned away", reason=refusal)
+        with contextlib.suppress(OSError):  # a few bytes: the socket's buffer takes them
+            conn.send(_encode(_refusal(refusal)))
+        conn.close()
+        release()
+
+    async def _serve(
+        self, conn: socket.socket, peer: Peer | None, release: Callable[[], None]
+    ) -> None:
         task = asyncio.current_task()
         assert task is not None
-        self._connections.add(task)
-        peer = peer_of(writer)
+        writer: asyncio.StreamWriter | None = None
         try:
-            if len(self._connections) > self.max_connections:
-                await _send(writer, _refusal(f"busy: {self.max_connections} clients connected"))
-                return
+            reader, writer = await asyncio.open_unix_connection(sock=conn, limit=MAX_LINE_BYTES)
             while True:
                 try:
+                    # The whole line within the timeout: a client sending it slowly is cut too.
                     async with asyncio.timeout(self.idle_timeout_s):
                         line = await reader.readline()
                 except (ValueError, asyncio.LimitOverrunError):
@@ -191,10 +200,17 @@ class ControlServer:
         except (ConnectionError, asyncio.CancelledError):
             pass  # the client went away, or the server is closing
         finally:
-            self._connections.discard(task)
-            writer.close()
-            with contextlib.suppress(Exception):
-                await writer.wait_closed()
+            # The slot first: a client that sees the end of the stream finds it free.
+            self._connections.pop(task, None)
+            release()
+            if not self._connections:
+                self._busy.cleared("control socket serving every client again")
+            if writer is None:
+                conn.close()
+            else:
+                writer.close()
+                with contextlib.suppress(Exception):
+                    await writer.wait_closed()
 
     async def answer(self, line: bytes, peer: Peer | None = None) -> dict[str, Any]:
         """The reply to one request line from ``peer``; never raises."""
@@ -243,12 +259,13 @@ async def request(path: Path, message: dict[str, Any], *, timeout_s: float = 5.0
     access is denied, and when no reply comes within ``timeout_s``.
     """
     path = Path(path)
+    loop = asyncio.get_running_loop()
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.setblocking(False)
     try:
         async with asyncio.timeout(timeout_s):
             try:
-                reader, writer = await asyncio.open_unix_connection(
-                    os.fspath(path), limit=MAX_LINE_BYTES
-                )
+                await loop.sock_connect(sock, os.fspath(path))
             except FileNotFoundError:
                 # How to start it depends on the install: the command line adds the hint.
                 raise NotRunningError(f"is compd running? socket {path} not found") from None
@@ -260,16 +277,17 @@ async def request(path: Path, message: dict[str, Any], *, timeout_s: float = 5.0
                 raise ControlError(
                     f"permission denied on {path}: run as root or as a member of the socket's group"
                 ) from None
-            try:
-                writer.write(_encode(message))
-                await writer.drain()
-                line = await reader.readline()
-            finally:
-                writer.close()
+            # A busy server answers and closes before it reads the request: the write
+            # may fail, and the answer is still there to read (plain sockets keep it).
+            with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+                await loop.sock_sendall(sock, _encode(message))
+            line = await _read_line(loop, sock, path)
     except TimeoutError:
         raise ControlError(f"no reply from compd on {path} within {timeout_s:g} s") from None
     except OSError as exc:
         raise ControlError(f"cannot talk to compd on {path}: {exc.strerror or exc}") from exc
+    finally:
+        sock.close()
     if not line:
         raise ControlError(f"compd closed the connection on {path} without a reply")
     try:
@@ -280,6 +298,19 @@ async def request(path: Path, message: dict[str, Any], *, timeout_s: float = 5.0
     if not isinstance(reply, dict):
         raise ControlError(f"compd sent a reply that is not an object on {path}: {reply!r}")
     return reply
+
+
+async def _read_line(loop: asyncio.AbstractEventLoop, sock: socket.socket, path: Path) -> bytes:
+    """One reply line (empty if the server closed first), at most :data:`MAX_LINE_BYTES`."""
+    data = bytearray()
+    while b"\n" not in data:
+        chunk = await loop.sock_recv(sock, 1 << 16)
+        if not chunk:
+            return bytes(data)
+        data += chunk
+        if len(data) > MAX_LINE_BYTES:
+            raise ControlError(f"compd sent a reply longer than {MAX_LINE_BYTES} bytes on {path}")
+    return bytes(data[: data.index(b"\n") + 1])
 
 
 def request_sync(path: Path, message: dict[str, Any], *, timeout_s: float = 5.0) -> dict[str, Any]:
@@ -341,6 +372,12 @@ async def _send(writer: asyncio.StreamWriter, reply: dict[str, Any]) -> None:
         data = _encode(_refusal(f"internal error: the reply cannot be sent as JSON ({exc})"))
     writer.write(data)
     await writer.drain()
+
+
+def _structlog() -> Any:
+    import structlog  # the server's: the command line's client needs none
+
+    return structlog.get_logger(__name__)
 
 
 def _refusal(error: str) -> dict[str, Any]:

@@ -39,6 +39,7 @@ from compd.service.control import ControlServer
 from compd.service.identity import identity, recording_metadata, systemd_summary
 from compd.service.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.notify import SystemdNotifier
+from compd.service.peers import FdBudget
 from compd.service.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
 from compd.service.safety import HEARTBEAT_MODULO
 from compd.service.seenrequests import FILE as SEEN_FILE
@@ -119,11 +120,14 @@ class Service:
         self.stop_event = asyncio.Event()
         self.started_unix_s = now_unix
         self._killed = False
+        #: The descriptors the control socket and the HTTP server may spend on clients.
+        self.fd_budget = FdBudget()
         self._control = (
             ControlServer(
                 config.control_socket,
                 {"status": self._status, "load": self.load_model},
                 access={"load": doc.load_access.access()},
+                budget=self.fd_budget,
             )
             if control
             else None
@@ -346,6 +350,8 @@ class Service:
             # The model that runs (or is about to) again: nothing to check, install or blend.
             if slot is not None and slot.sha256 == sha256:
                 log.info(f"model load: {state.replace('_', ' ')}", name=slot.compiled.name)
+                if comp.pending is None:  # the running model, with no switch under way
+                    await self.loader.keep(slot)
                 return {
                     "model": slot.compiled.name,
                     "sha256": sha256,

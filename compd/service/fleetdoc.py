@@ -147,6 +147,12 @@ class HttpDoc(Strict):
     listen: str = Field(default="127.0.0.1", min_length=1)
     #: 0: any free port (tests); the port taken is logged.
     port: int = Field(default=9780, ge=0, le=65535)
+    #: Connections open at once (a browser or two and a scraper need a handful); more wait
+    #: in the kernel's queue. Fewer where the open-files limit leaves too few descriptors.
+    max_connections: int = Field(default=64, ge=1, le=4096)
+    #: A connection with no request under way this long is closed (s): a client that sends
+    #: its headers slowly, or keeps an idle connection, cannot hold a slot for longer.
+    idle_timeout_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 10.0
 
     def server(self, service: Service) -> StatusServer:
         """The server for ``service`` (:class:`compd.service.httpserver.StatusServer`), not yet started.
@@ -156,4 +162,11 @@ class HttpDoc(Strict):
         """
         from compd.service.httpserver import StatusServer
 
-        return StatusServer(service, host=self.listen, port=self.port)
+        return StatusServer(
+            service,
+            host=self.listen,
+            port=self.port,
+            max_connections=self.max_connections,
+            idle_timeout_s=self.idle_timeout_s,
+            budget=service.fd_budget,
+        )

@@ -17,12 +17,20 @@ method is ``405 Method Not Allowed``, and the page carries a content
 security policy with ``form-action 'none'``. Loading a model stays the
 control socket's, behind its access list. Names come from config and model
 files, so the page sets them as text, never as markup.
+
+No client can starve the daemon (:mod:`compd.service.peers`): at most
+``http.max_connections`` are open at once (fewer where the open-files limit
+is low), the rest wait in the kernel's queue, and a connection with no
+request under way for ``http.idle_timeout_s`` (one sending its headers
+slowly, or idle between requests) is closed, as is one that leaves an
+answer unread that long.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import socket
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -36,6 +44,7 @@ from compd.service.compensator import TickRecord
 from compd.service.control import jsonable
 from compd.service.history import RecentFaults, TickHistory
 from compd.service.metrics import ServiceMetrics
+from compd.service.peers import FdBudget, Listener, serve_protocol
 from compd.service.safety import Flag, Level
 
 if TYPE_CHECKING:
@@ -57,6 +66,8 @@ MAX_POINTS = 3600
 READ_ONLY = frozenset({"GET", "HEAD"})
 #: An answer asked for this close to the next tick (real s, either side) waits for that tick to finish.
 TICK_GUARD_S = 0.05
+#: Clients the kernel queues while all connections are taken (they cost the daemon no descriptor).
+BACKLOG = 1024
 HEADERS = {
     "Content-Security-Policy": (
         "default-src 'none'; script-src 'self'; style-src 'self'; connect-src 'self'; "
@@ -73,10 +84,22 @@ Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 class StatusServer:
     """The service's metrics, its history and the server answering for them; :meth:`start`, then :meth:`close`."""
 
-    def __init__(self, service: Service, *, host: str, port: int) -> None:
+    def __init__(
+        self,
+        service: Service,
+        *,
+        host: str,
+        port: int,
+        max_connections: int,
+        idle_timeout_s: float,
+        budget: FdBudget | None = None,
+    ) -> None:
         self.service = service
         self.host = host
         self.requested_port = port
+        self.max_connections = max_connections
+        self.idle_timeout_s = idle_timeout_s
+        self.budget = budget
         self.metrics = ServiceMetrics(service)
         doc = service.config.doc
         self.history = TickHistory(list(doc.outputs), list(doc.signals), doc.period_s)
@@ -100,6 +123,7 @@ class StatusServer:
         self.app.router.add_get("/history.json", self._history)
         self.app.router.add_get("/page.json", self._page_json)
         self._runner: web.AppRunner | None = None
+        self._listener: Listener | None = None
 
     def tick(
         self, record: TickRecord, lateness_s: float, cpu_s: float, started_real_s: float
@@ -120,8 +144,13 @@ class StatusServer:
     @property
     def port(self) -> int:
         """The port listened on (the one the OS chose for ``port: 0``)."""
-        assert self._runner is not None, "not started"
-        return int(self._runner.addresses[0][1])
+        assert self._listener is not None, "not started"
+        return int(self._listener.sock.getsockname()[1])
+
+    @property
+    def connections(self) -> int:
+        """The clients connected now (at most the cap; others wait in the kernel's queue)."""
+        return 0 if self._listener is None else self._listener.open
 
     @property
     def url(self) -> str:
@@ -130,24 +159,43 @@ class StatusServer:
 
     async def start(self) -> None:
         """Listen; a port in use or an address not of this host is a CompdError naming the config."""
-        runner = web.AppRunner(self.app, access_log=None, handle_signals=False)
-        await runner.setup()
         try:
-            await web.TCPSite(runner, self.host, self.requested_port).start()
+            sock = socket.create_server(
+                (self.host, self.requested_port),
+                family=socket.AF_INET6 if ":" in self.host else socket.AF_INET,
+                backlog=BACKLOG,
+            )
         except OSError as exc:
-            await runner.cleanup()
             raise CompdError(
                 f"{self.service.config.path}: http: cannot listen on {self.host}:{self.requested_port}: "
                 f"{exc.strerror or exc}. Give 'http.port' a free port (another compd may hold this one), "
                 "or 'http.listen' an address of this host"
             ) from exc
+        # aiohttp's keep-alive timer runs from the connection's start and from each
+        # answer, and closes a connection still waiting for a whole request: it is
+        # the header timeout and the idle timeout both.
+        runner = web.AppRunner(
+            self.app, access_log=None, handle_signals=False, keepalive_timeout=self.idle_timeout_s
+        )
+        await runner.setup()
+        budget = self.budget or FdBudget()
+        cap = budget.take(self.max_connections, "http")
+        assert runner.server is not None
+        admit = serve_protocol(runner.server, stall_timeout_s=self.idle_timeout_s)
+        self._listener = Listener(sock, cap, admit, name="http")
+        self._listener.start()
         self._runner = runner
-        log.info("http server listening", url=self.url, metrics=f"{self.url}metrics")
+        log.info(
+            "http server listening", url=self.url, metrics=f"{self.url}metrics", connections=cap
+        )
 
     async def close(self) -> None:
+        if self._listener is not None:
+            await self._listener.close()  # no new connections while the open ones end
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
+        self._listener = None
 
     @web.middleware
     async def _clear_of_ticks(self, request: web.Request, handler: Handler) -> web.StreamResponse:

@@ -168,6 +168,23 @@ class ModelLoader:
         slot.model_file = dataclasses.replace(slot.model_file, path=str(installed))
         return slot
 
+    async def keep(self, running: ModelSlot) -> None:
+        """Make ``running`` the model the next start picks (``current-model``), off the loop.
+
+        Loading the model that runs is a no-op for the loop, but the installed
+        model may have drifted from it (an old client installed another while
+        it could not reach this daemon): the next start must not switch.
+        """
+        try:
+            await in_daemon_thread(
+                reinstate_model, self.config.state_dir, Path(running.model_file.path)
+            )
+        except OSError as exc:
+            raise CompdError(
+                f"cannot make the running model the installed one in {self.config.state_dir} "
+                f"({exc.strerror})"
+            ) from exc
+
     def failed(self, failed: ModelSlot, restored: ModelSlot) -> None:
         """A model failed while running: the next start picks ``restored``, not it.
 

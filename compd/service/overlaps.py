@@ -107,8 +107,8 @@ def check_overlaps(
                 raise _overlap(use, clash, cell[0], error, place)
             claims[cell] += (use,)
         claims.update(dict.fromkeys(cells - shared, (use,)))
-    for endpoint, named in namings.items():
-        _check_one_naming(endpoint, named, error, place)
+    for endpoint, namings_there in namings.items():
+        _check_one_naming(endpoint, namings_there, error, place)
 
 
 def _clash(use: _Use, other: _Use) -> bool:

@@ -49,6 +49,7 @@ from typing import Any
 import yaml
 
 from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_settings import ModbusSettings
 from compd.errors import CompdError
 from compd.files.yamlplace import resolve_path
 from compd.service.clock import VirtualClock
@@ -146,8 +147,10 @@ class Soak:
         outputs = [o.address for o in doc.outputs.values() if o.driver == name]
         if doc.status is not None and doc.status.driver == name:
             outputs += [doc.status.status_address, doc.status.heartbeat_address]
+        settings = self.config.driver_settings[name]
+        assert isinstance(settings, ModbusSettings)  # the soak's machine is a Modbus PLC
         self.server = ModbusPlcServer(
-            self.config.driver_settings[name],
+            settings,
             inputs=[s.address for s in doc.signals.values() if s.driver == name],
             outputs=outputs,
             on_write=self.witness.sink(self.machine.on_write(name)),
@@ -321,6 +324,7 @@ class Soak:
     async def _program(self, offset_um: float) -> None:
         """The PLC's own program sets its offset register (here: the reset of a restart)."""
         settings = self.config.driver_settings[self.driver]
+        assert isinstance(settings, ModbusSettings)
         driver = ModbusDriver(settings, now=self.clock.now, base_dir=Path())
         await driver.open()
         self.witness.programming = True

@@ -289,3 +289,15 @@ def test_compd_run_speaks_the_units_protocol(notify_socket, short_dir):
     data = load_data(recording, resample=True)  # a loaded test machine may tick off the grid
     assert len(data) >= 5 and data.has("offset.Y_um")
     assert data.sample_time_s == pytest.approx(1.0, rel=0.05)
+
+
+def test_the_open_files_limit_holds_every_client_cap_and_the_reserve(service):
+    """LimitNOFILE is set, and holds the HTTP and control-socket caps, the fds kept for the machine and compd's own."""
+    from compd.service.control import MAX_CONNECTIONS
+    from compd.service.fleetdoc import HttpDoc
+    from compd.service.peers import RESERVED_FDS
+
+    (value,) = service["LimitNOFILE"]
+    soft = int(value.split(":")[0])
+    own = 128  # the interpreter, numpy, scipy, the log, the listening sockets: ~40 measured
+    assert soft >= HttpDoc().max_connections + MAX_CONNECTIONS + 1 + RESERVED_FDS + own

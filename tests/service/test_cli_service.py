@@ -2,17 +2,22 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from typing import Any
 
+from compd.cli import daemon as cli_daemon
 from compd.cli import main
 from compd.cli.starthint import start_hint
+from compd.service.control import ControlServer
 from compd.service.state import installed_model
 
 from .daemon_setup import short_socket, write_config
@@ -72,6 +77,39 @@ def test_model_load_without_a_daemon_installs_for_the_next_start(tmp_path, capsy
     assert "installed example-gated-arx-y" in captured.out
     assert "it will start with this model" in captured.err
     assert installed_model(config.state_dir) is not None
+
+
+def test_model_load_that_a_live_daemon_does_not_answer_fails_and_installs_nothing(
+    tmp_path, capsys, monkeypatch
+):
+    """A daemon that runs but does not answer the load: exit 2 saying so, and current-model stays as it was."""
+    config = write_config(tmp_path, {"control_socket": str(short_socket())})
+    monkeypatch.setattr(cli_daemon, "LOAD_TIMEOUT_S", 0.0)  # the client waits 10 s, not 40
+
+    async def stuck(message: dict[str, Any]) -> dict[str, Any]:
+        await asyncio.sleep(3600)  # a daemon whose loop is held up, or whose check hangs
+        return {}
+
+    async def live_daemon(started: threading.Event, stop: asyncio.Event) -> None:
+        async with ControlServer(config.control_socket, {"load": stuck}):
+            started.set()
+            await stop.wait()
+
+    loop = asyncio.new_event_loop()
+    started, stop = threading.Event(), asyncio.Event()
+    thread = threading.Thread(target=loop.run_until_complete, args=(live_daemon(started, stop),))
+    thread.start()
+    try:
+        assert started.wait(60)
+        argv = ["model", "load", str(config.model_path), "--config", str(config.path)]
+        assert main(argv) == 2
+    finally:
+        loop.call_soon_threadsafe(stop.set)
+        thread.join(60)
+        loop.close()
+    err = capsys.readouterr().err
+    assert "was not loaded and nothing was installed" in err and "no reply from compd" in err
+    assert installed_model(config.state_dir) is None
 
 
 def test_model_load_refuses_a_bad_model(tmp_path, capsys):

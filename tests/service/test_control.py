@@ -8,6 +8,7 @@ import math
 import os
 import re
 import shutil
+import signal
 import socket
 import stat
 import tempfile
@@ -19,15 +20,8 @@ from typing import Any
 import pytest
 
 from compd.errors import ControlError, ModelFileError
-from compd.service.control import (
-    MAX_LINE_BYTES,
-    TOO_DEEP,
-    Access,
-    ControlServer,
-    Peer,
-    request,
-    request_sync,
-)
+from compd.service.admission import Access, Peer
+from compd.service.control import MAX_LINE_BYTES, TOO_DEEP, ControlServer, request, request_sync
 
 
 @pytest.fixture
@@ -320,3 +314,88 @@ def test_the_server_reads_the_peers_credentials(sock_path):
 
     asyncio.run(scenario())
     assert seen == [Peer(os.getpid(), os.getuid(), os.getgid())]
+
+
+def test_one_status_only_user_holds_at_most_max_per_peer_connections(sock_path):
+    """A user who may not load holds at most 4 connections; the next is told so, a freed one serves again."""
+    me, other = os.getuid(), os.getuid() + 12345
+    access = {"model.load": Access(frozenset({other}))}
+
+    async def main():
+        async with ControlServer(sock_path, HANDLERS, access=access):
+            held = [await asyncio.open_unix_connection(str(sock_path)) for _ in range(4)]
+            over = await request(sock_path, {"cmd": "status"})
+            reader, writer = held.pop()
+            writer.write_eof()
+            assert await reader.read() == b""  # the server has ended it and freed its slot
+            return over, await request(sock_path, {"cmd": "status"})
+
+    over, served = asyncio.run(main())
+    assert over == {
+        "ok": False,
+        "error": f"busy: uid {me} already has 4 connections, the most one user may hold; "
+        "close one first",
+    }
+    assert served["ok"]
+
+
+def hold_connections_as(uid: int, path: Path, count: int) -> tuple[int, int]:
+    """A child process running as ``uid`` that connects ``count`` times to ``path`` and holds on.
+
+    Returns its pid (to kill) and a pipe it writes one byte to once every
+    connect() has returned.
+    """
+    ready_r, ready_w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: plain sockets only, then _exit
+        try:
+            os.setgid(uid)
+            os.setuid(uid)
+            held = []
+            for _ in range(count):
+                client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                client.connect(str(path))
+                held.append(client)
+            os.write(ready_w, b"x")
+            signal.pause()
+        finally:
+            os._exit(0)
+    os.close(ready_w)
+    return pid, ready_r
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="connecting as a second user needs root")
+def test_a_status_only_user_cannot_lock_out_the_users_who_may_load(sock_path):
+    """16 idle connections of a status-only user leave root's status and load answered at once."""
+    nobody = 65534
+    sock_path.parent.chmod(0o711)
+    access = {"model.load": Access(frozenset({0}))}
+
+    async def loaded(message: dict[str, Any]) -> dict[str, Any]:
+        return {"loaded": True}
+
+    async def main():
+        server = ControlServer(
+            sock_path,
+            {**HANDLERS, "model.load": loaded},
+            mode=0o666,
+            access=access,
+            idle_timeout_s=3600.0,  # the limits must hold while the idle clients stay
+        )
+        async with server:
+            pid, ready = hold_connections_as(nobody, sock_path, 16)
+            try:
+                assert await asyncio.to_thread(os.read, ready, 1) == b"x"
+                # The socket's queue is first in, first out: the 16 are judged before these.
+                return [
+                    await request(sock_path, {"cmd": "status"}),
+                    await request(sock_path, {"cmd": "model.load"}),
+                ]
+            finally:
+                os.kill(pid, signal.SIGKILL)
+                os.waitpid(pid, 0)
+                os.close(ready)
+
+    status_reply, load_reply = asyncio.run(main())
+    assert status_reply["ok"] and status_reply["state"] == "compensating"
+    assert load_reply == {"ok": True, "loaded": True}

@@ -16,7 +16,8 @@ from compd.service import modelload
 from compd.service.clock import VirtualClock
 from compd.service.control import request
 from compd.service.daemon import Service
-from compd.service.modelload import load_request
+from compd.service.modelload import load_request, startup_slots
+from compd.service.state import install_model_bytes
 
 from .daemon_setup import short_socket, ticked, write_config
 from .test_service import bad_and_good_models
@@ -197,3 +198,26 @@ def test_load_refuses_what_model_check_refuses(tmp_path: Path) -> None:
     config = write_config(tmp_path)
     with pytest.raises(ModelFileError, match="implausible for its own calibration data"):
         modelload.slot_from_bytes(config, IMPLAUSIBLE.encode(), "eight-years.yaml", 0.0)
+
+
+def test_loading_the_running_model_makes_it_the_one_the_next_start_picks(tmp_path):
+    """Another model installed behind the daemon's back is replaced by the running one when that is loaded again."""
+    _, good = bad_and_good_models(tmp_path)
+    service = daemon(tmp_path)
+    config = service.config
+    replies = {}
+
+    async def scenario() -> None:
+        task = asyncio.create_task(service.run())
+        await ticked(service, task, 3)
+        # What an old `compd model load` did when it could not reach this daemon.
+        install_model_bytes(config.state_dir, good.read_bytes())
+        running = Path(config.model_path).read_bytes()
+        replies["load"] = await request(config.control_socket, load_request(running, "again"))
+        service.stop()
+        await task
+
+    asyncio.run(scenario())
+    assert replies["load"]["ok"] and replies["load"]["already_running"]
+    next_start, _ = startup_slots(config, 0.0)
+    assert next_start is not None and next_start.compiled.name == "example-gated-arx-y"

@@ -1,0 +1,251 @@
+"""Slow and greedy peers against a real ``compd run``: half-sent HTTP requests under a low open-files limit."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import resource
+import select
+import selectors
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+from compd.cli import main
+
+from .daemon_setup import short_socket, write_config
+from .httprun import http_config, running_compd
+
+#: The daemon's open-files limit (soft and hard): far below systemd's 1024, so a few
+#: hundred connections exhaust it, as 1,100 exhaust 1024.
+FD_LIMIT = 128
+#: Half-sent requests: more than the limit allows descriptors.
+ATTACKERS = FD_LIMIT + 72
+#: A guard against a hang, not a timing: generous for a busy CI machine.
+HANG_S = 120.0
+RUN = [sys.executable, "-m", "compd.cli", "run", "--config"]
+ESTABLISHED = 1  # TCP_ESTABLISHED, linux/tcp_states.h
+HALF_REQUEST = b"GET /status.json HTTP/1.1\r\nHost: compd\r\n"  # no blank line: never complete
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def limit_fds() -> None:
+    resource.setrlimit(resource.RLIMIT_NOFILE, (FD_LIMIT, FD_LIMIT))
+
+
+def get(url: str) -> tuple[int, bytes]:
+    with urllib.request.urlopen(url, timeout=HANG_S) as response:
+        return response.status, response.read()
+
+
+def wait_for_http(url: str, daemon: subprocess.Popen[str]) -> None:
+    deadline = time.monotonic() + HANG_S
+    while time.monotonic() < deadline:
+        assert daemon.poll() is None, daemon.communicate()[1]
+        try:
+            get(url)
+            return
+        except OSError:
+            time.sleep(0.1)
+    raise AssertionError(f"compd never answered on {url}")
+
+
+def half_sent_requests(port: int, count: int) -> list[socket.socket]:
+    """``count`` connections to ``port``, each with a request whose headers never end."""
+    clients = []
+    for _ in range(count):
+        client = socket.socket()
+        client.setblocking(False)
+        client.connect_ex(("127.0.0.1", port))
+        clients.append(client)
+    with selectors.DefaultSelector() as pending:  # poll(): select() stops at fd 1024
+        for client in clients:
+            pending.register(client, selectors.EVENT_WRITE)
+        deadline = time.monotonic() + HANG_S
+        while pending.get_map() and time.monotonic() < deadline:
+            for key, _ in pending.select(1.0):
+                key.fileobj.send(HALF_REQUEST)  # type: ignore[union-attr]
+                pending.unregister(key.fileobj)
+        assert not pending.get_map(), f"{len(pending.get_map())} never completed the handshake"
+    return clients
+
+
+def wait_closed_by_server(clients: list[socket.socket]) -> None:
+    """Until the server has closed every one of ``clients`` (end of stream or reset)."""
+    with selectors.DefaultSelector() as open_:
+        for client in clients:
+            open_.register(client, selectors.EVENT_READ)
+        deadline = time.monotonic() + HANG_S
+        while open_.get_map() and time.monotonic() < deadline:
+            for key, _ in open_.select(1.0):
+                try:
+                    data = key.fileobj.recv(4096)  # type: ignore[union-attr]
+                except ConnectionError:
+                    data = b""
+                assert data == b"", f"a half-sent request was answered: {data[:100]!r}"
+                open_.unregister(key.fileobj)
+        assert not open_.get_map(), f"{len(open_.get_map())} slow clients were never disconnected"
+
+
+def test_half_sent_http_requests_never_take_the_descriptors_the_daemon_needs(
+    tmp_path: Path,
+) -> None:
+    """At an open-files limit of 128, 200 half-sent requests leave status, saves and fds free; each is cut; one log."""
+    port = free_port()
+    changes = {
+        "control_socket": str(short_socket()),
+        "http": {"port": port, "idle_timeout_s": 1},
+        "state": {"save_every_ticks": 1},
+    }
+    config = write_config(tmp_path, changes)
+    daemon = subprocess.Popen(
+        [*RUN, str(config.path), "--time-scale", "1", "--log-format", "json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=limit_fds,
+    )
+    url = f"http://127.0.0.1:{port}/"
+    try:
+        wait_for_http(url + "status.json", daemon)
+        clients = half_sent_requests(port, ATTACKERS)
+        try:
+            # The control socket still has descriptors to answer with.
+            assert main(["status", "--config", str(config.path), "--json"]) == 0
+            assert len(os.listdir(f"/proc/{daemon.pid}/fd")) < FD_LIMIT - 16
+            wait_closed_by_server(clients)
+        finally:
+            for client in clients:
+                client.close()
+        status, body = get(url + "status.json")
+        assert status == 200 and json.loads(body)["counters"]["ticks"] > 0
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        _, stderr = daemon.communicate(timeout=HANG_S)
+    assert daemon.returncode == 0, stderr
+    assert "Too many open files" not in stderr and "Traceback" not in stderr, stderr[-3000:]
+    events = [json.loads(line) for line in stderr.splitlines()]
+    assert not [e for e in events if e["event"].startswith("cannot save state")]
+    capped = [e for e in events if e["event"].startswith("too many connections")]
+    assert [e["listener"] for e in capped] == ["http"], capped
+
+
+def tcp_state(client: socket.socket) -> int:
+    """The kernel's TCP state of ``client`` (``tcp_info.tcpi_state``: 1 established, 7 closed)."""
+    return client.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 8)[0]
+
+
+def test_a_client_that_never_reads_its_answers_is_cut(tmp_path: Path) -> None:
+    """Pipelined requests whose answers are never read hold their connection only idle_timeout_s, not for ever."""
+    with running_compd(http_config(tmp_path, idle_timeout_s=1), hold_at=5) as run:
+        port = int(run.url.rsplit(":", 1)[1].rstrip("/"))
+        client = socket.socket()
+        client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        client.connect(("127.0.0.1", port))
+        client.setblocking(False)
+        try:
+            requests = b"GET /page.js HTTP/1.1\r\nHost: compd\r\n\r\n" * 2000  # ~16 MB of answers
+            with contextlib.suppress(BlockingIOError):
+                client.send(requests)
+            deadline = time.monotonic() + HANG_S
+            while tcp_state(client) == ESTABLISHED and time.monotonic() < deadline:
+                time.sleep(0.1)
+            assert tcp_state(client) != ESTABLISHED, "the server still holds the connection"
+            assert run.service is not None and run.service.http is not None
+            assert run.service.http.connections == 0
+            assert run.get("/status.json")[0] == 200
+        finally:
+            client.close()
+
+
+#: A control socket in a process whose descriptors something else used up, then gave back.
+STARVED_SERVER = """
+import asyncio, concurrent.futures.thread, logging, os, resource, sys
+from pathlib import Path
+import structlog
+from compd.service.control import ControlServer
+
+structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.INFO))
+resource.setrlimit(resource.RLIMIT_NOFILE, (128, 128))
+
+async def status(message):
+    return {"state": "up"}
+
+async def main():
+    async with ControlServer(Path(sys.argv[1]), {"status": status}):
+        hog = []
+        try:
+            while True:
+                hog.append(open(os.devnull))
+        except OSError:
+            pass
+        print("full", flush=True)
+        await asyncio.to_thread(sys.stdin.readline)
+        for file in hog:
+            file.close()
+        await asyncio.to_thread(sys.stdin.readline)
+
+asyncio.run(main())
+"""
+
+
+def read_until(process: subprocess.Popen[str], word: str) -> list[str]:
+    """``process``'s output lines up to the first that holds ``word``."""
+    lines: list[str] = []
+    assert process.stdout is not None
+    while not lines or word not in lines[-1]:
+        ready, _, _ = select.select([process.stdout], [], [], HANG_S)
+        assert ready, f"no {word!r} in {lines}"
+        line = process.stdout.readline()
+        assert line, f"the server ended before {word!r}: {lines}"
+        lines.append(line)
+    return lines
+
+
+def test_running_out_of_descriptors_is_logged_once_and_the_clients_are_served_after() -> None:
+    """With every descriptor taken, clients wait in the queue, one line says so; once freed they are answered."""
+    path = short_socket()
+    server = subprocess.Popen(
+        [sys.executable, "-c", STARVED_SERVER, str(path)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    assert server.stdin is not None
+    clients = []
+    try:
+        read_until(server, "full")
+        for _ in range(3):
+            client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            client.connect(str(path))
+            client.sendall(b'{"cmd": "status"}\n')
+            clients.append(client)
+        starved = read_until(server, "accept")
+        server.stdin.write("free\n")
+        server.stdin.flush()
+        for client in clients:
+            client.settimeout(HANG_S)
+            assert json.loads(client.makefile().readline()) == {"ok": True, "state": "up"}
+        server.stdin.write("stop\n")
+        server.stdin.flush()
+        rest, _ = server.communicate(timeout=HANG_S)
+    finally:
+        for client in clients:
+            client.close()
+        server.kill()
+        server.wait()
+    assert "cannot accept a connection" in starved[-1], starved
+    output = "".join(starved) + rest
+    assert "Traceback" not in output, output
+    assert output.count("cannot accept a connection") == 1, output
