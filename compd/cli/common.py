@@ -6,6 +6,7 @@ import argparse
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 from rich.table import Table
 
@@ -52,8 +53,24 @@ def data_options(
         action="store_true",
         help="interpolate irregularly sampled data onto a uniform grid instead of refusing it",
     )
+    experiments_option(parser)
     if scored is not None:
         span_options(parser, scored=scored, detail=detail)
+
+
+def experiments_option(parser: argparse.ArgumentParser) -> None:
+    """``--experiments``: how several files (a folder of a recorder's files) become records."""
+    parser.add_argument(
+        "--experiments",
+        choices=("per-run", "per-file", "contiguous"),
+        default="per-run",
+        help="how several data files become experiments: per-run (default) joins the files "
+        "of one recorded run (the recorder marks each file with its run, the file before it "
+        "and the gap; a restart, a gap over --max-gap-s, another machine split it), and every "
+        "other file is its own; per-file: every file its own, started from rest; contiguous: "
+        "also join files without run marks whose timestamps continue the file before "
+        "(same machine_id, the missing samples between them within --max-gap-s)",
+    )
 
 
 def span_options(parser: argparse.ArgumentParser, *, scored: str, detail: str = "") -> None:
@@ -120,27 +137,56 @@ def window_options(parser: argparse.ArgumentParser) -> None:
 
 
 def load_data_from_args(
-    args: argparse.Namespace, path: str | os.PathLike[str] | None = None
+    args: argparse.Namespace, path: str | os.PathLike[str] | list[Path] | None = None
 ) -> DataSet:
-    """Load ``path`` (default ``args.data``; ``bundled:NAME`` too) with the options of :func:`data_options`."""
+    """One record: ``path`` (default ``args.data``; ``bundled:NAME`` too), or files that are one run.
+
+    A folder or several files are read as :func:`load_experiments_from_args`
+    reads them and must make one experiment (the files of one recorded run).
+    """
     path = args.data if path is None else path
-    if str(path).startswith(BUNDLED):  # as provenance records a bundled file
-        path = resolve_path(str(path), Path("."))
-    return load_data(path, max_gap_s=args.max_gap_s, resample=args.resample)
+    paths = path if isinstance(path, list) else [path]
+    if len(paths) > 1 or os.path.isdir(paths[0]):
+        experiments = _experiments(args, paths)
+        if len(experiments) > 1:
+            from compd.files.runs import summary
+
+            raise DataFileError(
+                ", ".join(map(str, paths)),
+                "this command works on one record, and the files make "
+                f"{summary(experiments, args.experiments)}",
+                fix="Give the files of one recorded run, or one file; --experiments contiguous "
+                "joins files whose timestamps continue each other",
+            )
+        return experiments[0]
+    (one,) = paths
+    if str(one).startswith(BUNDLED):  # as provenance records a bundled file
+        one = resolve_path(str(one), Path("."))
+    return load_data(one, max_gap_s=args.max_gap_s, resample=args.resample)
 
 
 def load_experiments_from_args(args: argparse.Namespace) -> list[DataSet]:
     """``args.data``, files and folders, as experiments (:mod:`compd.files.experiments`).
 
     One file is one experiment, read as ``load_data`` reads it; folders and
-    several files are checked to be alike.
+    several files are checked to be alike, and the files of one recorded run
+    joined (``--experiments``).
     """
-    from compd.files.experiments import load_experiments
-
     paths = args.data if isinstance(args.data, list) else [args.data]
     if len(paths) == 1 and not os.path.isdir(paths[0]):
         return [load_data_from_args(args, paths[0])]
-    return load_experiments(paths, max_gap_s=args.max_gap_s, resample=args.resample)
+    return _experiments(args, paths)
+
+
+def _experiments(args: argparse.Namespace, paths: list[Any]) -> list[DataSet]:
+    from compd.files.experiments import load_experiments
+
+    return load_experiments(
+        paths,
+        max_gap_s=args.max_gap_s,
+        resample=args.resample,
+        joining=getattr(args, "experiments", "per-run"),
+    )
 
 
 def refuse_with_several(experiments: list[DataSet], options: dict[str, object]) -> None:
@@ -151,9 +197,11 @@ def refuse_with_several(experiments: list[DataSet], options: dict[str, object]) 
         if value:
             raise DataFileError(
                 ", ".join(d.path for d in experiments),
-                f"{option} works on one record, and {len(experiments)} data files were given",
+                f"{option} works on one record, and the data make {len(experiments)} experiments "
+                "(separate files or runs; a note says which)",
                 where=option,
-                fix=f"Give one data file with {option}, or leave {option} out",
+                fix=f"Give one data file (or one recorded run's files) with {option}, or leave "
+                f"{option} out",
             )
 
 

@@ -81,8 +81,9 @@ def register(commands: Any) -> None:
         type=Path,
         nargs="+",
         metavar="DATA",
-        help="data files or folders (their *.csv and *.parquet, sorted by name); several are "
-        "separate experiments, each run from the initial state and judged alone, then pooled",
+        help="data files or folders (their *.csv and *.parquet, sorted by name); a recorded "
+        "run's files are one record, others separate experiments, each run from the initial "
+        "state and judged alone, then pooled",
     )
     cmp_.add_argument(
         "--json", action="store_true", help="print one JSON object instead of a table"

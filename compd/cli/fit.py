@@ -45,8 +45,9 @@ def register(commands: Any) -> None:
         nargs="+",
         metavar="CALIB",
         help="calibration data: a file, or several files and folders (their *.csv and *.parquet, "
-        "sorted by name) as separate experiments: inputs referenced to each file's first values, "
-        "no lag across files, cross-validation leaving one file out",
+        "sorted by name): the files of one recorded run joined into one record, others separate "
+        "experiments (--experiments): inputs referenced to each experiment's first values, no "
+        "lag across experiments, cross-validation leaving one out",
     )
     parser.add_argument(
         "--output", required=True, metavar="COLUMN", help="measured displacement (um)"

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -26,19 +25,18 @@ from compd.service.compensator import TickRecord
 from compd.service.config import Config
 from compd.service.daemon import Service
 from compd.service.notify import SystemdNotifier
+from compd.service.recorder import NAME
 
 #: A recording's file is closed at this size and the next one opened: under the 1 GiB that
 #: ``compd fit --data`` reads (:data:`compd.files.data.MAX_FILE_BYTES`), so each file fits as it is.
 FILE_BYTES = 1_000_000_000
-#: The recorder's file names (:mod:`compd.service.recorder`).
-RECORDING = re.compile(r"^compd-\d{8}T\d{6}Z(?:-\d+)?\.csv$")
 
 
 def recordings(directory: Path) -> list[Path]:
-    """The recorder's files in ``directory``, oldest first."""
+    """The recorder's files in ``directory`` (:data:`compd.service.recorder.NAME`), oldest first."""
     if not directory.is_dir():
         return []
-    return sorted(p for p in directory.iterdir() if RECORDING.match(p.name))
+    return sorted(p for p in directory.iterdir() if NAME.match(p.name))
 
 
 def record_command(args: argparse.Namespace) -> int:
@@ -137,14 +135,8 @@ def _print_result(config: Config, out_dir: Path, ticks: int) -> None:
     # A reference displacement (probe, dial gauge) is recorded in um: what a model predicts.
     outputs = [n for n, s in signals.items() if s.unit == "um"]
     inputs = [n for n, s in signals.items() if s.unit != "um"]
-    data = files[0] if len(files) == 1 else out_dir / "joined.csv"
-    if len(files) > 1:
-        out.print(
-            Text.assemble(
-                "  several files: join them into one for compd fit (the header once), e.g. ",
-                (f"awk 'FNR > 1 || NR == 1' {out_dir}/compd-*.csv > {data}", "bold"),
-            )
-        )
+    # Several files of one run (rotated at the size limit) are one record to compd fit.
+    data = files[0] if len(files) == 1 else out_dir
     if outputs:
         out.print(
             Text.assemble(

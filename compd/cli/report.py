@@ -19,7 +19,13 @@ def register(commands: Any) -> None:
         "candidates, conditions",
     )
     report.add_argument("model", type=Path, metavar="MODEL.yaml")
-    report.add_argument("data", type=Path, metavar="DATA.csv")
+    report.add_argument(
+        "data",
+        type=Path,
+        nargs="+",
+        metavar="DATA",
+        help="a data file, or the files (a folder) of one recorded run",
+    )
     report.add_argument("--out", type=Path, required=True, metavar="REPORT.html")
     report.add_argument(
         "--compare",

@@ -14,6 +14,7 @@ figures from the written files, as ``compd compare`` would give them).
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +40,13 @@ def register(commands: Any) -> None:
         "(seed 004) and show the residue before and after",
     )
     parser.add_argument("model", type=Path, metavar="MODEL.yaml")
-    parser.add_argument("data", type=Path, metavar="DATA.csv", help="a record with door openings")
+    parser.add_argument(
+        "data",
+        type=Path,
+        nargs="+",
+        metavar="DATA",
+        help="a record with door openings: a file, or the files (a folder) of one recorded run",
+    )
     parser.add_argument(
         "--signal", default="door_open", help="the door status column (default door_open)"
     )
@@ -75,6 +82,8 @@ def _residual(args: argparse.Namespace) -> int:
     parent = load_model(args.model)
     data = load_data_from_args(args)
     span = span_from_args(args, data)
+    for note in data.notes:  # what was joined, repaired or left out
+        print(f"note: {note}", file=sys.stderr)
     verify = load_data_from_args(args, args.verify) if args.verify else None
     stacked = stack_on_model(
         parent,

@@ -70,6 +70,9 @@ class DataSet:
     #: ``model``, ``model_sha256``, ``config`` (CSV ``# key: value`` lines before the
     #: header; Parquet key-value metadata). Empty for a file that says nothing.
     metadata: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
+    #: The files a record joined from one recorded run was read from, in order
+    #: (:mod:`compd.files.runs`); empty for a record read from ``path`` alone.
+    files: tuple[str, ...] = ()
 
     def __len__(self) -> int:
         return len(self.time_s)

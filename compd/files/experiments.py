@@ -1,13 +1,18 @@
-"""Several data files as separate experiments: a folder or a list of files, each its own record.
+"""Several data files as experiments: a folder or a list of files, each recorded run one record.
 
 Recordings of a fleet come as folders of files (the recorder rotates them),
-several days of one machine, or several machines of one type. Each file is a
-separate experiment: loaded on its own (:func:`~compd.files.data.load_data`,
-so every check and repair names its file) and never joined to the next one,
-since nothing says the machine's thermal state carried over from the end of
-one file to the start of the next. The commands run the model from its
-initial state at each file's start, the fit takes no lag across files
-(:mod:`compd.model.experiments`), and cross-validation leaves one file out.
+several days of one machine, or several machines of one type. Each file is
+loaded on its own (:func:`~compd.files.data.load_data`, so every check and
+repair names its file); then the files of one recorded run, which say so in
+their metadata, are joined into one experiment (:mod:`compd.files.runs`):
+the machine's thermal state carried over from one file to the next. Separate
+runs, other machines and files that say nothing (older recordings, other
+loggers' files) are separate experiments, since nothing says the state
+carried over; ``joining`` changes that both ways (``per-file``: every file
+its own, as before run metadata; ``contiguous``: any file whose timestamps
+continue the one before it). The commands run the model from its initial
+state at each experiment's start, the fit takes no lag across experiments
+(:mod:`compd.model.experiments`), and cross-validation leaves one out.
 
 The files must be alike: the same columns (a file without a column another
 has is refused, naming both) and the same sample time. In a folder, a file
@@ -28,6 +33,7 @@ import numpy as np
 
 from compd.errors import DataFileError
 from compd.files.data import PARQUET_SUFFIXES, DataSet, load_data
+from compd.files.runs import Joining, join_runs
 
 #: File names read from a folder, sorted by name (the recorder's names sort by time).
 FOLDER_SUFFIXES = (".csv", *PARQUET_SUFFIXES)
@@ -75,14 +81,24 @@ def data_paths(
 
 
 def load_experiments(
-    paths: Sequence[str | os.PathLike[str]], *, max_gap_s: float = 60.0, resample: bool = False
+    paths: Sequence[str | os.PathLike[str]],
+    *,
+    max_gap_s: float = 60.0,
+    resample: bool = False,
+    joining: Joining = "per-run",
 ) -> list[DataSet]:
-    """Each file of ``paths`` (:func:`data_paths`) loaded as its own experiment; refused unless alike."""
+    """The files of ``paths`` (:func:`data_paths`) as experiments, joined per ``joining``.
+
+    Refused unless alike. The first experiment's notes say what was joined
+    and what not (:func:`compd.files.runs.join_runs`).
+    """
     notes: list[str] = []
     experiments = [
         load_data(path, max_gap_s=max_gap_s, resample=resample) for path in data_paths(paths, notes)
     ]
     check_alike(experiments)
+    experiments, joined = join_runs(experiments, how=joining, max_gap_s=max_gap_s)
+    notes.extend(joined)
     if notes:  # said once, with the first experiment's notes (the commands print those)
         first = experiments[0]
         experiments[0] = dataclasses.replace(first, notes=(*first.notes, *notes))

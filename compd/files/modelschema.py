@@ -144,6 +144,18 @@ class CalibrationDoc(_Strict):
     ranges: dict[str, tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=dict)
 
 
+class TriedDoc(_Strict):
+    """One signal ``compd extend`` judged: the model's held-out fit without and with it, and the rule's figures."""
+
+    signal: str
+    held_out_fit_percent_before: FiniteFloat
+    held_out_fit_percent_after: FiniteFloat
+    error_removed_percent: FiniteFloat
+    folds_improved: int = Field(ge=0)
+    folds: int = Field(ge=0)
+    kept: bool = False
+
+
 class ExtensionDoc(_Strict):
     """One ``compd extend`` step: a sub-model added by superposition (seed 001 sect. 4.3)."""
 
@@ -157,6 +169,10 @@ class ExtensionDoc(_Strict):
     verify_fit_percent_before: dict[str, FiniteFloat] = Field(default_factory=dict)
     verify_fit_percent_after: dict[str, FiniteFloat] = Field(default_factory=dict)
     created: str | None = None
+    #: Signals of earlier extensions on the same record, re-identified together with this one.
+    refitted: list[str] = Field(default_factory=list)
+    #: The signals compared (``--effect A,B`` or ``auto``), the kept one included.
+    tried: list[TriedDoc] = Field(default_factory=list)
 
 
 class CharacteristicDoc(_Strict):

@@ -32,6 +32,7 @@ from compd.service.links import DriverLink
 from compd.service.offsets import AxisPoint
 from compd.service.points import SignalPoint, StatusPoint
 from compd.service.recorder import Recorder
+from compd.service.recorder_marks import Units
 from compd.service.recorder_parquet import DEFAULT_FLUSH_EVERY_ROWS, ParquetRecorder
 from compd.service.safety import AxisLimits, AxisSafety, FaultMode, OutOfClamp
 from compd.service.schedule import GainRow, GainScheduler, GainTable
@@ -228,16 +229,20 @@ class RecorderDoc(Strict):
         return self
 
     def recorder(
-        self, directory: Path, metadata: Mapping[str, str] | None = None
+        self,
+        directory: Path,
+        metadata: Mapping[str, str] | None = None,
+        units: Units | None = None,
     ) -> Recorder | ParquetRecorder:
         """The recorder writing into ``directory`` (resolved by :mod:`compd.service.paths`).
 
-        ``metadata`` (machine id, compd version, config path) goes into every file.
+        ``metadata`` (machine id, compd version, config path) goes into every
+        file, with each column's unit as ``units`` names it.
         """
         # pyarrow is imported by the Parquet recorder's first write, so only when configured.
         kind = ParquetRecorder if self.format == "parquet" else Recorder
         default_rows = DEFAULT_FLUSH_EVERY_ROWS if self.format == "parquet" else 1
-        return kind(
+        recorder = kind(
             directory,
             max_file_bytes=self.max_file_bytes,
             max_file_age_s=self.max_file_age_s,
@@ -245,6 +250,8 @@ class RecorderDoc(Strict):
             flush_every_rows=self.flush_every_rows or default_rows,
             metadata=metadata,
         )
+        recorder.run.units = units
+        return recorder
 
 
 class EffectDoc(Strict):

@@ -36,7 +36,7 @@ from compd.service.clock import Clock
 from compd.service.compensator import Compensator, TickRecord
 from compd.service.config import Config
 from compd.service.control import ControlServer
-from compd.service.identity import identity, recording_metadata, systemd_summary
+from compd.service.identity import column_units, identity, recording_metadata, systemd_summary
 from compd.service.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.notify import SystemdNotifier
 from compd.service.peers import FdBudget
@@ -133,7 +133,9 @@ class Service:
             else None
         )
         self.recorder = (
-            doc.recorder.recorder(config.recorder_dir, recording_metadata(config))
+            doc.recorder.recorder(
+                config.recorder_dir, recording_metadata(config), column_units(config)
+            )
             if config.recorder_dir is not None
             else None
         )

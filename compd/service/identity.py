@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from compd import __version__
@@ -35,6 +36,25 @@ def recording_metadata(config: Config) -> dict[str, str]:
     if config.doc.machine_id is not None:
         metadata = {"machine_id": config.doc.machine_id, **metadata}
     return metadata
+
+
+#: Units of the columns the daemon adds to a recording's signals, by name or by prefix.
+_COLUMN_UNITS = {"t_s": "s", "status": "bits", "heartbeat": "count"}
+_PREFIX_UNITS = {"health": "0 ok, 1 held, 2 faulted", "model": "um", "offset": "um"}
+_PREFIX_UNITS |= {"readback": "um", "gain": "1"}
+
+
+def column_units(config: Config) -> Callable[[str], str | None]:
+    """Each recorded column's unit: a signal's from the config, the daemon's own by name."""
+    signals = {name: signal.unit for name, signal in config.doc.signals.items()}
+
+    def unit(column: str) -> str | None:
+        if column in signals:
+            return signals[column] or None
+        prefix, dot, _ = column.partition(".")
+        return _PREFIX_UNITS.get(prefix) if dot else _COLUMN_UNITS.get(column)
+
+    return unit
 
 
 def systemd_summary(record: TickRecord) -> str:

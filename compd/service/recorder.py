@@ -13,8 +13,16 @@ Before the header, ``# key: value`` comment lines say where the rows come
 from: ``machine_id`` (the config's top-level ``machine_id``), ``compd_version``,
 ``model`` and ``model_sha256`` (the active model), ``config`` (its path).
 The loader reads them into :attr:`compd.files.data.DataSet.metadata`.
+Each file also says which run it belongs to (``run_id``, one per daemon
+start; ``run_file``, its number in the run; ``run_previous``, the file before
+it; ``run_reason``, why it was started; ``run_gap_s``, the time since the
+previous file's last row) and each column's unit (``unit.<column>``):
+:mod:`compd.service.recorder_marks`, read back by :mod:`compd.files.runs`,
+which joins a run's files into one record again.
 
-Files are named by their first row's UTC time (``compd-20261123T101500Z.csv``)
+Files are named by the machine and their first row's UTC time
+(``compd-mill-a-20261123T101500Z.csv``; ``compd-20261123T101500Z.csv`` without a
+``machine_id``), so a central store of many machines' files has no collisions,
 and rotated when they reach ``max_file_bytes`` or ``max_file_age_s``, when
 the row's keys change (a new model with other outputs: a file has one
 header) or the active model changes (a file names one model), and when
@@ -47,14 +55,20 @@ from typing import Self
 
 from compd.errors import RecorderError
 from compd.files.columns import TIME_NAMES
+from compd.service.recorder_marks import RunMarks
 
 log = logging.getLogger(__name__)
 
 TIME_COLUMN = "timestamp"
 PREFIX = "compd"
-#: A recording's name: its first row's UTC time, a sequence number within that second, the format.
-NAME = re.compile(rf"^{PREFIX}-(\d{{8}}T\d{{6}}Z)(?:-(\d+))?\.(csv|parquet)$")
+#: A recording's name: its machine (if named), its first row's UTC time, a number within that second, the format.
+NAME = re.compile(
+    rf"^{PREFIX}-(?:(?P<machine>[A-Za-z0-9._-]+)-)?(?P<time>\d{{8}}T\d{{6}}Z)"
+    r"(?:-(?P<number>\d+))?\.(?P<format>csv|parquet)$"
+)
 _QUOTED = re.compile(r'[,"\r\n]')
+#: A machine_id that may name files (the config's pattern): others are left out of the name.
+_MACHINE = re.compile(r"[A-Za-z0-9._-]{1,64}")
 
 Cell = float | int | str
 
@@ -79,7 +93,8 @@ class RecordingFiles:
     clock:
         Seconds since the epoch, UTC (``time.time``); tests pass a fake.
     metadata:
-        ``key: value`` pairs stored in every file (see the module docstring).
+        ``key: value`` pairs stored in every file (see the module docstring);
+        its ``machine_id`` also names the files.
     """
 
     def __init__(
@@ -106,6 +121,9 @@ class RecordingFiles:
         self._opened_s = 0.0
         self._last_s = -math.inf
         self._metadata_changed = False
+        #: The run these files belong to (one per recorder: one per daemon start); its
+        #: ``units`` name each column's unit in the files.
+        self.run = RunMarks()
         #: Rows lost to failed writes since :meth:`take_lost_rows` last took them.
         self.lost_rows = 0
 
@@ -116,7 +134,19 @@ class RecordingFiles:
 
     def set_model(self, name: str, sha256: str) -> None:
         """Name the active model in the files; a change starts a new file at the next row."""
-        self._metadata_changed |= set_model(self.metadata, name, sha256)
+        if set_model(self.metadata, name, sha256):
+            self._metadata_changed = True
+            self.run.why = "model"
+
+    def create(self, now_s: float, suffix: str) -> tuple[Path, int]:
+        """A new file in the folder for a first row at ``now_s`` (:func:`create`, with the machine)."""
+        return create(self.directory, now_s, suffix, self.metadata.get("machine_id"))
+
+    def file_metadata(self, path: Path, now_s: float) -> dict[str, str]:
+        """What the new file ``path`` says about itself: the metadata, its run, its columns' units."""
+        return self.run.file_metadata(
+            self.metadata, path, self._columns, now_s=now_s, last_s=self._last_s
+        )
 
     @property
     def path(self) -> Path | None:
@@ -171,9 +201,11 @@ class Recorder(RecordingFiles):
     def record(self, row: Mapping[str, Cell], *, at_s: float | None = None) -> None:
         """Append one row, stamped ``at_s`` (s since the epoch, default the clock's now).
 
-        Cells are written as ``str(value)`` (floats round-trip exactly), bools
-        as 1/0, NaN as ``nan`` (a gap to :func:`~compd.files.data.load_data`), text
-        quoted when it holds a comma, quote or newline. Raises
+        Cells are written as ``str(value)``, floats to 15 significant digits
+        (``%.15g``: ``21.15``, ``20``; :func:`~compd.service.recorder_marks.tidy`
+        says why), bools as 1/0, NaN as ``nan`` (a gap to
+        :func:`~compd.files.data.load_data`), text quoted when it holds a comma,
+        quote or newline. Raises
         :class:`~compd.errors.RecorderError` when the files cannot be written.
         """
         now_s = self._clock() if at_s is None else at_s
@@ -236,13 +268,14 @@ class Recorder(RecordingFiles):
         self.close()
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
-            path, fd = create(self.directory, now_s, "csv")
+            path, fd = self.create(now_s, "csv")
         except OSError as exc:
             raise error(f"cannot create a recording in {self.directory}", exc) from exc
         self._fd, self._path, self._opened_s = fd, path, now_s
         self._rows_in_file = 0
         comments = "".join(
-            f"# {key}: {' '.join(value.split())}\n" for key, value in self.metadata.items()
+            f"# {key}: {' '.join(value.split())}\n"
+            for key, value in self.file_metadata(path, now_s).items()
         )
         header = comments + ",".join(map(_cell, (TIME_COLUMN, *self._columns))) + "\n"
         self._pending = [header.encode()]
@@ -276,6 +309,7 @@ class Recorder(RecordingFiles):
         except OSError as exc:  # the half line stays; load_data would name its line
             log.debug("cannot truncate %s after a failed write: %s", path, exc)
         self._close_file()
+        self.run.why = "resumed"
         if not written:  # not even the header made it: leave no empty file behind
             try:
                 path.unlink()
@@ -351,9 +385,15 @@ def delete_oldest(
         log.info("deleted the oldest recording %s (%d bytes) to stay under the limit", path, size)
 
 
-def create(directory: Path, now_s: float, suffix: str) -> tuple[Path, int]:
-    """A new file ``compd-<UTC time>.<suffix>`` named by ``now_s``; ``-1``, ``-2``... if that second is taken."""
-    stem = f"{PREFIX}-{datetime.fromtimestamp(now_s, UTC):%Y%m%dT%H%M%SZ}"
+def create(
+    directory: Path, now_s: float, suffix: str, machine_id: str | None = None
+) -> tuple[Path, int]:
+    """A new file ``compd-[<machine_id>-]<UTC time>.<suffix>`` named by ``now_s``.
+
+    ``-1``, ``-2``... follow the time if that second is taken.
+    """
+    machine = f"{machine_id}-" if machine_id and _MACHINE.fullmatch(machine_id) else ""
+    stem = f"{PREFIX}-{machine}{datetime.fromtimestamp(now_s, UTC):%Y%m%dT%H%M%SZ}"
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND | os.O_CLOEXEC
     for n in range(1000):
         path = directory / (f"{stem}.{suffix}" if n == 0 else f"{stem}-{n}.{suffix}")
@@ -366,7 +406,7 @@ def create(directory: Path, now_s: float, suffix: str) -> tuple[Path, int]:
 
 def _order(match: re.Match[str]) -> tuple[str, int]:
     """Sort key of a recording's name: start time, then sequence number within the second."""
-    return match[1], int(match[2] or 0)
+    return match["time"], int(match["number"] or 0)
 
 
 def _write_all(fd: int, data: bytes) -> None:
@@ -378,7 +418,8 @@ def _write_all(fd: int, data: bytes) -> None:
 def _cell(value: Cell) -> str:
     if value is True or value is False:
         return "1" if value else "0"
-    text = str(value)
+    # 15 digits (recorder_marks.tidy says why); "%" is the quickest; + 0.0 turns -0.0 into 0.0.
+    text = "%.15g" % (value + 0.0) if isinstance(value, float) else str(value)
     if isinstance(value, str) and _QUOTED.search(text):
         return '"' + text.replace('"', '""') + '"'
     return text

@@ -3,8 +3,10 @@
 A fleet's recordings are copied off many edge PCs and read by pandas,
 pyarrow, Spark or DuckDB; Parquet is typed, compressed (a 1 Hz day of 40
 signals is a few MB instead of tens) and carries key-value metadata in its
-footer: ``machine_id``, ``compd_version``, ``model``, ``model_sha256`` and
-``config``, as the CSV recorder's comment lines do.
+footer: ``machine_id``, ``compd_version``, ``model``, ``model_sha256``,
+``config``, the run's marks and the columns' units, as the CSV recorder's
+comment lines do. Whole numbers (status word, heartbeat, health) are int64
+columns, other numbers float64 to 15 significant digits.
 
 **Crash safety.** A Parquet file is readable only once its footer is written,
 so a file left open by a SIGKILL or a power cut would be lost whole. This
@@ -61,11 +63,11 @@ from compd.service.recorder import (
     Cell,
     RecordingFiles,
     check_columns,
-    create,
     delete_oldest,
     error,
     sync_directory,
 )
+from compd.service.recorder_marks import tidy_array
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +113,7 @@ class ParquetRecorder(RecordingFiles):
             metadata=metadata,
         )
         self._text: frozenset[str] = frozenset()  # columns whose first value was text
+        self._ints: frozenset[str] = frozenset()  # columns whose first value was a whole number
         self._size = 0  # bytes of the open file at its last write
         self._groups: list[Any] = []  # the open file's row groups (pyarrow.RecordBatch)
         self._times_s: list[float] = []
@@ -130,8 +133,9 @@ class ParquetRecorder(RecordingFiles):
     def record(self, row: Mapping[str, Cell], *, at_s: float | None = None) -> None:
         """Append one row stamped ``at_s`` (s since the epoch, default the clock's now).
 
-        Numbers and bools are stored as float64 (NaN a gap), a column whose
-        first value is text as strings. Raises
+        A column whose first value is an ``int`` (or bool) is stored as int64 (a
+        later value that is not a whole number as null, a gap), other numbers as
+        float64 (NaN a gap), a column whose first value is text as strings. Raises
         :class:`~compd.errors.RecorderError` when the files cannot be written.
         """
         now_s = self._clock() if at_s is None else at_s
@@ -140,6 +144,7 @@ class ParquetRecorder(RecordingFiles):
             self.close()  # one schema and one model per file
             self._columns = columns
             self._text = frozenset(k for k, v in row.items() if isinstance(v, str))
+            self._ints = frozenset(k for k, v in row.items() if isinstance(v, int))
             self._metadata_changed = False
         self._collect(block=False)
         if (
@@ -214,13 +219,13 @@ class ParquetRecorder(RecordingFiles):
             self.directory.mkdir(parents=True, exist_ok=True)
             _remove_leftovers(self.directory)
             # The name only: the first flush writes the file, so a crash before it leaves none.
-            path, fd = create(self.directory, now_s, SUFFIX)
+            path, fd = self.create(now_s, SUFFIX)
             os.close(fd)
             path.unlink()
         except OSError as exc:
             raise error(f"cannot create a recording in {self.directory}", exc) from exc
         self._path, self._opened_s, self._size = path, now_s, 0
-        self._file_metadata = dict(self.metadata)  # as at the file's first row, to its last
+        self._file_metadata = self.file_metadata(path, now_s)  # as at its first row, to its last
         delete_oldest(self.directory, path, self.max_file_bytes, self.max_total_bytes)
 
     def _collect(self, *, block: bool) -> None:
@@ -258,12 +263,18 @@ class ParquetRecorder(RecordingFiles):
         import pyarrow as pa
 
         arrays = [pa.array([round(t * 1000) for t in self._times_s], pa.timestamp("ms", "UTC"))]
+        other = self._text | self._ints
+        floats = [i for i, name in enumerate(self._columns) if name not in other]
+        # All float columns tidied at once: numpy's work per call outweighs its work per value.
+        tidied = tidy_array([[_number(row[i]) for i in floats] for row in self._rows])
         for i, name in enumerate(self._columns):
             cells = [row[i] for row in self._rows]
             if name in self._text:
                 arrays.append(pa.array([str(c) for c in cells], pa.string()))
+            elif name in self._ints:
+                arrays.append(pa.array([_whole(c) for c in cells], pa.int64()))
             else:
-                arrays.append(pa.array([_number(c) for c in cells], pa.float64()))
+                arrays.append(pa.array(tidied[:, floats.index(i)], pa.float64()))
         return pa.RecordBatch.from_arrays(arrays, names=[TIME_COLUMN, *self._columns])
 
 
@@ -299,6 +310,14 @@ def _number(cell: Cell) -> float:
         return float(cell)
     except ValueError:  # text in a numeric column: a gap, as the loader reads unreadable cells
         return math.nan
+
+
+def _whole(cell: Cell) -> int | None:
+    """A cell of a whole-number column; None (null, a gap) for anything else."""
+    if isinstance(cell, int):
+        return int(cell)
+    number = _number(cell)
+    return int(number) if math.isfinite(number) and number == int(number) else None
 
 
 def _remove_leftovers(directory: Path) -> None:

@@ -12,10 +12,10 @@ from tests.acceptance.conftest import machine_doc, write_config
 from tests.clirun import compd
 
 
-def test_parquet_recordings_of_a_service_run_fit_as_experiments(
+def test_parquet_recordings_of_a_service_run_fit_as_one_run(
     calibrated_model: Path, short_dir: Path
 ) -> None:
-    """An hour on the simulated machine, files rotated every 20 min: each names the machine and fits."""
+    """An hour on the simulated machine, files rotated every 20 min: each names the machine, the run fits."""
     doc = machine_doc(
         short_dir,
         calibrated_model,
@@ -41,19 +41,25 @@ def test_parquet_recordings_of_a_service_run_fit_as_experiments(
         assert metadata[b"compd_version"] == __version__.encode()
         assert metadata[b"model"] == b"twin-z" and len(metadata[b"model_sha256"]) == 64
         assert metadata[b"config"] == str(config.path).encode()
-    experiments = load_experiments([records])
     # The run's last tick may open a file of one row as it ends: left out, with a note.
     whole = [str(p) for p in files if pq.ParquetFile(p).metadata.num_rows >= 2]
-    assert [e.path for e in experiments] == whole and len(whole) >= 2
-    assert all(e.metadata["machine_id"] == "press-07" for e in experiments)
-    assert sum(len(e) for e in experiments) >= 3500  # an hour at 1 s, a flush or so short
+    (run,) = load_experiments([records])  # one run: its files joined into one record
+    assert list(run.files) == whole and len(whole) >= 2
+    assert run.metadata["machine_id"] == "press-07"
+    assert len(run) >= 3500  # an hour at 1 s, a flush or so short
+    experiments = load_experiments([records], joining="per-file")
+    assert [e.path for e in experiments] == whole
     model = short_dir / "refit.yaml"
-    out = compd(
+    fit = [
         "fit", "--data", records, "--output", "model.disp_z_um",
         "--inputs", "T_spindle_degC,T_headstock_degC,T_column_front_degC,T_ambient_degC",
-        "--out", model,
-    )  # fmt: skip
-    assert f"leave one of {min(len(whole), 6)} experiments (files) out" in out
-    assert "experiments (files)" in model.read_text()
+    ]  # fmt: skip
+    compd(*fit, "--out", model)
+    assert "experiments (files)" not in model.read_text()
     compared = compd("compare", model, records, "--output", "model.disp_z_um")
+    assert "pooled over" not in compared
+    per_file = short_dir / "per-file.yaml"
+    out = compd(*fit, "--experiments", "per-file", "--out", per_file)
+    assert f"leave one of {min(len(whole), 6)} experiments (files) out" in out
+    compared = compd("compare", model, records, "--experiments", "per-file")
     assert "pooled over" in compared

@@ -39,6 +39,11 @@ def recordings(directory: Path) -> list[Path]:
     return sorted(directory.glob("compd-*.csv"))
 
 
+def body(path: Path) -> list[str]:
+    """A recording's header and rows: its lines after the ``# key: value`` metadata."""
+    return [line for line in path.read_text().splitlines() if not line.startswith("#")]
+
+
 def make(directory: Path, clock: FakeClock | None = None, **limits: float) -> Recorder:
     """A recorder with no limit in the way except those given."""
     options = {"max_file_bytes": BIG, "max_file_age_s": 1e6, "max_total_bytes": TOTAL} | limits
@@ -56,9 +61,9 @@ def test_a_recording_loads_with_load_data(tmp_path):
             clock.now_s += 1.0
     (path,) = recordings(tmp_path)
     assert path.name == "compd-20261123T101500Z.csv"
-    assert path.read_text().splitlines()[:2] == [
+    assert body(path)[:2] == [
         "timestamp,T_spindle_degC,speed_rpm,offset_z_um",
-        "2026-11-23T10:15:00.000+00:00,20.0,0,-1.5",
+        "2026-11-23T10:15:00.000+00:00,20,0,-1.5",
     ]
     data = load_data(path)
     assert data.sample_time_s == 1.0 and len(data) == 10
@@ -98,7 +103,7 @@ def test_files_rotate_by_size_and_keep_every_row_in_order(tmp_path):
     assert len(files) > 5
     assert all(path.stat().st_size <= 2000 for path in files)
     order = sorted(files, key=lambda p: (p.name.split("Z")[0], int(p.stem.partition("Z-")[2] or 0)))
-    rows = pd.concat([pd.read_csv(path) for path in order])
+    rows = pd.concat([pd.read_csv(path, comment="#") for path in order])
     assert rows["k"].tolist() == list(range(300))
 
 
@@ -115,7 +120,7 @@ def test_files_rotate_by_age(tmp_path):
         "compd-20261123T102500Z.csv",
         "compd-20261123T103500Z.csv",
     ]
-    assert [len(pd.read_csv(tmp_path / name)) for name in names] == [600, 600, 300]
+    assert [len(pd.read_csv(tmp_path / name, comment="#")) for name in names] == [600, 600, 300]
 
 
 def test_other_keys_start_a_new_file(tmp_path):
@@ -128,11 +133,11 @@ def test_other_keys_start_a_new_file(tmp_path):
         clock.now_s += 1
         rec.record({"a": 5, "c": 6})
     first, second = recordings(tmp_path)
-    assert first.read_text().splitlines()[1:] == [
+    assert body(first)[1:] == [
         "2026-11-23T10:15:00.000+00:00,1,2",
         "2026-11-23T10:15:01.000+00:00,4,3",
     ]
-    assert second.read_text().splitlines()[0] == "timestamp,a,c"
+    assert body(second)[0] == "timestamp,a,c"
 
 
 def test_oldest_files_are_deleted_to_stay_under_the_total(tmp_path):
@@ -150,7 +155,7 @@ def test_oldest_files_are_deleted_to_stay_under_the_total(tmp_path):
     assert (tmp_path / "notes.txt").read_text() == "keep me"
     files = recordings(tmp_path)
     assert "compd-20200101T000000Z.csv" not in [path.name for path in files]
-    assert pd.read_csv(files[-1])["k"].iloc[-1] == 499
+    assert pd.read_csv(files[-1], comment="#")["k"].iloc[-1] == 499
 
 
 def test_cells_are_quoted_and_gaps_stay_gaps(tmp_path):
@@ -164,10 +169,10 @@ def test_cells_are_quoted_and_gaps_stay_gaps(tmp_path):
             rec.record({"x_um": math.nan if k == 1 else float(k)})
             clock.now_s += 1.0
     text_file, numbers_file = recordings(tmp_path)
-    frame = pd.read_csv(text_file)
+    frame = pd.read_csv(text_file, comment="#")
     assert frame["state"].tolist() == ['hold, "slew"'] * 3
     assert frame["on"].tolist() == [0, 1, 1]
-    assert numbers_file.read_text().splitlines()[2].endswith(",nan")
+    assert body(numbers_file)[2].endswith(",nan")
     assert_allclose(load_data(numbers_file).column("x_um"), [0.0, 1.0, 2.0])
 
 
@@ -226,7 +231,7 @@ def test_disk_full_keeps_whole_lines_and_recording_resumes(tmp_path):
     for path in files:
         text = path.read_text()
         assert text.endswith("\n") and len(text) <= 1000
-        assert all(len(line.split(",")) == 3 for line in text.splitlines())
+        assert all(len(line.split(",")) == 3 for line in body(path))
         load_data(path)
 
 
