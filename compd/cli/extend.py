@@ -79,7 +79,7 @@ def register(commands: Any) -> None:
     extend.add_argument(
         "--force",
         action="store_true",
-        help=f"add the sub-model even if the rule refuses it ({RULE}), or the guard rails flag it",
+        help=f"add the sub-model even if the rule refuses it ({RULE.replace('%', '%%')}), or the guard rails flag it",
     )
     extend.add_argument("--json", action="store_true", help="print one JSON object")
     data_options(
