@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 from rich.table import Table
+from rich.text import Text
 
 from compd.cli.common import (
     data_options,
@@ -111,7 +112,7 @@ def _diagnose(args: argparse.Namespace) -> int:
     )
     colour = "green" if d.missing_effect is not None else "yellow"
     # One line however long (a terminal wraps it; a script reads it whole).
-    out.print(f"[bold {colour}]{result.verdict}[/bold {colour}]", soft_wrap=True)
+    out.print(Text(result.verdict, style=f"bold {colour}"), soft_wrap=True)
     if not span.whole:
         out.print(span.describe("diagnosed"))
     return 0
@@ -243,7 +244,7 @@ def diagnosis_table(model_name: str, data_path: str, result: DiagnosisResult, to
             "+" if c.sign > 0 else "-",
             _duration(c.lag_s),
             f"{abs(c.xcorr_peak):.2f} / {fmt(c.xcorr_bound)}",
-            "[green]yes[/green]" if c.significant else "no",
+            Text("yes", style="green") if c.significant else "no",
         )
     return table
 

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from rich.table import Table
+from rich.text import Text
 
 from compd.cli.common import data_options, load_data_from_args, order_arg, span_from_args
 from compd.cli.progress import progress_reporter
@@ -78,7 +79,7 @@ def register(commands: Any) -> None:
     extend.add_argument(
         "--force",
         action="store_true",
-        help=f"add the sub-model even if the rule refuses it ({RULE}), or the guard rails flag it",
+        help=f"add the sub-model even if the rule refuses it ({RULE.replace('%', '%%')}), or the guard rails flag it",
     )
     extend.add_argument("--json", action="store_true", help="print one JSON object")
     data_options(
@@ -194,8 +195,8 @@ def _extend(args: argparse.Namespace) -> int:
         out.print(_tried_table(choice))
     names = ", ".join(str(d["name"]) for d in described)
     out.print(
-        f"added [bold]{names}[/bold] to {extension.output}: {effect} "
-        f"(input {signal} as a change from start; {extension.identification.method}, "
+        Text.assemble("added ", (names, "bold"), f" to {extension.output}: {effect} ")
+        + f"(input {signal} as a change from start; {extension.identification.method}, "
         f"order {first['order']}, nk {first['nk']}, time constants "
         f"{', '.join(f'{t:.0f}' for t in time_constants) or '-'} s, "
         f"static gain {static_gain:.4g} um/unit)"
