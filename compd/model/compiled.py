@@ -21,7 +21,7 @@ depend on it.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -194,6 +194,15 @@ class CompiledModel:
         finite = (np.all(np.isfinite(a)) for a in (state.z, state.reference, state.residual))
         if not all(finite):
             raise ModelError("state contains NaN or inf")
+
+    @property
+    def absolute(self) -> bool:
+        """True when some input has a fixed reference (a thermal zero), so a start sees earlier drift."""
+        return bool(np.any(np.isfinite(self.fixed_reference)))
+
+    def referenced_to_start(self) -> CompiledModel:
+        """This model with every input taken from its value at start (a record measured from its start)."""
+        return replace(self, fixed_reference=np.full(self.n_submodels, np.nan))
 
     def rest_state(self, signals: np.ndarray | Mapping[str, float]) -> ModelState:
         """All TF states zero; "value at start" references taken from ``signals``."""

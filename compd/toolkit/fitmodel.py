@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import datetime as dt
 import re
+from collections.abc import Mapping
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -119,6 +121,38 @@ def identification_to_model(
                 )
             )
     return Model(name, identification.sample_time_s, (Output(output, tuple(subs)),))
+
+
+def with_references(model: Model, references: Mapping[str, float]) -> Model:
+    """``model`` with each input's reference fixed at ``references[signal]`` (its thermal zero).
+
+    The fit takes inputs as changes from the calibration's first values; the
+    model file keeps those values, so a daemon started on a warm machine (or
+    without its saved state) still counts the drift from the calibration's
+    zero instead of from its own start. Inputs with a ``minus`` signal keep theirs.
+    """
+    outputs = tuple(
+        replace(
+            output,
+            submodels=tuple(
+                replace(sub, input=replace(sub.input, reference=float(references[name])))
+                if (name := sub.input.signal) in references and sub.input.minus is None
+                else sub
+                for sub in output.submodels
+            ),
+        )
+        for output in model.outputs
+    )
+    return replace(model, outputs=outputs)
+
+
+def describe_references(references: Mapping[str, float]) -> str:
+    """The provenance note on the thermal zero a fitted model's references hold."""
+    values = ", ".join(f"{name} {value:.4g}" for name, value in references.items())
+    return (
+        f"input references (the thermal zero the daemon counts drift from): the calibration's "
+        f"first values, {values}"
+    )
 
 
 def fit_provenance(

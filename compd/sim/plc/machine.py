@@ -312,7 +312,8 @@ def _describe(fault: SimFaultDoc) -> str:
 class MachineClock:
     """A clock that brings the simulated machine to each time compd's loop wakes up at.
 
-    ``settle`` (optional) is awaited before time moves on: on a virtual clock
+    Clock time 0 is machine time ``simulation.join_at_s``: compd joins a machine
+    that has run (uncompensated) until then. ``settle`` (optional) is awaited before time moves on: on a virtual clock
     it lets background I/O (a driver reconnecting) finish first, as it would
     within one period in real time.
     """
@@ -326,6 +327,8 @@ class MachineClock:
         self.base = base
         self.machine = machine
         self.settle = settle
+        #: Machine time at clock time 0: where compd joined the machine (``simulation.join_at_s``).
+        self.join_at_s = machine.doc.join_at_s
 
     @property
     def time_scale(self) -> float | None:
@@ -346,7 +349,7 @@ class MachineClock:
         if self.settle is not None:
             await self.settle()
         await self.base.sleep_until(t)
-        await self.machine.advance_to(self.base.now())
+        await self.machine.advance_to(self.join_at_s + self.base.now())
 
 
 __all__ = [
