@@ -165,6 +165,13 @@ def model_to_yaml(
         lines.append("signals:")
         for name, unit in signals.items():
             lines.append(f"  {_string(name)}: {{unit: {_string(unit)}}}")
+    if model.ambient is not None:
+        lines += [
+            "# the thermal zero follows the shop air: at start every fixed input reference is",
+            "# shifted by how far this signal is from its reference (the calibration's)",
+            f"ambient: {{signal: {_string(model.ambient.signal)}, "
+            f"reference: {yaml_float(model.ambient.reference)}}}",
+        ]
     lines.append("outputs:")
     for output in model.outputs:
         lines += [

@@ -102,6 +102,10 @@ class CompiledModel:
     position_index: np.ndarray  # (S,) index of the position signal, or the constant-1 slot
     position_reference_mm: np.ndarray  # (S,) subtracted from the position; 0 without one
     output_matrix: np.ndarray  # (n_outputs, S) 0/1: which sub-models sum into which output
+    #: The shop-air signal's index and reference (:class:`~compd.model.structure.AmbientZero`):
+    #: at start fixed references shift by its difference from that reference; -1: none.
+    ambient_index: int = -1
+    ambient_reference: float = 0.0
     #: Seed 004 residual models: (output index, model), added to that output's TF sum.
     residuals: tuple[tuple[int, ResidualModel], ...] = ()
 
@@ -202,7 +206,7 @@ class CompiledModel:
 
     def referenced_to_start(self) -> CompiledModel:
         """This model with every input taken from its value at start (a record measured from its start)."""
-        return replace(self, fixed_reference=np.full(self.n_submodels, np.nan))
+        return replace(self, fixed_reference=np.full(self.n_submodels, np.nan), ambient_index=-1)
 
     def rest_state(self, signals: np.ndarray | Mapping[str, float]) -> ModelState:
         """All TF states zero; "value at start" references taken from ``signals``."""
@@ -240,8 +244,11 @@ class CompiledModel:
         return vector
 
     def _references(self, signals: np.ndarray | Mapping[str, float]) -> np.ndarray:
-        at_start = self.raw_inputs(self.extended(self._vector(signals)))
-        return np.where(np.isnan(self.fixed_reference), at_start, self.fixed_reference)
+        vector = self._vector(signals)
+        fixed = self.fixed_reference
+        if self.ambient_index >= 0:  # the thermal zero moves with the shop air
+            fixed = fixed + (vector[self.ambient_index] - self.ambient_reference)
+        return np.where(np.isnan(fixed), self.raw_inputs(self.extended(vector)), fixed)
 
 
 def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledModel:
@@ -334,6 +341,8 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
             [0.0 if s.position is None else s.position.reference_mm for s in subs], dtype=float
         ),
         output_matrix=output_matrix,
+        ambient_index=-1 if model.ambient is None else index[model.ambient.signal],
+        ambient_reference=0.0 if model.ambient is None else model.ambient.reference,
         residuals=tuple(
             (out_i, output.residual)
             for out_i, output in enumerate(model.outputs)

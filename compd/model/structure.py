@@ -122,12 +122,22 @@ class Output:
 
 
 @dataclass(frozen=True)
+class AmbientZero:
+    """The thermal zero moves with the shop air: at start every fixed input reference is
+    shifted by ``signal - reference`` (the shop is that much warmer than at calibration)."""
+
+    signal: str
+    reference: float
+
+
+@dataclass(frozen=True)
 class Model:
     """A machine's compensation model; discrete TFs are at ``sample_time_s``."""
 
     name: str
     sample_time_s: float
     outputs: tuple[Output, ...]
+    ambient: AmbientZero | None = None
 
     def signals(self) -> tuple[str, ...]:
         """Every signal the model reads, in first-use order."""
@@ -139,4 +149,6 @@ class Model:
         for output in self.outputs:
             if output.residual is not None:
                 seen.setdefault(output.residual.signal, None)
+        if self.ambient is not None:
+            seen.setdefault(self.ambient.signal, None)
         return tuple(seen)

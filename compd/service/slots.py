@@ -76,8 +76,13 @@ def steady_note(compiled: CompiledModel) -> str:
     total = compiled.n_submodels
     at_start = int(np.sum(np.isnan(compiled.fixed_reference)))
     if at_start == 0:
+        air = (
+            ""
+            if compiled.ambient_index < 0
+            else f" (moved with {compiled.signals[compiled.ambient_index]})"
+        )
         return (
-            "steady state for the current inputs, from the model's thermal zero (absolute "
+            f"steady state for the current inputs, from the model's thermal zero{air} (absolute "
             "references): drift before the start is compensated, ramped in at the slew limit"
         )
     which = "every input" if at_start == total else f"{at_start} of {total} sub-models' inputs"
@@ -253,9 +258,7 @@ class ModelSlots:
             return
         self.fault = fault
 
-    def _handover(
-        self, pending: ModelSlot, checked: Mapping[str, float]
-    ) -> tuple[ModelState, str]:
+    def _handover(self, pending: ModelSlot, checked: Mapping[str, float]) -> tuple[ModelState, str]:
         """A model switched in while another runs starts warm (:mod:`compd.model.handover`)."""
         running = self.active
         history = self.history.matrix(pending.compiled.signals)

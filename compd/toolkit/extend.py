@@ -141,6 +141,8 @@ def extend_model(
             fix="Try the next candidate of compd diagnose, or --force to add it anyway",
         )
     taken = {s.name for o in parent.model.outputs for s in o.submodels}
+    # Fitted as changes from the record's first value: that is the new input's thermal zero.
+    zero = InputSpec(signal, reference=float(excitation[0]))
     if method == "lagbank":
         # The regularised lag bank that earned the signal its place is the sub-model itself.
         identification = lag_bank_identification(bank, [signal], data.sample_time_s)
@@ -148,7 +150,7 @@ def extend_model(
             SubModel(
                 name=_unique(lag_name(f"{signal}_effect", c.time_constant_s or 0.0), taken),
                 effect=f"{effect} (lag {c.time_constant_s or 0.0:g} s, lagbank)",
-                input=InputSpec(signal),
+                input=zero,
                 tf=_at_model_rate(c.tf, data, parent),
             )
             for c in identification.channels
@@ -168,7 +170,7 @@ def extend_model(
             SubModel(
                 name=_unique(f"{signal}_effect", taken),
                 effect=effect,
-                input=InputSpec(signal),
+                input=zero,
                 tf=_at_model_rate(channel.tf, data, parent),
             ),
         )

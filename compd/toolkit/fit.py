@@ -289,7 +289,7 @@ def fit_data(
     model = with_references(model, references)
     provenance = fit_provenance(data, identification, comparison, command, phase_gate, slope, span)
     provenance = provenance.model_copy(
-        update={"notes": f"{provenance.notes}; {describe_references(references)}"}
+        update={"notes": f"{provenance.notes}; {describe_references(model, references)}"}
     )
     provenance = provenance.model_copy(
         update={"cross_validation": cross_validation_doc(output, selection)}

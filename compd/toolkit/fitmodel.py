@@ -20,9 +20,19 @@ import numpy as np
 
 from compd import __version__
 from compd.errors import ModelError
+from compd.files.effects import load_catalogue
 from compd.files.modelschema import CalibrationDoc, ProvenanceDoc
 from compd.model.lagbank import lag_name
-from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
+from compd.model.structure import (
+    AmbientZero,
+    Gate,
+    GateTarget,
+    InputSpec,
+    Model,
+    Output,
+    Position,
+    SubModel,
+)
 
 # Types only: unit_of is wanted where the data reader (pandas) and the
 # identification stack (scipy.signal) are not (compd.toolkit.residual).
@@ -130,7 +140,12 @@ def with_references(model: Model, references: Mapping[str, float]) -> Model:
     model file keeps those values, so a daemon started on a warm machine (or
     without its saved state) still counts the drift from the calibration's
     zero instead of from its own start. Inputs with a ``minus`` signal keep theirs.
+    An input the effect catalogue calls the shop air (``T_ambient*``, ...) becomes
+    the model's :class:`~compd.model.structure.AmbientZero`: a cold machine is in
+    equilibrium with today's air, not the calibration day's, so the zero follows it.
     """
+    catalogue = load_catalogue()
+    air = [name for name in references if catalogue.effect_for(name).startswith("ambient")]
     outputs = tuple(
         replace(
             output,
@@ -143,15 +158,21 @@ def with_references(model: Model, references: Mapping[str, float]) -> Model:
         )
         for output in model.outputs
     )
-    return replace(model, outputs=outputs)
+    ambient = AmbientZero(air[0], float(references[air[0]])) if air else None
+    return replace(model, outputs=outputs, ambient=ambient)
 
 
-def describe_references(references: Mapping[str, float]) -> str:
+def describe_references(model: Model, references: Mapping[str, float]) -> str:
     """The provenance note on the thermal zero a fitted model's references hold."""
     values = ", ".join(f"{name} {value:.4g}" for name, value in references.items())
+    moved = (
+        ""
+        if model.ambient is None
+        else f", shifted at start by {model.ambient.signal}'s change from its own"
+    )
     return (
         f"input references (the thermal zero the daemon counts drift from): the calibration's "
-        f"first values, {values}"
+        f"first values, {values}{moved}"
     )
 
 
