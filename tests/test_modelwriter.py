@@ -119,12 +119,16 @@ def test_signals_must_cover_every_signal_used():
 
 
 def test_a_thermal_zero_that_follows_the_ambient_reads_back_and_moves_the_references():
-    """``ambient: {signal, reference}`` reads back, and a start 2 degC warmer shifts every fixed reference by 2."""
-    model = replace(_model(), ambient=AmbientZero("T_ambient_degC", 20.0))
+    """``ambient: {signal, reference, moves}`` reads back; a start 2 degC warmer moves the listed references by 2."""
+    model = replace(_model(), ambient=AmbientZero("T_ambient_degC", 20.0, ("T_ambient_degC",)))
     back = parse_model(model_to_yaml(model, signals=UNITS)).model
     assert back == model
+    values = {"T_spindle_degC": 25.0, "T_ambient_degC": 22.0, "speed_rpm": 0.0}
     compiled = compile_model(back)
-    values = dict.fromkeys(compiled.signals, 25.0) | {"T_ambient_degC": 22.0}
     fixed = np.isfinite(compiled.fixed_reference)
-    moved = compiled.rest_state(values).reference[fixed]
-    assert np.allclose(moved, compiled.fixed_reference[fixed] + 2.0)
+    assert compiled.fixed_reference[fixed].tolist() == [20.0]
+    assert compiled.rest_state(values).reference[fixed].tolist() == [22.0]
+    still = compile_model(replace(model, ambient=AmbientZero("T_ambient_degC", 20.0)))
+    assert still.rest_state(values).reference[fixed].tolist() == [20.0], (
+        "only the listed inputs move"
+    )

@@ -200,7 +200,11 @@ def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
             where=_where(root, ("ambient", "signal")),
             fix=f"Declare it with its unit, or use one of {sorted(declared)}",
         )
-    zero = None if ambient is None else AmbientZero(ambient.signal, ambient.reference)
+    zero = (
+        None
+        if ambient is None
+        else AmbientZero(ambient.signal, ambient.reference, tuple(ambient.moves))
+    )
     return Model(doc.name, doc.sample_time_s, tuple(outputs), zero)
 
 

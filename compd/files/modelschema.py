@@ -37,10 +37,12 @@ class InputDoc(_Strict):
 
 
 class AmbientDoc(_Strict):
-    """The thermal zero follows the shop air: fixed references shift by ``signal - reference`` at start."""
+    """The thermal zero follows the shop air: fixed references of ``moves`` shift by ``signal - reference``."""
 
     signal: str = Field(min_length=1)
     reference: FiniteFloat
+    #: The input signals whose fixed references move with it (temperatures).
+    moves: tuple[str, ...] = ()
 
 
 class GateDoc(_Strict):

@@ -103,9 +103,10 @@ class CompiledModel:
     position_reference_mm: np.ndarray  # (S,) subtracted from the position; 0 without one
     output_matrix: np.ndarray  # (n_outputs, S) 0/1: which sub-models sum into which output
     #: The shop-air signal's index and reference (:class:`~compd.model.structure.AmbientZero`):
-    #: at start fixed references shift by its difference from that reference; -1: none.
-    ambient_index: int = -1
+    #: at start the fixed references where ``ambient_moves`` shift by its difference from it.
+    ambient_index: int = -1  # -1: none
     ambient_reference: float = 0.0
+    ambient_moves: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     #: Seed 004 residual models: (output index, model), added to that output's TF sum.
     residuals: tuple[tuple[int, ResidualModel], ...] = ()
 
@@ -247,7 +248,9 @@ class CompiledModel:
         vector = self._vector(signals)
         fixed = self.fixed_reference
         if self.ambient_index >= 0:  # the thermal zero moves with the shop air
-            fixed = fixed + (vector[self.ambient_index] - self.ambient_reference)
+            fixed = fixed + self.ambient_moves * (
+                vector[self.ambient_index] - self.ambient_reference
+            )
         return np.where(np.isnan(fixed), self.raw_inputs(self.extended(vector)), fixed)
 
 
@@ -343,6 +346,9 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
         output_matrix=output_matrix,
         ambient_index=-1 if model.ambient is None else index[model.ambient.signal],
         ambient_reference=0.0 if model.ambient is None else model.ambient.reference,
+        ambient_moves=np.array(
+            [model.ambient is not None and s.input.signal in model.ambient.moves for s in subs]
+        ),
         residuals=tuple(
             (out_i, output.residual)
             for out_i, output in enumerate(model.outputs)

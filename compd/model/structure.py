@@ -123,11 +123,13 @@ class Output:
 
 @dataclass(frozen=True)
 class AmbientZero:
-    """The thermal zero moves with the shop air: at start every fixed input reference is
-    shifted by ``signal - reference`` (the shop is that much warmer than at calibration)."""
+    """The thermal zero moves with the shop air: at start the fixed references of the inputs
+    ``moves`` (temperatures: a cold machine is in equilibrium with the air) are shifted by
+    ``signal - reference``, how much warmer the shop is than at calibration."""
 
     signal: str
     reference: float
+    moves: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -158,7 +158,8 @@ def with_references(model: Model, references: Mapping[str, float]) -> Model:
         )
         for output in model.outputs
     )
-    ambient = AmbientZero(air[0], float(references[air[0]])) if air else None
+    temperatures = tuple(name for name in references if unit_of(name) in ("degC", "K"))
+    ambient = AmbientZero(air[0], float(references[air[0]]), temperatures) if air else None
     return replace(model, outputs=outputs, ambient=ambient)
 
 
@@ -168,7 +169,8 @@ def describe_references(model: Model, references: Mapping[str, float]) -> str:
     moved = (
         ""
         if model.ambient is None
-        else f", shifted at start by {model.ambient.signal}'s change from its own"
+        else f"; those of {', '.join(model.ambient.moves)} shifted at start by "
+        f"{model.ambient.signal}'s change from its own (a cold machine is at the shop's temperature)"
     )
     return (
         f"input references (the thermal zero the daemon counts drift from): the calibration's "
