@@ -38,6 +38,7 @@ from compd.model.limits import (
 from compd.model.residual import ResidualModel
 from compd.model.structure import GateTarget, Model, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF, resample_discrete
+from compd.model.zero import start_references
 
 
 @dataclass(frozen=True, eq=False)
@@ -200,17 +201,12 @@ class CompiledModel:
         if not all(finite):
             raise ModelError("state contains NaN or inf")
 
-    @property
-    def absolute(self) -> bool:
-        """True when some input has a fixed reference (a thermal zero), so a start sees earlier drift."""
-        return bool(np.any(np.isfinite(self.fixed_reference)))
-
     def referenced_to_start(self) -> CompiledModel:
         """This model with every input taken from its value at start (a record measured from its start)."""
         return replace(self, fixed_reference=np.full(self.n_submodels, np.nan), ambient_index=-1)
 
     def rest_state(self, signals: np.ndarray | Mapping[str, float]) -> ModelState:
-        """All TF states zero; "value at start" references taken from ``signals``."""
+        """All TF states zero; references as :mod:`compd.model.zero` finds them at ``signals``."""
         reference = self._references(signals)
         residual = self._residual_state(self._vector(signals))
         return ModelState(np.zeros((self.n_submodels, self.n_states)), reference, residual)
@@ -244,14 +240,12 @@ class CompiledModel:
             )
         return vector
 
+    def reads_cold(self, signals: np.ndarray | Mapping[str, float]) -> bool:
+        """True when these readings start the model from them, as a cold machine (:mod:`compd.model.zero`)."""
+        return start_references(self, self._vector(signals))[1]
+
     def _references(self, signals: np.ndarray | Mapping[str, float]) -> np.ndarray:
-        vector = self._vector(signals)
-        fixed = self.fixed_reference
-        if self.ambient_index >= 0:  # the thermal zero moves with the shop air
-            fixed = fixed + self.ambient_moves * (
-                vector[self.ambient_index] - self.ambient_reference
-            )
-        return np.where(np.isnan(fixed), self.raw_inputs(self.extended(vector)), fixed)
+        return start_references(self, self._vector(signals))[0]
 
 
 def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledModel:

@@ -23,6 +23,7 @@ from compd.files.modelfile import ModelFile
 from compd.model.compiled import CompiledModel, ModelState, qualified_names
 from compd.model.handover import SignalHistory, handover_state
 from compd.model.run import TickRunner
+from compd.model.zero import COLD_BAND_DEGC
 from compd.service.schedule import GainScheduler
 
 if TYPE_CHECKING:
@@ -65,16 +66,22 @@ class ModelSlot:
 
     def start_steady(self, checked: Mapping[str, float]) -> None:
         """Start at the steady state for the current inputs (no saved state, no history)."""
-        self.start(self.compiled.steady_state(checked), steady_note(self.compiled))
+        note = steady_note(self.compiled, self.compiled.reads_cold(checked))
+        self.start(self.compiled.steady_state(checked), note)
 
     def output(self, name: str) -> float:
         return float(self.outputs[self._index[name]])
 
 
-def steady_note(compiled: CompiledModel) -> str:
+def steady_note(compiled: CompiledModel, cold: bool = False) -> str:
     """What a start at the steady state for the current inputs means for this model's references."""
     total = compiled.n_submodels
     at_start = int(np.sum(np.isnan(compiled.fixed_reference)))
+    if cold:
+        return (
+            f"the machine reads cold (every temperature within {COLD_BAND_DEGC:g} degC of the "
+            "model's thermal zero): today's readings taken as its zero, offsets from 0"
+        )
     if at_start == 0:
         air = (
             ""
@@ -263,7 +270,8 @@ class ModelSlots:
         running = self.active
         history = self.history.matrix(pending.compiled.signals)
         if running.runner is None or len(history) < 2:
-            return pending.compiled.steady_state(checked), steady_note(pending.compiled)
+            cold = pending.compiled.reads_cold(checked)
+            return pending.compiled.steady_state(checked), steady_note(pending.compiled, cold)
         state = handover_state(pending.compiled, history, running.compiled, running.runner.state)
         return state, f"from the last {len(history)} ticks of inputs, shared sub-models handed over"
 
