@@ -10,12 +10,13 @@ is compensated at once.
 
 A machine whose every moved temperature reads within :data:`COLD_BAND_DEGC`
 of that zero cannot be told from a cold one: the difference is as large as
-two class-A Pt100 offsets (IEC 60751, ``±(0.15 + 0.002 |T|)`` degC each) plus
-a coolant a little warmer or colder than on the calibration day. It is taken
-as cold, and today's readings become its zero: they carry today's sensor
-offsets, which the calibration's zero does not. On the twin (cold starts of
-five shifts of other seeds than the calibration's) the machine-wide worst
-reading was 0.55 degC off at rest and 2.5 degC or more 5 minutes into a shift.
+two class-A Pt100 offsets (IEC 60751, ``±(0.15 + 0.002 |T|)`` degC each, up
+to 0.4 degC apart) plus a coolant a little warmer or colder than on the
+calibration day. It is taken as cold, and today's readings become its zero:
+they carry today's sensor offsets, which the calibration's zero does not. On
+the twin (cold starts of five shifts of other seeds than the calibration's)
+the worst temperature read 0.2-0.55 degC off its zero at rest, and 2.5 degC or
+more 5 minutes into a shift.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ if TYPE_CHECKING:
     from compd.model.compiled import CompiledModel
 
 #: A machine whose moved temperatures all read this close to their zero is taken as cold (degC).
-COLD_BAND_DEGC = 0.6
+COLD_BAND_DEGC = 0.8
 
 
 def start_references(compiled: CompiledModel, vector: np.ndarray) -> tuple[np.ndarray, bool]:
