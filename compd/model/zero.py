@@ -37,17 +37,17 @@ def start_references(compiled: CompiledModel, vector: np.ndarray) -> tuple[np.nd
 
     Fixed references, those of the ambient's ``moves`` shifted by the
     ambient's change from its reference; "value at start" ones (NaN) from
-    ``vector``; all from ``vector`` when the machine reads cold (module docstring).
+    ``vector``; the moved ones from ``vector`` too when the machine reads cold
+    (module docstring).
     """
     at_start: np.ndarray = compiled.raw_inputs(compiled.extended(vector))
     fixed = compiled.fixed_reference
     if compiled.ambient_index < 0:
         return np.where(np.isnan(fixed), at_start, fixed), False
     moves = compiled.ambient_moves & np.isfinite(fixed)
-    fixed = fixed + compiled.ambient_moves * (
-        vector[compiled.ambient_index] - compiled.ambient_reference
-    )
+    fixed = fixed + moves * (vector[compiled.ambient_index] - compiled.ambient_reference)
     cold = bool(moves.any()) and bool(
         np.max(np.abs(at_start[moves] - fixed[moves])) < COLD_BAND_DEGC
     )
-    return (at_start if cold else np.where(np.isnan(fixed), at_start, fixed)), cold
+    from_now = np.isnan(fixed) | (moves & cold)  # a power or speed keeps its zero even then
+    return np.where(from_now, at_start, fixed), cold
