@@ -327,8 +327,6 @@ class MachineClock:
         self.base = base
         self.machine = machine
         self.settle = settle
-        #: Machine time at clock time 0: where compd joined the machine (``simulation.join_at_s``).
-        self.join_at_s = machine.doc.join_at_s
 
     @property
     def time_scale(self) -> float | None:
@@ -349,7 +347,7 @@ class MachineClock:
         if self.settle is not None:
             await self.settle()
         await self.base.sleep_until(t)
-        await self.machine.advance_to(self.join_at_s + self.base.now())
+        await self.machine.advance_to(self.machine.doc.join_at_s + self.base.now())
 
 
 __all__ = [
