@@ -36,6 +36,15 @@ class InputDoc(_Strict):
     reference: Literal["start"] | FiniteFloat = "start"
 
 
+class AmbientDoc(_Strict):
+    """The thermal zero follows the shop air: fixed references of ``moves`` shift by ``signal - reference``."""
+
+    signal: str = Field(min_length=1)
+    reference: FiniteFloat
+    #: The input signals whose fixed references move with it (temperatures).
+    moves: tuple[str, ...] = ()
+
+
 class GateDoc(_Strict):
     signal: str = Field(min_length=1)
     above: FiniteFloat | None = None
@@ -279,5 +288,6 @@ class ModelDoc(_Strict):
     description: str = ""
     sample_time_s: FiniteFloat = Field(gt=0, le=MAX_SAMPLE_TIME_S)
     signals: dict[str, SignalDoc] | None = None
+    ambient: AmbientDoc | None = None
     outputs: dict[str, OutputDoc] = Field(min_length=1)
     provenance: ProvenanceDoc = ProvenanceDoc()

@@ -217,7 +217,8 @@ def _submodels(
             SubModel(
                 name=name,
                 effect=f"{effect} (lag {tau:g} s, lagbank)" if bank else effect,
-                input=InputSpec(c.input_name),
+                # Fitted as changes from the record's first value: that is the input's thermal zero.
+                input=InputSpec(c.input_name, reference=float(data.column(c.input_name)[0])),
                 tf=_at_model_rate(c.tf, data, parent),
             )
         )

@@ -52,7 +52,13 @@ from compd.toolkit.candidates import (
 )
 from compd.toolkit.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.toolkit.fitchecks import check_arguments, check_position
-from compd.toolkit.fitmodel import fit_provenance, identification_to_model, unit_of
+from compd.toolkit.fitmodel import (
+    describe_references,
+    fit_provenance,
+    identification_to_model,
+    unit_of,
+    with_references,
+)
 from compd.toolkit.nestedselect import Selection, SelectionStep, compare_candidates
 from compd.toolkit.span import Span, until_stop
 
@@ -267,7 +273,14 @@ def fit_data(
             what="the fitted model is implausible for its own calibration data",
             where=f"--method {chosen}",
         )
+    # The thermal zero: the calibration's first values (each experiment's, averaged), which
+    # the fit took the inputs as changes from; the daemon starts from it (no "value at start").
+    references = {c: float(np.mean(data.column(c)[list(starts)])) for c in inputs}
+    model = with_references(model, references)
     provenance = fit_provenance(data, identification, comparison, command, phase_gate, slope, span)
+    provenance = provenance.model_copy(
+        update={"notes": f"{provenance.notes}; {describe_references(model, references)}"}
+    )
     provenance = provenance.model_copy(
         update={"cross_validation": cross_validation_doc(output, selection)}
     )

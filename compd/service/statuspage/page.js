@@ -96,6 +96,7 @@ function showStatus(status, page) {
     ["command", m.command],
     ["compd version", m.compd_version],
     ["updates / extensions", `${m.updates} / ${m.extensions}`],
+    ["initialised", status.model.initialised],
     ["pending", status.model.pending],
     ["blending from", status.model.blending_from],
     ["fault", status.model.fault],
