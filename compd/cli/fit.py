@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from rich.table import Table
+from rich.text import Text
 
 from compd.cli.common import (
     data_options,
@@ -343,7 +344,7 @@ def _report_tail(result: FitResult, args: argparse.Namespace, table: Table) -> N
     out.print(table)
     lead = expectation_line(result)
     if lead is not None:
-        out.print(f"[bold]{lead}[/bold]")
+        out.print(Text(lead, style="bold"))
     residue = result.comparison.residue
     line = (
         f"free-run simulation fit {fmt(identification.fit_percent, 2)} % on the calibration data "

@@ -91,10 +91,8 @@ def _check(args: argparse.Namespace) -> int:
         )
         fitted = model_file.doc.provenance.fit_percent.get(held_out.output)
         in_sample = "" if fitted is None else f"; {fitted:.1f} % on the data it was fitted on"
-        out.print(
-            f"[bold]expected fit on new data: {expected:.1f} %[/bold] ({held_out.kept}, {how}, "
-            f"{held_out.folds}){in_sample}"
-        )
+        lead = Text(f"expected fit on new data: {expected:.1f} %", style="bold")
+        out.print(lead + Text(f" ({held_out.kept}, {how}, {held_out.folds}){in_sample}"))
     table = Table(
         "effect",
         "input",
