@@ -45,9 +45,9 @@ from typing import Any
 
 import bench_modbus
 from common import environment, verdict
+
 from compd.drivers.gateway import GatewayDriver, GatewaySettings
 from compd.drivers.modbus_settings import ModbusSettings
-
 from compd.service.clock import RealClock
 from compd.service.links import DriverLink
 from compd.sim.plc.gateway import GatewayServer

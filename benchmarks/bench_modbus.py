@@ -33,9 +33,9 @@ from multiprocessing.synchronize import Event
 from pathlib import Path
 
 from common import environment, verdict
+
 from compd.drivers.modbus import ModbusDriver
 from compd.drivers.modbus_settings import ModbusSettings
-
 from compd.service.clock import RealClock
 from compd.service.links import DriverLink
 

@@ -33,8 +33,8 @@ from multiprocessing.synchronize import Event
 from pathlib import Path
 
 from common import environment, verdict
-from compd.drivers.serial_sensor import SerialSensorDriver, SerialSensorSettings
 
+from compd.drivers.serial_sensor import SerialSensorDriver, SerialSensorSettings
 from compd.service.clock import RealClock
 from compd.service.links import DriverLink
 from tests.drivers.instrument import PtyInstrument, answer, xor_hex

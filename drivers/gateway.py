@@ -70,7 +70,6 @@ from compd.drivers.gateway_modbus import ModbusTransport
 from compd.drivers.gateway_settings import FRAME_BYTES, GatewaySettings
 from compd.drivers.gateway_status import StatusWatch
 from compd.drivers.points import INT_RANGES
-
 from compd.errors import DriverDisconnectedError, DriverProtocolError
 
 

@@ -21,8 +21,8 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import can
-from compd.drivers.gateway_settings import FRAME_BYTES, GatewaySettings
 
+from compd.drivers.gateway_settings import FRAME_BYTES, GatewaySettings
 from compd.errors import DriverDisconnectedError, DriverProtocolError, DriverTimeoutError
 
 if TYPE_CHECKING:

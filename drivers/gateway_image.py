@@ -28,7 +28,6 @@ from functools import cache
 from typing import Literal, cast
 
 from compd.drivers.points import ORDERS, POINT_TYPES, Order, PointCodec, PointType
-
 from compd.errors import DriverProtocolError
 
 Area = Literal["in", "out"]

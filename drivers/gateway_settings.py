@@ -10,10 +10,11 @@ from __future__ import annotations
 
 from typing import Literal
 
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
 from compd.drivers.endpoints import Endpoint, can_endpoint, tcp_endpoint
 from compd.drivers.gateway_image import MAX_AREA_BYTES
 from compd.drivers.points import Order
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 #: Bytes a CAN frame (a PDO) carries.
 FRAME_BYTES = 8

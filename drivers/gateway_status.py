@@ -10,7 +10,6 @@ import time
 
 from compd.drivers.gateway_image import frame_of
 from compd.drivers.gateway_settings import FRAME_BYTES, GatewaySettings
-
 from compd.errors import DriverProtocolError, DriverTimeoutError
 
 

@@ -50,7 +50,6 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from compd.drivers.base import RawReading
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -61,6 +60,7 @@ from pydantic import (
     ValidationError,
 )
 
+from compd.drivers.base import RawReading
 from compd.errors import (
     DriverDisconnectedError,
     DriverError,

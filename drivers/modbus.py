@@ -41,6 +41,9 @@ from collections.abc import Awaitable, Callable, Hashable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
 from compd.drivers.base import RawReading
 from compd.drivers.endpoints import modbus_units
 from compd.drivers.library_logs import quiet_library
@@ -53,9 +56,6 @@ from compd.drivers.modbus_addresses import (
 )
 from compd.drivers.modbus_settings import ModbusSettings
 from compd.drivers.points import INT_RANGES
-from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
-from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
-
 from compd.errors import (
     DriverDisconnectedError,
     DriverError,

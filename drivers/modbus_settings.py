@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from typing import Literal
 
-from compd.drivers.endpoints import Endpoint, serial_endpoint, tcp_endpoint
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from compd.drivers.endpoints import Endpoint, serial_endpoint, tcp_endpoint
 
 
 class ModbusSettings(BaseModel):

@@ -39,6 +39,7 @@ from asyncua.common.node import Node
 from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.status_codes import StatusCodes
 from asyncua.ua.uaerrors import UaError, UaStatusCodeError, UaStringParsingError
+
 from compd.drivers.base import RawReading
 from compd.drivers.library_logs import quiet_library
 from compd.drivers.opcua_security import (
@@ -51,7 +52,6 @@ from compd.drivers.opcua_security import (
 )
 from compd.drivers.opcua_settings import POLICIES, OpcUaSecurity, OpcUaSettings
 from compd.drivers.opcua_values import NUMERIC_TYPES, to_float, to_variant, variant_type
-
 from compd.errors import (
     DriverDisconnectedError,
     DriverError,

@@ -19,10 +19,10 @@ from pathlib import Path
 
 from asyncua import ua
 from asyncua.ua.status_codes import StatusCodes
-from compd.drivers.opcua_settings import OpcUaSettings
 from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 
+from compd.drivers.opcua_settings import OpcUaSettings
 from compd.errors import DriverError, DriverProtocolError
 from compd.files.yamlplace import resolve_path
 

@@ -12,8 +12,9 @@ from typing import Literal
 from urllib.parse import urlsplit
 
 from asyncua.crypto import security_policies
-from compd.drivers.endpoints import Endpoint, tcp_endpoint
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from compd.drivers.endpoints import Endpoint, tcp_endpoint
 
 #: Security policies offered in ``security.policy``, by their OPC UA names.
 POLICIES: dict[str, type[security_policies.SecurityPolicy]] = {

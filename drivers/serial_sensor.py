@@ -53,6 +53,8 @@ from typing import Any
 
 import serial
 import structlog
+from serial_asyncio_fast import SerialTransport, connection_for_serial
+
 from compd.drivers.base import RawReading
 from compd.drivers.serial_lines import (
     SerialSensorSettings,
@@ -62,8 +64,6 @@ from compd.drivers.serial_lines import (
     parse_values,
     reply_payload,
 )
-from serial_asyncio_fast import SerialTransport, connection_for_serial
-
 from compd.errors import (
     DriverDisconnectedError,
     DriverError,

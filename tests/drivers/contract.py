@@ -16,8 +16,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import pytest
-from compd.drivers.base import Driver, RawReading, read_raw
 
+from compd.drivers.base import Driver, RawReading, read_raw
 from compd.errors import DriverDisconnectedError, DriverError, DriverTimeoutError
 
 

@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 from compd.drivers.gateway import GatewayDriver, GatewaySettings
-
 from compd.sim.plc.gateway import GatewayServer
 
 #: Raw values the gateway publishes: every type, both orders, bytes and bits, all inside one 8-byte frame each.

@@ -14,9 +14,10 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from compd.drivers.modbus_addresses import parse_address
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
+
+from compd.drivers.modbus_addresses import parse_address
 
 # Input registers preset with values in several layouts (addresses 0-based).
 INPUTS = {

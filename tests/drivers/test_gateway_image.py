@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from compd.drivers.gateway_image import ImagePoint, check_one_frame, parse_address
 
+from compd.drivers.gateway_image import ImagePoint, check_one_frame, parse_address
 from compd.errors import DriverProtocolError
 
 

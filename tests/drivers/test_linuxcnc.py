@@ -19,9 +19,9 @@ from pathlib import Path
 
 import pytest
 import yaml
+
 from compd.drivers.linuxcnc import LinuxCncDriver, LinuxCncSettings
 from compd.drivers.registry import load_driver_type
-
 from compd.errors import ConfigFileError, DriverDisconnectedError, DriverProtocolError
 from compd.service.clock import RealClock
 from compd.service.compensator import TickRecord

@@ -14,11 +14,11 @@ import time
 from pathlib import Path
 
 import pytest
-from compd.drivers.linuxcnc import LinuxCncDriver, LinuxCncSettings
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from structlog.testing import capture_logs
 
+from compd.drivers.linuxcnc import LinuxCncDriver, LinuxCncSettings
 from compd.errors import DriverError, DriverProtocolError
 from compd.service.clock import VirtualClock
 from compd.service.daemon import Service

@@ -11,10 +11,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
 from pymodbus.server import ModbusSerialServer
 
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_settings import ModbusSettings
 from compd.errors import DriverProtocolError, DriverTimeoutError
 
 from .contract import ContractSetup, DriverContract

@@ -6,10 +6,10 @@ import math
 import struct
 
 import pytest
-from compd.drivers.points import ORDERS, POINT_TYPES, PointCodec
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from compd.drivers.points import ORDERS, POINT_TYPES, PointCodec
 from compd.errors import DriverProtocolError
 
 INT_RANGES = {

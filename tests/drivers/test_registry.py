@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-from compd.drivers.registry import driver_names, load_driver_type
 
+from compd.drivers.registry import driver_names, load_driver_type
 from compd.errors import ConfigFileError
 from compd.service.config import load_config
 from tests.acceptance.conftest import machine_doc

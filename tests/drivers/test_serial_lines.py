@@ -6,6 +6,8 @@ import re
 from pathlib import Path
 
 import pytest
+from pydantic import ValidationError
+
 from compd.drivers.serial_lines import (
     SerialSensorSettings,
     checksum_hex,
@@ -13,8 +15,6 @@ from compd.drivers.serial_lines import (
     parse_values,
     reply_payload,
 )
-from pydantic import ValidationError
-
 from compd.errors import ConfigFileError, DriverProtocolError
 from compd.service.config import parse_config
 

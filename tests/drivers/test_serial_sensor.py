@@ -11,14 +11,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from compd.drivers.base import Driver
-from compd.drivers.registry import driver_names, load_driver_type
-from compd.drivers.serial_lines import SerialSensorSettings
-from compd.drivers.serial_sensor import SerialSensorDriver
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from structlog.testing import capture_logs
 
+from compd.drivers.base import Driver
+from compd.drivers.registry import driver_names, load_driver_type
+from compd.drivers.serial_lines import SerialSensorSettings
+from compd.drivers.serial_sensor import SerialSensorDriver
 from compd.errors import (
     DriverDisconnectedError,
     DriverError,

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from compd.drivers.base import Driver
 from compd.drivers.registry import BUILTIN, UnknownDriverError, driver_names, load_driver_type
 from compd.drivers.simulated import SimulatedDriver, SimulatedSettings
-
 from compd.errors import DriverDisconnectedError, DriverProtocolError
 from compd.service.clock import VirtualClock
 

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import pytest
 import yaml
+
 from compd.drivers.gateway import GatewayDriver
 from compd.drivers.gateway_settings import GatewaySettings
 from compd.drivers.modbus import ModbusDriver
 from compd.drivers.modbus_settings import ModbusSettings
-
 from compd.errors import ConfigFileError
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import resolve_path

@@ -11,11 +11,11 @@ from typing import Any
 
 import pytest
 import yaml
+
+from compd.cli import main
 from compd.drivers.endpoints import LOOPBACK, host_key
 from compd.drivers.modbus import ModbusDriver
 from compd.drivers.modbus_settings import ModbusSettings
-
-from compd.cli import main
 from compd.errors import ConfigFileError
 from compd.files.yamlplace import resolve_path
 
