@@ -44,7 +44,12 @@ class Render:
 
 def render_metrics(directory: Path, broker_port: int) -> Render:
     """Run the simulated machine for :data:`RENDER_AT` ticks and render ``/metrics`` at the last."""
-    telemetry = {"machine_id": MACHINE_ID, "host": "127.0.0.1", "port": broker_port, "every_ticks": 1}
+    telemetry = {
+        "machine_id": MACHINE_ID,
+        "host": "127.0.0.1",
+        "port": broker_port,
+        "every_ticks": 1,
+    }
     config = machine_config(directory, telemetry=telemetry)
     doc = yaml.safe_load(config.path.read_text())
     doc["machine_id"] = MACHINE_ID

@@ -71,7 +71,7 @@ class ServiceMetrics:
     def __init__(self, service: Service) -> None:
         # A ``_created`` series beside every counter and histogram only clutters: compd's
         # start time is its own gauge. The switch is process-wide, as compd is the process.
-        disable_created_metrics()
+        disable_created_metrics()  # type: ignore[no-untyped-call]  # prometheus_client leaves it untyped
         self.registry = CollectorRegistry(auto_describe=True)
         ProcessCollector(registry=self.registry)
         self.lateness = Histogram(

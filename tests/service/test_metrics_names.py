@@ -1,4 +1,4 @@
-"""/metrics in Prometheus's terms: base units, one metric per quantity, flags, info, MQTT, recorder, process; promtool clean."""
+"""/metrics in Prometheus's terms: base units, one metric per quantity, flags, info, links, process; promtool clean."""
 
 from __future__ import annotations
 
@@ -60,7 +60,11 @@ def test_names_are_in_base_units_and_no_created_series(render: Render) -> None:
 
 def test_one_metric_per_physical_quantity(render: Render) -> None:
     """Temperatures in ``compd_signal_celsius``, speeds in revolutions per second, power in watts; no unit label."""
-    factors = {"degC": ("compd_signal_celsius", 1.0), "rpm": ("compd_signal_revolutions_per_second", 1 / 60), "kW": ("compd_signal_watts", 1e3)}  # fmt: skip
+    factors = {
+        "degC": ("compd_signal_celsius", 1.0),
+        "rpm": ("compd_signal_revolutions_per_second", 1 / 60),
+        "kW": ("compd_signal_watts", 1e3),
+    }
     for name, entry in render.status["inputs"].items():
         metric, factor = factors[entry["unit"]]
         assert math.isclose(render.samples[metric][(("signal", name),)], entry["value"] * factor)

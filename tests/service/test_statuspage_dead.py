@@ -1,4 +1,4 @@
-"""The status page of a real ``compd run`` in headless chromium: it names its machine and turns dead when compd is killed."""
+"""The status page of a real ``compd run`` in headless chromium: it names its machine, turns dead when killed."""
 
 from __future__ import annotations
 
