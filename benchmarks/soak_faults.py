@@ -9,7 +9,8 @@ bad model file sent to ``load`` over the control socket; a hard kill of the
 service (no final save, no STOPPED word) and a restart on the same state
 directory; a value outside the clamp put into the offset register by the
 PLC's own program (500 um, -3000 um, the int32 extremes). The first seven
-faults are one of each kind.
+faults are one of each kind. Every service is also handed a fleet roll-out
+command as a broker would: retained (at every start) and replayed.
 
 A witness on the PLC's write path judges every value the offset register
 receives against what it held just before. Printed beside the targets:
@@ -19,7 +20,8 @@ receives against what it held just before. Printed beside the targets:
 - steps above the slew limit (``max_rate_um_per_s * period_s`` = 1.0 um) from a
   value within the clamp (replacing one outside it is a correction, counted apart);
 - offsets the service acknowledged (what its recorder writes) that the PLC never received;
-- bad models the daemon accepted.
+- bad models the daemon accepted;
+- retained or replayed roll-out commands the daemon took.
 
 Then, on the real clock 60 times faster, 20 minutes of the shift with
 compd as ``compd run`` child processes, ``--real-kills`` of them (default 4)
@@ -172,6 +174,7 @@ def main() -> int:
         ("steps above the slew limit", result.slew_violations),
         ("offsets acknowledged, never received", result.unacknowledged),
         ("bad models accepted", result.bad_models_accepted),
+        ("retained/replayed roll-outs taken", result.rollouts_taken_again),
     )
     print_counts(rows)
     print()
@@ -184,7 +187,8 @@ def main() -> int:
         f"{result.offsets_out_of_clamp}, replaced by {result.corrections} writes within it; "
         f"writes the PLC applied but compd never heard back "
         f"(killed mid-write) {result.landed_unacknowledged}; bad models refused "
-        f"{result.bad_models_refused}"
+        f"{result.bad_models_refused}; the roll-out taken {result.rollouts_taken}, its "
+        f"retained copies and replays refused {result.rollouts_refused}"
     )
     for error in result.errors[:20]:
         print("  ", error)

@@ -120,8 +120,8 @@ def test_bad_catalogue_or_unknown_candidate_exits_2(case, tmp_path: Path, capsys
     assert code == 2 and "no_such_column" in err
 
 
-def test_a_found_effect_too_small_to_matter_is_said_not_to_survive() -> None:
-    """A signal that explains most of a tiny residue would add < 2 fit points: the verdict says so."""
+def test_a_found_effect_the_rule_refuses_is_said_not_to_survive() -> None:
+    """A named signal whose extension removes < 10 % of the held-out error (or helps few folds) would not survive."""
     from types import MappingProxyType
 
     import numpy as np
@@ -129,16 +129,24 @@ def test_a_found_effect_too_small_to_matter_is_said_not_to_survive() -> None:
 
     from compd.model.diagnose import diagnose_residue
     from compd.toolkit.analysis import DiagnosisResult
+    from compd.toolkit.extendjudge import RULE, HeldOut
 
     rng = np.random.default_rng(0)
     n = 6 * 3600 // 10
     door = (rng.random(n) < 0.02).astype(float)
     effect = scipy.signal.lfilter([0.05], [1, -0.95], door)
-    residue = 0.05 * effect + rng.normal(0, 0.001, n)  # um: a model that already fits well
+    residue = 0.05 * effect + rng.normal(0, 0.001, n)
     diagnosis = diagnose_residue(residue, {"door_open": door}, 10.0)
     assert diagnosis.missing_effect is not None
     effects = MappingProxyType({"door_open": "door openings"})
-    small = DiagnosisResult("z", "z", diagnosis, effects, measured_spread_um=30.0)
-    assert "would not survive" in small.verdict
-    large = DiagnosisResult("z", "z", diagnosis, effects, measured_spread_um=0.01)
-    assert "would not survive" not in large.verdict
+
+    def judged(rms_after_um: tuple[float, ...]) -> DiagnosisResult:
+        held = HeldOut("leave one of 3 blocks out", 90.0, 90.5, 1.0, float(np.mean(rms_after_um)),
+                       (1.0, 1.0, 1.0), rms_after_um)  # fmt: skip
+        return DiagnosisResult("z", "z", diagnosis, effects, extended={"door_open": held})
+
+    small = judged((0.95, 0.95, 0.95)).verdict  # 5 % of the error, on every fold
+    assert "would not survive" in small and RULE in small and "removes 5 %" in small
+    few_folds = judged((0.5, 1.05, 1.05)).verdict  # 13 % of the error, on one fold of three
+    assert "would not survive" in few_folds and "lowers it on 1 of 3 folds" in few_folds
+    assert "would not survive" not in judged((0.8, 0.8, 0.8)).verdict

@@ -58,7 +58,8 @@ def test_existing_submodels_are_kept_exactly(extended: tuple[Path, dict]) -> Non
     assert child_out.submodels[: len(parent_out.submodels)] == parent_out.submodels
     added = child_out.submodels[-1]
     assert added.name == "spindle_speed_rpm_effect"
-    assert added.input.signal == "spindle_speed_rpm" and added.input.reference is None
+    # Its zero is the record's first value (the spindle stood): an absolute reference, not 'start'.
+    assert added.input.signal == "spindle_speed_rpm" and added.input.reference == 0.0
     assert child.name == f"{parent.name}+spindle_speed_rpm"
 
 

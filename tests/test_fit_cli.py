@@ -150,3 +150,67 @@ def test_bad_input_exits_2_naming_file_place_and_fix(
     assert str(calibration_csv) in error
     assert message in error
     assert not out.exists()
+
+
+def test_the_expected_fit_on_new_data_is_printed_first_and_stored(
+    calibration_csv, tmp_path, capsys
+):
+    """fit leads with the nested figure beside the in-sample one, stores it, and model check leads with it."""
+    model = tmp_path / "auto.yaml"
+    assert _fit(calibration_csv, model) == 0
+    printed = " ".join(capsys.readouterr().out.split())  # as read, whatever the wrapping
+    held_out = load_model(model).doc.provenance.cross_validation
+    assert held_out is not None
+    expected = held_out.nested_fit_percent[held_out.kept]
+    assert set(held_out.nested_fit_percent) == {"lagbank", "mlr"}
+    assert f"expected fit on new data {expected:.1f} % (nested cross-validation)" in printed
+    assert main(["model", "check", str(model)]) == 0
+    checked = capsys.readouterr().out.splitlines()
+    assert checked[1].startswith(f"expected fit on new data: {expected:.1f} %")
+
+
+def test_a_model_file_without_the_nested_figure_still_loads_and_says_its_figure_is_optimistic(
+    calibration_csv, tmp_path, capsys
+):
+    """A file written before the nested figure existed loads; model check labels its figure as optimistic."""
+    model = tmp_path / "auto.yaml"
+    assert _fit(calibration_csv, model) == 0
+    capsys.readouterr()
+    text = model.read_text()
+    start = text.index("    nested_fit_percent:")
+    end = text.index("    calibration_fit_percent:")
+    old = tmp_path / "old.yaml"
+    old.write_text(text[:start] + text[end:])
+    held_out = load_model(old).doc.provenance.cross_validation
+    assert held_out is not None and held_out.nested_fit_percent == {}
+    assert held_out.expected_percent() == held_out.fit_percent[held_out.kept]
+    assert main(["model", "check", str(old)]) == 0
+    checked = " ".join(capsys.readouterr().out.split())
+    assert "settings chosen on the same folds (optimistic)" in checked
+
+
+def test_fitted_model_carries_the_calibrations_first_values_as_its_thermal_zero(
+    calibration_csv, tmp_path
+):
+    """fit writes the calibration's first values as references (not 'start'); a warm start counts drift from them."""
+    out = tmp_path / "model.yaml"
+    assert _fit(calibration_csv, out, "--method", "oe", "--order", "1") == 0
+    model_file = load_model(out)
+    data = load_data(calibration_csv)
+    subs = model_file.model.outputs[0].submodels
+    for sub in subs:
+        assert sub.input.reference == pytest.approx(data.column(sub.input.signal)[0], abs=1e-6)
+    assert "thermal zero" in model_file.doc.provenance.notes
+    ambient = model_file.model.ambient  # a cold machine is in equilibrium with today's air
+    assert ambient is not None and ambient.signal == "T_ambient_degC"
+    assert ambient.reference == pytest.approx(data.column("T_ambient_degC")[0], abs=1e-6)
+    compiled = model_file.compile()
+    warm = {"T_spindle_degC": data.column("T_spindle_degC")[0] + 5.0,
+            "T_ambient_degC": data.column("T_ambient_degC")[0] + 1.0}  # fmt: skip
+    steady = compiled.steady_state(warm)
+    static_gain = compiled.b.sum(axis=1) / compiled.a.sum(axis=1)
+    # The shop is 1 degC warmer: the zero moves with it, so the spindle is 4 degC above it.
+    rises = np.array([4.0 if s.input.signal == "T_spindle_degC" else 0.0 for s in subs])
+    y = np.asarray(compiled.b[:, 0] * rises + steady.z[:, 0])  # the DF2T output at the next tick
+    assert y.sum() == pytest.approx(float(static_gain @ rises), rel=1e-9)
+    assert abs(y.sum()) > 1.0, "a warm machine's drift from the thermal zero is compensated"

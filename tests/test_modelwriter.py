@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import numpy as np
 import pytest
 import yaml
 
@@ -19,6 +22,7 @@ from compd.model import (
     SubModel,
     compile_model,
 )
+from compd.model.structure import AmbientZero
 
 
 def _model() -> Model:
@@ -112,3 +116,19 @@ def test_signals_must_cover_every_signal_used():
     """Declaring units for some signals but not all is refused (the schema would reject the file)."""
     with pytest.raises(ValueError, match="speed_rpm"):
         model_to_yaml(_model(), signals={"T_spindle_degC": "degC", "T_ambient_degC": "degC"})
+
+
+def test_a_thermal_zero_that_follows_the_ambient_reads_back_and_moves_the_references():
+    """``ambient: {signal, reference, moves}`` reads back; a start 2 degC warmer moves the listed references by 2."""
+    model = replace(_model(), ambient=AmbientZero("T_ambient_degC", 20.0, ("T_ambient_degC",)))
+    back = parse_model(model_to_yaml(model, signals=UNITS)).model
+    assert back == model
+    values = {"T_spindle_degC": 25.0, "T_ambient_degC": 22.0, "speed_rpm": 0.0}
+    compiled = compile_model(back)
+    fixed = np.isfinite(compiled.fixed_reference)
+    assert compiled.fixed_reference[fixed].tolist() == [20.0]
+    assert compiled.rest_state(values).reference[fixed].tolist() == [22.0]
+    still = compile_model(replace(model, ambient=AmbientZero("T_ambient_degC", 20.0)))
+    assert still.rest_state(values).reference[fixed].tolist() == [20.0], (
+        "only the listed inputs move"
+    )

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from compd.cli.serving import config_from_arg, configure_logging
-from compd.cli.terminal import console
+from compd.cli.terminal import Text, console
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import read_limited
@@ -43,7 +43,7 @@ def check_config_command(args: argparse.Namespace) -> int:
     doc = config.doc
     out = console()
     if config.model_path is None:
-        out.print(f"[green]ok[/green]: {config.path}")
+        out.print(Text.assemble(("ok", "green"), f": {config.path}"))
         out.print(
             f"  a data logger at {doc.period_s:g} s: no outputs, no model; the signals are "
             "read, checked and recorded, nothing is written (compd record, compd run)"
@@ -55,7 +55,7 @@ def check_config_command(args: argparse.Namespace) -> int:
         model_file = load_model(model_path)
         compiled = model_file.compile(doc.period_s)
         check_model(config, model_file, compiled)
-        out.print(f"[green]ok[/green]: {config.path}")
+        out.print(Text.assemble(("ok", "green"), f": {config.path}"))
         out.print(
             f"  model {compiled.name} ({model_path}, sha256 {model_file.sha256[:12]}) at "
             f"{doc.period_s:g} s; outputs {', '.join(compiled.output_names)}"

@@ -8,7 +8,7 @@ from typing import Any
 
 from compd import __version__
 from compd.cli.common import comparison_table
-from compd.cli.terminal import console
+from compd.cli.terminal import Text, console
 from compd.files.data import load_data
 from compd.files.modelfile import load_model
 from compd.model.metrics import Comparison
@@ -29,8 +29,11 @@ def _demo(args: argparse.Namespace) -> int:
         data = load_data(data_path)
     out = console()
     out.print(
-        f"[bold]compd {__version__} demo[/bold]: an 8-hour SPECTRUM-style test (spindle speed steps, "
-        "then cooling) on a milling centre, bundled as example_spectrum.csv.\n"
+        Text.assemble(
+            (f"compd {__version__} demo", "bold"),
+            ": an 8-hour SPECTRUM-style test (spindle speed steps, "
+            "then cooling) on a milling centre, bundled as example_spectrum.csv.\n",
+        )
     )
     rows: list[tuple[str, Comparison]] = []
     for name in ("seed000_hmc_tf.yaml", "seed000_linear_regression.yaml", "example_gated_arx.yaml"):

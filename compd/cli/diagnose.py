@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 from rich.table import Table
+from rich.text import Text
 
 from compd.cli.common import (
     data_options,
@@ -23,6 +24,7 @@ from compd.files.effects import EffectCatalogue, load_catalogue
 from compd.files.modelfile import load_model
 from compd.toolkit.analysis import DiagnosisResult, diagnose_evaluation
 from compd.toolkit.evaluate import evaluate, measured_columns
+from compd.toolkit.extendjudge import RULE, held_out_json
 from compd.toolkit.selection import select_columns
 from compd.toolkit.span import evaluate_span
 from compd.toolkit.summary import fmt, json_clean, json_text
@@ -39,7 +41,9 @@ def register(commands: Any) -> None:
         description="Rank candidate signals by the share of the residue RMS that one or two "
         "first-order lags of each explain on held-out data (blocked cross-validation), against "
         "the share reached by chance (the signal shifted in time), with the residue/input "
-        "cross-correlation against its 99 % Bartlett bound as evidence.",
+        "cross-correlation against its 99 % Bartlett bound as evidence. The first three are "
+        "then ranked by the model's fit on held-out cycles with the extension each would make "
+        "(as compd extend judges it), and two within the noise of the folds are called a tie.",
     )
     diag.add_argument("model", type=Path, metavar="MODEL.yaml")
     diag.add_argument(
@@ -107,7 +111,8 @@ def _diagnose(args: argparse.Namespace) -> int:
         f"(up to {d.whiteness_allowed} by chance): {'white' if d.residue_white else 'not white'}"
     )
     colour = "green" if d.missing_effect is not None else "yellow"
-    out.print(f"[bold {colour}]{result.verdict}[/bold {colour}]")
+    # One line however long (a terminal wraps it; a script reads it whole).
+    out.print(Text(result.verdict, style=f"bold {colour}"), soft_wrap=True)
     if not span.whole:
         out.print(span.describe("diagnosed"))
     return 0
@@ -151,7 +156,7 @@ def _diagnose_several(
         for note in (*evaluation.data.notes, *evaluation.notes, *result.notes):
             print(f"note: {evaluation.data.path}: {note}", file=sys.stderr)
         out.print(diagnosis_table(name, evaluation.data.path, result, args.top))
-        out.print(result.verdict)
+        out.print(result.verdict, soft_wrap=True)
     agreed = ", ".join(f"{signal} in {count}" for signal, count in found.most_common()) or "none"
     out.print(
         f"pooled over {len(results)} files: residue RMS {pooled_rms_um:.2f} um about its mean; "
@@ -179,6 +184,8 @@ def diagnosis_json(model_name: str, result: DiagnosisResult) -> dict[str, object
         "naive_bound": d.naive_bound,
         "missing_effect": None if found is None else found.signal,
         "verdict": result.verdict,
+        "rule": RULE,
+        "tied": list(result.tied),
         "notes": list(result.notes),
         "candidates": [
             {
@@ -195,6 +202,9 @@ def diagnosis_json(model_name: str, result: DiagnosisResult) -> dict[str, object
                 "xcorr_peak": c.xcorr_peak,
                 "xcorr_bound": json_clean(c.xcorr_bound),
                 "significant": c.significant,
+                "extended": None
+                if c.signal not in result.extended
+                else held_out_json(result.extended[c.signal]),
             }
             for c in d.candidates
         ],
@@ -209,6 +219,8 @@ def diagnosis_table(model_name: str, data_path: str, result: DiagnosisResult, to
         "effect",
         "explained %",
         "chance %",
+        "held-out fit % with it",
+        "error removed %",
         "time constant",
         "gain (um/unit)",
         "sign",
@@ -225,14 +237,29 @@ def diagnosis_table(model_name: str, data_path: str, result: DiagnosisResult, to
             result.effects[c.signal],
             fmt(c.explained_percent, 1),
             fmt(c.chance_percent, 1),
+            _extended_cell(result, c.signal),
+            _removed_cell(result, c.signal),
             " + ".join(_duration(t) for t in c.time_constants_s),
             f"{c.gain_um_per_unit:.4g}",
             "+" if c.sign > 0 else "-",
             _duration(c.lag_s),
             f"{abs(c.xcorr_peak):.2f} / {fmt(c.xcorr_bound)}",
-            "[green]yes[/green]" if c.significant else "no",
+            Text("yes", style="green") if c.significant else "no",
         )
     return table
+
+
+def _extended_cell(result: DiagnosisResult, signal: str) -> str:
+    held = result.extended.get(signal)
+    return "-" if held is None else f"{held.before:.1f} -> {held.after:.1f}"
+
+
+def _removed_cell(result: DiagnosisResult, signal: str) -> str:
+    held = result.extended.get(signal)
+    if held is None:
+        return "-"
+    mark = "" if held.accepted else " (refused)"
+    return f"{held.error_removed_percent:.0f} ({held.folds_improved}/{held.n_folds} folds){mark}"
 
 
 def _duration(seconds: float) -> str:

@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 from compd.cli.common import (
     comparison_table,
@@ -172,7 +173,8 @@ def _compare(args: argparse.Namespace) -> int:
         if result.windows:
             table = windows_table(result, width=None if args.wide else out.width)
             if args.wide:  # the table's own width, not squeezed into the terminal's
-                wide = Console(file=out.file, width=max(out.width, table_width(table)))
+                width = max(out.width, table_width(table))
+                wide = Console(file=out.file, emoji=False, markup=False, width=width)
                 wide.print(table, crop=False)
             else:
                 out.print(table)
@@ -260,13 +262,13 @@ _SOURCES = {
 }
 
 
-def windows_summary(result: WindowsResult) -> str:
+def windows_summary(result: WindowsResult) -> Text:
     count = len(result.windows)
-    colour = "red" if count else "green"
-    return (
-        f"{result.output}: [{colour}]{count} of {result.window_count} windows[/{colour}] of "
-        f"{result.window_s / 60:g} min above {result.tolerance_um:.2f} um RMS "
-        f"({_SOURCES[result.tolerance_source]})"
+    return Text.assemble(
+        f"{result.output}: ",
+        (f"{count} of {result.window_count} windows", "red" if count else "green"),
+        f" of {result.window_s / 60:g} min above {result.tolerance_um:.2f} um RMS "
+        f"({_SOURCES[result.tolerance_source]})",
     )
 
 
@@ -351,10 +353,10 @@ def _table(result: WindowsResult, shown: list[str], *, width: int | None) -> Tab
     for w, row in zip(result.windows, rows, strict=True):
         outside = set(w.outside_calibration)
         marked = [
-            f"[bold red]{c}[/bold red]" if n in outside else c
+            Text(c, style="bold red") if n in outside else c
             for n, c in zip(shown, row[3:-1], strict=True)
         ]
-        last = f"[bold red]{row[-1]}[/bold red]" if outside else row[-1]
+        last = Text(row[-1], style="bold red") if outside else row[-1]
         table.add_row(*row[:3], *marked, last)
     return table
 

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from rich.table import Table
+from rich.text import Text
 
 from compd.cli.common import data_options, load_data_from_args, order_arg, span_from_args
 from compd.cli.progress import progress_reporter
@@ -19,6 +20,8 @@ from compd.files.provenancepaths import write_model_text
 from compd.model.identify import MIN_SAMPLES
 from compd.model.transfer import DiscreteTF
 from compd.toolkit.extend import extend_model, verify_extension, with_verification
+from compd.toolkit.extendbest import AUTO_CANDIDATES, Choice, choose_effect, effect_signals
+from compd.toolkit.extendjudge import RULE, held_out_json
 from compd.toolkit.summary import fmt, json_clean, json_text
 
 
@@ -36,7 +39,12 @@ def register(commands: Any) -> None:
         help="a record with the effect: a file, or the files (a folder) of one recorded run",
     )
     extend.add_argument(
-        "--effect", required=True, metavar="SIGNAL", help="the excitation: a column of DATA.csv"
+        "--effect",
+        required=True,
+        metavar="SIGNAL",
+        help="the excitation: a column of DATA.csv; several (A,B,...) or 'auto' (the first "
+        f"{AUTO_CANDIDATES} candidates of compd diagnose): each is judged on held-out cycles and "
+        "the best the rule accepts is added",
     )
     extend.add_argument("--out", type=Path, required=True, metavar="NEW.yaml")
     extend.add_argument(
@@ -47,9 +55,10 @@ def register(commands: Any) -> None:
     )
     extend.add_argument(
         "--method",
-        choices=("oe", "arx", "lagbank"),
-        default="oe",
-        help="identification method (default oe); lagbank: first-order lags at fixed time "
+        choices=("auto", "oe", "arx", "lagbank"),
+        default="auto",
+        help="identification method; auto (default): oe, or the lag bank when the oe sub-model "
+        "fails the guard rails; lagbank: first-order lags at fixed time "
         "constants, ridge-regularised, as the held-out check fits them (one sub-model per lag)",
     )
     extend.add_argument(
@@ -70,8 +79,7 @@ def register(commands: Any) -> None:
     extend.add_argument(
         "--force",
         action="store_true",
-        help="add the sub-model even if it does not raise the fit on held-out cycles by "
-        "2 points, or the guard rails flag it",
+        help=f"add the sub-model even if the rule refuses it ({RULE.replace('%', '%%')}), or the guard rails flag it",
     )
     extend.add_argument("--json", action="store_true", help="print one JSON object")
     data_options(
@@ -88,15 +96,23 @@ def _extend(args: argparse.Namespace) -> int:
     for note in data.notes:  # what was joined, repaired or left out
         print(f"note: {note}", file=sys.stderr)
     verify_data = load_data_from_args(args, args.verify) if args.verify else None
-    effect = load_catalogue(args.catalogue).effect_for(args.effect)
+    catalogue = load_catalogue(args.catalogue)
     command = (
         "compd " + shlex.join(["extend", *sys.argv[2:]]) if sys.argv[1:2] == ["extend"] else ""
     )
+    signals = effect_signals(args.effect, parent, data, column=args.output, span=span)
+    choice = (
+        choose_effect(parent, data, signals, column=args.output, force=args.force, span=span)
+        if len(signals) > 1 or args.effect.strip() == "auto"
+        else None
+    )
+    signal = signals[0] if choice is None else choice.kept
+    effect = catalogue.effect_for(signal)
     with progress_reporter(enabled=not args.json) as progress:
         extension = extend_model(
             parent,
             data,
-            signal=args.effect,
+            signal=signal,
             effect=effect,
             column=args.output,
             order=args.order,
@@ -105,6 +121,7 @@ def _extend(args: argparse.Namespace) -> int:
             progress=progress,
             force=args.force,
             span=span,
+            tried=() if choice is None else choice.tried,
         )
     yaml_text = extension.yaml_text
     verified: tuple[float, float] | None = None
@@ -129,14 +146,19 @@ def _extend(args: argparse.Namespace) -> int:
         for sub, tf, tau in zip(extension.submodels, tfs, taus, strict=True)
     ]
     first = described[0]
-    static_gain = float(sum(tf.static_gain() for tf in tfs))  # the signal's, all lags together
-    time_constants = sorted({t for tau in taus for t in tau}, reverse=True)
+    own = [
+        (tf, tau)
+        for sub, tf, tau in zip(extension.submodels, tfs, taus, strict=True)
+        if sub.input.signal == signal
+    ]
+    static_gain = float(sum(tf.static_gain() for tf, _ in own))  # the signal's, all lags together
+    time_constants = sorted({t for _, tau in own for t in tau}, reverse=True)
     summary: dict[str, object] = {
         "model": str(args.model),
         "model_sha256": parent.sha256,
         "out": str(args.out),
         "output": extension.output,
-        "effect_signal": args.effect,
+        "effect_signal": signal,
         "effect": effect,
         "submodel": first["name"],
         "submodels": described,
@@ -148,11 +170,13 @@ def _extend(args: argparse.Namespace) -> int:
         "residue_fit_percent": json_clean(extension.residue_fit),
         "fit_percent_before": json_clean(extension.fit_before),
         "fit_percent_after": json_clean(extension.fit_after),
-        "held_out": {
-            "folds": extension.held_out.folds,
-            "fit_percent_before": json_clean(extension.held_out.before),
-            "fit_percent_after": json_clean(extension.held_out.after),
-        },
+        "held_out": held_out_json(extension.held_out),
+        "rule": RULE,
+        "refitted": list(extension.refitted),
+        "tried": [
+            {"signal": s, **held_out_json(h)}
+            for s, h in (choice.judged.items() if choice else [(signal, extension.held_out)])
+        ],
         "findings": [f.describe() for f in extension.findings],
         "verify": None
         if verified is None
@@ -167,10 +191,12 @@ def _extend(args: argparse.Namespace) -> int:
         print(json_text(summary))
         return 0
     out = console()
+    if choice is not None:
+        out.print(_tried_table(choice))
     names = ", ".join(str(d["name"]) for d in described)
     out.print(
-        f"added [bold]{names}[/bold] to {extension.output}: {effect} "
-        f"(input {args.effect} as a change from start; {extension.identification.method}, "
+        Text.assemble("added ", (names, "bold"), f" to {extension.output}: {effect} ")
+        + f"(input {signal} as a change from start; {extension.identification.method}, "
         f"order {first['order']}, nk {first['nk']}, time constants "
         f"{', '.join(f'{t:.0f}' for t in time_constants) or '-'} s, "
         f"static gain {static_gain:.4g} um/unit)"
@@ -191,9 +217,41 @@ def _extend(args: argparse.Namespace) -> int:
     for name, before, after in rows:
         table.add_row(name, fmt(before, 1), fmt(after, 1), fmt(after - before, 1))
     out.print(table)
+    if args.method == "auto" and extension.identification.method == "lagbank":
+        out.print(
+            "the oe sub-model failed the guard rails: the regularised lag bank of the held-out "
+            "check was added instead"
+        )
+    if extension.refitted:
+        out.print(
+            f"re-identified together with it: {', '.join(extension.refitted)} (extended on this "
+            "record before)"
+        )
+    out.print(f"kept: a sub-model on {signal} {held.describe()}; {RULE}")
     for finding in extension.findings:
         print(finding.describe(), file=sys.stderr)
     if not span.whole:
         out.print(span.describe("fitted"))
     out.print(f"wrote {args.out}")
     return 0
+
+
+def _tried_table(choice: Choice) -> Table:
+    table = Table(
+        "signal",
+        "held-out fit % with it",
+        "error removed %",
+        "folds better",
+        "rule",
+        title="the effects tried (each judged on the same held-out cycles)",
+    )
+    for signal, held in choice.judged.items():
+        verdict = "kept" if signal == choice.kept else ("passes" if held.accepted else "refused")
+        table.add_row(
+            signal,
+            f"{held.before:.1f} -> {held.after:.1f}",
+            f"{held.error_removed_percent:.0f}",
+            f"{held.folds_improved} of {held.n_folds}",
+            verdict,
+        )
+    return table

@@ -104,11 +104,12 @@ def register(commands: Any) -> None:
         "--method",
         choices=FIT_METHODS,
         default="auto",
-        help="auto (default): the lag bank or the static regression, whichever fits held-out "
-        "operating cycles better; lagbank: first-order lags at fixed time constants on the "
-        "inputs' principal directions, ridge-regularised, settings chosen by leave-one-cycle-out "
-        "cross-validation; oe: a denominator per input, fitted on the simulation error; arx: "
-        "least squares with a common denominator; mlr: static linear regression (the baseline)",
+        help="auto (default): the lag bank or the static regression, whichever is expected to "
+        "fit new data better (nested cross-validation over operating cycles); lagbank: the static "
+        "regression plus first-order lags at fixed time constants, the lags shrunk toward the "
+        "regression by one weight (one-standard-error rule); oe: a denominator per input, fitted "
+        "on the simulation error; arx: least squares with a common denominator; mlr: static "
+        "linear regression (the baseline)",
     )
     parser.add_argument(
         "--cycles",
@@ -129,7 +130,8 @@ def register(commands: Any) -> None:
         "--select-inputs",
         action="store_true",
         help="forward selection: add inputs one at a time, each the one that raises the lag "
-        "bank's cross-validated fit most, until the next adds less than 1 point; prints the path",
+        "bank's cross-validated fit most, until the next adds less than 1 point; prints the path "
+        "(the expected fit on new data is judged with the selection redone inside each fold)",
     )
     parser.add_argument(
         "--force",
@@ -224,27 +226,50 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _candidates_table(result: FitResult) -> Table:
-    """Each candidate's fit on its calibration data beside its fit on held-out cycles."""
+    """Each candidate's expected fit on new data (nested) beside its cross-validated and calibration fit."""
     selection = result.selection
     assert selection is not None
     kept = result.identification.method
     table = Table(
         "method",
-        "calibration fit %",
+        "expected on new data %",
         "cross-validated fit %",
+        "calibration fit %",
         "",
         title=f"judged by {selection.folds.describe()} (fit on the others, run through the whole "
-        "record)",
+        "record); expected: every setting chosen inside each training set (nested)",
     )
+
+    def figure(value: float | None) -> str:
+        return "-" if value is None else fmt(value, 1)
+
     for score in selection.scores:
-        cv = "-" if score.cv_fit_percent is None else fmt(score.cv_fit_percent, 1)
         note = "kept" if score.method == kept else ""
         if score.method == "mlr" and kept != "mlr":
             note = "static regression, the baseline"
-        table.add_row(score.method, fmt(score.calibration_fit_percent, 1), cv, note)
+        table.add_row(
+            score.method,
+            figure(score.expected_percent),
+            figure(score.cv_fit_percent),
+            fmt(score.calibration_fit_percent, 1),
+            note,
+        )
     if kept not in {s.method for s in selection.scores}:
-        table.add_row(kept, fmt(result.identification.fit_percent, 1), "not judged", "kept")
+        table.add_row(kept, "not judged", "-", fmt(result.identification.fit_percent, 1), "kept")
     return table
+
+
+def expectation_line(result: FitResult) -> str | None:
+    """The lead line: what the kept model is expected to fit on new data, beside its in-sample fit."""
+    selection = result.selection
+    score = None if selection is None else selection.score(result.identification.method)
+    if score is None or score.expected_percent is None:
+        return None
+    how = "nested cross-validation" if score.nested_fit_percent is not None else "cross-validation"
+    return (
+        f"{score.method} kept: expected fit on new data {fmt(score.expected_percent, 1)} % ({how}); "
+        f"{fmt(result.identification.fit_percent, 1)} % on the data it was fitted on"
+    )
 
 
 def _lag_bank_table(result: FitResult, args: argparse.Namespace) -> Table:
@@ -316,6 +341,9 @@ def _report_tail(result: FitResult, args: argparse.Namespace, table: Table) -> N
     identification = result.identification
     out = console()
     out.print(table)
+    lead = expectation_line(result)
+    if lead is not None:
+        out.print(f"[bold]{lead}[/bold]")
     residue = result.comparison.residue
     line = (
         f"free-run simulation fit {fmt(identification.fit_percent, 2)} % on the calibration data "

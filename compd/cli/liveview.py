@@ -251,8 +251,9 @@ def _write_value(text: str) -> float:
 
 def _confirm(out: Console, address: str, value: str, target: str) -> None:
     """Ask on the terminal; anything but the address typed back writes nothing."""
-    out.print(f"[bold]Write {value} to {address}[/bold] on {target}?", markup=True)
-    answer = out.input(f"Type the address ({address}) to confirm, anything else cancels: ")
+    prompt = Text.assemble((f"Write {value} to {address}", "bold"), f" on {target}?")
+    out.print(prompt)  # Text: the address and target literally, never markup or emoji
+    answer = out.input(Text(f"Type the address ({address}) to confirm, anything else cancels: "))
     if answer.strip() != address:
         raise CompdError("not confirmed: nothing written")
 

@@ -64,6 +64,7 @@ def register(commands: Any) -> None:
 
 def _check(args: argparse.Namespace) -> int:
     from rich.table import Column, Table
+    from rich.text import Text
 
     from compd.cli.terminal import console
     from compd.files.modelfile import load_model
@@ -74,9 +75,26 @@ def _check(args: argparse.Namespace) -> int:
     warnings = model_file.check_plausible()
     out = console()
     out.print(
-        f"[bold]{compiled.name}[/bold]  {model_file.path}  sha256 {model_file.sha256[:12]}  "
-        f"sample time {compiled.sample_time_s:g} s  signals: {', '.join(compiled.signals)}"
+        Text.assemble(
+            (compiled.name, "bold"),
+            f"  {model_file.path}  sha256 {model_file.sha256[:12]}  "
+            f"sample time {compiled.sample_time_s:g} s  signals: {', '.join(compiled.signals)}",
+        )
     )
+    held_out = model_file.doc.provenance.cross_validation
+    expected = None if held_out is None else held_out.expected_percent()
+    if held_out is not None and expected is not None:
+        how = (
+            "nested cross-validation"
+            if held_out.kept in held_out.nested_fit_percent
+            else "cross-validation, settings chosen on the same folds (optimistic)"
+        )
+        fitted = model_file.doc.provenance.fit_percent.get(held_out.output)
+        in_sample = "" if fitted is None else f"; {fitted:.1f} % on the data it was fitted on"
+        out.print(
+            f"[bold]expected fit on new data: {expected:.1f} %[/bold] ({held_out.kept}, {how}, "
+            f"{held_out.folds}){in_sample}"
+        )
     table = Table(
         "effect",
         "input",
@@ -107,7 +125,7 @@ def _check(args: argparse.Namespace) -> int:
     out.print(table)
     for finding in warnings:
         print(finding.describe(), file=sys.stderr)
-    out.print("[green]ok[/green]: compiles, causal and stable")
+    out.print(Text.assemble(("ok", "green"), ": compiles, causal and stable"))
     return 0
 
 

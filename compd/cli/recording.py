@@ -18,7 +18,7 @@ from pathlib import Path
 
 from compd.cli.daemon import install_signal_handlers
 from compd.cli.serving import config_from_arg, configure_logging
-from compd.cli.terminal import console
+from compd.cli.terminal import Text, console
 from compd.errors import CompdError
 from compd.service.clock import RealClock
 from compd.service.compensator import TickRecord
@@ -139,8 +139,14 @@ def _print_result(config: Config, out_dir: Path, ticks: int) -> None:
     data = files[0] if len(files) == 1 else out_dir
     if outputs:
         out.print(
-            "next: [bold]compd fit --data "
-            f"{data} --output {outputs[0]} --inputs {','.join(inputs)} --out model.yaml[/bold]"
+            Text.assemble(
+                "next: ",
+                (
+                    f"compd fit --data {data} --output {outputs[0]} "
+                    f"--inputs {','.join(inputs)} --out model.yaml",
+                    "bold",
+                ),
+            )
         )
     else:
         out.print(

@@ -152,6 +152,7 @@ def rollout(
         request = load_request(raw, name) | {"schema": SCHEMA, "sha256": sha256}
         del request["cmd"]  # the control socket's word; the topic says it here
         request["requested_by"] = f"{getpass.getuser()}@{socket.gethostname()}"
+        request["sent_unix_s"] = time.time()  # the machines take it within seenrequests.WINDOW_S
         ids = {m: uuid.uuid4().hex for m in machines}
         for machine in machines:
             payload = json.dumps(request | {"request_id": ids[machine]}).encode()
@@ -205,6 +206,7 @@ def _presence(listener: _Listener, machine: str) -> str:
 def rollout_command(args: Any) -> int:
     """The handler of ``compd model rollout``: check, send, wait, print the table."""
     from rich.table import Table
+    from rich.text import Text
 
     from compd.cli.terminal import console
     from compd.files.modelfile import load_model
@@ -235,8 +237,7 @@ def rollout_command(args: Any) -> int:
     for o in outcomes:
         blended = {None: "-", True: "yes", False: "not yet"}[o.blended_in]
         blend = "-" if o.blend_s is None else f"{o.blend_s:g}"
-        style = "green" if o.ok else "red"
-        result = f"[{style}]{o.result.replace('_', ' ')}[/{style}]"
+        result = Text(o.result.replace("_", " "), style="green" if o.ok else "red")
         table.add_row(o.machine_id, result, o.reason, blend, blended, o.presence)
     out = console()
     out.print(f"{args.model} (sha256 {hashlib.sha256(raw).hexdigest()[:12]}) to {len(machines)}")

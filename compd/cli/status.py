@@ -13,7 +13,7 @@ import argparse
 import json
 from pathlib import Path
 
-from compd.cli.terminal import console
+from compd.cli.terminal import Text, console
 from compd.errors import CompdError, ConfigFileError, NotRunningError
 from compd.files.yamlplace import parse_yaml, read_limited, resolve_path
 from compd.service.control import request_sync
@@ -50,15 +50,19 @@ def status_command(args: argparse.Namespace) -> int:
     model = reply["model"]
     counters = reply["counters"]
     if model is None:
-        out.print("[bold]recording[/bold]: a data logger (no outputs, no model), writing nothing")
+        out.print(
+            Text.assemble(
+                ("recording", "bold"), ": a data logger (no outputs, no model), writing nothing"
+            )
+        )
     else:
         out.print(
-            f"[bold]{model['name']}[/bold]  sha256 {model['sha256'][:12]}  "
-            f"loaded {model['loaded']}"
+            Text.assemble((model["name"], "bold"), f"  sha256 {model['sha256'][:12]}  ")
+            + f"loaded {model['loaded']}"
             + (f"  (loading {model['pending']})" if model.get("pending") else "")
         )
     if model is not None and model.get("fault"):
-        out.print(f"[red]model fault[/red]: {model['fault']}")
+        out.print(Text.assemble(("model fault", "red"), f": {model['fault']}"))
     out.print(
         f"last tick {_tick_age(reply)}  status word {reply['status_word']}  "
         f"heartbeat {reply['heartbeat']}"
@@ -98,9 +102,9 @@ def status_command(args: argparse.Namespace) -> int:
     )
     telemetry = reply.get("telemetry")
     if telemetry:
-        state = "connected" if telemetry["connected"] else "[red]not connected[/red]"
+        state = Text("connected") if telemetry["connected"] else Text("not connected", "red")
         out.print(
-            f"  telemetry {state}: published {telemetry['published']}, "
+            Text.assemble("  telemetry ", state) + f": published {telemetry['published']}, "
             f"acknowledged {telemetry['acknowledged']}, dropped {telemetry['dropped']}"
         )
     return 0

@@ -26,7 +26,16 @@ from compd.model.compiled import CompiledModel, compile_model
 from compd.model.guards import Finding, Severity
 from compd.model.guards import check_model as check_plausibility
 from compd.model.residual import DoorFeatures, ResidualModel
-from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
+from compd.model.structure import (
+    AmbientZero,
+    Gate,
+    GateTarget,
+    InputSpec,
+    Model,
+    Output,
+    Position,
+    SubModel,
+)
 from compd.model.transfer import ContinuousTF, DiscreteTF
 
 
@@ -183,7 +192,20 @@ def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
                 fix=f"Declare it with its unit, or use one of {sorted(declared)}",
             )
         outputs.append(Output(out_name, tuple(subs), _residual(residual, out_name, path)))
-    return Model(doc.name, doc.sample_time_s, tuple(outputs))
+    ambient = doc.ambient
+    if ambient is not None and declared is not None and ambient.signal not in declared:
+        raise ModelFileError(
+            path,
+            f"ambient signal {ambient.signal!r} is not declared under 'signals'",
+            where=_where(root, ("ambient", "signal")),
+            fix=f"Declare it with its unit, or use one of {sorted(declared)}",
+        )
+    zero = (
+        None
+        if ambient is None
+        else AmbientZero(ambient.signal, ambient.reference, tuple(ambient.moves))
+    )
+    return Model(doc.name, doc.sample_time_s, tuple(outputs), zero)
 
 
 def _residual(doc: ResidualDoc | None, output: str, path: str | Path) -> ResidualModel | None:

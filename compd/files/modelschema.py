@@ -36,6 +36,15 @@ class InputDoc(_Strict):
     reference: Literal["start"] | FiniteFloat = "start"
 
 
+class AmbientDoc(_Strict):
+    """The thermal zero follows the shop air: fixed references of ``moves`` shift by ``signal - reference``."""
+
+    signal: str = Field(min_length=1)
+    reference: FiniteFloat
+    #: The input signals whose fixed references move with it (temperatures).
+    moves: tuple[str, ...] = ()
+
+
 class GateDoc(_Strict):
     signal: str = Field(min_length=1)
     above: FiniteFloat | None = None
@@ -144,6 +153,18 @@ class CalibrationDoc(_Strict):
     ranges: dict[str, tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=dict)
 
 
+class TriedDoc(_Strict):
+    """One signal ``compd extend`` judged: the model's held-out fit without and with it, and the rule's figures."""
+
+    signal: str
+    held_out_fit_percent_before: FiniteFloat
+    held_out_fit_percent_after: FiniteFloat
+    error_removed_percent: FiniteFloat
+    folds_improved: int = Field(ge=0)
+    folds: int = Field(ge=0)
+    kept: bool = False
+
+
 class ExtensionDoc(_Strict):
     """One ``compd extend`` step: a sub-model added by superposition (seed 001 sect. 4.3)."""
 
@@ -157,6 +178,10 @@ class ExtensionDoc(_Strict):
     verify_fit_percent_before: dict[str, FiniteFloat] = Field(default_factory=dict)
     verify_fit_percent_after: dict[str, FiniteFloat] = Field(default_factory=dict)
     created: str | None = None
+    #: Signals of earlier extensions on the same record, re-identified together with this one.
+    refitted: list[str] = Field(default_factory=list)
+    #: The signals compared (``--effect A,B`` or ``auto``), the kept one included.
+    tried: list[TriedDoc] = Field(default_factory=list)
 
 
 class CharacteristicDoc(_Strict):
@@ -221,15 +246,25 @@ class CrossValidationDoc(_Strict):
     """How the candidates held on operating cycles they were not fitted on (``compd fit``).
 
     ``fit_percent``: pooled held-out fit % per candidate method (``mlr`` is
-    the static regression on the same inputs); ``calibration_fit_percent``
-    the same candidates' fit on all the data they were fitted on.
+    the static regression on the same inputs), settings chosen by the same
+    folds; ``nested_fit_percent``: the same with every setting chosen inside
+    each training set only (nested cross-validation), the figure to expect on
+    new data (absent in files written before compd recorded it);
+    ``calibration_fit_percent`` the same candidates' fit on all the data they
+    were fitted on.
     """
 
     output: str
     folds: str
     kept: str
     fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+    nested_fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
     calibration_fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+
+    def expected_percent(self, method: str | None = None) -> float | None:
+        """The kept (or ``method``'s) figure to expect on new data: nested, else cross-validated."""
+        name = self.kept if method is None else method
+        return self.nested_fit_percent.get(name, self.fit_percent.get(name))
 
 
 class ProvenanceDoc(_Strict):
@@ -253,5 +288,6 @@ class ModelDoc(_Strict):
     description: str = ""
     sample_time_s: FiniteFloat = Field(gt=0, le=MAX_SAMPLE_TIME_S)
     signals: dict[str, SignalDoc] | None = None
+    ambient: AmbientDoc | None = None
     outputs: dict[str, OutputDoc] = Field(min_length=1)
     provenance: ProvenanceDoc = ProvenanceDoc()

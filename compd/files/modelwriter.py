@@ -165,6 +165,14 @@ def model_to_yaml(
         lines.append("signals:")
         for name, unit in signals.items():
             lines.append(f"  {_string(name)}: {{unit: {_string(unit)}}}")
+    if model.ambient is not None:
+        moves = ", ".join(_string(name) for name in model.ambient.moves)
+        lines += [
+            "# the thermal zero follows the shop air: at start the fixed references of the inputs",
+            "# it moves are shifted by how far this signal is from its reference (the calibration's)",
+            f"ambient: {{signal: {_string(model.ambient.signal)}, "
+            f"reference: {yaml_float(model.ambient.reference)}, moves: [{moves}]}}",
+        ]
     lines.append("outputs:")
     for output in model.outputs:
         lines += [

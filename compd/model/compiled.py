@@ -21,7 +21,7 @@ depend on it.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -38,6 +38,7 @@ from compd.model.limits import (
 from compd.model.residual import ResidualModel
 from compd.model.structure import GateTarget, Model, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF, resample_discrete
+from compd.model.zero import start_references
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,6 +103,11 @@ class CompiledModel:
     position_index: np.ndarray  # (S,) index of the position signal, or the constant-1 slot
     position_reference_mm: np.ndarray  # (S,) subtracted from the position; 0 without one
     output_matrix: np.ndarray  # (n_outputs, S) 0/1: which sub-models sum into which output
+    #: The shop-air signal's index and reference (:class:`~compd.model.structure.AmbientZero`):
+    #: at start the fixed references where ``ambient_moves`` shift by its difference from it.
+    ambient_index: int = -1  # -1: none
+    ambient_reference: float = 0.0
+    ambient_moves: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     #: Seed 004 residual models: (output index, model), added to that output's TF sum.
     residuals: tuple[tuple[int, ResidualModel], ...] = ()
 
@@ -195,8 +201,12 @@ class CompiledModel:
         if not all(finite):
             raise ModelError("state contains NaN or inf")
 
+    def referenced_to_start(self) -> CompiledModel:
+        """This model with every input taken from its value at start (a record measured from its start)."""
+        return replace(self, fixed_reference=np.full(self.n_submodels, np.nan), ambient_index=-1)
+
     def rest_state(self, signals: np.ndarray | Mapping[str, float]) -> ModelState:
-        """All TF states zero; "value at start" references taken from ``signals``."""
+        """All TF states zero; references as :mod:`compd.model.zero` finds them at ``signals``."""
         reference = self._references(signals)
         residual = self._residual_state(self._vector(signals))
         return ModelState(np.zeros((self.n_submodels, self.n_states)), reference, residual)
@@ -230,9 +240,12 @@ class CompiledModel:
             )
         return vector
 
+    def reads_cold(self, signals: np.ndarray | Mapping[str, float]) -> bool:
+        """True when these readings start the model from them, as a cold machine (:mod:`compd.model.zero`)."""
+        return start_references(self, self._vector(signals))[1]
+
     def _references(self, signals: np.ndarray | Mapping[str, float]) -> np.ndarray:
-        at_start = self.raw_inputs(self.extended(self._vector(signals)))
-        return np.where(np.isnan(self.fixed_reference), at_start, self.fixed_reference)
+        return start_references(self, self._vector(signals))[0]
 
 
 def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledModel:
@@ -325,6 +338,11 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
             [0.0 if s.position is None else s.position.reference_mm for s in subs], dtype=float
         ),
         output_matrix=output_matrix,
+        ambient_index=-1 if model.ambient is None else index[model.ambient.signal],
+        ambient_reference=0.0 if model.ambient is None else model.ambient.reference,
+        ambient_moves=np.array(
+            [model.ambient is not None and s.input.signal in model.ambient.moves for s in subs]
+        ),
         residuals=tuple(
             (out_i, output.residual)
             for out_i, output in enumerate(model.outputs)

@@ -59,7 +59,7 @@ def blocked_folds(n_samples: int, n_folds: int = 4) -> Folds:
             f"(at least {MIN_FOLD_SAMPLES} per block)"
         )
     labels = (np.arange(n_samples) * n_folds) // n_samples
-    return Folds(labels.astype(int), f"{n_folds} contiguous blocks")
+    return Folds(labels.astype(int), "contiguous blocks")
 
 
 def cycle_folds(

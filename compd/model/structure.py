@@ -122,12 +122,24 @@ class Output:
 
 
 @dataclass(frozen=True)
+class AmbientZero:
+    """The thermal zero moves with the shop air: at start the fixed references of the inputs
+    ``moves`` (temperatures: a cold machine is in equilibrium with the air) are shifted by
+    ``signal - reference``, how much warmer the shop is than at calibration."""
+
+    signal: str
+    reference: float
+    moves: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
 class Model:
     """A machine's compensation model; discrete TFs are at ``sample_time_s``."""
 
     name: str
     sample_time_s: float
     outputs: tuple[Output, ...]
+    ambient: AmbientZero | None = None
 
     def signals(self) -> tuple[str, ...]:
         """Every signal the model reads, in first-use order."""
@@ -139,4 +151,6 @@ class Model:
         for output in self.outputs:
             if output.residual is not None:
                 seen.setdefault(output.residual.signal, None)
+        if self.ambient is not None:
+            seen.setdefault(self.ambient.signal, None)
         return tuple(seen)

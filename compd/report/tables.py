@@ -12,6 +12,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from fnmatch import fnmatchcase
 from html import escape
 
+from compd.files.modelschema import ExtensionDoc
 from compd.report import analysis_view as view
 from compd.report.figures import WINDOW_GRADES, window_grade
 from compd.report.gather import ModelRun, ReportData
@@ -232,6 +233,15 @@ def provenance(run: ModelRun) -> str:
     """Where the model came from: its fit on calibration data and its extension history."""
     prov = run.evaluation.model_file.doc.provenance
     lines = []
+    held_out = prov.cross_validation
+    expected = None if held_out is None else held_out.expected_percent()
+    if held_out is not None and expected is not None:
+        nested = held_out.kept in held_out.nested_fit_percent
+        lines.append(
+            f"<li><b>expected fit on new data: {expected:.1f} %</b> ({escape(held_out.kept)}, "
+            f"{'nested cross-validation' if nested else 'cross-validation'}, "
+            f"{escape(held_out.folds)}); the fits below are on the data it was fitted on</li>"
+        )
     for label, value in (
         ("data", prov.data),
         ("command", prov.command),
@@ -265,6 +275,7 @@ def provenance(run: ModelRun) -> str:
             [
                 str(k),
                 escape(ext.effect_signal),
+                _tried(ext),
                 escape(", ".join(ext.submodels)) or "—",
                 f"<code>{escape(ext.data)}</code>",
                 _before_after(ext.fit_percent_before, ext.fit_percent_after),
@@ -277,6 +288,7 @@ def provenance(run: ModelRun) -> str:
         head = [
             "#",
             "effect signal",
+            "signals tried (held-out fit % with each)",
             "sub-models added",
             "data",
             "fit % before → after",
@@ -293,6 +305,19 @@ def _per_output(values: Mapping[str, float], unit: str, digits: int = 1) -> str:
     if not values:
         return "n/a"
     return ", ".join(f"{escape(k)} {v:.{digits}f} {unit}" for k, v in values.items())
+
+
+def _tried(ext: ExtensionDoc) -> str:
+    """The signals ``extend`` compared for this step, the kept one in bold, and what it refitted."""
+    cells = [
+        (f"<b>{escape(t.signal)}</b>" if t.kept else escape(t.signal))
+        + f" {t.held_out_fit_percent_before:.1f} → {t.held_out_fit_percent_after:.1f} "
+        f"({t.error_removed_percent:.0f} % of the error, {t.folds_improved}/{t.folds} folds)"
+        for t in ext.tried
+    ]
+    if ext.refitted:
+        cells.append("refitted with it: " + escape(", ".join(ext.refitted)))
+    return "<br>".join(cells) or "—"
 
 
 def _before_after(before: Mapping[str, float], after: Mapping[str, float]) -> str:

@@ -141,7 +141,7 @@ class Compensator:
         #: The signals, offsets and status word, batched per driver (:mod:`compd.service.points`).
         self.points = DriverBatches(self.signals, self.axes, status, self.links)
         if initial_state is not None and model is not None:
-            model.start(initial_state)
+            model.start(initial_state, "resumed from the saved state")
         #: What each offset point holds, as far as compd knows (:mod:`compd.service.offsets`).
         self.held = HeldOffsets(self.axes, self.safety)
         #: Told of signal faults and model events (the telemetry), where attached.

@@ -42,6 +42,8 @@ from compd.service.notify import SystemdNotifier
 from compd.service.peers import FdBudget
 from compd.service.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
 from compd.service.safety import HEARTBEAT_MODULO
+from compd.service.seenrequests import FILE as SEEN_FILE
+from compd.service.seenrequests import SeenRequests
 from compd.service.state import SavedState, resumable_state, save_state
 from compd.service.statusview import status_snapshot
 from compd.service.ticks import TickTiming, run_periodic
@@ -153,7 +155,8 @@ class Service:
             self.compensator.report_to(sink)
             self._recorder_fault.sink = self._save_fault.sink = sink
             if doc.telemetry is not None and doc.telemetry.accept_models:
-                remote = RemoteLoads(self.load_model, self.telemetry.reply, sink)
+                seen = SeenRequests(config.state_dir / SEEN_FILE)  # replays refused across restarts
+                remote = RemoteLoads(self.load_model, self.telemetry.reply, sink, seen=seen)
                 self.telemetry.listen(COMMAND, remote.handle, max_bytes=MAX_PAYLOAD_BYTES)
         #: Metrics and the status page (config ``http``); None without one: nothing measured then.
         self.http: StatusServer | None = (
@@ -298,7 +301,9 @@ class Service:
         except RecorderError as exc:
             self._recorder_fault.failed("recorder failed", error=str(exc))
         else:
-            self._recorder_fault.cleared("recorder works again")
+            if self._recorder_fault.active:  # once, at the end of the episode
+                lost = self.recorder.take_lost_rows()
+                self._recorder_fault.cleared("recorder works again", lost_rows=lost)
 
     @property
     def recorder_fault(self) -> FaultLog:

@@ -281,9 +281,7 @@ def _model_json(slot: ModelSlot) -> dict[str, object]:
         "command": provenance.command,
         "compd_version": provenance.compd_version,
         "fit_percent": provenance.fit_percent,
-        "held_out_fit_percent": (
-            None if held_out is None else held_out.fit_percent.get(held_out.kept)
-        ),
+        "held_out_fit_percent": (None if held_out is None else held_out.expected_percent()),
         "updates": len(provenance.updates),
         "extensions": len(provenance.extensions),
     }

@@ -4,6 +4,11 @@ One paho-mqtt 2.x client per use, built from :class:`Broker` by
 :func:`mqtt_client`: telemetry (:mod:`compd.service.telemetry`) and the
 fleet roll-out (:mod:`compd.cli.rollout`) connect the same way, so a broker's
 users, TLS files and backoff are configured once (the ``telemetry:`` section).
+
+They speak MQTT 5 (mosquitto 1.6 and later, and the other current brokers):
+its CONNECT carries the client's Maximum Packet Size
+(:func:`connect_properties`), which the broker must respect: a larger message
+is dropped there, never sent to (and buffered by) the daemon.
 """
 
 from __future__ import annotations
@@ -12,7 +17,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import paho.mqtt.client as mqtt
-from paho.mqtt.enums import CallbackAPIVersion
+from paho.mqtt.enums import CallbackAPIVersion, MQTTProtocolVersion
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
 
 
 @dataclass(frozen=True)
@@ -44,8 +51,10 @@ class Topics:
 
 
 def mqtt_client(broker: Broker) -> mqtt.Client:
-    """A paho client for ``broker``: its id, user and password, TLS files, reconnect backoff."""
-    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=broker.client_id)
+    """A paho client (MQTT 5) for ``broker``: its id, user and password, TLS files, reconnect backoff."""
+    client = mqtt.Client(
+        CallbackAPIVersion.VERSION2, client_id=broker.client_id, protocol=MQTTProtocolVersion.MQTTv5
+    )
     client.reconnect_delay_set(broker.reconnect_min_s, broker.reconnect_max_s)
     if broker.username is not None:
         client.username_pw_set(broker.username, broker.password)
@@ -56,3 +65,14 @@ def mqtt_client(broker: Broker) -> mqtt.Client:
             keyfile=None if broker.key_file is None else str(broker.key_file),
         )
     return client
+
+
+def connect_properties(max_packet_bytes: int) -> Properties:
+    """CONNECT's properties: the largest packet this client takes (MQTT 5's Maximum Packet Size).
+
+    The broker drops a message that would make a larger packet for this client
+    (MQTT 5.0, 3.1.2.11.4) instead of sending it.
+    """
+    properties = Properties(PacketTypes.CONNECT)  # type: ignore[no-untyped-call]
+    properties.MaximumPacketSize = max_packet_bytes
+    return properties

@@ -124,6 +124,13 @@ class RecordingFiles:
         #: The run these files belong to (one per recorder: one per daemon start); its
         #: ``units`` name each column's unit in the files.
         self.run = RunMarks()
+        #: Rows lost to failed writes since :meth:`take_lost_rows` last took them.
+        self.lost_rows = 0
+
+    def take_lost_rows(self) -> int:
+        """The rows lost since the last call (told once, when recording works again)."""
+        lost, self.lost_rows = self.lost_rows, 0
+        return lost
 
     def set_model(self, name: str, sha256: str) -> None:
         """Name the active model in the files; a change starts a new file at the next row."""
@@ -233,10 +240,12 @@ class Recorder(RecordingFiles):
         if not self._pending or self._fd is None:
             return
         data = b"".join(self._pending)
+        rows = len(self._pending) - (self._written == 0)  # the header is no row
         self._pending.clear()
         try:
             _write_all(self._fd, data)
         except OSError as exc:
+            self.lost_rows += rows
             path = self._path
             self._abandon()
             raise error(f"cannot write to {path}", exc) from exc
@@ -414,6 +423,15 @@ def _cell(value: Cell) -> str:
     if isinstance(value, str) and _QUOTED.search(text):
         return '"' + text.replace('"', '""') + '"'
     return text
+
+
+def sync_directory(directory: Path) -> None:
+    """``fsync`` a directory: a file created or renamed in it survives a power cut."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def error(what: str, exc: OSError) -> RecorderError:

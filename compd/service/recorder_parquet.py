@@ -30,6 +30,17 @@ the default ``max_file_age_s`` of 86,400 s makes each minute's write take
 up to a day of rows (``benchmarks/bench_recorder_parquet.py`` has the
 figures). The open file's rows stay in memory as Arrow arrays (8 bytes a cell).
 
+**A disk that refuses.** A failed write (a full disk) is one fault: every
+row raises :class:`~compd.errors.RecorderError` until a write succeeds again,
+so the daemon logs one episode, not one per minute. The rows are kept
+meanwhile, up to ``max_unwritten_rows``, and the file is not rotated; the
+write is tried again after :data:`RETRY_FIRST_S`, then twice as long each
+time up to :data:`RETRY_MAX_S` (the rows' clock). Rows beyond the bound, and
+the rows of a file that had to be closed while failing, are lost and
+counted (:meth:`take_lost_rows`, told once when recording works again).
+Each write is synced (the ``.tmp``, then its directory after the rename),
+so a power cut leaves the old file or the new one.
+
 pyarrow is imported when the first file is written, so a daemon recording
 CSV never loads it.
 """
@@ -54,6 +65,7 @@ from compd.service.recorder import (
     check_columns,
     delete_oldest,
     error,
+    sync_directory,
 )
 from compd.service.recorder_marks import tidy_array
 
@@ -64,13 +76,19 @@ SUFFIX = "parquet"
 DEFAULT_FLUSH_EVERY_ROWS = 60
 #: Rows per row group: an hour at 1 Hz, so a reader can take a long file an hour at a time.
 ROW_GROUP_ROWS = 3600
+#: Rows kept unwritten while writes fail (an hour at 1 Hz): beyond, new rows are lost, counted.
+DEFAULT_MAX_UNWRITTEN_ROWS = 3600
+#: The first wait (s) before a failed write is tried again; doubled after each failure, up to:
+RETRY_FIRST_S = 10.0
+RETRY_MAX_S = 300.0
 
 
 class ParquetRecorder(RecordingFiles):
     """Write rows to rotating Parquet files in ``directory``.
 
     The parameters are :class:`~compd.service.recorder.Recorder`'s;
-    ``flush_every_rows`` is the row group's size and the most rows a crash loses.
+    ``flush_every_rows`` is the row group's size and the most rows a crash loses;
+    ``max_unwritten_rows`` the most rows kept while writes fail.
     """
 
     def __init__(
@@ -83,6 +101,7 @@ class ParquetRecorder(RecordingFiles):
         flush_every_rows: int = DEFAULT_FLUSH_EVERY_ROWS,
         clock: Callable[[], float] = time.time,
         metadata: Mapping[str, str] | None = None,
+        max_unwritten_rows: int = DEFAULT_MAX_UNWRITTEN_ROWS,
     ) -> None:
         super().__init__(
             directory,
@@ -102,6 +121,14 @@ class ParquetRecorder(RecordingFiles):
         self._file_metadata: dict[str, str] = {}
         self._worker: ThreadPoolExecutor | None = None
         self._writing: Future[int] | None = None
+        self.max_unwritten_rows = max_unwritten_rows
+        self._grouped_rows = 0  # rows of the open file in its batches (self._groups)
+        self._durable_rows = 0  # of those, the rows its last completed write holds
+        self._writing_rows = 0  # the rows the write in progress holds
+        #: The failure of the writes, until one succeeds again: raised by every row meanwhile.
+        self._failure: RecorderError | None = None
+        self._backoff_s = RETRY_FIRST_S
+        self._retry_at_s = -math.inf
 
     def record(self, row: Mapping[str, Cell], *, at_s: float | None = None) -> None:
         """Append one row stamped ``at_s`` (s since the epoch, default the clock's now).
@@ -119,41 +146,70 @@ class ParquetRecorder(RecordingFiles):
             self._text = frozenset(k for k, v in row.items() if isinstance(v, str))
             self._ints = frozenset(k for k, v in row.items() if isinstance(v, int))
             self._metadata_changed = False
-        if self._path is None or (
-            self._size > self.max_file_bytes
-            or now_s - self._opened_s >= self.max_file_age_s
+        self._collect(block=False)
+        if (
+            self._path is None
             or now_s <= self._last_s  # the clock stepped back: times must increase in a file
+            or (  # not while writes fail: the rows wait in the open file
+                self._failure is None
+                and (
+                    self._size > self.max_file_bytes
+                    or now_s - self._opened_s >= self.max_file_age_s
+                )
+            )
         ):
             self._open(now_s)
         self._last_s = now_s
-        self._times_s.append(now_s)
-        self._rows.append([row[name] for name in self._columns])
-        if len(self._rows) >= self.flush_every_rows:
+        if self._grouped_rows + len(self._rows) - self._durable_rows < self.max_unwritten_rows:
+            self._times_s.append(now_s)
+            self._rows.append([row[name] for name in self._columns])
+        else:
+            self.lost_rows += 1
+        if len(self._rows) >= self.flush_every_rows or (
+            self._failure is not None and now_s >= self._retry_at_s
+        ):
             self.flush()
+        if self._failure is not None:
+            raise self._failure
 
     def flush(self) -> None:
         """Make the gathered rows a batch and have the open file written again, whole.
 
         The write runs on the recorder's own thread (pyarrow releases the
         GIL), so the tick that gathered the rows does not wait for the disk;
-        the next flush waits for it first and raises the error it met.
+        the next flush waits for it first. After a failed write the next one
+        waits for its retry time (:data:`RETRY_FIRST_S`, doubling).
         """
-        if not self._rows or self._path is None:
+        if self._path is None:
             return
-        self._groups.append(self._batch())
-        self._times_s, self._rows = [], []
-        self._wait()
+        if self._rows:
+            self._groups.append(self._batch())
+            self._grouped_rows += len(self._rows)
+            self._times_s, self._rows = [], []
+        self._collect(block=True)
+        if self._grouped_rows == self._durable_rows:
+            return  # all written
+        if self._failure is not None and self._last_s < self._retry_at_s:
+            return  # the retry is not due
         if self._worker is None:
             self._worker = ThreadPoolExecutor(1, thread_name_prefix="compd-recorder")
+        self._writing_rows = self._grouped_rows
         self._writing = self._worker.submit(
             _write_file, self._path, list(self._groups), dict(self._file_metadata)
         )
 
     def close(self) -> None:
-        """Write what is gathered, wait for the write and close the file; the next row opens a new one."""
+        """Write what is gathered (a last try, even while failing), wait, close; the next row opens a new file.
+
+        Raises RecorderError if that write failed: the file's unwritten rows are lost (counted).
+        """
         try:
+            self._retry_at_s = -math.inf
             self.flush()
-            self._wait()
+            self._collect(block=True)
+            if self._failure is not None and self._path is not None:
+                self.lost_rows += self._grouped_rows - self._durable_rows
+                raise self._failure
         finally:
             self._close_file()
 
@@ -172,15 +228,27 @@ class ParquetRecorder(RecordingFiles):
         self._file_metadata = self.file_metadata(path, now_s)  # as at its first row, to its last
         delete_oldest(self.directory, path, self.max_file_bytes, self.max_total_bytes)
 
-    def _wait(self) -> None:
-        """Wait for the write in progress; its error is raised here (its rows are written again next time)."""
-        if self._writing is None:
+    def _collect(self, *, block: bool) -> None:
+        """The result of the write in progress once it is done (``block``: wait for it)."""
+        writing = self._writing
+        if writing is None or (not block and not writing.done()):
             return
-        writing, self._writing = self._writing, None
+        self._writing = None
         try:
             self._size = writing.result()
         except OSError as exc:
-            raise error(f"cannot write to {self._path}", exc) from exc
+            first = self._failure is None
+            self._backoff_s = RETRY_FIRST_S if first else min(2 * self._backoff_s, RETRY_MAX_S)
+            self._retry_at_s = self._last_s + self._backoff_s
+            self._failure = RecorderError(
+                f"cannot write to {self._path}: {exc.strerror or exc}; tried again in "
+                f"{self._backoff_s:g} s, up to {self.max_unwritten_rows} rows kept meanwhile"
+            )
+        else:
+            self._durable_rows = self._writing_rows
+            if self._failure is not None:
+                log.info("recording written again to %s", self._path)
+            self._failure, self._backoff_s = None, RETRY_FIRST_S
 
     def _close_file(self) -> None:
         if self._writing is not None:  # closing after an error: let the write finish, quietly
@@ -189,6 +257,7 @@ class ParquetRecorder(RecordingFiles):
             self._writing = None
         self._path = None
         self._groups, self._times_s, self._rows = [], [], []
+        self._grouped_rows = self._durable_rows = self._writing_rows = 0
 
     def _batch(self) -> Any:
         import pyarrow as pa
@@ -222,11 +291,17 @@ def _write_file(path: Path, batches: list[Any], metadata: dict[str, str]) -> int
     temporary = path.with_name(path.name + ".tmp")
     try:
         pq.write_table(table, temporary, compression="zstd", row_group_size=ROW_GROUP_ROWS)
+        fd = os.open(temporary, os.O_RDONLY)
+        try:
+            os.fsync(fd)  # the bytes on disk before the name points at them: a power cut
+        finally:
+            os.close(fd)
         os.replace(temporary, path)
     except BaseException:
         with contextlib.suppress(OSError):
             temporary.unlink()
         raise
+    sync_directory(path.parent)  # and the rename itself
     return path.stat().st_size
 
 

@@ -6,7 +6,7 @@ object::
 
     {"schema": "compd.model_load/1", "request_id": "...", "name": "twin-z.yaml",
      "model_base64": "...", "sha256": "<hex of the model file's bytes>",
-     "requested_by": "who@where"}
+     "requested_by": "who@where", "sent_unix_s": 1790000000.0}
 
 A daemon whose telemetry section says ``accept_models: true`` (off by
 default) takes it through :meth:`compd.service.daemon.Service.load_model`,
@@ -23,13 +23,25 @@ and the broker's ACL lets only the roll-out user write ``<prefix>/+/cmd/#``
 :data:`~compd.files.yamlplace.MAX_YAML_BYTES`, base64) and must carry the
 sha256 of the bytes it delivers, so a truncated or altered model is refused
 before it is parsed.
+
+A command is taken once, as sent, and only fresh: a retained message (the
+broker's retained store hands it out again on every connection, rolling later
+roll-outs back), a ``request_id`` seen before (a replay; the ids are kept in
+the state directory, :mod:`compd.service.seenrequests`) and a request sent
+more than :data:`~compd.service.seenrequests.WINDOW_S` from the machine's
+clock (or without ``sent_unix_s``) are refused, and the reply says which.
+The broker itself drops a payload larger than the daemon's MQTT maximum packet
+size (:meth:`compd.service.telemetry.Telemetry.listen`) before it is sent.
 """
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
 import json
+import math
 import re
+import time
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -40,6 +52,7 @@ from compd.faultlog import Event, EventSink
 from compd.files.yamlplace import MAX_YAML_BYTES, shorten
 from compd.service.control import TOO_DEEP
 from compd.service.modelload import load_request, request_bytes
+from compd.service.seenrequests import SeenRequests
 
 log = structlog.get_logger("compd.service.remoteload")
 
@@ -58,13 +71,29 @@ Reply = Callable[[str, dict[str, Any]], object]
 class RemoteLoads:
     """Handles ``cmd/model_load`` payloads: ``load`` is ``Service.load_model``, ``reply`` publishes."""
 
-    def __init__(self, load: Load, reply: Reply, events: EventSink) -> None:
+    def __init__(
+        self,
+        load: Load,
+        reply: Reply,
+        events: EventSink,
+        *,
+        seen: SeenRequests | None = None,
+        now: Callable[[], float] = time.time,
+    ) -> None:
         self.load = load
         self.reply = reply
         self.events = events
+        #: The ids taken lately (the state directory's file; in memory without one).
+        self.seen = seen or SeenRequests(None)
+        #: The machine's real clock (the sender's ``sent_unix_s`` is real time, also in a simulation).
+        self.now = now
+        self._saving = asyncio.Lock()
 
-    async def handle(self, payload: bytes) -> None:
-        """Parse, check and load one request; answer it (a request without a usable id: log only)."""
+    async def handle(self, payload: bytes, *, retained: bool = False) -> None:
+        """Parse, check and load one request; answer it (a request without a usable id: log only).
+
+        ``retained``: the broker's retain flag (a message from its retained store), refused.
+        """
         try:
             request = _parse(payload)
         except CompdError as exc:
@@ -75,12 +104,45 @@ class RemoteLoads:
         by = shorten(str(request.get("requested_by", "?")), 200)
         answer: dict[str, Any] = {"request_id": request_id, "sha256": request.get("sha256")}
         try:
+            await self._admit(request, retained)
             answer |= await self._load(request, by)
         except CompdError as exc:
             answer |= {"result": "refused", "reason": str(exc)}
             details = {"reason": str(exc), "sha256": answer["sha256"], "requested_by": by}
             self.events(Event("model_refused", "remote model load refused", details))
         self.reply(request_id, answer)
+
+    async def _admit(self, request: dict[str, Any], retained: bool) -> None:
+        """Raise CompdError for a retained, replayed or stale request; else remember its id (saved)."""
+        request_id = request["request_id"]
+        if retained:
+            raise CompdError(
+                "a retained command (the broker's retained store hands it out on every connection): "
+                "commands are taken only as sent. Clear it: publish an empty retained message to "
+                "its topic (mosquitto_pub -r -n -t TOPIC)"
+            )
+        if self.seen.seen(request_id):
+            raise CompdError(
+                f"request_id {request_id} was taken before: a replay, not loaded again"
+            )
+        sent = request.get("sent_unix_s")
+        now = self.now()
+        window_s = self.seen.window_s
+        if isinstance(sent, bool) or not isinstance(sent, int | float) or not math.isfinite(sent):
+            raise CompdError(
+                "the request carries no sent_unix_s (the time it was sent): send it with "
+                "compd model rollout of this version"
+            )
+        age_s = now - sent
+        if abs(age_s) > window_s:
+            when = f"{age_s:.0f} s ago" if age_s > 0 else f"dated {-age_s:.0f} s ahead"
+            raise CompdError(
+                f"the request was sent {when} by this machine's clock (taken within {window_s:g} s "
+                "either way): stale or replayed, or a clock is wrong (NTP)"
+            )
+        self.seen.add(request_id, float(sent), now)
+        async with self._saving:  # one write at a time, the newest ids; fsync off the event loop
+            await asyncio.to_thread(self.seen.save, self.seen.content())
 
     async def _load(self, request: dict[str, Any], by: str) -> dict[str, Any]:
         if request.get("schema") != SCHEMA:

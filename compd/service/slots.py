@@ -23,6 +23,7 @@ from compd.files.modelfile import ModelFile
 from compd.model.compiled import CompiledModel, ModelState, qualified_names
 from compd.model.handover import SignalHistory, handover_state
 from compd.model.run import TickRunner
+from compd.model.zero import COLD_BAND_DEGC
 from compd.service.schedule import GainScheduler
 
 if TYPE_CHECKING:
@@ -39,6 +40,8 @@ class ModelSlot:
         self.compiled = compiled
         self.loaded_at_unix_s = loaded_at_unix_s
         self.runner: TickRunner | None = None
+        #: How the running model's state was set at its start (said in the log and the status).
+        self.initialised: str | None = None
         self.outputs = np.full(len(compiled.output_names), np.nan)
         self.names = list(qualified_names(compiled))
         self._index = {name: i for i, name in enumerate(compiled.output_names)}
@@ -54,11 +57,47 @@ class ModelSlot:
     def sha256(self) -> str:
         return self.model_file.sha256
 
-    def start(self, state: ModelState) -> None:
+    def start(self, state: ModelState, how: str | None = None) -> None:
+        """Run from ``state``; ``how`` (how it was found) is logged and kept for the status."""
         self.runner = TickRunner(self.compiled, state)
+        if how is not None:
+            self.initialised = how
+            log.info("initial state", model=self.compiled.name, how=how)
+
+    def start_steady(self, checked: Mapping[str, float]) -> None:
+        """Start at the steady state for the current inputs (no saved state, no history)."""
+        note = steady_note(self.compiled, self.compiled.reads_cold(checked))
+        self.start(self.compiled.steady_state(checked), note)
 
     def output(self, name: str) -> float:
         return float(self.outputs[self._index[name]])
+
+
+def steady_note(compiled: CompiledModel, cold: bool = False) -> str:
+    """What a start at the steady state for the current inputs means for this model's references."""
+    total = compiled.n_submodels
+    at_start = int(np.sum(np.isnan(compiled.fixed_reference)))
+    if cold:
+        return (
+            f"the machine reads cold (every temperature within {COLD_BAND_DEGC:g} degC of the "
+            "model's thermal zero): today's readings taken as its zero, offsets from 0"
+        )
+    if at_start == 0:
+        air = (
+            ""
+            if compiled.ambient_index < 0
+            else f" (moved with {compiled.signals[compiled.ambient_index]})"
+        )
+        return (
+            f"steady state for the current inputs, from the model's thermal zero{air} (absolute "
+            "references): drift before the start is compensated, ramped in at the slew limit"
+        )
+    which = "every input" if at_start == total else f"{at_start} of {total} sub-models' inputs"
+    return (
+        f"steady state for the current inputs; {which} taken from its value now (reference: "
+        "start): drift before the start is not compensated. Refit (compd fit writes absolute "
+        "references) or resume a saved state"
+    )
 
 
 class ModelSlots:
@@ -133,7 +172,7 @@ class ModelSlots:
         if pending is not None and self._complete(pending, checked):
             self.pending = None
             try:
-                pending.start(self._handover(pending, checked))
+                pending.start(*self._handover(pending, checked))
             except Exception as exc:  # any failure of a new model: refuse it, keep the running one
                 fault = self._failed(pending, self.active, f"could not start: {exc!r}")
             else:
@@ -153,7 +192,7 @@ class ModelSlots:
                 continue
             try:
                 if slot.runner is None:
-                    slot.start(slot.compiled.steady_state(checked))
+                    slot.start_steady(checked)
                 assert slot.runner is not None
                 if self.schedule is not None:
                     self.schedule.apply(slot.runner)
@@ -184,7 +223,10 @@ class ModelSlots:
             restore.outputs[:] = np.nan  # not stepped this tick: the axes hold
             if len(history) >= 2:  # warm, from the recent inputs (compd.model.handover)
                 try:
-                    restore.start(handover_state(restore.compiled, history))
+                    restore.start(
+                        handover_state(restore.compiled, history),
+                        f"from the last {len(history)} ticks of inputs (restored)",
+                    )
                 except Exception:  # then from steady state with the next inputs
                     log.warning("restored model starts cold", model=restore.compiled.name)
         self.active, self.previous, self.fallback = restore, None, None
@@ -223,13 +265,15 @@ class ModelSlots:
             return
         self.fault = fault
 
-    def _handover(self, pending: ModelSlot, checked: Mapping[str, float]) -> ModelState:
+    def _handover(self, pending: ModelSlot, checked: Mapping[str, float]) -> tuple[ModelState, str]:
         """A model switched in while another runs starts warm (:mod:`compd.model.handover`)."""
         running = self.active
         history = self.history.matrix(pending.compiled.signals)
         if running.runner is None or len(history) < 2:
-            return pending.compiled.steady_state(checked)
-        return handover_state(pending.compiled, history, running.compiled, running.runner.state)
+            cold = pending.compiled.reads_cold(checked)
+            return pending.compiled.steady_state(checked), steady_note(pending.compiled, cold)
+        state = handover_state(pending.compiled, history, running.compiled, running.runner.state)
+        return state, f"from the last {len(history)} ticks of inputs, shared sub-models handed over"
 
     @staticmethod
     def _complete(slot: ModelSlot, checked: Mapping[str, float]) -> bool:

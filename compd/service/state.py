@@ -30,6 +30,7 @@ import structlog
 
 from compd.errors import CompdError, ModelError
 from compd.model.compiled import CompiledModel, ModelState
+from compd.model.reach import check_reachable
 
 if TYPE_CHECKING:
     from compd.service.clock import Clock
@@ -159,6 +160,7 @@ def resume_decision(
     real_now_unix_s: float | None = None,
     time_scale: float = 1.0,
     max_offsets_um: Mapping[str, float] | None = None,
+    input_ranges: Mapping[str, tuple[float, float]] | None = None,
 ) -> Resume:
     """Resume ``saved`` only if it is this model's (sha256 and shape) and younger than ``max_age_s``.
 
@@ -166,6 +168,8 @@ def resume_decision(
     time (a simulated machine), the real time since the save times the scale.
     With ``max_offsets_um`` (axis -> clamp), a saved offset that is not finite
     or lies beyond its axis's clamp makes the whole state suspect: not resumed.
+    A model state the model cannot reach from ``input_ranges`` (the calibration's,
+    :mod:`compd.model.reach`) is not resumed either.
     """
     if saved is None:
         return Resume(False, "no saved state")
@@ -182,6 +186,7 @@ def resume_decision(
         return Resume(False, f"saved state is {age_s:.0f} s old (limit {max_age_s:g} s)")
     try:
         compiled.check_state(saved.model_state)
+        check_reachable(compiled, saved.model_state, input_ranges or {})  # not 1e300
     except ModelError as exc:
         return Resume(False, f"saved state does not fit the model: {exc}")
     for axis, limit_um in (max_offsets_um or {}).items():
@@ -255,6 +260,7 @@ def resumable_state(
         # A scaled clock's time_scale; virtual time (None, or none given) counts as real.
         time_scale=getattr(clock, "time_scale", None) or 1.0,
         max_offsets_um={axis: out.max_offset_um for axis, out in config.doc.outputs.items()},
+        input_ranges=calibration_ranges(slot),
     )
     log.info(
         "model",
@@ -265,3 +271,9 @@ def resumable_state(
         reason=decision.reason,
     )
     return saved if decision.resume else None
+
+
+def calibration_ranges(slot: ModelSlot) -> Mapping[str, tuple[float, float]]:
+    """The ``[min, max]`` of each signal in the model's calibration data (none recorded: empty)."""
+    calibration = slot.model_file.doc.provenance.calibration
+    return {} if calibration is None else calibration.ranges

@@ -109,6 +109,7 @@ def _model(comp: Compensator, when: Callable[[float], str]) -> dict[str, Any]:
         "path": slot.model_file.path,
         "loaded": when(slot.loaded_at_unix_s),
         "started": slot.runner is not None,
+        "initialised": slot.initialised,
         "pending": comp.pending.compiled.name if comp.pending else None,
         "blending_from": comp.previous.compiled.name if comp.previous else None,
         "fault": comp.model_fault,

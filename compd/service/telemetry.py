@@ -39,8 +39,11 @@ Commands: with ``accept_models: true`` (never by default) the daemon also
 subscribes to ``<prefix>/<machine_id>/cmd/<kind>`` (:meth:`Telemetry.listen`)
 and answers on ``<prefix>/<machine_id>/reply/<request_id>``
 (:meth:`Telemetry.reply`); :mod:`compd.service.remoteload` is the one
-command, a model rolled out to the fleet. A command's payload is bounded and
-handed from paho's thread to the event loop, never acted on in paho's thread.
+command, a model rolled out to the fleet. A command's payload is bounded (the
+connection's MQTT 5 Maximum Packet Size: the broker drops a larger message
+before sending it; and its length is checked again here) and handed from
+paho's thread to the event loop with its retain flag, never acted on in
+paho's thread.
 """
 
 from __future__ import annotations
@@ -60,14 +63,21 @@ from paho.mqtt.enums import MQTTErrorCode
 
 from compd.faultlog import Event, FaultLog
 from compd.service.compensator import TickRecord
-from compd.service.mqttlink import Broker, Topics, mqtt_client
+from compd.service.mqttlink import Broker, Topics, connect_properties, mqtt_client
 from compd.service.telemetryjson import SCHEMA, compd_version, dumps, finite, finites
 
 log = structlog.get_logger("compd.service.telemetry")
 
+#: A command's handler: ``await handler(payload, retained=flag)`` (the broker's retain flag).
+Handler = Callable[..., Awaitable[None]]
+
 #: Messages handed to paho and not yet acknowledged, at most: beyond, the rest wait in the
 #: bounded queue (where the oldest are dropped), not in paho's (which would grow without bound).
 MAX_UNACKNOWLEDGED = 100
+#: A command's packet beyond its payload, at most: fixed header, topic, packet id, properties.
+PACKET_OVERHEAD_BYTES = 1024
+#: The largest packet taken without commands: the acknowledgements of what is published.
+MAX_PACKET_BYTES = 64 * 1024
 #: Longest a clean stop waits for the queue to drain and the death message's acknowledgement (s).
 STOP_TIMEOUT_S = 5.0
 
@@ -128,7 +138,7 @@ class Telemetry:
         self._loop_thread = 0
         self._task: asyncio.Task[None] | None = None
         #: cmd/<kind> -> (handler, largest payload in bytes); see :meth:`listen`.
-        self._commands: dict[str, tuple[Callable[[bytes], Awaitable[None]], int]] = {}
+        self._commands: dict[str, tuple[Handler, int]] = {}
         self._handling: set[asyncio.Task[None]] = set()
 
     @property
@@ -154,7 +164,13 @@ class Telemetry:
         self._loop = asyncio.get_running_loop()
         self._loop_thread = threading.get_ident()
         self._wake = asyncio.Event()
-        self._client.connect_async(self.broker.host, self.broker.port, self.broker.keepalive_s)
+        self._client.connect_async(
+            self.broker.host,
+            self.broker.port,
+            self.broker.keepalive_s,
+            clean_start=True,
+            properties=connect_properties(self.max_packet_bytes),
+        )
         self._client.loop_start()
         self._task = self._loop.create_task(self._publish_queued(), name="compd-telemetry")
 
@@ -252,16 +268,26 @@ class Telemetry:
             self._task.cancel()
         log.info("telemetry stopped", **self.status_counters())
 
-    def listen(
-        self, kind: str, handler: Callable[[bytes], Awaitable[None]], *, max_bytes: int
-    ) -> None:
-        """Act on ``<prefix>/<machine_id>/cmd/<kind>``: ``await handler(payload)`` on the event loop.
+    def listen(self, kind: str, handler: Handler, *, max_bytes: int) -> None:
+        """Act on ``<prefix>/<machine_id>/cmd/<kind>``: ``await handler(payload, retained=...)`` on the loop.
 
-        Subscribed (QoS 1) on every connection; before :meth:`start`. A payload
-        over ``max_bytes`` is dropped unread, logged and told as a ``fault``
-        event (there is no request id to answer to without reading it).
+        Subscribed (QoS 1) on every connection; before :meth:`start`. A message
+        whose packet would exceed ``max_bytes`` and :data:`PACKET_OVERHEAD_BYTES`
+        is dropped by the broker (:attr:`max_packet_bytes`); a payload over
+        ``max_bytes`` that arrives all the same is dropped unread, logged and
+        told as a ``fault`` event (there is no request id to answer to without
+        reading it).
         """
         self._commands[kind] = (handler, max_bytes)
+
+    @property
+    def max_packet_bytes(self) -> int:
+        """The Maximum Packet Size told to the broker: the largest command's and its packet's overhead."""
+        commands = (
+            max_bytes + len(self.topics.of(f"cmd/{kind}").encode()) + PACKET_OVERHEAD_BYTES
+            for kind, (_, max_bytes) in self._commands.items()
+        )
+        return max([MAX_PACKET_BYTES, *commands])
 
     @property
     def listening(self) -> tuple[str, ...]:
@@ -328,10 +354,11 @@ class Telemetry:
             self.event(Event("fault", "command refused: too large", details))
             return
         with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
-            self._loop.call_soon_threadsafe(self._handle, handler, bytes(message.payload))
+            payload = bytes(message.payload)
+            self._loop.call_soon_threadsafe(self._handle, handler, payload, message.retain)
 
-    def _handle(self, handler: Callable[[bytes], Awaitable[None]], payload: bytes) -> None:
-        task = asyncio.ensure_future(handler(payload))
+    def _handle(self, handler: Handler, payload: bytes, retained: bool) -> None:
+        task = asyncio.ensure_future(handler(payload, retained=retained))
         self._handling.add(task)  # a reference until done: the loop keeps only weak ones
         task.add_done_callback(self._handling.discard)
 

@@ -7,7 +7,8 @@ run at any sample time. The hidden-effect scenarios (``cutting``, ``feed``,
 ``door``, ``coolant``) vary exactly one effect over production-like spindle
 speeds and keep everything else as in ``calibration`` (door shut, no feed, no
 cutting, constant coolant), so each effect can be identified on its own;
-``shift`` mixes them all as in a real 8-hour shift.
+``cutting_coolant`` hides two at once, ``shift`` mixes them all as in a real
+8-hour shift.
 
 Where each hidden effect shows, and why no temperature sensor sees it:
 
@@ -196,6 +197,10 @@ SCENARIOS: dict[str, tuple[_Effects, str]] = {
     "feed": (_Effects(feed=True), "production speeds with long phases of rapid X/Z motion"),
     "door": (_Effects(door=True), "production speeds with door openings"),
     "coolant": (_Effects(coolant=True), "production speeds with the coolant drifting by 3-6 degC"),
+    "cutting_coolant": (
+        _Effects(cutting=True, coolant=True),
+        "heavy cutting and a drifting coolant at once: two hidden effects",
+    ),
     "shift": (
         _Effects(cutting=True, feed=True, door=True, coolant=True),
         "an 8-hour production shift mixing all effects",

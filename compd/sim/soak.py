@@ -71,6 +71,7 @@ from compd.sim.soakfaults import (
     corrupt_state,
     garbage_server,
 )
+from compd.sim.soakrollouts import deliver, rollout_command
 from compd.sim.soakwitness import SoakResult, Witness
 
 #: Virtual seconds between the end of one service and the start of the next.
@@ -137,6 +138,7 @@ class Soak:
         self._ends: list[tuple[float, Callable[[], Awaitable[None]]]] = []
         assert config.model_path is not None, "a soak runs a compensating config, not a logger"
         self._bad = bad_models(config.model_path.read_bytes())
+        self._rollout = rollout_command(config.model_path.read_bytes())
         self._variant = ""
 
     def _replace_server(self) -> None:
@@ -185,6 +187,11 @@ class Soak:
             self.clock.settle = functools.partial(settle, service.links)
             self._restart = asyncio.get_running_loop().create_future()
             task = asyncio.create_task(service.run(duration_s=end_s - self.clock.now()))
+            first = self.result.services == 1  # the roll-out's retained copy, at every start
+            rollout = deliver(
+                service, self.config.state_dir, self._rollout, self.result, first=first
+            )
+            self._loads.append(asyncio.create_task(rollout))
             waits: set[asyncio.Future[Any]] = {task, self._restart}
             await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
             how = self._restart.result() if self._restart.done() else None

@@ -45,6 +45,10 @@ class SoakResult:
     offset_mismatches: int = 0
     #: Offsets the services read back outside the clamp (their ``offsets_out_of_clamp``).
     offsets_out_of_clamp: int = 0
+    #: The roll-out command taken as sent (1), then its retained copy and replays: refused / taken again.
+    rollouts_taken: int = 0
+    rollouts_refused: int = 0
+    rollouts_taken_again: int = 0
     #: Why each bad model was refused (the daemon's reply).
     refusals: list[str] = field(default_factory=list)
     simulated_s: float = 0.0
@@ -59,6 +63,7 @@ class SoakResult:
             and self.outside_clamp == 0
             and self.unacknowledged == 0
             and self.bad_models_accepted == 0
+            and self.rollouts_taken_again == 0
         )
 
 

@@ -13,6 +13,7 @@ always say the same thing.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from fnmatch import fnmatchcase
@@ -26,8 +27,18 @@ from compd.files.data import DataSet
 from compd.files.effects import EffectCatalogue, load_catalogue
 from compd.model.diagnose import Diagnosis, diagnose_residue
 from compd.model.windows import FailingWindow, failing_windows, window_count
-from compd.toolkit.candidates import EXTEND_MARGIN_POINTS
 from compd.toolkit.evaluate import Evaluation
+from compd.toolkit.extendjudge import (
+    FOLLOW_MARGIN_POINTS,
+    FOLLOW_MIN_PERCENT,
+    RULE,
+    HeldOut,
+    Ranking,
+    judge_signals,
+    rank_judged,
+    same_record_extensions,
+    without_prior,
+)
 
 #: Operating conditions reported per failing window (column-name globs, case-insensitive),
 #: besides every signal the model reads.
@@ -35,6 +46,8 @@ CONDITION_PATTERNS = ("spindle_speed*", "spindle_power*", "feed*", "door*", "*co
 #: Default tolerance: this many times the calibration residue RMS of the output.
 TOLERANCE_FACTOR = 2.0
 DEFAULT_WINDOW_S = 900.0
+#: Candidates (best by explained residue) whose extension ``diagnose`` fits and ranks by.
+JUDGED_CANDIDATES = 3
 
 ToleranceSource = Literal["given", "calibration", "record"]
 
@@ -70,14 +83,33 @@ class DiagnosisResult:
     notes: tuple[str, ...] = ()
     measured_spread_um: float | None = None
     """RMS of the measured output about its mean on the diagnosed part (the fit %'s denominator)."""
+    extended: Mapping[str, HeldOut] = field(default_factory=dict)
+    """Per judged candidate: the model's held-out fit without and with an extension on it."""
+    tied: tuple[str, ...] = ()
+    """The first two candidates, when their extensions are within the noise of the folds."""
+    follows_percent: tuple[float, float] | None = None
+    """For a tie: the share of the second's changes lags of the first reproduce, and the reverse."""
 
     @property
-    def fit_rise_points(self) -> float | None:
-        """The fit % the best candidate would add if its held-out share of the residue came off it."""
-        found = self.diagnosis.missing_effect
-        if found is None or not self.measured_spread_um:
-            return None
-        return found.explained_percent * self.diagnosis.residue_rms_um / self.measured_spread_um
+    def tie_note(self) -> str:
+        """What the user can do about two candidates the folds cannot tell apart."""
+        if not self.tied:
+            return ""
+        a, b = self.tied
+        note = (
+            f"{a} and {b} explain the residue about equally (held-out fit with each "
+            f"{self.extended[a].after:.1f} % and {self.extended[b].after:.1f} %, within the "
+            f"spread of the {self.extended[a].n_folds} folds)"
+        )
+        forward, backward = self.follows_percent or (float("nan"), float("nan"))
+        if forward >= FOLLOW_MIN_PERCENT and forward - backward >= FOLLOW_MARGIN_POINTS:
+            note += (
+                f"; {a} first: {b} follows it (lags of {a} reproduce {forward:.0f} % of the "
+                f"changes of {b}, the reverse {backward:.0f} %)"
+            )
+        return note + (
+            f": extend with each and compare (compd extend --effect {a},{b}), or add both"
+        )
 
     @property
     def verdict(self) -> str:
@@ -101,11 +133,19 @@ class DiagnosisResult:
             f"{found.explained_percent:.0f} % of the residue RMS on held-out data "
             f"(chance level {max(found.chance_percent, 0.0):.0f} %)"
         )
-        rise = self.fit_rise_points
-        if rise is not None and rise < EXTEND_MARGIN_POINTS:
+        judged = self.extended.get(found.signal)
+        if judged is not None:
             verdict += (
-                f"; but it would raise the fit by only about {rise:.1f} points, below the "
-                f"{EXTEND_MARGIN_POINTS:g} that compd extend requires: it would not survive"
+                f"; with it the model fits {judged.after:.1f} % on held-out cycles "
+                f"(now {judged.before:.1f} %)"
+            )
+        if self.tied and found.signal in self.tied:
+            verdict += "; " + self.tie_note
+
+        if judged is not None and not judged.accepted:
+            verdict += (
+                f"; but it would not survive compd extend: a sub-model on it {judged.describe()}, "
+                f"and {RULE}"
             )
         return verdict
 
@@ -216,6 +256,7 @@ def diagnose_evaluation(
     *,
     candidates: Sequence[str] | None = None,
     catalogue: EffectCatalogue | None = None,
+    judged: int = JUDGED_CANDIDATES,
     **options: Any,
 ) -> DiagnosisResult:
     """Rank candidate signals by the share of ``output``'s residue each explains on held-out data.
@@ -227,6 +268,13 @@ def diagnose_evaluation(
     filtered from the record's start. ``options`` go to
     :func:`compd.model.diagnose.diagnose_residue` (``folds``, ``max_lag_s``,
     ``min_explained_percent``, ...).
+
+    The first ``judged`` candidates by explained residue, and any signal an
+    earlier ``extend`` of the model tried, are then judged as ``extend``
+    judges them (:func:`compd.toolkit.extendjudge.judge_signals`: the model's
+    fit on held-out cycles with a sub-model on each) and ranked first, best
+    extended model first; the first two are ``tied`` when their extensions
+    are within the noise of the folds.
     """
     names = default_candidates(evaluation, measured_column) if candidates is None else candidates
     source = evaluation.whole or evaluation
@@ -254,6 +302,19 @@ def diagnose_evaluation(
         ) from exc
     effects = {name: catalogue.effect_for(name) for name in signals}
     measured = data.column(measured_column)[evaluation.first_sample :]
+    extended: dict[str, HeldOut] = {}
+    ranking = Ranking(())
+    if judged > 0 and not diagnosis.residue_white and diagnosis.candidates:
+        absorbed = _absorbed(
+            source, output, measured_column, signals, judged, evaluation.first_sample, options
+        )
+        extended = _judge(source, output, measured_column, diagnosis, judged, absorbed, evaluation)
+        ranking = rank_judged(extended, data, evaluation.first_sample)
+        by_name = {c.signal: c for c in diagnosis.candidates}
+        rest = [c for c in diagnosis.candidates if c.signal not in extended]
+        diagnosis = dataclasses.replace(
+            diagnosis, candidates=(*(by_name[s] for s in ranking.order), *rest)
+        )
     return DiagnosisResult(
         output=output,
         measured_column=measured_column,
@@ -261,4 +322,59 @@ def diagnose_evaluation(
         effects=MappingProxyType(effects),
         notes=tuple(notes),
         measured_spread_um=float(np.std(measured)),
+        extended=MappingProxyType(extended),
+        tied=ranking.tied,
+        follows_percent=ranking.follows_percent,
+    )
+
+
+def _absorbed(
+    source: Evaluation,
+    output: str,
+    measured_column: str,
+    signals: Mapping[str, np.ndarray],
+    count: int,
+    first_sample: int,
+    options: Mapping[str, Any],
+) -> list[str]:
+    """The first candidates of the residue before the model's extensions on this record.
+
+    A candidate an earlier extension absorbed explains little of the residue
+    now, but is still a way to explain the effect: it stays listed, judged
+    together with the extension it competes with.
+    """
+    data = source.data
+    prior = same_record_extensions(source.model_file, output, data, "")
+    if not prior.signals:
+        return []
+    residue = data.column(measured_column) - without_prior(source, output, prior)
+    before = diagnose_residue(
+        residue,
+        {n: v for n, v in signals.items() if n not in prior.signals},
+        data.sample_time_s,
+        first_sample=first_sample,
+        **options,
+    )
+    return [c.signal for c in before.candidates[:count]]
+
+
+def _judge(
+    source: Evaluation,
+    output: str,
+    measured_column: str,
+    diagnosis: Diagnosis,
+    count: int,
+    absorbed: Sequence[str],
+    scored: Evaluation,
+) -> dict[str, HeldOut]:
+    """Extension judgements: the first ``count`` candidates, the named one, the absorbed ones."""
+    names = [c.signal for c in diagnosis.candidates]
+    found = diagnosis.missing_effect
+    chosen = {*names[:count], *absorbed} | ({found.signal} if found is not None else set())
+    return judge_signals(
+        source,
+        output,
+        measured_column,
+        [n for n in names if n in chosen],
+        first_sample=scored.first_sample,
     )

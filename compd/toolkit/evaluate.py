@@ -68,8 +68,10 @@ def signal_matrix(compiled: CompiledModel, data: DataSet) -> np.ndarray:
 def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "steady") -> Evaluation:
     """Compile ``model_file`` at the data's sample time and simulate it over the whole record.
 
-    ``init="steady"`` starts in equilibrium with the first sample's signals
-    (no start-up transient); ``"rest"`` starts with all TF states at zero;
+    Every input is taken from its value at the record's first sample, as the
+    measured displacement is, whatever the model's references (its thermal
+    zero, which the daemon starts from). ``init="steady"`` starts in
+    equilibrium with the first sample's signals (no start-up transient); ``"rest"`` starts with all TF states at zero;
     ``"estimate"`` starts from the steady state corrected to fit the measured
     outputs (columns named as the model's outputs) over the first
     :data:`ESTIMATE_WINDOW_S` (:mod:`compd.model.initial`).
@@ -81,7 +83,9 @@ def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "stea
             f"model sample time {model_s:g} s converted exactly to the data's "
             f"{data.sample_time_s:g} s (zero-order hold)"
         )
-    compiled = model_file.compile(data.sample_time_s)
+    # The record's displacement is measured from its start (the probe zeroed there), so its
+    # inputs are too: a model's absolute references (its thermal zero) are for the daemon.
+    compiled = model_file.compile(data.sample_time_s).referenced_to_start()
     signals = signal_matrix(compiled, data)
     state: ModelState = (
         compiled.rest_state(signals[0]) if init == "rest" else compiled.steady_state(signals[0])

@@ -16,32 +16,32 @@ those of the file a user will load (what it records: :mod:`compd.toolkit.extendr
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile, parse_model
 from compd.files.modelwriter import model_to_yaml
-from compd.model.guards import Finding
+from compd.model.guards import Finding, Severity
 from compd.model.identify import Identification, identify
-from compd.model.lagbank import LagBankFit, fit_lag_bank, lag_name
+from compd.model.lagbank import lag_name
 from compd.model.metrics import fit_percent
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF, resample_discrete
-from compd.toolkit.candidates import (
-    EXTEND_MARGIN_POINTS,
-    folds_of,
-    guard_findings,
-    lag_bank_identification,
-    operating_signal,
-    refuse_errors,
-)
+from compd.toolkit.candidates import guard_findings, lag_bank_identification, refuse_errors
 from compd.toolkit.evaluate import Evaluation, compare, evaluate, measured_columns
-from compd.toolkit.extendrecord import extension_yaml
+from compd.toolkit.extendjudge import (
+    RULE,
+    HeldOut,
+    Prior,
+    judge_signal,
+    same_record_extensions,
+    without_prior,
+)
+from compd.toolkit.extendrecord import ExtensionRecord, Tried, extension_yaml
 from compd.toolkit.span import Span, span_data, until_stop
 
 
@@ -65,19 +65,8 @@ class Extension:
     held_out: HeldOut
     #: Guard-rail findings on the new sub-model (warnings; errors refuse it unless forced).
     findings: list[Finding]
-
-
-@dataclass(frozen=True)
-class HeldOut:
-    """Fit % on held-out cycles before and after adding a (regularised) sub-model on the signal."""
-
-    folds: str
-    before: float
-    after: float
-
-    @property
-    def rise_points(self) -> float:
-        return self.after - self.before
+    #: Signals of earlier extensions on this record, re-identified together with this one.
+    refitted: tuple[str, ...] = ()
 
 
 def extend_model(
@@ -88,94 +77,82 @@ def extend_model(
     effect: str,
     column: str | None = None,
     order: int | str = "auto",
-    method: str = "oe",
+    method: str = "auto",
     command: str = "",
     force: bool = False,
     progress: Callable[[str, float], None] | None = None,
     span: Span | None = None,
+    tried: Sequence[Tried] = (),
 ) -> Extension:
     """Identify a sub-model from ``signal`` to ``parent``'s residue on ``data`` and add it.
 
-    The signal must first earn its place: a regularised sub-model on it must
-    raise the fit on held-out cycles of ``data`` by :data:`EXTEND_MARGIN_POINTS`
-    (:func:`judge_signal`), and the new sub-model must pass the guard rails;
-    otherwise nothing is added unless ``force``.
+    The signal must first earn its place by :data:`~compd.toolkit.extendjudge.RULE`
+    (:func:`~compd.toolkit.extendjudge.judge_signal`), and the new sub-model
+    must pass the guard rails; otherwise nothing is added unless ``force``.
+    Sub-models an earlier extension fitted on this record are re-identified
+    together with the new one (:mod:`compd.toolkit.extendjudge`). ``tried``:
+    the signals compared before this one was chosen, for the record.
     ``column`` names the measured displacement when the data does not name
     it after the model output (see :func:`compd.toolkit.evaluate.measured_columns`);
     with several outputs it selects the one to extend. ``span``
     (``--from``/``--until``): the models run from the record's start, the new
     sub-model is fitted and every fit % taken on the span's samples only.
+    ``method``: ``auto`` is ``oe``, or the lag bank the held-out check fitted
+    when the OE sub-model fails the guard rails (a near-integrator that
+    another cancels); ``oe``, ``arx`` or ``lagbank`` as named.
     """
     first = 0
     if span is not None:
         data, first = until_stop(data, span), span.start
     before = evaluate(parent, data)
     output, measured_name = _one_output(before, column)
-    if signal == measured_name or signal not in data.columns:
-        raise DataFileError(
-            data.path,
-            f"--effect {signal!r} is not a signal column of the file"
-            + (" (it is the measured output)" if signal == measured_name else ""),
-            fix=f"Use one of: {', '.join(c for c in data.columns if c != measured_name)}",
-        )
+    check_effect_signal(data, signal, measured_name)
     measured = data.column(measured_name)
-    residue = measured - before.predicted(output)
-    excitation = data.column(signal)
-    if np.ptp(excitation) == 0.0:
+    prior = same_record_extensions(parent, output, data, signal)
+    root = without_prior(before, output, prior)
+    residue = measured - root
+    held_out, bank = judge_signal(data, measured, root, signal, prior=prior, first_sample=first)
+    if not held_out.accepted and not force:
         raise DataFileError(
             data.path,
-            f"column {signal!r} is constant, so it cannot explain anything in this record",
-            fix="Extend on a record in which the effect varies",
-        )
-    held_out, bank = judge_signal(
-        data, measured, before.predicted(output), residue, excitation, first
-    )
-    if held_out.rise_points < EXTEND_MARGIN_POINTS and not force:
-        raise DataFileError(
-            data.path,
-            f"{signal!r} does not help: a sub-model on it raises the fit on held-out parts of this "
-            f"record from {held_out.before:.1f} % to {held_out.after:.1f} % "
-            f"({held_out.rise_points:+.1f} points; {held_out.folds}), less than the "
-            f"{EXTEND_MARGIN_POINTS:g} points an extension must add. Nothing was written",
+            f"{signal!r} does not help enough: a sub-model on it {held_out.describe()}; "
+            f"{RULE}. Nothing was written",
             where=f"--effect {signal}",
             fix="Try the next candidate of compd diagnose, or --force to add it anyway",
         )
-    taken = {s.name for o in parent.model.outputs for s in o.submodels}
-    if method == "lagbank":
-        # The regularised lag bank that earned the signal its place is the sub-model itself.
-        identification = lag_bank_identification(bank, [signal], data.sample_time_s)
-        submodels = tuple(
-            SubModel(
-                name=_unique(lag_name(f"{signal}_effect", c.time_constant_s or 0.0), taken),
-                effect=f"{effect} (lag {c.time_constant_s or 0.0:g} s, lagbank)",
-                input=InputSpec(signal),
-                tf=_at_model_rate(c.tf, data, parent),
-            )
-            for c in identification.channels
-        )
-    else:
-        identification = identify(
-            residue,
-            {signal: excitation - excitation[0]},
-            sample_time_s=data.sample_time_s,
-            method=method,  # type: ignore[arg-type]
-            order=order,  # type: ignore[arg-type]
-            progress=progress,
-            first_sample=first,
-        )
-        (channel,) = identification.channels
-        submodels = (
-            SubModel(
-                name=_unique(f"{signal}_effect", taken),
-                effect=effect,
-                input=InputSpec(signal),
-                tf=_at_model_rate(channel.tf, data, parent),
-            ),
-        )
-    names = [sub.name for sub in submodels]
-    model = _with_submodels(parent.model, output, submodels)
+    signals = (*prior.signals, signal)
+    effects = {**prior.effects, signal: effect}
+    taken = {
+        s.name for o in parent.model.outputs for s in o.submodels if s.name not in prior.submodels
+    }
 
-    provisional = extension_yaml(parent, model, data, signal, names, {}, {}, command)
+    def submodels_by(how: str) -> tuple[Identification, tuple[SubModel, ...]]:
+        if how == "lagbank":
+            # The regularised lag bank that earned the signal its place is the sub-model itself.
+            found = lag_bank_identification(bank, list(signals), data.sample_time_s)
+        else:
+            found = identify(
+                residue,
+                {s: data.column(s) - data.column(s)[0] for s in signals},
+                sample_time_s=data.sample_time_s,
+                method=how,  # type: ignore[arg-type]
+                order=order,  # type: ignore[arg-type]
+                progress=progress,
+                first_sample=first,
+            )
+        made = _submodels(found, effects, taken, data, parent)
+        # The new signal's sub-models first, then those refitted with it.
+        return found, tuple(sorted(made, key=lambda sub: sub.input.signal != signal))
+
+    identification, submodels = submodels_by("oe" if method == "auto" else method)
+    if method == "auto" and _guard_errors(data, parent, output, submodels, signal, prior):
+        # OE found an implausible sub-model (a near-integrator balanced by another): the
+        # regularised lag bank the held-out check fitted is stable by construction.
+        identification, submodels = submodels_by("lagbank")
+    names = [sub.name for sub in submodels]
+    model = _with_submodels(parent.model, output, submodels, signal, drop=prior.submodels)
+    record = ExtensionRecord(signal, names, prior.signals, tuple(tried), held_out)
+    provisional = extension_yaml(parent, model, data, record, {}, {}, command)
     after = evaluate(parse_model(provisional, parent.path), data)
     fit_before = fit_percent(measured[first:], before.predicted(output)[first:])
     fit_after = fit_percent(measured[first:], after.predicted(output)[first:])
@@ -185,8 +162,7 @@ def extend_model(
         parent,
         model,
         data if span is None else span_data(data, span),
-        signal,
-        names,
+        record,
         {output: fit_before},
         {output: fit_after},
         command,
@@ -215,40 +191,76 @@ def extend_model(
         residue_fit=residue_fit,
         held_out=held_out,
         findings=findings,
+        refitted=prior.signals,
     )
 
 
-def judge_signal(
+def _submodels(
+    found: Identification,
+    effects: dict[str, str],
+    taken: set[str],
     data: DataSet,
-    measured: np.ndarray,
-    predicted: np.ndarray,
-    residue: np.ndarray,
-    excitation: np.ndarray,
-    first_sample: int = 0,
-) -> tuple[HeldOut, LagBankFit]:
-    """How much a regularised sub-model on ``excitation`` raises the fit on parts of ``data`` it never saw.
-
-    The residue is fitted by a lag bank on the signal (:mod:`compd.model.lagbank`)
-    on all but one operating cycle (or block) at a time, and each held-out
-    part predicted; the rise is the fit % of the model plus those held-out
-    predictions over the model alone. Returns that and the lag bank fitted on
-    every (scored) sample, which ``--method lagbank`` adds as the sub-model.
-    """
-    folds = folds_of(data, operating_signal(data, None, None))
-    u = (excitation - excitation[0])[:, None]
-    with threadpool_limits(limits=1, user_api="blas"):
-        bank = fit_lag_bank(
-            residue,
-            u,
-            sample_time_s=data.sample_time_s,
-            folds=folds,
-            fitted=np.arange(len(residue)) >= first_sample,
+    parent: ModelFile,
+) -> tuple[SubModel, ...]:
+    """The identified channels as sub-models named ``SIGNAL_effect`` (a lag bank's: per lag)."""
+    bank = found.method == "lagbank"
+    names = set(taken)
+    out = []
+    for c in found.channels:
+        tau = c.time_constant_s or 0.0
+        name = _unique(
+            lag_name(f"{c.input_name}_effect", tau) if bank else f"{c.input_name}_effect", names
         )
-    assert bank.cv_predicted_um is not None
-    held = np.isfinite(bank.cv_predicted_um)
-    before = fit_percent(measured[held], predicted[held])
-    after = fit_percent(measured[held], predicted[held] + bank.cv_predicted_um[held])
-    return HeldOut(folds.describe(), float(before), float(after)), bank
+        names.add(name)
+        effect = effects[c.input_name]
+        out.append(
+            SubModel(
+                name=name,
+                effect=f"{effect} (lag {tau:g} s, lagbank)" if bank else effect,
+                # Fitted as changes from the record's first value: that is the input's thermal zero.
+                input=InputSpec(c.input_name, reference=float(data.column(c.input_name)[0])),
+                tf=_at_model_rate(c.tf, data, parent),
+            )
+        )
+    return tuple(out)
+
+
+def _guard_errors(
+    data: DataSet,
+    parent: ModelFile,
+    output: str,
+    submodels: tuple[SubModel, ...],
+    signal: str,
+    prior: Prior,
+) -> bool:
+    model = _with_submodels(parent.model, output, submodels, signal, drop=prior.submodels)
+    names = {s.name for s in submodels}
+    return any(
+        f.severity is Severity.ERROR and names & set(f.submodel.split(" + "))
+        for f in guard_findings(data, model)
+    )
+
+
+def check_effect_signal(data: DataSet, signal: str, measured_name: str) -> None:
+    """Refuse an effect that is not a varying signal column of ``data`` (a :class:`DataFileError`)."""
+    if signal == measured_name or signal not in data.columns:
+        raise DataFileError(
+            data.path,
+            f"--effect {signal!r} is not a signal column of the file"
+            + (" (it is the measured output)" if signal == measured_name else ""),
+            fix=f"Use one of: {', '.join(c for c in data.columns if c != measured_name)}",
+        )
+    if np.ptp(data.column(signal)) == 0.0:
+        raise DataFileError(
+            data.path,
+            f"column {signal!r} is constant, so it cannot explain anything in this record",
+            fix="Extend on a record in which the effect varies",
+        )
+
+
+def one_output(evaluation: Evaluation, column: str | None) -> tuple[str, str]:
+    """The output to extend and its measured column (``column`` selects among several)."""
+    return _one_output(evaluation, column)
 
 
 def verify_extension(extension: Extension, data: DataSet) -> tuple[float, float]:
@@ -324,12 +336,21 @@ def _at_model_rate(tf: DiscreteTF, data: DataSet, parent: ModelFile) -> Discrete
         ) from exc
 
 
-def _with_submodels(model: Model, output: str, submodels: tuple[SubModel, ...]) -> Model:
+def _with_submodels(
+    model: Model,
+    output: str,
+    submodels: tuple[SubModel, ...],
+    signal: str,
+    drop: tuple[str, ...] = (),
+) -> Model:
     outputs = tuple(
-        Output(o.name, (*o.submodels, *submodels)) if o.name == output else o for o in model.outputs
+        Output(o.name, (*(s for s in o.submodels if s.name not in drop), *submodels))
+        if o.name == output
+        else o
+        for o in model.outputs
     )
     # A new name, so reports and logs can tell the extended model from its parent.
-    return Model(f"{model.name}+{submodels[0].input.signal}", model.sample_time_s, outputs)
+    return Model(f"{model.name}+{signal}", model.sample_time_s, outputs)
 
 
 def _unique(name: str, taken: set[str]) -> str:

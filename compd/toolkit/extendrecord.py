@@ -9,24 +9,60 @@ later data against everything the model has now been fitted on.
 from __future__ import annotations
 
 import datetime as dt
+from dataclasses import dataclass
 
 import numpy as np
 
 from compd import __version__
 from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile
-from compd.files.modelschema import CalibrationDoc, ExtensionDoc
+from compd.files.modelschema import CalibrationDoc, ExtensionDoc, TriedDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.structure import Model
+from compd.toolkit.extendjudge import HeldOut
 from compd.toolkit.fitmodel import unit_of
+
+
+@dataclass(frozen=True)
+class Tried:
+    """A signal judged for an extension and its held-out figures."""
+
+    signal: str
+    held_out: HeldOut
+
+    def doc(self, kept: bool) -> TriedDoc:
+        h = self.held_out
+        return TriedDoc(
+            signal=self.signal,
+            held_out_fit_percent_before=h.before,
+            held_out_fit_percent_after=h.after,
+            error_removed_percent=h.error_removed_percent,
+            folds_improved=h.folds_improved,
+            folds=h.n_folds,
+            kept=kept,
+        )
+
+
+@dataclass(frozen=True)
+class ExtensionRecord:
+    """What one extension step did: the signal, the sub-models written, what it refitted and tried."""
+
+    signal: str
+    submodels: list[str]
+    refitted: tuple[str, ...]
+    tried: tuple[Tried, ...]
+    held_out: HeldOut
+
+    def tried_docs(self) -> list[TriedDoc]:
+        tried = self.tried or (Tried(self.signal, self.held_out),)
+        return [t.doc(kept=t.signal == self.signal) for t in tried]
 
 
 def extension_yaml(
     parent: ModelFile,
     model: Model,
     data: DataSet,
-    signal: str,
-    submodel_names: list[str],
+    record: ExtensionRecord,
     fit_before: dict[str, float],
     fit_after: dict[str, float],
     command: str,
@@ -34,9 +70,10 @@ def extension_yaml(
     calibration_rms_um: float | None = None,
     output: str = "",
 ) -> str:
-    """``model`` as YAML, ``parent``'s provenance extended by the step that added ``submodel_names``."""
+    """``model`` as YAML, ``parent``'s provenance extended by the step ``record`` describes."""
     doc = parent.doc
     units = parent.signal_units()
+    signal = record.signal
     if units is not None and signal not in units:
         units = {**units, signal: unit_of(signal)}
     calibration = doc.provenance.calibration
@@ -46,10 +83,12 @@ def extension_yaml(
         parent_sha256=parent.sha256,
         data=data.path,
         effect_signal=signal,
-        submodels=submodel_names,
+        submodels=record.submodels,
         fit_percent_before=fit_before,
         fit_percent_after=fit_after,
         created=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        refitted=list(record.refitted),
+        tried=record.tried_docs(),
     )
     provenance = doc.provenance.model_copy(
         update={

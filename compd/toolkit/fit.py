@@ -39,10 +39,7 @@ from compd.model.metrics import Comparison
 from compd.model.orderfit import Progress
 from compd.model.structure import Model, Position
 from compd.toolkit.candidates import (
-    Selection,
-    SelectionStep,
     check_against_regression,
-    compare_candidates,
     contributions_of,
     cross_validation_doc,
     describe_lag_bank,
@@ -52,11 +49,17 @@ from compd.toolkit.candidates import (
     lag_bank_identification,
     operating_signal,
     refuse_errors,
-    select_inputs,
 )
 from compd.toolkit.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.toolkit.fitchecks import check_arguments, check_position
-from compd.toolkit.fitmodel import fit_provenance, identification_to_model, unit_of
+from compd.toolkit.fitmodel import (
+    describe_references,
+    fit_provenance,
+    identification_to_model,
+    unit_of,
+    with_references,
+)
+from compd.toolkit.nestedselect import Selection, SelectionStep, compare_candidates
 from compd.toolkit.span import Span, until_stop
 
 
@@ -191,26 +194,13 @@ def fit_data(
         if len(starts) == 1
         else experiment_folds(len(data), starts)
     )
-    steps: list[SelectionStep] = []
-    if select_inputs_first:
-        if structured or method not in ("auto", "lagbank"):
-            raise DataFileError(
-                data.path,
-                "--select-inputs chooses inputs for the lag bank",
-                where="--select-inputs",
-                fix="Use it with --method auto or lagbank, without --phase-gate/--position/--denoise",
-            )
-        steps = select_inputs(
-            y,
-            changes,
-            sample_time_s=data.sample_time_s,
-            folds=folds,
-            time_constants_s=time_constants_s,
-            first_sample=first,
-            starts=starts,
+    if select_inputs_first and (structured or method not in ("auto", "lagbank")):
+        raise DataFileError(
+            data.path,
+            "--select-inputs chooses inputs for the lag bank",
+            where="--select-inputs",
+            fix="Use it with --method auto or lagbank, without --phase-gate/--position/--denoise",
         )
-        changes = {step.input: changes[step.input] for step in steps}
-        inputs = list(changes)
     # The regression is always scored: every fit is printed beside it.
     candidates = (
         ("lagbank", "mlr") if method in ("auto", "lagbank") and not structured else ("mlr",)
@@ -225,13 +215,19 @@ def fit_data(
             time_constants_s=time_constants_s,
             first_sample=first,
             starts=starts,
+            choose_inputs=select_inputs_first,
         )
     except ModelError as exc:
         raise DataFileError(data.path, exc.message, where="--time-constants-s") from exc
+    steps = list(selection.steps)
+    if select_inputs_first:
+        changes = {step.input: changes[step.input] for step in steps}
+        inputs = list(changes)
     chosen = method
     if method == "auto":
         chosen = "oe" if structured else selection.kept
-    check_against_regression(data, selection, chosen, force)
+    if method != "auto":  # auto chose by these figures already (and never a refused regression)
+        check_against_regression(data, selection, chosen, force)
     try:
         if chosen == "lagbank":
             assert selection.lag_bank is not None
@@ -277,7 +273,14 @@ def fit_data(
             what="the fitted model is implausible for its own calibration data",
             where=f"--method {chosen}",
         )
+    # The thermal zero: the calibration's first values (each experiment's, averaged), which
+    # the fit took the inputs as changes from; the daemon starts from it (no "value at start").
+    references = {c: float(np.mean(data.column(c)[list(starts)])) for c in inputs}
+    model = with_references(model, references)
     provenance = fit_provenance(data, identification, comparison, command, phase_gate, slope, span)
+    provenance = provenance.model_copy(
+        update={"notes": f"{provenance.notes}; {describe_references(model, references)}"}
+    )
     provenance = provenance.model_copy(
         update={"cross_validation": cross_validation_doc(output, selection)}
     )

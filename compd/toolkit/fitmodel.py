@@ -12,15 +12,27 @@ from __future__ import annotations
 
 import datetime as dt
 import re
+from collections.abc import Mapping
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from compd import __version__
 from compd.errors import ModelError
+from compd.files.effects import load_catalogue
 from compd.files.modelschema import CalibrationDoc, ProvenanceDoc
 from compd.model.lagbank import lag_name
-from compd.model.structure import Gate, GateTarget, InputSpec, Model, Output, Position, SubModel
+from compd.model.structure import (
+    AmbientZero,
+    Gate,
+    GateTarget,
+    InputSpec,
+    Model,
+    Output,
+    Position,
+    SubModel,
+)
 
 # Types only: unit_of is wanted where the data reader (pandas) and the
 # identification stack (scipy.signal) are not (compd.toolkit.residual).
@@ -119,6 +131,51 @@ def identification_to_model(
                 )
             )
     return Model(name, identification.sample_time_s, (Output(output, tuple(subs)),))
+
+
+def with_references(model: Model, references: Mapping[str, float]) -> Model:
+    """``model`` with each input's reference fixed at ``references[signal]`` (its thermal zero).
+
+    The fit takes inputs as changes from the calibration's first values; the
+    model file keeps those values, so a daemon started on a warm machine (or
+    without its saved state) still counts the drift from the calibration's
+    zero instead of from its own start. Inputs with a ``minus`` signal keep theirs.
+    An input the effect catalogue calls the shop air (``T_ambient*``, ...) becomes
+    the model's :class:`~compd.model.structure.AmbientZero`: a cold machine is in
+    equilibrium with today's air, not the calibration day's, so the zero follows it.
+    """
+    catalogue = load_catalogue()
+    air = [name for name in references if catalogue.effect_for(name).startswith("ambient")]
+    outputs = tuple(
+        replace(
+            output,
+            submodels=tuple(
+                replace(sub, input=replace(sub.input, reference=float(references[name])))
+                if (name := sub.input.signal) in references and sub.input.minus is None
+                else sub
+                for sub in output.submodels
+            ),
+        )
+        for output in model.outputs
+    )
+    temperatures = tuple(name for name in references if unit_of(name) in ("degC", "K"))
+    ambient = AmbientZero(air[0], float(references[air[0]]), temperatures) if air else None
+    return replace(model, outputs=outputs, ambient=ambient)
+
+
+def describe_references(model: Model, references: Mapping[str, float]) -> str:
+    """The provenance note on the thermal zero a fitted model's references hold."""
+    values = ", ".join(f"{name} {value:.4g}" for name, value in references.items())
+    moved = (
+        ""
+        if model.ambient is None
+        else f"; those of {', '.join(model.ambient.moves)} shifted at start by "
+        f"{model.ambient.signal}'s change from its own (a cold machine is at the shop's temperature)"
+    )
+    return (
+        f"input references (the thermal zero the daemon counts drift from): the calibration's "
+        f"first values, {values}{moved}"
+    )
 
 
 def fit_provenance(

@@ -263,7 +263,13 @@ def test_only_the_roll_out_user_can_send_a_model_over_tls(
             )
             assert code == EXIT_INPUT_ERROR
             assert "refused the login" in capsys.readouterr().err
-            for user, target in (("viewer", "mill-a,mill-b"), ("mill-b", "mill-a")):
+            # A machine's own user cannot command it either (a retained command left by it
+            # would be loaded again at every restart): only the roll-out user writes cmd/.
+            for user, target in (
+                ("viewer", "mill-a,mill-b"),
+                ("mill-b", "mill-a"),
+                ("mill-a", "mill-a"),
+            ):
                 rollout = ["model", "rollout", str(new), *as_user(user), "--timeout-s", "3"]
                 code = main([*rollout, "--machines", target])
                 table = capsys.readouterr().out
@@ -291,11 +297,15 @@ def test_only_the_roll_out_user_can_send_a_model_over_tls(
 
 
 #: The broker's ACL for a fleet (README "Many machines"): each machine, logged in as its
-#: machine_id, reads its own commands and writes its own topics; only the roll-out user
+#: machine_id, reads its own commands and writes its own topics but not commands; only the roll-out user
 #: writes commands, and reads the answers, events, births and deaths.
 ACL = """\
 pattern read compd/%u/cmd/#
-pattern write compd/%u/#
+pattern write compd/%u/birth
+pattern write compd/%u/status
+pattern write compd/%u/event
+pattern write compd/%u/death
+pattern write compd/%u/reply/#
 
 user rollout
 topic write compd/+/cmd/#

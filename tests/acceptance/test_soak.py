@@ -4,7 +4,8 @@ compd's service runs against the simulated machine's Modbus PLC on virtual
 time (:mod:`compd.sim.soak`) while PLC restarts that clear the offset
 register, link drops, a garbage server on the port, corrupted state files
 between restarts, bad model loads, hard kills and values outside the clamp
-set by the PLC's program strike in a seeded order.
+set by the PLC's program strike in a seeded order; every service is handed a
+retained and a replayed roll-out command.
 A witness on the PLC's write path judges every value the offset register
 receives. The 8-hour run is ``benchmarks/soak_faults.py``.
 """
@@ -38,6 +39,9 @@ def test_a_faulted_shift_ends_with_no_crash_no_jump_and_no_unacknowledged_offset
     assert (
         result.bad_models_accepted == 0 and result.bad_models_refused == result.faults["bad_model"]
     )
+    # The roll-out is taken once; its retained copy and its replay are refused by every service.
+    assert result.rollouts_taken == 1 and result.rollouts_taken_again == 0, result.errors
+    assert result.rollouts_refused == 2 * result.services
     # Every restart is a new service; the shift ran to its end with the PLC written throughout.
     restarts = result.faults["kill"] + result.faults["state_corrupt"]
     assert result.services == restarts + 1

@@ -7,6 +7,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import select
 import subprocess
 import sys
@@ -18,10 +19,10 @@ from typing import Any
 import pytest
 import serial
 import yaml
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
 
 from compd.cli import main
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_settings import ModbusSettings
 from tests.drivers.instrument import PtyInstrument
 from tests.drivers.modbus_server import free_port, tcp_server
 from tests.drivers.test_modbus_rtu import pty_pair  # noqa: F401  (a fixture: socat's pty pair)
@@ -217,13 +218,11 @@ def test_probe_write_with_yes_lands_in_the_servers_registers(plc):
     assert holding(plc, "holding:42:int32") == -70000
 
 
-@pytest.mark.parametrize(("answer", "written"), [("holding:44", True), ("y", False)])
-def test_probe_write_asks_on_a_terminal_for_the_address(plc, answer, written):
-    """On a terminal the current value is shown, then only the address typed back writes."""
-    before = holding(plc, "holding:44")
+def probe_on_terminal(port: int, address: str, value: int, answer: str) -> tuple[int, bytes]:
+    """``compd probe ... ADDRESS --write VALUE`` on a pty, ``answer`` typed at its prompt: exit status, output."""
     main_fd, terminal = os.openpty()
-    argv = ["probe", "modbus", "--set", "host=127.0.0.1", "--set", f"port={plc}", "holding:44",
-            "--write", str(int(before) + 3)]  # fmt: skip
+    argv = ["probe", "modbus", "--set", "host=127.0.0.1", "--set", f"port={port}", address,
+            "--write", str(value)]  # fmt: skip
     process = subprocess.Popen(
         [sys.executable, "-m", "compd.cli", *argv], stdin=terminal, stdout=terminal,
         stderr=terminal, cwd=ROOT,
@@ -239,12 +238,30 @@ def test_probe_write_asks_on_a_terminal_for_the_address(plc, answer, written):
         with contextlib.suppress(OSError):  # the terminal closes with the process
             while chunk := os.read(main_fd, 4096):
                 seen += chunk
-        assert process.wait(60) == (0 if written else 2), seen
+        return process.wait(60), seen
     finally:
         process.kill()
         os.close(main_fd)
+
+
+@pytest.mark.parametrize(("answer", "written"), [("holding:44", True), ("y", False)])
+def test_probe_write_asks_on_a_terminal_for_the_address(plc, answer, written):
+    """On a terminal the current value is shown, then only the address typed back writes."""
+    before = holding(plc, "holding:44")
+    code, seen = probe_on_terminal(plc, "holding:44", int(before) + 3, answer)
+    assert code == (0 if written else 2), seen
     assert holding(plc, "holding:44") == (before + 3 if written else before)
     assert (b"not confirmed: nothing written" in seen) != written
+
+
+def test_probe_write_shows_the_address_literally_never_as_an_emoji(plc):
+    """holding:100:int32 is shown as typed in the prompt and the table, not as rich's :100: emoji."""
+    code, seen = probe_on_terminal(plc, "holding:100:int32", 5, "holding:100:int32")
+    assert code == 0, seen
+    shown = re.sub(r"\x1b\[[0-9;]*m", "", seen.decode())  # the terminal's colours off
+    assert "Write 5 to holding:100:int32" in shown and "(holding:100:int32) to confirm" in shown
+    assert "\N{HUNDRED POINTS SYMBOL}" not in shown
+    assert holding(plc, "holding:100:int32") == 5
 
 
 def test_probe_refuses_bad_settings_and_addresses_before_connecting():

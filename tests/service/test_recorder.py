@@ -210,12 +210,12 @@ for k in range(100):
         errors += 1
         message = str(exc)
 rec.close()
-print(errors, message)
+print(errors, rec.take_lost_rows(), message)
 """
 
 
 def test_disk_full_keeps_whole_lines_and_recording_resumes(tmp_path):
-    """A write that fails part way leaves only whole rows, raises RecorderError, and later rows go to a new file."""
+    """A failed write leaves whole rows only, raises RecorderError (its row counted lost); later rows: a new file."""
     done = subprocess.run(
         [sys.executable, "-c", _DISK_FULL_SCRIPT, str(tmp_path)],
         capture_output=True,
@@ -223,8 +223,9 @@ def test_disk_full_keeps_whole_lines_and_recording_resumes(tmp_path):
         timeout=60,
         check=True,
     )
-    errors, message = done.stdout.split(" ", 1)
+    errors, lost, message = done.stdout.split(" ", 2)
     assert int(errors) > 0 and "cannot write to" in message
+    assert int(lost) == int(errors)  # each failed write lost its one row, and was counted
     files = recordings(tmp_path)
     assert len(files) >= 2  # recording resumed in a fresh file after the failure
     for path in files:

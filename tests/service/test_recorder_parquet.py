@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import textwrap
 import time
 from pathlib import Path
+from typing import Any
 
 import pyarrow.parquet as pq
 import pytest
@@ -18,7 +21,7 @@ from compd.files.data import load_data
 from compd.files.experiments import load_experiments
 from compd.service.configdoc import RecorderDoc
 from compd.service.recorder import Recorder
-from compd.service.recorder_parquet import ParquetRecorder
+from compd.service.recorder_parquet import RETRY_MAX_S, ParquetRecorder
 
 T0_S = 1_795_428_900.0  # 2026-11-23T10:15:00Z
 BIG = 1 << 30
@@ -134,3 +137,125 @@ def test_a_sigkilled_recorder_leaves_files_readable_up_to_their_last_flush(
     assert all(e.metadata["machine_id"] == "kill-me" for e in experiments)
     first = experiments[0].column("x_um")
     assert_allclose(first, range(300))  # no row lost or repeated before the crash
+
+
+#: Records 3,000 rows at 1 s into a tmpfs of its own; fills the disk at row 300, frees it at row
+#: 2,000; prints what it saw as JSON (the tmpfs goes with the mount namespace).
+FULL_DISK = textwrap.dedent(
+    """
+    import json, os, sys
+    from pathlib import Path
+    import pyarrow.parquet as pq
+    from compd.errors import RecorderError
+    from compd.service.recorder_parquet import ParquetRecorder
+
+    disk, bound = Path(sys.argv[1]), int(sys.argv[2])
+    options = {"max_unwritten_rows": bound} if bound else {}
+    rec = ParquetRecorder(
+        disk / "rec", max_file_bytes=1 << 30, max_file_age_s=600, max_total_bytes=1 << 32,
+        flush_every_rows=60, **options,
+    )
+    episodes, lost, failing, filler = 0, 0, False, disk / "filler"
+    for k in range(3000):
+        if k == 300:  # the disk fills up: 4 KiB pages until there is none
+            fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
+            try:
+                while True:
+                    os.write(fd, bytes(4096))
+            except OSError:
+                os.close(fd)
+        if k == 2000:
+            filler.unlink()
+        try:
+            rec.record({"k": float(k), "x_um": 0.5 * k}, at_s=1.8e9 + k)
+        except RecorderError:
+            episodes += not failing
+            failing = True
+        else:
+            if failing:
+                lost += getattr(rec, "take_lost_rows", lambda: 0)()
+            failing = False
+    rec.close()
+    ks = [k for f in sorted((disk / "rec").glob("compd-*.parquet"))
+          for k in pq.read_table(f).column("k").to_pylist()]
+    print(json.dumps({"episodes": episodes, "lost": lost, "ks": ks}))
+    """
+)
+
+
+def on_a_small_tmpfs(tmp_path: Path, script: str, *args: object) -> dict[str, Any]:
+    """Run ``script`` with a 1 MiB tmpfs of its own (a mount namespace: unshare -rm); its JSON output."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if subprocess.run(["unshare", "-rm", "true"], capture_output=True).returncode != 0:
+        pytest.skip("no mount namespaces here (unshare -rm): a real full disk needs one")
+    command = 'mount -t tmpfs -o size=1m tmpfs "$1" && shift && exec "$@"'
+    done = subprocess.run(
+        ["unshare", "-rm", "sh", "-c", command, "sh", str(disk), sys.executable, "-c", script,
+         str(disk), *map(str, args)],
+        capture_output=True, text=True, timeout=300, cwd=Path(__file__).parents[2],
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    result: dict[str, Any] = json.loads(done.stdout.splitlines()[-1])
+    return result
+
+
+def test_a_full_disk_is_one_fault_and_no_row_is_lost_within_the_bound(tmp_path: Path) -> None:
+    """1,700 s of a full tmpfs (rotation due meanwhile): one failure episode, then every row on disk, in order."""
+    result = on_a_small_tmpfs(tmp_path, FULL_DISK, 0)
+    assert result["episodes"] == 1
+    assert result["lost"] == 0
+    assert result["ks"] == [float(k) for k in range(3000)]
+
+
+def test_rows_beyond_the_bound_are_lost_and_counted_once_it_recovers(tmp_path: Path) -> None:
+    """With 500 rows kept at most, the outage's other rows are lost, and the count says how many exactly."""
+    result = on_a_small_tmpfs(tmp_path, FULL_DISK, 500)
+    assert result["episodes"] == 1
+    ks = result["ks"]
+    assert ks == sorted(set(ks)) and len(ks) + result["lost"] == 3000
+    # 1,700 s of outage less the 500 rows kept; the retry may come up to RETRY_MAX_S late.
+    assert 1700 - 500 - 60 <= result["lost"] <= 1700 + RETRY_MAX_S - 500
+
+
+SYNCED = textwrap.dedent(
+    """
+    import sys
+    from pathlib import Path
+    from compd.service.recorder_parquet import ParquetRecorder
+
+    rec = ParquetRecorder(Path(sys.argv[1]), max_file_bytes=1 << 30, max_file_age_s=600,
+                          max_total_bytes=1 << 32, flush_every_rows=10)
+    for k in range(10):
+        rec.record({"x_um": float(k)}, at_s=1.8e9 + k)
+    rec.close()
+    """
+)
+
+
+def test_each_write_is_synced_before_and_after_its_rename(tmp_path: Path) -> None:
+    """strace: fsync of the .tmp, its rename over the file, fsync of the folder (a power cut keeps a whole file)."""
+    if shutil.which("strace") is None:
+        pytest.skip("strace is not installed")
+    records, trace = tmp_path / "records", tmp_path / "trace"
+    done = subprocess.run(
+        ["strace", "-f", "-y", "-o", str(trace), "-e", "trace=fsync,fdatasync,rename,renameat,renameat2",
+         sys.executable, "-c", SYNCED, str(records)],
+        capture_output=True, text=True, timeout=120, cwd=Path(__file__).parents[2],
+    )  # fmt: skip
+    if done.returncode != 0 and "ptrace" in done.stderr:
+        pytest.skip(f"strace cannot trace here: {done.stderr[-200:]}")
+    assert done.returncode == 0, done.stderr[-2000:]
+    (path,) = records.glob("compd-*.parquet")
+    calls = [
+        line.split(None, 1)[1] for line in trace.read_text().splitlines() if str(records) in line
+    ]
+    steps = []
+    for call in calls:
+        if call.startswith(("fsync", "fdatasync")) and f"{path}.tmp>" in call:
+            steps.append("sync tmp")
+        elif call.startswith("rename") and f"{path}.tmp" in call:
+            steps.append("rename")
+        elif call.startswith(("fsync", "fdatasync")) and f"<{records}>" in call:
+            steps.append("sync folder")
+    assert steps == ["sync tmp", "rename", "sync folder"], calls

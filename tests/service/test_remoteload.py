@@ -41,6 +41,7 @@ def request(**changes: Any) -> bytes:
         "model_base64": base64.b64encode(RAW).decode(),
         "sha256": hashlib.sha256(RAW).hexdigest(),
         "requested_by": "test",
+        "sent_unix_s": time.time(),
     }
     return json.dumps({k: v for k, v in (body | changes).items() if v is not None}).encode()
 
@@ -60,11 +61,12 @@ class Daemon:
             raise self.answer
         return self.answer
 
-    def handle(self, payload: bytes) -> None:
+    def handle(self, payload: bytes, *, retained: bool = False, **options: Any) -> None:
+        """``payload`` through a RemoteLoads of its own (``options``: its ``seen``, ``now``)."""
         remote = RemoteLoads(
-            self.load, lambda i, r: self.replies.append((i, r)), self.events.append
+            self.load, lambda i, r: self.replies.append((i, r)), self.events.append, **options
         )
-        asyncio.run(remote.handle(payload))
+        asyncio.run(remote.handle(payload, retained=retained))
 
 
 ACCEPTED = {"model": "twin-z", "sha256": "x", "installed": "/s/m.yaml", "blend_s": 60.0}
@@ -161,11 +163,11 @@ def test_models_from_the_network_are_off_unless_the_config_says_so(tmp_path: Pat
     mosquitto_binary() is None, reason="mosquitto is not installed: run .ci/install-system-packages"
 )
 def test_a_payload_over_the_bound_is_dropped_unread(tmp_path: Path):
-    """Through a real mosquitto: a payload over max_bytes never reaches the handler, and is told as a fault."""
+    """Through a real mosquitto: a payload just over max_bytes never reaches the handler; it is told as a fault."""
     broker = Mosquitto(tmp_path).start()
     handled: list[bytes] = []
 
-    async def handler(payload: bytes) -> None:
+    async def handler(payload: bytes, *, retained: bool = False) -> None:
         handled.append(payload)
 
     async def run() -> None:

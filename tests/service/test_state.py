@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 
@@ -10,6 +11,8 @@ import pytest
 
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import resolve_path
+from compd.model.compiled import ModelState
+from compd.service.clock import VirtualClock
 from compd.service.state import (
     STATE_FILE,
     SavedState,
@@ -20,6 +23,8 @@ from compd.service.state import (
     resume_decision,
     save_state,
 )
+
+from .daemon_setup import run, write_config
 
 MODEL = resolve_path("bundled:example_gated_arx.yaml", Path("."))
 
@@ -124,3 +129,77 @@ def test_install_model_points_current_at_the_copy(tmp_path):
     assert installed.name == f"{load_model(MODEL).sha256}.yaml"
     assert installed_model(tmp_path) == installed
     assert installed.read_bytes() == MODEL.read_bytes()
+
+
+SIMULATED = resolve_path("bundled:simulated_model.yaml", Path("."))
+
+
+@pytest.fixture(scope="module")
+def ranged():
+    """The simulated machine's model: its file records the calibration's input ranges."""
+    model_file = load_model(SIMULATED)
+    calibration = model_file.doc.provenance.calibration
+    assert calibration is not None and "T_spindle_degC" in calibration.ranges
+    return model_file, model_file.compile(), calibration.ranges
+
+
+def _with_state(saved: SavedState, z=None, reference=None) -> SavedState:
+    state = saved.model_state
+    changed = ModelState(
+        state.z if z is None else z, state.reference if reference is None else reference
+    )
+    return SavedState(saved.model_sha256, saved.model_name, saved.saved_at_unix_s, changed, {}, 1)
+
+
+@pytest.mark.parametrize(
+    ("where", "value", "reason"),
+    [
+        ("z", 1e300, "z[0] of disp_z_um/"),
+        ("z", 1e5, "z[0] of disp_z_um/"),
+        ("reference", 1e300, "input reference of disp_z_um/"),
+        ("reference", -400.0, "input reference of disp_z_um/"),
+    ],
+)
+def test_a_model_state_the_model_cannot_reach_is_not_resumed(ranged, where, value, reason):
+    """A state beyond what the calibration's (widened) input ranges can drive the model to is refused, named."""
+    model_file, compiled, ranges = ranged
+    good = compiled.steady_state(
+        {"T_spindle_degC": 30.0, "T_headstock_degC": 28.0, "T_column_front_degC": 23.0,
+         "T_ambient_degC": 20.0}
+    )  # fmt: skip
+    saved = SavedState(model_file.sha256, compiled.name, 1000.0, good, {}, 1)
+    decide = functools.partial(
+        resume_decision, now_unix_s=1500.0, max_age_s=900.0, input_ranges=ranges
+    )
+    assert decide(saved, model_file.sha256, compiled).resume
+    array = getattr(good, where).copy()
+    array.flat[0] = value
+    bogus = _with_state(saved, **{where: array})
+    decision = decide(bogus, model_file.sha256, compiled)
+    assert not decision.resume
+    assert reason in decision.reason and "not a state this model produced" in decision.reason
+
+
+def test_a_model_state_of_1e300_is_refused_without_calibration_ranges(model):
+    """A model file without recorded ranges still refuses 1e300 (the generous unranged bound)."""
+    saved = saved_for(model)
+    bogus = _with_state(saved, z=np.full_like(saved.model_state.z, 1e300))
+    decision = resume_decision(bogus, model[0].sha256, model[1], 1500.0, 900.0)
+    assert not decision.resume and "not a state this model produced" in decision.reason
+    assert resume_decision(saved, model[0].sha256, model[1], 1500.0, 900.0).resume
+
+
+def test_a_daemon_with_a_1e300_state_file_starts_fresh_and_its_offsets_stay_small(tmp_path):
+    """The state file's model_state at 1e300: not resumed, the offsets start at zero, never near the clamp."""
+    config = write_config(tmp_path, {"drivers": {"machine": {"settings": {"start_s": 7200}}}})
+    run(config, 10.0)  # saves its state at shutdown
+    state = config.state_dir / STATE_FILE
+    saved = json.loads(state.read_text())
+    saved["model_state"]["z"] = [[1e300] * len(row) for row in saved["model_state"]["z"]]
+    state.write_text(json.dumps(saved))
+    clock = VirtualClock(wall0_unix_s=saved["saved_at_unix_s"] + 1.0)
+    second, records = run(config, 20.0, clock=clock)
+    assert not second.resumed
+    clamp_um = config.doc.outputs["Y"].max_offset_um
+    assert abs(records[0].offsets_um["Y"]) < 1e-9
+    assert max(abs(r.offsets_um["Y"]) for r in records) < clamp_um / 2

@@ -4,8 +4,9 @@ The record (``tests/data/fl_thermal_train.csv``, see its README) has 16
 collinear temperatures and four heat/cool cycles at four speeds. compd's
 earlier default (OE on all 16 sensors) reached 99 % on its calibration data
 and -150..-555 % on held-out cycles; these tests fail if the default overfits
-like that again: judged by leave-one-cycle-out, it must beat the static
-regression on every channel and hold the large channels above 85 %.
+like that again: judged by leave-one-cycle-out with every setting chosen
+inside each training set (nested), it must beat the static regression on
+every channel, and the figure it stores is that nested one.
 """
 
 from __future__ import annotations
@@ -45,14 +46,15 @@ def _fit(tmp_path: Path, output: str, *extra: str) -> dict:
 def test_the_default_beats_the_static_regression_on_held_out_cycles(
     tmp_path: Path, channel: int
 ) -> None:
-    """Leave one 8 h cycle out: the kept model's pooled held-out fit is above the regression's."""
+    """Leave one 8 h cycle out, settings chosen on the other three only: the kept lag bank beats the regression."""
     provenance = _fit(tmp_path, f"disp_ch{channel}_um")
     cv = provenance["cross_validation"]
     assert cv["folds"].startswith("leave one of 4 operating cycles of spindle_speed_rpm")
     assert cv["kept"] == provenance["method"] == "lagbank"
-    assert cv["fit_percent"]["lagbank"] > cv["fit_percent"]["mlr"] + 5.0
-    if channel in (3, 4):  # the large channels, tens of um
-        assert cv["fit_percent"]["lagbank"] > 85.0
+    nested = cv["nested_fit_percent"]
+    assert nested["lagbank"] > nested["mlr"] + 4.0
+    if channel in (3, 4):  # the large channels, tens of um (measured 73.5 / 74.1 %)
+        assert nested["lagbank"] > 72.0
 
 
 def test_a_model_that_holds_worse_than_the_regression_is_written_only_when_forced(
@@ -90,7 +92,8 @@ def test_input_selection_keeps_a_few_sensors_that_hold_on_held_out_cycles(tmp_pa
     cv = yaml.safe_load((tmp_path / "few.yaml").read_text())["provenance"]["cross_validation"]
     used = yaml.safe_load((tmp_path / "few.yaml").read_text())["signals"]
     assert 2 <= len(used) <= 8
-    assert cv["fit_percent"]["lagbank"] > 80.0
+    # The figure stored is judged with the selection redone inside each training set.
+    assert cv["nested_fit_percent"]["lagbank"] > cv["nested_fit_percent"]["mlr"]
 
 
 def test_a_split_off_record_is_judged_better_from_an_estimated_initial_state(

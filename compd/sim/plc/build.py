@@ -82,6 +82,12 @@ def build_machine(config: Config) -> SimulatedMachine:
             f"{unknown} are not configured signals",
             "Remove them or define them under 'signals'",
         )
+    if sim.join_at_s >= sim.hours * 3600:
+        raise error(
+            "simulation.join_at_s",
+            f"compd would join at {sim.join_at_s:g} s, after the {sim.hours:g} h scenario ends",
+            f"Give a time below {sim.hours * 3600:g} s, or more hours",
+        )
     for i, fault in enumerate(sim.faults):
         if fault.signal is not None and fault.signal not in doc.signals:
             raise error(

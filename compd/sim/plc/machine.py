@@ -312,7 +312,8 @@ def _describe(fault: SimFaultDoc) -> str:
 class MachineClock:
     """A clock that brings the simulated machine to each time compd's loop wakes up at.
 
-    ``settle`` (optional) is awaited before time moves on: on a virtual clock
+    Clock time 0 is machine time ``simulation.join_at_s``: compd joins a machine
+    that has run (uncompensated) until then. ``settle`` (optional) is awaited before time moves on: on a virtual clock
     it lets background I/O (a driver reconnecting) finish first, as it would
     within one period in real time.
     """
@@ -346,7 +347,7 @@ class MachineClock:
         if self.settle is not None:
             await self.settle()
         await self.base.sleep_until(t)
-        await self.machine.advance_to(self.base.now())
+        await self.machine.advance_to(self.machine.doc.join_at_s + self.base.now())
 
 
 __all__ = [

@@ -65,7 +65,9 @@ async def run_simulation(
     """Start the machine, run compd's service against it, stop both; see the module docstring.
 
     ``duration_s`` defaults to the scenario's length when ``simulation.stop_at_end``
-    (else: until the service is stopped). The machine starts cold, so a model state
+    (else: until the service is stopped), less ``simulation.join_at_s``, the
+    time the machine runs uncompensated before compd joins it (the summary
+    covers the rest). The machine starts cold, so a model state
     saved by an earlier run is discarded (a model installed by ``compd model load``
     stays). ``on_tick`` sees every tick with the machine's truth; ``service_hook`` gets
     the service before it runs (signal handlers).
@@ -74,6 +76,8 @@ async def run_simulation(
     # The machine starts cold: a model state saved by an earlier run describes another machine.
     (config.state_dir / STATE_FILE).unlink(missing_ok=True)
     await start_machine(config, machine)
+    join_s = machine.doc.join_at_s
+    await machine.advance_to(join_s)  # the machine runs uncompensated until compd joins
     started = time.perf_counter()
     try:
         base = base_clock(time_scale)
@@ -91,12 +95,12 @@ async def run_simulation(
         if service_hook is not None:
             service_hook(service)
         if duration_s is None and machine.doc.stop_at_end:
-            duration_s = machine.duration_s
+            duration_s = machine.duration_s - join_s
         timing = await service.run(duration_s=duration_s)
     finally:
         await machine.stop()
     return SimulationResult(
-        summary=machine.summary(),
+        summary=machine.summary(from_s=join_s),
         status=service.status(),
         machine=machine,
         timing=timing,

@@ -73,6 +73,10 @@ class SimulationDoc(_Strict):
     faults: tuple[SimFaultDoc, ...] = ()
     #: ``compd run`` stops at the end of the scenario (unless --duration-s says otherwise).
     stop_at_end: bool = True
+    #: ``compd run`` joins the machine this far into the scenario (simulated s): until then
+    #: the machine runs uncompensated, as where compd is installed on (or restarted beside)
+    #: a machine that is already warm; the summary covers the rest of the scenario.
+    join_at_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
 
 
 def simulation_of(config: Config) -> SimulationDoc:
