@@ -305,6 +305,11 @@ class Service:
                 lost = self.recorder.take_lost_rows()
                 self._recorder_fault.cleared("recorder works again", lost_rows=lost)
 
+    @property
+    def recorder_fault(self) -> FaultLog:
+        """The recorder's fault episodes: ``active`` while it cannot write, ``episodes`` so far."""
+        return self._recorder_fault
+
     def leave_as_killed(self) -> None:
         """Make the end of ``run`` what SIGKILL would leave: sockets closed, nothing saved or written.
 

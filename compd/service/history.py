@@ -113,10 +113,15 @@ class RecentFaults:
     failed), ``model`` (the model faulted), ``readback_mismatch``,
     ``offset_out_of_clamp``. Only the
     start of an episode is listed, so a fault lasting an hour is one line.
+    Model loads (a model switched in while running) are kept apart, in
+    :attr:`loads`, for the page's charts to mark beside the faults.
     """
 
     def __init__(self, maxlen: int = MAX_FAULTS) -> None:
         self.events: deque[FaultEvent] = deque(maxlen=maxlen)
+        #: The last model loads, newest first, as events of kind ``model_load``.
+        self.loads: deque[FaultEvent] = deque(maxlen=maxlen)
+        self._model_loads = 0
         self._health: dict[str, Health] = {}
         self._up: dict[str, bool] = {}
         self._model_fault: str | None = None
@@ -164,9 +169,18 @@ class RecentFaults:
                 "an offset read back outside its clamp or not finite was replaced, not followed",
             )
         self._out_of_clamp = out_of_clamp
+        loads = comp.counters.model_loads
+        if loads > self._model_loads and comp.running is not None:
+            self.loads.appendleft(
+                FaultEvent(at, "model_load", comp.running.compiled.name, "model switched in")
+            )
+        self._model_loads = loads
 
     def _add(self, at_unix_s: float, kind: str, source: str, message: str) -> None:
         self.events.appendleft(FaultEvent(at_unix_s, kind, source, message))
 
     def as_json(self) -> list[dict[str, Any]]:
         return [asdict(event) for event in self.events]
+
+    def loads_json(self) -> list[dict[str, Any]]:
+        return [asdict(event) for event in self.loads]

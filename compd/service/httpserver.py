@@ -252,12 +252,15 @@ class StatusServer:
         return _json(
             {
                 "config": str(service.config.path),
+                # None: the config names no machine.
+                "machine_id": service.config.doc.machine_id,
                 "period_s": service.config.doc.period_s,
                 # None: a data logger (no model).
                 "model": None if (running := comp.running) is None else _model_json(running),
                 "status": _status_bits(None if last is None else last.status),
                 "units": {name: s.unit for name, s in service.config.doc.signals.items()},
                 "faults": self.faults.as_json(),
+                "model_loads": self.faults.loads_json(),
             }
         )
 

@@ -17,8 +17,15 @@ Two kinds, chosen by what each costs the 1 Hz tick:
 
 Each service has its own :class:`~prometheus_client.CollectorRegistry`, not
 the process-wide default, so tests and tools that run several services in
-one process keep their metrics apart. Units are in the names (seconds, um,
-percent), as Prometheus and the house style both ask.
+one process keep their metrics apart; it holds the process's own
+``process_*`` series too (:class:`~prometheus_client.ProcessCollector`).
+
+Names follow Prometheus's conventions (https://prometheus.io/docs/practices/naming/):
+base units (``compd_offset_meters``, ``compd_model_fit_ratio`` 0-1), one
+metric per physical quantity (``compd_signal_celsius``,
+``compd_signal_watts``: :mod:`compd.service.metricunits`), the status
+word's bits as their own series (``compd_status_flag{flag}``), an info
+metric (``compd_info{version,machine_id}``) and no ``_created`` series.
 """
 
 from __future__ import annotations
@@ -27,14 +34,26 @@ import math
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
-from prometheus_client import CollectorRegistry, Histogram
+from prometheus_client import (
+    CollectorRegistry,
+    Histogram,
+    ProcessCollector,
+    disable_created_metrics,
+)
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.exposition import choose_encoder
 from prometheus_client.metrics_core import Metric
 from prometheus_client.registry import Collector
 
+from compd import __version__
+from compd.service.metricunits import prometheus_unit
+from compd.service.safety import Flag
+
 if TYPE_CHECKING:
     from compd.service.daemon import Service
+
+#: Offsets are kept in um; Prometheus's base unit is the meter.
+M_PER_UM = 1e-6
 
 #: Wake-up lateness and tick CPU, in s: from 50 us (a tick on time) to a whole period missed.
 TICK_BUCKETS_S = (
@@ -50,7 +69,11 @@ class ServiceMetrics:
     """The registry of one service: its histograms, observed by the tick, and its live collector."""
 
     def __init__(self, service: Service) -> None:
+        # A ``_created`` series beside every counter and histogram only clutters: compd's
+        # start time is its own gauge. The switch is process-wide, as compd is the process.
+        disable_created_metrics()  # type: ignore[no-untyped-call]  # prometheus_client leaves it untyped
         self.registry = CollectorRegistry(auto_describe=True)
+        ProcessCollector(registry=self.registry)
         self.lateness = Histogram(
             "compd_tick_lateness_seconds",
             "How long after its deadline each tick started (s of the service's clock).",
@@ -144,32 +167,31 @@ class LiveCollector(Collector):
         yield from (driver_faults, reconnects, up)
 
         offsets = GaugeMetricFamily(
-            "compd_offset_um", "The offset the safety stage gives each axis (um).", labels=["axis"]
+            "compd_offset_meters",
+            "The offset the safety stage gives each axis (m).",
+            labels=["axis"],
         )
         held = GaugeMetricFamily(
-            "compd_offset_held_um",
-            "The offset each axis's controller holds as far as compd knows: read back, else acknowledged (um).",
+            "compd_offset_held_meters",
+            "The offset each axis's controller holds as far as compd knows: read back, else acknowledged (m).",
             labels=["axis"],
         )
         targets = GaugeMetricFamily(
-            "compd_offset_target_um",
-            "The model's target offset per axis before clamp and slew (um).",
+            "compd_offset_target_meters",
+            "The model's target offset per axis before clamp and slew (m).",
             labels=["axis"],
         )
         known = comp.held.known_um()
         for axis, stage in comp.safety.items():
-            offsets.add_metric([axis], stage.offset_um)
+            offsets.add_metric([axis], stage.offset_um * M_PER_UM)
             if axis in known:
-                held.add_metric([axis], known[axis])
+                held.add_metric([axis], known[axis] * M_PER_UM)
             if last is not None and axis in last.targets_um:
-                targets.add_metric([axis], last.targets_um[axis])
+                targets.add_metric([axis], last.targets_um[axis] * M_PER_UM)
         yield from (offsets, held, targets)
 
-        values = GaugeMetricFamily(
-            "compd_signal_value",
-            "Each input's checked value, in its unit.",
-            labels=["signal", "unit"],
-        )
+        # One metric per physical quantity, in its base unit: a query never adds degC to kW.
+        values: dict[str, GaugeMetricFamily] = {}
         health = GaugeMetricFamily(
             "compd_signal_health",
             "Each input's health: 0 ok, 1 held, 2 faulted.",
@@ -177,10 +199,19 @@ class LiveCollector(Collector):
         )
         for name, monitor in comp.monitors.items():
             reading = monitor.reading
+            unit = doc.signals[name].unit
+            suffix, factor = prometheus_unit(unit)
+            if suffix not in values:
+                values[suffix] = GaugeMetricFamily(
+                    f"compd_signal_{suffix}",
+                    f"Each input's checked value, in {suffix.replace('_', ' ')} "
+                    "(converted from the config's unit).",
+                    labels=["signal"],
+                )
             if math.isfinite(reading.value):
-                values.add_metric([name, doc.signals[name].unit], reading.value)
+                values[suffix].add_metric([name], reading.value * factor)
             health.add_metric([name], int(reading.health))
-        yield from (values, health)
+        yield from (*values.values(), health)
 
         if last is not None:
             yield _gauge(
@@ -191,6 +222,14 @@ class LiveCollector(Collector):
                 "The status level: 0 ok, 1 degraded, 2 faulted.",
                 last.status & 0b11,
             )
+            flags = GaugeMetricFamily(
+                "compd_status_flag",
+                "Each flag of the status word last written: 1 set, 0 clear.",
+                labels=["flag"],
+            )
+            for flag in Flag:
+                flags.add_metric([flag.name.lower()], float(bool(last.status & flag)))
+            yield flags
             yield _gauge(
                 "compd_last_tick_timestamp_seconds",
                 "When the last tick was due (UTC epoch s).",
@@ -202,7 +241,15 @@ class LiveCollector(Collector):
             "When the service started (UTC epoch s).",
             service.started_unix_s,
         )
+        info = GaugeMetricFamily(
+            "compd_info",
+            "This compd (value 1): its version and the config's machine_id ('' when it names none).",
+            labels=["version", "machine_id"],
+        )
+        info.add_metric([__version__, doc.machine_id or ""], 1.0)
+        yield info
         yield from _model_metrics(service)
+        yield from _link_metrics(service)
 
 
 def _model_metrics(service: Service) -> Iterator[Metric]:
@@ -220,12 +267,13 @@ def _model_metrics(service: Service) -> Iterator[Metric]:
     info.add_metric([name, sha, str(slot.model_file.path)], 1.0)
     yield info
     fit = GaugeMetricFamily(
-        "compd_model_fit_percent",
-        "The running model's fit % per output, as its provenance records it (compd fit's calibration).",
+        "compd_model_fit_ratio",
+        "The running model's fit per output (1 = perfect; fit % / 100), as its provenance "
+        "records it (compd fit's calibration).",
         labels=["model", "sha256", "output"],
     )
     for output, percent in slot.model_file.doc.provenance.fit_percent.items():
-        fit.add_metric([name, sha, output], percent)
+        fit.add_metric([name, sha, output], percent / 100.0)
     yield fit
     yield _counter(
         "compd_model_loads",
@@ -242,6 +290,39 @@ def _model_metrics(service: Service) -> Iterator[Metric]:
         "1 while a newly loaded model is blended in.",
         float(comp.previous is not None),
     )
+
+
+def _link_metrics(service: Service) -> Iterator[Metric]:
+    """The MQTT link (where telemetry is on) and the recorder (where it records)."""
+    if service.telemetry is not None:
+        mqtt = service.telemetry.counters
+        yield _gauge("compd_mqtt_connected", "1 while connected to the broker.", mqtt.connected)
+        yield _counter(
+            "compd_mqtt_connections", "Connections made to the broker.", mqtt.connections
+        )
+        yield _counter(
+            "compd_mqtt_published", "Messages handed to the MQTT client to send.", mqtt.published
+        )
+        yield _counter(
+            "compd_mqtt_acknowledged",
+            "Messages the broker acknowledged (QoS 1).",
+            mqtt.acknowledged,
+        )
+        yield _counter(
+            "compd_mqtt_dropped",
+            "Snapshots and events dropped: the oldest of a full queue, or refused by the client.",
+            mqtt.dropped,
+        )
+    if service.recorder is not None:
+        fault = service.recorder_fault
+        yield _gauge(
+            "compd_recorder_up", "1 while the recorder writes; 0 while it fails.", not fault.active
+        )
+        yield _counter(
+            "compd_recorder_faults",
+            "Episodes in which the recorder could not write.",
+            fault.episodes,
+        )
 
 
 def _counter(name: str, documentation: str, value: float) -> CounterMetricFamily:

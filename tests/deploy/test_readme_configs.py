@@ -20,7 +20,9 @@ PLACES = ("/etc/compd", "/var/lib/compd", "/run/compd")
 
 
 def yaml_blocks() -> list[str]:
-    return re.findall(r"```yaml\n(.*?)```", README.read_text(), re.S)
+    """The guide's YAML blocks that are compd's: not Prometheus's (which start ``# prometheus.yml``)."""
+    blocks = re.findall(r"```yaml\n(.*?)```", README.read_text(), re.S)
+    return [b for b in blocks if not b.startswith("# prometheus.yml")]
 
 
 def complete(block: str) -> bool:

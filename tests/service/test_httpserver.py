@@ -30,16 +30,18 @@ FAMILIES = {
     "compd_driver_faults": "counter",
     "compd_driver_reconnects": "counter",
     "compd_driver_up": "gauge",
-    "compd_offset_um": "gauge",
-    "compd_offset_held_um": "gauge",
-    "compd_offset_target_um": "gauge",
-    "compd_signal_value": "gauge",
+    "compd_offset_meters": "gauge",
+    "compd_offset_held_meters": "gauge",
+    "compd_offset_target_meters": "gauge",
+    "compd_signal_celsius": "gauge",
+    "compd_signal_revolutions_per_second": "gauge",
+    "compd_signal_watts": "gauge",
     "compd_signal_health": "gauge",
     "compd_status_word": "gauge",
     "compd_status_level": "gauge",
     "compd_heartbeat": "gauge",
     "compd_model_info": "gauge",
-    "compd_model_fit_percent": "gauge",
+    "compd_model_fit_ratio": "gauge",
     "compd_model_loads": "counter",
     "compd_model_fault": "gauge",
 }
@@ -87,18 +89,26 @@ def test_metrics_equal_the_status_and_move_with_the_ticks(run: RunningCompd) -> 
         >= 1
     )
     assert metrics["compd_driver_up"][(("driver", "plc"),)] == 1.0
-    assert metrics["compd_offset_um"][(("axis", "Z"),)] == status["offsets_um"]["Z"]
-    assert metrics["compd_offset_held_um"][(("axis", "Z"),)] == status["offsets_held_um"]["Z"]
-    assert metrics["compd_offset_target_um"][(("axis", "Z"),)] == status["targets_um"]["Z"]
+    z = (("axis", "Z"),)
+    assert math.isclose(metrics["compd_offset_meters"][z], status["offsets_um"]["Z"] * 1e-6)
+    assert math.isclose(
+        metrics["compd_offset_held_meters"][z], status["offsets_held_um"]["Z"] * 1e-6
+    )
+    assert math.isclose(metrics["compd_offset_target_meters"][z], status["targets_um"]["Z"] * 1e-6)
     assert metrics["compd_status_word"][()] == status["status_word"]
     assert metrics["compd_heartbeat"][()] == status["heartbeat"]
     for name, entry in status["inputs"].items():
-        unit = "rpm" if name.endswith("rpm") else "kW" if name.endswith("kw") else "degC"
-        assert metrics["compd_signal_value"][(("signal", name), ("unit", unit))] == entry["value"]
+        quantity, factor = {
+            "degC": ("celsius", 1.0),
+            "rpm": ("revolutions_per_second", 1 / 60),
+            "kW": ("watts", 1e3),
+        }[entry["unit"]]
+        value = metrics[f"compd_signal_{quantity}"][(("signal", name),)]
+        assert math.isclose(value, entry["value"] * factor)
         assert metrics["compd_signal_health"][(("signal", name),)] == 0  # ok again by tick 150
     model = status["model"]
     key = (("model", model["name"]), ("output", "disp_z_um"), ("sha256", model["sha256"]))
-    assert math.isclose(metrics["compd_model_fit_percent"][key], 97.88898877080075)
+    assert math.isclose(metrics["compd_model_fit_ratio"][key], 0.9788898877080075)
     assert metrics["compd_model_loads_total"][()] == 0
 
     run.hold_at(2 * HOLD_AT)
@@ -109,10 +119,8 @@ def test_metrics_equal_the_status_and_move_with_the_ticks(run: RunningCompd) -> 
     assert (
         later["compd_driver_io_seconds_count"][key] > metrics["compd_driver_io_seconds_count"][key]
     )
-    assert later["compd_offset_um"][(("axis", "Z"),)] == status["offsets_um"]["Z"]
-    assert (
-        later["compd_offset_um"][(("axis", "Z"),)] != metrics["compd_offset_um"][(("axis", "Z"),)]
-    )
+    assert math.isclose(later["compd_offset_meters"][z], status["offsets_um"]["Z"] * 1e-6)
+    assert later["compd_offset_meters"][z] != metrics["compd_offset_meters"][z]
 
 
 def test_status_json_is_what_compd_status_prints(run: RunningCompd) -> None:

@@ -121,3 +121,12 @@ def test_screenshot(shown: Shown, tmp_path_factory: pytest.TempPathFactory) -> N
     png = Path(tmp_path_factory.mktemp("shot")) / "status-page.png"
     shown.page.screenshot(path=str(png), full_page=True)
     assert png.stat().st_size > 10_000
+
+
+def test_charts_mark_each_fault_start_with_its_reason(shown: Shown, run: RunningCompd) -> None:
+    """Each fault the page lists is a red vertical mark on the offsets chart, its reason as the tooltip."""
+    listed = run.json("/page.json")["faults"]
+    marks = shown.page.locator("#chart-offsets line.mark.fault")
+    assert listed and marks.count() == len(listed)
+    tooltips = " ".join(marks.locator("title").all_text_contents())
+    assert "link down" in tooltips and "T_spindle_degC" in tooltips

@@ -1,9 +1,13 @@
 // compd's status page: reads /status.json, /page.json and /history.json and draws them.
 // Read-only: it only GETs. Every name comes from a config or a model file, so it is set as
 // text (textContent), never parsed as markup.
+// A page that shows frozen values under a green badge lies: when compd stops answering, the
+// header turns "dead" (no answer for N s) at the first failed refresh, within two refresh
+// periods; when it answers but its ticks stop, "stale" (no tick for N s).
 "use strict";
 
 const REFRESH_MS = 2000;
+const WATCH_MS = 1000; // how often the header's "no answer for N s" is counted on
 const HISTORY_EVERY = 5; // refreshes between two fetches of the hour's history
 const COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#17becf", "#e377c2"];
 const SVG = "http://www.w3.org/2000/svg";
@@ -41,13 +45,40 @@ function fillList(id, pairs) {
   list.replaceChildren(...items);
 }
 
+// What the header says: alive (the status level), stale (answers, no ticks) or dead (no answer).
+const health = { answeredMs: performance.now(), failing: false, tickAgeS: null, periodS: 1, level: null, machine: null };
+
+function showHealth() {
+  const level = document.getElementById("level");
+  const silentS = Math.round((performance.now() - health.answeredMs) / 1000);
+  let state, text;
+  if (health.failing) {
+    state = "dead";
+    text = `no answer for ${silentS} s`;
+  } else if (health.tickAgeS !== null && health.tickAgeS > 2 * health.periodS + REFRESH_MS / 1000) {
+    state = "stale";
+    text = `stale: no tick for ${Math.round(health.tickAgeS + silentS)} s`;
+  } else {
+    state = "alive";
+    text = health.level || "starting";
+  }
+  level.textContent = text;
+  level.className = `level ${state === "alive" ? health.level || "" : state}`;
+  document.body.dataset.state = state;
+  const where = health.machine ? `${health.machine} ` : "";
+  const mark = state === "alive" ? "" : "\u2716 ";
+  document.title = `${mark}${where}${state === "alive" ? text : state} - compd`;
+}
+
 function showStatus(status, page) {
   // A data logger (no outputs) runs no model: status.model and page.model are null.
+  document.getElementById("machine").textContent = page.machine_id || "";
   document.getElementById("model-name").textContent = status.model ? status.model.name : "recording (a data logger, no model)";
   document.getElementById("last-tick").textContent = status.last_tick || "not yet";
-  const level = document.getElementById("level");
-  level.textContent = page.status.level || "starting";
-  level.className = `level ${page.status.level || ""}`;
+  health.level = page.status.level;
+  health.machine = page.machine_id;
+  health.periodS = page.period_s;
+  health.tickAgeS = status.last_tick_age_s;
   document.getElementById("flags").replaceChildren(...page.status.flags.map((f) => el("span", f)));
 
   fillTable("offsets", Object.keys(status.offsets_um).map((axis) => row([
@@ -110,8 +141,9 @@ function svg(tag, attrs, text) {
   return node;
 }
 
-// A line per series over time: plain SVG, y range from the data, a zero line when it is in range.
-function drawChart(id, legendId, t, series) {
+// A line per series over time: plain SVG, y range from the data, a zero line when it is in range;
+// a vertical mark at each fault's start (red) and model load (blue), its reason as a tooltip.
+function drawChart(id, legendId, t, series, marks) {
   const chart = document.getElementById(id);
   const W = 640, H = 200, L = 52, R = 8, T = 8, B = 22;
   const names = Object.keys(series);
@@ -128,6 +160,12 @@ function drawChart(id, legendId, t, series) {
     for (const v of [lo + pad, (lo + hi) / 2, hi - pad]) {
       nodes.push(svg("line", { x1: L, x2: W - R, y1: y(v), y2: y(v), class: "grid" }));
       nodes.push(svg("text", { x: L - 4, y: y(v) + 4, "text-anchor": "end" }, v.toFixed(2)));
+    }
+    for (const m of marks) {
+      if (m.at_unix_s < t0 || m.at_unix_s > t1) continue;
+      const line = svg("line", { x1: x(m.at_unix_s), x2: x(m.at_unix_s), y1: T, y2: H - B, class: `mark ${m.kind === "model_load" ? "load" : "fault"}`, "data-kind": m.kind });
+      line.append(svg("title", {}, `${utc(m.at_unix_s)} ${m.kind} ${m.source}: ${m.message}`));
+      nodes.push(line);
     }
     nodes.push(svg("text", { x: L, y: H - 6 }, utc(t0).slice(11)));
     nodes.push(svg("text", { x: W - R, y: H - 6, "text-anchor": "end" }, utc(t1).slice(11)));
@@ -156,17 +194,20 @@ function drawChart(id, legendId, t, series) {
   document.getElementById(legendId).replaceChildren(...legend);
 }
 
+let marks = []; // the faults and model loads page.json last listed
+
 function showHistory(history) {
-  drawChart("chart-offsets", "legend-offsets", history.t_unix_s, history.offsets_um);
+  drawChart("chart-offsets", "legend-offsets", history.t_unix_s, history.offsets_um, marks);
   const temps = {};
   for (const [name, values] of Object.entries(history.inputs)) {
     if (history.units[name] === "degC") temps[name] = values;
   }
-  drawChart("chart-inputs", "legend-inputs", history.t_unix_s, temps);
+  drawChart("chart-inputs", "legend-inputs", history.t_unix_s, temps, marks);
 }
 
 async function getJson(path) {
-  const response = await fetch(path, { cache: "no-store" });
+  // A stopped (SIGSTOP) or unreachable compd never answers: give up at the next refresh.
+  const response = await fetch(path, { cache: "no-store", signal: AbortSignal.timeout(REFRESH_MS) });
   if (!response.ok) throw new Error(`${path}: HTTP ${response.status}`);
   return response.json();
 }
@@ -176,16 +217,24 @@ async function refresh() {
   const error = document.getElementById("error");
   try {
     const [status, page] = await Promise.all([getJson("status.json"), getJson("page.json")]);
+    health.answeredMs = performance.now();
+    health.failing = false;
     showStatus(status, page);
+    marks = [...page.faults, ...page.model_loads];
     if (refreshes % HISTORY_EVERY === 0) showHistory(await getJson("history.json?points=720"));
     document.body.dataset.loaded = String(refreshes + 1);
     error.hidden = true;
   } catch (exc) {
+    health.failing = true;
     error.textContent = `compd does not answer: ${exc.message}`;
     error.hidden = false;
   }
+  showHealth();
   refreshes += 1;
   setTimeout(refresh, REFRESH_MS);
 }
 
-document.addEventListener("DOMContentLoaded", refresh);
+document.addEventListener("DOMContentLoaded", () => {
+  refresh();
+  setInterval(showHealth, WATCH_MS);
+});
