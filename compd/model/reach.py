@@ -13,8 +13,9 @@ the impulse response (the two agree for the monotone lags of thermal
 models; the sum catches an overshoot). ``U`` comes from the calibration's
 ``[min, max]`` of the sub-model's signals (``provenance.calibration.ranges``
 of the model file), widened by :data:`INPUT_MARGIN` times their span either
-way; a signal without a recorded range gets :data:`UNRANGED_INPUT`. A "value
-at start" reference must lie in the same widened range. Generous on purpose:
+way; a signal without a recorded range gets :data:`UNRANGED_INPUT`. Every
+saved reference ("value at start", or the thermal zero shifted with the shop
+air at start) must lie in the same widened range. Generous on purpose:
 the check stops a state of 1e300 (a corrupted or crafted state file) from
 driving the offsets to their clamp, not a state that is merely unusual.
 """
@@ -47,14 +48,16 @@ def check_reachable(
         low, high = _widened(ranges, sub.input.signal, sub.input.minus)
         fixed = compiled.fixed_reference[row]
         reference = float(state.reference[row])
-        if np.isnan(fixed) and not low <= reference <= high:
+        # A fixed reference (the thermal zero) is what the runner subtracts too, shifted at
+        # start with the shop air: a saved one outside the inputs' range was never produced.
+        if not low <= reference <= high:
             raise ModelError(
                 f"the saved input reference of {names[row]} is {reference:.6g}, outside "
                 f"[{low:.6g}, {high:.6g}] (the calibration's range of its input, widened "
                 f"{INPUT_MARGIN:g} times): not a state this model produced"
             )
         # |u| = |input - reference|: both in the range, or the model's own fixed reference.
-        u_max = high - low if np.isnan(fixed) else max(abs(high - fixed), abs(low - fixed))
+        u_max = high - low if np.isnan(fixed) else max(abs(high - reference), abs(low - reference))
         bounds = u_max * _state_gains(compiled.b[row], compiled.a[row]) + 1e-9
         beyond = np.flatnonzero(~(np.abs(state.z[row]) <= bounds))
         if beyond.size:
