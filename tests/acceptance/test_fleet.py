@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import re
 import subprocess
 import sys
 import time
@@ -321,9 +322,8 @@ def _variant(folder: Path, name: str, *, unstable: bool = False) -> Path:
     """The machines' model with one more comment line (a new sha256), or with an unstable pole."""
     text = MODEL.read_text() + "\n# rolled out to the fleet\n"
     if unstable:
-        stable = "den: [1.0, -0.9847232396390742, 1.3537078705442153e-05]"
-        assert stable in text
-        text = text.replace(stable, "den: [1.0, -2.5, 1.0]")  # poles 2 and 0.5
+        text, replaced = re.subn(r"den: \[1\.0, [^\]]*\]", "den: [1.0, -2.5, 1.0]", text, count=1)
+        assert replaced == 1  # the first sub-model's poles become 2 and 0.5
     path = folder / name
     path.write_text(text)
     return path
