@@ -354,22 +354,10 @@ class Soak:
         """Slow clients on the service's HTTP port and control socket for a while; the status asked for."""
         service = self.service
         assert service is not None
-        http = self.config.doc.http
-        port = service.http.port if service.http is not None else None
-        slots = http.max_connections if http is not None else 0
         span = (t_s, t_s + fault.duration_s)
-        slow = SlowClients(fault.variant, span, self.config.doc.period_s, self.witness, self.result)
-        self._slow = slow
-        await slow.begin(port, slots, self.config.control_socket)
-        control = self.config.control_socket
-        probe = slow.probe(port, control, lambda: self.service is service)
-        self._loads.append(asyncio.create_task(probe))
-
-        async def over() -> None:
-            await slow.end()
-            self._slow = None
-
-        self._ends.append((span[1], over))
+        self._slow = SlowClients(fault.variant, span, self.witness, self.result)
+        self._loads.append(await self._slow.begin(service, lambda: self.service is service))
+        self._ends.append((span[1], self._slow.end))
 
     async def _end_due(self, t_s: float) -> None:
         due = [end for end in self._ends if end[0] <= t_s]

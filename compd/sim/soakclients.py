@@ -33,6 +33,7 @@ from compd.service.control import MAX_CONNECTIONS, request
 
 if TYPE_CHECKING:
     from compd.service.compensator import TickRecord
+    from compd.service.daemon import Service
     from compd.sim.soakwitness import SoakResult, Witness
 
 #: Slow clients per connection the server may hold: most of them wait in the kernel's queue.
@@ -50,16 +51,11 @@ class SlowClients:
     """One ``slow_clients`` episode from :meth:`begin` to :meth:`end`; its counts go into ``result``."""
 
     def __init__(
-        self,
-        variant: str,
-        span_s: tuple[float, float],
-        period_s: float,
-        witness: Witness,
-        result: SoakResult,
+        self, variant: str, span_s: tuple[float, float], witness: Witness, result: SoakResult
     ) -> None:
         self.variant = variant
         self.start_s, self.end_s = span_s
-        self.period_s = period_s
+        self.period_s = 1.0
         self.witness = witness
         self.result = result
         self.socks: list[socket.socket] = []
@@ -68,9 +64,18 @@ class SlowClients:
         self._last_real_s: float | None = None
         self._over = asyncio.Event()
 
-    async def begin(self, http_port: int | None, http_slots: int, control: Path) -> None:
-        """Open the slow clients the variant names, each sending half a request."""
+    async def begin(self, service: Service, serving: Callable[[], bool]) -> asyncio.Task[None]:
+        """Open the slow clients the variant names on ``service``, each sending half a request.
+
+        Returns the task that asks for the status meanwhile (:meth:`probe`).
+        ``serving``: whether ``service`` is still running (a verdict only then).
+        """
         loop = asyncio.get_running_loop()
+        config = service.config
+        self.period_s = config.doc.period_s
+        http_port = service.http.port if service.http is not None else None
+        http_slots = config.doc.http.max_connections if config.doc.http is not None else 0
+        control = config.control_socket
         targets: list[tuple[int, object, bytes, int]] = []
         if self.variant in ("http", "both") and http_port is not None:
             count = HTTP_PER_SLOT * http_slots
@@ -87,6 +92,7 @@ class SlowClients:
                     await loop.sock_connect(sock, address)  # type: ignore[arg-type]
                     sock.send(half)
         self.result.slow_clients += len(self.socks)
+        return asyncio.create_task(self.probe(http_port, control, serving))
 
     def tick(self, record: TickRecord) -> None:
         """A tick of the service: counted when within the episode, its real gap to the last measured."""
@@ -112,10 +118,7 @@ class SlowClients:
     async def probe(
         self, http_port: int | None, control: Path, serving: Callable[[], bool]
     ) -> None:
-        """Ask for the status over HTTP and the control socket during the episode, and after it.
-
-        ``serving``: whether the service asked is still running (a verdict only then).
-        """
+        """Ask for the status over HTTP and the control socket during the episode, and after it."""
         asks = [self._control(control)]
         if http_port is not None:
             asks.append(_http_status(http_port))
@@ -154,7 +157,9 @@ async def _http_status(port: int) -> str:
         async with asyncio.timeout(PROBE_TIMEOUT_S):
             reader, writer = await asyncio.open_connection("127.0.0.1", port)
             try:
-                writer.write(b"GET /status.json HTTP/1.1\r\nHost: compd\r\nConnection: close\r\n\r\n")
+                writer.write(
+                    b"GET /status.json HTTP/1.1\r\nHost: compd\r\nConnection: close\r\n\r\n"
+                )
                 await writer.drain()
                 head = await reader.readline()
                 await reader.read()

@@ -1,4 +1,4 @@
-"""The soak's faults (:mod:`compd.sim.soakfaults`): a seeded draw of every kind, bad files and replies that really are bad."""
+"""The soak's faults (:mod:`compd.sim.soakfaults`): a seeded draw of every kind, bad files and replies that are bad."""
 
 from __future__ import annotations
 
@@ -66,4 +66,3 @@ def test_the_plcs_malformed_replies_are_driver_errors_and_the_next_true_reply_re
             await server.stop()
 
     asyncio.run(main())
-
