@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
 import os
 import random
@@ -60,7 +61,9 @@ import structlog
 import yaml
 from common import environment, verdict
 
+from compd.errors import CompdError
 from compd.service.clock import RealClock
+from compd.service.control import request
 from compd.service.ticks import run_periodic
 from compd.sim.plc.run import start_machine
 from compd.sim.soak import Soak, soak_config
@@ -128,12 +131,29 @@ async def real_kills(
             stop=asyncio.Event(), duration_s=machine.duration_s,
         )  # fmt: skip
     finally:
+        await answering(config.control_socket, process)
         process.send_signal(signal.SIGTERM)
         if await asyncio.to_thread(process.wait, 30) != 0:
             result.crashes += 1
             result.errors.append(f"the last compd run exited with {process.returncode}")
         await machine.stop()
     return result, killed, started
+
+
+async def answering(control: Path, process: subprocess.Popen[bytes]) -> None:
+    """Wait (at most a minute) until ``process`` answers on its control socket, or has ended.
+
+    A daemon answers once its SIGTERM handler is in place: one started just
+    before the end is not sent SIGTERM while it is still importing (the signal's
+    default action would end it, as systemd's stop does, with no saved state).
+    """
+    for _ in range(600):
+        if process.poll() is not None:
+            return
+        with contextlib.suppress(CompdError):
+            await request(control, {"cmd": "status"}, timeout_s=1.0)
+            return
+        await asyncio.sleep(0.1)
 
 
 def print_counts(rows: tuple[tuple[str, int], ...]) -> None:
