@@ -323,6 +323,8 @@ class Service:
             await asyncio.gather(*(link.close() for link in self.links.values()))
             if self._control is not None:
                 await self._control.close()
+            if self.http is not None:
+                await self.http.close()
             return
         self.notifier.stopping("saving state")
         if self._saving is not None:

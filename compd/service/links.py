@@ -64,6 +64,8 @@ class DriverLink:
         self.up = False
         self.failures = 0  # consecutive, until a read or write succeeds
         self.reconnects = 0
+        #: Driver exceptions outside the contract (not DriverError, TimeoutError, OSError): bugs.
+        self.unexpected = 0
         self._fault = FaultLog(log, driver=name)
         self.next_attempt_s = -math.inf
         self._connecting: asyncio.Task[None] | None = None
@@ -171,6 +173,7 @@ class DriverLink:
 
     def _failed(self, action: str, exc: Exception) -> None:
         if not isinstance(exc, (DriverError, TimeoutError, OSError)):
+            self.unexpected += 1
             self._log_unexpected(action, exc)
         self._fault.failed(f"driver {action} failed", error=_text(exc))
         self.up = False

@@ -18,10 +18,18 @@ Every few (virtual) minutes a fault drawn with a seeded generator strikes:
   new one is started on the same state directory;
 - ``out_of_clamp``: the PLC's own program puts a value outside the clamp into
   the offset register (500 um, -3000 um, the int32 extremes), which compd must
-  replace with a value within it, never slew from.
+  replace with a value within it, never slew from;
+- ``malformed``: for a while, half the PLC's replies are well-framed Modbus
+  of the wrong shape (too short or long, a lying byte count, another
+  function, an unknown exception code, a PDU cut short): driver faults, which
+  the link reconnects from, never an exception out of the loop;
+- ``slow_clients``: for a while, hundreds of clients hold half-sent requests
+  on the status page's HTTP port, the control socket or both, while the
+  status is asked for over both (:mod:`compd.sim.soakclients`).
 
 The draw and the makings of each fault are :mod:`compd.sim.soakfaults`; the
-witness below is :mod:`compd.sim.soakwitness`.
+witness below is :mod:`compd.sim.soakwitness`. The services run as
+deployed: control socket, HTTP server (status page and metrics), recorder.
 
 A witness on the PLC's write path sees every value the offset register
 receives and judges it against what the register held just before (after
@@ -63,6 +71,7 @@ from compd.sim.plc.build import build_machine
 from compd.sim.plc.machine import MachineClock, SimulatedMachine
 from compd.sim.plc.modbus import ModbusPlcServer
 from compd.sim.plc.run import settle, start_machine
+from compd.sim.soakclients import SlowClients
 from compd.sim.soakfaults import (
     OUT_OF_CLAMP_UM,
     RESTARTS,
@@ -70,6 +79,7 @@ from compd.sim.soakfaults import (
     bad_models,
     corrupt_state,
     garbage_server,
+    malformed_replies,
 )
 from compd.sim.soakrollouts import deliver, rollout_command
 from compd.sim.soakwitness import SoakResult, Witness
@@ -91,6 +101,7 @@ def soak_config(directory: Path, *, hours: float, seed: int) -> Config:
     doc["state"] = {"directory": str(directory / "state"), "save_every_ticks": 60}
     doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
     doc["control_socket"] = str(directory / "c.sock")
+    doc["http"] = {"port": 0}  # any free port: each service of the soak listens anew
     doc["simulation"] = {"scenario": "production", "hours": hours, "seed": seed}
     path = directory / "compd.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
@@ -129,6 +140,7 @@ class Soak:
             out.max_rate_um_per_s * doc.period_s,
             self.result,
             max_offset_um=out.max_offset_um,
+            heartbeat_address=doc.status.heartbeat_address if doc.status is not None else None,
         )
         self._replace_server()
         self.clock = SoakClock(self.machine, self._strike)
@@ -140,6 +152,7 @@ class Soak:
         self._bad = bad_models(config.model_path.read_bytes())
         self._rollout = rollout_command(config.model_path.read_bytes())
         self._variant = ""
+        self._slow: SlowClients | None = None
 
     def _replace_server(self) -> None:
         """The PLC's Modbus server again, its write sink passing through the witness."""
@@ -206,6 +219,7 @@ class Soak:
             counters = service.compensator.counters
             self.result.offset_mismatches += counters.offset_mismatches
             self.result.offsets_out_of_clamp += counters.offsets_out_of_clamp
+            self.result.driver_bugs += sum(link.unexpected for link in service.links.values())
             self.service = None
             if how is None and task.exception() is None:
                 return  # the shift is over
@@ -235,6 +249,8 @@ class Soak:
 
     def _tick(self, record: TickRecord) -> None:
         self.witness.tick(record, self.axis)
+        if self._slow is not None:
+            self._slow.tick(record)
 
     def _corrupt_state(self) -> None:
         path = self.config.state_dir / STATE_FILE
@@ -314,6 +330,34 @@ class Soak:
         elif fault.kind == "bad_model":
             assert self.service is not None
             self._loads.append(asyncio.create_task(self._load_bad(self.service, fault.variant)))
+        elif fault.kind == "malformed":
+            await self._malformed(fault, t_s)
+        elif fault.kind == "slow_clients":
+            await self._slow_clients(fault, t_s)
+
+    async def _malformed(self, fault: Fault, t_s: float) -> None:
+        """Half the PLC's replies malformed for a while; the driver faults the service saw meanwhile."""
+        service = self.service
+        assert service is not None
+        link = service.links[self.driver]
+        faults = link.faults
+        self.server.rewrite_reply = malformed_replies(fault.variant, self.rng.random())
+
+        async def back() -> None:
+            self.server.rewrite_reply = None
+            if self.service is service:  # the fault outlasting the service counts nothing
+                self.result.malformed_faults += link.faults - faults
+
+        self._ends.append((t_s + fault.duration_s, back))
+
+    async def _slow_clients(self, fault: Fault, t_s: float) -> None:
+        """Slow clients on the service's HTTP port and control socket for a while; the status asked for."""
+        service = self.service
+        assert service is not None
+        span = (t_s, t_s + fault.duration_s)
+        self._slow = SlowClients(fault.variant, span, self.witness, self.result)
+        self._loads.append(await self._slow.begin(service, lambda: self.service is service))
+        self._ends.append((span[1], self._slow.end))
 
     async def _end_due(self, t_s: float) -> None:
         due = [end for end in self._ends if end[0] <= t_s]

@@ -9,7 +9,13 @@ a stop and a restart), ``bad_model`` (a model file ``load`` must refuse) and
 ``kill`` (the service dropped as SIGKILL leaves it: between two ticks, or in
 the middle of a write, which the PLC applies and compd never hears back) and
 ``out_of_clamp`` (the PLC's own program puts a value outside the clamp into
-the offset register: 500 um, -3000 um, or the int32 register's extremes).
+the offset register: 500 um, -3000 um, or the int32 register's extremes),
+``malformed`` (for a while, half the PLC's replies are well-framed Modbus
+of the wrong shape: too short or too long, a byte count that lies, another
+function code, an exception code no device uses, a PDU cut short) and
+``slow_clients`` (for a while, hundreds of clients hold connections to the
+HTTP server, the control socket or both, each having sent half a request:
+:mod:`compd.sim.soakclients`).
 """
 
 from __future__ import annotations
@@ -20,7 +26,8 @@ import json
 import math
 import random
 import re
-from collections.abc import Sequence
+import struct
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 FAULT_KINDS = (
@@ -31,14 +38,27 @@ FAULT_KINDS = (
     "bad_model",
     "kill",
     "out_of_clamp",
+    "malformed",
+    "slow_clients",
 )
 #: Faults that stop the service (the others strike while it runs).
 RESTARTS = ("state_corrupt", "kill")
+#: The faults that last a while: how long (virtual s, uniform), shorter than the shortest gap.
+DURATIONS_S = {
+    "link_drop": (5.0, 60.0),
+    "garbage": (5.0, 30.0),
+    "malformed": (5.0, 30.0),
+    "slow_clients": (10.0, 60.0),
+}
+#: The share of the PLC's replies a ``malformed`` fault rewrites.
+MALFORMED_SHARE = 0.5
+#: Modbus functions whose reply PDU is ``function, byte count, data`` (the reads).
+_READS = frozenset({1, 2, 3, 4})
 
 
 @dataclass(frozen=True)
 class Fault:
-    """One fault: what, when (virtual s), which variant, and for how long (drop, garbage)."""
+    """One fault: what, when (virtual s), which variant, and for how long (the kinds in :data:`DURATIONS_S`)."""
 
     at_s: float
     kind: str
@@ -62,7 +82,7 @@ def draw_faults(
     while t_s < duration_s - 60.0:
         kind = first.pop(0) if first else rng.choice(kinds)
         variant = rng.choice(VARIANTS[kind])
-        length = {"link_drop": (5.0, 60.0), "garbage": (5.0, 30.0)}.get(kind)
+        length = DURATIONS_S.get(kind)
         faults.append(Fault(t_s, kind, variant, rng.uniform(*length) if length else 0.0))
         t_s += rng.uniform(*every_s)
     return faults
@@ -116,6 +136,8 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "bad_model": ("gain_1e308", "nk_1e6", "unstable", "garbage"),
     "kill": ("between_ticks", "mid_write"),
     "out_of_clamp": ("500um", "-3000um", "int32_max", "int32_min"),
+    "malformed": ("short", "long", "byte_count", "function", "exception", "truncated"),
+    "slow_clients": ("http", "socket", "both"),
 }
 #: What the PLC's program puts into the offset register (um) for each ``out_of_clamp`` variant;
 #: at the bundled config's 0.1 um counts the extremes are the int32 register's.
@@ -144,3 +166,41 @@ async def garbage_server(host: str, port: int, variant: str, seed: float) -> asy
         writer.close()
 
     return await asyncio.start_server(answer, host, port, reuse_address=True)
+
+
+def malformed_replies(
+    variant: str, seed: float, *, share: float = MALFORMED_SHARE
+) -> Callable[[bytes], bytes]:
+    """A rewriter of Modbus TCP reply frames: ``share`` of them get a PDU of the wrong shape.
+
+    The MBAP header stays consistent with the new PDU (its transaction id and
+    unit id kept, its length true): the frame is well formed, the answer in it
+    is not one to the request.
+    """
+    rng = random.Random(seed)
+
+    def rewrite(packet: bytes) -> bytes:
+        if len(packet) < 8 or rng.random() >= share:
+            return packet
+        pdu = _wrong_pdu(packet[7:], variant, rng)
+        return packet[:4] + struct.pack(">H", len(pdu) + 1) + packet[6:7] + pdu
+
+    return rewrite
+
+
+def _wrong_pdu(pdu: bytes, variant: str, rng: random.Random) -> bytes:
+    function = pdu[0]
+    read = function in _READS and len(pdu) >= 2
+    if variant in ("short", "long"):  # a consistent reply, for fewer or more than asked
+        data = pdu[2:] if read else pdu[1:]
+        data = data[:-2] if variant == "short" else data + rng.randbytes(2)
+        return bytes([function, len(data) % 256]) + data if read else bytes([function]) + data
+    if variant == "byte_count":  # the byte count lies (a write's echoed quantity does)
+        wrong = (pdu[1] + rng.randint(1, 255)) % 256 if read else rng.randint(0, 255)
+        return pdu[:1] + bytes([wrong]) + pdu[2:] if read else pdu[:-1] + bytes([wrong])
+    if variant == "function":
+        other = rng.choice([f for f in range(1, 128) if f != function])
+        return bytes([other]) + pdu[1:]
+    if variant == "exception":  # codes no device uses
+        return bytes([function | 0x80, rng.choice([0, 9, 12, 0x55, 0xFF])])
+    return pdu[: rng.randint(0, 1)]  # "truncated"

@@ -4,7 +4,7 @@ The :class:`Witness` sits on the PLC's write path and judges each write
 against what the register held just before (after any reset): writes
 outside the clamp, steps above the slew limit (from a value within the
 clamp: the write that replaces a value outside it is a correction, counted
-apart, and must land within the clamp), and offsets the service reports as acknowledged
+apart, and must land within the clamp), heartbeats (counted), and offsets the service reports as acknowledged
 (:attr:`~compd.service.compensator.TickRecord.acknowledged_um`) that the PLC never
 received. The counts go into a :class:`SoakResult`.
 """
@@ -49,6 +49,19 @@ class SoakResult:
     rollouts_taken: int = 0
     rollouts_refused: int = 0
     rollouts_taken_again: int = 0
+    #: ``malformed``: the driver fault episodes the services saw while the PLC's replies were
+    #: malformed, and driver exceptions outside the DriverError contract (all faults).
+    malformed_faults: int = 0
+    driver_bugs: int = 0
+    #: ``slow_clients`` (:mod:`compd.sim.soakclients`): the clients opened, the status requests
+    #: answered, turned away ``busy`` and unanswered, the ticks whose heartbeat the PLC missed,
+    #: and the longest real time between two ticks during an episode (s).
+    slow_clients: int = 0
+    status_answered: int = 0
+    status_busy: int = 0
+    status_unanswered: int = 0
+    heartbeats_missed: int = 0
+    largest_tick_gap_s: float = 0.0
     #: Why each bad model was refused (the daemon's reply).
     refusals: list[str] = field(default_factory=list)
     simulated_s: float = 0.0
@@ -64,6 +77,9 @@ class SoakResult:
             and self.unacknowledged == 0
             and self.bad_models_accepted == 0
             and self.rollouts_taken_again == 0
+            and self.driver_bugs == 0
+            and self.status_unanswered == 0
+            and self.heartbeats_missed == 0
         )
 
 
@@ -78,8 +94,12 @@ class Witness:
         result: SoakResult,
         *,
         max_offset_um: float = math.inf,
+        heartbeat_address: str | None = None,
     ) -> None:
         self.address = address
+        self.heartbeat_address = heartbeat_address
+        #: Heartbeats the PLC received (the soak's slow-client episodes count them).
+        self.heartbeats = 0
         self.scale = scale
         self.max_step_um = max_step_um
         self.max_offset_um = max_offset_um
@@ -92,6 +112,8 @@ class Witness:
         def written(address: str, raw: float) -> None:
             if address == self.address:
                 self._offset(raw)
+            elif address == self.heartbeat_address:
+                self.heartbeats += 1
             inner(address, raw)
 
         return written

@@ -4,8 +4,9 @@ compd's service runs against the simulated machine's Modbus PLC on virtual
 time (:mod:`compd.sim.soak`) while PLC restarts that clear the offset
 register, link drops, a garbage server on the port, corrupted state files
 between restarts, bad model loads, hard kills and values outside the clamp
-set by the PLC's program strike in a seeded order; every service is handed a
-retained and a replayed roll-out command.
+set by the PLC's program, malformed PLC replies, and hundreds of slow clients
+on the HTTP port and the control socket strike in a seeded order; every
+service is handed a retained and a replayed roll-out command.
 A witness on the PLC's write path judges every value the offset register
 receives. The 8-hour run is ``benchmarks/soak_faults.py``.
 """
@@ -19,7 +20,7 @@ from compd.sim.soak import Soak, soak_config
 from compd.sim.soakfaults import FAULT_KINDS, draw_faults
 
 HOURS = 1.5
-SEED = 14
+SEED = 13  # slow clients on both servers, malformed replies of two shapes
 
 
 def test_a_faulted_shift_ends_with_no_crash_no_jump_and_no_unacknowledged_offset(
@@ -49,3 +50,10 @@ def test_a_faulted_shift_ends_with_no_crash_no_jump_and_no_unacknowledged_offset
     assert result.offsets_received > 0.8 * result.ticks
     # Cleared registers are seen as readback mismatches; no other fault is mistaken for one.
     assert 0 < result.offset_mismatches <= result.faults["plc_reset"]
+    # Malformed replies are driver faults, each episode seen, none raised outside the contract.
+    assert result.malformed_faults >= result.faults["malformed"] and result.driver_bugs == 0
+    # Under slow clients the status is answered (over HTTP, and on the control socket once the
+    # clients are gone; during them it may say busy) and the PLC gets every tick's heartbeat.
+    assert result.slow_clients > 0 and result.status_unanswered == 0, result.errors
+    assert result.status_answered >= 2 * result.faults["slow_clients"]
+    assert result.heartbeats_missed == 0

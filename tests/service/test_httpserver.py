@@ -233,3 +233,20 @@ def test_page_files_ship_in_the_wheel() -> None:
     for file, _ in PAGE_FILES.values():
         assert (PAGE_DIR / file).is_file()
         assert any(fnmatch.fnmatch(f"statuspage/{file}", p) for p in patterns), file
+
+
+def test_a_service_ended_as_killed_stops_listening_on_its_http_port(tmp_path: Path) -> None:
+    """A service left as SIGKILL leaves it (the soak's in-process kills) closes its HTTP port, as the OS would."""
+    import asyncio
+
+    from compd.service.clock import VirtualClock
+    from compd.service.daemon import Service
+
+    config = load_config(http_config(tmp_path))
+    service = Service(config, clock=VirtualClock(), control=False)
+    ports: list[int] = []
+    service.on_tick = lambda _: ports.append(service.http.port) if service.http else None
+    service.leave_as_killed()
+    asyncio.run(service.run(duration_s=3.0))
+    with socket.socket() as client, pytest.raises(ConnectionRefusedError):
+        client.connect(("127.0.0.1", ports[0]))

@@ -143,7 +143,7 @@ def test_a_driver_outside_its_contract_is_a_fault_never_an_exception(script):
 
 
 def test_an_unexpected_exception_goes_down_and_reconnects_with_backoff():
-    """A TypeError from read takes the link down like a DriverError: it reopens after the backoff; one traceback."""
+    """A TypeError from read downs the link like a DriverError: reopened after the backoff; one traceback, one count."""
     clock = VirtualClock()
     driver = WrongDriver([None, TypeError("list indices must be integers"), None])
     link = DriverLink("plc", driver, clock, timeout_s=1.0, backoff_min_s=2.0)
@@ -161,6 +161,7 @@ def test_an_unexpected_exception_goes_down_and_reconnects_with_backoff():
     with capture_logs() as logs:
         seen = asyncio.run(scenario())
     assert seen == [{}, {}, {}] and driver.calls == 3 and link.up  # reopened (call 2) at t = 2 s
+    assert link.unexpected == 1  # counted, for the fault soak's judge
     errors = [e for e in logs if e["log_level"] == "error"]
     assert [e["event"] for e in errors] == [
         "driver read raised TypeError, not a DriverError: a bug in the driver; the link treats it "

@@ -66,3 +66,14 @@ def test_a_write_outside_the_clamp_is_counted_and_a_correction_is_no_step():
     w.programming = False
     sink(OFFSET, 1501.0)  # 150.1 um: a step of 0.1 um, but outside the clamp
     assert (result.outside_clamp, result.slew_violations, result.passed) == (1, 0, False)
+
+
+def test_heartbeats_are_counted_apart_from_offsets():
+    """Writes to the heartbeat address count as heartbeats, never as offsets or steps."""
+    result = SoakResult()
+    w = Witness(OFFSET, scale=10.0, max_step_um=1.0, result=result, heartbeat_address="holding:111")
+    sink = w.sink(lambda address, raw: None)
+    for beat in range(3):
+        sink("holding:111", float(beat * 1000))
+    sink(OFFSET, 5.0)
+    assert (w.heartbeats, result.offsets_received, result.slew_violations) == (3, 1, 0)

@@ -1,16 +1,23 @@
-"""The soak's faults (:mod:`compd.sim.soakfaults`): a seeded draw of every kind, bad files that really are bad."""
+"""The soak's faults (:mod:`compd.sim.soakfaults`): a seeded draw of every kind, bad files and replies that are bad."""
 
 from __future__ import annotations
 
+import asyncio
 import itertools
+import time
 from pathlib import Path
 
 import pytest
 
-from compd.errors import CompdError
+from compd.drivers.modbus import ModbusDriver
+from compd.drivers.modbus_settings import ModbusSettings
+from compd.errors import CompdError, DriverError
 from compd.service.modelload import slot_from_bytes
+from compd.sim.plc.modbus import ModbusPlcServer
 from compd.sim.soak import soak_config
-from compd.sim.soakfaults import FAULT_KINDS, bad_models, draw_faults
+from compd.sim.soakfaults import FAULT_KINDS, VARIANTS, bad_models, draw_faults, malformed_replies
+
+from ..drivers.modbus_server import free_port
 
 
 def test_the_fault_draw_covers_every_kind_first_and_is_seeded():
@@ -29,3 +36,33 @@ def test_every_bad_model_is_refused_by_the_daemons_check(tmp_path: Path):
     for name, raw in bad.items():
         with pytest.raises(CompdError):
             slot_from_bytes(config, raw, name, 0.0)
+
+
+@pytest.mark.parametrize("variant", VARIANTS["malformed"])
+def test_the_plcs_malformed_replies_are_driver_errors_and_the_next_true_reply_reads(variant: str):
+    """With every reply rewritten as ``variant`` compd's Modbus driver raises DriverError; unset, it reads again."""
+    inputs = {"input:0:int16": 1234.0, "input:1:int16": -5.0}
+
+    async def main() -> None:
+        port = free_port()
+        settings = ModbusSettings(host="127.0.0.1", port=port, request_timeout_s=0.3)
+        server = ModbusPlcServer(
+            settings, inputs=list(inputs), outputs=[], on_write=lambda *_: None, base_dir=Path()
+        )
+        await server.start()
+        server.publish(inputs)
+        driver = ModbusDriver(settings, now=time.monotonic, base_dir=Path())
+        try:
+            await driver.open()
+            server.rewrite_reply = malformed_replies(variant, 0.5, share=1.0)
+            with pytest.raises(DriverError):
+                await driver.read(list(inputs))
+            await driver.close()
+            server.rewrite_reply = None
+            await driver.open()
+            assert await driver.read(list(inputs)) == inputs
+        finally:
+            await driver.close()
+            await server.stop()
+
+    asyncio.run(main())

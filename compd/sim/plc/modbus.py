@@ -17,6 +17,10 @@ request, every output whose registers have all been written (in this request
 or, for a value split over several requests, since it was last reported) is
 decoded and reported once through ``on_write(address, raw)``.
 
+A fault injector (the soak, :mod:`compd.sim.soak`) may set
+:attr:`ModbusPlcServer.rewrite_reply` to rewrite each reply frame on the wire
+before it is sent, to play a PLC whose replies are malformed.
+
 pymodbus (3.16) serves the protocol; the memory is this module's own
 datastore, put in place of pymodbus' simulator datastore (the object a
 server's requests call ``async_getValues``/``async_setValues`` on), since
@@ -29,7 +33,7 @@ import asyncio
 import contextlib
 import math
 import struct
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import cast
@@ -177,6 +181,8 @@ class ModbusPlcServer:
         #: Input address -> (its cells, first address, encoder): what publish() writes to.
         self._slots: dict[str, tuple[dict[int, int], int, _Encoder]] = {}
         self._server: ModbusTcpServer | None = None
+        #: Set: every reply frame (MBAP header and PDU) goes through it before it is sent.
+        self.rewrite_reply: Callable[[bytes], bytes] | None = None
         for address in inputs:
             point = _parse(address, "input")
             cells = self._memory.table(_device(point, settings), point.table)
@@ -211,7 +217,7 @@ class ModbusPlcServer:
         # pymodbus builds its simulator datastore from a device; this one is
         # replaced by the PLC's memory before the first connection.
         placeholder = SimDevice(id=0, simdata=[SimData(0, datatype=DataType.REGISTERS)])
-        server = ModbusTcpServer(placeholder, address=self.address)
+        server = ModbusTcpServer(placeholder, address=self.address, trace_packet=self._trace)
         server.context = cast(SimCore, self._memory)
         try:
             await server.serve_forever(background=True)
@@ -223,6 +229,11 @@ class ModbusPlcServer:
                 f"{host!r} is not an address of this machine): {exc}"
             ) from exc
         self._server = server
+
+    def _trace(self, sending: bool, packet: bytes) -> bytes:
+        """pymodbus' ``trace_packet`` hook: a reply about to be sent, rewritten where asked."""
+        rewrite = self.rewrite_reply
+        return rewrite(packet) if sending and rewrite is not None else packet
 
     async def stop(self) -> None:
         """Close the listener and every client connection; published values stay."""
