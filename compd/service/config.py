@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 from pydantic import BaseModel, ValidationError
 
-from compd.drivers.base import Driver, DriverType, address_syntax, check_address
+from compd.drivers.base import Driver, DriverType, address_syntax, check_address, check_host
 from compd.drivers.registry import (
     DriverImportError,
     UnknownDriverError,
@@ -185,6 +185,7 @@ def parse_config(text: str, path: Path) -> Config:
     readback = output_readback(doc, types, settings, at.error)
     _check_load_access(doc, at.error)
     _check_telemetry_files(doc, path.parent, at.error)
+    _check_hosts(doc, types, settings, path.parent, at.error)
     state_dir = paths.state_dir(doc.state.directory, path.parent)
     recorder_dir = None
     if doc.recorder.enabled:
@@ -380,6 +381,27 @@ def _check_telemetry_files(doc: ConfigDoc, base_dir: Path, error: ErrorAt) -> No
                 f"cannot read {file} ({exc.strerror or type(exc).__name__})",
                 f"Give the path of a readable file (relative paths start at {base_dir})",
             ) from None
+
+
+def _check_hosts(
+    doc: ConfigDoc,
+    types: Mapping[str, DriverType],
+    settings: Mapping[str, BaseModel],
+    base_dir: Path,
+    error: ErrorAt,
+) -> None:
+    """Each driver's settings work on this host (files it names, see the ``check_host`` hook).
+
+    Not for a simulated machine: the twin serves the controllers, and makes
+    their certificates where missing.
+    """
+    if doc.simulation is not None:
+        return
+    for name, driver in doc.drivers.items():
+        written = [address for _, d, address in written_points(doc) if d == name]
+        problem = check_host(types[driver.type], settings[name], base_dir=base_dir, written=written)
+        if problem is not None:
+            raise error(("drivers", name, "settings", *problem.keys), problem.message, problem.fix)
 
 
 def validation_error(
