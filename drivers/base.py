@@ -41,6 +41,9 @@ driver type's addresses mean; a type without them gets the cautious answer
     whether ``read()`` of a written address returns what the device holds
     *now* (after a PLC restart that cleared it, say), not what this driver
     last sent; the service then re-seeds each offset's slew limit from it.
+``address_note(address) -> str | None``
+    how an address in another numbering was read (a Modbus ``40101`` is
+    ``holding:100``), which ``check-config`` shows;
 ``check_host(settings, *, base_dir, written) -> HostProblem | None``
     the first setting that cannot work on this host, found without
     connecting (a certificate or INI file that is not there, an axis the
@@ -199,6 +202,13 @@ def check_host(
         return None
     problem: HostProblem | None = hook(settings, base_dir=base_dir, written=written)
     return problem
+
+
+def address_note(kind: DriverType, address: str) -> str | None:
+    """How the type read an address written in another numbering (``address_note`` hook), or None."""
+    hook = getattr(kind, "address_note", None)
+    note: str | None = None if hook is None else hook(address)
+    return note
 
 
 def write_range(kind: DriverType, address: str, settings: BaseModel) -> tuple[int, int] | None:

@@ -53,6 +53,7 @@ from compd.drivers.modbus_addresses import (
     ModbusPoint,
     Table,
     parse_address,
+    translation_note,
 )
 from compd.drivers.modbus_settings import ModbusSettings
 from compd.drivers.points import INT_RANGES
@@ -97,8 +98,11 @@ class ModbusDriver:
     #: Shown in config errors as the fix for a bad address.
     address_syntax = (
         "as TABLE:ADDRESS[:TYPE][:byte=big|little][:word=big|little][:device=N], "
-        "e.g. holding:100:int32 (TABLE holding|input|coil|discrete, ADDRESS 0-based)"
+        "e.g. holding:100:int32 (TABLE holding|input|coil|discrete, ADDRESS 0-based; "
+        ":base=1 for ADDRESS counted from 1), or a Modicon reference such as 40101:int32"
     )
+    #: How a Modicon or 1-based address was read (``check-config`` shows it).
+    address_note = staticmethod(translation_note)
 
     def __init__(
         self, settings: ModbusSettings, *, now: Callable[[], float], base_dir: Path

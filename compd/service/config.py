@@ -35,6 +35,7 @@ from compd.drivers.registry import (
     load_driver_type,
 )
 from compd.errors import ConfigFileError
+from compd.files.keyhints import unknown_key_hint
 from compd.files.yamlplace import (
     FIXES,
     describe,
@@ -221,8 +222,13 @@ class _Places:
         """``line N (a.b.c)``: a place named in another place's error."""
         return where(self.root, location)
 
-    def invalid(self, exc: ValidationError, prefix: tuple[str | int, ...]) -> ConfigFileError:
-        return validation_error(exc, self.path, self.root, prefix)
+    def invalid(
+        self,
+        exc: ValidationError,
+        prefix: tuple[str | int, ...],
+        model: type[BaseModel] | None = None,
+    ) -> ConfigFileError:
+        return validation_error(exc, self.path, self.root, prefix, model)
 
 
 def _read_doc(text: str, path: Path) -> tuple[ConfigDoc, yaml.Node | None]:
@@ -239,7 +245,7 @@ def _read_doc(text: str, path: Path) -> tuple[ConfigDoc, yaml.Node | None]:
     try:
         return ConfigDoc.model_validate(data), root
     except ValidationError as exc:
-        raise validation_error(exc, path, root, ()) from exc
+        raise validation_error(exc, path, root, (), ConfigDoc) from exc
 
 
 def _driver_types(
@@ -266,7 +272,8 @@ def _driver_types(
         try:
             settings[name] = types[driver.type].settings_model.model_validate(driver.settings)
         except ValidationError as exc:
-            raise at.invalid(exc, ("drivers", name, "settings")) from exc
+            model = types[driver.type].settings_model
+            raise at.invalid(exc, ("drivers", name, "settings"), model) from exc
     return types, settings
 
 
@@ -405,9 +412,17 @@ def _check_hosts(
 
 
 def validation_error(
-    exc: ValidationError, path: Path, root: yaml.Node | None, prefix: tuple[str | int, ...]
+    exc: ValidationError,
+    path: Path,
+    root: yaml.Node | None,
+    prefix: tuple[str | int, ...],
+    model: type[BaseModel] | None = None,
 ) -> ConfigFileError:
-    """The first of pydantic's complaints about the section at ``prefix``, placed in the file."""
+    """The first of pydantic's complaints about the section at ``prefix``, placed in the file.
+
+    With ``model`` (the section's), an unknown key's fix names the key meant
+    and the keys allowed there.
+    """
     # A misspelt key shows up as "unknown key" plus "missing key"; the
     # unknown one is the more useful to report.
     errors = sorted(exc.errors(), key=lambda e: e["type"] != "extra_forbidden")
@@ -415,5 +430,6 @@ def validation_error(
     location = (*prefix, *first["loc"])
     fix = FIXES.get(first["type"], "")
     if first["type"] == "extra_forbidden":
-        fix += " (see config/compd.example.yaml for every key)"
+        hint = unknown_key_hint(model, first["loc"]) if model is not None else ""
+        fix += f" ({hint})" if hint else " (see config/compd.example.yaml for every key)"
     return ConfigFileError(path, describe(first), where=where(root, location), fix=fix)
