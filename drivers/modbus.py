@@ -15,7 +15,11 @@ Addresses are compact strings a PLC engineer can read at a glance::
 
 ``TABLE`` is ``holding``, ``input``, ``coil`` or ``discrete``; ``ADDRESS``
 is the 0-based protocol address (as on the wire: register number 40101 or
-``mbpoll -r 101`` is ``holding:100``). ``TYPE`` defaults to ``uint16`` for
+``mbpoll -r 101`` is ``holding:100``). Numbers as manuals write them are
+read too, and ``check-config`` notes how: a Modicon reference (``40101``,
+``30001:int16``, 6-digit ``400101``; 0x coils, 1x discrete inputs, 3x
+input and 4x holding registers, counted from 1) or ``:base=1`` after a
+number counted from 1 (``holding:101:base=1`` is ``holding:100``). ``TYPE`` defaults to ``uint16`` for
 registers and is always ``bool`` for coils and discrete inputs; the byte and
 word orders are those of :mod:`compd.drivers.points`. Scaling to
 engineering units stays where it is for every driver: a signal's
