@@ -74,7 +74,7 @@ def _check_gain_names(
                     f"Use one of {sorted(known)}"
                     if known
                     else "Name the gains in the model file ('gain_name: g1' on the sub-models "
-                    "they scale, seed 002 eq. 6), or remove 'gain_schedule'"
+                    "they scale, Post-process 2024, eq. 6), or remove 'gain_schedule'"
                 )
                 raise ConfigFileError(
                     config.path,
