@@ -41,6 +41,15 @@ driver type's addresses mean; a type without them gets the cautious answer
     whether ``read()`` of a written address returns what the device holds
     *now* (after a PLC restart that cleared it, say), not what this driver
     last sent; the service then re-seeds each offset's slew limit from it.
+``address_note(address) -> str | None``
+    how an address in another numbering was read (a Modbus ``40101`` is
+    ``holding:100``), which ``check-config`` shows;
+``check_host(settings, *, base_dir, written) -> HostProblem | None``
+    the first setting that cannot work on this host, found without
+    connecting (a certificate or INI file that is not there, an axis the
+    INI gives no offset budget), so that ``check-config`` refuses it
+    instead of the driver at every reconnect; ``written`` are the
+    addresses the config writes, ``base_dir`` the config's folder.
 
 One optional instance hook serves commissioning (``compd read``, ``compd probe``):
 
@@ -173,6 +182,33 @@ def reads_back(kind: DriverType, settings: BaseModel) -> bool:
     """Whether reading a written address returns the device's value; without the hook, no."""
     hook = getattr(kind, "reads_back", None)
     return bool(hook(settings)) if hook is not None else False
+
+
+@dataclass(frozen=True)
+class HostProblem:
+    """A setting that cannot work on this host: where (keys under ``settings``), what, and the fix."""
+
+    keys: tuple[str, ...]
+    message: str
+    fix: str
+
+
+def check_host(
+    kind: DriverType, settings: BaseModel, *, base_dir: Path, written: Sequence[str]
+) -> HostProblem | None:
+    """Run the type's ``check_host`` hook, if it has one."""
+    hook = getattr(kind, "check_host", None)
+    if hook is None:
+        return None
+    problem: HostProblem | None = hook(settings, base_dir=base_dir, written=written)
+    return problem
+
+
+def address_note(kind: DriverType, address: str) -> str | None:
+    """How the type read an address written in another numbering (``address_note`` hook), or None."""
+    hook = getattr(kind, "address_note", None)
+    note: str | None = None if hook is None else hook(address)
+    return note
 
 
 def write_range(kind: DriverType, address: str, settings: BaseModel) -> tuple[int, int] | None:

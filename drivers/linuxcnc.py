@@ -60,7 +60,7 @@ from pydantic import (
     ValidationError,
 )
 
-from compd.drivers.base import RawReading
+from compd.drivers.base import HostProblem, RawReading
 from compd.errors import (
     DriverDisconnectedError,
     DriverError,
@@ -166,6 +166,20 @@ class LinuxCncDriver:
     def reads_back(settings: LinuxCncSettings) -> bool:
         """Yes: ``axis.L`` reads the counts HAL holds, which outlive compd and not LinuxCNC."""
         return True
+
+    @staticmethod
+    def check_host(
+        settings: LinuxCncSettings, *, base_dir: Path, written: Sequence[str]
+    ) -> HostProblem | None:
+        """With ``ini_file``: it is readable and each axis written has an ``OFFSET_AV_RATIO`` above 0."""
+        if settings.ini_file is None:
+            return None
+        ini = base_dir / settings.ini_file
+        for address in sorted(set(written)):
+            if _AXIS.fullmatch(address) and (problem := _ini_problem(ini, address[5:])):
+                message, fix = problem
+                return HostProblem(("ini_file",), message, fix)
+        return None
 
     @property
     def helper_pid(self) -> int | None:
@@ -306,19 +320,33 @@ class LinuxCncDriver:
         """With ``ini_file``: refuse an axis whose external offsets LinuxCNC would ignore."""
         if self._ini is None or axis in self._checked_axes:
             return
-        ini = configparser.ConfigParser(strict=False, interpolation=None, comment_prefixes="#;")
-        try:
-            with self._ini.open(encoding="utf-8", errors="replace") as f:
-                ini.read_file(f)
-            ratio = float(ini.get(f"AXIS_{axis.upper()}", "OFFSET_AV_RATIO", fallback="0"))
-        except (OSError, configparser.Error, ValueError) as exc:
-            raise DriverProtocolError(f"LinuxCNC: cannot read {self._ini}: {exc}") from exc
-        if not ratio > 0:
-            raise DriverProtocolError(
-                f"LinuxCNC: {self._ini}: [AXIS_{axis.upper()}]OFFSET_AV_RATIO is not above 0, "
-                f"so LinuxCNC ignores external offsets on {axis.upper()}; set it (e.g. 0.1)"
-            )
+        problem = _ini_problem(self._ini, axis)
+        if problem is not None:
+            message, fix = problem
+            raise DriverProtocolError(f"LinuxCNC: {message}; {fix[0].lower()}{fix[1:]}")
         self._checked_axes.add(axis)
+
+
+def _ini_problem(ini_path: Path, axis: str) -> tuple[str, str] | None:
+    """What keeps LinuxCNC from applying offsets to ``axis`` per its INI file, and the fix; None: nothing."""
+    ini = configparser.ConfigParser(strict=False, interpolation=None, comment_prefixes="#;")
+    section = f"AXIS_{axis.upper()}"
+    try:
+        with ini_path.open(encoding="utf-8", errors="replace") as f:
+            ini.read_file(f)
+        ratio = float(ini.get(section, "OFFSET_AV_RATIO", fallback="0"))
+    except (OSError, configparser.Error, ValueError) as exc:
+        return (
+            f"cannot read {ini_path}: {exc}",
+            "Give the machine's INI file as ini_file (relative paths start at the config's folder)",
+        )
+    if not ratio > 0:
+        return (
+            f"{ini_path}: [{section}]OFFSET_AV_RATIO is not above 0, so LinuxCNC ignores "
+            f"external offsets on {axis.upper()}",
+            f"Set it in [{section}] (e.g. OFFSET_AV_RATIO = 0.1) and restart LinuxCNC",
+        )
+    return None
 
 
 def _first_error(exc: ValidationError) -> str:

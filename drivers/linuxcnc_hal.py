@@ -22,7 +22,8 @@ output pin, to the signal that pin drives (a new signal ``compd:<pin>``
 when it drives none). An axis ``axis.L`` gets OUT pins
 ``<component>.L.eoffset-counts`` (s32), ``-scale`` (float) and ``-enable``
 (bit), linked through signals ``compd:L.eoffset-*`` to LinuxCNC's
-``axis.L.eoffset-*``; reading ``axis.L`` returns the counts the signal
+``axis.L.eoffset-*`` (refused when the HAL file nets those pins to
+another signal); reading ``axis.L`` returns the counts the signal
 holds. The signals outlive the component, so a new one (after a compd
 restart) picks up the counts the machine holds. End of input or SIGTERM
 (``halcmd unload``, LinuxCNC shutting down) removes the component and ends
@@ -32,6 +33,7 @@ the process.
 import contextlib
 import json
 import signal
+import subprocess
 import sys
 
 import hal
@@ -39,6 +41,7 @@ import hal
 _TYPES = {1: hal.HAL_BIT, 2: hal.HAL_FLOAT, 3: hal.HAL_S32, 4: hal.HAL_U32}
 AXES = "xyzabcuvw"
 _AXIS_PINS = (("counts", hal.HAL_S32), ("scale", hal.HAL_FLOAT), ("enable", hal.HAL_BIT))
+_OWN_SUFFIXES = {suffix for suffix, _ in _AXIS_PINS}
 
 
 class Refused(Exception):
@@ -100,6 +103,7 @@ class Component:
                         f"LinuxCNC has no pin axis.{axis}.eoffset-{suffix}: "
                         f"is axis {axis.upper()} in [TRAJ]COORDINATES?"
                     )
+            _refuse_foreign_nets(axis)
         self.comp.exit()
         self.comp = self._create()
         links = []
@@ -122,7 +126,9 @@ class Component:
                     pin.set(signals[signal_name]["VALUE"])
                 else:
                     _checked(hal.new_sig(signal_name, kind), f"create signal {signal_name}")
-                    links.append((f"axis.{axis}.eoffset-{suffix}", signal_name))
+                # Always: HAL keeps a link to the same signal quietly, and a signal left
+                # over from a refused start may lack it.
+                links.append((f"axis.{axis}.eoffset-{suffix}", signal_name))
                 links.append((f"{self.name}.{axis}.eoffset-{suffix}", signal_name))
         self.comp.ready()
         for pin_name, signal_name in links:
@@ -183,6 +189,41 @@ class Component:
 
 def _is_axis(address):
     return len(address) == 6 and address.startswith("axis.") and address[5] in AXES
+
+
+def _refuse_foreign_nets(axis):
+    """Refuse when the HAL file nets the axis's offset pins itself: compd's offsets would not arrive.
+
+    An IN pin takes one signal; one netted elsewhere (``net compd-z-counts =>
+    axis.z.eoffset-counts``) keeps LinuxCNC's offset at 0 and its enable FALSE
+    whatever compd's pins hold. hal's Python module does not tell which signal
+    a pin is linked to; ``halcmd -s show pin`` does (``... NAME <== SIGNAL``).
+    """
+    try:
+        shown = subprocess.run(
+            ["halcmd", "-s", "show", "pin", f"axis.{axis}.eoffset-"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=False,
+        ).stdout
+    except (OSError, subprocess.SubprocessError):
+        return  # no halcmd: linking the pins below still fails on a foreign net
+    for line in shown.splitlines():
+        words = line.split()
+        if "<==" not in words:
+            continue
+        arrow = words.index("<==")
+        pin, signal_name = words[arrow - 1], words[arrow + 1]
+        suffix = pin.rsplit("-", 1)[-1]
+        if suffix in _OWN_SUFFIXES and signal_name != f"compd:{axis}.eoffset-{suffix}":
+            raise Refused(
+                f"{pin} is netted to HAL signal {signal_name!r} (a net in the HAL file?), so "
+                f"the offsets compd writes would never reach axis {axis.upper()}: compd's "
+                f"driver nets axis.{axis}.eoffset-counts, -scale and -enable itself; remove "
+                f"the HAL file's net and setp lines for these three pins (deploy/README.md, "
+                f"LinuxCNC) and restart LinuxCNC"
+            )
 
 
 def _checked(failed, what):

@@ -15,7 +15,11 @@ Addresses are compact strings a PLC engineer can read at a glance::
 
 ``TABLE`` is ``holding``, ``input``, ``coil`` or ``discrete``; ``ADDRESS``
 is the 0-based protocol address (as on the wire: register number 40101 or
-``mbpoll -r 101`` is ``holding:100``). ``TYPE`` defaults to ``uint16`` for
+``mbpoll -r 101`` is ``holding:100``). Numbers as manuals write them are
+read too, and ``check-config`` notes how: a Modicon reference (``40101``,
+``30001:int16``, 6-digit ``400101``; 0x coils, 1x discrete inputs, 3x
+input and 4x holding registers, counted from 1) or ``:base=1`` after a
+number counted from 1 (``holding:101:base=1`` is ``holding:100``). ``TYPE`` defaults to ``uint16`` for
 registers and is always ``bool`` for coils and discrete inputs; the byte and
 word orders are those of :mod:`compd.drivers.points`. Scaling to
 engineering units stays where it is for every driver: a signal's
@@ -53,6 +57,7 @@ from compd.drivers.modbus_addresses import (
     ModbusPoint,
     Table,
     parse_address,
+    translation_note,
 )
 from compd.drivers.modbus_settings import ModbusSettings
 from compd.drivers.points import INT_RANGES
@@ -97,8 +102,11 @@ class ModbusDriver:
     #: Shown in config errors as the fix for a bad address.
     address_syntax = (
         "as TABLE:ADDRESS[:TYPE][:byte=big|little][:word=big|little][:device=N], "
-        "e.g. holding:100:int32 (TABLE holding|input|coil|discrete, ADDRESS 0-based)"
+        "e.g. holding:100:int32 (TABLE holding|input|coil|discrete, ADDRESS 0-based; "
+        ":base=1 for ADDRESS counted from 1), or a Modicon reference such as 40101:int32"
     )
+    #: How a Modicon or 1-based address was read (``check-config`` shows it).
+    address_note = staticmethod(translation_note)
 
     def __init__(
         self, settings: ModbusSettings, *, now: Callable[[], float], base_dir: Path

@@ -37,17 +37,68 @@ class ModbusPoint:
         return 1 if self.table in BIT_TABLES else self.codec.words
 
 
+#: Modicon reference prefixes: 0xxxx coils, 1xxxx discrete inputs, 3xxxx input, 4xxxx holding registers.
+_MODICON: dict[str, Table] = {"0": "coil", "1": "discrete", "3": "input", "4": "holding"}
+
+
+def modicon(text: str) -> tuple[str, str] | None:
+    """A Modicon reference's ``TABLE:ADDRESS`` (0-based, on the wire) and a note of the translation; None: not one.
+
+    ``40101`` (5 digits: registers 1-9999) and ``400101`` (6 digits: 1-65536)
+    name holding register 101 counted from 1, which is address 100 on the
+    wire. The rest of the address (``40101:int32``) is kept.
+    """
+    number, sep, rest = text.strip().partition(":")
+    if not (number.isdigit() and len(number) in (5, 6) and number[0] in _MODICON):
+        return None
+    register = int(number[1:])
+    if not 1 <= register <= (9999 if len(number) == 5 else 65536):
+        return None
+    table = _MODICON[number[0]]
+    wire = f"{table}:{register - 1}" + (sep + rest)
+    return wire, f"{number} is Modicon numbering (from 1): {table}:{register - 1} on the wire"
+
+
+def translation_note(text: str) -> str | None:
+    """How an address in Modicon or 1-based numbering was read, for the user to confirm; None: as written."""
+    if (found := modicon(text)) is not None:
+        return found[1]
+    parts = [p.strip() for p in text.split(":")]
+    if "base=1" in parts[2:] and len(parts) >= 2 and parts[1].isdigit():
+        return f"{parts[0]}:{parts[1]} with base=1 (from 1): {parts[0]}:{int(parts[1]) - 1} on the wire"
+    return None
+
+
 @cache
 def parse_address(text: str) -> ModbusPoint:
-    """Parse ``TABLE:ADDRESS[:TYPE][:byte=..][:word=..][:device=N]``; ValueError says what is wrong."""
+    """Parse ``TABLE:ADDRESS[:TYPE][:byte=..][:word=..][:device=N][:base=1]``; ValueError says what is wrong.
+
+    Also a Modicon reference (``40101``, ``300001:float32``), and with
+    ``base=1`` an ADDRESS counted from 1 as manuals do (``holding:101:base=1``
+    is ``holding:100``); :func:`translation_note` says how either was read.
+    """
+    if (found := modicon(text)) is not None:
+        text = found[0]
     parts = [p.strip() for p in text.split(":")]
+    if "base=1" in parts[2:]:
+        parts.remove("base=1")
+        if parts[1].isdigit():
+            if int(parts[1]) == 0:
+                raise ValueError("with base=1 addresses count from 1: 0 is not one")
+            parts[1] = str(int(parts[1]) - 1)
     if len(parts) < 2:
-        raise ValueError(f"{text!r} is not TABLE:ADDRESS (e.g. 'holding:100:int32')")
+        raise ValueError(
+            f"{text!r} is not TABLE:ADDRESS (e.g. 'holding:100:int32') or a Modicon "
+            "reference (e.g. 40101 for holding register 101 counted from 1)"
+        )
     table, number, *rest = parts
     if table not in TABLES:
         raise ValueError(f"unknown Modbus table {table!r}; use one of {TABLES}")
     if not number.isdigit() or not 0 <= int(number) <= 65535:
-        raise ValueError(f"address {number!r} must be an integer 0..65535 (0-based, on the wire)")
+        raise ValueError(
+            f"address {number!r} must be an integer 0..65535 (0-based, on the wire; "
+            "add :base=1 for numbers counted from 1, or write a Modicon reference such as 40101)"
+        )
     kind = "bool" if table in BIT_TABLES else "uint16"
     options: dict[str, str] = {}
     for i, part in enumerate(rest):
@@ -58,7 +109,9 @@ def parse_address(text: str) -> ModbusPoint:
             continue
         key, _, value = part.partition("=")
         if key not in ("byte", "word", "device") or key in options:
-            raise ValueError(f"unknown or repeated option {key!r}; use byte=, word=, device=")
+            raise ValueError(
+                f"unknown or repeated option {key!r}; use byte=, word=, device=, base=1"
+            )
         options[key] = value
     if kind not in POINT_TYPES:
         raise ValueError(f"unknown type {kind!r}; use one of {POINT_TYPES}")

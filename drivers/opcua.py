@@ -40,13 +40,14 @@ from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.status_codes import StatusCodes
 from asyncua.ua.uaerrors import UaError, UaStatusCodeError, UaStringParsingError
 
-from compd.drivers.base import RawReading
+from compd.drivers.base import HostProblem, RawReading
 from compd.drivers.library_logs import quiet_library
 from compd.drivers.opcua_security import (
     REFUSALS,
     certificate_der,
     certificate_uri,
     check_endpoints,
+    check_files,
     read_password,
     settings_file,
 )
@@ -149,6 +150,13 @@ class OpcUaDriver:
     def reads_back(settings: OpcUaSettings) -> bool:
         """A written variable reads back the server's current value."""
         return True
+
+    @staticmethod
+    def check_host(
+        settings: OpcUaSettings, *, base_dir: Path, written: Sequence[str]
+    ) -> HostProblem | None:
+        """Every certificate, key and password file named is there and readable."""
+        return check_files(settings, base_dir)
 
     def __init__(
         self, settings: OpcUaSettings, *, now: Callable[[], float], base_dir: Path

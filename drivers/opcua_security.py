@@ -22,6 +22,7 @@ from asyncua.ua.status_codes import StatusCodes
 from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 
+from compd.drivers.base import HostProblem
 from compd.drivers.opcua_settings import OpcUaSettings
 from compd.errors import DriverError, DriverProtocolError
 from compd.files.yamlplace import resolve_path
@@ -75,6 +76,40 @@ def settings_file(name: str, base_dir: Path) -> Path:
     if not path.is_file():
         raise DriverError(f"OPC UA driver: file {path} does not exist")
     return path
+
+
+def check_files(settings: OpcUaSettings, base_dir: Path) -> HostProblem | None:
+    """The first certificate, key or password file the settings name that cannot be read."""
+    files: list[tuple[tuple[str, ...], str | None, str]] = [
+        (("password_file",), settings.password_file, "the file holding the user's password")
+    ]
+    if (security := settings.security) is not None:
+        files = [
+            (("security", "certificate"), security.certificate, "compd's client certificate"),
+            (("security", "private_key"), security.private_key, "the client certificate's key"),
+            (
+                ("security", "server_certificate"),
+                security.server_certificate,
+                "the server's certificate, exported from the controller",
+            ),
+            *files,
+        ]
+    for keys, name, what in files:
+        if name is None:
+            continue
+        path = resolve_path(name, base_dir)
+        try:
+            with path.open("rb"):
+                pass
+        except OSError as exc:
+            return HostProblem(
+                keys,
+                f"cannot read {path} ({exc.strerror or type(exc).__name__}), so the driver "
+                "could never connect",
+                f"Put {what} there, or give its path (relative paths start at {base_dir}); "
+                "deploy/README.md shows how to make the certificates",
+            )
+    return None
 
 
 def read_password(settings: OpcUaSettings, base_dir: Path) -> str:

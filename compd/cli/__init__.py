@@ -41,7 +41,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "compare": ("compd.cli.evaluate", "model against measurement: fit %%, residue, reduction"),
     "fit": (
         "compd.cli.fit",
-        "identify TFs (ARX, OE or MLR) from calibration data and write a model file",
+        "identify TFs (by default a lag bank; ARX, OE or MLR on request) from calibration "
+        "data and write a model file",
     ),
     "diagnose": (
         "compd.cli.diagnose",
@@ -49,12 +50,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "extend": (
         "compd.cli.extend",
-        "identify a sub-model from an effect's signal to the residue and add it (seed 001 4.3)",
+        "identify a sub-model from an effect's signal to the residue and add it (Horejs 2015, sect. 4.3)",
     ),
     "residual": (
         "compd.cli.residual",
         "stack a random forest on a model's residue against the smoothed door signal "
-        "(seed 004) and show the residue before and after",
+        "(Swiss-lathe paper) and show the residue before and after",
     ),
     "report": (
         "compd.cli.report",
@@ -80,12 +81,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "twin": ("compd.cli.twin", "generate a run of the simulated milling centre as a data file"),
     "update": (
         "compd.cli.update",
-        "re-optimise the model's named gains (g1, g2, ...) on sparse probe measurements (seed 002)",
+        "re-optimise the model's named gains (g1, g2, ...) on sparse probe measurements (Post-process 2024)",
     ),
     "help": (
         "compd.cli.helpdoc",
-        "a command's full help, a topic (config, model-file, units, status-word, exit-codes) "
-        "or the man page",
+        "a command's full help, a topic (config, model-file, units, status-word, exit-codes, "
+        "references) or the man page",
     ),
     "completion": ("compd.cli.helpdoc", "the shell completion script (bash, zsh, tcsh, fish)"),
 }

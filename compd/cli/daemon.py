@@ -19,6 +19,8 @@ from typing import TYPE_CHECKING, Any
 
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import Text, console
+from compd.drivers.base import address_note
+from compd.drivers.registry import load_driver_type
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import read_limited
@@ -33,6 +35,7 @@ from compd.service.notify import SystemdNotifier
 from compd.service.safety import Level
 from compd.service.signals import Health
 from compd.service.state import install_model_bytes, installed_model
+from compd.service.writepoints import written_points
 
 if TYPE_CHECKING:
     from compd.cli.livescreen import LiveScreen
@@ -63,6 +66,8 @@ def check_config_command(args: argparse.Namespace) -> int:
         )
     out.print(f"  drivers: {', '.join(f'{n} ({d.type})' for n, d in doc.drivers.items())}")
     out.print(f"  signals: {', '.join(doc.signals)}")
+    for place, note in address_notes(config):
+        out.print(f"  note: {place}: {note}")
     for axis, o in doc.outputs.items():
         out.print(
             f"  axis {axis}: {o.sign:+d} x {o.model_output} -> {o.driver}:{o.address}, "
@@ -85,6 +90,19 @@ def check_config_command(args: argparse.Namespace) -> int:
             f"a status every {t.every_ticks} tick(s), QoS {t.qos}"
         )
     return 0
+
+
+def address_notes(config: Config) -> list[tuple[str, str]]:
+    """Each address a driver read in another numbering than written (Modicon 40101), with its place."""
+    doc = config.doc
+    places = [(f"signals.{n}.address", s.driver, s.address) for n, s in doc.signals.items()]
+    places += [(".".join(map(str, loc)), d, a) for loc, d, a in written_points(doc)]
+    notes = []
+    for place, driver, address in places:
+        note = address_note(load_driver_type(doc.drivers[driver].type), address)
+        if note is not None:
+            notes.append((place, note))
+    return notes
 
 
 def run_command(args: argparse.Namespace) -> int:

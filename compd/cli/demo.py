@@ -23,7 +23,7 @@ def register(commands: Any) -> None:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    """The bundled default: seed 000's TF model against the controller's regression, and a gated ARX model."""
+    """The bundled default: Horejs 2010's TF model against the controller's regression, and a gated ARX model."""
     bundled = resources.files("compd.bundled")
     with resources.as_file(bundled / "example_spectrum.csv") as data_path:
         data = load_data(data_path)

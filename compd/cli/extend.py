@@ -28,7 +28,7 @@ from compd.toolkit.summary import fmt, json_clean, json_text
 def register(commands: Any) -> None:
     extend = commands.add_parser(
         "extend",
-        help="identify a sub-model from an effect's signal to the residue and add it (seed 001 4.3)",
+        help="identify a sub-model from an effect's signal to the residue and add it (Horejs 2015, sect. 4.3)",
     )
     extend.add_argument("model", type=Path, metavar="MODEL.yaml")
     extend.add_argument(

@@ -34,10 +34,11 @@ from compd.toolkit.summary import fmt
 def register(commands: Any) -> None:
     parser = commands.add_parser(
         "fit",
-        help="identify TFs (ARX, OE or MLR) from calibration data and write a model file",
+        help="identify TFs (by default a lag bank; ARX, OE or MLR on request) from calibration "
+        "data and write a model file",
         description="Identify a model of one output column from input columns, taken as changes "
         "from their first value, and write it as a compd.model/1 file. Every fit % printed is the "
-        "free-run simulation fit (seed 001 eq. 2), the figure compd compare reproduces.",
+        "free-run simulation fit (Horejs 2015, eq. 2), the figure compd compare reproduces.",
     )
     parser.add_argument(
         "--data",
@@ -63,13 +64,13 @@ def register(commands: Any) -> None:
     parser.add_argument(
         "--phase-gate",
         metavar="SIGNAL",
-        help="separate heating and cooling (seed 002 eq. 5): per input a cooling TF, always on, "
+        help="separate heating and cooling (Post-process 2024, eq. 5): per input a cooling TF, always on, "
         "and a heating-difference TF whose input is switched on while SIGNAL > 0",
     )
     parser.add_argument(
         "--position",
         metavar="SIGNAL",
-        help="position-dependent feed-axis error (seed 003: m1(T)*P + m2(T)): per input an "
+        help="position-dependent feed-axis error (Pahk 2002: m1(T)*P + m2(T)): per input an "
         "offset TF and a slope TF (um per mm) multiplied by SIGNAL minus the reference; the data "
         "must hold measurements at two or more positions",
     )
@@ -83,7 +84,7 @@ def register(commands: Any) -> None:
     parser.add_argument(
         "--denoise",
         metavar="A,B",
-        help="inputs to denoise (seed 004): identified with their first EMD mode removed, then "
+        help="inputs to denoise (Swiss-lathe paper): identified with their first EMD mode removed, then "
         "run through a causal low-pass matched to the EMD result and baked into their TFs (the "
         "service cannot run EMD); the figures of both are kept in the provenance",
     )
@@ -92,7 +93,7 @@ def register(commands: Any) -> None:
         type=int,
         default=1,
         metavar="N",
-        help="how many of the fastest EMD modes --denoise removes (default 1, seed 004; on a "
+        help="how many of the fastest EMD modes --denoise removes (default 1, Swiss-lathe paper; on a "
         "finely sampled sensor the first modes are its white noise, so an AC cycle needs more)",
     )
     parser.add_argument(

@@ -26,8 +26,8 @@ def register(commands: Any) -> None:
     topics = "; ".join(f"{name}: {text}" for name, text in TOPICS.items())
     helper = commands.add_parser(
         "help",
-        help="a command's full help, a topic (config, model-file, units, status-word, "
-        "exit-codes) or the man page",
+        help="a command's full help, a topic (config, model-file, units, status-word, exit-codes, "
+        "references) or the man page",
         description=f"Help on a command (its full --help) or a topic. Topics: {topics}.",
     )
     helper.add_argument(

@@ -40,6 +40,7 @@ from compd.drivers.registry import (
     load_driver_type,
 )
 from compd.errors import CompdError, DriverError, InputFileError
+from compd.files.keyhints import unknown_key_hint
 from compd.files.yamlplace import describe, parse_yaml, read_limited, resolve_path
 
 if TYPE_CHECKING:
@@ -213,10 +214,12 @@ def probe_settings(kind: DriverType, args: argparse.Namespace) -> tuple[BaseMode
     except ValidationError as exc:
         first = sorted(exc.errors(), key=lambda e: e["type"] != "extra_forbidden")[0]
         key = ".".join(str(p) for p in first["loc"]) or "settings"
+        keys = "keys as under drivers.NAME.settings, see config/compd.example.yaml"
+        if first["type"] == "extra_forbidden":
+            keys = unknown_key_hint(kind.settings_model, first["loc"]) or keys
         raise CompdError(
             f"driver type {args.type!r} settings ({source}): {key}: {describe(first)}. "
-            f"Fix it with --set KEY=VALUE (keys as under drivers.NAME.settings, see "
-            "config/compd.example.yaml)"
+            f"Fix it with --set KEY=VALUE ({keys})"
         ) from None
     if args.settings:
         shown.insert(0, f"settings {args.settings}")

@@ -1,6 +1,6 @@
-"""``compd residual``: stack seed 004's door residual forest on an existing model, TF alone vs stacked.
+"""``compd residual``: stack Swiss-lathe paper's door residual forest on an existing model, TF alone vs stacked.
 
-Seed 004 keeps its calibrated ARX model and adds a random forest fitted on
+Swiss-lathe paper keeps its calibrated ARX model and adds a random forest fitted on
 that model's residue against the smoothed door signal. This is that step for
 any compd model file: the sub-models are kept, the forest is fitted on the
 free-run residue over DATA.csv (the one ``compd compare`` shows), the
@@ -37,7 +37,7 @@ def register(commands: Any) -> None:
     parser = commands.add_parser(
         "residual",
         help="stack a random forest on a model's residue against the smoothed door signal "
-        "(seed 004) and show the residue before and after",
+        "(Swiss-lathe paper) and show the residue before and after",
     )
     parser.add_argument("model", type=Path, metavar="MODEL.yaml")
     parser.add_argument(

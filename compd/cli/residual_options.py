@@ -1,10 +1,10 @@
-"""``compd fit --residual-model SIGNAL``: seed 004's door residual forest on top of the fitted TF model.
+"""``compd fit --residual-model SIGNAL``: Swiss-lathe paper's door residual forest on top of the fitted TF model.
 
 Kept apart from :mod:`compd.cli.fit` so that command only declares the
 options and hands over the writing: without ``--residual-model`` the model
 file is written as before; with it the forest's ``.npz`` sidecar is written
 first, then the YAML that names it by sha256, and the TF-alone vs stacked
-residue (peak-to-peak and RMS, seed 004 tables 2-5) is printed.
+residue (peak-to-peak and RMS, Swiss-lathe paper, tables 2-5) is printed.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def add_residual_options(parser: Any) -> None:
         "--residual-model",
         metavar="DOOR_SIGNAL",
         help="stack a random forest on the TF model's residue, fed the door signal smoothed at "
-        "several time scales (seed 004); the calibration data must contain door openings",
+        "several time scales (Swiss-lathe paper); the calibration data must contain door openings",
     )
     add_forest_options(parser)
 

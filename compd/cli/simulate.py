@@ -28,6 +28,7 @@ from compd.service.config import Config
 from compd.service.daemon import Service
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import SimulationResult, run_simulation, serve_machine
+from compd.sim.plc.settings import SimulationDoc
 from compd.sim.plc.view import fault_table, summary_table
 
 
@@ -158,11 +159,30 @@ def _simulate_machine(args: argparse.Namespace) -> int:
             loop.add_signal_handler(sig, stop.set)
         return await serve_machine(config, time_scale=args.time_scale, stop=stop, on_step=on_step)
 
+    print(_start_line(config, args.time_scale), flush=True)
     machine = asyncio.run(main())
     console().print(summary_table(machine.summary()))
     plc = machine.plc
     print(f"PLC: {plc.writes} values written, heartbeat timeouts {plc.heartbeat_timeouts}")
     return 0
+
+
+def _start_line(config: Config, time_scale: float) -> str:
+    """What simulate-machine serves, where, and how fast: printed before the first step."""
+    sim = SimulationDoc.model_validate(config.simulation or {})
+    served = []
+    for name, driver in config.doc.drivers.items():
+        settings = driver.settings
+        where = settings.get("url") or (
+            f"{settings['host']}:{settings['port']}"
+            if "host" in settings and "port" in settings
+            else ""
+        )
+        served.append(f"{name} ({driver.type}{', ' + where if where else ''})")
+    return (
+        f"simulated machine: {sim.scenario}, {sim.hours:g} h, seed {sim.seed}, x{time_scale:g} real "
+        f"time; serving {', '.join(served)}; a line every 10 simulated minutes, Ctrl-C stops"
+    )
 
 
 __all__ = ["register", "run_simulated"]

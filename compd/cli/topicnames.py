@@ -7,4 +7,5 @@ TOPICS = {
     "units": "the unit suffixes of signal and column names",
     "status-word": "the status word's bits, written to the PLC beside the offsets",
     "exit-codes": "what compd's exit status means",
+    "references": "the papers compd's methods come from, by the short names its help cites",
 }

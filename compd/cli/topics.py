@@ -10,6 +10,7 @@ man page and the completion scripts are generated from the full parser
 from __future__ import annotations
 
 import argparse
+import re
 import types
 import typing
 from pathlib import Path
@@ -19,6 +20,7 @@ from pydantic import BaseModel
 from compd import __version__
 from compd.cli import COMMANDS, VERSION, build_parser
 from compd.cli.args import EXIT_INPUT_ERROR
+from compd.cli.references import references_page
 from compd.cli.topicnames import TOPICS
 from compd.errors import CompdError
 
@@ -53,6 +55,7 @@ def help_text(topic: str | None, *, man: bool = False) -> str:
         "units": units_page,
         "status-word": status_word_page,
         "exit-codes": exit_codes_page,
+        "references": references_page,
     }
     if topic not in pages:
         raise CompdError(
@@ -128,10 +131,21 @@ def schema_tree(doc: type[BaseModel], indent: int = 0) -> list[str]:
         lines.append(text)
         for section in _sections(annotation):
             if section.__doc__ and section.__doc__ != BaseModel.__doc__:
-                summary = section.__doc__.strip().splitlines()[0]
+                summary = plain(section.__doc__.strip().splitlines()[0])
                 lines.append(f"{'  ' * (indent + 2)}# {summary}")
             lines += schema_tree(section, indent + 1)
     return lines
+
+
+#: reStructuredText roles (``:mod:`x```, ``:class:`~a.B```) and literals (````x````), for :func:`plain`.
+_ROLE = re.compile(r":[a-z]+:`~?([^`]+)`")
+_LITERAL = re.compile(r"``([^`]+)``")
+
+
+def plain(text: str) -> str:
+    """A docstring line as a terminal shows it: ``:mod:`a.b``` -> a.b, ````x```` -> 'x'."""
+    text = _ROLE.sub(lambda m: m[1], text)
+    return _LITERAL.sub(lambda m: f"'{m[1]}'", text)
 
 
 def _sections(annotation: object) -> list[type[BaseModel]]:

@@ -28,7 +28,7 @@ from compd.sim.variants import VARIANTS, machine_variant
 #: runs' own (T1..T16 without locations, disp_x/y/z_um; see :mod:`compd.sim.realistic`).
 EXTRA_SCENARIOS = {
     "feed_positions": "the feed run with X and Z dwelling at several positions; adds "
-    "X_position_mm, Z_position_mm and the screw temperatures (seed 003's position-dependent error)",
+    "X_position_mm, Z_position_mm and the screw temperatures (Pahk 2002's position-dependent error)",
     **{name: text for name, (_, text) in REALISTIC_SCENARIOS.items()},
 }
 
@@ -68,7 +68,7 @@ def register(commands: Any) -> None:
         "--air-conditioned",
         action="store_true",
         help="an air-conditioned hall: the ambient sensor also reads a 15 min +-0.4 degC AC "
-        "cycle and 0.05 degC noise, which the structure does not feel (seed 004's noisy input)",
+        "cycle and 0.05 degC noise, which the structure does not feel (Swiss-lathe paper's noisy input)",
     )
     twin.set_defaults(handler=_twin)
 

@@ -1,4 +1,4 @@
-"""``compd update``: re-optimise a model's named gains on sparse probe measurements (seed 002)."""
+"""``compd update``: re-optimise a model's named gains on sparse probe measurements (Post-process 2024)."""
 
 from __future__ import annotations
 
@@ -26,8 +26,8 @@ def register(commands: Any) -> None:
     update = commands.add_parser(
         "update",
         help="re-optimise the model's named gains (g1, g2, ...) on sparse probe measurements "
-        "(seed 002)",
-        description="Post-process update (seed 002 eq. 8/9): run MODEL over DATA once, then find "
+        "(Post-process 2024)",
+        description="Post-process update (Post-process 2024, eq. 8/9): run MODEL over DATA once, then find "
         "the gains named in the model file (gain_name) that minimise the squared residue at the "
         "probe instants of PROBES, with scipy's differential evolution, within bounds (default "
         "0:2 each). The TFs are kept; only the gains change. Writes the model with the new gains "
@@ -50,7 +50,7 @@ def register(commands: Any) -> None:
         "--bounds",
         metavar="g1=0:2,g2=0.5:1.1",
         help="search interval per gain name (or per sub-model without one, to free its gain); "
-        "named gains not listed get 0:2 (seed 002 eq. 9) or their characteristic bounds",
+        "named gains not listed get 0:2 (Post-process 2024, eq. 9) or their characteristic bounds",
     )
     update.add_argument(
         "--output", metavar="COLUMN", help="update only this output (default: every probed one)"
@@ -60,7 +60,7 @@ def register(commands: Any) -> None:
         type=Path,
         metavar="CONTINUOUS.csv",
         help="a run with the displacement measured throughout: find the gains' characteristic "
-        "bounds on it first (seed 002 eq. 7) and search within them",
+        "bounds on it first (Post-process 2024, eq. 7) and search within them",
     )
     update.add_argument(
         "--segment-signal",
@@ -188,7 +188,7 @@ def _print(result: Update, args: argparse.Namespace) -> None:
             "min",
             "max",
             "characteristic bounds",
-            title=f"seed 002 eq. 7 on {characteristic.data.path}: best gains on "
+            title=f"Post-process 2024, eq. 7 on {characteristic.data.path}: best gains on "
             f"{len(characteristic.result.segments)} intervals of constant "
             f"{characteristic.segment_signal}",
         )
@@ -210,7 +210,7 @@ def _print(result: Update, args: argparse.Namespace) -> None:
         "before",
         "after",
         title=f"gains of {result.parent.model.name} fitted to {result.rows.measured_um.size} probe "
-        f"values in {args.probes} (seed 002 eq. 8)",
+        f"values in {args.probes} (Post-process 2024, eq. 8)",
     )
     model = result.parent.model
     for gain, value, (low, high), hit in zip(

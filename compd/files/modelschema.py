@@ -59,7 +59,7 @@ class GateDoc(_Strict):
 
 
 class PositionDoc(_Strict):
-    """Seed 003's slope term: the sub-model's contribution times ``(signal - reference_mm)``."""
+    """Pahk 2002's slope term: the sub-model's contribution times ``(signal - reference_mm)``."""
 
     signal: str = Field(min_length=1)
     reference_mm: FiniteFloat = 0.0
@@ -103,7 +103,7 @@ class ResidualFiguresDoc(_Strict):
 
 
 class ResidualDoc(_Strict):
-    """Seed 004's stacked term: a random forest on smoothed door features, arrays in a sidecar."""
+    """Swiss-lathe paper's stacked term: a random forest on smoothed door features, arrays in a sidecar."""
 
     kind: Literal["random_forest"] = "random_forest"
     signal: str = Field(min_length=1)
@@ -166,7 +166,7 @@ class TriedDoc(_Strict):
 
 
 class ExtensionDoc(_Strict):
-    """One ``compd extend`` step: a sub-model added by superposition (seed 001 sect. 4.3)."""
+    """One ``compd extend`` step: a sub-model added by superposition (Horejs 2015, sect. 4.3)."""
 
     parent_sha256: str
     data: str
@@ -185,7 +185,7 @@ class ExtensionDoc(_Strict):
 
 
 class CharacteristicDoc(_Strict):
-    """Seed 002 eq. 7: gain bounds from per-segment optima on a continuously measured run."""
+    """Post-process 2024, eq. 7: gain bounds from per-segment optima on a continuously measured run."""
 
     data: str
     segment_signal: str
@@ -196,7 +196,7 @@ class CharacteristicDoc(_Strict):
 
 
 class UpdateDoc(_Strict):
-    """One ``compd update`` step: named gains re-optimised on sparse probe measurements (seed 002 eq. 8).
+    """One ``compd update`` step: named gains re-optimised on sparse probe measurements (Post-process 2024, eq. 8).
 
     ``probe_values_um`` holds one list per probed output, aligned with
     ``probe_times_s``; ``null`` where that axis was not probed at that instant.
@@ -224,7 +224,7 @@ class DenoisedInputDoc(_Strict):
 
     input: str
     unit: str = "-"
-    imfs_removed: int = Field(default=1, ge=1)  # the first N EMD modes (seed 004: 1)
+    imfs_removed: int = Field(default=1, ge=1)  # the first N EMD modes (Swiss-lathe paper: 1)
     lowpass_tau_s: FiniteFloat = Field(gt=0)
     lowpass_stages: int = Field(ge=1, le=2)
     lowpass_vs_emd_rms: FiniteFloat = Field(ge=0)  # matched causal low-pass minus EMD-denoised
@@ -232,7 +232,7 @@ class DenoisedInputDoc(_Strict):
 
 
 class DenoiseDoc(_Strict):
-    """Seed 004 denoising: identified on EMD-denoised inputs, run with matched low-passes baked in."""
+    """Swiss-lathe paper denoising: identified on EMD-denoised inputs, run with matched low-passes baked in."""
 
     method: str
     inputs: list[DenoisedInputDoc] = Field(default_factory=list)

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 from pydantic import BaseModel, ValidationError
 
-from compd.drivers.base import Driver, DriverType, address_syntax, check_address
+from compd.drivers.base import Driver, DriverType, address_syntax, check_address, check_host
 from compd.drivers.registry import (
     DriverImportError,
     UnknownDriverError,
@@ -35,6 +35,7 @@ from compd.drivers.registry import (
     load_driver_type,
 )
 from compd.errors import ConfigFileError
+from compd.files.keyhints import unknown_key_hint
 from compd.files.yamlplace import (
     FIXES,
     describe,
@@ -185,6 +186,7 @@ def parse_config(text: str, path: Path) -> Config:
     readback = output_readback(doc, types, settings, at.error)
     _check_load_access(doc, at.error)
     _check_telemetry_files(doc, path.parent, at.error)
+    _check_hosts(doc, types, settings, path.parent, at.error)
     state_dir = paths.state_dir(doc.state.directory, path.parent)
     recorder_dir = None
     if doc.recorder.enabled:
@@ -220,8 +222,13 @@ class _Places:
         """``line N (a.b.c)``: a place named in another place's error."""
         return where(self.root, location)
 
-    def invalid(self, exc: ValidationError, prefix: tuple[str | int, ...]) -> ConfigFileError:
-        return validation_error(exc, self.path, self.root, prefix)
+    def invalid(
+        self,
+        exc: ValidationError,
+        prefix: tuple[str | int, ...],
+        model: type[BaseModel] | None = None,
+    ) -> ConfigFileError:
+        return validation_error(exc, self.path, self.root, prefix, model)
 
 
 def _read_doc(text: str, path: Path) -> tuple[ConfigDoc, yaml.Node | None]:
@@ -238,7 +245,7 @@ def _read_doc(text: str, path: Path) -> tuple[ConfigDoc, yaml.Node | None]:
     try:
         return ConfigDoc.model_validate(data), root
     except ValidationError as exc:
-        raise validation_error(exc, path, root, ()) from exc
+        raise validation_error(exc, path, root, (), ConfigDoc) from exc
 
 
 def _driver_types(
@@ -265,7 +272,8 @@ def _driver_types(
         try:
             settings[name] = types[driver.type].settings_model.model_validate(driver.settings)
         except ValidationError as exc:
-            raise at.invalid(exc, ("drivers", name, "settings")) from exc
+            model = types[driver.type].settings_model
+            raise at.invalid(exc, ("drivers", name, "settings"), model) from exc
     return types, settings
 
 
@@ -382,10 +390,39 @@ def _check_telemetry_files(doc: ConfigDoc, base_dir: Path, error: ErrorAt) -> No
             ) from None
 
 
+def _check_hosts(
+    doc: ConfigDoc,
+    types: Mapping[str, DriverType],
+    settings: Mapping[str, BaseModel],
+    base_dir: Path,
+    error: ErrorAt,
+) -> None:
+    """Each driver's settings work on this host (files it names, see the ``check_host`` hook).
+
+    Not for a simulated machine: the twin serves the controllers, and makes
+    their certificates where missing.
+    """
+    if doc.simulation is not None:
+        return
+    for name, driver in doc.drivers.items():
+        written = [address for _, d, address in written_points(doc) if d == name]
+        problem = check_host(types[driver.type], settings[name], base_dir=base_dir, written=written)
+        if problem is not None:
+            raise error(("drivers", name, "settings", *problem.keys), problem.message, problem.fix)
+
+
 def validation_error(
-    exc: ValidationError, path: Path, root: yaml.Node | None, prefix: tuple[str | int, ...]
+    exc: ValidationError,
+    path: Path,
+    root: yaml.Node | None,
+    prefix: tuple[str | int, ...],
+    model: type[BaseModel] | None = None,
 ) -> ConfigFileError:
-    """The first of pydantic's complaints about the section at ``prefix``, placed in the file."""
+    """The first of pydantic's complaints about the section at ``prefix``, placed in the file.
+
+    With ``model`` (the section's), an unknown key's fix names the key meant
+    and the keys allowed there.
+    """
     # A misspelt key shows up as "unknown key" plus "missing key"; the
     # unknown one is the more useful to report.
     errors = sorted(exc.errors(), key=lambda e: e["type"] != "extra_forbidden")
@@ -393,5 +430,6 @@ def validation_error(
     location = (*prefix, *first["loc"])
     fix = FIXES.get(first["type"], "")
     if first["type"] == "extra_forbidden":
-        fix += " (see config/compd.example.yaml for every key)"
+        hint = unknown_key_hint(model, first["loc"]) if model is not None else ""
+        fix += f" ({hint})" if hint else " (see config/compd.example.yaml for every key)"
     return ConfigFileError(path, describe(first), where=where(root, location), fix=fix)

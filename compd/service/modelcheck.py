@@ -1,4 +1,4 @@
-"""Whether a config can run a model: every input a signal, every axis an output, every scheduled gain a name.
+"""Whether a config can run a model: every input a signal in its unit, every axis an output, every gain a name.
 
 Checked at start-up, by ``check-config`` and on each model load (local or
 rolled out), before the model reaches the loop.
@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 from compd.errors import ConfigFileError
 from compd.files.yamlplace import where
 from compd.service.schedule import model_gains
+from compd.service.unitcheck import unit_problem
 
 if TYPE_CHECKING:
     from compd.files.modelfile import ModelFile
@@ -29,6 +30,21 @@ def check_model(config: Config, model_file: ModelFile, compiled: CompiledModel) 
             where="signals",
             fix=f"Add them under 'signals' (defined: {sorted(config.doc.signals)})",
         )
+    units = model_file.signal_units() or {}
+    for name in compiled.signals:
+        declared = units.get(name)
+        if declared is None:
+            continue
+        signal = config.doc.signals[name]
+        problem = unit_problem(signal.unit, declared, signal.scale, signal.offset)
+        if problem is not None:
+            raise ConfigFileError(
+                config.path,
+                f"signal {name!r} is in {signal.unit!r}, and model {model_file.path} reads it "
+                f"in {declared!r}: {problem[0]}",
+                where=where(config.root, ("signals", name, "unit")),
+                fix=problem[1],
+            )
     for axis, output in config.doc.outputs.items():
         if output.model_output not in compiled.output_names:
             raise ConfigFileError(
@@ -58,7 +74,7 @@ def _check_gain_names(
                     f"Use one of {sorted(known)}"
                     if known
                     else "Name the gains in the model file ('gain_name: g1' on the sub-models "
-                    "they scale, seed 002 eq. 6), or remove 'gain_schedule'"
+                    "they scale, Post-process 2024, eq. 6), or remove 'gain_schedule'"
                 )
                 raise ConfigFileError(
                     config.path,

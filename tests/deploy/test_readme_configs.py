@@ -49,16 +49,21 @@ def relocated(block: str, root: Path) -> str:
 
 @pytest.mark.parametrize("block", COMPLETE, ids=[f"config{i}" for i in range(len(COMPLETE))])
 def test_complete_configs_pass_check_config(block, tmp_path):
-    """Each complete config, with its model and secrets in place, passes `compd check-config`."""
+    """Each complete config, with its model, certificates and secrets in place, passes `compd check-config`."""
     text = relocated(block, tmp_path)
     doc = yaml.safe_load(text)
     model = Path(doc["model"])
     model.parent.mkdir(parents=True, exist_ok=True)
     shutil.copy(resolve_path("bundled:example_gated_arx.yaml", Path(".")), model)
     for driver in doc["drivers"].values():
-        if (password := driver["settings"].get("password_file")) is not None:
-            Path(password).parent.mkdir(parents=True, exist_ok=True)
-            Path(password).write_text("secret\n")
+        settings = driver["settings"]
+        security = settings.get("security")
+        files = [settings.get("password_file")]
+        if isinstance(security, dict):  # the certificates the guide makes (check-config reads them)
+            files += [security[k] for k in ("certificate", "private_key", "server_certificate")]
+        for name in filter(None, files):
+            Path(name).parent.mkdir(parents=True, exist_ok=True)
+            Path(name).write_text("secret\n")
     path = tmp_path / "etc" / "compd" / "compd.yaml"
     path.write_text(text)
     out = compd("check-config", path)

@@ -108,8 +108,9 @@ net Zpos joint.2.motor-pos-cmd => joint.2.motor-pos-fb
 net estop-loop iocontrol.0.user-enable-out iocontrol.0.emc-enable-in
 net tool-prep-loop iocontrol.0.tool-prepare iocontrol.0.tool-prepared
 net tool-change-loop iocontrol.0.tool-change iocontrol.0.tool-changed
-newsig T-spindle-degC float
 """
+#: The HAL lines a test adds to :data:`HAL` by default: the signal the tests read.
+SIGNALS = "newsig T-spindle-degC float\n"
 
 DISPLAY = """#!/usr/bin/python3
 # A headless DISPLAY: estop off, machine on, home all, then wait for SIGTERM.
@@ -203,8 +204,11 @@ class Machine:
             self.turn = -1
 
 
-def start(folder: Path) -> Machine:
-    """Start LinuxCNC headless from files written into ``folder``; pytest.skip if it cannot run."""
+def start(folder: Path, hal_lines: str = SIGNALS) -> Machine:
+    """Start LinuxCNC headless from files written into ``folder``; pytest.skip if it cannot run.
+
+    ``hal_lines`` are appended to the HAL file (e.g. a guide's lines, as a user would copy them).
+    """
     turn = os.open(TURN, os.O_CREAT | os.O_RDWR, 0o666)
     deadline = time.monotonic() + 300  # a hang guard
     while True:
@@ -221,7 +225,7 @@ def start(folder: Path) -> Machine:
         os.close(turn)
         pytest.skip(reason)
     (folder / "sim.ini").write_text(INI.format(folder=folder))
-    (folder / "sim.hal").write_text(HAL)
+    (folder / "sim.hal").write_text(HAL + hal_lines)
     (folder / "sim.tbl").write_text("")
     display = folder / "display.py"
     display.write_text(DISPLAY)

@@ -83,6 +83,10 @@ def test_the_commented_example_config_is_valid(tmp_path):
     doc["drivers"].update(uncomment("  # mill:", "  # LinuxCNC addresses"))
     doc["outputs"].update(uncomment("  # Z_mill:", "# Written beside"))
     assert doc["drivers"]["mill"]["type"] == "linuxcnc"
+    # The machine's INI, here: check-config reads it for the axes' OFFSET_AV_RATIO.
+    ini = tmp_path / "mill.ini"
+    ini.write_text("[AXIS_Z]\nOFFSET_AV_RATIO = 0.1\n")
+    doc["drivers"]["mill"]["settings"]["ini_file"] = str(ini)
     path = tmp_path / "compd.yaml"
     path.write_text(yaml.safe_dump(doc))
     load_config(path)

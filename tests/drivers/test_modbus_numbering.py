@@ -1,0 +1,115 @@
+"""Modbus addresses as users write them: Modicon references (40101, 30001) and numbers counted from 1.
+
+Manuals and HMIs number registers from 1 with the table in front
+(``40101`` is holding register 101, address 100 on the wire); compd reads
+them so, says how, and misspelt setting keys name the key meant.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import yaml
+
+from compd.cli import main
+from compd.drivers.modbus_addresses import parse_address, translation_note
+
+from ..service.daemon_setup import merge, simulated_doc
+from .modbus_server import free_port, tcp_server
+
+
+def compd(*argv: object) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in argv])
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def plc() -> Iterator[int]:
+    """A pymodbus server on 127.0.0.1 (modbus_server.py); yields its port."""
+    port = free_port()
+    server = tcp_server(port)
+    server.start()
+    yield port
+    server.stop()
+
+
+@pytest.mark.parametrize(
+    ("written", "wire"),
+    [
+        ("40101", "holding:100"),
+        ("30001:int16", "input:0:int16"),
+        ("400101:int32", "holding:100:int32"),
+        ("365536", "input:65535"),
+        ("00001", "coil:0"),
+        ("10016", "discrete:15"),
+        ("holding:101:base=1", "holding:100"),
+        ("input:3:float32:base=1:word=little", "input:2:float32:word=little"),
+    ],
+)
+def test_modicon_and_one_based_addresses_are_the_wire_address_minus_one(written, wire):
+    """A Modicon reference or a base=1 address is the 0-based address one lower, and a note says so."""
+    assert parse_address(written) == parse_address(wire)
+    note = translation_note(written)
+    assert note is not None and wire.split(":")[0] in note and "on the wire" in note
+
+
+def test_plain_addresses_are_unchanged_and_get_no_note():
+    """TABLE:ADDRESS stays 0-based as on the wire; 0 with base=1 and a 5-digit 2xxxx are refused."""
+    assert parse_address("holding:40101").address == 40101
+    assert translation_note("holding:100:int32") is None
+    for bad, match in (("holding:0:base=1", "count from 1"), ("20001", "Modicon")):
+        with pytest.raises(ValueError, match=match):
+            parse_address(bad)
+
+
+def test_probe_reads_a_modicon_reference_from_a_real_server(plc):
+    """compd probe 30001:int16 reads input register 0 of a pymodbus server (-1234)."""
+    code, out, err = compd(
+        "probe", "modbus", "--set", "host=127.0.0.1", "--set", f"port={plc}", "30001:int16"
+    )
+    assert code == 0, err
+    assert "-1234" in out
+
+
+def test_check_config_notes_the_translation(tmp_path):
+    """check-config accepts a signal at 30011:int16 and prints how it read it: input:10 on the wire."""
+    doc = merge(
+        simulated_doc(),
+        {
+            "state": {"directory": str(tmp_path / "state")},
+            "drivers": {"plc": {"type": "modbus", "settings": {"host": "127.0.0.1"}}},
+            "signals": {"T_spindle_degC": {"driver": "plc", "address": "30011:int16"}},
+        },
+    )
+    path = tmp_path / "compd.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    code, out, err = compd("check-config", path)
+    assert code == 0, err
+    assert "note: signals.T_spindle_degC.address: 30011 is Modicon numbering" in out
+    assert "input:10 on the wire" in out
+
+
+def test_an_unknown_set_key_lists_the_valid_ones():
+    """--set hots=... names 'host' as the key meant and lists the keys the driver takes."""
+    code, _, err = compd("probe", "modbus", "--set", "hots=10.0.0.1", "holding:1")
+    assert code == 2
+    assert "did you mean 'host'?" in err and "port, serial_port" in err
+
+
+def test_a_misspelt_config_key_names_the_key_meant(tmp_path):
+    """A config with max_rate_um_per_sec, or a driver setting 'hots', is refused naming the key meant."""
+    for changes, meant in (
+        ({"outputs": {"Y": {"max_rate_um_per_sec": 1.0}}}, "did you mean 'max_rate_um_per_s'?"),
+        ({"drivers": {"machine": {"settings": {"lop": True}}}}, "did you mean 'loop'?"),
+    ):
+        doc = merge(simulated_doc(), {"state": {"directory": str(tmp_path / "state")}, **changes})
+        path = Path(tmp_path / "compd.yaml")
+        path.write_text(yaml.safe_dump(doc))
+        code, _, err = compd("check-config", path)
+        assert code == 2 and meant in err, err
