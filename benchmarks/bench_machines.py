@@ -96,6 +96,10 @@ class MethodResult:
     rms_um: float = float("nan")
     estimate_percent: float | None = None
     kept: str = ""
+    #: The kept method's nested figure per held-out fold (fit %), and every candidate's pooled one.
+    fold_percent: tuple[float, ...] = ()
+    candidates_percent: dict[str, float | None] = field(default_factory=dict)
+    candidates_folds: dict[str, tuple[float, ...]] = field(default_factory=dict)
     fit_s: float = 0.0
     error: str = ""
 
@@ -119,20 +123,13 @@ def _load(paths: list[Path]) -> list[DataSet]:
 def printed_estimate(result: FitResult) -> float | None:
     """What ``fit`` tells the user to expect on new data for the model it kept, fit %.
 
-    A nested cross-validated figure if the provenance carries one for the
-    kept method, else the cross-validated fit of the kept method, else None
-    (a method fit does not judge, e.g. ``--method arx``).
+    The provenance's expected figure for the kept method
+    (:meth:`~compd.files.modelschema.CrossValidationDoc.expected_percent`:
+    nested, less the folds' spread), else None (a method fit does not judge,
+    e.g. ``--method arx``).
     """
     doc = result.provenance.cross_validation
-    if doc is None:
-        return None
-    kept = result.identification.method
-    for name in ("nested_fit_percent", "expected_fit_percent"):
-        figures = getattr(doc, name, None)
-        if isinstance(figures, dict) and kept in figures:
-            return float(figures[kept])
-    value = doc.fit_percent.get(kept)
-    return None if value is None else float(value)
+    return None if doc is None else doc.expected_percent(result.identification.method)
 
 
 def judge(seed: int) -> CaseResult:
@@ -190,6 +187,15 @@ def _judge_method(
         judged.rms_um = float(pooled.residue.rms_um)
         judged.estimate_percent = printed_estimate(fitted)
         judged.kept = fitted.identification.method
+        if fitted.selection is not None:
+            score = fitted.selection.score(judged.kept)
+            judged.fold_percent = () if score is None else score.fold_fit_percent
+            judged.candidates_percent = {
+                s.method: s.expected_percent for s in fitted.selection.scores
+            }
+            judged.candidates_folds = {
+                s.method: s.fold_fit_percent for s in fitted.selection.scores
+            }
         break
     judged.fit_s = time.perf_counter() - started
     return judged

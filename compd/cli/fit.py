@@ -234,11 +234,13 @@ def _candidates_table(result: FitResult) -> Table:
     table = Table(
         "method",
         "expected on new data %",
+        "nested fit %",
         "cross-validated fit %",
         "calibration fit %",
         "",
         title=f"judged by {selection.folds.describe()} (fit on the others, run through the whole "
-        "record); expected: every setting chosen inside each training set (nested)",
+        "record); nested: every setting chosen inside each training set; expected: nested less "
+        "its spread over the folds",
     )
 
     def figure(value: float | None) -> str:
@@ -251,12 +253,15 @@ def _candidates_table(result: FitResult) -> Table:
         table.add_row(
             score.method,
             figure(score.expected_percent),
+            figure(score.nested_fit_percent),
             figure(score.cv_fit_percent),
             fmt(score.calibration_fit_percent, 1),
             note,
         )
     if kept not in {s.method for s in selection.scores}:
-        table.add_row(kept, "not judged", "-", fmt(result.identification.fit_percent, 1), "kept")
+        table.add_row(
+            kept, "not judged", "-", "-", fmt(result.identification.fit_percent, 1), "kept"
+        )
     return table
 
 
@@ -267,6 +272,8 @@ def expectation_line(result: FitResult) -> str | None:
     if score is None or score.expected_percent is None:
         return None
     how = "nested cross-validation" if score.nested_fit_percent is not None else "cross-validation"
+    if score.spread_percent:
+        how += f" less its spread over the folds, {fmt(score.spread_percent, 1)} points"
     return (
         f"{score.method} kept: expected fit on new data {fmt(score.expected_percent, 1)} % ({how}); "
         f"{fmt(result.identification.fit_percent, 1)} % on the data it was fitted on"
