@@ -41,7 +41,12 @@ import numpy as np
 from compd.errors import ModelError
 from compd.model.crossval import Folds
 from compd.model.experiments import ONE
-from compd.model.guards import CANCEL_SIZE_RATIO, CANCEL_SUM_FRACTION, GAIN_WARNING_RATIO
+from compd.model.guards import (
+    CANCEL_SIZE_RATIO,
+    CANCEL_SUM_FRACTION,
+    GAIN_ERROR_RATIO,
+    GAIN_WARNING_RATIO,
+)
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S, LagBankFit, lag_features
 from compd.model.metrics import fit_percent
 
@@ -276,18 +281,31 @@ def plausible(
     return not cancelling(terms)
 
 
-def regression_plausible(y: np.ndarray, u: np.ndarray, gains: np.ndarray) -> bool:
-    """:func:`plausible` for the static regression ``y = u @ gains`` over the rows given."""
+def regression_written(y: np.ndarray, u: np.ndarray, gains: np.ndarray) -> bool:
+    """Whether ``compd fit`` writes the static regression ``y = u @ gains`` (rows given) unforced.
+
+    Its guard rails refuse a gain beyond :data:`GAIN_ERROR_RATIO` times the
+    output's range and cancelling pairs; a gain beyond the warning ratio is
+    written with a warning (the regression is the controllers' own model: a
+    warning does not make the lag bank, which may travel worse, the choice).
+    """
     output_range = float(np.ptp(y))
     if output_range <= 0.0:
         return True
-    return not reaches_too_far(gains, u, output_range) and not cancelling(u * gains)
+    return not reaches_too_far(gains, u, output_range, GAIN_ERROR_RATIO) and not cancelling(
+        u * gains
+    )
 
 
-def reaches_too_far(static_gains: np.ndarray, inputs: np.ndarray, output_range: float) -> bool:
-    """Whether an input's static gain times its range exceeds the guard rails' warning ratio."""
+def reaches_too_far(
+    static_gains: np.ndarray,
+    inputs: np.ndarray,
+    output_range: float,
+    ratio: float = GAIN_WARNING_RATIO,
+) -> bool:
+    """Whether an input's static gain times its range exceeds ``ratio`` times the output's range."""
     reach = np.abs(static_gains) * np.ptp(inputs, axis=0)
-    return bool(np.any(reach > GAIN_WARNING_RATIO * output_range))
+    return bool(np.any(reach > ratio * output_range))
 
 
 def cancelling(terms: np.ndarray) -> bool:

@@ -26,7 +26,7 @@ from compd.model.experiments import ONE
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S, LagBankFit, regression_cv
 from compd.model.metrics import fit_percent
 from compd.model.nested import nested_prediction, scored_fit_percent
-from compd.model.shrinkbank import ShrunkBank, regression_plausible
+from compd.model.shrinkbank import ShrunkBank, regression_written
 
 #: Forward selection stops when the next input adds less than this to the held-out fit (points).
 SELECTION_MIN_GAIN_POINTS = 1.0
@@ -197,9 +197,10 @@ def compare_candidates(
             )
         )
     judged = [s for s in scores if s.method in candidates]
-    if len(judged) > 1 and not regression_plausible(y[fitted], u[fitted], gains):
+    if len(judged) > 1 and not regression_written(y[fitted], u[fitted], gains):
         # The guard rails would refuse the regression (collinear inputs balanced against each
-        # other); the lag bank, plausible by construction, is the model to write.
+        # other, a gain far beyond the output's range); the lag bank, plausible by construction,
+        # is the model to write.
         judged = [s for s in judged if s.method != "mlr"]
     kept = max(judged, key=_preference).method
     if kept == "lagbank" and "mlr" in {s.method for s in judged}:
