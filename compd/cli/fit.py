@@ -108,7 +108,7 @@ def register(commands: Any) -> None:
         help="auto (default): the lag bank or the static regression, whichever is expected to "
         "fit new data better (nested cross-validation over operating cycles); lagbank: the static "
         "regression plus first-order lags at fixed time constants, the lags shrunk toward the "
-        "regression by one weight (one-standard-error rule); oe: a denominator per input, fitted "
+        "regression by one weight (two-standard-error rule); oe: a denominator per input, fitted "
         "on the simulation error; arx: least squares with a common denominator; mlr: static "
         "linear regression (the baseline)",
     )
