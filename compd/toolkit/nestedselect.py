@@ -7,8 +7,9 @@ Here every candidate's own settings are chosen inside each training set
 gives; less the spread of its per-fold figures, it is what to expect on the
 next record (:attr:`CandidateScore.expected_percent`). The lag bank
 (:mod:`compd.model.shrinkbank`, the regression plus lags shrunk toward it)
-is kept over the static regression only when it is plausible and its nested
-gain, fold by fold, is a standard error clear of zero. Without that, the
+is kept over the static regression only when it is plausible, its nested
+fit at least a point higher, and its gain, fold by fold, a standard error
+clear of zero. Without that, the
 regression: it has nothing to fit, and is set aside only when ``compd fit``
 would refuse it.
 """
@@ -204,13 +205,28 @@ def compare_candidates(
         judged = [s for s in judged if s.method != "mlr"]
     kept = max(judged, key=_preference).method
     if kept == "lagbank" and "mlr" in {s.method for s in judged}:
-        kept = "lagbank" if _consistently_better(fresh_y, nested, baseline, folds) else "mlr"
+        gain = _held_out_gain(scores)
+        worth_it = gain is None or gain >= DYNAMICS_MIN_GAIN_POINTS
+        consistent = _consistently_better(fresh_y, nested, baseline, folds)
+        kept = "lagbank" if worth_it and consistent else "mlr"
     return Selection(folds, tuple(scores), kept, lag_bank, steps)
 
 
 #: The lag bank is kept over the regression only when its nested improvement, fold by fold,
 #: is at least this many standard errors above zero.
 MARGIN_STANDARD_ERRORS = 1.0
+#: ... and its pooled nested fit at least this many points above the regression's: as in forward
+#: selection (:data:`SELECTION_MIN_GAIN_POINTS`), a gain smaller than that does not pay for what
+#: the dynamics risk on a programme the calibration did not run (on the random machines of
+#: ``benchmarks/bench_machines.py``: not below the regression on 88 % of them instead of 80 %).
+DYNAMICS_MIN_GAIN_POINTS = SELECTION_MIN_GAIN_POINTS
+
+
+def _held_out_gain(scores: Sequence[CandidateScore]) -> float | None:
+    """The lag bank's pooled held-out fit minus the regression's, points (None: one not judged)."""
+    figures = {s.method: s.held_out_percent for s in scores}
+    bank, regression = figures.get("lagbank"), figures.get("mlr")
+    return None if bank is None or regression is None else bank - regression
 
 
 def _consistently_better(
