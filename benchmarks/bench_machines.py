@@ -46,10 +46,11 @@ Main at be3e32e (issue 20 round 1: the shrunk lag bank, nested selection,
 warm start), 45 s: not below mlr on 72 % (above 38 %), median gap 0.4,
 estimate error -22.8 / -0.3 / +10.3 / +40.5 / +160.5. Round 2 (the expected
 figure less the folds' spread, the lag bank's weight by two standard errors,
-the regression set aside only when ``fit`` would refuse it), 37 s: **80 %**
-(above 33 %), gap **0.3**, estimate error -77.4 / -13.7 / **+0.7** / +19.6 /
-+137.5 (one record +8.9 at the median, warm-up runs -2.4); median verify fit
-default 60.9 %, mlr 60.1; kept lagbank 58, mlr 42. More in benchmarks/README.md.
+the regression set aside only when ``fit`` would refuse it, the lag bank
+kept only a point or more above it nested), 40 s: **88 %** (above 28 %), gap
+**0.3**, estimate error -77.4 / -14.2 / **+0.3** / +16.9 / +137.5 (one record
++7.2 at the median, warm-up runs -2.0); median verify fit default 62.1 %, mlr
+60.1; kept lagbank 41, mlr 59. More in benchmarks/README.md.
 """
 
 from __future__ import annotations

@@ -78,8 +78,8 @@ class CandidateScore:
 
         The folds of one calibration are more alike than the calibration and
         the next record: on 100 random machines (``benchmarks/bench_machines.py``)
-        the pooled nested figure overstated the unseen fit by 10.6 points at
-        the median, this one by 0.7 (quartiles -13.7 / +19.6).
+        the pooled nested figure overstated the unseen fit by 10.1 points at
+        the median, this one by 0.3 (quartiles -14.2 / +16.9).
         """
         held_out = self.held_out_percent
         return None if held_out is None else held_out - self.spread_percent
