@@ -144,3 +144,21 @@ def test_the_expected_figure_is_the_nested_one_less_its_spread_over_the_folds() 
     assert score.spread_percent == pytest.approx(float(np.std([90.0, 80.0, 70.0])))
     assert score.expected_percent == pytest.approx(80.0 - 8.1650, abs=1e-3)
     assert CandidateScore("mlr", 90.0, 75.0, 75.0, (75.0,)).expected_percent == 75.0
+
+
+def test_a_lag_bank_consistently_but_barely_better_is_not_kept() -> None:
+    """Lags that add 0.4 points nested, fold by fold: less than a point does not pay for the dynamics' risk."""
+    rng = np.random.default_rng(5)
+    speed, u = _cycles(rng)
+    lagged = lag_features(u[:, :1], (1800.0,), DT_S)[:, 0]
+    y = u @ np.array([2.0, -1.0, 0.5]) + 0.35 * (lagged - u[:, 0])
+    y += rng.normal(0.0, 0.05, speed.size)
+    selection = compare_candidates(
+        y, {"a": u[:, 0], "b": u[:, 1], "c": u[:, 2]}, sample_time_s=DT_S,
+        folds=cycle_folds(speed), candidates=("lagbank", "mlr"), time_constants_s=TAUS,
+    )  # fmt: skip
+    score, baseline = selection.score("lagbank"), selection.score("mlr")
+    assert score is not None and baseline is not None
+    assert score.nested_fit_percent is not None and baseline.nested_fit_percent is not None
+    assert 0.0 < score.nested_fit_percent - baseline.nested_fit_percent < 1.0
+    assert selection.kept == "mlr"
