@@ -155,15 +155,22 @@ def test_bad_input_exits_2_naming_file_place_and_fix(
 def test_the_expected_fit_on_new_data_is_printed_first_and_stored(
     calibration_csv, tmp_path, capsys
 ):
-    """fit leads with the nested figure beside the in-sample one, stores it, and model check leads with it."""
+    """fit leads with the nested figure less its spread over the folds, stores both, and model check leads with it."""
     model = tmp_path / "auto.yaml"
     assert _fit(calibration_csv, model) == 0
     printed = " ".join(capsys.readouterr().out.split())  # as read, whatever the wrapping
     held_out = load_model(model).doc.provenance.cross_validation
     assert held_out is not None
-    expected = held_out.nested_fit_percent[held_out.kept]
-    assert set(held_out.nested_fit_percent) == {"lagbank", "mlr"}
-    assert f"expected fit on new data {expected:.1f} % (nested cross-validation)" in printed
+    spread = held_out.fold_spread_percent[held_out.kept]
+    expected = held_out.nested_fit_percent[held_out.kept] - spread
+    assert (
+        set(held_out.nested_fit_percent) == set(held_out.fold_spread_percent) == {"lagbank", "mlr"}
+    )
+    assert spread > 0.0 and held_out.expected_percent() == pytest.approx(expected)
+    assert (
+        f"expected fit on new data {expected:.1f} % (nested cross-validation less its spread "
+        f"over the folds, {spread:.1f} points)"
+    ) in printed
     assert main(["model", "check", str(model)]) == 0
     checked = capsys.readouterr().out.splitlines()
     assert checked[1].startswith(f"expected fit on new data: {expected:.1f} %")

@@ -109,7 +109,7 @@ def register(commands: Any) -> None:
         help="auto (default): the lag bank or the static regression, whichever is expected to "
         "fit new data better (nested cross-validation over operating cycles); lagbank: the static "
         "regression plus first-order lags at fixed time constants, the lags shrunk toward the "
-        "regression by one weight (one-standard-error rule); oe: a denominator per input, fitted "
+        "regression by one weight (two-standard-error rule); oe: a denominator per input, fitted "
         "on the simulation error; arx: least squares with a common denominator; mlr: static "
         "linear regression (the baseline)",
     )
@@ -235,11 +235,13 @@ def _candidates_table(result: FitResult) -> Table:
     table = Table(
         "method",
         "expected on new data %",
+        "nested fit %",
         "cross-validated fit %",
         "calibration fit %",
         "",
         title=f"judged by {selection.folds.describe()} (fit on the others, run through the whole "
-        "record); expected: every setting chosen inside each training set (nested)",
+        "record); nested: every setting chosen inside each training set; expected: nested less "
+        "its spread over the folds",
     )
 
     def figure(value: float | None) -> str:
@@ -252,12 +254,15 @@ def _candidates_table(result: FitResult) -> Table:
         table.add_row(
             score.method,
             figure(score.expected_percent),
+            figure(score.nested_fit_percent),
             figure(score.cv_fit_percent),
             fmt(score.calibration_fit_percent, 1),
             note,
         )
     if kept not in {s.method for s in selection.scores}:
-        table.add_row(kept, "not judged", "-", fmt(result.identification.fit_percent, 1), "kept")
+        table.add_row(
+            kept, "not judged", "-", "-", fmt(result.identification.fit_percent, 1), "kept"
+        )
     return table
 
 
@@ -268,6 +273,8 @@ def expectation_line(result: FitResult) -> str | None:
     if score is None or score.expected_percent is None:
         return None
     how = "nested cross-validation" if score.nested_fit_percent is not None else "cross-validation"
+    if score.spread_percent:
+        how += f" less its spread over the folds, {fmt(score.spread_percent, 1)} points"
     return (
         f"{score.method} kept: expected fit on new data {fmt(score.expected_percent, 1)} % ({how}); "
         f"{fmt(result.identification.fit_percent, 1)} % on the data it was fitted on"

@@ -249,7 +249,10 @@ class CrossValidationDoc(_Strict):
     the static regression on the same inputs), settings chosen by the same
     folds; ``nested_fit_percent``: the same with every setting chosen inside
     each training set only (nested cross-validation), the figure to expect on
-    new data (absent in files written before compd recorded it);
+    new data of the same kind (absent in files written before compd recorded
+    it); ``fold_spread_percent``: the standard deviation of the nested figure
+    over the folds, which the figure to expect on the next record
+    (:meth:`expected_percent`) is less by (absent before compd recorded it);
     ``calibration_fit_percent`` the same candidates' fit on all the data they
     were fitted on.
     """
@@ -259,12 +262,17 @@ class CrossValidationDoc(_Strict):
     kept: str
     fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
     nested_fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+    fold_spread_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
     calibration_fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
 
     def expected_percent(self, method: str | None = None) -> float | None:
-        """The kept (or ``method``'s) figure to expect on new data: nested, else cross-validated."""
+        """The kept (or ``method``'s) figure to expect on new data.
+
+        Nested, else cross-validated, less the folds' spread where the file records it.
+        """
         name = self.kept if method is None else method
-        return self.nested_fit_percent.get(name, self.fit_percent.get(name))
+        held_out = self.nested_fit_percent.get(name, self.fit_percent.get(name))
+        return None if held_out is None else held_out - self.fold_spread_percent.get(name, 0.0)
 
 
 class ProvenanceDoc(_Strict):

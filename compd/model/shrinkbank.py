@@ -14,10 +14,13 @@ has one hyperparameter and a safe end:
   becomes exactly the regression. So the penalty shrinks the dynamics toward
   the baseline it must beat, not toward zero;
 - ``w`` is chosen by leave-one-fold-out fit among :data:`SHRINK_WEIGHTS` with
-  the one-standard-error rule (Hastie, Tibshirani, Friedman, sect. 7.10): the
-  largest weight whose held-out error is within one standard error of the
-  best. Selection noise on a few folds is that size, and the more shrunk
-  model travels better to a programme the calibration did not run.
+  the standard-error rule (Hastie, Tibshirani, Friedman, sect. 7.10) at
+  :data:`WEIGHT_STANDARD_ERRORS`: the largest weight whose held-out error is
+  within two standard errors of the best. Selection noise on a few folds is
+  that size, and the more shrunk model travels better to a programme the
+  calibration did not run (on the random machines, two standard errors
+  rather than one: not below the regression on 75 % of machines instead of
+  72 %, the real record's ch3/ch4 74.5 / 75.0 % nested instead of 73.5 / 74.1 %).
 
 On 100 random machines of the twin (``benchmarks/bench_machines.py``,
 verify data on another programme) the default built on it is not below the
@@ -38,12 +41,20 @@ import numpy as np
 from compd.errors import ModelError
 from compd.model.crossval import Folds
 from compd.model.experiments import ONE
-from compd.model.guards import CANCEL_SIZE_RATIO, CANCEL_SUM_FRACTION, GAIN_WARNING_RATIO
+from compd.model.guards import (
+    CANCEL_SIZE_RATIO,
+    CANCEL_SUM_FRACTION,
+    GAIN_ERROR_RATIO,
+    GAIN_WARNING_RATIO,
+)
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S, LagBankFit, lag_features
 from compd.model.metrics import fit_percent
 
 #: Penalty weights on the standardised lag columns, relative to the number of fitted samples.
 SHRINK_WEIGHTS: tuple[float, ...] = tuple(float(w) for w in np.logspace(-5, 1, 13))
+#: The weight is the largest whose pooled held-out error is within this many standard errors
+#: (over the folds) of the best weight's.
+WEIGHT_STANDARD_ERRORS = 2.0
 
 
 class ShrunkBank:
@@ -150,10 +161,10 @@ class ShrunkBank:
         """The bank on the samples ``train`` (default: every fitted one), its weight by the folds inside.
 
         ``inputs``: the indices of the inputs it uses (default all; the
-        others get zero gains). The weight is the largest within one standard
-        error of the best pooled held-out error (:data:`SHRINK_WEIGHTS`); with
-        fewer than two folds inside ``train`` it is the largest (the
-        regression, nearly).
+        others get zero gains). The weight is the largest within
+        :data:`WEIGHT_STANDARD_ERRORS` standard errors of the best pooled
+        held-out error (:data:`SHRINK_WEIGHTS`); with fewer than two folds
+        inside ``train`` it is the largest (the regression, nearly).
         """
         train = self.fitted if train is None else np.asarray(train, dtype=bool) & self.fitted
         columns = self.columns(inputs)
@@ -184,7 +195,9 @@ class ShrunkBank:
                 held_out.append((held, predictions))
             total = np.where(eligible, errors.sum(axis=0), np.inf)
             best = int(np.argmin(total))
-            standard_error = float(np.std(errors[:, best]) * np.sqrt(len(inner)))
+            standard_error = WEIGHT_STANDARD_ERRORS * float(
+                np.std(errors[:, best]) * np.sqrt(len(inner))
+            )
             chosen = int(np.flatnonzero(total <= total[best] + standard_error).max())
             for held, predictions in held_out:
                 cv_predicted[held] = predictions[:, chosen]
@@ -268,18 +281,31 @@ def plausible(
     return not cancelling(terms)
 
 
-def regression_plausible(y: np.ndarray, u: np.ndarray, gains: np.ndarray) -> bool:
-    """:func:`plausible` for the static regression ``y = u @ gains`` over the rows given."""
+def regression_written(y: np.ndarray, u: np.ndarray, gains: np.ndarray) -> bool:
+    """Whether ``compd fit`` writes the static regression ``y = u @ gains`` (rows given) unforced.
+
+    Its guard rails refuse a gain beyond :data:`GAIN_ERROR_RATIO` times the
+    output's range and cancelling pairs; a gain beyond the warning ratio is
+    written with a warning (the regression is the controllers' own model: a
+    warning does not make the lag bank, which may travel worse, the choice).
+    """
     output_range = float(np.ptp(y))
     if output_range <= 0.0:
         return True
-    return not reaches_too_far(gains, u, output_range) and not cancelling(u * gains)
+    return not reaches_too_far(gains, u, output_range, GAIN_ERROR_RATIO) and not cancelling(
+        u * gains
+    )
 
 
-def reaches_too_far(static_gains: np.ndarray, inputs: np.ndarray, output_range: float) -> bool:
-    """Whether an input's static gain times its range exceeds the guard rails' warning ratio."""
+def reaches_too_far(
+    static_gains: np.ndarray,
+    inputs: np.ndarray,
+    output_range: float,
+    ratio: float = GAIN_WARNING_RATIO,
+) -> bool:
+    """Whether an input's static gain times its range exceeds ``ratio`` times the output's range."""
     reach = np.abs(static_gains) * np.ptp(inputs, axis=0)
-    return bool(np.any(reach > GAIN_WARNING_RATIO * output_range))
+    return bool(np.any(reach > ratio * output_range))
 
 
 def cancelling(terms: np.ndarray) -> bool:

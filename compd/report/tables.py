@@ -237,9 +237,12 @@ def provenance(run: ModelRun) -> str:
     expected = None if held_out is None else held_out.expected_percent()
     if held_out is not None and expected is not None:
         nested = held_out.kept in held_out.nested_fit_percent
+        how = "nested cross-validation" if nested else "cross-validation"
+        if held_out.fold_spread_percent.get(held_out.kept):
+            how += " less its spread over the folds"
         lines.append(
             f"<li><b>expected fit on new data: {expected:.1f} %</b> ({escape(held_out.kept)}, "
-            f"{'nested cross-validation' if nested else 'cross-validation'}, "
+            f"{how}, "
             f"{escape(held_out.folds)}); the fits below are on the data it was fitted on</li>"
         )
     for label, value in (

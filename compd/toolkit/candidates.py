@@ -175,7 +175,7 @@ def check_against_regression(data: DataSet, selection: Selection, chosen: str, f
     score, regression = selection.score(chosen), selection.score("mlr")
     if force or score is None or regression is None or chosen == "mlr":
         return
-    mine, baseline = score.expected_percent, regression.expected_percent
+    mine, baseline = score.held_out_percent, regression.held_out_percent
     if mine is None or baseline is None:
         return
     if mine < baseline:
@@ -202,6 +202,7 @@ def cross_validation_doc(output: str, selection: Selection) -> CrossValidationDo
             for s in selection.scores
             if s.nested_fit_percent is not None
         },
+        fold_spread_percent={s.method: s.spread_percent for s in selection.scores},
         calibration_fit_percent={s.method: s.calibration_fit_percent for s in selection.scores},
         output=output,
     )

@@ -3,14 +3,20 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import scipy.signal
 from numpy.testing import assert_allclose
 
 from compd.model.crossval import Folds, cycle_folds
 from compd.model.lagbank import lag_features
 from compd.model.nested import nested_prediction, scored_fit_percent
-from compd.model.shrinkbank import SHRINK_WEIGHTS, ShrunkBank
-from compd.toolkit.nestedselect import compare_candidates
+from compd.model.shrinkbank import (
+    SHRINK_WEIGHTS,
+    ShrunkBank,
+    reaches_too_far,
+    regression_written,
+)
+from compd.toolkit.nestedselect import CandidateScore, compare_candidates
 
 DT_S = 60.0
 TAUS = (0.0, 300.0, 1200.0, 3600.0, 10800.0)
@@ -120,3 +126,39 @@ def test_a_nested_fold_is_predicted_by_a_procedure_that_never_saw_it() -> None:
         assert not np.any(train & (labels == fold)) and np.all(train | (labels == fold))
         assert np.all(prediction[labels == fold] == fold + 1)
     assert nested_prediction(procedure, Folds(np.repeat(np.arange(2), 50), "halves")) is None
+
+
+def test_a_regression_the_guard_rails_only_warn_about_stays_a_candidate() -> None:
+    """A gain reaching 5x the output's range is a warning, not a refusal: the regression is still written."""
+    u = np.linspace(0.0, 1.0, 50)[:, None]
+    y = np.sin(np.linspace(0.0, 3.0, 50))
+    output_range = float(np.ptp(y))
+    assert not regression_written(y, u, np.array([12.0 * output_range]))
+    assert regression_written(y, u, np.array([5.0 * output_range]))
+    assert reaches_too_far(np.array([5.0 * output_range]), u, output_range)  # the warning
+
+
+def test_the_expected_figure_is_the_nested_one_less_its_spread_over_the_folds() -> None:
+    """Nested 80 % pooled over folds of 90, 80 and 70 %: 80 less their standard deviation, 8.2 points."""
+    score = CandidateScore("lagbank", 95.0, 85.0, 80.0, (90.0, 80.0, 70.0))
+    assert score.spread_percent == pytest.approx(float(np.std([90.0, 80.0, 70.0])))
+    assert score.expected_percent == pytest.approx(80.0 - 8.1650, abs=1e-3)
+    assert CandidateScore("mlr", 90.0, 75.0, 75.0, (75.0,)).expected_percent == 75.0
+
+
+def test_a_lag_bank_consistently_but_barely_better_is_not_kept() -> None:
+    """Lags that add 0.4 points nested, fold by fold: less than a point does not pay for the dynamics' risk."""
+    rng = np.random.default_rng(5)
+    speed, u = _cycles(rng)
+    lagged = lag_features(u[:, :1], (1800.0,), DT_S)[:, 0]
+    y = u @ np.array([2.0, -1.0, 0.5]) + 0.35 * (lagged - u[:, 0])
+    y += rng.normal(0.0, 0.05, speed.size)
+    selection = compare_candidates(
+        y, {"a": u[:, 0], "b": u[:, 1], "c": u[:, 2]}, sample_time_s=DT_S,
+        folds=cycle_folds(speed), candidates=("lagbank", "mlr"), time_constants_s=TAUS,
+    )  # fmt: skip
+    score, baseline = selection.score("lagbank"), selection.score("mlr")
+    assert score is not None and baseline is not None
+    assert score.nested_fit_percent is not None and baseline.nested_fit_percent is not None
+    assert 0.0 < score.nested_fit_percent - baseline.nested_fit_percent < 1.0
+    assert selection.kept == "mlr"
