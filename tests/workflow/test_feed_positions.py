@@ -34,6 +34,7 @@ import pytest
 from compd.cli import main
 from compd.files.modelfile import load_model
 from compd.sim.positions import simulate_feed_positions
+from compd.toolkit.fitmodel import unit_of
 
 SAMPLE_TIME_S = 10
 CALIBRATION_HOURS = 24
@@ -149,7 +150,8 @@ def test_check_config_accepts_a_position_model_when_the_signal_is_defined(
             "signals:",
         ]
         for name in signals:
-            lines += [f"  {name}: {{driver: machine, address: {name}, unit: '-'}}"]
+            # Each signal in the unit the model reads it in (its name's suffix, as fit took it).
+            lines += [f"  {name}: {{driver: machine, address: {name}, unit: '{unit_of(name)}'}}"]
         lines += [
             "outputs:",
             "  X: {model_output: disp_x_um, driver: machine, address: comp_x_um, sign: -1,",
