@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import threading
 import time
 from collections import deque
@@ -60,9 +61,11 @@ from typing import Any
 import paho.mqtt.client as mqtt
 import structlog
 from paho.mqtt.enums import MQTTErrorCode
+from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from compd.faultlog import Event, FaultLog
 from compd.service.compensator import TickRecord
+from compd.service.mqttclaim import Claim, Instance, where
 from compd.service.mqttlink import Broker, Topics, connect_properties, mqtt_client
 from compd.service.telemetryjson import SCHEMA, compd_version, dumps, finite, finites
 
@@ -80,6 +83,8 @@ PACKET_OVERHEAD_BYTES = 1024
 MAX_PACKET_BYTES = 64 * 1024
 #: Longest a clean stop waits for the queue to drain and the death message's acknowledgement (s).
 STOP_TIMEOUT_S = 5.0
+#: MQTT 5's reason code when the broker drops a connection for another with the same client id.
+SESSION_TAKEN_OVER = 0x8E
 
 
 @dataclass
@@ -113,6 +118,7 @@ class Telemetry:
         queue_size: int = 1000,
         identity: Callable[[], dict[str, Any]] = dict,
         wall: Callable[[], float] = time.time,
+        instance: Instance | None = None,
     ) -> None:
         self.broker = broker
         self.topics = topics
@@ -121,6 +127,15 @@ class Telemetry:
         self.identity = identity
         self.wall = wall
         self.counters = TelemetryCounters()
+        #: This process, as its birth, death and will name it (:mod:`compd.service.mqttclaim`).
+        self.instance = instance or Instance.this_process()
+        self._claim = Claim(self.instance)
+        #: Connected, and no other live daemon publishes as this machine_id: publishing.
+        self._active = False
+        #: The SUBACK after which the retained birth and death of this machine_id have been heard.
+        self._check_mid: int | None = None
+        #: The other live daemon this one stands by for (its birth's ``instance``), if any.
+        self.rival: dict[str, Any] | None = None
         # Sparkplug's bdSeq: numbers the connections, across restarts too (milliseconds at start).
         self.session = int(time.time() * 1000)
         self._statuses: deque[tuple[TickRecord, dict[str, int], str | None]] = deque(
@@ -132,6 +147,8 @@ class Telemetry:
         self._waiting_for_acks = False
         self._fault = FaultLog(log, broker=f"{broker.host}:{broker.port}")
         self._fault.sink = self.event  # the broker's own faults are events, published on return
+        self._duplicate = FaultLog(log, machine_id=topics.machine_id)
+        self._duplicate.sink = self.event
         self._client = self._make_client()
         self._wake: asyncio.Event | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -149,12 +166,13 @@ class Telemetry:
     def _make_client(self) -> mqtt.Client:
         client = mqtt_client(self.broker)
         client.max_queued_messages_set(MAX_UNACKNOWLEDGED + 10)  # + the death, at stop
+        client.on_pre_connect = self._on_pre_connect
         client.on_connect = self._on_connect
+        client.on_subscribe = self._on_subscribe
         client.on_connect_fail = self._on_connect_fail
         client.on_disconnect = self._on_disconnect
         client.on_publish = self._on_publish
         client.on_message = self._on_message
-        self._set_will(client)
         return client
 
     # -- the loop's side --------------------------------------------------------------------
@@ -209,7 +227,7 @@ class Telemetry:
             await self._wake.wait()
             self._wake.clear()
             sent = 0
-            while self.counters.connected:
+            while self._active and self.counters.connected:
                 self._waiting_for_acks = self._unacknowledged >= MAX_UNACKNOWLEDGED
                 if self._waiting_for_acks:
                     break  # _on_publish wakes this task again
@@ -250,13 +268,14 @@ class Telemetry:
         if self._loop is None:
             return
         deadline = time.monotonic() + STOP_TIMEOUT_S
-        while self.counters.connected and (self._events or self._statuses or self._birth_due):
+        while self._active and (self._events or self._statuses or self._birth_due):
             if time.monotonic() > deadline:
                 break
             self._notify()
             await asyncio.sleep(0.01)
-        if self.counters.connected:
+        if self._active:  # a daemon standing by has no birth to end (its will goes with the disconnect)
             death = self._header("death") | {"reason": "stopped", "ticks": ticks}
+            death["instance"] = self.instance.describe()
             death["telemetry"] = self.status_counters()
             info = self._client.publish(self.topics.of("death"), dumps(death), self.qos, True)
             self.counters.published += 1
@@ -307,13 +326,15 @@ class Telemetry:
             "acknowledged": c.acknowledged,
             "dropped": c.dropped,
             "connections": c.connections,
+            "stands_by_for": None if self.rival is None else where(self.rival),
         }
 
     # -- paho's thread --------------------------------------------------------------------------
 
-    def _set_will(self, client: mqtt.Client) -> None:
+    def _on_pre_connect(self, client: Any, userdata: Any) -> None:
+        """Each connection's will, stamped now: the broker sends it unstamped, when it notices."""
         will = self._header("death") | {"reason": "connection lost"}
-        del will["time"]  # the broker sends it when it notices, at a time nobody can stamp here
+        will |= {"time_is": "connected", "instance": self.instance.describe()}
         client.will_set(self.topics.of("death"), dumps(will), self.qos, retain=True)
 
     def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
@@ -322,13 +343,75 @@ class Telemetry:
             return
         self.counters.connections += 1
         self.counters.connected = True
-        self._birth_due = True
-        for kind in self._commands:  # a clean session: subscribed again on every connection
-            client.subscribe(self.topics.of(f"cmd/{kind}"), qos=1)
+        self._active = False
+        # Who else publishes as this machine_id: the retained birth and death come after the first
+        # SUBACK and before the second (the broker answers a client's packets in order).
+        own = SubscribeOptions(qos=1, noLocal=True)
+        client.subscribe([(self.topics.of("birth"), own), (self.topics.of("death"), own)])
+        quiet = SubscribeOptions(qos=1, noLocal=True, retainHandling=2)
+        self._check_mid = client.subscribe(self.topics.of("death"), options=quiet)[1]
         if self.counters.connections == 1 and not self._fault.active:
             log.info("telemetry connected", broker=f"{self.broker.host}:{self.broker.port}")
-        self._fault.cleared("telemetry broker connected again", kind="reconnected")
-        self._notify()
+        self._fault.cleared("telemetry broker connected again", also="reconnected")
+
+    def _on_subscribe(self, client: Any, userdata: Any, mid: int, codes: Any, props: Any) -> None:
+        if mid == self._check_mid:
+            self._check_mid = None
+            self._decide(client, publishing=False)
+
+    def _decide(self, client: Any, *, publishing: bool) -> None:
+        """Publish, or stand by for another live daemon with this machine_id (module mqttclaim)."""
+        rival = self._claim.rival(publishing=publishing)
+        if rival is not None:
+            self._stand_by(client, rival)
+        elif not self._active:
+            self._active = True
+            self._birth_due = True
+            for kind in self._commands:  # a clean session: subscribed again on every connection
+                client.subscribe(self.topics.of(f"cmd/{kind}"), qos=1)
+            if self.rival is not None:
+                self.rival = None
+                self._duplicate.cleared("telemetry publishes: the other daemon is gone")
+            self._notify()
+
+    def _stand_by(self, client: Any, rival: dict[str, Any]) -> None:
+        instance = rival.get("instance") or {}
+        if self._active:
+            self._active = False
+            for kind in self._commands:
+                client.unsubscribe(self.topics.of(f"cmd/{kind}"))
+        self.rival = instance
+        self._duplicate.failed(
+            f"telemetry stands by: {where(instance)} already publishes as this machine_id",
+            other_host=instance.get("host"),
+            other_pid=instance.get("pid"),
+            fix="give each daemon its own telemetry.machine_id, or stop the other one",
+        )
+
+    def _heard_own(self, client: Any, kind: str, message: mqtt.MQTTMessage) -> None:
+        """Another daemon's birth or death on this machine_id's topics (module mqttclaim)."""
+        try:
+            payload = json.loads(message.payload)
+        except (ValueError, RecursionError):
+            return
+        if not isinstance(payload, dict) or not self._claim.heard(kind, payload):
+            return
+        if self._check_mid is not None or not self.counters.connected:
+            return  # decided when the check's SUBACK comes
+        if not self._active:
+            self._decide(client, publishing=False)
+        elif kind == "birth" and not message.retain:
+            self._decide(client, publishing=True)
+            if self._active:  # this one started first and keeps on: its birth is the retained one
+                other = payload.get("instance") or {}
+                log.error(
+                    "another daemon published as this machine_id; it started later and stands by",
+                    machine_id=self.topics.machine_id,
+                    other=where(other),
+                    fix="give each daemon its own telemetry.machine_id, or stop the other one",
+                )
+                self._birth_due = True
+                self._notify()
 
     def _on_connect_fail(self, client: Any, userdata: Any) -> None:
         self._fault.failed("telemetry broker unreachable")
@@ -336,14 +419,22 @@ class Telemetry:
     def _on_disconnect(
         self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any
     ) -> None:
-        self.counters.connected = False
-        if reason.is_failure:
+        self.counters.connected = self._active = False
+        if reason.value == SESSION_TAKEN_OVER:
+            self._fault.failed(
+                "telemetry broker connection lost: another client connected with this client id",
+                client_id=self.broker.client_id,
+                fix="give each daemon its own telemetry.client_id (or leave it out) and machine_id",
+            )
+        elif reason.is_failure:
             self._fault.failed("telemetry broker connection lost", reason=str(reason))
-        # The next connection is a new session, and its will must say so.
-        self.session += 1
-        self._set_will(client)
+        self.session += 1  # the next connection is a new session (its will: _on_pre_connect)
 
     def _on_message(self, client: Any, userdata: Any, message: mqtt.MQTTMessage) -> None:
+        for own in ("birth", "death"):
+            if message.topic == self.topics.of(own):
+                self._heard_own(client, own, message)
+                return
         kind = message.topic.removeprefix(self.topics.of("cmd/"))
         handler, max_bytes = self._commands.get(kind, (None, 0))
         if handler is None or self._loop is None:
@@ -384,7 +475,7 @@ class Telemetry:
     def _birth(self) -> dict[str, Any]:
         birth = self._header("birth")
         birth |= {"compd_version": compd_version(), "every_ticks": self.every_ticks}
-        return birth | self.identity()
+        return birth | {"instance": self.instance.describe()} | self.identity()
 
     def _event_payload(self, at_s: float, event: Event) -> dict[str, Any]:
         payload = self._header("event") | {"time": at_s}

@@ -231,4 +231,5 @@ def test_no_broker_at_all_is_a_telemetry_fault_only(tmp_path: Path):
     assert result.status["counters"]["ticks"] == 31
     assert result.status["telemetry"] == {
         "connected": False, "published": 0, "acknowledged": 0, "dropped": 21, "connections": 0,
+        "stands_by_for": None,
     }  # fmt: skip
