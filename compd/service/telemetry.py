@@ -492,6 +492,7 @@ class Telemetry:
                 name: {
                     "value": finite(value),
                     "health": record.health[name].name.lower(),
+                    "health_code": int(record.health[name]),  # as compd_signal_health
                     "reason": record.reasons.get(name, ""),
                 }
                 for name, value in record.values.items()
