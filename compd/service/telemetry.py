@@ -136,6 +136,9 @@ class Telemetry:
         self._check_mid: int | None = None
         #: The other live daemon this one stands by for (its birth's ``instance``), if any.
         self.rival: dict[str, Any] | None = None
+        #: The fleet's desired model for this machine (``desired``, retained by the roll-out), if any.
+        self.desired: dict[str, Any] | None = None
+        self._told_outdated = ""
         # Sparkplug's bdSeq: numbers the connections, across restarts too (milliseconds at start).
         self.session = int(time.time() * 1000)
         self._statuses: deque[tuple[TickRecord, dict[str, int], str | None]] = deque(
@@ -347,7 +350,8 @@ class Telemetry:
         # Who else publishes as this machine_id: the retained birth and death come after the first
         # SUBACK and before the second (the broker answers a client's packets in order).
         own = SubscribeOptions(qos=1, noLocal=True)
-        client.subscribe([(self.topics.of("birth"), own), (self.topics.of("death"), own)])
+        mine = [(self.topics.of(kind), own) for kind in ("birth", "death", "desired")]
+        client.subscribe(mine)
         quiet = SubscribeOptions(qos=1, noLocal=True, retainHandling=2)
         self._check_mid = client.subscribe(self.topics.of("death"), options=quiet)[1]
         if self.counters.connections == 1 and not self._fault.active:
@@ -435,6 +439,9 @@ class Telemetry:
             if message.topic == self.topics.of(own):
                 self._heard_own(client, own, message)
                 return
+        if message.topic == self.topics.of("desired"):
+            self._heard_desired(message.payload)
+            return
         kind = message.topic.removeprefix(self.topics.of("cmd/"))
         handler, max_bytes = self._commands.get(kind, (None, 0))
         if handler is None or self._loop is None:
@@ -452,6 +459,21 @@ class Telemetry:
         task = asyncio.ensure_future(handler(payload, retained=retained))
         self._handling.add(task)  # a reference until done: the loop keeps only weak ones
         task.add_done_callback(self._handling.discard)
+
+    def _heard_desired(self, data: bytes) -> None:
+        """The roll-out's record of the model this machine should run: said in the next birth."""
+        try:
+            record = json.loads(data) if data else None
+        except (ValueError, RecursionError):
+            return
+        if record is not None and not isinstance(record, dict):
+            return
+        self.desired = None if record is None else {
+            k: record.get(k) for k in ("sha256", "name", "rollout_id", "requested_by", "sent_unix_s")
+        }  # fmt: skip
+        if self._active:
+            self._birth_due = True
+            self._notify()
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
         self.counters.acknowledged += 1
@@ -475,7 +497,16 @@ class Telemetry:
     def _birth(self) -> dict[str, Any]:
         birth = self._header("birth")
         birth |= {"compd_version": compd_version(), "every_ticks": self.every_ticks}
-        return birth | {"instance": self.instance.describe()} | self.identity()
+        birth |= {"instance": self.instance.describe()} | self.identity()
+        desired = self.desired
+        if desired is not None:
+            running = (birth.get("model") or {}).get("sha256")
+            birth["desired_model"] = desired | {"runs_it": running == desired["sha256"]}
+            if running != desired["sha256"] and self._told_outdated != desired["sha256"]:
+                self._told_outdated = str(desired["sha256"])
+                details = {"running": running, "desired": desired["sha256"]}
+                self.event(Event("model_outdated", "runs another model than the fleet's desired one", details))
+        return birth
 
     def _event_payload(self, at_s: float, event: Event) -> dict[str, Any]:
         payload = self._header("event") | {"time": at_s}
