@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import json
 import re
 import subprocess
 import sys
@@ -454,3 +455,54 @@ def _wait(condition: Any) -> None:
     while not condition():
         assert time.monotonic() < deadline, "timed out waiting for the broker"
         time.sleep(0.005)
+
+
+def test_a_machine_away_during_a_roll_out_is_sent_the_model_by_pending_when_back(
+    fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """The roll-out leaves a desired record; the machine back says it runs an older model; --pending sends it."""
+    new = _variant(tmp_path, "rolled-out.yaml")
+    sha256 = hashlib.sha256(new.read_bytes()).hexdigest()
+    settings = _broker_settings(tmp_path, broker.port)
+    listed = tmp_path / "machines.txt"
+    listed.write_text("# the fleet\nmill-a\nmill-b  # spindle head\nmill-c\n")
+    with Subscriber(broker.port, "compd/#") as sub:
+        _start_and_wait_for_births(fleet, sub)
+        away = fleet[2]
+        assert away.process is not None
+        away.process.terminate()
+        assert away.process.wait(timeout=WAIT_S) == 0
+        sub.wait_for(lambda s: s.of("death", away.machine_id), "the stopped machine's death")
+
+        rollout = ["model", "rollout", str(new), *settings, "--machines", f"@{listed}"]
+        code = main([*rollout, "--wait-blend", "--json", "--timeout-s", "10"])
+        report = json.loads(capsys.readouterr().out)
+        assert code == 1, report
+        rows = {row["machine_id"]: row for row in report["machines"]}
+        assert rows["mill-c"]["result"] == "no answer"
+        for machine in fleet[:2]:
+            row = rows[machine.machine_id]
+            assert row["result"] == "accepted" and row["blended_in"] is True, row
+            blended = [
+                e
+                for e in sub.of("event", machine.machine_id)
+                if e["event"] == "model_blended" and e["details"]["sha256"] == sha256
+            ]
+            assert blended, "blended in: yes only once its blend ended"
+
+        start(away, "--time-scale", "60", "--duration-s", "36000")
+        sub.wait_for(lambda s: len(s.of("birth", away.machine_id)) == 2, "the machine back")
+        birth = sub.of("birth", away.machine_id)[-1]
+        assert birth["desired_model"]["sha256"] == sha256 and not birth["desired_model"]["runs_it"]
+        sub.wait_for(
+            lambda s: any(e["event"] == "model_outdated" for e in s.of("event", away.machine_id)),
+            "the machine back telling it runs an older model",
+        )
+
+        code = main(["model", "rollout", "--pending", *settings, "--wait-blend", "--json"])
+        report = json.loads(capsys.readouterr().out)
+        assert code == 0, report
+        rows = {row["machine_id"]: row for row in report["machines"]}
+        assert rows["mill-c"]["result"] == "accepted" and rows["mill-c"]["blended_in"] is True
+        assert rows["mill-a"]["result"] == rows["mill-b"]["result"] == "up_to_date"
+        sub.wait_for(lambda s: _running(s, away.machine_id) == sha256, "mill-c running it")
