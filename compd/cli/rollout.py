@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Any
 
 import paho.mqtt.client as mqtt
-
 from pydantic import ValidationError
 
 from compd.errors import CompdError, ConfigFileError, ModelFileError
@@ -190,9 +189,7 @@ def connected(
         client.loop_stop()
 
 
-def _outcome(
-    listener: Listener, machine: str, request_id: str, sha256: str, wait: bool
-) -> Outcome:
+def _outcome(listener: Listener, machine: str, request_id: str, sha256: str, wait: bool) -> Outcome:
     outcome = Outcome(machine, presence=presence(listener, machine))
     for reply in listener.of(machine, "reply"):
         if reply.get("request_id") == request_id:

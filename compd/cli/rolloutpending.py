@@ -17,10 +17,17 @@ from pathlib import Path
 
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
+from compd.cli.rollout import (
+    DESIRED,
+    DESIRED_SCHEMA,
+    Listener,
+    Outcome,
+    connected,
+    presence,
+    rollout,
+)
 from compd.errors import CompdError
 from compd.service.fleetdoc import TelemetryDoc
-
-from compd.cli.rollout import DESIRED, DESIRED_SCHEMA, Outcome, Listener, connected, presence, rollout
 
 
 def pending(
@@ -40,7 +47,9 @@ def pending(
         client.subscribe(f"{section.topic_prefix}/+/{DESIRED}", options=quiet)
         if not listener.subscribed.wait(timeout_s):
             raise CompdError(f"the broker did not answer a subscription in {timeout_s:g} s")
-        records = {m: listener.of(m, DESIRED)[-1] for m, kind in list(listener.heard) if kind == DESIRED}
+        records = {
+            m: listener.of(m, DESIRED)[-1] for m, kind in list(listener.heard) if kind == DESIRED
+        }
     outcomes: list[Outcome] = []
     to_send: dict[str, list[str]] = {}
     for machine in sorted(records):

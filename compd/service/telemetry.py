@@ -276,7 +276,9 @@ class Telemetry:
                 break
             self._notify()
             await asyncio.sleep(0.01)
-        if self._active:  # a daemon standing by has no birth to end (its will goes with the disconnect)
+        if (
+            self._active
+        ):  # a daemon standing by has no birth to end (its will goes with the disconnect)
             death = self._header("death") | {"reason": "stopped", "ticks": ticks}
             death["instance"] = self.instance.describe()
             death["telemetry"] = self.status_counters()
@@ -440,7 +442,7 @@ class Telemetry:
                 self._heard_own(client, own, message)
                 return
         if message.topic == self.topics.of("desired"):
-            self._heard_desired(message.payload)
+            self._heard_desired(bytes(message.payload))
             return
         kind = message.topic.removeprefix(self.topics.of("cmd/"))
         handler, max_bytes = self._commands.get(kind, (None, 0))
@@ -505,7 +507,11 @@ class Telemetry:
             if running != desired["sha256"] and self._told_outdated != desired["sha256"]:
                 self._told_outdated = str(desired["sha256"])
                 details = {"running": running, "desired": desired["sha256"]}
-                self.event(Event("model_outdated", "runs another model than the fleet's desired one", details))
+                self.event(
+                    Event(
+                        "model_outdated", "runs another model than the fleet's desired one", details
+                    )
+                )
         return birth
 
     def _event_payload(self, at_s: float, event: Event) -> dict[str, Any]:
