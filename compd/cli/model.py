@@ -56,6 +56,18 @@ def register(commands: Any) -> None:
         "its roll-out left as desired (no MODEL.yaml)",
     )
     rollout.add_argument(
+        "--online",
+        action="store_true",
+        help="also every machine whose retained birth says it is online now",
+    )
+    rollout.add_argument(
+        "--canary",
+        type=int,
+        metavar="N",
+        help="send to the first N machines first; the rest only if all N took it "
+        "(and blended it in, with --wait-blend)",
+    )
+    rollout.add_argument(
         "--json", action="store_true", help="print the outcomes as JSON, not a table"
     )
     rollout.add_argument(

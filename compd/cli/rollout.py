@@ -126,6 +126,11 @@ class Listener:
         with self.lock:
             return list(self.heard.get((machine, kind), []))
 
+    def machines_heard(self, kind: str) -> list[str]:
+        """The machines a message of ``kind`` was heard from."""
+        with self.lock:
+            return [m for m, k in self.heard if k == kind]
+
 
 def rollout(
     section: TelemetryDoc,
@@ -244,6 +249,26 @@ def presence(listener: Listener, machine: str) -> str:
     return "online"
 
 
+def in_waves(
+    section: TelemetryDoc, base_dir: Path, raw: bytes, name: str, machines: list[str], args: Any
+) -> list[Outcome]:
+    """The first ``--canary N`` machines, then the rest unless one of the canaries failed."""
+    canary = max(0, args.canary or 0)
+    waves = [machines[:canary], machines[canary:]] if canary else [machines]
+    outcomes: list[Outcome] = []
+    for k, wave in enumerate(w for w in waves if w):
+        got = rollout(
+            section, base_dir, raw, name, wave, timeout_s=args.timeout_s, wait_blend=args.wait_blend
+        )
+        outcomes += got
+        failed = next((o for o in got if not o.ok), None)
+        if failed is not None and k == 0 and canary:
+            why = f"not sent: canary {failed.machine_id} {failed.result.replace('_', ' ')}"
+            outcomes += [Outcome(m, "not_sent", reason=why) for m in machines[canary:]]
+            break
+    return outcomes
+
+
 def machine_list(text: str | None) -> list[str]:
     """``--machines``: ``M1,M2``, or ``@FILE`` with one machine_id a line (``#`` comments)."""
     if not text:
@@ -276,6 +301,10 @@ def rollout_command(args: Any) -> int:
 
     section, base_dir = broker_section(args.broker_config)
     machines = machine_list(args.machines)
+    if args.online:
+        from compd.cli.rolloutpending import online
+
+        machines += [m for m in online(section, base_dir, args.timeout_s) if m not in machines]
     if args.pending:
         from compd.cli.rolloutpending import pending
 
@@ -285,7 +314,10 @@ def rollout_command(args: Any) -> int:
         )
     else:
         if args.model is None or not machines:
-            raise CompdError("give MODEL.yaml and --machines (or --pending: finish earlier ones)")
+            raise CompdError(
+                "give MODEL.yaml and --machines or --online (none online?), "
+                "or --pending to finish earlier roll-outs"
+            )
         raw = read_limited(args.model, ModelFileError)
         if not args.no_local_check:
             model_file = load_model(args.model)
@@ -294,15 +326,7 @@ def rollout_command(args: Any) -> int:
                 print(finding.describe(), file=sys.stderr)
         name = os.path.basename(args.model)
         title = f"{args.model} (sha256 {hashlib.sha256(raw).hexdigest()[:12]}) to {len(machines)}"
-        outcomes = rollout(
-            section,
-            base_dir,
-            raw,
-            name,
-            machines,
-            timeout_s=args.timeout_s,
-            wait_blend=args.wait_blend,
-        )
+        outcomes = in_waves(section, base_dir, raw, name, machines, args)
     if args.json:
         rows = [vars(o) | {"ok": o.ok} for o in outcomes]
         print(json.dumps({"title": title, "machines": rows}, indent=1))

@@ -30,6 +30,26 @@ from compd.errors import CompdError
 from compd.service.fleetdoc import TelemetryDoc
 
 
+def retained(section: TelemetryDoc, base_dir: Path, timeout_s: float) -> Listener:
+    """What the broker retains for every machine: births, deaths, desired records."""
+    listener = Listener(section.topic_prefix, ["+"])
+    with connected(section, base_dir, listener, timeout_s) as client:
+        # The retained messages come after the first SUBACK, before this one's (in order).
+        listener.subscribed.clear()
+        quiet = SubscribeOptions(qos=1, retainHandling=2)
+        client.subscribe(f"{section.topic_prefix}/+/{DESIRED}", options=quiet)
+        if not listener.subscribed.wait(timeout_s):
+            raise CompdError(f"the broker did not answer a subscription in {timeout_s:g} s")
+    return listener
+
+
+def online(section: TelemetryDoc, base_dir: Path, timeout_s: float) -> list[str]:
+    """Every machine whose retained birth and death say it is online now (``--online``)."""
+    listener = retained(section, base_dir, timeout_s)
+    machines = listener.machines_heard("birth")
+    return sorted(m for m in machines if presence(listener, m) == "online")
+
+
 def pending(
     section: TelemetryDoc,
     base_dir: Path,
@@ -39,17 +59,8 @@ def pending(
     wait_blend: bool,
 ) -> list[Outcome]:
     """The outcome per machine with a desired record (of ``machines``, or every one)."""
-    listener = Listener(section.topic_prefix, ["+"])
-    with connected(section, base_dir, listener, timeout_s) as client:
-        # The retained records come after the first SUBACK, before this one's (in order).
-        listener.subscribed.clear()
-        quiet = SubscribeOptions(qos=1, retainHandling=2)
-        client.subscribe(f"{section.topic_prefix}/+/{DESIRED}", options=quiet)
-        if not listener.subscribed.wait(timeout_s):
-            raise CompdError(f"the broker did not answer a subscription in {timeout_s:g} s")
-        records = {
-            m: listener.of(m, DESIRED)[-1] for m, kind in list(listener.heard) if kind == DESIRED
-        }
+    listener = retained(section, base_dir, timeout_s)
+    records = {m: listener.of(m, DESIRED)[-1] for m in listener.machines_heard(DESIRED)}
     outcomes: list[Outcome] = []
     to_send: dict[str, list[str]] = {}
     for machine in sorted(records):

@@ -506,3 +506,33 @@ def test_a_machine_away_during_a_roll_out_is_sent_the_model_by_pending_when_back
         assert rows["mill-c"]["result"] == "accepted" and rows["mill-c"]["blended_in"] is True
         assert rows["mill-a"]["result"] == rows["mill-b"]["result"] == "up_to_date"
         sub.wait_for(lambda s: _running(s, away.machine_id) == sha256, "mill-c running it")
+
+
+def test_a_canary_that_refuses_stops_the_roll_out_to_every_machine_online(
+    fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """``--online --canary 1``: the first machine refuses, the others are not sent it; a good model reaches all."""
+    bad = _variant(tmp_path, "unstable.yaml", unstable=True)
+    good = _variant(tmp_path, "rolled-out.yaml")
+    settings = _broker_settings(tmp_path, broker.port)
+    with Subscriber(broker.port, "compd/#") as sub:
+        _start_and_wait_for_births(fleet, sub)
+        waves = ["--online", "--canary", "1", "--json"]
+        code = main(["model", "rollout", str(bad), *settings, *waves, "--no-local-check"])
+        report = json.loads(capsys.readouterr().out)
+        assert code == 1, report
+        rows = {row["machine_id"]: row for row in report["machines"]}
+        assert sorted(rows) == ["mill-a", "mill-b", "mill-c"], "every machine online"
+        assert rows["mill-a"]["result"] == "refused"
+        for name in ("mill-b", "mill-c"):
+            assert rows[name]["result"] == "not_sent", rows[name]
+            assert "canary mill-a refused" in rows[name]["reason"]
+        sent = {m.topic.split("/")[1] for m in sub.messages if "/cmd/" in m.topic}
+        assert sent == {"mill-a"}, "the rest never sent it"
+        desired = {m.topic.split("/")[1] for m in sub.messages if m.topic.endswith("/desired")}
+        assert desired == {"mill-a"}, "nor left a desired record for --pending to send later"
+
+        code = main(["model", "rollout", str(good), *settings, *waves, "--wait-blend"])
+        report = json.loads(capsys.readouterr().out)
+        assert code == 0, report
+        assert [row["result"] for row in report["machines"]] == ["accepted"] * 3
