@@ -6,6 +6,7 @@ broker delivers under the machine's topics.
 
 from __future__ import annotations
 
+import json
 import signal
 import socket
 import subprocess
@@ -13,7 +14,9 @@ import sys
 import time
 from pathlib import Path
 
+import paho.mqtt.client as mqtt
 import pytest
+from paho.mqtt.enums import CallbackAPIVersion
 
 from tests.mosquitto import WAIT_S, Mosquitto, Subscriber, machine_config, mosquitto_binary
 
@@ -79,3 +82,39 @@ def test_a_second_daemon_with_the_same_machine_id_stands_by_and_takes_over_when_
             if daemon.poll() is None:
                 daemon.kill()
                 daemon.wait()
+
+
+def test_of_two_publishing_daemons_the_one_started_first_keeps_the_machine_id(
+    broker: Mosquitto, tmp_path: Path
+):
+    """A live birth of an earlier daemon makes this one stand by until its death; a later one's is answered by a re-birth."""
+    other = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="other-daemon")
+    other.connect("127.0.0.1", broker.port, 30)
+    other.loop_start()
+
+    def tell(kind: str, started: float, session: int) -> None:
+        instance = {"id": f"other-{started:g}", "host": "elsewhere", "pid": 1, "started": started}
+        payload = {"kind": kind, "machine_id": "mill-d", "session": session, "instance": instance}
+        other.publish(f"compd/mill-d/{kind}", json.dumps(payload), qos=1).wait_for_publish(WAIT_S)
+
+    def mine(s: Subscriber) -> list[dict[str, object]]:
+        return [b for b in s.of("birth") if b["instance"]["pid"] == daemon.pid]
+
+    try:
+        with Subscriber(broker.port, "compd/mill-d/+") as sub:
+            daemon, log = _start(tmp_path / "d", broker.port)
+            sub.wait_for(lambda s: len(mine(s)) == 1, "the daemon's birth")
+            tell("birth", 1.0, 5)  # a daemon that started long before this one
+            _wait_for_line(log, "telemetry stands by: elsewhere (pid 1)")
+            tell("death", 1.0, 5)
+            sub.wait_for(lambda s: len(mine(s)) == 2, "the daemon born again, publishing")
+            _wait_for_line(log, "telemetry publishes: the other daemon is gone")
+            tell("birth", time.time() + 3600, 7)  # one started after it: it keeps on
+            sub.wait_for(lambda s: len(mine(s)) == 3, "the daemon's birth, retained again")
+            _wait_for_line(log, "it started later and stands by")
+    finally:
+        other.disconnect()
+        other.loop_stop()
+        if daemon.poll() is None:
+            daemon.kill()
+            daemon.wait()
