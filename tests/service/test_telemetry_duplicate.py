@@ -87,7 +87,7 @@ def test_a_second_daemon_with_the_same_machine_id_stands_by_and_takes_over_when_
 def test_of_two_publishing_daemons_the_one_started_first_keeps_the_machine_id(
     broker: Mosquitto, tmp_path: Path
 ):
-    """A live birth of an earlier daemon makes this one stand by until its death; a later one's is answered by a re-birth."""
+    """An earlier daemon's live birth: this one stands by until its death; a later one's: answered by a re-birth."""
     other = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="other-daemon")
     other.connect("127.0.0.1", broker.port, 30)
     other.loop_start()
