@@ -152,7 +152,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _rollout(args: argparse.Namespace) -> int:
-    from compd.cli.rollout import rollout_command
+    from compd.cli.rolloutcommand import rollout_command
 
     return rollout_command(args)
 

@@ -3,11 +3,13 @@
 The model is checked here first (as ``compd model check`` does), then sent to
 each machine's ``<prefix>/<machine_id>/cmd/model_load``
 (:mod:`compd.service.remoteload`: the daemon's own checks, install, blend and
-refusal follow). The answers come back on ``reply/<request_id>``; with
-``--wait-blend`` the ``model_switched`` event (or the re-birth naming the new
-sha256) says each machine switched to it. A machine that does not answer in
-time is shown with what its retained birth and death say: online, offline
-since its death, or never seen on this broker.
+refusal follow). Before that, each machine's retained ``desired`` record
+names the model (:func:`desired_record`; ``--pending`` sends it later to a
+machine away now). The answers come back on ``reply/<request_id>``; with
+``--wait-blend`` the ``model_blended`` event says each machine's blend is
+over. A machine that does not answer in time is shown with what its
+retained birth and death say: online, offline since its death, or never
+seen on this broker. The command itself: :mod:`compd.cli.rolloutcommand`.
 """
 
 from __future__ import annotations
@@ -16,9 +18,7 @@ import contextlib
 import getpass
 import hashlib
 import json
-import os
 import socket
-import sys
 import threading
 import time
 import uuid
@@ -30,13 +30,13 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from pydantic import ValidationError
 
-from compd.errors import CompdError, ConfigFileError, ModelFileError
+from compd.errors import CompdError, ConfigFileError
 from compd.files.yamlplace import parse_yaml, read_limited
 from compd.service.config import validation_error
 from compd.service.fleetdoc import TelemetryDoc
 from compd.service.modelload import load_request
 from compd.service.mqttlink import mqtt_client
-from compd.service.remoteload import COMMAND, REQUEST_ID, SCHEMA
+from compd.service.remoteload import COMMAND, SCHEMA
 
 #: ``<prefix>/<machine_id>/desired`` (retained): the model a roll-out left for the machine.
 DESIRED = "desired"
@@ -247,97 +247,3 @@ def presence(listener: Listener, machine: str) -> str:
                 return f"offline ({death.get('reason', '?')})"
             break
     return "online"
-
-
-def in_waves(
-    section: TelemetryDoc, base_dir: Path, raw: bytes, name: str, machines: list[str], args: Any
-) -> list[Outcome]:
-    """The first ``--canary N`` machines, then the rest unless one of the canaries failed."""
-    canary = max(0, args.canary or 0)
-    waves = [machines[:canary], machines[canary:]] if canary else [machines]
-    outcomes: list[Outcome] = []
-    for k, wave in enumerate(w for w in waves if w):
-        got = rollout(
-            section, base_dir, raw, name, wave, timeout_s=args.timeout_s, wait_blend=args.wait_blend
-        )
-        outcomes += got
-        failed = next((o for o in got if not o.ok), None)
-        if failed is not None and k == 0 and canary:
-            why = f"not sent: canary {failed.machine_id} {failed.result.replace('_', ' ')}"
-            outcomes += [Outcome(m, "not_sent", reason=why) for m in machines[canary:]]
-            break
-    return outcomes
-
-
-def machine_list(text: str | None) -> list[str]:
-    """``--machines``: ``M1,M2``, or ``@FILE`` with one machine_id a line (``#`` comments)."""
-    if not text:
-        return []
-    if text.startswith("@"):
-        path = Path(text[1:])
-        try:
-            lines = path.read_text().splitlines()
-        except OSError as exc:
-            raise CompdError(f"--machines {text}: cannot read {path} ({exc.strerror})") from exc
-        names = [line.split("#", 1)[0].strip() for line in lines]
-    else:
-        names = [m.strip() for m in text.split(",")]
-    machines = [m for m in names if m]
-    for machine in machines:
-        if not REQUEST_ID.match(machine):
-            raise CompdError(
-                f"--machines: {machine!r} is not a machine_id (letters, digits, _ . : -)"
-            )
-    return machines
-
-
-def rollout_command(args: Any) -> int:
-    """The handler of ``compd model rollout``: check, send, wait, print the table (or JSON)."""
-    from rich.table import Table
-    from rich.text import Text
-
-    from compd.cli.terminal import console
-    from compd.files.modelfile import load_model
-
-    section, base_dir = broker_section(args.broker_config)
-    machines = machine_list(args.machines)
-    if args.online:
-        from compd.cli.rolloutpending import online
-
-        machines += [m for m in online(section, base_dir, args.timeout_s) if m not in machines]
-    if args.pending:
-        from compd.cli.rolloutpending import pending
-
-        title = "pending roll-outs"
-        outcomes = pending(
-            section, base_dir, machines, timeout_s=args.timeout_s, wait_blend=args.wait_blend
-        )
-    else:
-        if args.model is None or not machines:
-            raise CompdError(
-                "give MODEL.yaml and --machines or --online (none online?), "
-                "or --pending to finish earlier roll-outs"
-            )
-        raw = read_limited(args.model, ModelFileError)
-        if not args.no_local_check:
-            model_file = load_model(args.model)
-            model_file.compile(None)
-            for finding in model_file.check_plausible():
-                print(finding.describe(), file=sys.stderr)
-        name = os.path.basename(args.model)
-        title = f"{args.model} (sha256 {hashlib.sha256(raw).hexdigest()[:12]}) to {len(machines)}"
-        outcomes = in_waves(section, base_dir, raw, name, machines, args)
-    if args.json:
-        rows = [vars(o) | {"ok": o.ok} for o in outcomes]
-        print(json.dumps({"title": title, "machines": rows}, indent=1))
-        return 0 if all(o.ok for o in outcomes) else 1
-    table = Table("machine", "result", "reason", "blend (s)", "blended in", "broker says")
-    for o in outcomes:
-        blended = {None: "-", True: "yes", False: "not yet"}[o.blended_in]
-        blend = "-" if o.blend_s is None else f"{o.blend_s:g}"
-        result = Text(o.result.replace("_", " "), style="green" if o.ok else "red")
-        table.add_row(o.machine_id, result, o.reason, blend, blended, o.presence)
-    out = console()
-    out.print(title)
-    out.print(table)
-    return 0 if all(o.ok for o in outcomes) else 1
