@@ -123,7 +123,7 @@ async def fleet(port: int, seconds: float) -> tuple[int, int, list[float], int]:
     with Subscriber(port, "fleet/+/status") as sub:
         for p in publishers:
             p.start()
-        while not all(p.counters.connected for p in publishers):
+        while not all(p.publishing for p in publishers):  # its machine_id checked, born
             await asyncio.sleep(0.05)
         sent, start = 0, time.monotonic()
         counters = {"ticks": 0}

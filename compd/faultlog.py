@@ -23,8 +23,10 @@ from typing import Any
 class Event:
     """Something an operator's dashboard should hear of at once, beside the journal.
 
-    ``kind``: ``fault`` (an episode starts), ``cleared`` (it ends),
-    ``model_loaded``, ``model_switched``, ``model_failed``, ``reconnected``;
+    ``kind``: ``fault`` (an episode starts), ``cleared`` (it ends; never
+    without its ``fault``), ``reconnected`` (after the ``cleared`` of a
+    link's episode), ``model_loaded``, ``model_switched``, ``model_blended``,
+    ``model_failed``;
     ``message``: the log line's event; ``details``: its JSON-able fields.
     """
 
@@ -66,10 +68,17 @@ class FaultLog:
         if self.sink is not None:
             self.sink(Event("fault", event, {**self._context, **details}))
 
-    def cleared(self, event: str, *, kind: str = "cleared", **details: Any) -> None:
-        """A success: INFO ``event`` if it ends an episode, nothing otherwise; ``kind``: the event's."""
+    def cleared(self, event: str, *, also: str | None = None, **details: Any) -> None:
+        """A success: INFO ``event`` if it ends an episode, nothing otherwise.
+
+        The sink hears ``cleared`` (every episode ends as it started, with one
+        event of its own), then ``also`` where given (``reconnected``: what
+        the end was, for a dashboard that counts reconnections).
+        """
         if self.active:
             self.active = False
             self._log.info(event, **self._context, **details)
             if self.sink is not None:
-                self.sink(Event(kind, event, {**self._context, **details}))
+                self.sink(Event("cleared", event, {**self._context, **details}))
+                if also is not None:
+                    self.sink(Event(also, event, {**self._context, **details}))

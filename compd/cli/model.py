@@ -33,7 +33,7 @@ def register(commands: Any) -> None:
         "<prefix>/<machine_id>/cmd/model_load (machines with telemetry.accept_models: true); "
         "print each machine's answer. Exit status 1 if any refused or did not answer.",
     )
-    rollout.add_argument("model", type=Path, metavar="MODEL.yaml")
+    rollout.add_argument("model", type=Path, metavar="MODEL.yaml", nargs="?")
     rollout.add_argument(
         "--broker-config",
         "--telemetry-config",
@@ -44,7 +44,31 @@ def register(commands: Any) -> None:
         "(host, port, tls, username, password_file, topic_prefix)",
     )
     rollout.add_argument(
-        "--machines", required=True, metavar="M1,M2,...", help="the machine_ids to send it to"
+        "--machines",
+        metavar="M1,M2,... | @FILE",
+        help="the machine_ids to send it to, or @FILE with one a line; "
+        "with --pending: only these (default: every machine with a desired model)",
+    )
+    rollout.add_argument(
+        "--pending",
+        action="store_true",
+        help="finish earlier roll-outs: send each online machine whose model is not the one "
+        "its roll-out left as desired (no MODEL.yaml)",
+    )
+    rollout.add_argument(
+        "--online",
+        action="store_true",
+        help="also every machine whose retained birth says it is online now",
+    )
+    rollout.add_argument(
+        "--canary",
+        type=int,
+        metavar="N",
+        help="send to the first N machines first; the rest only if all N took it "
+        "(and blended it in, with --wait-blend)",
+    )
+    rollout.add_argument(
+        "--json", action="store_true", help="print the outcomes as JSON, not a table"
     )
     rollout.add_argument(
         "--timeout-s", type=float, default=60.0, help="wait this long for the answers (default 60)"
@@ -131,7 +155,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _rollout(args: argparse.Namespace) -> int:
-    from compd.cli.rollout import rollout_command
+    from compd.cli.rolloutcommand import rollout_command
 
     return rollout_command(args)
 

@@ -3,40 +3,47 @@
 The model is checked here first (as ``compd model check`` does), then sent to
 each machine's ``<prefix>/<machine_id>/cmd/model_load``
 (:mod:`compd.service.remoteload`: the daemon's own checks, install, blend and
-refusal follow). The answers come back on ``reply/<request_id>``; with
-``--wait-blend`` the ``model_switched`` event (or the re-birth naming the new
-sha256) says each machine switched to it. A machine that does not answer in
-time is shown with what its retained birth and death say: online, offline
-since its death, or never seen on this broker.
+refusal follow). Before that, each machine's retained ``desired`` record
+names the model (:func:`desired_record`; ``--pending`` sends it later to a
+machine away now). The answers come back on ``reply/<request_id>``; with
+``--wait-blend`` the ``model_blended`` event says each machine's blend is
+over. A machine that does not answer in time is shown with what its
+retained birth and death say: online, offline since its death, or never
+seen on this broker. The command itself: :mod:`compd.cli.rolloutcommand`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import getpass
 import hashlib
 import json
-import os
 import socket
-import sys
 import threading
 import time
 import uuid
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import paho.mqtt.client as mqtt
 from pydantic import ValidationError
 
-from compd.errors import CompdError, ConfigFileError, ModelFileError
+from compd.errors import CompdError, ConfigFileError
 from compd.files.yamlplace import parse_yaml, read_limited
 from compd.service.config import validation_error
 from compd.service.fleetdoc import TelemetryDoc
 from compd.service.modelload import load_request
 from compd.service.mqttlink import mqtt_client
-from compd.service.remoteload import COMMAND, REQUEST_ID, SCHEMA
+from compd.service.remoteload import COMMAND, SCHEMA
+
+#: ``<prefix>/<machine_id>/desired`` (retained): the model a roll-out left for the machine.
+DESIRED = "desired"
+DESIRED_SCHEMA = "compd.desired_model/1"
 
 #: What each outcome means for the exit status: these are a success.
-SUCCEEDED = ("accepted", "already_running", "already_loading")
+SUCCEEDED = ("accepted", "already_running", "already_loading", "up_to_date")
 
 
 @dataclass
@@ -48,7 +55,7 @@ class Outcome:
     result: str = "no answer"
     reason: str = ""
     blend_s: float | None = None
-    #: ``model_switched`` heard (or a birth naming the model); None: not waited for.
+    #: ``model_blended`` heard (or a switch without a blend); None: not waited for.
     blended_in: bool | None = None
     #: From the retained birth and death: ``online``, ``offline (...)``, ``never seen``.
     presence: str = "never seen"
@@ -80,7 +87,7 @@ def broker_section(path: Path) -> tuple[TelemetryDoc, Path]:
     return section, path.parent
 
 
-class _Listener:
+class Listener:
     """What the broker says about the machines: retained birth and death, replies, events."""
 
     def __init__(self, prefix: str, machines: list[str]) -> None:
@@ -92,7 +99,7 @@ class _Listener:
         self.refused = ""
 
     def topics(self) -> list[tuple[str, int]]:
-        kinds = ("birth", "death", "event", "reply/#")
+        kinds = ("birth", "death", "event", "reply/#", "desired")
         return [(f"{self.prefix}/{m}/{kind}", 1) for m in self.machines for kind in kinds]
 
     def on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
@@ -119,6 +126,11 @@ class _Listener:
         with self.lock:
             return list(self.heard.get((machine, kind), []))
 
+    def machines_heard(self, kind: str) -> list[str]:
+        """The machines a message of ``kind`` was heard from."""
+        with self.lock:
+            return [m for m, k in self.heard if k == kind]
+
 
 def rollout(
     section: TelemetryDoc,
@@ -132,8 +144,35 @@ def rollout(
 ) -> list[Outcome]:
     """Send ``raw`` to every machine; their outcomes once all answered (and switched) or ``timeout_s``."""
     sha256 = hashlib.sha256(raw).hexdigest()
+    listener = Listener(section.topic_prefix, machines)
+    with connected(section, base_dir, listener, timeout_s) as client:
+        request = load_request(raw, name) | {"schema": SCHEMA, "sha256": sha256}
+        del request["cmd"]  # the control socket's word; the topic says it here
+        request["requested_by"] = f"{getpass.getuser()}@{socket.gethostname()}"
+        request["sent_unix_s"] = time.time()  # the machines take it within seenrequests.WINDOW_S
+        ids = {m: uuid.uuid4().hex for m in machines}
+        desired = desired_record(request)
+        for machine in machines:  # first: a machine away now is sent it by --pending later
+            topic = f"{section.topic_prefix}/{machine}/{DESIRED}"
+            client.publish(topic, desired, qos=1, retain=True).wait_for_publish(timeout_s)
+        for machine in machines:
+            payload = json.dumps(request | {"request_id": ids[machine]}).encode()
+            topic = f"{section.topic_prefix}/{machine}/cmd/{COMMAND}"
+            client.publish(topic, payload, qos=1).wait_for_publish(timeout_s)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            outcomes = [_outcome(listener, m, ids[m], sha256, wait_blend) for m in machines]
+            if all(_settled(o) for o in outcomes) or time.monotonic() > deadline:
+                return outcomes
+            time.sleep(0.05)
+
+
+@contextlib.contextmanager
+def connected(
+    section: TelemetryDoc, base_dir: Path, listener: Listener, timeout_s: float
+) -> Iterator[mqtt.Client]:
+    """A client of the broker, logged in, ``listener`` subscribed; disconnected afterwards."""
     broker = section.broker(base_dir, f"compd-rollout-{uuid.uuid4().hex[:12]}")
-    listener = _Listener(section.topic_prefix, machines)
     client = mqtt_client(broker)
     client.on_connect = listener.on_connect
     client.on_subscribe = listener.on_subscribe
@@ -149,97 +188,62 @@ def rollout(
         if not listener.subscribed.wait(timeout_s) or listener.refused:
             why = listener.refused or f"no answer in {timeout_s:g} s"
             raise CompdError(f"the broker {broker.host}:{broker.port} refused the login ({why})")
-        request = load_request(raw, name) | {"schema": SCHEMA, "sha256": sha256}
-        del request["cmd"]  # the control socket's word; the topic says it here
-        request["requested_by"] = f"{getpass.getuser()}@{socket.gethostname()}"
-        request["sent_unix_s"] = time.time()  # the machines take it within seenrequests.WINDOW_S
-        ids = {m: uuid.uuid4().hex for m in machines}
-        for machine in machines:
-            payload = json.dumps(request | {"request_id": ids[machine]}).encode()
-            topic = f"{section.topic_prefix}/{machine}/cmd/{COMMAND}"
-            client.publish(topic, payload, qos=1).wait_for_publish(timeout_s)
-        deadline = time.monotonic() + timeout_s
-        while True:
-            outcomes = [_outcome(listener, m, ids[m], sha256, wait_blend) for m in machines]
-            if all(_settled(o) for o in outcomes) or time.monotonic() > deadline:
-                return outcomes
-            time.sleep(0.05)
+        yield client
     finally:
         client.disconnect()
         client.loop_stop()
 
 
-def _outcome(
-    listener: _Listener, machine: str, request_id: str, sha256: str, wait: bool
-) -> Outcome:
-    outcome = Outcome(machine, presence=_presence(listener, machine))
+def _outcome(listener: Listener, machine: str, request_id: str, sha256: str, wait: bool) -> Outcome:
+    outcome = Outcome(machine, presence=presence(listener, machine))
     for reply in listener.of(machine, "reply"):
         if reply.get("request_id") == request_id:
             outcome.result = str(reply.get("result", "refused"))
             outcome.reason = str(reply.get("reason", ""))
             outcome.blend_s = reply.get("blend_s")
     if wait and outcome.result in SUCCEEDED:
-        switched = any(
-            e.get("event") == "model_switched" and e.get("details", {}).get("sha256") == sha256
+        outcome.blended_in = outcome.result == "already_running" or any(
+            e.get("details", {}).get("sha256") == sha256
+            and (
+                e.get("event") == "model_blended"
+                or (e.get("event") == "model_switched" and not e["details"].get("blending"))
+            )
             for e in listener.of(machine, "event")
         )
-        births = listener.of(machine, "birth")
-        running = bool(births) and births[-1].get("model", {}).get("sha256") == sha256
-        outcome.blended_in = switched or running
     return outcome
+
+
+def desired_record(request: dict[str, Any]) -> bytes:
+    """The retained record of what a roll-out asked: the model itself, never a command.
+
+    Machines read it only to say in their birth whether they run it; the
+    model travels in it so that ``--pending`` can send it later. Kept on
+    ``desired``, which no daemon acts on (a retained ``cmd`` would be loaded
+    again at every connection, and is refused: :mod:`compd.service.remoteload`).
+    """
+    keys = ("name", "model_base64", "sha256", "requested_by", "sent_unix_s")
+    record = {"schema": DESIRED_SCHEMA, "rollout_id": uuid.uuid4().hex}
+    return json.dumps(record | {k: request[k] for k in keys}).encode()
 
 
 def _settled(outcome: Outcome) -> bool:
     return outcome.result != "no answer" and outcome.blended_in is not False
 
 
-def _presence(listener: _Listener, machine: str) -> str:
-    """Sparkplug's rule: online while the newest birth's session is newer than the newest death's."""
+def presence(listener: Listener, machine: str) -> str:
+    """Sparkplug's rule: online while the newest birth's session is newer than the newest death's.
+
+    A death counts only for the birth of the same instance (a daemon standing
+    by, compd.service.mqttclaim, leaves its will on the same topic).
+    """
     births, deaths = listener.of(machine, "birth"), listener.of(machine, "death")
     if not births:
         return "never seen"
-    if deaths and deaths[-1].get("session", 0) >= births[-1].get("session", 0):
-        return f"offline ({deaths[-1].get('reason', '?')})"
+    birth = births[-1]
+    for death in reversed(deaths):
+        ids = {(p.get("instance") or {}).get("id") for p in (birth, death)}
+        if len(ids) == 1 or None in ids:
+            if death.get("session", 0) >= birth.get("session", 0):
+                return f"offline ({death.get('reason', '?')})"
+            break
     return "online"
-
-
-def rollout_command(args: Any) -> int:
-    """The handler of ``compd model rollout``: check, send, wait, print the table."""
-    from rich.table import Table
-    from rich.text import Text
-
-    from compd.cli.terminal import console
-    from compd.files.modelfile import load_model
-
-    raw = read_limited(args.model, ModelFileError)
-    if not args.no_local_check:
-        model_file = load_model(args.model)
-        model_file.compile(None)
-        for finding in model_file.check_plausible():
-            print(finding.describe(), file=sys.stderr)
-    section, base_dir = broker_section(args.broker_config)
-    machines = [m.strip() for m in args.machines.split(",") if m.strip()]
-    for machine in machines:
-        if not REQUEST_ID.match(machine):
-            raise CompdError(
-                f"--machines: {machine!r} is not a machine_id (letters, digits, _ . : -)"
-            )
-    outcomes = rollout(
-        section,
-        base_dir,
-        raw,
-        os.path.basename(args.model),
-        machines,
-        timeout_s=args.timeout_s,
-        wait_blend=args.wait_blend,
-    )
-    table = Table("machine", "result", "reason", "blend (s)", "blended in", "broker says")
-    for o in outcomes:
-        blended = {None: "-", True: "yes", False: "not yet"}[o.blended_in]
-        blend = "-" if o.blend_s is None else f"{o.blend_s:g}"
-        result = Text(o.result.replace("_", " "), style="green" if o.ok else "red")
-        table.add_row(o.machine_id, result, o.reason, blend, blended, o.presence)
-    out = console()
-    out.print(f"{args.model} (sha256 {hashlib.sha256(raw).hexdigest()[:12]}) to {len(machines)}")
-    out.print(table)
-    return 0 if all(o.ok for o in outcomes) else 1

@@ -107,6 +107,9 @@ def status_command(args: argparse.Namespace) -> int:
             Text.assemble("  telemetry ", state) + f": published {telemetry['published']}, "
             f"acknowledged {telemetry['acknowledged']}, dropped {telemetry['dropped']}"
         )
+        if telemetry.get("stands_by_for"):
+            other = telemetry["stands_by_for"]
+            out.print(Text(f"  telemetry stands by: {other} publishes as this machine_id", "red"))
     return 0
 
 

@@ -146,6 +146,9 @@ class Compensator:
         self.held = HeldOffsets(self.axes, self.safety)
         #: Told of signal faults and model events (the telemetry), where attached.
         self.events: EventSink | None = None
+        #: Signals whose fault was told and not yet its end: ``cleared`` only ever follows a ``fault``
+        #: (every signal starts faulted, "no value yet", and its first good value is no recovery).
+        self._told_faulted: set[str] = set()
 
     # The model slots as the status and the tests see them (:class:`ModelSlots`).
     @property
@@ -204,8 +207,10 @@ class Compensator:
             readings[point.name] = reading = monitor.update(t_s, values.get(point.name))
             if reading.health is Health.FAULTED and was is not Health.FAULTED:
                 self.counters.signal_faults += 1
+                self._told_faulted.add(point.name)
                 self._tell("fault", "signal faulted", signal=point.name, reason=reading.reason)
-            elif was is Health.FAULTED and reading.health is not Health.FAULTED:
+            elif reading.health is not Health.FAULTED and point.name in self._told_faulted:
+                self._told_faulted.discard(point.name)
                 self._tell("cleared", "signal usable again", signal=point.name)
         checked = {name: r.value for name, r in readings.items()}
         if self.schedule is not None:

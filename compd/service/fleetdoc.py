@@ -93,12 +93,17 @@ class TelemetryDoc(Strict):
         wall: Callable[[], float],
     ) -> Telemetry:
         """The publisher, not yet connected; paho is imported here, only for a config that asks."""
+        from compd.service.mqttclaim import Instance
         from compd.service.mqttlink import Topics
         from compd.service.telemetry import Telemetry
 
+        # Each process its own client id: with one, two daemons would throw each other off the
+        # broker before either could see the other's birth (compd.service.mqttclaim).
+        instance = Instance.this_process()
         return Telemetry(
-            self.broker(base_dir, self.client_id or f"compd-{self.machine_id}"),
+            self.broker(base_dir, self.client_id or f"compd-{self.machine_id}-{instance.id[:8]}"),
             Topics(self.topic_prefix, self.machine_id),
+            instance=instance,
             qos=self.qos,
             every_ticks=self.every_ticks,
             queue_size=self.queue_size,

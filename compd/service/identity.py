@@ -6,6 +6,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from compd import __version__
+from compd.service.metricunits import prometheus_unit
 
 if TYPE_CHECKING:
     from compd.service.compensator import TickRecord
@@ -20,14 +21,22 @@ def identity(config: Config, slot: ModelSlot | None, started_unix_s: float) -> d
         "model": None if slot is None else {"name": slot.compiled.name, "sha256": slot.sha256},
         "period_s": doc.period_s,
         "started": started_unix_s,
-        "signals": {
-            n: {"unit": s.unit, "description": s.description} for n, s in doc.signals.items()
-        },
+        "signals": {n: _signal(s.unit, s.description) for n, s in doc.signals.items()},
+        # The status's numbers are in engineering units: each input's its signal's, the rest um.
+        "units": {"inputs": "signals.<name>.unit", "model_outputs": "um", "offsets": "um"},
+        "health_codes": {"ok": 0, "held": 1, "faulted": 2},
         "axes": {
             axis: {"model_output": out.model_output, "max_offset_um": out.max_offset_um}
             for axis, out in doc.outputs.items()
         },
     }
+
+
+def _signal(unit: str, description: str) -> dict[str, Any]:
+    """A signal in the birth: its unit, and the Prometheus metric carrying it (value x factor)."""
+    suffix, factor = prometheus_unit(unit)
+    metric = {"name": f"compd_signal_{suffix}", "factor": factor}
+    return {"unit": unit, "description": description, "metric": metric}
 
 
 def recording_metadata(config: Config) -> dict[str, str]:

@@ -167,8 +167,8 @@ class DriverLink:
     def _succeeded(self) -> None:
         if self._fault.active:
             event = "driver reconnected" if self._ever_up else "driver connected"
-            kind = "reconnected" if self._ever_up else "cleared"
-            self._fault.cleared(event, kind=kind, after_failures=self.failures)
+            also = "reconnected" if self._ever_up else None
+            self._fault.cleared(event, also=also, after_failures=self.failures)
             self.failures, self._ever_up = 0, True
 
     def _failed(self, action: str, exc: Exception) -> None:

@@ -300,6 +300,11 @@ def _link_metrics(service: Service) -> Iterator[Metric]:
         yield _counter(
             "compd_mqtt_connections", "Connections made to the broker.", mqtt.connections
         )
+        yield _gauge(
+            "compd_mqtt_standing_by",
+            "1 while another live daemon publishes as this machine_id and this one stands by.",
+            service.telemetry.rival is not None,
+        )
         yield _counter(
             "compd_mqtt_published", "Messages handed to the MQTT client to send.", mqtt.published
         )

@@ -39,7 +39,23 @@ class SignalPoint:
     def convert(self, raw: float) -> float:
         if self.kind != "float" and math.isfinite(raw):
             raw = float(round(raw)) if self.kind == "int" else float(raw != 0)
-        return raw * self.scale + self.offset
+        divisor = _divisor(self.scale)
+        scaled = raw / divisor if divisor is not None else raw * self.scale
+        return scaled + self.offset + 0.0  # + 0.0: never -0.0
+
+
+def _divisor(scale: float) -> float | None:
+    """``1 / scale`` where it is a whole number (0.01 -> 100.0), else None.
+
+    A register of 2115 at scale 0.01 is 21.15: ``2115 / 100`` is the double
+    nearest to it, ``2115 * 0.01`` is 21.150000000000002 (0.01 has no exact
+    double), and the noise would reach every recording and payload.
+    """
+    if scale == 0.0 or abs(scale) >= 1.0:
+        return None
+    inverse = 1.0 / scale
+    whole = round(inverse)
+    return float(whole) if abs(inverse - whole) <= 1e-9 * abs(inverse) else None
 
 
 @dataclass(frozen=True)

@@ -153,8 +153,12 @@ class ModelSlots:
     def blend_weight(self, t_s: float) -> float | None:
         """``w`` of the blend at ``t_s`` while one runs, else None (and the outgoing model is let go)."""
         weight = min(1.0, (t_s - self.blend_start_s) / self.blend_s) if self.blend_s else 1.0
-        if weight >= 1.0:
+        if weight >= 1.0 and self.previous is not None:
             self.previous = None
+            self._tell(
+                "model_blended", "model blended in", model=self.active.compiled.name,
+                sha256=self.active.sha256, blend_s=self.blend_s,
+            )  # fmt: skip
         return None if self.previous is None else weight
 
     def output(self, name: str, weight: float | None) -> float:

@@ -12,8 +12,8 @@ under ``<prefix>/<machine_id>/``:
     every ``every_ticks`` ticks: inputs with health, model outputs, offsets
     the stage gives and those the PLC acknowledged, status word, counters;
 ``event``
-    fault episodes (start, end), driver reconnects, model loads, switches and
-    failures, as they happen (:class:`compd.faultlog.Event`);
+    fault episodes (start, end), driver reconnects, model loads, switches,
+    blends and failures, as they happen (:class:`compd.faultlog.Event`);
 ``death`` (retained)
     ``reason: stopped`` on a clean stop (with the final counters), else the
     broker's last will, ``reason: connection lost``, when the daemon dies or
@@ -35,51 +35,47 @@ network I/O. A broker that goes away is a fault of the telemetry, logged once
 the queue fills and drops its oldest entries, paho reconnects with backoff,
 and the birth (then the queued backlog) is published again.
 
-Commands: with ``accept_models: true`` (never by default) the daemon also
-subscribes to ``<prefix>/<machine_id>/cmd/<kind>`` (:meth:`Telemetry.listen`)
-and answers on ``<prefix>/<machine_id>/reply/<request_id>``
-(:meth:`Telemetry.reply`); :mod:`compd.service.remoteload` is the one
-command, a model rolled out to the fleet. A command's payload is bounded (the
-connection's MQTT 5 Maximum Packet Size: the broker drops a larger message
-before sending it; and its length is checked again here) and handed from
-paho's thread to the event loop with its retain flag, never acted on in
-paho's thread.
+Before it publishes, a daemon reads its machine's retained birth and death,
+and stands by while another live daemon publishes as its ``machine_id``
+(:mod:`compd.service.mqttclaim`). Payloads: :mod:`~compd.service.telemetrypayloads`;
+commands (``accept_models: true``, answered on ``reply/<request_id>`` by
+:meth:`Telemetry.reply`): :mod:`~compd.service.telemetrycommands`.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
+import json
 import threading
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import paho.mqtt.client as mqtt
 import structlog
 from paho.mqtt.enums import MQTTErrorCode
+from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from compd.faultlog import Event, FaultLog
 from compd.service.compensator import TickRecord
+from compd.service.mqttclaim import Claim, Instance, where
 from compd.service.mqttlink import Broker, Topics, connect_properties, mqtt_client
-from compd.service.telemetryjson import SCHEMA, compd_version, dumps, finite, finites
+from compd.service.telemetrycommands import Commands, Handler
+from compd.service.telemetryjson import dumps
+from compd.service.telemetrypayloads import DESIRED_KEYS, Payloads
 
 log = structlog.get_logger("compd.service.telemetry")
 
-#: A command's handler: ``await handler(payload, retained=flag)`` (the broker's retain flag).
-Handler = Callable[..., Awaitable[None]]
 
 #: Messages handed to paho and not yet acknowledged, at most: beyond, the rest wait in the
 #: bounded queue (where the oldest are dropped), not in paho's (which would grow without bound).
 MAX_UNACKNOWLEDGED = 100
-#: A command's packet beyond its payload, at most: fixed header, topic, packet id, properties.
-PACKET_OVERHEAD_BYTES = 1024
-#: The largest packet taken without commands: the acknowledgements of what is published.
-MAX_PACKET_BYTES = 64 * 1024
 #: Longest a clean stop waits for the queue to drain and the death message's acknowledgement (s).
 STOP_TIMEOUT_S = 5.0
+#: MQTT 5's reason code when the broker drops a connection for another with the same client id.
+SESSION_TAKEN_OVER = 0x8E
 
 
 @dataclass
@@ -113,33 +109,47 @@ class Telemetry:
         queue_size: int = 1000,
         identity: Callable[[], dict[str, Any]] = dict,
         wall: Callable[[], float] = time.time,
+        instance: Instance | None = None,
     ) -> None:
         self.broker = broker
         self.topics = topics
         self.qos = qos
         self.every_ticks = every_ticks
-        self.identity = identity
         self.wall = wall
         self.counters = TelemetryCounters()
-        # Sparkplug's bdSeq: numbers the connections, across restarts too (milliseconds at start).
-        self.session = int(time.time() * 1000)
+        #: This process, as its birth, death and will name it (:mod:`compd.service.mqttclaim`).
+        self.instance = instance or Instance.this_process()
+        self._claim = Claim(self.instance)
+        #: Connected, and no other live daemon publishes as this machine_id: publishing.
+        self._active = False
+        #: The SUBACK after which the retained birth and death of this machine_id have been heard.
+        self._check_mid: int | None = None
+        #: The other live daemon this one stands by for (its birth's ``instance``), if any.
+        self.rival: dict[str, Any] | None = None
+        self.payloads = Payloads(
+            topics, self.instance, every_ticks=every_ticks, identity=identity, wall=wall
+        )
         self._statuses: deque[tuple[TickRecord, dict[str, int], str | None]] = deque(
             maxlen=queue_size
         )
         self._events: deque[tuple[float, Event]] = deque(maxlen=queue_size)
-        self._seq = 0
         self._birth_due = False
         self._waiting_for_acks = False
         self._fault = FaultLog(log, broker=f"{broker.host}:{broker.port}")
         self._fault.sink = self.event  # the broker's own faults are events, published on return
+        self._duplicate = FaultLog(log, machine_id=topics.machine_id)
+        self._duplicate.sink = self.event
         self._client = self._make_client()
         self._wake: asyncio.Event | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread = 0
         self._task: asyncio.Task[None] | None = None
-        #: cmd/<kind> -> (handler, largest payload in bytes); see :meth:`listen`.
-        self._commands: dict[str, tuple[Handler, int]] = {}
-        self._handling: set[asyncio.Task[None]] = set()
+        self.commands = Commands(topics, self.event)
+
+    @property
+    def publishing(self) -> bool:
+        """Connected, and no other live daemon publishes as this machine_id (module mqttclaim)."""
+        return self._active
 
     @property
     def fault_active(self) -> bool:
@@ -149,19 +159,20 @@ class Telemetry:
     def _make_client(self) -> mqtt.Client:
         client = mqtt_client(self.broker)
         client.max_queued_messages_set(MAX_UNACKNOWLEDGED + 10)  # + the death, at stop
+        client.on_pre_connect = self._on_pre_connect
         client.on_connect = self._on_connect
+        client.on_subscribe = self._on_subscribe
         client.on_connect_fail = self._on_connect_fail
         client.on_disconnect = self._on_disconnect
         client.on_publish = self._on_publish
         client.on_message = self._on_message
-        self._set_will(client)
         return client
 
     # -- the loop's side --------------------------------------------------------------------
 
     def start(self) -> None:
         """Connect in the background (paho's thread) and start the publishing task; never blocks."""
-        self._loop = asyncio.get_running_loop()
+        self._loop = self.commands.loop = asyncio.get_running_loop()
         self._loop_thread = threading.get_ident()
         self._wake = asyncio.Event()
         self._client.connect_async(
@@ -209,18 +220,19 @@ class Telemetry:
             await self._wake.wait()
             self._wake.clear()
             sent = 0
-            while self.counters.connected:
+            while self._active and self.counters.connected:
                 self._waiting_for_acks = self._unacknowledged >= MAX_UNACKNOWLEDGED
                 if self._waiting_for_acks:
                     break  # _on_publish wakes this task again
                 if self._birth_due:
                     self._birth_due = False
-                    self._publish("birth", self._birth(), retain=True)
+                    self._publish("birth", self.payloads.birth(self.event), retain=True)
                 elif self._events:
                     at_s, event = self._events.popleft()
-                    self._publish("event", self._event_payload(at_s, event))
+                    self._publish("event", self.payloads.event(at_s, event))
                 elif self._statuses:
-                    self._publish("status", self._status_payload(*self._statuses.popleft()))
+                    status = self.payloads.status(*self._statuses.popleft(), self.counters.dropped)
+                    self._publish("status", status)
                 else:
                     break
                 sent += 1
@@ -250,14 +262,15 @@ class Telemetry:
         if self._loop is None:
             return
         deadline = time.monotonic() + STOP_TIMEOUT_S
-        while self.counters.connected and (self._events or self._statuses or self._birth_due):
+        while self._active and (self._events or self._statuses or self._birth_due):
             if time.monotonic() > deadline:
                 break
             self._notify()
             await asyncio.sleep(0.01)
-        if self.counters.connected:
-            death = self._header("death") | {"reason": "stopped", "ticks": ticks}
-            death["telemetry"] = self.status_counters()
+        if (
+            self._active
+        ):  # a daemon standing by has no birth to end (its will goes with the disconnect)
+            death = self.payloads.death("stopped", ticks=ticks, telemetry=self.status_counters())
             info = self._client.publish(self.topics.of("death"), dumps(death), self.qos, True)
             self.counters.published += 1
             remaining_s = max(0.1, deadline - time.monotonic())
@@ -269,34 +282,22 @@ class Telemetry:
         log.info("telemetry stopped", **self.status_counters())
 
     def listen(self, kind: str, handler: Handler, *, max_bytes: int) -> None:
-        """Act on ``<prefix>/<machine_id>/cmd/<kind>``: ``await handler(payload, retained=...)`` on the loop.
-
-        Subscribed (QoS 1) on every connection; before :meth:`start`. A message
-        whose packet would exceed ``max_bytes`` and :data:`PACKET_OVERHEAD_BYTES`
-        is dropped by the broker (:attr:`max_packet_bytes`); a payload over
-        ``max_bytes`` that arrives all the same is dropped unread, logged and
-        told as a ``fault`` event (there is no request id to answer to without
-        reading it).
-        """
-        self._commands[kind] = (handler, max_bytes)
+        """Act on ``cmd/<kind>`` while publishing (before :meth:`start`; :mod:`~compd.service.telemetrycommands`)."""
+        self.commands.listen(kind, handler, max_bytes=max_bytes)
 
     @property
     def max_packet_bytes(self) -> int:
-        """The Maximum Packet Size told to the broker: the largest command's and its packet's overhead."""
-        commands = (
-            max_bytes + len(self.topics.of(f"cmd/{kind}").encode()) + PACKET_OVERHEAD_BYTES
-            for kind, (_, max_bytes) in self._commands.items()
-        )
-        return max([MAX_PACKET_BYTES, *commands])
+        """The Maximum Packet Size told to the broker (:class:`~compd.service.telemetrycommands.Commands`)."""
+        return self.commands.max_packet_bytes
 
     @property
     def listening(self) -> tuple[str, ...]:
         """The command kinds this daemon acts on (none unless the config says ``accept_models``)."""
-        return tuple(self._commands)
+        return tuple(self.commands.kinds)
 
     def reply(self, request_id: str, payload: dict[str, Any]) -> bool:
         """Publish the answer to a command on ``reply/<request_id>`` (the loop's thread; QoS 1)."""
-        return self._publish(f"reply/{request_id}", self._header("reply") | payload)
+        return self._publish(f"reply/{request_id}", self.payloads.header("reply") | payload)
 
     def status_counters(self) -> dict[str, Any]:
         """For ``compd status`` and the death message."""
@@ -307,14 +308,15 @@ class Telemetry:
             "acknowledged": c.acknowledged,
             "dropped": c.dropped,
             "connections": c.connections,
+            "stands_by_for": None if self.rival is None else where(self.rival),
         }
 
     # -- paho's thread --------------------------------------------------------------------------
 
-    def _set_will(self, client: mqtt.Client) -> None:
-        will = self._header("death") | {"reason": "connection lost"}
-        del will["time"]  # the broker sends it when it notices, at a time nobody can stamp here
-        client.will_set(self.topics.of("death"), dumps(will), self.qos, retain=True)
+    def _on_pre_connect(self, client: Any, userdata: Any) -> None:
+        """Each connection's will, stamped now: the broker sends it unstamped, when it notices."""
+        will = dumps(self.payloads.will())
+        client.will_set(self.topics.of("death"), will, self.qos, retain=True)
 
     def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         if reason.is_failure:
@@ -322,13 +324,74 @@ class Telemetry:
             return
         self.counters.connections += 1
         self.counters.connected = True
-        self._birth_due = True
-        for kind in self._commands:  # a clean session: subscribed again on every connection
-            client.subscribe(self.topics.of(f"cmd/{kind}"), qos=1)
+        self._active = False
+        # Who else publishes as this machine_id: the retained birth and death come after the first
+        # SUBACK and before the second (the broker answers a client's packets in order).
+        own = SubscribeOptions(qos=1, noLocal=True)
+        mine = [(self.topics.of(kind), own) for kind in ("birth", "death", "desired")]
+        client.subscribe(mine)
+        quiet = SubscribeOptions(qos=1, noLocal=True, retainHandling=2)
+        self._check_mid = client.subscribe(self.topics.of("death"), options=quiet)[1]
         if self.counters.connections == 1 and not self._fault.active:
             log.info("telemetry connected", broker=f"{self.broker.host}:{self.broker.port}")
-        self._fault.cleared("telemetry broker connected again", kind="reconnected")
-        self._notify()
+        self._fault.cleared("telemetry broker connected again", also="reconnected")
+
+    def _on_subscribe(self, client: Any, userdata: Any, mid: int, codes: Any, props: Any) -> None:
+        if mid == self._check_mid:
+            self._check_mid = None
+            self._decide(client, publishing=False)
+
+    def _decide(self, client: Any, *, publishing: bool) -> None:
+        """Publish, or stand by for another live daemon with this machine_id (module mqttclaim)."""
+        rival = self._claim.rival(publishing=publishing)
+        if rival is not None:
+            self._stand_by(client, rival)
+        elif not self._active:
+            self._active = True
+            self._birth_due = True
+            self.commands.subscribe(client)
+            if self.rival is not None:
+                self.rival = None
+                self._duplicate.cleared("telemetry publishes: the other daemon is gone")
+            self._notify()
+
+    def _stand_by(self, client: Any, rival: dict[str, Any]) -> None:
+        instance = rival.get("instance") or {}
+        if self._active:
+            self._active = False
+            self.commands.unsubscribe(client)
+        self.rival = instance
+        self._duplicate.failed(
+            f"telemetry stands by: {where(instance)} already publishes as this machine_id",
+            other_host=instance.get("host"),
+            other_pid=instance.get("pid"),
+            fix="give each daemon its own telemetry.machine_id, or stop the other one",
+        )
+
+    def _heard_own(self, client: Any, kind: str, message: mqtt.MQTTMessage) -> None:
+        """Another daemon's birth or death on this machine_id's topics (module mqttclaim)."""
+        try:
+            payload = json.loads(message.payload)
+        except (ValueError, RecursionError):
+            return
+        if not isinstance(payload, dict) or not self._claim.heard(kind, payload):
+            return
+        if self._check_mid is not None or not self.counters.connected:
+            return  # decided when the check's SUBACK comes
+        if not self._active:
+            self._decide(client, publishing=False)
+        elif kind == "birth" and not message.retain:
+            self._decide(client, publishing=True)
+            if self._active:  # this one started first and keeps on: its birth is the retained one
+                other = payload.get("instance") or {}
+                log.error(
+                    "another daemon published as this machine_id; it started later and stands by",
+                    machine_id=self.topics.machine_id,
+                    other=where(other),
+                    fix="give each daemon its own telemetry.machine_id, or stop the other one",
+                )
+                self._birth_due = True
+                self._notify()
 
     def _on_connect_fail(self, client: Any, userdata: Any) -> None:
         self._fault.failed("telemetry broker unreachable")
@@ -336,84 +399,47 @@ class Telemetry:
     def _on_disconnect(
         self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any
     ) -> None:
-        self.counters.connected = False
-        if reason.is_failure:
+        self.counters.connected = self._active = False
+        if reason.value == SESSION_TAKEN_OVER:
+            self._fault.failed(
+                "telemetry broker connection lost: another client connected with this client id",
+                client_id=self.broker.client_id,
+                fix="give each daemon its own telemetry.client_id (or leave it out) and machine_id",
+            )
+        elif reason.is_failure:
             self._fault.failed("telemetry broker connection lost", reason=str(reason))
-        # The next connection is a new session, and its will must say so.
-        self.session += 1
-        self._set_will(client)
+        self.payloads.session += (
+            1  # the next connection is a new session (its will: _on_pre_connect)
+        )
 
     def _on_message(self, client: Any, userdata: Any, message: mqtt.MQTTMessage) -> None:
-        kind = message.topic.removeprefix(self.topics.of("cmd/"))
-        handler, max_bytes = self._commands.get(kind, (None, 0))
-        if handler is None or self._loop is None:
+        for own in ("birth", "death"):
+            if message.topic == self.topics.of(own):
+                self._heard_own(client, own, message)
+                return
+        if message.topic == self.topics.of("desired"):
+            self._heard_desired(bytes(message.payload))
             return
-        if len(message.payload) > max_bytes:
-            log.error("command refused: too large", topic=message.topic, bytes=len(message.payload))
-            details = {"topic": message.topic, "bytes": len(message.payload), "max": max_bytes}
-            self.event(Event("fault", "command refused: too large", details))
-            return
-        with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
-            payload = bytes(message.payload)
-            self._loop.call_soon_threadsafe(self._handle, handler, payload, message.retain)
+        self.commands.dispatch(message)
 
-    def _handle(self, handler: Handler, payload: bytes, retained: bool) -> None:
-        task = asyncio.ensure_future(handler(payload, retained=retained))
-        self._handling.add(task)  # a reference until done: the loop keeps only weak ones
-        task.add_done_callback(self._handling.discard)
+    def _heard_desired(self, data: bytes) -> None:
+        """The roll-out's record of the model this machine should run: said in the next birth."""
+        try:
+            record = json.loads(data) if data else None
+        except (ValueError, RecursionError):
+            return
+        if record is not None and not isinstance(record, dict):
+            return
+        self.payloads.desired = None if record is None else {k: record.get(k) for k in DESIRED_KEYS}
+        if self._active:
+            self._birth_due = True
+            self._notify()
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
         self.counters.acknowledged += 1
         if self._waiting_for_acks and self._unacknowledged < MAX_UNACKNOWLEDGED // 2:
             self._waiting_for_acks = False
             self._notify()
-
-    # -- payloads ---------------------------------------------------------------------------------
-
-    def _header(self, kind: str) -> dict[str, Any]:
-        self._seq += 1
-        return {
-            "schema": SCHEMA,
-            "kind": kind,
-            "machine_id": self.topics.machine_id,
-            "session": self.session,
-            "seq": self._seq,
-            "time": self.wall(),
-        }
-
-    def _birth(self) -> dict[str, Any]:
-        birth = self._header("birth")
-        birth |= {"compd_version": compd_version(), "every_ticks": self.every_ticks}
-        return birth | self.identity()
-
-    def _event_payload(self, at_s: float, event: Event) -> dict[str, Any]:
-        payload = self._header("event") | {"time": at_s}
-        return payload | {"event": event.kind, "message": event.message, "details": event.details}
-
-    def _status_payload(
-        self, record: TickRecord, counters: dict[str, int], model: str | None
-    ) -> dict[str, Any]:
-        payload = self._header("status") | {"time": record.wall_unix_s}
-        return payload | {
-            "t_s": record.t_s,
-            "model": model,
-            "inputs": {
-                name: {
-                    "value": finite(value),
-                    "health": record.health[name].name.lower(),
-                    "reason": record.reasons.get(name, ""),
-                }
-                for name, value in record.values.items()
-            },
-            "model_outputs": finites(record.model_outputs),
-            "targets_um": finites(record.targets_um),
-            "offsets_um": finites(record.offsets_um),
-            "acknowledged_um": finites(record.acknowledged_um),
-            "written": record.written,
-            "status_word": record.status,
-            "heartbeat": record.heartbeat,
-            "counters": counters | {"telemetry_dropped": self.counters.dropped},
-        }
 
 
 def _wait_published(info: mqtt.MQTTMessageInfo, timeout_s: float) -> None:

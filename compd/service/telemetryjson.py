@@ -18,8 +18,14 @@ def dumps(payload: Mapping[str, Any]) -> bytes:
 
 
 def finite(value: float) -> float | None:
-    """JSON has no NaN: a missing value is ``null``."""
-    return value if math.isfinite(value) else None
+    """JSON has no NaN: a missing value is ``null``; ``-0.0`` is ``0.0`` (a sign nobody measured).
+
+    Floats are written in their shortest form that reads back the same
+    (Python's ``repr``); a value's decimals are clean where the value is
+    (:meth:`compd.service.points.SignalPoint.convert` scales registers by
+    dividing).
+    """
+    return value + 0.0 if math.isfinite(value) else None
 
 
 def finites(values: Mapping[str, float]) -> dict[str, float | None]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import json
 import re
 import subprocess
 import sys
@@ -302,6 +303,9 @@ def test_only_the_roll_out_user_can_send_a_model_over_tls(
 #: writes commands, and reads the answers, events, births and deaths.
 ACL = """\
 pattern read compd/%u/cmd/#
+pattern read compd/%u/birth
+pattern read compd/%u/death
+pattern read compd/%u/desired
 pattern write compd/%u/birth
 pattern write compd/%u/status
 pattern write compd/%u/event
@@ -310,6 +314,7 @@ pattern write compd/%u/reply/#
 
 user rollout
 topic write compd/+/cmd/#
+topic readwrite compd/+/desired
 topic read compd/+/reply/#
 topic read compd/+/event
 topic read compd/+/birth
@@ -322,8 +327,9 @@ def _variant(folder: Path, name: str, *, unstable: bool = False) -> Path:
     """The machines' model with one more comment line (a new sha256), or with an unstable pole."""
     text = MODEL.read_text() + "\n# rolled out to the fleet\n"
     if unstable:
-        text, replaced = re.subn(r"den: \[1\.0, [^\]]*\]", "den: [1.0, -2.5, 1.0]", text, count=1)
-        assert replaced == 1  # the first sub-model's poles become 2 and 0.5
+        # The first denominator, whatever its fit gave: poles 2 and 0.5.
+        text, replaced = re.subn(r"den: \[[^\]]*\]", "den: [1.0, -2.5, 1.0]", text, count=1)
+        assert replaced == 1
     path = folder / name
     path.write_text(text)
     return path
@@ -449,3 +455,84 @@ def _wait(condition: Any) -> None:
     while not condition():
         assert time.monotonic() < deadline, "timed out waiting for the broker"
         time.sleep(0.005)
+
+
+def test_a_machine_away_during_a_roll_out_is_sent_the_model_by_pending_when_back(
+    fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """The roll-out leaves a desired record; the machine back says it runs an older model; --pending sends it."""
+    new = _variant(tmp_path, "rolled-out.yaml")
+    sha256 = hashlib.sha256(new.read_bytes()).hexdigest()
+    settings = _broker_settings(tmp_path, broker.port)
+    listed = tmp_path / "machines.txt"
+    listed.write_text("# the fleet\nmill-a\nmill-b  # spindle head\nmill-c\n")
+    with Subscriber(broker.port, "compd/#") as sub:
+        _start_and_wait_for_births(fleet, sub)
+        away = fleet[2]
+        assert away.process is not None
+        away.process.terminate()
+        assert away.process.wait(timeout=WAIT_S) == 0
+        sub.wait_for(lambda s: s.of("death", away.machine_id), "the stopped machine's death")
+
+        rollout = ["model", "rollout", str(new), *settings, "--machines", f"@{listed}"]
+        code = main([*rollout, "--wait-blend", "--json", "--timeout-s", "10"])
+        report = json.loads(capsys.readouterr().out)
+        assert code == 1, report
+        rows = {row["machine_id"]: row for row in report["machines"]}
+        assert rows["mill-c"]["result"] == "no answer"
+        for machine in fleet[:2]:
+            row = rows[machine.machine_id]
+            assert row["result"] == "accepted" and row["blended_in"] is True, row
+            blended = [
+                e
+                for e in sub.of("event", machine.machine_id)
+                if e["event"] == "model_blended" and e["details"]["sha256"] == sha256
+            ]
+            assert blended, "blended in: yes only once its blend ended"
+
+        start(away, "--time-scale", "60", "--duration-s", "36000")
+        sub.wait_for(lambda s: len(s.of("birth", away.machine_id)) == 2, "the machine back")
+        birth = sub.of("birth", away.machine_id)[-1]
+        assert birth["desired_model"]["sha256"] == sha256 and not birth["desired_model"]["runs_it"]
+        sub.wait_for(
+            lambda s: any(e["event"] == "model_outdated" for e in s.of("event", away.machine_id)),
+            "the machine back telling it runs an older model",
+        )
+
+        code = main(["model", "rollout", "--pending", *settings, "--wait-blend", "--json"])
+        report = json.loads(capsys.readouterr().out)
+        assert code == 0, report
+        rows = {row["machine_id"]: row for row in report["machines"]}
+        assert rows["mill-c"]["result"] == "accepted" and rows["mill-c"]["blended_in"] is True
+        assert rows["mill-a"]["result"] == rows["mill-b"]["result"] == "up_to_date"
+        sub.wait_for(lambda s: _running(s, away.machine_id) == sha256, "mill-c running it")
+
+
+def test_a_canary_that_refuses_stops_the_roll_out_to_every_machine_online(
+    fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """``--online --canary 1``: the first machine refuses, the others are not sent it; a good model reaches all."""
+    bad = _variant(tmp_path, "unstable.yaml", unstable=True)
+    good = _variant(tmp_path, "rolled-out.yaml")
+    settings = _broker_settings(tmp_path, broker.port)
+    with Subscriber(broker.port, "compd/#") as sub:
+        _start_and_wait_for_births(fleet, sub)
+        waves = ["--online", "--canary", "1", "--json"]
+        code = main(["model", "rollout", str(bad), *settings, *waves, "--no-local-check"])
+        report = json.loads(capsys.readouterr().out)
+        assert code == 1, report
+        rows = {row["machine_id"]: row for row in report["machines"]}
+        assert sorted(rows) == ["mill-a", "mill-b", "mill-c"], "every machine online"
+        assert rows["mill-a"]["result"] == "refused"
+        for name in ("mill-b", "mill-c"):
+            assert rows[name]["result"] == "not_sent", rows[name]
+            assert "canary mill-a refused" in rows[name]["reason"]
+        sent = {m.topic.split("/")[1] for m in sub.messages if "/cmd/" in m.topic}
+        assert sent == {"mill-a"}, "the rest never sent it"
+        desired = {m.topic.split("/")[1] for m in sub.messages if m.topic.endswith("/desired")}
+        assert desired == {"mill-a"}, "nor left a desired record for --pending to send later"
+
+        code = main(["model", "rollout", str(good), *settings, *waves, "--wait-blend"])
+        report = json.loads(capsys.readouterr().out)
+        assert code == 0, report
+        assert [row["result"] for row in report["machines"]] == ["accepted"] * 3

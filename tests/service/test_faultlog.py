@@ -34,15 +34,16 @@ def test_one_error_per_episode_debug_while_it_lasts_info_when_it_clears():
 
 
 def test_an_attached_sink_hears_each_episode_once_start_and_end():
-    """The event sink (the telemetry) is told of an episode's start and end, not of its repeats."""
+    """The event sink (the telemetry) hears an episode's fault and its cleared (then what it was), not its repeats."""
     fault = FaultLog(structlog.get_logger("test"), driver="plc")
     heard: list[Event] = []
     fault.sink = heard.append
     for _ in range(3):
         fault.failed("read failed", error="gone")
-    fault.cleared("driver reconnected", kind="reconnected", after_failures=3)
+    fault.cleared("driver reconnected", also="reconnected", after_failures=3)
     assert heard == [
         Event("fault", "read failed", {"driver": "plc", "error": "gone"}),
+        Event("cleared", "driver reconnected", {"driver": "plc", "after_failures": 3}),
         Event("reconnected", "driver reconnected", {"driver": "plc", "after_failures": 3}),
     ]
 

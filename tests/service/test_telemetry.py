@@ -123,7 +123,7 @@ def wait_until(condition: Any) -> None:
 
 
 def test_killed_daemon_leaves_its_last_will(broker: Mosquitto, tmp_path: Path):
-    """SIGKILL of ``compd run``: the broker publishes the retained death, ``connection lost``, same session."""
+    """SIGKILL of ``compd run``: the broker publishes the retained death, ``connection lost``, same session, stamped."""
     telemetry = {"machine_id": "mill-k", "host": "127.0.0.1", "port": broker.port, "every_ticks": 1}
     config = machine_config(tmp_path / "run", telemetry=telemetry)
     log = tmp_path / "compd.log"
@@ -140,6 +140,8 @@ def test_killed_daemon_leaves_its_last_will(broker: Mosquitto, tmp_path: Path):
     birth, death = sub.of("birth")[0], sub.of("death")[0]
     assert death["reason"] == "connection lost"
     assert death["session"] == birth["session"]
+    assert death["time_is"] == "connected" and 0 < death["time"] <= birth["time"]
+    assert death["instance"] == birth["instance"] and death["instance"]["pid"] == daemon.pid
 
 
 def test_tls_and_a_password_file(tmp_path: Path):
@@ -231,4 +233,5 @@ def test_no_broker_at_all_is_a_telemetry_fault_only(tmp_path: Path):
     assert result.status["counters"]["ticks"] == 31
     assert result.status["telemetry"] == {
         "connected": False, "published": 0, "acknowledged": 0, "dropped": 21, "connections": 0,
+        "stands_by_for": None,
     }  # fmt: skip
