@@ -5,7 +5,7 @@ temperatures (random heating levels held 30 min to 4 h, through a 10-minute
 sensor lag, as changes from start), each reaching the output through its own
 second-order thermal TF (two real poles, time constants 20 min to 2 h, nk = 1),
 plus white output noise of 1 % of the output's standard deviation. The true
-model's free-run fit (seed 001 eq. 2) is the ceiling an identification can reach.
+model's free-run fit (Horejs 2015 eq. 2) is the ceiling an identification can reach.
 
 What is timed is the numeric core call (``compd.model.identify.identify``,
 ``compd.model.run.simulate``), not Python start-up or reading a CSV; with one

@@ -5,7 +5,7 @@ temperatures, 5 displacement channels, four 8 h heat/cool cycles at 1250,
 2500, 3750 and 5000 rpm). Every method gets all 16 temperatures as changes
 from the record's start. Folds are the four cycles; each held-out cycle is
 predicted by the model fitted on the other three, run through the whole
-record; the fit % (seed 001 eq. 2) of the four held-out predictions pooled is
+record; the fit % (Horejs 2015 eq. 2) of the four held-out predictions pooled is
 the figure. Per method and channel:
 
 - ``calibration``: the fit on all the data it was fitted on (proves nothing);

@@ -1,4 +1,4 @@
-"""Per-tick cost of seed 004's residual forest, beside scikit-learn's ``predict`` on one sample.
+"""Per-tick cost of Swiss-lathe paper's residual forest, beside scikit-learn's ``predict`` on one sample.
 
 The daemon evaluates the door residual model every tick: the door features
 advance one step, then all trees are traversed at once

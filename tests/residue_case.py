@@ -2,7 +2,7 @@
 
 12 hours at 10 s. The model (``MODEL_YAML``) knows one effect: the spindle
 bearings, ``4 um/K`` of ``T_spindle_degC`` through a 10-min lag. The
-"machine" also has the cutting-process effect of seed 001 that the model
+"machine" also has the cutting-process effect of Horejs 2015 that the model
 lacks: ``1.5 um/kW`` of ``spindle_power_kw`` through a 30-min lag. From 8 h
 to 10 h the machine cuts rough at 4.5 kW, beyond the 0..2 kW the model's
 calibration data saw, so that is where the model fails. Every other signal

@@ -44,7 +44,7 @@ def test_compare_json_has_the_contract_keys(capsys: pytest.CaptureFixture[str]) 
 def test_tf_model_beats_the_controllers_linear_regression(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    """Seed 000's claim on the example data: its TF model leaves far less residue than the built-in regression."""
+    """Horejs 2010's claim on the example data: its TF model leaves far less residue than the built-in regression."""
     tf = compare_json(capsys, SEED000, DATA)["outputs"]["disp_z_um"]
     regression = compare_json(capsys, REGRESSION, DATA)["outputs"]["disp_z_um"]
     assert tf["fit_percent"] > 85.0
@@ -92,7 +92,7 @@ def test_simulate_writes_outputs_and_contributions(
 def test_fit_percent_agrees_with_simulated_csv(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """fit % in compare equals seed 001 eq. 2 computed from simulate's output and the measured column."""
+    """fit % in compare equals Horejs 2015 eq. 2 computed from simulate's output and the measured column."""
     out = tmp_path / "pred.csv"
     assert run(capsys, "simulate", GATED, DATA, "--out", out)[0] == 0
     predicted = pd.read_csv(out)["disp_y_um"].to_numpy()

@@ -1,4 +1,4 @@
-"""``compd fit --denoise`` (seed 004): EMD offline, a matched low-pass in the file, measured against the plain model."""
+"""``compd fit --denoise`` (Swiss-lathe paper): EMD offline, a matched low-pass, measured against the plain model."""
 
 from __future__ import annotations
 

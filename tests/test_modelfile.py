@@ -61,7 +61,7 @@ def test_bundled_example_models_load_and_compile(name: str) -> None:
 
 
 def test_seed000_model_carries_the_papers_coefficients() -> None:
-    """The seed 000 example holds E_z_heat (eq. 2) and E_ETVE (eq. 3) exactly as printed, ascending in s."""
+    """The Horejs 2010 example holds E_z_heat (eq. 2) and E_ETVE (eq. 3) exactly as printed, ascending in s."""
     model = load_model(CONFIG / "seed000_hmc_tf.yaml").model
     heat, etve = model.outputs[0].submodels
     assert heat.tf.num == (0.0162, 10.74, 5.368)

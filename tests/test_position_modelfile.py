@@ -1,4 +1,4 @@
-"""Model files with seed 003 slope terms: schema, writer round trip, and fit_data's refusals."""
+"""Model files with Pahk 2002 slope terms: schema, writer round trip, and fit_data's refusals."""
 
 from __future__ import annotations
 

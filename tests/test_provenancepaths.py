@@ -79,7 +79,7 @@ def test_fit_of_bundled_data_records_the_bundled_name(tmp_path: Path) -> None:
 def test_files_in_another_tree_stay_absolute(tmp_path: Path) -> None:
     """A share elsewhere: ``../../../mnt/...`` would be no more portable than the absolute path."""
     assert portable_path("/mnt/share/calib.csv", tmp_path) == "/mnt/share/calib.csv"
-    assert portable_path("seed 000, eq. 1", tmp_path) == "seed 000, eq. 1"  # a description
+    assert portable_path("Horejs 2010, eq. 1", tmp_path) == "Horejs 2010, eq. 1"  # a description
     assert portable_command("hand-written 'example", tmp_path) == "hand-written 'example"
 
 

@@ -1,4 +1,4 @@
-"""Residual-model files (seed 004): the YAML block, the sha256-checked .npz sidecar, and the fit's refusals."""
+"""Residual-model files (Swiss-lathe paper): the YAML block, the sha256-checked .npz sidecar, and the fit's refusals."""
 
 from __future__ import annotations
 

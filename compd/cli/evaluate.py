@@ -118,7 +118,7 @@ def _simulate(args: argparse.Namespace) -> int:
             columns[name] = evaluation.result.outputs[:, i]
         for i, name in enumerate(qualified_names(evaluation.compiled)):
             columns[name.replace("/", ".")] = evaluation.result.contributions[:, i]
-        for r, (out_i, _) in enumerate(evaluation.compiled.residuals):  # seed 004's forest terms
+        for r, (out_i, _) in enumerate(evaluation.compiled.residuals):  # the residual forests
             name = f"{evaluation.compiled.output_names[out_i]}.residual"
             columns[name] = evaluation.result.residuals[:, r]  # type: ignore[index]
         frames.append(pd.DataFrame(columns))

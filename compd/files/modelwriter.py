@@ -103,7 +103,7 @@ def _residual(doc: ResidualDoc) -> list[str]:
     data = doc.model_dump(mode="json", exclude_none=True)
     text = str(yaml.safe_dump({"residual": data}, sort_keys=False, width=100))
     return [
-        "    # seed 004: a random forest on the smoothed door signal, added to the sub-models' "
+        "    # Swiss-lathe paper: a random forest on the smoothed door signal, added to the sub-models' "
         "sum; its trees",
         "    # are plain arrays in the .npz named below (checked against sha256 at load)",
         *("    " + line for line in text.rstrip("\n").splitlines()),
@@ -149,7 +149,7 @@ def model_to_yaml(
     ]
     if has_discrete:
         lines += [
-            "# Discrete TFs: coefficients in ascending powers of z^-1 (seed 001 eq. 1),",
+            "# Discrete TFs: coefficients in ascending powers of z^-1 (Horejs 2015 eq. 1),",
             "#   a0 y(k) = b0 u(k-nk) + b1 u(k-nk-1) + ... - a1 y(k-1) - ...",
             "# printed at full precision: slow poles make the static gain B(1)/A(1)",
             "# sensitive to the last digits, so do not round them.",
@@ -183,7 +183,7 @@ def model_to_yaml(
         for sub in output.submodels:
             if sub.position is not None:
                 lines.append(
-                    "      # slope term (seed 003 m1(T) * P): this TF is in um per mm, multiplied by "
+                    "      # slope term (Pahk 2002 m1(T) * P): this TF is in um per mm, multiplied by "
                     "the position minus reference_mm"
                 )
             if sub.gate is not None and sub.gate.target.value == "input":

@@ -49,7 +49,7 @@ def portable_path(text: str, model_dir: Path, base_dir: Path | None = None) -> s
     """``text`` (a path relative to ``base_dir``, default the working directory) as seen from ``model_dir``.
 
     Text that names no existing file and is not absolute (a description such as
-    "seed 000, eq. 1") is returned unchanged, as is ``bundled:NAME``.
+    "Horejs 2010, eq. 1") is returned unchanged, as is ``bundled:NAME``.
     """
     if text.startswith(BUNDLED) or not text:
         return text

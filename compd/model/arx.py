@@ -1,6 +1,6 @@
 """MISO ARX by least squares, conditioned for thermal time constants of hours at 1 Hz.
 
-The model is seed 001 eq. 1 / seed 003 eq. 4 with one denominator shared by
+The model is Horejs 2015 eq. 1 / Pahk 2002 eq. 4 with one denominator shared by
 all inputs (MATLAB's ``arx``)::
 
     A(q) y(k) = sum_i B_i(q) u_i(k - nk_i) + e(k)

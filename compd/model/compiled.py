@@ -11,7 +11,7 @@ length ``L`` so all sub-models advance together in transposed direct form II
 
 Signals are gathered by index into an extended signal vector whose last two
 slots hold the constants 0 (for "no minus signal") and 1 (for "no gate",
-"no position"). A position multiplier (seed 003 eq. 5, ``m1(T) * P``)
+"no position"). A position multiplier (Pahk 2002 eq. 5, ``m1(T) * P``)
 scales each sub-model's output by ``extended[position_index] -
 position_reference_mm``, which is ``1 - 0`` for sub-models without one; it
 scales the output, never the TF's state, so steady and rest states do not
@@ -48,7 +48,7 @@ class ModelState:
     ``z`` has one row per sub-model (DF2T delay line, ``lfilter``'s ``zi``);
     ``reference`` is each sub-model's input reference (for "value at start"
     sub-models, the value captured when the model started); ``residual`` the
-    door-feature states of the outputs' residual models (seed 004), end to
+    door-feature states of the outputs' residual models (Swiss-lathe paper), end to
     end in output order (empty without them).
     """
 
@@ -108,7 +108,7 @@ class CompiledModel:
     ambient_index: int = -1  # -1: none
     ambient_reference: float = 0.0
     ambient_moves: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    #: Seed 004 residual models: (output index, model), added to that output's TF sum.
+    #: Swiss-lathe paper residual models: (output index, model), added to that output's TF sum.
     residuals: tuple[tuple[int, ResidualModel], ...] = ()
 
     @property

@@ -12,7 +12,7 @@ blocks of equal length.
 
 Every model is run through the *whole* record (inputs referenced to the
 record's start, state carried through every cycle); only which samples enter
-the fit changes from fold to fold. The score is the fit % (seed 001 eq. 2)
+the fit changes from fold to fold. The score is the fit % (Horejs 2015 eq. 2)
 of all held-out predictions pooled: a fold that the model misses by a lot
 counts by its size, not averaged away.
 """
@@ -134,7 +134,7 @@ def cross_validated_prediction(
 
 
 def pooled_fit_percent(measured: np.ndarray, predicted: np.ndarray) -> float:
-    """Fit % (seed 001 eq. 2) over the samples that have a held-out prediction."""
+    """Fit % (Horejs 2015 eq. 2) over the samples that have a held-out prediction."""
     held = np.isfinite(predicted)
     if held.sum() < 2:
         raise ModelError("no held-out predictions to score")

@@ -1,6 +1,6 @@
 """Which physical effect is missing from a model: rank candidate signals by how much residue they explain.
 
-Seed 001 (sect. 4.3) finds the missing cutting-process effect by fitting a TF
+Horejs 2015 (sect. 4.3) finds the missing cutting-process effect by fitting a TF
 from spindle power to the residue of the air-cutting model. This module does
 that for every candidate signal at once and scores each on data it was not
 fitted on, so a slow signal that merely shares a trend with the residue does
@@ -137,7 +137,7 @@ def diagnose_residue(
     Parameters
     ----------
     residue_um
-        ``measured - predicted`` (seed 001 eq. 3), um, one value per sample.
+        ``measured - predicted`` (Horejs 2015 eq. 3), um, one value per sample.
     candidates
         Signal name -> values (any unit), as long as the residue. Each is
         used as a change from its first value. A constant one is an error:

@@ -1,6 +1,6 @@
-"""Post-process update of sub-model gains from sparse measurements (seed 002 eq. 6-9).
+"""Post-process update of sub-model gains from sparse measurements (Post-process 2024 eq. 6-9).
 
-Seed 002 eq. 6 multiplies whole sub-models by gains ``g1, g2, ...``::
+Post-process 2024 eq. 6 multiplies whole sub-models by gains ``g1, g2, ...``::
 
     y(k; g) = f(k) + sum_j g_j c_j(k)
 
@@ -13,7 +13,7 @@ residues over any set of instants is a quadratic form,
 
 precomputed once as a Gram matrix: evaluating it costs ``G^2`` operations
 whatever the record length, so a genetic-type global search (scipy's
-``differential_evolution``, as seed 002 uses a GA) over thousands of candidate
+``differential_evolution``, as Post-process 2024 uses a GA) over thousands of candidate
 gain vectors takes milliseconds instead of thousands of re-simulations.
 
 - :func:`update_gains`: eq. 8/9, the residue at the probe instants only,
@@ -22,7 +22,7 @@ gain vectors takes milliseconds instead of thousands of re-simulations.
   between changes of technological conditions of a continuously measured run;
   their range (with a margin) bounds later probe-only updates.
 
-Seed 002 writes eq. 8 with absolute residues; the squared form used here has
+Post-process 2024 writes eq. 8 with absolute residues; the squared form used here has
 the same minimiser for exact data and weighs large probe errors more, which
 is what compensation is judged on (RMS, fit %).
 """
@@ -38,7 +38,7 @@ from scipy.optimize import differential_evolution
 
 from compd.errors import ModelError
 
-#: Seed 002 eq. 9: the default search interval of every gain.
+#: Post-process 2024 eq. 9: the default search interval of every gain.
 DEFAULT_BOUNDS = (0.0, 2.0)
 #: A gain whose contribution over an interval is below this fraction of the
 #: largest one there is not determined by that interval (eq. 7 skips it).
@@ -125,7 +125,7 @@ def check_well_posed(n_rows: int, n_gains: int) -> None:
     if n_rows < n_gains:
         raise ModelError(
             f"{n_rows} probe value(s) cannot determine {n_gains} gains; probe at least "
-            f"{n_gains} times (seed 002 probes at every change of technological conditions), "
+            f"{n_gains} times (Post-process 2024 probes at every change of technological conditions), "
             "or update fewer gains"
         )
 
@@ -160,7 +160,7 @@ def update_gains(
     fixed_at_probes: np.ndarray | None = None,
     initial_gains: np.ndarray | None = None,
 ) -> GainUpdate:
-    """Seed 002 eq. 8/9: gains within ``bounds`` minimising the squared residue at the probes.
+    """Post-process 2024 eq. 8/9: gains within ``bounds`` minimising the squared residue at the probes.
 
     ``contributions_at_probes`` is ``(P, G)``: at each probed value (an
     instant and an axis) the contribution in um of each gain's sub-models at
@@ -196,7 +196,7 @@ def update_gains(
 def segments_between_changes(signal: np.ndarray, *, min_samples: int = 2) -> list[tuple[int, int]]:
     """Half-open ``(start, stop)`` index ranges over which ``signal`` holds one value.
 
-    The intervals ``t_{i-1}..t_i`` of seed 002 eq. 7 (between changes of
+    The intervals ``t_{i-1}..t_i`` of Post-process 2024 eq. 7 (between changes of
     technological conditions, e.g. of spindle speed); those shorter than
     ``min_samples`` are left out (too short to say anything about a gain).
     """
@@ -210,7 +210,7 @@ def segments_between_changes(signal: np.ndarray, *, min_samples: int = 2) -> lis
 
 @dataclass(frozen=True, eq=False)
 class CharacteristicBounds:
-    """Seed 002 eq. 7 per interval, and the gain range they span.
+    """Post-process 2024 eq. 7 per interval, and the gain range they span.
 
     ``segment_gains`` is ``(K, G)``, NaN where a gain's contribution is too
     small over that interval to determine it; ``segment_fit_percent`` the eq. 7
@@ -233,7 +233,7 @@ def characteristic_bounds(
     margin: float = 0.1,
     seed: int = 0,
 ) -> CharacteristicBounds:
-    """Seed 002 eq. 7: maximise the fit on each interval, bound the gains by the optima's range.
+    """Post-process 2024 eq. 7: maximise the fit on each interval, bound the gains by the optima's range.
 
     On interval ``i`` the fit ``(1 - ||y - y(g)|| / ||y - mean(y)||) * 100``
     is maximal where ``||y - y(g)||^2`` is minimal (the denominator does not

@@ -4,13 +4,13 @@ The public entry point is :func:`identify`; the ARX and OE fits at a fixed
 or automatically chosen order are :mod:`compd.model.orderfit`. Three methods:
 
 ``mlr``
-    The static multiple linear regression CNC controllers ship (seed 000
-    eq. 1, seed 003 eq. 1): ``y(k) = sum_i k_i u_i(k)`` by least squares. No
+    The static multiple linear regression CNC controllers ship (Horejs 2010
+    eq. 1, Pahk 2002 eq. 1): ``y(k) = sum_i k_i u_i(k)`` by least squares. No
     intercept: inputs and output are changes from the start of the record,
     so a model that starts at zero needs none (and ``compd compare`` starts
     every model at zero). The baseline to beat.
 ``arx``
-    MISO ARX with one common denominator (seed 001 eq. 1, seed 003 eq. 4),
+    MISO ARX with one common denominator (Horejs 2015 eq. 1, Pahk 2002 eq. 4),
     :mod:`compd.model.arx`; orders and delays chosen on held-back data by
     free-run simulation fit (:mod:`compd.model.orders`) unless given.
 ``oe``
@@ -21,9 +21,9 @@ or automatically chosen order are :mod:`compd.model.orderfit`. Three methods:
     own fit on held-back data (orders 1, 2, 3 until one buys nothing), with
     ``nk_i = 1``, then refitted on the whole record.
 
-Phase gate (seed 002 eq. 5): with ``gate`` (True while the spindle turns),
+Phase gate (Post-process 2024 eq. 5): with ``gate`` (True while the spindle turns),
 every input ``u_i`` gets two channels: the cooling channel on ``u_i`` (always
-on) and the heating-difference channel on ``g(k) u_i(k)``. Seed 002 switches
+on) and the heating-difference channel on ``g(k) u_i(k)``. Post-process 2024 switches
 the heating-difference TF's *output* with ``g_n``; compd switches its
 *input* instead: the regression stays linear in the parameters (an output
 gate multiplies a filtered signal by ``g``, which ARX cannot express), and
@@ -31,13 +31,13 @@ when the spindle stops the extra heating contribution decays with the TF's
 own time constants instead of dropping to zero in one sample, which a steel
 structure cannot do. The model file records it as ``applies_to: input``.
 
-Position (seed 003 eq. 5): with ``position`` (``P - P_ref``, mm), every
+Position (Pahk 2002 eq. 5): with ``position`` (``P - P_ref``, mm), every
 input gets an offset channel on ``u_i`` and a slope channel whose TF output is
 multiplied by the position; see :mod:`compd.model.position` for how they are
 fitted (as input channels ``u_i * P``, then numerators refitted with ``P``
 after the TF).
 
-Every fit reported is the seed 001 eq. 2 fit of the free-run simulation from
+Every fit reported is the Horejs 2015 eq. 2 fit of the free-run simulation from
 rest (inputs as changes from start, as ``compd compare`` runs the model), never
 a one-step prediction.
 
@@ -88,13 +88,13 @@ class IdentifiedTF:
     input_name: str
     tf: DiscreteTF
     gated: bool  # True for the heating-difference channel of a phase gate
-    sloped: bool = False  # True for a slope channel (seed 003 m1): output times the position
+    sloped: bool = False  # True for a slope channel (Pahk 2002 m1): output times the position
     time_constant_s: float | None = None  # a lag-bank channel's fixed time constant (0: a gain)
 
 
 @dataclass(frozen=True, eq=False)
 class Identification:
-    """An identified model: one TF per channel, and how well it simulates the data (fit %, seed 001 eq. 2)."""
+    """An identified model: one TF per channel, and how well it simulates the data (fit %, Horejs 2015 eq. 2)."""
 
     method: Method
     channels: tuple[IdentifiedTF, ...]
@@ -182,7 +182,7 @@ def identify(
     ``order``: ``"auto"`` (chosen on held-back data) or ``N`` in 1..3
     (``na = nb_i = N``, ``nk_i = 1`` for ARX; ``nf_i = nb_i = N``, ``nk_i = 1`` for
     OE; ignored by MLR). ``gate``: True while the phase-gate signal is > 0.
-    ``position``: ``P - P_ref`` in mm (seed 003 slope channels), at two or
+    ``position``: ``P - P_ref`` in mm (Pahk 2002 slope channels), at two or
     more distinct values; not together with ``gate``. ``first_sample``: the
     first sample fitted and scored (see the module docstring); the model
     still runs from rest at sample 0. ``starts``: the first sample of each

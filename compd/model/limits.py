@@ -4,7 +4,7 @@ A model file is small, but what it describes need not be: ``nk: 1000000``
 is a delay line of a million states per sub-model, ``gain: 1e308`` an
 output that overflows on the first tick, an order of 3000 a root-finding
 problem of minutes. Thermal-error models are a handful of low-order
-sub-models (seed 000-004: orders 1-4, delays of a few samples, gains of
+sub-models (Horejs 2010-004: orders 1-4, delays of a few samples, gains of
 micrometres per kelvin), so compd refuses anything beyond these bounds at
 compile time, before one state is allocated. The README's model-file
 section states the same numbers.

@@ -1,6 +1,6 @@
 """Causal low-pass filters that stand in for offline EMD denoising in the running model.
 
-Seed 004 removes the first intrinsic mode function (IMF) of empirical mode
+Swiss-lathe paper removes the first intrinsic mode function (IMF) of empirical mode
 decomposition from noisy inputs before identification. EMD is not causal:
 every sample's envelopes are splines through extrema on both sides of it, so
 the 1 Hz service cannot compute it. What the service runs instead is a

@@ -1,11 +1,11 @@
 """How well a model matches measurement, in the papers' terms.
 
-``fit %`` is seed 001 eq. 2 / seed 002 eq. 4 (the NRMSE fit of MATLAB's
+``fit %`` is Horejs 2015 eq. 2 / Post-process 2024 eq. 4 (the NRMSE fit of MATLAB's
 ``compare``)::
 
     fit = (1 - ||Y - Y_hat|| / ||Y - mean(Y)||) * 100
 
-and the ``residue = Y - Y_hat`` (seed 001 eq. 3) is the error that would
+and the ``residue = Y - Y_hat`` (Horejs 2015 eq. 3) is the error that would
 remain on the machine after compensation. Uncompensated figures are those of
 ``Y`` itself: the error with no compensation at all.
 """
@@ -18,7 +18,7 @@ import numpy as np
 
 
 def fit_percent(measured: np.ndarray, simulated: np.ndarray) -> float:
-    """Seed 001 eq. 2 in percent; NaN when the measurement does not vary (the ratio is undefined)."""
+    """Horejs 2015 eq. 2 in percent; NaN when the measurement does not vary (the ratio is undefined)."""
     measured = np.asarray(measured, dtype=float)
     spread = np.linalg.norm(measured - measured.mean())
     if spread == 0.0:

@@ -3,7 +3,7 @@
 A one-step-ahead prediction fit is near 100 % for almost any order on slow
 thermal data (``y(k-1)`` predicts ``y(k)`` well), so it cannot choose an
 order. Each candidate is instead estimated on the first part of the record
-and *simulated* over the whole record from rest; its score is the seed 001
+and *simulated* over the whole record from rest; its score is the Horejs 2015
 eq. 2 fit on the held-back last part, which the estimate never saw.
 
 The normal equations are built once, in the difference basis of

@@ -1,6 +1,6 @@
-"""Position-dependent feed-axis errors (seed 003 eq. 5): slope channels for identification.
+"""Position-dependent feed-axis errors (Pahk 2002 eq. 5): slope channels for identification.
 
-Seed 003 models a feed axis's thermal error at position ``P`` (mm) as::
+Pahk 2002 models a feed axis's thermal error at position ``P`` (mm) as::
 
     Error(P, T) = Error_g(P) + m1(T) * P + m2(T)
 

@@ -1,8 +1,8 @@
-"""Residual model for door openings (seed 004): smoothed door features and a random forest as arrays.
+"""Residual model for door openings (Swiss-lathe paper): smoothed door features and a random forest as arrays.
 
-Seed 004 stacks a random-forest regression on the residue of the TF model:
+Swiss-lathe paper stacks a random-forest regression on the residue of the TF model:
 ``y(k) = sum_i TF_i(...) + RF(features(k))``. The forest's only input is the
-door status smoothed by a logistic (seed 004 eq. 9). Eq. 9 as printed,
+door status smoothed by a logistic (Swiss-lathe paper eq. 9). Eq. 9 as printed,
 ``y_smoothed = y_t / (1 + exp(-k (t0 - t)))`` with ``k = +-1`` per change,
 is a logistic transition centred on the change time ``t0``; centred there it
 would need the future. compd uses the causal half of that logistic, starting
@@ -47,7 +47,7 @@ DEFAULT_TIME_CONSTANTS_S = (120.0, 600.0, 1800.0)
 
 @dataclass(frozen=True)
 class DoorFeatures:
-    """The causal logistic smoothing of seed 004 eq. 9 at time constants ``time_constants_s``.
+    """The causal logistic smoothing of Swiss-lathe paper eq. 9 at time constants ``time_constants_s``.
 
     ``signal`` is open while ``> threshold``. Features, in order: one smoothed
     door state per time constant (0 shut .. 1 open), then the seconds since
@@ -218,7 +218,7 @@ class Forest:
 
 @dataclass(frozen=True, eq=False)
 class ResidualModel:
-    """Seed 004's stacked term for one output: ``forest(door features(k))`` in um, added to the TF sum."""
+    """Swiss-lathe paper's stacked term for one output: ``forest(door features(k))`` in um, added to the TF sum."""
 
     features: DoorFeatures
     forest: Forest

@@ -48,7 +48,7 @@ def df2t_matrix(b: np.ndarray, a: np.ndarray) -> np.ndarray:
 class TickRunner:
     """Stateful per-tick evaluation: ``step(signals) -> outputs`` (um, one per axis output).
 
-    Position signals (seed 003's slope terms) are read like any other signal,
+    Position signals (Pahk 2002's slope terms) are read like any other signal,
     so a daemon that feeds the model its :attr:`CompiledModel.signals` each
     tick reads the axis position each tick with no change of its own.
 
@@ -83,7 +83,7 @@ class TickRunner:
         self._positioned = bool(np.any(compiled.position_index < self._n_signals))
         #: Each sub-model's contribution (um) at the last tick, gain and gate applied.
         self.contributions = np.zeros(n_subs)
-        # Seed 004 residual models: their door-feature state advances with each tick.
+        # Swiss-lathe paper residual models: their door-feature state advances with each tick.
         self._residual = state.residual.copy()
         self._residuals = compiled.residual_slices()
         #: Each residual model's term (um) at the last tick, in ``compiled.residuals`` order.
@@ -163,7 +163,7 @@ class SimulationResult:
     ``outputs``: (N, n_outputs) in um, residual models included;
     ``contributions``: (N, n_submodels) in um, gain, gate and position factor
     applied; ``residuals``: (N, n_residuals) in um, each residual model's term
-    (seed 004); ``final_state``: the state after the last sample.
+    (Swiss-lathe paper); ``final_state``: the state after the last sample.
     """
 
     outputs: np.ndarray
@@ -209,7 +209,7 @@ def simulate(compiled: CompiledModel, signals: np.ndarray, state: ModelState) ->
             run_submodel(s)
     outputs = (compiled.output_matrix @ contributions).T
     contributions = contributions.T
-    # Seed 004: each output's residual model on its door signal, added to the TF sum.
+    # Swiss-lathe paper: each output's residual model on its door signal, added to the TF sum.
     slices = compiled.residual_slices()
     terms = np.empty((n_samples, len(slices)))
     final_residual = state.residual.copy()
@@ -253,7 +253,7 @@ def _submodel_response(
         response, final_z = compiled.b[s, 0] * u, state.z[s].copy()
     if gate is not None and not compiled.gate_on_input[s]:
         response *= gate
-    # CompiledModel.position_factors on one row (seed 003's m1(T) * (P - P_ref)).
+    # CompiledModel.position_factors on one row (Pahk 2002's m1(T) * (P - P_ref)).
     if compiled.position_index[s] < n_signals:
         response *= rows[compiled.position_index[s]] - compiled.position_reference_mm[s]
     response *= compiled.gain[s]

@@ -1,12 +1,12 @@
 """The structure of a compensation model: axis outputs as sums of gated, gained sub-models.
 
-Seed 001 superposes one TF per physical effect; seed 002 eq. 5/6 adds a gate
+Horejs 2015 superposes one TF per physical effect; Post-process 2024 eq. 5/6 adds a gate
 (``g_n = 1`` while the spindle turns) and post-process gains ``g1, g2``::
 
     disp_z = sum_i  gain_i * gate_i(k) * (P_i(k) - P_ref,i) * TF_i( input_i(k) )
 
 where ``input_i`` is a signal, or the difference of two signals, taken as a
-change from a reference (its value at start, or a fixed value). Seed 003
+change from a reference (its value at start, or a fixed value). Pahk 2002
 eq. 5 adds position-dependent feed-axis errors ``m1(T) * P + m2(T)``: a
 sub-model with a ``position`` has its contribution multiplied by the axis
 position minus a reference (its TF then gives a slope in um per mm, ``m1``,
@@ -29,7 +29,7 @@ from compd.model.transfer import ContinuousTF, DiscreteTF
 class GateTarget(StrEnum):
     """Where a gate acts.
 
-    ``OUTPUT`` (seed 002 eq. 5 read literally): the TF always runs on its
+    ``OUTPUT`` (Post-process 2024 eq. 5 read literally): the TF always runs on its
     input and its *contribution* is switched; ``INPUT``: the TF's input is
     switched, so its contribution decays with the TF's own dynamics.
     """
@@ -68,7 +68,7 @@ class Gate:
 
 @dataclass(frozen=True)
 class Position:
-    """Multiply a contribution by ``signal - reference_mm`` (an axis position in mm, seed 003 eq. 5)."""
+    """Multiply a contribution by ``signal - reference_mm`` (an axis position in mm, Pahk 2002 eq. 5)."""
 
     signal: str
     reference_mm: float = 0.0
@@ -87,10 +87,10 @@ class SubModel:
     tf: DiscreteTF | ContinuousTF
     gain: float = 1.0
     gate: Gate | None = None
-    #: The post-process gain this sub-model's ``gain`` is (seed 002 eq. 6: ``g1``, ``g2``);
+    #: The post-process gain this sub-model's ``gain`` is (Post-process 2024 eq. 6: ``g1``, ``g2``);
     #: sub-models sharing a name share the value. None: a fixed gain.
     gain_name: str | None = None
-    #: Seed 003's slope term: the contribution times ``(position - reference_mm)``. None: factor 1.
+    #: Pahk 2002's slope term: the contribution times ``(position - reference_mm)``. None: factor 1.
     position: Position | None = None
 
     def signals(self) -> tuple[str, ...]:
@@ -113,7 +113,7 @@ class SubModel:
 class Output:
     """One axis output (e.g. ``disp_z_um``): the sum of its sub-models, in um.
 
-    ``residual`` (seed 004): a forest on smoothed door features added to that sum.
+    ``residual`` (Swiss-lathe paper): a forest on smoothed door features added to that sum.
     """
 
     name: str

@@ -1,6 +1,6 @@
 """Transfer functions in the two forms the papers print, and the exact map between them.
 
-A *discrete* TF is the difference equation of seed 001 eq. 1 / seed 002 eq. 3::
+A *discrete* TF is the difference equation of Horejs 2015 eq. 1 / Post-process 2024 eq. 3::
 
     y(k) = [b0 u(k-nk) + b1 u(k-nk-1) + ... + bn u(k-nk-n)
             - a1 y(k-1) - ... - am y(k-m)] / a0
@@ -8,7 +8,7 @@ A *discrete* TF is the difference equation of seed 001 eq. 1 / seed 002 eq. 3::
 i.e. ``B(z^-1) / A(z^-1)`` with coefficients in ascending powers of ``z^-1``
 and an input delay of ``nk`` samples.
 
-A *continuous* TF is the ratio of polynomials in ``s`` that seed 000 eq. 2
+A *continuous* TF is the ratio of polynomials in ``s`` that Horejs 2010 eq. 2
 and 3 print in ascending powers (``K1 + K2 s + K3 s^2`` over
 ``T1 + T2 s + TD1 s^2``). It becomes a discrete TF by zero-order hold at the
 model's sample time, which is exact for inputs held constant between samples
@@ -81,7 +81,7 @@ class DiscreteTF:
     num, den
         Coefficients in ascending powers of ``z^-1`` (``b0, b1, ...``; ``a0, a1, ...``).
     nk
-        Input delay in samples (seed 001 eq. 1's ``k-n``), >= 0.
+        Input delay in samples (Horejs 2015 eq. 1's ``k-n``), >= 0.
     """
 
     num: tuple[float, ...]
@@ -128,7 +128,7 @@ class DiscreteTF:
 
     @property
     def order(self) -> int:
-        """Number of denominator lags (the TF's order, seed 002's ``m``)."""
+        """Number of denominator lags (the TF's order, Post-process 2024's ``m``)."""
         return len(self.den) - 1
 
     def poles(self) -> np.ndarray:
@@ -163,7 +163,7 @@ class DiscreteTF:
 
 @dataclass(frozen=True)
 class ContinuousTF:
-    """``N(s) / D(s)`` with coefficients in ascending powers of ``s`` (seed 000 eq. 2, 3).
+    """``N(s) / D(s)`` with coefficients in ascending powers of ``s`` (Horejs 2010 eq. 2, 3).
 
     ``delay_s`` is a pure input delay, which must be a whole number of samples
     when the TF is discretised.

@@ -1,6 +1,6 @@
 """Where a model fails: the residue cut into fixed windows, those above a tolerance, and the conditions then.
 
-A fit % over a whole record hides when the model fails. Seed 001's air-cutting
+A fit % over a whole record hides when the model fails. Horejs 2015's air-cutting
 model is good at idle and leaves more than 50 um under rough cutting at
 4.5 kW: the windows that fail, with the spindle power, speed, feed, door and
 coolant at the time, say which operating condition the model has not seen.

@@ -72,7 +72,7 @@ class ModelRun:
             term = self.evaluation.result.contributions[:, i]
             parts[name] = parts[name] + term if name in parts else term
         result = self.evaluation.result
-        for r, (out_i, residual) in enumerate(compiled.residuals):  # seed 004's forest term
+        for r, (out_i, residual) in enumerate(compiled.residuals):  # a residual forest
             if compiled.output_names[out_i] == output and result.residuals is not None:
                 parts[f"residual forest on {residual.signal}"] = result.residuals[:, r]
         return parts

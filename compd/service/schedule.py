@@ -1,6 +1,6 @@
 """Gain scheduling: the model's named gains chosen by an operating condition, ramped bumplessly.
 
-Seed 002 eq. 6 weighs whole sub-models by gains ``g1, g2, ...`` that
+Post-process 2024 eq. 6 weighs whole sub-models by gains ``g1, g2, ...`` that
 ``compd update`` optimises for one technological condition (a spindle head,
 a range of axis positions, a part program). A gain table keyed by a
 configured signal lets the daemon use each condition's gains::

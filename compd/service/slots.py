@@ -50,7 +50,7 @@ class ModelSlot:
         self.depends: dict[str, set[str]] = {name: set() for name in compiled.output_names}
         for owner, sub in zip(owners, compiled.submodels, strict=True):
             self.depends[compiled.output_names[owner]] |= set(sub.signals())
-        for owner, residual in compiled.residuals:  # seed 004's door residual reads its signal too
+        for owner, residual in compiled.residuals:  # a door residual reads its signal too
             self.depends[compiled.output_names[owner]].add(residual.signal)
 
     @property

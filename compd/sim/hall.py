@@ -1,4 +1,4 @@
-"""An air-conditioned hall's ambient sensor: the noisy input seed 004 denoises.
+"""An air-conditioned hall's ambient sensor: the noisy input Swiss-lathe paper denoises.
 
 In a hall whose AC switches on and off, the air at the ambient sensor cycles
 by a few tenths of a degree every 10-20 min. The machine's structure, whose

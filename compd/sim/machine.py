@@ -10,7 +10,7 @@ network itself is assembled and integrated in :mod:`compd.sim.thermal`.
 The values are order-of-magnitude engineering estimates for a machine with a
 12,000 rpm spindle, a 1.5 t column and a 3 t bed, chosen so that the time
 constants span ~10 min (spindle bearings) to several hours (bed, column), as
-measured on such machines (seed 000 and seed 001), and so that each
+measured on such machines (Horejs 2010 and Horejs 2015), and so that each
 "hidden" effect (cutting heat, feed-drive heat, door openings, coolant
 temperature) acts through a part that none of the machine's temperature
 sensors sees: the table/workpiece, the ball screws, the spindle shaft and

@@ -2,7 +2,7 @@
 
 A ball screw is held axially by its fixed bearing and grows from there as it
 warms, so the error it adds at the nut is proportional to the nut's distance
-from that bearing (seed 003 eq. 5, ``m1(T) * P``)::
+from that bearing (Pahk 2002 eq. 5, ``m1(T) * P``)::
 
     e_x(k) = α_s · X(k) · ΔT_nut_x(k)        (um, X in mm, α_s in um per mm per K)
     e_z(k) = −α_s · Z(k) · ΔT_nut_z(k)
@@ -41,7 +41,7 @@ SCREW_SENSOR_LAG_S = 30.0
 POSITION_COLUMNS = ("X_position_mm", "Z_position_mm", "T_x_screw_degC", "T_z_screw_degC")
 DESCRIPTION = (
     "the feed run with the X and Z axes dwelling at several positions: the ball-screw error "
-    "grows with the distance from the fixed bearing (seed 003)"
+    "grows with the distance from the fixed bearing (Pahk 2002)"
 )
 
 

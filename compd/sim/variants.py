@@ -1,6 +1,6 @@
 """Configurations of the twin other than the reference machine, for testing model updates.
 
-Seed 002 applies a model calibrated in one machine configuration to another
+Post-process 2024 applies a model calibrated in one machine configuration to another
 (an exchangeable spindle head, another position in the workspace) and
 re-weighs its sub-models from a few probe measurements. These variants change
 the physics in the same spirit, in ways the model's temperature inputs do not

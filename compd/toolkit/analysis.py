@@ -151,7 +151,7 @@ class DiagnosisResult:
 
 
 def residue_of(evaluation: Evaluation, output: str, measured_column: str) -> np.ndarray:
-    """``measured - predicted`` (seed 001 eq. 3), um."""
+    """``measured - predicted`` (Horejs 2015 eq. 3), um."""
     residue: np.ndarray = evaluation.data.column(measured_column) - evaluation.predicted(output)
     return residue
 

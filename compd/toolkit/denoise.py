@@ -1,6 +1,6 @@
 """Input denoising for ``compd fit --denoise``: EMD offline, a matched causal low-pass in the model file.
 
-Seed 004 (sect. 2.1) removes the first intrinsic mode function (IMF1, the
+Swiss-lathe paper (sect. 2.1) removes the first intrinsic mode function (IMF1, the
 fastest oscillation found by EMD's sifting) from noisy temperature inputs,
 such as an air-conditioned hall's ambient sensor cycling with the AC, before
 identifying the model. The decomposition comes from PyEMD (PyPI
@@ -47,7 +47,7 @@ from compd.model.transfer import DiscreteTF
 def remove_first_imfs(x: np.ndarray, count: int = 1) -> np.ndarray:
     """``x - IMF1(x) - ... - IMFcount(x)``: the signal without its ``count`` fastest modes.
 
-    Seed 004 (sect. 2.1) removes the first one (``count=1``). EMD acts on white
+    Swiss-lathe paper (sect. 2.1) removes the first one (``count=1``). EMD acts on white
     noise as a dyadic filter bank (each IMF's mean period about twice the
     previous one's), so on a finely sampled noisy sensor IMF1 is mostly the
     sensor noise; an AC cycle of ~15 min at 10 s sampling sits in IMF4.
@@ -96,7 +96,7 @@ def denoise_columns(
             data.path,
             f"the number of EMD modes to remove must be >= 1, got {imfs}",
             where="--denoise-imfs",
-            fix="Use 1 (seed 004: the first mode) or more to remove slower cycles too",
+            fix="Use 1 (Swiss-lathe paper: the first mode) or more to remove slower cycles too",
         )
     result = {}
     for name in dict.fromkeys(names):
@@ -191,7 +191,7 @@ def denoise_note(doc: DenoiseDoc) -> str:
         next(iter(doc.fit_percent_lowpass.items())),
     )
     return (
-        f"identified on inputs with their fastest EMD modes removed (seed 004): {inputs}; the "
+        f"identified on inputs with their fastest EMD modes removed (Swiss-lathe paper): {inputs}; the "
         f"matched causal low-passes are multiplied into those TFs, so the file reads the raw "
         f"sensors: fit {lp_fit:.4f} % with them against {emd_fit:.4f} % on the EMD-denoised "
         f"inputs ({output})"

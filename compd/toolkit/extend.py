@@ -1,4 +1,4 @@
-"""Adding a missing physical effect to a model by superposition (seed 001 sect. 4.3).
+"""Adding a missing physical effect to a model by superposition (Horejs 2015 sect. 4.3).
 
 The steps of the paper, for one axis output:
 
@@ -59,7 +59,7 @@ class Extension:
     identification: Identification
     fit_before: float
     fit_after: float
-    #: Free-run fit of the new sub-model alone on the residue (seed 001: 86 % on rough cutting).
+    #: Free-run fit of the new sub-model alone on the residue (Horejs 2015: 86 % on rough cutting).
     residue_fit: float
     #: The model's fit on held-out parts of the record without and with a sub-model on the signal.
     held_out: HeldOut

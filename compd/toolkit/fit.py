@@ -7,7 +7,7 @@ compare reproduces), turns the phase-gate column into a gate, builds the
 :class:`~compd.model.structure.Model` and its provenance (the calibration
 data's fit, residue RMS and the range of every column, which compare uses to
 flag operating conditions the model never saw). With a position column
-(seed 003 eq. 5) every input also gets a slope sub-model whose contribution
+(Pahk 2002 eq. 5) every input also gets a slope sub-model whose contribution
 is multiplied by ``position - reference_mm``. With a :class:`~compd.toolkit.span.Span`
 (``--from``/``--until``) only the span's samples are fitted and scored; the
 model still runs from the record's first sample (see :mod:`compd.model.identify`).
@@ -111,7 +111,7 @@ def fit_data(
     slope sub-model multiplied by ``position - position_reference_mm``.
     ``denoise``: inputs identified with their first EMD mode removed and run
     through a matched causal low-pass baked into their TFs (:mod:`compd.toolkit.denoise`);
-    ``denoise_imfs`` modes are removed (seed 004: 1). ``span``: fit only its
+    ``denoise_imfs`` modes are removed (Swiss-lathe paper: 1). ``span``: fit only its
     samples, the model run from the record's start (nothing after it is read).
     ``method="auto"`` keeps whichever of the lag bank and the static
     regression fits held-out operating cycles (``cycles``: the column whose

@@ -67,7 +67,7 @@ def identification_to_model(
     Gated channels get ``gate: {signal: gate_signal, above: 0, applies_to: input}``
     (see :mod:`compd.model.identify` for why the input, not the output). With a
     phase gate the cooling sub-models share the gain ``g1`` and the
-    heating-difference ones ``g2`` (seed 002 eq. 6), so ``compd update`` can
+    heating-difference ones ``g2`` (Post-process 2024 eq. 6), so ``compd update`` can
     re-weigh the two phases from probe measurements. Slope channels (seed
     003 ``m1``) get ``position`` and are named ``INPUT_slope``.
     """
@@ -211,7 +211,7 @@ def fit_provenance(
     if phase_gate is not None:
         notes.append(
             f"phase gate {phase_gate} > 0 switches the heating-difference TFs' inputs "
-            "(seed 002 eq. 5 switches their outputs; see compd.model.identify)"
+            "(Post-process 2024 eq. 5 switches their outputs; see compd.model.identify)"
         )
     if position is not None:
         notes.append(

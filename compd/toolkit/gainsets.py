@@ -1,6 +1,6 @@
 """A model file's named gains: which sub-models each scales, and a run split per gain.
 
-Seed 002 eq. 6 scales whole sub-models by gains ``g1, g2, ...``; the model
+Post-process 2024 eq. 6 scales whole sub-models by gains ``g1, g2, ...``; the model
 file names them (``gain_name`` per sub-model, shared names share a value).
 Here the names are resolved against a model (plus any sub-model a user frees
 with ``--bounds NAME=LOW:HIGH``), and a model run over a data file is split
@@ -91,7 +91,7 @@ def model_gains(
             model_file.path,
             "the model names no gain to update",
             where=f"outputs {', '.join(outputs)}",
-            fix="Add 'gain_name: g1' to the sub-models to scale (seed 002 eq. 6), or pass "
+            fix="Add 'gain_name: g1' to the sub-models to scale (Post-process 2024 eq. 6), or pass "
             "--bounds SUBMODEL=LOW:HIGH",
         )
     gains = []

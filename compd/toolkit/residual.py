@@ -1,13 +1,13 @@
-"""Fitting seed 004's residual model and storing its forest beside the model file.
+"""Fitting Swiss-lathe paper's residual model and storing its forest beside the model file.
 
 ``compd fit --residual-model door_open`` fits the TF model as usual, then a
 scikit-learn ``RandomForestRegressor`` (seeded; squared error, bootstrapped
-trees as in seed 004 sect. 2.3) on the TF model's free-run residue against
+trees as in Swiss-lathe paper sect. 2.3) on the TF model's free-run residue against
 the smoothed door features of :mod:`compd.model.residual`. The fitted trees
 are exported to plain arrays (children, feature, threshold, value) and never
 pickled: a sidecar ``.npz`` next to the model YAML holds them, named in the
 YAML with its sha256, which :func:`~compd.files.sidecar.load_sidecar` checks, so a model file and
-its forest cannot be mixed up. The residue is judged as in seed 004
+its forest cannot be mixed up. The residue is judged as in Swiss-lathe paper
 (tables 2-5): peak-to-peak and RMS of measured minus predicted, TF alone
 vs stacked.
 """
@@ -65,7 +65,7 @@ def forest_from_sklearn(regressor: Any) -> Forest:
 
 @dataclass(frozen=True)
 class ResidueFigures:
-    """Seed 004's figures of merit for one residue (um): peak-to-peak and RMS."""
+    """Swiss-lathe paper's figures of merit for one residue (um): peak-to-peak and RMS."""
 
     peak_to_peak_um: float
     rms_um: float
@@ -196,7 +196,7 @@ def stack_on_model(
 ) -> StackedFit:
     """Stack a door residual forest on an existing model, fitted on its free-run residue over ``data``.
 
-    The model's sub-models are kept as they are (seed 004 keeps its ARX and
+    The model's sub-models are kept as they are (Swiss-lathe paper keeps its ARX and
     adds the forest); the residue is the one ``compd compare`` shows. With
     ``span`` the model and the door features run from the record's start and
     the forest is fitted on the span's samples.
@@ -291,7 +291,7 @@ def _stack(
     )
     fitted_on = f"fitted on {data.path}" if span is None or span.whole else span.describe("fitted")
     note = (
-        f"residual model (seed 004) {fitted_on}: random forest of {trees} trees, "
+        f"residual model (Swiss-lathe paper) {fitted_on}: random forest of {trees} trees, "
         f"depth <= {max_depth}, seed {seed}, on {signal} smoothed at "
         f"{list(features.time_constants_s)} s; residue peak-to-peak "
         f"{fit.tf_alone.peak_to_peak_um:.3f} -> {fit.stacked.peak_to_peak_um:.3f} um, RMS "
@@ -300,7 +300,7 @@ def _stack(
     notes = "; ".join(filter(None, [provenance.notes, note]))
     text = model_to_yaml(
         model,
-        description=f"{description}, plus a residual forest on {signal} (seed 004)",
+        description=f"{description}, plus a residual forest on {signal} (Swiss-lathe paper)",
         signals={s: units.get(s) or unit_of(s) for s in model.signals()},
         provenance=provenance.model_copy(update={"notes": notes}),
         residuals={output: doc},

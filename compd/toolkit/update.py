@@ -1,10 +1,10 @@
-"""Post-process update of a model's named gains from sparse probe measurements (seed 002).
+"""Post-process update of a model's named gains from sparse probe measurements (Post-process 2024).
 
 In repetitive production the real TCP error is measured only now and then: a
 touch probe at a tool change or when the technological conditions change.
 ``compd update`` takes a model, the logged signals of one run (DATA) and the
 probe measurements taken during it (PROBES), and re-optimises the gains the
-model file names (``gain_name: g1`` per sub-model, seed 002 eq. 6) so that
+model file names (``gain_name: g1`` per sub-model, Post-process 2024 eq. 6) so that
 the model matches the probes (eq. 8, default bounds eq. 9). Every sub-model's
 TF stays as it was: only magnitudes change, so a model calibrated in one
 configuration can follow another (a different spindle head, another position
@@ -53,7 +53,7 @@ MIN_SEGMENT_S = 300.0
 
 @dataclass(frozen=True, eq=False)
 class Characteristic:
-    """Seed 002 eq. 7 on a continuous run: the per-interval optima and the bounds they give."""
+    """Post-process 2024 eq. 7 on a continuous run: the per-interval optima and the bounds they give."""
 
     data: DataSet
     output: str
@@ -137,7 +137,7 @@ def update_model(
     init: InitialState = "steady",
     command: str = "",
 ) -> Update:
-    """Optimise ``parent``'s named gains on ``probes`` taken during ``data`` (seed 002 eq. 8/9).
+    """Optimise ``parent``'s named gains on ``probes`` taken during ``data`` (Post-process 2024 eq. 8/9).
 
     With ``continuous`` (a run with the displacement measured throughout),
     the characteristic bounds of eq. 7 replace the default ``(0, 2)`` of every
@@ -176,7 +176,7 @@ def update_model(
         if hit:
             notes.append(
                 f"gain {gain.key} ends on a bound: the configuration may need a new sub-model "
-                "rather than a gain (seed 002 sect. 4)"
+                "rather than a gain (Post-process 2024 sect. 4)"
             )
     fit_before, fit_after = {}, {}
     for name in outputs:

@@ -1,7 +1,7 @@
 """compd's help speaks plainly: no reStructuredText markup, papers cited by names a user can look up.
 
 Help pages are read in a terminal: ``compd help config`` once showed
-````value```` and ``:mod:`x```; command help said "seed 001", which named
+````value```` and ``:mod:`x```; command help said "Horejs 2015", which named
 documents that do not ship with compd. Papers are cited by the short names
 of ``compd help references``, which gives authors, title, venue and year.
 """

@@ -52,7 +52,7 @@ def test_reference_at_start_makes_the_input_a_change_from_the_first_value() -> N
 
 
 def test_output_gate_switches_the_contribution_instantly() -> None:
-    """Seed 002 eq. 5: an output gate drops the contribution to zero the tick the spindle stops."""
+    """Post-process 2024 eq. 5: an output gate drops the contribution to zero the tick the spindle stops."""
     tf = first_order(1.0, 0.99)
     sub = SubModel("heat", "spindle", InputSpec("T_degC", reference=0.0), tf, 1.0, gate_on())
     compiled = compile_model(Model("m", 1.0, (Output("disp_z_um", (sub,)),)))
@@ -98,7 +98,7 @@ def test_below_gate_is_active_under_the_threshold() -> None:
 
 
 def test_outputs_are_the_sum_of_their_gained_sub_models() -> None:
-    """Superposition (seed 001): each output sums its own sub-models' contributions times their gains."""
+    """Superposition (Horejs 2015): each output sums its own sub-models' contributions times their gains."""
     subs_z = (
         SubModel("a", "ambient", InputSpec("T_amb", reference=0.0), first_order(1.0, 0.9), 2.0),
         SubModel("b", "spindle", InputSpec("T_sp", "T_amb", 0.0), first_order(0.5, 0.8), 1.0),

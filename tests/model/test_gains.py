@@ -1,4 +1,4 @@
-"""Gain update core (seed 002 eq. 6-9): exact recovery, bounds, eq. 7 intervals, and linearity."""
+"""Gain update core (Post-process 2024 eq. 6-9): exact recovery, bounds, eq. 7 intervals, and linearity."""
 
 from __future__ import annotations
 

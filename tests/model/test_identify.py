@@ -45,7 +45,7 @@ def test_auto_orders_pick_the_true_arx_orders_on_clean_data(arx_case):
 
 
 def test_fit_percent_is_the_free_run_simulation_fit(arx_case):
-    """The reported fit is seed 001 eq. 2 of one lfilter per channel from rest, as compare runs it."""
+    """The reported fit is Horejs 2015 eq. 2 of one lfilter per channel from rest, as compare runs it."""
     result = identify(arx_case.y, arx_case.named(), sample_time_s=TS, method="arx", order=1)
     simulated = sum(
         scipy.signal.lfilter(c.tf.b, c.tf.a, arx_case.inputs[:, i])

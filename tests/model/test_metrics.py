@@ -1,4 +1,4 @@
-"""Metrics: fit % exactly as seed 001 eq. 2, residue statistics in um, reductions."""
+"""Metrics: fit % exactly as Horejs 2015 eq. 2, residue statistics in um, reductions."""
 
 import math
 
@@ -47,7 +47,7 @@ def test_error_stats_in_micrometres() -> None:
 
 
 def test_comparison_reports_residue_and_uncompensated_figures() -> None:
-    """Residue = Y - Y_hat (seed 001 eq. 3); uncompensated = Y; reductions follow from both."""
+    """Residue = Y - Y_hat (Horejs 2015 eq. 3); uncompensated = Y; reductions follow from both."""
     measured = np.array([0.0, 10.0, 20.0, 10.0])
     predicted = np.array([0.0, 9.0, 18.0, 11.0])
     c = Comparison.of("disp_z_um", measured, predicted)

@@ -1,4 +1,4 @@
-"""Position multipliers (seed 003 ``m1(T) * P + m2(T)``): running them, and identifying slope channels."""
+"""Position multipliers (Pahk 2002 ``m1(T) * P + m2(T)``): running them, and identifying slope channels."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Seed 004's residual model: door features, the forest as arrays, and its place in simulate and TickRunner."""
+"""Swiss-lathe paper's residual model: door features, the forest as arrays, and its place in simulate and TickRunner."""
 
 from __future__ import annotations
 

@@ -91,7 +91,7 @@ def test_step_and_simulate_agree(model: Model, seed: int, steady: bool) -> None:
 
 
 def difference_equation(num: list[float], den: list[float], nk: int, u: np.ndarray) -> np.ndarray:
-    """Seed 001 eq. 1 written out literally, from rest: an independent reference implementation."""
+    """Horejs 2015 eq. 1 written out literally, from rest: an independent reference implementation."""
     y = np.zeros_like(u)
     for k in range(len(u)):
         acc = sum(num[i] * u[k - nk - i] for i in range(len(num)) if k - nk - i >= 0)
@@ -101,7 +101,7 @@ def difference_equation(num: list[float], den: list[float], nk: int, u: np.ndarr
 
 
 def test_simulate_equals_the_papers_difference_equation() -> None:
-    """A 2nd-order TF with input delay, run from rest, equals seed 001 eq. 1 evaluated literally."""
+    """A 2nd-order TF with input delay, run from rest, equals Horejs 2015 eq. 1 evaluated literally."""
     num, den, nk = [0.02, -0.011], [2.0, -3.2, 1.28], 2
     compiled = compile_model(single(DiscreteTF.from_coefficients(num, den, nk)))
     u = np.sin(np.arange(400) / 17.0) + 0.3

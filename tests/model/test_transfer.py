@@ -8,7 +8,7 @@ from numpy.testing import assert_allclose
 from compd.errors import ModelError
 from compd.model.transfer import ContinuousTF, DiscreteTF, continuous_equivalent, resample_discrete
 
-# Seed 000 eq. 2 and 3, coefficients in ascending powers of s as printed.
+# Horejs 2010 eq. 2 and 3, coefficients in ascending powers of s as printed.
 E_Z_HEAT = ContinuousTF.from_coefficients([0.0162, 10.74, 5.368], [0.002098, 2.379, 1.0])
 E_ETVE = ContinuousTF.from_coefficients(
     [4.028e-10, 1.491e-7, 0.0002884, 0.0002421, 4.895e-5],
@@ -19,7 +19,7 @@ E_ETVE = ContinuousTF.from_coefficients(
 @pytest.mark.parametrize("tf", [E_Z_HEAT, E_ETVE], ids=["E_z_heat", "E_ETVE"])
 @pytest.mark.parametrize("sample_time_s", [1.0, 15.0, 60.0])
 def test_zoh_matches_scipy_cont2discrete(tf: ContinuousTF, sample_time_s: float) -> None:
-    """Discretising a seed 000 TF gives scipy's cont2discrete(zoh) coefficients to 1e-9 relative."""
+    """Discretising a Horejs 2010 TF gives scipy's cont2discrete(zoh) coefficients to 1e-9 relative."""
     num, den, _ = scipy.signal.cont2discrete(
         (tf.num[::-1], tf.den[::-1]), sample_time_s, method="zoh"
     )
@@ -43,7 +43,7 @@ def test_zoh_keeps_the_static_gain_and_time_constants() -> None:
 
 
 def test_discrete_tf_is_normalised_so_a0_is_one() -> None:
-    """A difference equation with a0 != 1 (seed 001 eq. 1 divides by b0) is normalised at construction."""
+    """A difference equation with a0 != 1 (Horejs 2015 eq. 1 divides by b0) is normalised at construction."""
     tf = DiscreteTF.from_coefficients([0.0, 0.2], [2.0, -1.8])
     assert tf.den == (1.0, -0.9)
     assert tf.num == (0.0, 0.1)

@@ -21,7 +21,7 @@ GATED = CONFIG / "example_gated_arx.yaml"
 #: The regression baseline with a calibration and one extension in its provenance.
 PROVENANCE = """
 provenance:
-  data: seed 000, eq. 1
+  data: Horejs 2010, eq. 1
   command: compd fit (test fixture)
   calibration:
     data: calibration_run.csv
@@ -120,7 +120,7 @@ def single_report(tmp_path_factory: pytest.TempPathFactory) -> Written:
 def compare_report(
     tmp_path_factory: pytest.TempPathFactory, regression_with_provenance: Path
 ) -> Written:
-    """Seed 000's TF model against the controller's regression (with provenance), same data.
+    """Horejs 2010's TF model against the controller's regression (with provenance), same data.
 
     Judged at 1 um RMS, so both models have failing windows, of several grades.
     """

@@ -16,7 +16,7 @@ OUTPUT = "disp_z_um"
 
 @pytest.fixture(scope="module")
 def compared() -> ReportData:
-    """Seed 000's TF model against the controller's regression, the regression judged at 1 um."""
+    """Horejs 2010's TF model against the controller's regression, the regression judged at 1 um."""
     data = load_data(str(DATA))
     return gather(
         evaluate(load_model(SEED000), data),

@@ -1,4 +1,4 @@
-"""The service running a stacked model (seed 004): the door residual per tick, and carried across a restart."""
+"""The service running a stacked model (Swiss-lathe paper): the door residual per tick, and carried across a restart."""
 
 from __future__ import annotations
 

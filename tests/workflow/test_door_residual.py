@@ -1,8 +1,8 @@
-"""Seed 004 end to end through the CLI: ``compd fit --residual-model door_open`` against the plain TF model.
+"""Swiss-lathe paper end to end through the CLI: ``compd fit --residual-model door_open`` against the plain TF model.
 
 Both models are fitted on a day of twin data with door openings (seed 1) and
-compared on another run (16 h, seed 2), as seed 004 judges them: peak-to-peak
-and RMS of the residue, TF alone vs stacked. The TF is ARX, as in seed 004.
+compared on another run (16 h, seed 2), as Swiss-lathe paper judges them: peak-to-peak
+and RMS of the residue, TF alone vs stacked. The TF is ARX, as in Swiss-lathe paper.
 Measured at 10 s with 30 trees of depth 8: peak-to-peak 26.1 -> 13.1 um
 (-50 %), RMS 4.97 -> 2.20 um (-56 %). ``compd residual`` on a model fitted without door openings: RMS
 8.67 -> 1.13 um (-87 %), peak-to-peak 26.3 -> 12.2 um (-53 %). The
@@ -36,7 +36,7 @@ def models(folder: Path) -> tuple[Path, Path, Path]:
     """The plain TF model, the stacked one (both fitted on door seed 1) and the door run of seed 2."""
     calibration = twin(folder, "door", 24, seed=1)
     plain, stacked = folder / "plain.yaml", folder / "stacked.yaml"
-    # Seed 004 stacks the forest on an ARX model: the same base here.
+    # Swiss-lathe paper stacks the forest on an ARX model: the same base here.
     fit = ("fit", "--data", calibration, "--output", "disp_z_um", "--inputs", BASE_INPUTS)
     fit += ("--method", "arx")
     compd(*fit, "--out", plain)

@@ -1,6 +1,6 @@
-"""Post-process gain update end to end through the CLI, on twin data (seed 002 sect. 4-5).
+"""Post-process gain update end to end through the CLI, on twin data (Post-process 2024 sect. 4-5).
 
-A model with seed 002's structure (a cooling TF always on, ``g1``, and a
+A model with Post-process 2024's structure (a cooling TF always on, ``g1``, and a
 heating-difference TF switched by the spindle, ``g2``) is calibrated on the
 reference machine. The machine is then run with a different spindle head:
 more of the bearing friction goes into the unsensed shaft, so the TCP moves
@@ -8,7 +8,7 @@ more than the spindle-housing temperature says and the plain TF model fits
 poorly (``compd twin --variant spindle-head``). Probes every 30 simulated
 minutes of one run (with the displacement sensor's noise) are enough for
 ``compd update`` to re-weigh the two sub-models, and on a later repetition of the same kind of run (another seed)
-the fit rises by at least 25 points (seed 002 reports 40 % -> 78 %).
+the fit rises by at least 25 points (Post-process 2024 reports 40 % -> 78 %).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def model(folder: Path) -> Path:
-    """The seed 002 model, fitted on the reference machine: fit names its gains g1 and g2."""
+    """The Post-process 2024 model, fitted on the reference machine: fit names its gains g1 and g2."""
     calibration = folder / "calibration.csv"
     compd(
         "twin", "--scenario", "calibration", "--hours", 24, "--seed", 1,
