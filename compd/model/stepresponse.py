@@ -20,6 +20,8 @@ Array = NDArray[np.float64]
 
 #: The step is drawn over this many of the slowest time constant: the rest is e^-8 < 0.05 %.
 SETTLING_TIME_CONSTANTS = 8.0
+#: The shortest horizon drawn (a static gain's step is flat: show it over an hour).
+MIN_HORIZON_S = 3600.0
 #: At most this many samples per step response (a very slow pole is drawn coarser, not longer).
 MAX_STEP_SAMPLES = 200_000
 
@@ -55,11 +57,13 @@ def step_response(
     """Times (s) and the summed response (output units per unit) to a unit step of the input at 0.
 
     Long enough to settle (:data:`SETTLING_TIME_CONSTANTS` of the slowest
-    pole), so its last value is :func:`static_gain` to within e^-8.
+    pole, at least :data:`MIN_HORIZON_S`), so its last value is
+    :func:`static_gain` to within e^-8.
     """
     slowest = slowest_time_constant_s(tfs, sample_time_s)
     delay = max((tf.nk for tf in tfs), default=0)
-    samples = int(np.ceil(SETTLING_TIME_CONSTANTS * slowest / sample_time_s)) + delay + 2
+    horizon_s = max(SETTLING_TIME_CONSTANTS * slowest, MIN_HORIZON_S)
+    samples = int(np.ceil(horizon_s / sample_time_s)) + delay + 2
     step = 1
     if samples > MAX_STEP_SAMPLES:  # subsample the drawn points, not the simulation
         step = int(np.ceil(samples / MAX_STEP_SAMPLES))
