@@ -254,7 +254,7 @@ def input_table(run: ModelRun, output: str) -> str:
             [
                 escape(r.label),
                 f'<span data-output="{escape(output)}" data-input="{escape(r.label)}" '
-                f'data-key="static_gain">{r.static_gain:.4g}</span>',
+                f'class="static-gain">{r.static_gain:.4g}</span>',
                 error,
                 taus,
                 str(len(r.submodels)),
