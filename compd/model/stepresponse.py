@@ -74,7 +74,8 @@ def step_response(
     index = np.arange(0, samples, step)
     if index[-1] != samples - 1:
         index = np.append(index, samples - 1)
-    return index * sample_time_s, y[index]
+    time_s = np.asarray(index * sample_time_s, dtype=np.float64)
+    return time_s, y[index]
 
 
 def gain_standard_errors(contributions: Array, measured: Array) -> Array:

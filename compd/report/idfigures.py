@@ -33,7 +33,9 @@ COLUMNS = 3
 CANDIDATE_PANELS = 3
 BAND_COLOUR = "rgba(31, 95, 168, 0.15)"
 _PANEL_PX = 210
-_DRAWN_POINTS = 600
+_DRAWN_POINTS = 240
+#: Points of a bound band's edge (the bounds change slowly with the lag).
+_BAND_POINTS = 40
 
 
 def _grid(titles: list[str], title: str) -> go.Figure:
@@ -120,7 +122,9 @@ def correlation_panels(run: ModelRun, output: str) -> tuple[CorrelationPanel, ..
     residue = data.column(run.outputs[output].measured_column) - evaluation.predicted(output)
     compiled = evaluation.compiled
     row = compiled.output_matrix[compiled.output_names.index(output)]
-    names = list(dict.fromkeys(compiled.submodels[int(i)].input.signal for i in np.flatnonzero(row)))
+    names = list(
+        dict.fromkeys(compiled.submodels[int(i)].input.signal for i in np.flatnonzero(row))
+    )
     names += [c.signal for c in view.candidates(run.outputs[output].diagnosis)[:CANDIDATE_PANELS]]
     names = [n for n in dict.fromkeys(names) if data.has(n) and np.ptp(data.column(n)) > 0.0]
     finite = np.isfinite(residue)
@@ -157,10 +161,12 @@ def correlations(run: ModelRun, output: str) -> go.Figure | None:
     for k, p in enumerate(panels):
         keep = minmax_indices([p.values], _DRAWN_POINTS // 2)
         x = drawn(p.lags_s[keep] / 60.0)
-        band = drawn(p.bound[keep])
+        edge = np.unique(np.linspace(0, len(p.lags_s) - 1, _BAND_POINTS).astype(int))
+        band = drawn(p.bound[edge])
+        band_x = drawn(p.lags_s[edge] / 60.0)
         fig.add_trace(
             go.Scatter(
-                x=np.concatenate([x, x[::-1]]),
+                x=np.concatenate([band_x, band_x[::-1]]),
                 y=np.concatenate([band, -band[::-1]]),
                 name="99 % bound",
                 fill="toself",

@@ -44,7 +44,11 @@ def input_responses(run: ModelRun, output: str) -> tuple[InputResponse, ...]:
     groups: dict[tuple[str, str], list[int]] = {}
     for i in np.flatnonzero(row):
         sub = compiled.submodels[int(i)]
-        text = sub.input.signal if sub.input.minus is None else f"{sub.input.signal} - {sub.input.minus}"
+        text = (
+            sub.input.signal
+            if sub.input.minus is None
+            else f"{sub.input.signal} - {sub.input.minus}"
+        )
         groups.setdefault((text, sub.describe_factors()), []).append(int(i))
     if not groups:
         return ()

@@ -1,4 +1,4 @@
-"""What a System Identification Toolbox user looks for in a report: per-input gains, step responses, the residue test."""
+"""What a System Identification Toolbox user looks for in a report: gains, step responses, residue test."""
 
 from __future__ import annotations
 
@@ -37,7 +37,9 @@ def lagbank(tmp_path_factory: pytest.TempPathFactory) -> ReportData:
 def test_lag_bank_is_one_row_per_input(lagbank: ReportData) -> None:
     """The model card's per-input table has one row per lag-bank input; its dozen sub-models are folded."""
     card = tables.model_card(lagbank.primary, 0)
-    inputs = card[card.index('class="inputs"') : card.index("</table>", card.index('class="inputs"'))]
+    inputs = card[
+        card.index('class="inputs"') : card.index("</table>", card.index('class="inputs"'))
+    ]
     assert inputs.count("<tr>") - 1 == len(INPUTS)
     for name in INPUTS:
         assert f'data-input="{name}"' in inputs
@@ -68,9 +70,10 @@ def test_step_response_settles_at_the_static_gain(lagbank: ReportData) -> None:
     assert len(fig.data) == len(responses)
     for trace, response in zip(fig.data, responses, strict=True):
         assert_allclose(trace.y[-1], response.static_gain, rtol=1e-3)
-        assert re.search(rf"{response.static_gain:.3g} ± [0-9.e-]+ um per degC", "".join(
-            a.text for a in fig.layout.annotations
-        ))
+        assert re.search(
+            rf"{response.static_gain:.3g} ± [0-9.e-]+ um per degC",
+            "".join(a.text for a in fig.layout.annotations),
+        )
 
 
 def test_step_response_of_lags_is_their_analytic_sum() -> None:
