@@ -61,6 +61,28 @@ def _layout(fig: go.Figure, title: str, y_title: str, *, height: int = _HEIGHT_P
     return fig
 
 
+def legend_under_title(fig: go.Figure, width_px: float = 1000.0) -> go.Figure:
+    """The title at the very top, the legend left-aligned under it, the plot below both.
+
+    The top margin grows with the legend rows the entries' names need at
+    ``width_px`` (plotly wraps a horizontal legend at the plot's width), so a
+    long legend pushes the plot down instead of running into the title.
+    """
+    names = [t.name or "" for t in fig.data if t.showlegend is not False]
+    entries_px = [45.0 + 7.5 * len(n) for n in names]
+    rows, used = 1, 0.0
+    for px in entries_px:
+        if used and used + px > width_px:
+            rows, used = rows + 1, 0.0
+        used += px
+    fig.update_layout(
+        title={"yref": "container", "y": 0.99, "yanchor": "top"},
+        legend={"orientation": "h", "y": 1.02, "yanchor": "bottom", "x": 0.0, "xanchor": "left"},
+        margin={"t": 40 + 24 * rows},
+    )
+    return fig
+
+
 def _time_axis(fig: go.Figure, report: ReportData) -> go.Figure:
     """The record's whole span on every x axis and :data:`TIME_MARGIN`: time axes align across figures."""
     t = report.data.time_s
@@ -101,7 +123,7 @@ def measured_vs_simulated(report: ReportData, output: str) -> go.Figure:
         y = run.evaluation.predicted(output)
         fig.add_trace(_line(x, y, _kept(y), f"simulated: {run.name}", MODEL_COLOURS[i]))
     fig = _layout(fig, f"{output}: measured vs simulated (free run)", "displacement (um)")
-    return _time_axis(fig, report)
+    return legend_under_title(_time_axis(fig, report))
 
 
 def _kept(y: np.ndarray) -> np.ndarray:
@@ -272,7 +294,7 @@ def contributions(report: ReportData, run: ModelRun, output: str) -> go.Figure:
         f"{output}: sub-model contributions of {run.name} (stacked; negative parts below zero)",
         "displacement (um)",
     )
-    return _time_axis(fig, report)
+    return legend_under_title(_time_axis(fig, report))
 
 
 def candidates(run: ModelRun, output: str) -> go.Figure | None:

@@ -12,6 +12,7 @@ the tables show.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from datetime import UTC, datetime
 from html import escape
 from pathlib import Path
@@ -21,8 +22,8 @@ import plotly.graph_objects as go
 import plotly.io as pio
 
 from compd import __version__
-from compd.report import figures, tables
-from compd.report.gather import ReportData, gather
+from compd.report import figures, idfigures, tables
+from compd.report.gather import ModelRun, ReportData, gather
 from compd.report.plotlyjs import plotly_js
 from compd.toolkit.evaluate import Evaluation
 from compd.toolkit.summary import json_finite
@@ -175,6 +176,10 @@ def _output_section(report: ReportData, output: str) -> str:
             figure_html(figures.contributions(report, r, output), f"fig-{output}-contributions-{i}")
             for i, r in runs
         ),
+        "<h3>Step responses and static gains</h3>",
+        *_figures(idfigures.step_responses, runs, output, "steps"),
+        "<h3>Residue test: auto- and cross-correlation</h3>",
+        *_figures(idfigures.correlations, runs, output, "correlations"),
         "<h3>What the residue still holds: candidate ranking</h3>",
     ]
     for i, run in runs:
@@ -186,6 +191,24 @@ def _output_section(report: ReportData, output: str) -> str:
         parts.append(tables.candidates_table(run, output))
     parts.append("</section>")
     return "\n".join(parts)
+
+
+def _figures(
+    draw: Callable[[ModelRun, str], go.Figure | None],
+    runs: list[tuple[int, ModelRun]],
+    output: str,
+    kind: str,
+) -> list[str]:
+    """``draw``'s figure of each model, or a line saying there is none."""
+    parts = []
+    for i, run in runs:
+        fig = draw(run, output)
+        parts.append(
+            figure_html(fig, f"fig-{output}-{kind}-{i}")
+            if fig is not None
+            else f'<p class="muted">{escape(run.name)}: none for {escape(output)}.</p>'
+        )
+    return parts
 
 
 def write_report(

@@ -12,10 +12,13 @@ from collections.abc import Iterable, Mapping, Sequence
 from fnmatch import fnmatchcase
 from html import escape
 
+import numpy as np
+
 from compd.files.modelschema import ExtensionDoc
 from compd.report import analysis_view as view
 from compd.report.figures import WINDOW_GRADES, window_grade
 from compd.report.gather import ModelRun, ReportData
+from compd.report.inputs import input_responses
 from compd.toolkit.analysis import CONDITION_PATTERNS
 from compd.toolkit.summary import fmt
 
@@ -224,9 +227,53 @@ def model_card(run: ModelRun, index: int) -> str:
             strict=True,
         )
     ]
-    parts.append(table(["sub-model", "effect", "input", "gain", "gate"], subs))
+    for output in run.outputs:
+        parts.append(input_table(run, output))
+    full = table(["sub-model", "effect", "input", "gain", "gate"], subs, cls="submodels")
+    parts.append(f"<details><summary>all {len(subs)} sub-models</summary>{full}</details>")
     parts.append(provenance(run))
     return '<div class="model">' + "\n".join(p for p in parts if p) + "</div>"
+
+
+#: How the static gains' standard errors are obtained, printed under the per-input table.
+GAIN_ERROR_NOTE = (
+    "± one standard error of the static gain on this record: the measured output regressed on "
+    "each input's contribution (dynamics held fixed), the least-squares error widened for the "
+    "residue's lag-1 autocorrelation; — where it cannot be estimated (a zero or collinear "
+    "contribution)."
+)
+
+
+def input_table(run: ModelRun, output: str) -> str:
+    """One row per input of ``output``: static gain (um per unit) ± its error, time constants."""
+    rows = []
+    for r in input_responses(run, output):
+        error = "—" if not np.isfinite(r.standard_error) else f"± {r.standard_error:.3g}"
+        taus = ", ".join(f"{t / 60:.3g}" for t in r.time_constants_s) or "static"
+        rows.append(
+            [
+                escape(r.label),
+                f'<span data-output="{escape(output)}" data-input="{escape(r.label)}" '
+                f'class="static-gain">{r.static_gain:.4g}</span>',
+                error,
+                taus,
+                str(len(r.submodels)),
+                escape(r.factors),
+            ]
+        )
+    head = [
+        "input",
+        "static gain (um per unit)",
+        "standard error",
+        "dominant time constants (min)",
+        "sub-models",
+        "factor",
+    ]
+    return (
+        f"<h4>{escape(output)}: per input</h4>"
+        + table(head, rows, cls="inputs")
+        + f'<p class="muted">{escape(GAIN_ERROR_NOTE)}</p>'
+    )
 
 
 def provenance(run: ModelRun) -> str:

@@ -108,6 +108,7 @@ def test_report_in_chromium(browser: Any, fixture: str, request: pytest.FixtureR
         _failing_windows_are_graded(loaded, written, output)
         _top_candidates_are_drawn_over_the_residue(loaded, written, output)
         _time_axes_line_up(loaded)
+        _legends_clear_of_titles(loaded)
     finally:
         loaded.page.close()
 
@@ -176,3 +177,22 @@ def _time_axes_line_up(loaded: Loaded) -> None:
     )
     assert len(edges) >= 4, edges
     assert len({(left, length) for _, left, length in edges}) == 1, edges
+
+
+def _legends_clear_of_titles(loaded: Loaded) -> None:
+    """No figure's legend overlaps its title, however many entries it wraps to."""
+    boxes = loaded.page.evaluate(
+        """() => Array.from(document.querySelectorAll('.js-plotly-plot')).flatMap(gd => {
+            const title = gd.querySelector('.gtitle');
+            if (!title) return [];
+            const t = title.getBoundingClientRect();
+            return Array.from(gd.querySelectorAll('.legend')).map(l => {
+                const b = l.getBoundingClientRect();
+                return [gd.id, [t.left, t.top, t.right, t.bottom], [b.left, b.top, b.right, b.bottom]];
+            });
+        })"""
+    )
+    assert boxes, "the figures have titles and legends"
+    for fig_id, (tl, tt, tr, tb), (ll, lt, lr, lb) in boxes:
+        overlap = min(tr, lr) > max(tl, ll) and min(tb, lb) > max(tt, lt)
+        assert not overlap, (fig_id, (tl, tt, tr, tb), (ll, lt, lr, lb))

@@ -82,7 +82,8 @@ def test_report_is_self_contained(single_report: Written) -> None:
     )
     assert not re.search(r"@import|url\(\s*['\"]?(https?:)?//", html, re.I)
     assert len(re.findall(r"\* plotly\.js (\(basic - minified\) )?v\d", html)) == 1
-    assert html.count(f'class="{FIGURE_CLASS}"') == 5
+    # measured, residue, contributions, step responses, residue test, candidates, conditions
+    assert html.count(f'class="{FIGURE_CLASS}"') == 7
 
 
 def test_failing_windows_are_tabled(single_report: Written) -> None:
