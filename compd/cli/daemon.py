@@ -22,7 +22,7 @@ from compd.cli.terminal import Text, console
 from compd.drivers.base import address_note
 from compd.drivers.registry import load_driver_type
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
-from compd.files.modelfile import load_model
+from compd.files.modelfile import load_model, model_source
 from compd.files.yamlplace import read_limited
 from compd.service.clock import RealClock
 from compd.service.compensator import TickRecord
@@ -126,6 +126,10 @@ async def _serve(
     config: Config, time_scale: float, duration_s: float | None, live_every: int | None
 ) -> int:
     clock = RealClock(time_scale)
+    from compd.cli.modellist import installed_notice
+
+    if (notice := installed_notice(config)) is not None:
+        console().print(Text(notice, style="bold yellow"))
     # On a terminal with no --live-every: the live view; else a line every N ticks, if asked.
     screen = None
     if live_every is None and sys.stdout.isatty():
@@ -208,7 +212,18 @@ def _live_printer(every: int, config: Config) -> Any:
 
 
 def model_load_command(args: argparse.Namespace) -> int:
-    return asyncio.run(model_load(config_from_arg(args.config), args.model))
+    config = config_from_arg(args.config)
+    if args.previous == (args.model is not None):
+        raise CompdError(
+            "compd model load takes a MODEL.yaml or --previous (the model that ran before "
+            "the last load; 'compd model list' shows them), not both or neither"
+        )
+    model = args.model
+    if args.previous:
+        from compd.cli.modellist import previous_or_refuse
+
+        model = previous_or_refuse(config)
+    return asyncio.run(model_load(config, model))
 
 
 async def model_load(config: Config, model_path: Path) -> int:
@@ -222,6 +237,7 @@ async def model_load(config: Config, model_path: Path) -> int:
     error, and nothing is installed: the installed model and the running
     one never disagree.
     """
+    model_path = model_source(model_path)  # bundled:NAME as `compd model check` reads it
     raw = read_limited(model_path, ModelFileError)
     slot = slot_from_bytes(config, raw, model_path, 0.0)
     try:
@@ -229,8 +245,11 @@ async def model_load(config: Config, model_path: Path) -> int:
             config.control_socket, load_request(raw, model_path), timeout_s=LOAD_TIMEOUT_S + 10
         )
     except NotRunningError as exc:
-        installed = install_model_bytes(config.state_dir, raw)
-        print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {installed}")
+        installed = install_model_bytes(config.state_dir, raw, config.model_path)
+        if installed == config.model_path:
+            print(f"{slot.compiled.name} (sha256 {slot.sha256[:12]}) is the config's own model")
+        else:
+            print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {installed}")
         print(f"no daemon runs ({exc}); it will start with this model", file=sys.stderr)
         return 0
     except ControlError as exc:

@@ -20,6 +20,7 @@ from rich.text import Text
 
 from compd.cli.args import positive_float
 from compd.cli.livescreen import FRAME_S, LiveScreen
+from compd.cli.modellist import installed_notice
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import console
 from compd.cli.tickview import level_text, progress, tick_view
@@ -53,6 +54,9 @@ def run_simulated(
 ) -> int:
     """``compd run`` for a config with a simulated machine: live view, then the summary."""
     out = console()
+    notice = installed_notice(config)
+    if notice is not None:  # before the live view, and again under the summary
+        out.print(Text(notice, style="bold yellow"))
     units = {name: s.unit for name, s in config.doc.signals.items()}
     signs = {axis: o.sign for axis, o in config.doc.outputs.items()}
     started = time.perf_counter()
@@ -120,11 +124,12 @@ def run_simulated(
         )
         if latest is not None:  # the last tick's frame stays on the screen
             draw(*latest)
-    print_summary(result)
+    print_summary(result, notice)
     return 0
 
 
-def print_summary(result: SimulationResult) -> None:
+def print_summary(result: SimulationResult, notice: str | None = None) -> None:
+    """The error tables, and what ran: ``notice`` says when it was not the config's model."""
     out = console()
     out.print(summary_table(result.summary))
     out.print(fault_table(result.status, result.machine))
@@ -134,6 +139,8 @@ def print_summary(result: SimulationResult) -> None:
         f"{result.simulated_s / 3600:.2f} h simulated in {result.wall_s:.1f} s "
         f"({result.timing.ticks} ticks, {ran})"
     )
+    if notice is not None:
+        out.print(Text(notice, style="bold yellow"))
 
 
 def _simulate_machine(args: argparse.Namespace) -> int:
