@@ -153,7 +153,7 @@ def _live_view(service: Service, screen: LiveScreen, duration_s: float | None) -
     from rich.text import Text
 
     from compd.cli.livescreen import FRAME_S
-    from compd.cli.tickview import level_text, progress, tick_view
+    from compd.cli.tickview import level_text, progress, tick_view, too_wide
 
     doc = service.config.doc
     units = {name: signal.unit for name, signal in doc.signals.items()}
@@ -182,7 +182,10 @@ def _live_view(service: Service, screen: LiveScreen, duration_s: float | None) -
             "signal_faults": comp.counters.signal_faults,
             "reconnects": sum(link.reconnects for link in service.links.values()),
         }
-        screen.show(tick_view(head, record, units, signs, counters))
+        view = tick_view(head, record, units, signs, counters)
+        if too_wide(screen.console, view):  # 80 columns: two-line titles
+            view = tick_view(head, record, units, signs, counters, narrow=True)
+        screen.show(view)
 
     return show
 
