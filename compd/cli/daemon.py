@@ -22,7 +22,7 @@ from compd.cli.terminal import Text, console
 from compd.drivers.base import address_note
 from compd.drivers.registry import load_driver_type
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
-from compd.files.modelfile import load_model
+from compd.files.modelfile import load_model, model_source
 from compd.files.yamlplace import read_limited
 from compd.service.clock import RealClock
 from compd.service.compensator import TickRecord
@@ -126,6 +126,10 @@ async def _serve(
     config: Config, time_scale: float, duration_s: float | None, live_every: int | None
 ) -> int:
     clock = RealClock(time_scale)
+    from compd.cli.modellist import installed_notice
+
+    if (notice := installed_notice(config)) is not None:
+        console().print(Text(notice, style="bold yellow"))
     # On a terminal with no --live-every: the live view; else a line every N ticks, if asked.
     screen = None
     if live_every is None and sys.stdout.isatty():
@@ -149,7 +153,7 @@ def _live_view(service: Service, screen: LiveScreen, duration_s: float | None) -
     from rich.text import Text
 
     from compd.cli.livescreen import FRAME_S
-    from compd.cli.tickview import level_text, progress, tick_view
+    from compd.cli.tickview import level_text, progress, tick_view, too_wide
 
     doc = service.config.doc
     units = {name: signal.unit for name, signal in doc.signals.items()}
@@ -178,7 +182,10 @@ def _live_view(service: Service, screen: LiveScreen, duration_s: float | None) -
             "signal_faults": comp.counters.signal_faults,
             "reconnects": sum(link.reconnects for link in service.links.values()),
         }
-        screen.show(tick_view(head, record, units, signs, counters))
+        view = tick_view(head, record, units, signs, counters)
+        if too_wide(screen.console, view):  # 80 columns: two-line titles
+            view = tick_view(head, record, units, signs, counters, narrow=True)
+        screen.show(view)
 
     return show
 
@@ -208,7 +215,18 @@ def _live_printer(every: int, config: Config) -> Any:
 
 
 def model_load_command(args: argparse.Namespace) -> int:
-    return asyncio.run(model_load(config_from_arg(args.config), args.model))
+    config = config_from_arg(args.config)
+    if args.previous == (args.model is not None):
+        raise CompdError(
+            "compd model load takes a MODEL.yaml or --previous (the model that ran before "
+            "the last load; 'compd model list' shows them), not both or neither"
+        )
+    model = args.model
+    if args.previous:
+        from compd.cli.modellist import previous_or_refuse
+
+        model = previous_or_refuse(config)
+    return asyncio.run(model_load(config, model))
 
 
 async def model_load(config: Config, model_path: Path) -> int:
@@ -222,6 +240,7 @@ async def model_load(config: Config, model_path: Path) -> int:
     error, and nothing is installed: the installed model and the running
     one never disagree.
     """
+    model_path = model_source(model_path)  # bundled:NAME as `compd model check` reads it
     raw = read_limited(model_path, ModelFileError)
     slot = slot_from_bytes(config, raw, model_path, 0.0)
     try:
@@ -229,8 +248,11 @@ async def model_load(config: Config, model_path: Path) -> int:
             config.control_socket, load_request(raw, model_path), timeout_s=LOAD_TIMEOUT_S + 10
         )
     except NotRunningError as exc:
-        installed = install_model_bytes(config.state_dir, raw)
-        print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {installed}")
+        installed = install_model_bytes(config.state_dir, raw, config.model_path)
+        if installed == config.model_path:
+            print(f"{slot.compiled.name} (sha256 {slot.sha256[:12]}) is the config's own model")
+        else:
+            print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {installed}")
         print(f"no daemon runs ({exc}); it will start with this model", file=sys.stderr)
         return 0
     except ControlError as exc:

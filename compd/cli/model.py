@@ -15,7 +15,7 @@ def register(commands: Any) -> None:
         "model", help="model files: check one, load one into the running daemon, roll one out"
     ).add_subparsers(metavar="ACTION")
     check = model.add_parser("check", help="validate and compile a model file; show its sub-models")
-    check.add_argument("model", type=Path, metavar="MODEL.yaml")
+    check.add_argument("model", type=Path, metavar="MODEL.yaml", help="a path, or bundled:NAME")
     check.add_argument(
         "--sample-time-s", type=float, help="compile for this sample time (default: the model's)"
     )
@@ -23,9 +23,22 @@ def register(commands: Any) -> None:
     load = model.add_parser(
         "load", help="validate, install and switch the running daemon to a model file"
     )
-    load.add_argument("model", type=Path, metavar="MODEL.yaml")
+    load.add_argument(
+        "model", type=Path, metavar="MODEL.yaml", nargs="?", help="a path, or bundled:NAME"
+    )
+    load.add_argument(
+        "--previous",
+        action="store_true",
+        help="load the model that ran before the last 'compd model load' (the way back)",
+    )
     daemon_options(load)
     load.set_defaults(handler=_load)
+    listing = model.add_parser(
+        "list",
+        help="the config's model and those 'compd model load' installed: which runs, which is next",
+    )
+    daemon_options(listing)
+    listing.set_defaults(handler=_list)
     rollout = model.add_parser(
         "rollout",
         help="check a model file, send it to many machines through the fleet's MQTT broker",
@@ -158,6 +171,12 @@ def _rollout(args: argparse.Namespace) -> int:
     from compd.cli.rolloutcommand import rollout_command
 
     return rollout_command(args)
+
+
+def _list(args: argparse.Namespace) -> int:
+    from compd.cli.modellist import list_command
+
+    return list_command(args)
 
 
 def _load(args: argparse.Namespace) -> int:

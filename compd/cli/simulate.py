@@ -20,9 +20,10 @@ from rich.text import Text
 
 from compd.cli.args import positive_float
 from compd.cli.livescreen import FRAME_S, LiveScreen
+from compd.cli.modellist import installed_notice
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import console
-from compd.cli.tickview import level_text, progress, tick_view
+from compd.cli.tickview import level_text, progress, tick_view, too_wide
 from compd.service.compensator import TickRecord
 from compd.service.config import Config
 from compd.service.daemon import Service
@@ -48,15 +49,31 @@ def register(commands: Any) -> None:
     sim.set_defaults(handler=_simulate_machine)
 
 
+#: When stdout is not a terminal and no --live-every is given: a progress line this often (s).
+PIPED_EVERY_S = 3600.0
+
+
 def run_simulated(
     config: Config, time_scale: float | None, duration_s: float | None, live_every: int | None
 ) -> int:
     """``compd run`` for a config with a simulated machine: live view, then the summary."""
     out = console()
+    notice = installed_notice(config)
+    if notice is not None:  # before the live view, and again under the summary
+        out.print(Text(notice, style="bold yellow"))
     units = {name: s.unit for name, s in config.doc.signals.items()}
     signs = {axis: o.sign for axis, o in config.doc.outputs.items()}
     started = time.perf_counter()
     screen = LiveScreen(out) if out.is_terminal else None
+    if screen is None and live_every is None:  # piped: a line each simulated hour, not silence
+        live_every = max(1, round(PIPED_EVERY_S / config.doc.period_s))
+        sim = SimulationDoc.model_validate(config.simulation or {})
+        speed = "virtual time" if time_scale is None else f"x{time_scale:g} real time"
+        print(
+            f"simulated machine: {sim.scenario}, {sim.hours:g} h, seed {sim.seed}, on {speed}; "
+            "a line each simulated hour (--live-every N: every N ticks)",
+            flush=True,
+        )
     last_frame = 0.0
     count = 0
 
@@ -75,12 +92,22 @@ def run_simulated(
             f"x{machine.now_s / elapsed_s:,.0f} real time  status ",
             level_text(record),
         )
+        if head.cell_len > out.width:  # 80 columns: the short form, still one line
+            head = Text.assemble(
+                ("simulated machine ", "bold"),
+                f"{machine.doc.scenario} seed {machine.doc.seed}  {progress(machine.now_s, end_s)}  "
+                f"x{machine.now_s / elapsed_s:,.0f}  ",
+                level_text(record),
+            )
         truth = machine.truth_now()
         twin = {
             "true error um": {axis: f"{t:+.2f}" for axis, (t, _, _) in truth.items()},
             "compensated um": {axis: f"{c:+.2f}" for axis, (_, _, c) in truth.items()},
         }
-        screen.show(tick_view(head, record, units, signs, shown, twin))
+        view = tick_view(head, record, units, signs, shown, twin)
+        if too_wide(out, view):  # 80 columns: two-line titles, nothing wraps into a third
+            view = tick_view(head, record, units, signs, shown, twin, narrow=True)
+        screen.show(view)
 
     def on_tick(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
         nonlocal last_frame, count, latest
@@ -120,13 +147,15 @@ def run_simulated(
         )
         if latest is not None:  # the last tick's frame stays on the screen
             draw(*latest)
-    print_summary(result)
+    print_summary(result, notice)
     return 0
 
 
-def print_summary(result: SimulationResult) -> None:
+def print_summary(result: SimulationResult, notice: str | None = None) -> None:
+    """The error tables, and what ran: ``notice`` says when it was not the config's model."""
     out = console()
-    out.print(summary_table(result.summary))
+    table = summary_table(result.summary)
+    out.print(summary_table(result.summary, narrow=True) if too_wide(out, table) else table)
     out.print(fault_table(result.status, result.machine))
     model = result.status["model"]
     ran = f"model {model['name']}" if model is not None else "recorded only, nothing written"
@@ -134,6 +163,8 @@ def print_summary(result: SimulationResult) -> None:
         f"{result.simulated_s / 3600:.2f} h simulated in {result.wall_s:.1f} s "
         f"({result.timing.ticks} ticks, {ran})"
     )
+    if notice is not None:
+        out.print(Text(notice, style="bold yellow"))
 
 
 def _simulate_machine(args: argparse.Namespace) -> int:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from rich.console import Group, RenderableType
+from rich.console import Console, Group, RenderableType
 from rich.table import Table
 from rich.text import Text
 
@@ -53,10 +53,13 @@ def tick_view(
     signs: Mapping[str, int | float],
     counters: Mapping[str, int],
     extra_axis_columns: Mapping[str, Mapping[str, str]] | None = None,
+    *,
+    narrow: bool = False,
 ) -> RenderableType:
     """``head``, the inputs with units and health, the axes, the counters.
 
     ``extra_axis_columns``: more columns of the axis table, ``{title: {axis: text}}``.
+    ``narrow``: the axis titles in two lines (80 columns), so the header is two lines, not three.
     """
     inputs = Table(box=None, pad_edge=False, header_style="bold")
     inputs.add_column("input")
@@ -74,7 +77,7 @@ def tick_view(
     axes = Table(box=None, pad_edge=False, header_style="bold")
     axes.add_column(AXIS_COLUMNS[0])
     for column in (*AXIS_COLUMNS[1:], *extra):
-        axes.add_column(column, justify="right")
+        axes.add_column(_two_lines(column) if narrow else column, justify="right")
     for axis, offset_um in record.offsets_um.items():
         sign = signs.get(axis, 1)
         # The record's target is sign x the model's output, so the drift is target x sign (sign ±1).
@@ -88,3 +91,16 @@ def tick_view(
         )
     shown = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counters.items())
     return Group(head, inputs, axes, Text(shown, "dim"))
+
+
+def _two_lines(title: str) -> str:
+    """``title`` broken before its last word, or before its parenthesis."""
+    if "(" in title:
+        return title.replace(" (", "\n(", 1)
+    return "\n".join(title.rsplit(" ", 1))
+
+
+def too_wide(console: Console, renderable: RenderableType) -> bool:
+    """Whether ``renderable`` at its natural width is wider than ``console``."""
+    unbounded = console.options.update_width(100_000)  # a measure is clamped to the width given
+    return console.measure(renderable, options=unbounded).maximum > console.width

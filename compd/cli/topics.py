@@ -315,13 +315,20 @@ def completion_script(shell: str) -> str:
 
 
 def _mark_paths(parser: argparse.ArgumentParser) -> None:
-    """Options that take a file (a ``Path`` type or a FILE-like metavar) complete file names."""
+    """Options that take a file (a ``Path`` type or a FILE-like metavar) complete file names.
+
+    An option with ``completion_choices`` completes those (the completion's parser only).
+    """
     import shtab
 
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for sub in action.choices.values():
                 _mark_paths(sub)
+            continue
+        offered = getattr(action, "completion_choices", None)
+        if offered is not None:  # values the command checks itself, completed as choices
+            action.choices = offered
             continue
         metavar = str(action.metavar or "")
         if action.type is Path or any(

@@ -44,9 +44,12 @@ def register(commands: Any) -> None:
         help="generate a run of the simulated milling centre as a data file",
         description=f"Generate a logged run of the thermal twin. Scenarios: {scenarios}.",
     )
-    twin.add_argument(
+    scenario = twin.add_argument(
         "--scenario", required=True, metavar="NAME", help="one of: " + ", ".join(described)
     )
+    # Offered by shell completion (compd.cli.topics); checked by the command, whose
+    # message for a misspelt one lists them with what each is.
+    scenario.completion_choices = list(described)
     twin.add_argument("--hours", type=float, required=True, help="length of the run, in h")
     twin.add_argument(
         "--out", type=Path, required=True, metavar="FILE.csv", help="CSV (or .parquet) to write"

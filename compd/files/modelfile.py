@@ -95,8 +95,13 @@ def load_model(path: str | Path) -> ModelFile:
 
     ``bundled:NAME`` names one of the bundled examples (as provenance records them).
     """
-    path = resolve_path(path, Path(".")) if str(path).startswith(BUNDLED) else Path(path)
+    path = model_source(path)
     return parse_model_bytes(read_limited(path, ModelFileError), path)
+
+
+def model_source(path: str | Path) -> Path:
+    """The file a command-line model argument names: a path, or ``bundled:NAME``."""
+    return resolve_path(path, Path(".")) if str(path).startswith(BUNDLED) else Path(path)
 
 
 def parse_model_bytes(raw: bytes, path: str | Path = "<model>") -> ModelFile:

@@ -160,7 +160,9 @@ class ModelLoader:
         # Installed only once accepted (an overrun check is never installed), so
         # the next start runs it; an fsync or two, off the loop as well.
         try:
-            installed = await in_daemon_thread(install_model_bytes, self.config.state_dir, raw)
+            installed = await in_daemon_thread(
+                install_model_bytes, self.config.state_dir, raw, self.config.model_path
+            )
         except OSError as exc:
             raise CompdError(
                 f"cannot install the model in {self.config.state_dir} ({exc.strerror})"

@@ -42,6 +42,8 @@ log = structlog.get_logger("compd.service.state")
 STATE_FILE = "state.json"
 MODELS_DIR = "models"
 CURRENT_MODEL = "current-model"
+#: The model ``current-model`` named before the last ``compd model load`` (empty: the config's).
+PREVIOUS_MODEL = "previous-model"
 FORMAT = "compd.state/1"
 
 
@@ -207,14 +209,61 @@ def install_model(state_dir: Path, source: Path) -> Path:
     return install_model_bytes(state_dir, source.read_bytes())
 
 
-def install_model_bytes(state_dir: Path, content: bytes) -> Path:
-    """:func:`install_model` for a model file's bytes (as a client sent them to the daemon)."""
+def install_model_bytes(state_dir: Path, content: bytes, config_model: Path | None = None) -> Path:
+    """:func:`install_model` for a model file's bytes (as a client sent them to the daemon).
+
+    The bytes of ``config_model`` (the config's own model) are not copied: the
+    next start picks it again as the config's (no ``current-model``), and
+    ``config_model`` is returned. Either way ``previous-model`` remembers the
+    model that was picked before, for ``compd model load --previous``.
+    """
     sha256 = hashlib.sha256(content).hexdigest()
-    installed = state_dir / MODELS_DIR / f"{sha256}.yaml"
-    if not installed.exists():
+    own = config_model is not None and _sha256_of(config_model) == sha256
+    installed = config_model if own and config_model else state_dir / MODELS_DIR / f"{sha256}.yaml"
+    if not own and not installed.exists():
         write_atomic(installed, content)
-    write_atomic(state_dir / CURRENT_MODEL, f"{MODELS_DIR}/{installed.name}\n".encode())
+    current = "\n" if own else f"{MODELS_DIR}/{installed.name}\n"
+    try:
+        before = (state_dir / CURRENT_MODEL).read_text()
+    except FileNotFoundError:
+        before = "\n"  # the config's own model ran
+    if before.strip() != current.strip():  # loading the same model again keeps the way back
+        write_atomic(state_dir / PREVIOUS_MODEL, before.encode())
+    if own:
+        (state_dir / CURRENT_MODEL).unlink(missing_ok=True)
+    else:
+        write_atomic(state_dir / CURRENT_MODEL, current.encode())
     return installed
+
+
+def _sha256_of(path: Path) -> str | None:
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def previous_model(state_dir: Path, config_model: Path | None) -> Path | None:
+    """The model that ran before the last ``compd model load`` (``config_model`` if the config's).
+
+    ``None`` if no model was ever loaded here, or the file it names is gone.
+    """
+    try:
+        name = (state_dir / PREVIOUS_MODEL).read_text().strip()
+    except FileNotFoundError:
+        return None
+    if not name:
+        return config_model
+    path = state_dir / name
+    return path if path.is_file() else None
+
+
+def installed_models(state_dir: Path) -> list[Path]:
+    """Every model file ``compd model load`` installed in ``state_dir``, oldest first."""
+    models = state_dir / MODELS_DIR
+    if not models.is_dir():
+        return []
+    return sorted(models.glob("*.yaml"), key=lambda p: (p.stat().st_mtime, p.name))
 
 
 def installed_model(state_dir: Path) -> Path | None:

@@ -16,8 +16,11 @@ from compd.toolkit.evaluate import Evaluation
 
 
 def fmt(value: float | None, digits: int = 2) -> str:
-    """A figure for a table: ``n/a`` where it is undefined (None or NaN)."""
-    return "n/a" if value is None or math.isnan(value) else f"{value:.{digits}f}"
+    """A figure for a table: ``n/a`` where it is undefined (None or NaN); never ``-0``."""
+    if value is None or math.isnan(value):
+        return "n/a"
+    text = f"{value:.{digits}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0.0 else text
 
 
 def json_clean(value: object) -> object:

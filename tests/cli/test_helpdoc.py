@@ -222,3 +222,11 @@ def test_a_reader_that_stops_early_gets_no_traceback(argv: str) -> None:
     )  # fmt: skip
     assert "Traceback" not in done.stderr and "BrokenPipe" not in done.stderr, done.stderr
     assert done.returncode in (0, 141)
+
+
+def test_bash_completes_the_twins_scenarios(bash_script: Path) -> None:
+    """``compd twin --scenario prod<TAB>`` offers production; ``--scenario <TAB>`` every scenario."""
+    assert _bash_completions(bash_script, "compd twin --scenario prod") == ["production"]
+    assert {"production", "cutting"} <= set(
+        _bash_completions(bash_script, "compd twin --scenario ")
+    )

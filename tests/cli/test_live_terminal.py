@@ -102,3 +102,23 @@ def test_a_view_taller_than_the_terminal_is_cropped_not_scrolled(short_dir: Path
     assert screen.returncode == 0, text
     assert sum(HEADER in line for line in screen.lines) == 1, text
     assert "thermal error at the tool centre point" in text
+
+
+def test_at_80_columns_the_header_is_one_line_and_no_title_is_cut(short_dir: Path) -> None:
+    """At 80x40: the run's header on one line, the axis titles in two, the summary's "RMS reduction" whole."""
+    config = simulated_config(short_dir)
+    argv = ["run", "--config", str(config), "--time-scale", "max", "--duration-s", "600"]
+    screen = run_in_terminal(argv, columns=80, rows=40)
+    text = "\n".join(screen.lines)
+    assert screen.returncode == 0, text
+    head = next(i for i, line in enumerate(screen.lines) if "(100 %)" in line)
+    assert screen.lines[head].rstrip().endswith("ok"), text  # the status, not wrapped below
+    assert screen.lines[head + 1].startswith("input"), text
+    last_input = max(
+        i for i, line in enumerate(screen.lines) if line.startswith("spindle_power_kw")
+    )
+    axis_titles = next(
+        i for i in range(last_input, len(screen.lines)) if screen.lines[i][:1] == "Z"
+    )
+    assert axis_titles - last_input - 1 <= 2, text  # the title lines between inputs and row Z
+    assert "…" not in text and "reduction" in text, text

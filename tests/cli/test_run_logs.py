@@ -34,3 +34,17 @@ def test_debug_logs_go_to_stderr_without_pymodbus_frames(short_dir: Path) -> Non
     frame = re.compile(r"(send|recv):|0x[0-9a-f]{2} 0x[0-9a-f]{2}")
     frames = [e for e in events if frame.search(json.dumps(e))]
     assert frames == []
+
+
+def test_a_piped_run_prints_a_line_at_start_and_each_simulated_hour(short_dir: Path) -> None:
+    """Piped, with no --live-every: a start line naming the machine, then one progress line per simulated hour."""
+    config = simulated_config(short_dir)
+    done = subprocess.run(
+        [sys.executable, "-m", "compd.cli", "run", "--config", str(config), "--time-scale", "max",
+         "--duration-s", "7300"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith("simulated machine: production, 8 h, seed 1"), lines[0]
+    assert [line.split("h")[0] for line in lines[1:3]] == ["t   1.00 ", "t   2.00 "], done.stdout

@@ -72,7 +72,9 @@ def test_run_stops_after_duration_and_saves_state(tmp_path):
 def test_model_load_without_a_daemon_installs_for_the_next_start(tmp_path, capsys):
     """model load validates and installs the model even when no daemon runs, and says so."""
     config = write_config(tmp_path, {"control_socket": str(short_socket())})
-    assert main(["model", "load", str(config.model_path), "--config", str(config.path)]) == 0
+    copy = tmp_path / "copy.yaml"  # other bytes than the config's own model, which is not copied
+    copy.write_text(config.model_path.read_text() + "# a copy\n")
+    assert main(["model", "load", str(copy), "--config", str(config.path)]) == 0
     captured = capsys.readouterr()
     assert "installed example-gated-arx-y" in captured.out
     assert "it will start with this model" in captured.err

@@ -10,14 +10,18 @@ from rich.table import Table
 from compd.sim.plc.machine import AxisSummary, SimulatedMachine
 
 
-def summary_table(rows: list[AxisSummary]) -> Table:
-    """Uncompensated vs compensated RMS, peak-to-peak and max |error| per axis."""
+def summary_table(rows: list[AxisSummary], *, narrow: bool = False) -> Table:
+    """Uncompensated vs compensated RMS, peak-to-peak and max |error| per axis.
+
+    ``narrow``: each title in two lines (80 columns), so none is cut.
+    """
     table = Table(title="thermal error at the tool centre point, um", header_style="bold")
     table.add_column("axis")
+    between = "\n" if narrow else " "
     for name in ("RMS", "p-p", "max |e|"):
-        table.add_column(f"{name} uncomp.", justify="right")
-        table.add_column(f"{name} comp.", justify="right")
-    table.add_column("RMS reduction", justify="right")
+        table.add_column(f"{name}{between}uncomp.", justify="right")
+        table.add_column(f"{name}{between}comp.", justify="right")
+    table.add_column(f"RMS{between}reduction", justify="right")
     for r in rows:
         table.add_row(
             r.axis,
