@@ -12,7 +12,7 @@ from __future__ import annotations
 import asyncio
 import math
 from collections.abc import Coroutine, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from compd.service.links import DriverLink
@@ -35,11 +35,16 @@ class SignalPoint:
     scale: float = 1.0
     offset: float = 0.0
     kind: str = "float"
+    #: ``1 / scale`` when whole (see :func:`_divisor`), worked out once, not every tick.
+    divisor: float | None = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "divisor", _divisor(self.scale))
 
     def convert(self, raw: float) -> float:
         if self.kind != "float" and math.isfinite(raw):
             raw = float(round(raw)) if self.kind == "int" else float(raw != 0)
-        divisor = _divisor(self.scale)
+        divisor = self.divisor
         scaled = raw / divisor if divisor is not None else raw * self.scale
         return scaled + self.offset + 0.0  # + 0.0: never -0.0
 
@@ -99,10 +104,11 @@ class DriverBatches:
     async def read(self) -> tuple[dict[str, float], dict[str, float]]:
         """Signal values by name, and the raw offsets read back by axis name.
 
-        An offset read back is passed on whatever it is -- NaN, inf and a value
-        that is no number (as NaN) included: what the PLC holds is judged by
-        :class:`~compd.service.offsets.HeldOffsets`, which takes such a value as
-        a fault, never as "not read" (which would leave it in place unflagged).
+        An offset read back is passed on whatever it is, NaN and inf included
+        (the link has made every value a float, :mod:`compd.service.links`):
+        what the PLC holds is judged by :class:`~compd.service.offsets.HeldOffsets`,
+        which takes such a value as a fault, never as "not read" (which would
+        leave it in place unflagged).
         """
         drivers = list(self._reads)
         results = await _all([self.links[d].read(self._addresses[d]) for d in drivers])
@@ -114,7 +120,7 @@ class DriverBatches:
                     values[point.name] = point.convert(raw[point.address])
             for axis in self._readbacks.get(driver, []):
                 if axis.address in raw:
-                    held[axis.name] = _number(raw[axis.address])
+                    held[axis.name] = raw[axis.address]
         return values, held
 
     async def write(self, raws: Mapping[str, float], word: int, heartbeat: int) -> dict[str, bool]:
@@ -138,16 +144,6 @@ class DriverBatches:
             return False
         batch = {point.status_address: float(word), point.heartbeat_address: float(heartbeat)}
         return await self.links[point.driver].write(batch)
-
-
-def _number(value: object) -> float:
-    """``value`` as a float; NaN for what is none (a string, None, an int beyond float's range)."""
-    if isinstance(value, str | bytes):
-        return math.nan
-    try:
-        return float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError, OverflowError):
-        return math.nan
 
 
 async def _all(calls: list[Coroutine[Any, Any, T]]) -> list[T]:
