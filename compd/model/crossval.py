@@ -52,7 +52,12 @@ class Folds:
 
 
 def blocked_folds(n_samples: int, n_folds: int = 4) -> Folds:
-    """``n_folds`` contiguous blocks of (nearly) equal length."""
+    """``n_folds`` contiguous blocks of (nearly) equal length; fewer (at least 2) on a short record.
+
+    A short record (70 samples of 5 min: a 6 h warm-up) is still a record a
+    user fits: it is cut into as many blocks of :data:`MIN_FOLD_SAMPLES` as it holds.
+    """
+    n_folds = max(2, min(n_folds, n_samples // MIN_FOLD_SAMPLES))
     if n_samples < n_folds * MIN_FOLD_SAMPLES:
         raise ModelError(
             f"{n_samples} samples are too few to cross-validate in {n_folds} blocks "

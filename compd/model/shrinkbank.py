@@ -71,6 +71,7 @@ class ShrunkBank:
         time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S,
         starts: Sequence[int] = ONE,
         new_recordings: bool = False,
+        input_ranges: Sequence[float] | np.ndarray | None = None,
     ) -> None:
         y = np.asarray(y, dtype=float)
         u = np.asarray(u, dtype=float)
@@ -88,6 +89,9 @@ class ShrunkBank:
         self.y = y
         self.taus = taus
         self.n_inputs = u.shape[1]
+        # The inputs' calibration ranges as the guard rails measure them (the raw columns': over
+        # several files wider than the changes from each file's start); None: the changes'.
+        self.input_ranges = None if input_ranges is None else np.asarray(input_ranges, float)
         self.folds = folds
         self.fitted = np.ones(y.size, dtype=bool) if fitted is None else np.asarray(fitted, bool)
         self.features = lag_features(u, taus, sample_time_s, starts)
@@ -273,7 +277,8 @@ def plausible(
     if 0.0 in bank.taus:  # the inputs themselves are among the features
         first = bank.taus.index(0.0) * bank.n_inputs
         inputs = features[:, first + used]
-        if reaches_too_far(per_input[used].sum(axis=1), inputs, output_range):
+        ranges = None if bank.input_ranges is None else bank.input_ranges[used]
+        if reaches_too_far(per_input[used].sum(axis=1), inputs, output_range, ranges=ranges):
             return False
     terms = np.column_stack(
         [features[:, [j * bank.n_inputs + i for j in range(n_taus)]] @ per_input[i] for i in used]
@@ -281,7 +286,9 @@ def plausible(
     return not cancelling(terms)
 
 
-def regression_written(y: np.ndarray, u: np.ndarray, gains: np.ndarray) -> bool:
+def regression_written(
+    y: np.ndarray, u: np.ndarray, gains: np.ndarray, input_ranges: np.ndarray | None = None
+) -> bool:
     """Whether ``compd fit`` writes the static regression ``y = u @ gains`` (rows given) unforced.
 
     Its guard rails refuse a gain beyond :data:`GAIN_ERROR_RATIO` times the
@@ -292,9 +299,8 @@ def regression_written(y: np.ndarray, u: np.ndarray, gains: np.ndarray) -> bool:
     output_range = float(np.ptp(y))
     if output_range <= 0.0:
         return True
-    return not reaches_too_far(gains, u, output_range, GAIN_ERROR_RATIO) and not cancelling(
-        u * gains
-    )
+    reach = reaches_too_far(gains, u, output_range, GAIN_ERROR_RATIO, ranges=input_ranges)
+    return not reach and not cancelling(u * gains)
 
 
 def reaches_too_far(
@@ -302,9 +308,18 @@ def reaches_too_far(
     inputs: np.ndarray,
     output_range: float,
     ratio: float = GAIN_WARNING_RATIO,
+    *,
+    ranges: np.ndarray | None = None,
 ) -> bool:
-    """Whether an input's static gain times its range exceeds ``ratio`` times the output's range."""
-    reach = np.abs(static_gains) * np.ptp(inputs, axis=0)
+    """Whether an input's static gain times its range exceeds ``ratio`` times the output's range.
+
+    The range is the inputs' spread, or ``ranges`` where that is wider (the raw
+    columns' over several files, as :func:`compd.model.guards.check_model` measures).
+    """
+    spread = np.ptp(inputs, axis=0)
+    if ranges is not None:
+        spread = np.maximum(spread, ranges)
+    reach = np.abs(static_gains) * spread
     return bool(np.any(reach > ratio * output_range))
 
 

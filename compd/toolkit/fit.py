@@ -216,6 +216,7 @@ def fit_data(
             first_sample=first,
             starts=starts,
             choose_inputs=select_inputs_first,
+            input_ranges={c: float(np.ptp(data.column(c))) for c in inputs},
         )
     except ModelError as exc:
         raise DataFileError(data.path, exc.message, where="--time-constants-s") from exc

@@ -113,6 +113,7 @@ def compare_candidates(
     choose_inputs: bool = False,
     fitted: np.ndarray | None = None,
     new_recordings: bool = False,
+    input_ranges: Mapping[str, float] | None = None,
 ) -> Selection:
     """Score ``candidates`` (of ``lagbank``, ``mlr``) by nested cross-validation; keep the best.
 
@@ -126,6 +127,9 @@ def compare_candidates(
     ``fitted``: a mask of the samples to fit and score (default all), with ``first_sample``.
     ``new_recordings``: judge each held-out fold of one record as a new recording
     (:class:`~compd.model.shrinkbank.ShrunkBank`) instead of the record continued.
+    ``input_ranges``: each input's calibration range as the guard rails measure it (the
+    raw column's max - min; over several files wider than the changes), so that no
+    candidate is kept that ``compd fit`` then refuses.
     """
     # Many small solves: BLAS threads only spin against each other there (on a busy
     # 2-core PC they made the search 15x slower).
@@ -134,6 +138,11 @@ def compare_candidates(
         fitted = mask & (np.arange(len(y)) >= first_sample)
         names = list(changes)
         u = np.column_stack([np.asarray(v, dtype=float) for v in changes.values()])
+        ranges = (
+            None
+            if input_ranges is None
+            else np.array([float(input_ranges.get(name, 0.0)) for name in names])
+        )
         scores = []
         lag_bank = None
         nested = None
@@ -148,6 +157,7 @@ def compare_candidates(
                 time_constants_s=time_constants_s,
                 starts=starts,
                 new_recordings=new_recordings,
+                input_ranges=ranges,
             )
 
             def chosen(train: np.ndarray) -> list[int] | None:
@@ -198,7 +208,9 @@ def compare_candidates(
             )
         )
     judged = [s for s in scores if s.method in candidates]
-    if len(judged) > 1 and not regression_written(y[fitted], u[fitted], gains):
+    if steps and ranges is not None:
+        ranges = ranges[[names.index(step.input) for step in steps]]
+    if len(judged) > 1 and not regression_written(y[fitted], u[fitted], gains, ranges):
         # The guard rails would refuse the regression (collinear inputs balanced against each
         # other, a gain far beyond the output's range); the lag bank, plausible by construction,
         # is the model to write.

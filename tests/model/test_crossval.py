@@ -42,8 +42,17 @@ def test_a_record_without_cycles_falls_back_to_blocks() -> None:
     assert np.all(np.diff(folds.labels) >= 0)
 
 
+def test_a_short_record_is_cut_into_fewer_blocks() -> None:
+    """74 samples (a 6 h warm-up at 5 min) make three blocks of at least 20, not a refusal."""
+    folds = blocked_folds(74)
+    assert folds.n_folds == 3
+    assert np.bincount(folds.labels).min() >= 20
+    assert blocked_folds(45).n_folds == 2
+    assert blocked_folds(4000).n_folds == 4
+
+
 def test_too_short_a_record_is_refused() -> None:
-    """Fewer than a few samples per block cannot be cross-validated."""
+    """Fewer than two blocks of 20 samples cannot be cross-validated."""
     with pytest.raises(ModelError, match="too few"):
         blocked_folds(30)
 

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from compd.files.data import load_data
+from compd.files.data import DataSet, load_data
 from compd.files.experiments import load_experiments
 from compd.files.modelfile import parse_model
 from compd.sim.machines import (
@@ -165,3 +165,31 @@ def test_a_case_fits_on_its_calibration_files_and_compares_on_its_verify_files(
     pooled = pooled_comparisons([evaluate(model, load_data(p)) for p in verify], case.output)
     assert len(calibration) == 4 and np.isfinite(pooled[0].fit_percent)
     assert pooled[0].residue.rms_um < pooled[0].uncompensated.rms_um
+
+
+def _load(paths: list[Path]) -> list[DataSet]:
+    return [load_data(paths[0])] if len(paths) == 1 else load_experiments(paths)
+
+
+@pytest.mark.parametrize(
+    "seed",
+    [
+        # 17 sensors, three warm-up runs of absolute temperatures starting at different
+        # levels: the regression's gains looked plausible on the changes from each run's start
+        # and were refused over the raw columns' ranges, so `fit` kept it and refused itself.
+        188,
+        # One 3.7 h record at 3 min: 74 samples, too few for four blocks of 20.
+        170,
+    ],
+)
+def test_the_default_fit_writes_a_model_on_machines_it_once_refused(
+    tmp_path: Path, seed: int
+) -> None:
+    """``compd fit`` with its defaults ends with a model the guard rails pass, not a refusal."""
+    case = random_machine(seed)
+    calibration, verify = write_case(case, tmp_path)
+    fitted = fit_data(_load(calibration), output=case.output, inputs=case.inputs)
+    assert not [f for f in fitted.findings if f.severity.name == "ERROR"]
+    model = parse_model(fitted.yaml_text)
+    pooled = pooled_comparisons([evaluate(model, load_data(p)) for p in verify], case.output)
+    assert np.isfinite(pooled[0].fit_percent)
