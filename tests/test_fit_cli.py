@@ -155,21 +155,25 @@ def test_bad_input_exits_2_naming_file_place_and_fix(
 def test_the_expected_fit_on_new_data_is_printed_first_and_stored(
     calibration_csv, tmp_path, capsys
 ):
-    """fit leads with the nested figure less its spread over the folds, stores both, and model check leads with it."""
+    """fit leads with the median of the held-out folds (pooled figure beside it); model check too."""
     model = tmp_path / "auto.yaml"
     assert _fit(calibration_csv, model) == 0
     printed = " ".join(capsys.readouterr().out.split())  # as read, whatever the wrapping
     held_out = load_model(model).doc.provenance.cross_validation
     assert held_out is not None
-    spread = held_out.fold_spread_percent[held_out.kept]
-    expected = held_out.nested_fit_percent[held_out.kept] - spread
+    expected = held_out.fold_median_percent[held_out.kept]
+    pooled = held_out.nested_fit_percent[held_out.kept]
     assert (
-        set(held_out.nested_fit_percent) == set(held_out.fold_spread_percent) == {"lagbank", "mlr"}
+        set(held_out.nested_fit_percent)
+        == set(held_out.fold_spread_percent)
+        == set(held_out.fold_median_percent)
+        == {"lagbank", "mlr"}
     )
-    assert spread > 0.0 and held_out.expected_percent() == pytest.approx(expected)
+    assert held_out.expected_percent() == pytest.approx(expected)
+    n_folds = int(held_out.folds.split()[3])  # "leave one of N ... out"
     assert (
-        f"expected fit on new data {expected:.1f} % (nested cross-validation less its spread "
-        f"over the folds, {spread:.1f} points)"
+        f"expected fit on new data {expected:.1f} % (nested cross-validation: the median of its "
+        f"{n_folds} held-out folds, pooled {pooled:.1f} %)"
     ) in printed
     assert main(["model", "check", str(model)]) == 0
     checked = capsys.readouterr().out.splitlines()

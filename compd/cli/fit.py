@@ -240,8 +240,8 @@ def _candidates_table(result: FitResult) -> Table:
         "calibration fit %",
         "",
         title=f"judged by {selection.folds.describe()} (fit on the others, run through the whole "
-        "record); nested: every setting chosen inside each training set; expected: nested less "
-        "its spread over the folds",
+        "record); nested: every setting chosen inside each training set; expected: the median of "
+        "the held-out folds' nested figures (a typical new record)",
     )
 
     def figure(value: float | None) -> str:
@@ -273,8 +273,11 @@ def expectation_line(result: FitResult) -> str | None:
     if score is None or score.expected_percent is None:
         return None
     how = "nested cross-validation" if score.nested_fit_percent is not None else "cross-validation"
-    if score.spread_percent:
-        how += f" less its spread over the folds, {fmt(score.spread_percent, 1)} points"
+    if score.median_fold_percent is not None and score.held_out_percent is not None:
+        how += (
+            f": the median of its {len(score.fold_fit_percent)} held-out folds, "
+            f"pooled {fmt(score.held_out_percent, 1)} %"
+        )
     return (
         f"{score.method} kept: expected fit on new data {fmt(score.expected_percent, 1)} % ({how}); "
         f"{fmt(result.identification.fit_percent, 1)} % on the data it was fitted on"

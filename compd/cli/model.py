@@ -126,9 +126,7 @@ def _check(args: argparse.Namespace) -> int:
             if held_out.kept in held_out.nested_fit_percent
             else "cross-validation, settings chosen on the same folds (optimistic)"
         )
-        spread = held_out.fold_spread_percent.get(held_out.kept)
-        if spread:
-            how += f" less its spread over the folds, {spread:.1f} points"
+        how += held_out.expected_how()
         fitted = model_file.doc.provenance.fit_percent.get(held_out.output)
         in_sample = "" if fitted is None else f"; {fitted:.1f} % on the data it was fitted on"
         lead = Text(f"expected fit on new data: {expected:.1f} %", style="bold")

@@ -250,9 +250,11 @@ class CrossValidationDoc(_Strict):
     folds; ``nested_fit_percent``: the same with every setting chosen inside
     each training set only (nested cross-validation), the figure to expect on
     new data of the same kind (absent in files written before compd recorded
-    it); ``fold_spread_percent``: the standard deviation of the nested figure
-    over the folds, which the figure to expect on the next record
-    (:meth:`expected_percent`) is less by (absent before compd recorded it);
+    it); ``fold_median_percent``: the median of the held-out folds' nested
+    figures, the figure to expect on the next record (:meth:`expected_percent`;
+    absent before compd recorded it); ``fold_spread_percent``: their standard
+    deviation (files written before the median was recorded expected the
+    nested figure less it);
     ``calibration_fit_percent`` the same candidates' fit on all the data they
     were fitted on.
     """
@@ -263,16 +265,29 @@ class CrossValidationDoc(_Strict):
     fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
     nested_fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
     fold_spread_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+    fold_median_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
     calibration_fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
 
     def expected_percent(self, method: str | None = None) -> float | None:
         """The kept (or ``method``'s) figure to expect on new data.
 
-        Nested, else cross-validated, less the folds' spread where the file records it.
+        The median of the held-out folds where the file records it; in older
+        files the nested (else cross-validated) figure less the folds' spread.
         """
         name = self.kept if method is None else method
+        if name in self.fold_median_percent:
+            return self.fold_median_percent[name]
         held_out = self.nested_fit_percent.get(name, self.fit_percent.get(name))
         return None if held_out is None else held_out - self.fold_spread_percent.get(name, 0.0)
+
+    def expected_how(self) -> str:
+        """How the kept figure was made, after "nested cross-validation" (empty: nothing more to say)."""
+        name = self.kept
+        pooled = self.nested_fit_percent.get(name, self.fit_percent.get(name))
+        if name in self.fold_median_percent and pooled is not None:
+            return f": the median of its held-out folds, pooled {pooled:.1f} %"
+        spread = self.fold_spread_percent.get(name)
+        return f" less its spread over the folds, {spread:.1f} points" if spread else ""
 
 
 class ProvenanceDoc(_Strict):

@@ -285,8 +285,7 @@ def provenance(run: ModelRun) -> str:
     if held_out is not None and expected is not None:
         nested = held_out.kept in held_out.nested_fit_percent
         how = "nested cross-validation" if nested else "cross-validation"
-        if held_out.fold_spread_percent.get(held_out.kept):
-            how += " less its spread over the folds"
+        how += held_out.expected_how()
         lines.append(
             f"<li><b>expected fit on new data: {expected:.1f} %</b> ({escape(held_out.kept)}, "
             f"{how}, "

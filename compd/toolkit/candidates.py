@@ -203,6 +203,11 @@ def cross_validation_doc(output: str, selection: Selection) -> CrossValidationDo
             if s.nested_fit_percent is not None
         },
         fold_spread_percent={s.method: s.spread_percent for s in selection.scores},
+        fold_median_percent={
+            s.method: s.median_fold_percent
+            for s in selection.scores
+            if s.median_fold_percent is not None
+        },
         calibration_fit_percent={s.method: s.calibration_fit_percent for s in selection.scores},
         output=output,
     )

@@ -7,6 +7,7 @@ import pytest
 import scipy.signal
 from numpy.testing import assert_allclose
 
+from compd.files.modelschema import CrossValidationDoc
 from compd.model.crossval import Folds, cycle_folds
 from compd.model.lagbank import lag_features
 from compd.model.nested import nested_prediction, scored_fit_percent
@@ -138,12 +139,29 @@ def test_a_regression_the_guard_rails_only_warn_about_stays_a_candidate() -> Non
     assert reaches_too_far(np.array([5.0 * output_range]), u, output_range)  # the warning
 
 
-def test_the_expected_figure_is_the_nested_one_less_its_spread_over_the_folds() -> None:
-    """Nested 80 % pooled over folds of 90, 80 and 70 %: 80 less their standard deviation, 8.2 points."""
-    score = CandidateScore("lagbank", 95.0, 85.0, 80.0, (90.0, 80.0, 70.0))
-    assert score.spread_percent == pytest.approx(float(np.std([90.0, 80.0, 70.0])))
-    assert score.expected_percent == pytest.approx(80.0 - 8.1650, abs=1e-3)
+def test_the_expected_figure_is_the_median_of_the_held_out_folds() -> None:
+    """Nested 80 % pooled over folds of 90, 75 and -170 % (a fold that barely moves): a typical new record, 75 %."""
+    score = CandidateScore("lagbank", 95.0, 85.0, 80.0, (90.0, 75.0, -170.0))
+    assert score.median_fold_percent == 75.0 and score.expected_percent == 75.0
+    assert score.spread_percent == pytest.approx(float(np.std([90.0, 75.0, -170.0])))
+    # One fold: nothing to take the median of, the pooled held-out figure.
     assert CandidateScore("mlr", 90.0, 75.0, 75.0, (75.0,)).expected_percent == 75.0
+
+
+def test_an_older_file_expects_its_nested_figure_less_the_spread() -> None:
+    """A provenance without the folds' median (written before it) keeps the figure it printed then."""
+    doc = CrossValidationDoc(
+        output="y",
+        folds="leave one of 3 blocks out",
+        kept="lagbank",
+        nested_fit_percent={"lagbank": 80.0},
+        fold_spread_percent={"lagbank": 8.0},
+    )
+    assert doc.expected_percent() == 72.0
+    assert doc.expected_how() == " less its spread over the folds, 8.0 points"
+    newer = doc.model_copy(update={"fold_median_percent": {"lagbank": 75.0}})
+    assert newer.expected_percent() == 75.0
+    assert newer.expected_how() == ": the median of its held-out folds, pooled 80.0 %"
 
 
 def test_a_lag_bank_consistently_but_barely_better_is_not_kept() -> None:
