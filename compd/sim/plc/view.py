@@ -8,6 +8,7 @@ from typing import Any
 from rich.table import Table
 
 from compd.sim.plc.machine import AxisSummary, SimulatedMachine
+from compd.toolkit.summary import fmt
 
 
 def summary_table(rows: list[AxisSummary], *, narrow: bool = False) -> Table:
@@ -25,13 +26,13 @@ def summary_table(rows: list[AxisSummary], *, narrow: bool = False) -> Table:
     for r in rows:
         table.add_row(
             r.axis,
-            f"{r.rms_uncompensated_um:.2f}",
-            f"{r.rms_compensated_um:.2f}",
-            f"{r.pp_uncompensated_um:.2f}",
-            f"{r.pp_compensated_um:.2f}",
-            f"{r.max_uncompensated_um:.2f}",
-            f"{r.max_compensated_um:.2f}",
-            f"{r.reduction_pct:.1f} %",
+            fmt(r.rms_uncompensated_um),
+            fmt(r.rms_compensated_um),
+            fmt(r.pp_uncompensated_um),
+            fmt(r.pp_compensated_um),
+            fmt(r.max_uncompensated_um),
+            fmt(r.max_compensated_um),
+            f"{fmt(r.reduction_pct, 1)} %",
         )
     return table
 
