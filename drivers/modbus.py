@@ -47,6 +47,10 @@ from typing import Any
 
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from pymodbus.pdu.register_message import (
+    ReadHoldingRegistersResponse,
+    ReadInputRegistersResponse,
+)
 
 from compd.drivers.base import RawReading
 from compd.drivers.endpoints import modbus_units
@@ -142,6 +146,11 @@ class ModbusDriver:
         return frozenset((where, unit, point.table, a) for unit in units for a in span)
 
     @staticmethod
+    def exclusive_line(settings: ModbusSettings) -> Hashable | None:
+        """On RTU the serial line (one master per bus); Modbus TCP servers take many clients."""
+        return settings.endpoint() if settings.transport == "rtu" else None
+
+    @staticmethod
     def raw_range(address: str, settings: ModbusSettings) -> tuple[int, int] | None:
         """The whole numbers an integer point (or a coil: 0-1) holds; ``None`` for floats."""
         return INT_RANGES.get(parse_address(address).codec.type)
@@ -176,6 +185,8 @@ class ModbusDriver:
                 bytesize=s.bytesize,
                 **common,
             )
+        for strict in _STRICT_REPLIES:
+            client.register(strict)
         self._lock = asyncio.Lock()
         where = self._where()
         try:
@@ -403,3 +414,30 @@ _EXCEPTION_NAMES = {
     10: ": gateway path unavailable",
     11: ": gateway target did not respond",
 }
+
+
+def _checked_byte_count(data: bytes) -> None:
+    """A register reply's byte count: even, and exactly the bytes that follow it.
+
+    pymodbus reads registers up to the byte count and drops what follows, so
+    a reply of 21 bytes (a frame cut or shifted) would read as 10 registers.
+    """
+    count = int(data[0]) if data else -1
+    if count < 0 or count % 2 or count != len(data) - 1:
+        raise ModbusIOException(f"register reply with byte count {count} and {len(data) - 1} bytes")
+
+
+class _StrictHoldingRegisters(ReadHoldingRegistersResponse):
+    def decode(self, data: bytes) -> None:
+        _checked_byte_count(data)
+        super().decode(data)
+
+
+class _StrictInputRegisters(ReadInputRegistersResponse):
+    def decode(self, data: bytes) -> None:
+        _checked_byte_count(data)
+        super().decode(data)
+
+
+#: Replies decoded strictly: pymodbus drops a malformed frame, and the request times out.
+_STRICT_REPLIES = (_StrictHoldingRegisters, _StrictInputRegisters)
