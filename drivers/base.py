@@ -29,6 +29,10 @@ driver type's addresses mean; a type without them gets the cautious answer
 ``write_area(settings) -> frozenset``
     the cells an instance rewrites whole whenever it writes at all (a
     gateway's output area), which no other driver entry may use;
+``exclusive_line(settings) -> Hashable | None``
+    a line the instance opens and speaks on alone (a serial port: two
+    programs' requests interleave on the wire and each takes the other's
+    replies), so that ``check-config`` refuses a second driver entry on it;
 ``naming(address, settings) -> Hashable``
     how an address names its node where only the device can tell whether
     two namings meet (an OPC UA NodeId and a browse path): on an endpoint
@@ -170,6 +174,12 @@ def write_area(kind: DriverType, settings: BaseModel) -> frozenset[tuple[Hashabl
     """The cells an instance rewrites whole on every write; without the hook, none."""
     hook = getattr(kind, "write_area", None)
     return frozenset() if hook is None else frozenset(hook(settings))
+
+
+def exclusive_line(kind: DriverType, settings: BaseModel) -> Hashable | None:
+    """The line an instance holds open alone (a serial port); without the hook, none."""
+    hook = getattr(kind, "exclusive_line", None)
+    return None if hook is None else hook(settings)
 
 
 def naming(kind: DriverType, address: str, settings: BaseModel) -> Hashable:

@@ -47,7 +47,7 @@ import contextlib
 import math
 import re
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +56,7 @@ import structlog
 from serial_asyncio_fast import SerialTransport, connection_for_serial
 
 from compd.drivers.base import RawReading
+from compd.drivers.endpoints import serial_endpoint
 from compd.drivers.serial_lines import (
     SerialSensorSettings,
     field_value,
@@ -236,6 +237,11 @@ class SerialSensorDriver:
                 "a serial sensor is read-only: offsets, status word and heartbeat "
                 "must go to the controller's driver"
             )
+
+    @staticmethod
+    def exclusive_line(settings: SerialSensorSettings) -> Hashable:
+        """The serial port: one request and its reply at a time, from one driver entry."""
+        return serial_endpoint(settings.port)
 
     async def write(self, values: Mapping[str, float]) -> None:
         """Refuse: a scanner is read-only (offsets and status go to the controller's driver)."""

@@ -24,7 +24,10 @@ entries may reach one PLC (the same host and port, serial line or CAN bus):
   (:func:`compd.drivers.base.naming`); one way, the same spelling is the
   same node. compd refuses the mix here rather than resolving nodes when it
   connects, so that a config that passes ``check-config`` never faults later
-  for it.
+  for it;
+- a serial line is one driver entry's alone (a Modbus RTU master, a serial
+  sensor scanner: :func:`compd.drivers.base.exclusive_line`): two entries
+  on one port would interleave requests and take each other's replies.
 
 Each refusal names both places in the file and the fix.
 """
@@ -79,6 +82,8 @@ def check_overlaps(
     def kind(driver: str) -> DriverType:
         return types[doc.drivers[driver].type]
 
+    _check_exclusive_lines(doc, kind, settings, error, place)
+
     uses = [
         _Use(("signals", name, "address"), signal.driver, signal.address, False)
         for name, signal in doc.signals.items()
@@ -109,6 +114,34 @@ def check_overlaps(
         claims.update(dict.fromkeys(cells - shared, (use,)))
     for endpoint, namings_there in namings.items():
         _check_one_naming(endpoint, namings_there, error, place)
+
+
+def _check_exclusive_lines(
+    doc: ConfigDoc,
+    kind: Callable[[str], DriverType],
+    settings: Mapping[str, BaseModel],
+    error: ErrorAt,
+    place: PlaceOf,
+) -> None:
+    """Raise for a second driver entry on a line one entry holds alone (a serial port)."""
+    from compd.drivers.base import exclusive_line
+
+    holders: dict[Hashable, str] = {}
+    for driver in doc.drivers:
+        line = exclusive_line(kind(driver), settings[driver])
+        if line is None:
+            continue
+        first = holders.setdefault(line, driver)
+        if first != driver:
+            raise error(
+                ("drivers", driver),
+                f"driver {driver!r} opens {_describe(line)}, as driver {first!r} at "
+                f"{place(('drivers', first))} does: two entries on one serial line interleave "
+                "their requests on the wire and take each other's replies",
+                "Reach every device on a serial line through one driver entry (Modbus RTU: "
+                "give each signal its device id in the address, e.g. 'holding:100:int16:device=2'), "
+                "or connect the second device to another port",
+            )
 
 
 def _clash(use: _Use, other: _Use) -> bool:

@@ -120,25 +120,60 @@ def test_a_signal_reading_a_written_register_is_refused_and_two_readers_pass(tmp
     ), message
 
 
-def rtu_doc(tmp_path: Path, port: str, device: int) -> dict[str, Any]:
-    """Two RTU entries on one serial line (``port`` for the second), the second writing holding:101 of ``device``."""
-    doc = issue_doc()
+def rtu_doc(tmp_path: Path, status_device: int) -> dict[str, Any]:
+    """One RTU entry on a serial line (through a symlink), the status word at holding:101 of ``status_device``."""
+    doc = machine_doc()
     line = tmp_path / "ttyUSB0"
     line.touch()
-    rtu = {"transport": "rtu", "serial_port": str(line)}
-    doc["drivers"]["plc"]["settings"] = rtu
-    doc["drivers"]["plc2"]["settings"] = {**rtu, "serial_port": port, "device_id": device}
+    link = tmp_path / "by-id"
+    if not link.exists():
+        link.symlink_to(line)
+    doc["drivers"]["plc"]["settings"] = {"transport": "rtu", "serial_port": str(link)}
+    doc["status"] = {
+        "driver": "plc",
+        "status_address": f"holding:101:device={status_device}",
+        "heartbeat_address": "holding:111",
+    }
     return doc
 
 
 def test_unit_ids_on_a_serial_line_are_addresses_and_zero_is_broadcast(tmp_path):
-    """On one RTU line (here through a symlink) device 2 is another device; device 1 and broadcast 0 are refused."""
-    link = tmp_path / "by-id"
-    link.symlink_to(tmp_path / "ttyUSB0")
-    assert write_config(tmp_path, doc=rtu_doc(tmp_path, str(link), 2)).doc.status.driver == "plc2"
+    """On one RTU line device 2 is another device; device 1 (the offset's) and broadcast 0 are refused."""
+    assert write_config(tmp_path, doc=rtu_doc(tmp_path, 2)).doc.status.driver == "plc"
     for device in (1, 0):
-        message = refusal(tmp_path, rtu_doc(tmp_path, str(link), device))
-        assert f"both drivers reach serial {tmp_path / 'ttyUSB0'}" in message
+        message = refusal(tmp_path, rtu_doc(tmp_path, device))
+        assert "overlaps 'holding:100:int32' on driver 'plc', written" in message, message
+
+
+@pytest.mark.parametrize(
+    "second",
+    [
+        {"type": "modbus", "settings": {"transport": "rtu", "device_id": 2}},
+        {"type": "serial_sensor", "settings": {"channels": ["1"]}},
+    ],
+    ids=["modbus-rtu", "serial-sensor"],
+)
+def test_a_serial_line_is_one_driver_entrys_alone(tmp_path, second):
+    """A second entry on the PLC's RTU line (its device file, not the link) is refused, whatever it reaches there.
+
+    Two masters on one line interleave their requests on the wire and each
+    takes the other's replies, so even another device id is no way apart.
+    """
+    doc = rtu_doc(tmp_path, 2)
+    port_key = "serial_port" if second["type"] == "modbus" else "port"
+    second["settings"][port_key] = str(tmp_path / "ttyUSB0")
+    doc["drivers"]["probe"] = second
+    message = refusal(tmp_path, doc)
+    assert re.search(
+        rf"driver 'probe' opens serial {re.escape(str(tmp_path / 'ttyUSB0'))}, as driver 'plc' "
+        r"at line \d+ \(drivers\.plc\) does",
+        message,
+    ), message
+    assert "Reach every device on a serial line through one driver entry" in message
+    other = tmp_path / "ttyUSB1"
+    other.touch()
+    second["settings"][port_key] = str(other)
+    assert "probe" in write_config(tmp_path, doc=doc).doc.drivers
 
 
 def gateway_entry(output_register: int = 0, **settings: Any) -> dict[str, Any]:
