@@ -33,6 +33,7 @@ ALERTS = {
     "CompdOffsetMismatch",
     "CompdClampReached",
     "CompdModelFailure",
+    "CompdStandingBy",
 }
 #: Grafana's variables, as a PromQL parser sees them once Grafana has filled them in.
 GRAFANA_VARIABLES = {"$__rate_interval": "5m", "$machine_id": "mill-a"}
