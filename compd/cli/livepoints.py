@@ -92,7 +92,7 @@ class LiveDriver:
             try:
                 async with asyncio.timeout(self.timeout_s):
                     await self.driver.open()
-            except (DriverError, TimeoutError, OSError) as exc:
+            except Exception as exc:
                 raise DriverError(self.explain(exc, "cannot connect")) from exc
             self.is_open = True
 
@@ -106,7 +106,7 @@ class LiveDriver:
         try:
             async with asyncio.timeout(self.timeout_s):
                 await self.driver.write({address: value})
-        except (DriverError, TimeoutError, OSError) as exc:
+        except Exception as exc:
             raise DriverError(self.explain(exc, f"write to {address} failed")) from exc
 
     async def close(self) -> None:
@@ -114,13 +114,19 @@ class LiveDriver:
         try:
             async with asyncio.timeout(self.timeout_s):
                 await self.driver.close()
-        except (DriverError, TimeoutError, OSError):
+        except Exception:
             pass  # close() never raises by contract; a hung close must not hang the command
 
     def explain(self, exc: BaseException, action: str) -> str:
-        text = (
-            f"timed out after {self.timeout_s:g} s" if isinstance(exc, TimeoutError) else str(exc)
-        )
+        if isinstance(exc, TimeoutError):
+            text = f"timed out after {self.timeout_s:g} s"
+        elif isinstance(exc, DriverError | OSError):
+            text = str(exc)
+        else:  # a driver's defect (the loop treats it as a link fault too): say what it raised
+            text = (
+                f"{type(exc).__name__}: {exc} (the driver raised outside the DriverError contract)"
+            )
+
         message = f"{action}: {text}"
         # pyserial names the lock ("could not exclusively lock port"); pymodbus only says
         # it cannot connect, so on a serial line every failed open gets the hint.
@@ -168,7 +174,7 @@ class LiveReader:
                 if len(addresses) == 1:
                     raise
             return await self._one_by_one(live, addresses)
-        except (DriverError, TimeoutError, OSError) as exc:
+        except Exception as exc:
             await live.close()
             return live.explain(exc, "read failed")
 

@@ -409,3 +409,39 @@ def test_probe_loads_no_model_stack():
     status, modules, out = imported_by(*argv)
     assert status == 1 and "cannot connect" in out
     assert loaded(modules, ("scipy", "compd.model", "compd.service.config", "asyncua")) == []
+
+
+class _DefectiveDriver:
+    """A third-party driver that breaks the contract: ValueError from open, then KeyError from read."""
+
+    def __init__(self) -> None:
+        self.opened = 0
+
+    async def open(self) -> None:
+        self.opened += 1
+        if self.opened == 1:
+            raise ValueError("bad checksum table")
+
+    async def read(self, points: list[str]) -> dict[str, float]:
+        raise KeyError(points[0])
+
+    async def write(self, values: dict[str, float]) -> None:
+        raise RuntimeError("not writable")
+
+    async def close(self) -> None:
+        raise RuntimeError("close failed")
+
+
+def test_a_driver_raising_outside_its_contract_shows_as_a_rows_error_not_a_traceback():
+    """read/probe treat any exception of a driver as the loop does: the row says what it raised, the command goes on."""
+    from compd.cli.livepoints import LiveDriver, LivePoint, LiveReader
+
+    live = LiveDriver("vendor", _DefectiveDriver(), timeout_s=1.0)
+    reader = LiveReader([LivePoint("T1", "signal", "vendor", "ch1")], {"vendor": live})
+    first = asyncio.run(reader.read())[0]
+    assert "cannot connect: ValueError: bad checksum table" in first.problem
+    assert "outside the DriverError contract" in first.problem
+    second = asyncio.run(reader.read())[0]
+    assert "read failed: KeyError: 'ch1'" in second.problem
+    with pytest.raises(Exception, match="write to ch1 failed: RuntimeError: not writable"):
+        asyncio.run(live.write("ch1", 1.0))
