@@ -109,6 +109,7 @@ class Compensator:
         schedule: GainScheduler | None = None,
         history_ticks: int = 28_800,
         on_model_failure: Callable[[ModelSlot, ModelSlot], None] | None = None,
+        zero_now: bool = False,
     ) -> None:
         self.signals = list(signals)
         self.monitors = dict(monitors)
@@ -134,6 +135,7 @@ class Compensator:
                 history_ticks=history_ticks,
                 schedule=schedule,
                 on_failure=on_model_failure,
+                zero_now=zero_now,
             )
             if model is not None
             else None

@@ -193,6 +193,12 @@ class StateDoc(Strict):
     directory: str | None = None
     save_every_ticks: int = Field(default=60, ge=1)
     resume_max_age_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 900.0
+    #: Without a state to resume: ``thermal_zero`` starts each model at the steady state for
+    #: the current inputs from its calibration's thermal zero (drift before the start is
+    #: compensated at once); ``now`` takes today's readings as the zero and starts at rest,
+    #: offsets from 0 (a shop that touches off the warm machine whenever compd starts, so
+    #: that the work offset already holds the drift so far).
+    fresh_start: Literal["thermal_zero", "now"] = "thermal_zero"
 
 
 class RecorderDoc(Strict):

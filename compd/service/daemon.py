@@ -106,6 +106,7 @@ class Service:
             model=slot,
             status=config.status_point(),
             blend_s=doc.blend_s,
+            zero_now=doc.state.fresh_start == "now",
             wall_at=clock.wall_at,
             initial_state=resume.model_state if resume is not None else None,
             history_ticks=round(HISTORY_S / doc.period_s),

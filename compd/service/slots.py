@@ -64,13 +64,33 @@ class ModelSlot:
             self.initialised = how
             log.info("initial state", model=self.compiled.name, how=how)
 
-    def start_steady(self, checked: Mapping[str, float]) -> None:
-        """Start at the steady state for the current inputs (no saved state, no history)."""
-        note = steady_note(self.compiled, self.compiled.reads_cold(checked))
-        self.start(self.compiled.steady_state(checked), note)
+    def start_steady(self, checked: Mapping[str, float], *, zero_now: bool = False) -> None:
+        """Start at the steady state for the current inputs (no saved state, no history).
+
+        ``zero_now``: from rest with today's readings as the zero instead
+        (``state.fresh_start: now``), so the offsets start from 0.
+        """
+        self.start(*fresh_state(self.compiled, checked, zero_now=zero_now))
 
     def output(self, name: str) -> float:
         return float(self.outputs[self._index[name]])
+
+
+#: What a start from today's readings (``state.fresh_start: now``) means, for the log and status.
+ZERO_NOW_NOTE = (
+    "today's readings taken as the zero (state.fresh_start: now): offsets from 0, drift before "
+    "the start left to the work offset (touched off on the warm machine)"
+)
+
+
+def fresh_state(
+    compiled: CompiledModel, checked: Mapping[str, float], *, zero_now: bool = False
+) -> tuple[ModelState, str]:
+    """The state a model starts from without a saved state or history, and how it was found."""
+    if zero_now:
+        return compiled.referenced_to_start().rest_state(checked), ZERO_NOW_NOTE
+    cold = compiled.reads_cold(checked)
+    return compiled.steady_state(checked), steady_note(compiled, cold)
 
 
 def steady_note(compiled: CompiledModel, cold: bool = False) -> str:
@@ -122,8 +142,11 @@ class ModelSlots:
         history_ticks: int = 28_800,
         schedule: GainScheduler | None = None,
         on_failure: Callable[[ModelSlot, ModelSlot], None] | None = None,
+        zero_now: bool = False,
     ) -> None:
         self.active = active
+        #: ``state.fresh_start: now``: a model started without state or history starts from 0.
+        self.zero_now = zero_now
         self.previous: ModelSlot | None = None
         self.pending: ModelSlot | None = None
         #: The model to restore if the active one fails (the one it replaced).
@@ -196,7 +219,7 @@ class ModelSlots:
                 continue
             try:
                 if slot.runner is None:
-                    slot.start_steady(checked)
+                    slot.start_steady(checked, zero_now=self.zero_now)
                 assert slot.runner is not None
                 if self.schedule is not None:
                     self.schedule.apply(slot.runner)
@@ -274,8 +297,7 @@ class ModelSlots:
         running = self.active
         history = self.history.matrix(pending.compiled.signals)
         if running.runner is None or len(history) < 2:
-            cold = pending.compiled.reads_cold(checked)
-            return pending.compiled.steady_state(checked), steady_note(pending.compiled, cold)
+            return fresh_state(pending.compiled, checked, zero_now=self.zero_now)
         state = handover_state(pending.compiled, history, running.compiled, running.runner.state)
         return state, f"from the last {len(history)} ticks of inputs, shared sub-models handed over"
 

@@ -83,3 +83,43 @@ def test_a_machine_that_reads_cold_starts_from_its_own_readings_and_says_so() ->
     output_um, initialised, _ = first_output("", 23.3, MODEL_AIR, T_ambient_degC=21.0)
     assert output_um == 0.0
     assert initialised is not None and "reads cold" in initialised
+
+
+def test_a_shop_that_touches_off_warm_starts_from_zero_and_follows_the_drift_from_there() -> None:
+    """``state.fresh_start: now``: read warm (30 degC, zero at 20) it outputs 0, then 2 um per degC of what follows."""
+    model_file = parse_model(MODEL.format(reference="20.0"))
+    slot = ModelSlot(model_file, model_file.compile(), 0.0)
+    slots = ModelSlots(slot, ["T_spindle_degC"], Counters(), zero_now=True)
+    with capture_logs() as logs:
+        slots.step(0.0, {"T_spindle_degC": 30.0})
+    assert slot.output("disp_z_um") == 0.0
+    assert slot.initialised is not None and "state.fresh_start: now" in slot.initialised
+    assert [e["how"] for e in logs if e["event"] == "initial state"] == [slot.initialised]
+    for tick in range(1, 200):  # the spindle 1 degC warmer from now on: the lag settles at 2 um
+        slots.step(float(tick), {"T_spindle_degC": 31.0})
+    assert slot.output("disp_z_um") == pytest.approx(2.0, abs=1e-6)
+
+
+def test_fresh_start_is_a_config_choice_and_thermal_zero_the_default(tmp_path) -> None:
+    """The config key takes ``thermal_zero`` (default) or ``now``; anything else is refused naming it."""
+    from compd.errors import ConfigFileError
+
+    from .daemon_setup import write_config
+
+    assert write_config(tmp_path).doc.state.fresh_start == "thermal_zero"
+    assert write_config(tmp_path, {"state": {"fresh_start": "now"}}).doc.state.fresh_start == "now"
+    with pytest.raises(ConfigFileError, match="fresh_start"):
+        write_config(tmp_path, {"state": {"fresh_start": "cold"}})
+
+
+@pytest.mark.parametrize("fresh_start", ["thermal_zero", "now"])
+def test_the_daemon_starts_its_model_as_the_config_says(tmp_path, fresh_start: str) -> None:
+    """``compd run`` without a state: the model's start follows ``state.fresh_start`` and the log says which."""
+    from .daemon_setup import run, write_config
+
+    config = write_config(tmp_path, {"state": {"fresh_start": fresh_start}})
+    service, _ = run(config, 2.0)
+    models = service.compensator.models
+    assert models is not None and models.zero_now is (fresh_start == "now")
+    initialised = models.active.initialised or ""
+    assert ("state.fresh_start: now" in initialised) is (fresh_start == "now"), initialised
