@@ -122,7 +122,13 @@ class TcpProxy:
                 client, _ = self._listener.accept()
             except OSError:
                 return
-            upstream = socket.create_connection(("127.0.0.1", self._target))
+            try:
+                upstream = socket.create_connection(("127.0.0.1", self._target))
+            except (
+                OSError
+            ):  # the server behind is gone (stopped at the test's end): drop the client
+                client.close()
+                continue
             with self._lock:
                 if self._cut:  # accepted while cut() ran: refuse it too
                     client.close()
