@@ -41,6 +41,12 @@ def installed_plugin(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
                     if not address.isdigit():
                         raise ValueError("not a register number")
 
+                @staticmethod
+                def footprint(address, settings):
+                    if address == "13":  # a defect of this plugin
+                        raise KeyError(address)
+                    return frozenset({(("mybus", settings.station), int(address))})
+
                 async def open(self): ...
                 async def read(self, points): return {}
                 async def write(self, values): ...
@@ -82,3 +88,22 @@ def test_an_installed_driver_is_named_loaded_and_checked(installed_plugin: Path,
         ConfigFileError, match=r"not a register number.*as REGISTER, a whole number"
     ):
         load_config(path)
+
+
+def test_a_driver_hook_that_raises_is_named_not_a_traceback(installed_plugin: Path, tmp_path: Path):
+    """A plugin's footprint hook raising KeyError: check-config names the entry, its type, the place, the error."""
+    doc = machine_doc(tmp_path, BUNDLED_MODEL, simulation={"scenario": "production"})
+    del doc["simulation"]
+    doc["drivers"]["plc"] = {"type": "mybus", "settings": {"station": 3}}
+    for signal in doc["signals"].values():
+        signal["address"] = "7"
+    for output in doc["outputs"].values():
+        output["address"] = "13"
+    doc["status"]["status_address"], doc["status"]["heartbeat_address"] = "101", "102"
+    path = tmp_path / "compd.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ConfigFileError) as caught:
+        load_config(path)
+    message = str(caught.value)
+    assert "driver 'plc' (type 'mybus') could not tell the cells of '13': KeyError: '13'" in message
+    assert "outputs." in message and "report it to its maintainer" in message
