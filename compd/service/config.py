@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -53,6 +54,7 @@ from compd.service.points import StatusPoint
 from compd.service.schedule import first_overlap
 from compd.service.writepoints import (
     ErrorAt,
+    HookCall,
     check_written,
     output_readback,
     status_mismatch_bit,
@@ -406,7 +408,13 @@ def _check_hosts(
         return
     for name, driver in doc.drivers.items():
         written = [address for _, d, address in written_points(doc) if d == name]
-        problem = check_host(types[driver.type], settings[name], base_dir=base_dir, written=written)
+        at = HookCall(("drivers", name, "settings"), name, driver.type, error)
+        problem = at.call(
+            "whether its settings work on this host",
+            partial(check_host, base_dir=base_dir, written=written),
+            types[driver.type],
+            settings[name],
+        )
         if problem is not None:
             raise error(("drivers", name, "settings", *problem.keys), problem.message, problem.fix)
 

@@ -37,11 +37,11 @@ from __future__ import annotations
 from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from pydantic import BaseModel
 
-from compd.service.writepoints import ErrorAt, written_points
+from compd.service.writepoints import ErrorAt, HookCall, written_points
 
 if TYPE_CHECKING:
     from compd.drivers.base import DriverType
@@ -95,7 +95,7 @@ def check_overlaps(
     claims: dict[Hashable, tuple[_Use, ...]] = {}
     namings: dict[Hashable, list[tuple[_Use, Hashable]]] = {}
     for use in uses:
-        at = _HookCall(use.location, use.driver, doc.drivers[use.driver].type, error)
+        at = HookCall(use.location, use.driver, doc.drivers[use.driver].type, error)
         if use.address is None:
             cells = at.call("its write area", write_area, kind(use.driver), settings[use.driver])
         else:
@@ -141,7 +141,7 @@ def _check_exclusive_lines(
 
     holders: dict[Hashable, str] = {}
     for driver in doc.drivers:
-        at = _HookCall(("drivers", driver), driver, doc.drivers[driver].type, error)
+        at = HookCall(("drivers", driver), driver, doc.drivers[driver].type, error)
         line = at.call("which line it holds", exclusive_line, kind(driver), settings[driver])
         if line is None:
             continue
@@ -156,31 +156,6 @@ def _check_exclusive_lines(
                 "give each signal its device id in the address, e.g. 'holding:100:int16:device=2'), "
                 "or connect the second device to another port",
             )
-
-
-@dataclass(frozen=True)
-class _HookCall:
-    """A driver type's config-time hook called for one place of the config.
-
-    A third-party driver's hook may raise anything; ``check-config`` then
-    names the entry, its type and what it raised instead of a traceback.
-    """
-
-    location: Location
-    driver: str
-    type_name: str
-    error: ErrorAt
-
-    def call(self, what: str, hook: Callable[..., Any], *args: Any) -> Any:
-        try:
-            return hook(*args)
-        except Exception as exc:
-            raise self.error(
-                self.location,
-                f"driver {self.driver!r} (type {self.type_name!r}) could not tell {what}: "
-                f"{type(exc).__name__}: {exc}",
-                "A defect of the driver type: report it to its maintainer with this message",
-            ) from exc
 
 
 def _clash(use: _Use, other: _Use) -> bool:

@@ -24,7 +24,8 @@ of a config -- the axis offsets, the status word and the heartbeat:
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel
 
@@ -37,6 +38,33 @@ if TYPE_CHECKING:
 
 #: Builds the config error for a place: ``error(location, message, fix)``.
 ErrorAt = Callable[[tuple[str | int, ...], str, str], ConfigFileError]
+
+
+@dataclass(frozen=True)
+class HookCall:
+    """A driver type's config-time hook called for one place of the config.
+
+    A third-party driver's hook may raise anything; ``check-config`` then
+    names the entry, its type and what it raised instead of a traceback.
+    """
+
+    location: tuple[str | int, ...]
+    driver: str
+    type_name: str
+    error: ErrorAt
+
+    def call(self, what: str, hook: Callable[..., Any], *args: Any) -> Any:
+        try:
+            return hook(*args)
+        except Exception as exc:
+            raise self.error(
+                self.location,
+                f"driver {self.driver!r} (type {self.type_name!r}) could not tell {what}: "
+                f"{type(exc).__name__}: {exc}",
+                "A defect of the driver type: report it to its maintainer with this message",
+            ) from exc
+
+
 #: The whole numbers a point (driver, address) holds; ``None``: a float or not known.
 Bounds = Callable[[str, str], tuple[int, int] | None]
 
@@ -64,8 +92,14 @@ def check_written(
     from compd.drivers.base import write_range
 
     def bounds(driver: str, address: str) -> tuple[int, int] | None:
-        found: tuple[int, int] | None = write_range(
-            types[doc.drivers[driver].type], address, settings[driver]
+        kind = doc.drivers[driver].type
+        at = HookCall(("drivers", driver), driver, kind, error)
+        found: tuple[int, int] | None = at.call(
+            f"the whole numbers {address!r} holds",
+            write_range,
+            types[kind],
+            address,
+            settings[driver],
         )
         return found
 
@@ -136,7 +170,8 @@ def output_readback(
     readback = {}
     for name, output in doc.outputs.items():
         kind = doc.drivers[output.driver].type
-        can = reads_back(types[kind], settings[output.driver])
+        at = HookCall(("outputs", name), output.driver, kind, error)
+        can = at.call("whether it reads back", reads_back, types[kind], settings[output.driver])
         if output.readback and not can:
             raise error(
                 ("outputs", name, "readback"),

@@ -43,9 +43,21 @@ def installed_plugin(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
                 @staticmethod
                 def footprint(address, settings):
-                    if address == "13":  # a defect of this plugin
+                    if address == "13":  # defects of this plugin, on purpose
                         raise KeyError(address)
                     return frozenset({(("mybus", settings.station), int(address))})
+
+                @staticmethod
+                def raw_range(address, settings):
+                    if address == "14":
+                        raise IndexError("range table")
+                    return None
+
+                @staticmethod
+                def check_host(settings, *, base_dir, written):
+                    if settings.station == 99:
+                        raise RuntimeError("no station 99")
+                    return None
 
                 async def open(self): ...
                 async def read(self, points): return {}
@@ -90,20 +102,34 @@ def test_an_installed_driver_is_named_loaded_and_checked(installed_plugin: Path,
         load_config(path)
 
 
-def test_a_driver_hook_that_raises_is_named_not_a_traceback(installed_plugin: Path, tmp_path: Path):
-    """A plugin's footprint hook raising KeyError: check-config names the entry, its type, the place, the error."""
+@pytest.mark.parametrize(
+    ("station", "offset_address", "said"),
+    [
+        (3, "13", "could not tell the cells of '13': KeyError: '13'"),
+        (3, "14", "could not tell the whole numbers '14' holds: IndexError: range table"),
+        (
+            99,
+            "100",
+            "could not tell whether its settings work on this host: RuntimeError: no station 99",
+        ),
+    ],
+)
+def test_a_driver_hook_that_raises_is_named_not_a_traceback(
+    installed_plugin: Path, tmp_path: Path, station: int, offset_address: str, said: str
+):
+    """A plugin's config-time hook raising: check-config names the entry, its type, what it raised."""
     doc = machine_doc(tmp_path, BUNDLED_MODEL, simulation={"scenario": "production"})
     del doc["simulation"]
-    doc["drivers"]["plc"] = {"type": "mybus", "settings": {"station": 3}}
+    doc["drivers"]["plc"] = {"type": "mybus", "settings": {"station": station}}
     for signal in doc["signals"].values():
         signal["address"] = "7"
     for output in doc["outputs"].values():
-        output["address"] = "13"
+        output["address"] = offset_address
     doc["status"]["status_address"], doc["status"]["heartbeat_address"] = "101", "102"
     path = tmp_path / "compd.yaml"
     path.write_text(yaml.safe_dump(doc))
     with pytest.raises(ConfigFileError) as caught:
         load_config(path)
-    message = str(caught.value)
-    assert "driver 'plc' (type 'mybus') could not tell the cells of '13': KeyError: '13'" in message
-    assert "outputs." in message and "report it to its maintainer" in message
+    message = " ".join(str(caught.value).split())
+    assert f"driver 'plc' (type 'mybus') {said}" in message
+    assert "report it to its maintainer" in message
