@@ -26,6 +26,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 
 from compd.files.yamlplace import resolve_path
 from compd.service.config import Config, load_config
+from tests.ports import free_port
 
 #: Real-time bound of the waits below: generous, a busy CI machine must not fail them.
 WAIT_S = 90.0  # a failure guard only: three daemons start on a loaded 2-core machine
@@ -35,12 +36,6 @@ def mosquitto_binary() -> str | None:
     """The mosquitto executable (Debian puts it in /usr/sbin, often not on a user's PATH)."""
     found = shutil.which("mosquitto") or shutil.which("mosquitto", path="/usr/sbin:/usr/local/sbin")
     return found
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class Mosquitto:

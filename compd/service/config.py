@@ -355,8 +355,15 @@ def _check_addresses(
     for locations, writable in ((read, False), (written_points(doc), True)):
         for location, driver_name, address in locations:
             kind = types[doc.drivers[driver_name].type]
+            at = HookCall(location, driver_name, doc.drivers[driver_name].type, error)
             try:
-                check_address(kind, address, writable=writable, settings=settings[driver_name])
+                at.call(
+                    f"whether {address!r} is an address",
+                    partial(check_address, writable=writable, settings=settings[driver_name]),
+                    kind,
+                    address,
+                    answers=(ValueError,),  # what is wrong with the address
+                )
             except ValueError as exc:
                 raise error(
                     location,

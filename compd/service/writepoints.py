@@ -53,9 +53,18 @@ class HookCall:
     type_name: str
     error: ErrorAt
 
-    def call(self, what: str, hook: Callable[..., Any], *args: Any) -> Any:
+    def call(
+        self,
+        what: str,
+        hook: Callable[..., Any],
+        *args: Any,
+        answers: tuple[type[Exception], ...] = (),
+    ) -> Any:
+        """``hook(*args)``; an exception of ``answers`` is the hook's answer and passes as it is."""
         try:
             return hook(*args)
+        except answers:
+            raise
         except Exception as exc:
             raise self.error(
                 self.location,

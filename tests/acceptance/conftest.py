@@ -23,6 +23,7 @@ from compd.service.config import Config, load_config
 from compd.sim.plc.machine import AxisSummary
 from compd.sim.plc.run import SimulationResult, run_simulation
 from tests.clirun import compd
+from tests.ports import free_port
 
 CALIBRATION_HOURS = 24
 CALIBRATION_SAMPLE_S = 10
@@ -53,14 +54,6 @@ def short_dir() -> Iterator[Path]:
     directory = Path(tempfile.mkdtemp(prefix="compd-acc-", dir="/tmp"))
     yield directory
     shutil.rmtree(directory, ignore_errors=True)
-
-
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def machine_doc(

@@ -18,6 +18,7 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from compd.drivers.modbus_addresses import parse_address
+from tests.ports import free_port as free_port  # re-exported: tests import it from here
 
 # Input registers preset with values in several layouts (addresses 0-based).
 INPUTS = {
@@ -57,12 +58,6 @@ def make_device() -> SimDevice:
             [SimData(0, values=_input_registers(), datatype=DataType.REGISTERS)],
         ),
     )
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class ServerThread:

@@ -27,6 +27,8 @@ from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
+from tests.ports import free_port
+
 NAMESPACE_URI = "urn:compd:test:machine"
 SERVER_URI = "urn:compd:test:server"
 USERNAME = "compd"
@@ -112,13 +114,6 @@ def make_certificates(directory: Path) -> Certificates:
         trust_dir,
         client_uri,
     )
-
-
-def free_port() -> int:
-    """A TCP port nobody listens on right now (bound to 0, then released)."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class _Users:

@@ -38,6 +38,8 @@ def installed_plugin(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
                 @staticmethod
                 def validate_address(address, *, writable, settings=None):
+                    if address == "15":
+                        raise TypeError("bad table")
                     if not address.isdigit():
                         raise ValueError("not a register number")
 
@@ -112,6 +114,7 @@ def test_an_installed_driver_is_named_loaded_and_checked(installed_plugin: Path,
             "100",
             "could not tell whether its settings work on this host: RuntimeError: no station 99",
         ),
+        (3, "15", "could not tell whether '15' is an address: TypeError: bad table"),
     ],
 )
 def test_a_driver_hook_that_raises_is_named_not_a_traceback(

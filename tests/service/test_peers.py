@@ -17,6 +17,7 @@ import urllib.request
 from pathlib import Path
 
 from compd.cli import main
+from tests.ports import free_port
 
 from .daemon_setup import short_socket, write_config
 from .httprun import http_config, running_compd
@@ -31,12 +32,6 @@ HANG_S = 120.0
 RUN = [sys.executable, "-m", "compd.cli", "run", "--config"]
 ESTABLISHED = 1  # TCP_ESTABLISHED, linux/tcp_states.h
 HALF_REQUEST = b"GET /status.json HTTP/1.1\r\nHost: compd\r\n"  # no blank line: never complete
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
 
 
 def limit_fds() -> None:

@@ -15,7 +15,6 @@ import contextlib
 import csv
 import json
 import math
-import socket
 import struct
 import tempfile
 from collections.abc import Awaitable, Callable, Mapping
@@ -37,6 +36,7 @@ from compd.service.daemon import Service
 from compd.service.safety import SIGNAL_BIT0, Level
 from compd.service.state import STATE_FILE
 from compd.sim.plc.modbus import ModbusPlcServer
+from tests.ports import free_port
 
 OFFSET = "holding:100:int32"  # 0.1 um counts (encoding scale 10)
 STATUS = "holding:110"
@@ -52,12 +52,6 @@ INPUTS = {
     "input:5:uint16": 0,
 }
 MISMATCH_BIT = 1 << (SIGNAL_BIT0 + len(INPUTS))  # six signals: bit 14
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def plc_config(directory: Path, **output: Any) -> Config:

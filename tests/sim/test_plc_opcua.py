@@ -25,6 +25,7 @@ from compd.service.clock import VirtualClock
 from compd.service.links import DriverLink
 from compd.sim.plc.opcua import OpcUaPlcServer, parse_address
 from compd.sim.plc.opcua_security import ensure_client_certificate, ensure_server_certificate
+from tests.ports import free_port
 from tests.reconnect import seconds_until_read
 
 T = TypeVar("T")
@@ -44,12 +45,6 @@ SECURITY = {  # relative to the tmp dir; none of these files exists before the f
     "private_key": "pki/client.key.pem",
     "server_certificate": "pki/plc.der",
 }
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def settings(port: int, **overrides: Any) -> OpcUaSettings:
