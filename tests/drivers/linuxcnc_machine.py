@@ -185,6 +185,38 @@ class Machine:
     def log(self) -> str:
         return (self.folder / "linuxcnc.log").read_text(errors="replace")[-3000:]
 
+    def service_config(self, *, temperature_checks: dict | None = None, **output: object) -> dict:
+        """Config changes for compd on this LinuxCNC: HAL pins as signals, axis.z in 0.1 um as offset Y.
+
+        ``temperature_checks``: the spindle temperature's ``checks``; ``output``: more keys of Y.
+        """
+        on_mill = {"driver": "mill", "unit": "degC"}
+        temperature: dict[str, object] = {**on_mill, "address": "T-spindle-degC"}
+        if temperature_checks is not None:
+            temperature["checks"] = temperature_checks
+        return {
+            "drivers": {
+                "mill": {
+                    "type": "linuxcnc",
+                    "settings": {"component": "svc", "ini_file": str(self.folder / "sim.ini")},
+                    "timeout_s": 2.0,
+                }
+            },
+            "signals": {
+                "T_spindle_degC": temperature,
+                "spindle_speed_rpm": {**on_mill, "address": "spindle.0.speed-out", "unit": "rpm"},
+            },
+            "outputs": {
+                "Y": {
+                    "driver": "mill",
+                    "address": "axis.z",
+                    "encoding": {"type": "int", "scale": 10},
+                    "max_rate_um_per_s": 5.0,
+                    **output,
+                }
+            },
+        }
+
     def stop(self) -> None:
         """Shut LinuxCNC down as its GUI's exit would; kill what is left after 30 s."""
         if self.process.poll() is None:

@@ -195,36 +195,8 @@ def test_service_compensates_through_linuxcnc(tmp_path, machine):
     """The daemon reads HAL (spindle speed, a warming spindle) and its offset, in 0.1 um counts, reaches joint 2."""
     machine.mdi("M3 S3000")
     machine.halcmd("sets", "T-spindle-degC", "25")
-    on_mill = {"driver": "mill", "unit": "degC"}
-    config = write_config(
-        tmp_path,
-        {
-            "drivers": {
-                "mill": {
-                    "type": "linuxcnc",
-                    "settings": {"component": "svc", "ini_file": str(machine.folder / "sim.ini")},
-                    "timeout_s": 2.0,
-                }
-            },
-            "signals": {
-                # max_jump: the test steps the temperature, no spike.
-                "T_spindle_degC": {
-                    **on_mill,
-                    "address": "T-spindle-degC",
-                    "checks": {"max_jump": 20},
-                },
-                "spindle_speed_rpm": {**on_mill, "address": "spindle.0.speed-out", "unit": "rpm"},
-            },
-            "outputs": {
-                "Y": {
-                    "driver": "mill",
-                    "address": "axis.z",
-                    "encoding": {"type": "int", "scale": 10},
-                    "max_rate_um_per_s": 5.0,
-                }
-            },
-        },
-    )
+    # max_jump: the test steps the temperature, no spike.
+    config = write_config(tmp_path, machine.service_config(temperature_checks={"max_jump": 20}))
     records: list[TickRecord] = []
     # Real time, 20x fast: HAL is real I/O, which a virtual clock would outrun.
     service = Service(config, clock=RealClock(20.0), control=False, background_saves=False)

@@ -43,35 +43,7 @@ def driver(machine: Machine, component: str) -> LinuxCncDriver:
 def test_an_offset_outside_the_clamp_held_by_linuxcnc_is_replaced(tmp_path, machine):
     """axis.z at 5000 counts (500 um, clamp 150 um) at start: compd writes 0, never 4990 counts, and flags it."""
     run_calls(driver(machine, "setup"), ("write", {"axis.z": 5000.0}))
-    config = write_config(
-        tmp_path,
-        {
-            "drivers": {
-                "mill": {
-                    "type": "linuxcnc",
-                    "settings": {"component": "svc", "ini_file": str(machine.folder / "sim.ini")},
-                    "timeout_s": 2.0,
-                }
-            },
-            "signals": {
-                "T_spindle_degC": {"driver": "mill", "address": "T-spindle-degC", "unit": "degC"},
-                "spindle_speed_rpm": {
-                    "driver": "mill",
-                    "address": "spindle.0.speed-out",
-                    "unit": "rpm",
-                },
-            },
-            "outputs": {
-                "Y": {
-                    "driver": "mill",
-                    "address": "axis.z",
-                    "encoding": {"type": "int", "scale": 10},
-                    "max_offset_um": 150,
-                    "max_rate_um_per_s": 5.0,
-                }
-            },
-        },
-    )
+    config = write_config(tmp_path, machine.service_config(max_offset_um=150))
     records: list[TickRecord] = []
     # Real time, 20x fast: HAL is real I/O, which a virtual clock would outrun.
     service = Service(config, clock=RealClock(20.0), control=False, background_saves=False)
