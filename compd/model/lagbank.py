@@ -199,6 +199,22 @@ class _Design:
         return np.asarray(self.directions @ per_mode.T)  # (input, tau)
 
 
+def checked_bank_data(
+    y: np.ndarray, u: np.ndarray, time_constants_s: Sequence[float]
+) -> tuple[np.ndarray, np.ndarray, tuple[float, ...]]:
+    """``y``, ``u`` as float arrays and the time constants as a tuple; ModelError says what is wrong."""
+    y = np.asarray(y, dtype=float)
+    u = np.asarray(u, dtype=float)
+    if u.ndim != 2 or u.shape[0] != y.size:
+        raise ModelError(f"inputs must be (n_samples, n_inputs) with {y.size} samples")
+    if not np.all(np.isfinite(u)) or not np.all(np.isfinite(y)):
+        raise ModelError("inputs and output must be finite")
+    taus = tuple(float(t) for t in time_constants_s)
+    if not taus or any(not np.isfinite(t) or t < 0.0 for t in taus) or len(set(taus)) != len(taus):
+        raise ModelError(f"time constants must be distinct and >= 0 s, got {list(taus)}")
+    return y, u, taus
+
+
 def fit_lag_bank(
     y: np.ndarray,
     u: np.ndarray,
@@ -226,15 +242,7 @@ def fit_lag_bank(
     next programme does. ``starts``: the first sample of each stacked
     experiment, where every lag restarts from rest (:mod:`compd.model.experiments`).
     """
-    y = np.asarray(y, dtype=float)
-    u = np.asarray(u, dtype=float)
-    if u.ndim != 2 or u.shape[0] != y.size:
-        raise ModelError(f"inputs must be (n_samples, n_inputs) with {y.size} samples")
-    if not np.all(np.isfinite(u)) or not np.all(np.isfinite(y)):
-        raise ModelError("inputs and output must be finite")
-    taus = tuple(float(t) for t in time_constants_s)
-    if not taus or any(not np.isfinite(t) or t < 0.0 for t in taus) or len(set(taus)) != len(taus):
-        raise ModelError(f"time constants must be distinct and >= 0 s, got {list(taus)}")
+    y, u, taus = checked_bank_data(y, u, time_constants_s)
     fitted = np.ones(y.size, dtype=bool) if fitted is None else np.asarray(fitted, dtype=bool)
     n_inputs = u.shape[1]
     modes = range(1, min(max_modes or n_inputs, n_inputs) + 1)

@@ -47,7 +47,12 @@ from compd.model.guards import (
     GAIN_ERROR_RATIO,
     GAIN_WARNING_RATIO,
 )
-from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S, LagBankFit, lag_features
+from compd.model.lagbank import (
+    DEFAULT_TIME_CONSTANTS_S,
+    LagBankFit,
+    checked_bank_data,
+    lag_features,
+)
 from compd.model.metrics import fit_percent
 
 #: Penalty weights on the standardised lag columns, relative to the number of fitted samples.
@@ -73,19 +78,7 @@ class ShrunkBank:
         new_recordings: bool = False,
         input_ranges: Sequence[float] | np.ndarray | None = None,
     ) -> None:
-        y = np.asarray(y, dtype=float)
-        u = np.asarray(u, dtype=float)
-        if u.ndim != 2 or u.shape[0] != y.size:
-            raise ModelError(f"inputs must be (n_samples, n_inputs) with {y.size} samples")
-        if not np.all(np.isfinite(u)) or not np.all(np.isfinite(y)):
-            raise ModelError("inputs and output must be finite")
-        taus = tuple(float(t) for t in time_constants_s)
-        if (
-            not taus
-            or any(not np.isfinite(t) or t < 0.0 for t in taus)
-            or len(set(taus)) != len(taus)
-        ):
-            raise ModelError(f"time constants must be distinct and >= 0 s, got {list(taus)}")
+        y, u, taus = checked_bank_data(y, u, time_constants_s)
         self.y = y
         self.taus = taus
         self.n_inputs = u.shape[1]
