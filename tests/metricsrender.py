@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,7 +22,7 @@ from compd.service.compensator import TickRecord
 from compd.service.daemon import Service
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
-from tests.mosquitto import WAIT_S, machine_config
+from tests.mosquitto import WAIT_S, Mosquitto, machine_config
 
 MACHINE_ID = "mill-prom"
 #: The tick at which the metrics are rendered.
@@ -80,3 +82,14 @@ def render_metrics(directory: Path, broker_port: int) -> Render:
         for sample in family.samples:
             samples.setdefault(sample.name, {})[tuple(sorted(sample.labels.items()))] = sample.value
     return Render(seen["text"], seen["status"], types, samples)
+
+
+@contextmanager
+def rendered_with_broker(folder: Path) -> Iterator[Render]:
+    """:func:`render_metrics` of a run publishing to a mosquitto of its own under ``folder``."""
+    (folder / "broker").mkdir()
+    broker = Mosquitto(folder / "broker").start()
+    try:
+        yield render_metrics(folder / "run", broker.port)
+    finally:
+        broker.stop()

@@ -14,8 +14,8 @@ from typing import Any
 import pytest
 import yaml
 
-from tests.metricsrender import Render, render_metrics
-from tests.mosquitto import Mosquitto, mosquitto_binary
+from tests.metricsrender import Render, rendered_with_broker
+from tests.mosquitto import mosquitto_binary
 
 DEPLOY = Path(__file__).parents[2] / "deploy"
 RULES = DEPLOY / "prometheus" / "compd.rules.yml"
@@ -72,13 +72,8 @@ def render(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Render]:
     """A real ``/metrics`` of compd with MQTT, recorder and http on (mosquitto on 127.0.0.1)."""
     if mosquitto_binary() is None:
         pytest.skip("mosquitto is not installed: run .ci/install-system-packages")
-    folder = tmp_path_factory.mktemp("monitoring")
-    (folder / "broker").mkdir()
-    broker = Mosquitto(folder / "broker").start()
-    try:
-        yield render_metrics(folder / "run", broker.port)
-    finally:
-        broker.stop()
+    with rendered_with_broker(tmp_path_factory.mktemp("monitoring")) as render:
+        yield render
 
 
 def test_metric_names_are_read_out_of_promql() -> None:

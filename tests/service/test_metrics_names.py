@@ -11,8 +11,8 @@ import pytest
 
 from compd import __version__
 from compd.service.safety import Flag
-from tests.metricsrender import MACHINE_ID, Render, render_metrics
-from tests.mosquitto import Mosquitto, mosquitto_binary
+from tests.metricsrender import MACHINE_ID, Render, rendered_with_broker
+from tests.mosquitto import mosquitto_binary
 
 pytestmark = pytest.mark.skipif(
     mosquitto_binary() is None, reason="mosquitto is not installed: run .ci/install-system-packages"
@@ -22,13 +22,8 @@ PROMTOOL = shutil.which("promtool")
 
 @pytest.fixture(scope="module")
 def render(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Render]:
-    folder = tmp_path_factory.mktemp("metrics")
-    (folder / "broker").mkdir()
-    broker = Mosquitto(folder / "broker").start()
-    try:
-        yield render_metrics(folder / "run", broker.port)
-    finally:
-        broker.stop()
+    with rendered_with_broker(tmp_path_factory.mktemp("metrics")) as render:
+        yield render
 
 
 def test_promtool_finds_nothing_to_complain_about(render: Render) -> None:
