@@ -15,3 +15,11 @@ def compd(*argv: object) -> str:
         code = main([str(a) for a in argv])
     assert code == 0, f"compd {' '.join(map(str, argv))} exited {code}:\n{err.getvalue()}"
     return out.getvalue()
+
+
+def compd_result(*argv: object) -> tuple[int, str, str]:
+    """Run one compd command in-process, whatever its outcome: exit status, stdout, stderr."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in argv])
+    return code, out.getvalue(), err.getvalue()

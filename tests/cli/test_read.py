@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import io
 import json
 import os
 import re
@@ -20,23 +19,15 @@ import pytest
 import serial
 import yaml
 
-from compd.cli import main
 from compd.drivers.modbus import ModbusDriver
 from compd.drivers.modbus_settings import ModbusSettings
+from tests.clirun import compd_result as compd
 from tests.drivers.instrument import PtyInstrument
-from tests.drivers.modbus_server import free_port, tcp_server
+from tests.drivers.modbus_server import free_port, running_tcp_server
 from tests.drivers.test_modbus_rtu import pty_pair  # noqa: F401  (a fixture: socat's pty pair)
 
 ROOT = Path(__file__).parents[2]
 MODEL = ROOT / "config" / "simulated_model.yaml"
-
-
-def compd(*argv: object) -> tuple[int, str, str]:
-    """Run one compd command in-process: exit status, stdout, stderr."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    return code, out.getvalue(), err.getvalue()
 
 
 def points(stdout: str) -> dict[str, dict[str, Any]]:
@@ -48,11 +39,8 @@ def points(stdout: str) -> dict[str, dict[str, Any]]:
 @pytest.fixture(scope="module")
 def plc() -> Iterator[int]:
     """A pymodbus server on 127.0.0.1 (tests/drivers/modbus_server.py); yields its port."""
-    port = free_port()
-    server = tcp_server(port)
-    server.start()
-    yield port
-    server.stop()
+    with running_tcp_server() as port:
+        yield port
 
 
 def holding(port: int, address: str) -> float:

@@ -11,7 +11,7 @@ import asyncio
 import contextlib
 import socket
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from pymodbus.server import ModbusTcpServer
@@ -97,6 +97,18 @@ class ServerThread:
 
 def tcp_server(port: int) -> ServerThread:
     return ServerThread(lambda: ModbusTcpServer(make_device(), address=("127.0.0.1", port)))
+
+
+@contextlib.contextmanager
+def running_tcp_server() -> Iterator[int]:
+    """A pymodbus server on 127.0.0.1 (:func:`make_device`) for the ``with`` block: its port."""
+    port = free_port()
+    server = tcp_server(port)
+    server.start()
+    try:
+        yield port
+    finally:
+        server.stop()
 
 
 class TcpProxy:

@@ -7,36 +7,24 @@ them so, says how, and misspelt setting keys name the key meant.
 
 from __future__ import annotations
 
-import contextlib
-import io
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 import yaml
 
-from compd.cli import main
 from compd.drivers.modbus_addresses import parse_address, translation_note
+from tests.clirun import compd_result as compd
 
 from ..service.daemon_setup import merge, simulated_doc
-from .modbus_server import free_port, tcp_server
-
-
-def compd(*argv: object) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    return code, out.getvalue(), err.getvalue()
+from .modbus_server import running_tcp_server
 
 
 @pytest.fixture(scope="module")
 def plc() -> Iterator[int]:
     """A pymodbus server on 127.0.0.1 (modbus_server.py); yields its port."""
-    port = free_port()
-    server = tcp_server(port)
-    server.start()
-    yield port
-    server.stop()
+    with running_tcp_server() as port:
+        yield port
 
 
 @pytest.mark.parametrize(

@@ -24,30 +24,20 @@ position-free model can follow as the axis moves.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from pathlib import Path
 
 import pytest
 
-from compd.cli import main
 from compd.files.modelfile import load_model
 from compd.sim.positions import simulate_feed_positions
 from compd.toolkit.fitmodel import unit_of
+from tests.clirun import compd_result as compd
 
 SAMPLE_TIME_S = 10
 CALIBRATION_HOURS = 24
 RUN_HOURS = 16
 OTHERS = "T_headstock_degC,T_ambient_degC"
-
-
-def compd(*argv: object) -> tuple[int, str, str]:
-    """Run one compd command in-process: exit code, stdout, stderr."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    return code, out.getvalue(), err.getvalue()
 
 
 def compare(model: Path, data: Path) -> dict[str, float]:
