@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
-import io
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +11,6 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from compd.cli import main
 from compd.files.modelfile import load_model
 from compd.model.limits import (
     MAX_DELAY_SAMPLES,
@@ -22,16 +19,15 @@ from compd.model.limits import (
     MAX_STATES,
     MAX_SUBMODELS,
 )
+from tests.clirun import compd_result
 
 from .test_modelfile import VALID
 
 
 def check(path: Path) -> tuple[int, str]:
     """``compd model check PATH``: exit code and what it printed on stderr."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(["model", "check", str(path)])
-    return code, err.getvalue()
+    code, _, err = compd_result("model", "check", path)
+    return code, err
 
 
 NUM, DEN = "num: [0.0162, 10.74, 5.368]", "den: [0.002098, 2.379, 1.0]"

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from pathlib import Path
 
@@ -17,6 +15,7 @@ from compd.files.data import load_data
 from compd.files.modelfile import load_model, parse_model
 from compd.files.modelwriter import model_to_yaml
 from compd.toolkit.evaluate import evaluate
+from tests.clirun import compd_result as run
 
 TS = 10.0
 TRUE_GAINS = {"g1": 1.4, "g2": 0.6}
@@ -55,13 +54,6 @@ def model_text(g1: float = 1.0, g2: float = 1.0, named: bool = True) -> str:
         name1="gain_name: g1" if named else "",
         name2="gain_name: g2" if named else "",
     )
-
-
-def run(*argv: object) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    return code, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")

@@ -7,15 +7,13 @@ never (a signal in degF fed to a model fitted in degC).
 
 from __future__ import annotations
 
-import contextlib
-import io
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
 
-from compd.cli import main
+from tests.clirun import compd_result
 
 from .daemon_setup import merge, simulated_doc
 
@@ -25,10 +23,8 @@ def check_config(directory: Path, changes: dict[str, Any]) -> tuple[int, str]:
     doc = merge(simulated_doc(), {"state": {"directory": str(directory / "state")}})
     path = directory / "compd.yaml"
     path.write_text(yaml.safe_dump(merge(doc, changes), sort_keys=False))
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(["check-config", str(path)])
-    return code, err.getvalue() + out.getvalue()
+    code, out, err = compd_result("check-config", path)
+    return code, err + out
 
 
 def opcua_driver(security: Any, **settings: Any) -> dict[str, Any]:
