@@ -44,6 +44,10 @@ from .modbus_server import (
     tcp_server,
 )
 
+#: Real-time bound of the reconnect loops below: a guard against a hang, not a speed target (the
+#: links reconnect within 0.02-0.1 s; a busy CI machine must not fail them).
+HANG_GUARD_S = 60.0
+
 
 @pytest.fixture(scope="module")
 def server() -> Iterator[int]:
@@ -191,7 +195,7 @@ def test_server_stopped_and_restarted():
                 await driver.open()
                 break
             except DriverDisconnectedError:
-                assert time.monotonic() - back < 30.0, "no reconnect within 30 s"
+                assert time.monotonic() - back < HANG_GUARD_S, "no reconnect: the link hangs"
                 await asyncio.sleep(0.1)
         assert await driver.read(["input:0:int16"]) == {"input:0:int16": -1234.0}
         await driver.close()
@@ -261,7 +265,7 @@ def drop_and_restore(
             await asyncio.to_thread(thread.start)
             back = time.monotonic()
             while not await link.read(["input:0:int16"]):
-                assert time.monotonic() - back < 30.0, "no reconnect within 30 s"
+                assert time.monotonic() - back < HANG_GUARD_S, "no reconnect: the link hangs"
                 await asyncio.sleep(0.02)
         await link.close()
 
@@ -319,7 +323,7 @@ def test_a_peer_that_connects_but_never_answers_is_one_fault():
         await link.open()
         started = time.monotonic()
         while link.reconnects < 4:
-            assert time.monotonic() - started < 10.0, "the link did not reconnect"
+            assert time.monotonic() - started < HANG_GUARD_S, "the link did not reconnect: it hangs"
             assert await link.read(["input:0:int16"]) == {}
             await asyncio.sleep(0.02)
         await link.close()
