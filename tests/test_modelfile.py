@@ -10,6 +10,9 @@ from numpy.testing import assert_allclose
 
 from compd.errors import ModelFileError
 from compd.files.modelfile import load_model, parse_model
+from compd.files.modelschema import unread_provenance_keys
+from compd.files.modelwriter import provenance_lines
+from tests.clirun import compd_result
 
 CONFIG = Path(__file__).parent.parent / "config"
 
@@ -235,3 +238,58 @@ def test_a_file_without_calibration_gets_only_the_checks_that_need_no_data(tmp_p
     """Without ranges or a record length there is nothing to judge gains and time constants against."""
     text = IMPLAUSIBLE[: IMPLAUSIBLE.index("provenance:")]
     assert load_model(write(tmp_path, text)).check_plausible() == []
+
+
+NEWER_PROVENANCE = VALID + textwrap.dedent(
+    """\
+    provenance:
+      method: lagbank
+      selection_trace: [lagbank, mlr]
+      cross_validation:
+        output: disp_z_um
+        folds: 4 operating cycles
+        kept: lagbank
+        nested_fit_percent: {lagbank: 81.0, mlr: 70.0}
+        fold_trimmed_percent: {lagbank: 79.5}
+      updates:
+        - parent_sha256: abc
+          data: run.csv
+          probes: probes.csv
+          characteristic: {data: run.csv, segment_signal: n_rpm, segments: 3, bounds_how: per segment}
+    """
+)
+
+
+def test_provenance_keys_of_a_newer_compd_are_kept_not_refused(tmp_path: Path) -> None:
+    """A file fitted by a newer compd records more about its fit; the model is the same, so it loads.
+
+    Before, ``cross_validation.fold_median_percent`` (issue 20) made every older
+    daemon refuse every newly fitted model.
+    """
+    model_file = load_model(write(tmp_path, NEWER_PROVENANCE))
+    model_file.compile()
+    provenance = model_file.doc.provenance
+    assert provenance.cross_validation is not None
+    assert provenance.cross_validation.expected_percent() == 81.0
+    assert unread_provenance_keys(provenance) == [
+        "provenance.selection_trace",
+        "provenance.updates[0].characteristic.bounds_how",
+        "provenance.cross_validation.fold_trimmed_percent",
+    ]
+    rewritten = "\n".join(provenance_lines(provenance))
+    assert "selection_trace:" in rewritten and "fold_trimmed_percent:" in rewritten
+    assert "bounds_how: per segment" in rewritten
+
+
+def test_an_unknown_key_in_what_the_model_does_is_still_refused(tmp_path: Path) -> None:
+    """Only the provenance is lenient: an unknown key beside a transfer function could change the offsets."""
+    den = "          den: [0.002098, 2.379, 1.0]\n"
+    text = VALID.replace(den, den + "          lead_s: 4\n")
+    message = refusal(tmp_path, text)
+    assert "lead_s" in message
+
+
+def test_model_check_lists_the_provenance_keys_it_does_not_read(tmp_path: Path) -> None:
+    code, out, _ = compd_result("model", "check", write(tmp_path, NEWER_PROVENANCE))
+    assert code == 0
+    assert "does not read" in out and "provenance.cross_validation.fold_trimmed_percent" in out

@@ -103,8 +103,10 @@ def _check(args: argparse.Namespace) -> int:
     from rich.table import Column, Table
     from rich.text import Text
 
+    from compd import __version__
     from compd.cli.terminal import console
     from compd.files.modelfile import load_model
+    from compd.files.modelschema import unread_provenance_keys
     from compd.model.compiled import qualified_names
 
     model_file = load_model(args.model)
@@ -161,6 +163,13 @@ def _check(args: argparse.Namespace) -> int:
     out.print(table)
     for finding in warnings:
         print(finding.describe(), file=sys.stderr)
+    unread = unread_provenance_keys(model_file.doc.provenance)
+    if unread:
+        out.print(
+            f"note: provenance keys this compd {__version__} does not read (written by a newer "
+            f"compd?), kept as they are: {', '.join(unread)}",
+            markup=False,
+        )
     out.print(Text.assemble(("ok", "green"), ": compiles, causal and stable"))
     return 0
 

@@ -1,7 +1,9 @@
 """The model-file schema ``compd.model/1``, written down in pydantic models.
 
-Every key a model file may hold, with its type and bounds; unknown keys are
-forbidden. :mod:`compd.files.modelfile` validates a file's YAML against
+Every key a model file may hold, with its type and bounds. An unknown key in
+what the model does is refused; in its provenance (what the toolkit recorded
+about it) it is kept, so that a file fitted by a newer compd still loads.
+:mod:`compd.files.modelfile` validates a file's YAML against
 :class:`ModelDoc` and builds the model from it; the provenance documents
 (calibration, extensions, updates, denoising, cross-validation) are written by
 the toolkit and kept with the model.
@@ -22,7 +24,22 @@ FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 
 
 class _Strict(BaseModel):
+    """What the model does: an unknown key here could change the offsets, so it is refused."""
+
     model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+
+
+class _Record(BaseModel):
+    """What the toolkit recorded about a model: unknown keys are kept, not refused.
+
+    A model file fitted by a newer compd records more (issue 20 added
+    ``cross_validation.fold_median_percent``); the model itself is the same, so a
+    daemon or toolkit of this version loads it, and rewrites it with those keys
+    (``extend``, ``update``). ``compd model check`` lists them
+    (:func:`unread_provenance_keys`).
+    """
+
+    model_config = ConfigDict(extra="allow", frozen=True, strict=False)
 
 
 class SignalDoc(_Strict):
@@ -136,7 +153,7 @@ class OutputDoc(_Strict):
         return submodels
 
 
-class CalibrationDoc(_Strict):
+class CalibrationDoc(_Record):
     """What the model was fitted on: `compare` judges new data against it.
 
     ``rms_um`` is the free-run residue RMS per output on the calibration data
@@ -153,7 +170,7 @@ class CalibrationDoc(_Strict):
     ranges: dict[str, tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=dict)
 
 
-class TriedDoc(_Strict):
+class TriedDoc(_Record):
     """One signal ``compd extend`` judged: the model's held-out fit without and with it, and the rule's figures."""
 
     signal: str
@@ -165,7 +182,7 @@ class TriedDoc(_Strict):
     kept: bool = False
 
 
-class ExtensionDoc(_Strict):
+class ExtensionDoc(_Record):
     """One ``compd extend`` step: a sub-model added by superposition (Horejs 2015, sect. 4.3)."""
 
     parent_sha256: str
@@ -184,7 +201,7 @@ class ExtensionDoc(_Strict):
     tried: list[TriedDoc] = Field(default_factory=list)
 
 
-class CharacteristicDoc(_Strict):
+class CharacteristicDoc(_Record):
     """Post-process 2024, eq. 7: gain bounds from per-segment optima on a continuously measured run."""
 
     data: str
@@ -195,7 +212,7 @@ class CharacteristicDoc(_Strict):
     fit_percent_after: FiniteFloat | None = None
 
 
-class UpdateDoc(_Strict):
+class UpdateDoc(_Record):
     """One ``compd update`` step: named gains re-optimised on sparse probe measurements (Post-process 2024, eq. 8).
 
     ``probe_values_um`` holds one list per probed output, aligned with
@@ -219,7 +236,7 @@ class UpdateDoc(_Strict):
     created: str | None = None
 
 
-class DenoisedInputDoc(_Strict):
+class DenoisedInputDoc(_Record):
     """One input denoised by ``compd fit --denoise``; RMS values are in the input's ``unit``."""
 
     input: str
@@ -231,7 +248,7 @@ class DenoisedInputDoc(_Strict):
     raw_vs_emd_rms: FiniteFloat = Field(ge=0)  # raw sensor minus EMD-denoised (the noise removed)
 
 
-class DenoiseDoc(_Strict):
+class DenoiseDoc(_Record):
     """Swiss-lathe paper denoising: identified on EMD-denoised inputs, run with matched low-passes baked in."""
 
     method: str
@@ -242,7 +259,7 @@ class DenoiseDoc(_Strict):
     rms_um_lowpass: dict[str, FiniteFloat] = Field(default_factory=dict)
 
 
-class CrossValidationDoc(_Strict):
+class CrossValidationDoc(_Record):
     """How the candidates held on operating cycles they were not fitted on (``compd fit``).
 
     ``fit_percent``: pooled held-out fit % per candidate method (``mlr`` is
@@ -290,7 +307,7 @@ class CrossValidationDoc(_Strict):
         return f" less its spread over the folds, {spread:.1f} points" if spread else ""
 
 
-class ProvenanceDoc(_Strict):
+class ProvenanceDoc(_Record):
     data: str | None = None
     command: str | None = None
     created: str | None = None
@@ -314,3 +331,20 @@ class ModelDoc(_Strict):
     ambient: AmbientDoc | None = None
     outputs: dict[str, OutputDoc] = Field(min_length=1)
     provenance: ProvenanceDoc = ProvenanceDoc()
+
+
+def unread_provenance_keys(provenance: ProvenanceDoc) -> list[str]:
+    """The provenance's keys this compd does not know (dotted paths), e.g. written by a newer compd."""
+    return _unread(provenance, "provenance")
+
+
+def _unread(record: BaseModel, where: str) -> list[str]:
+    found = [f"{where}.{key}" for key in (record.model_extra or {})]
+    for name in type(record).model_fields:
+        value = getattr(record, name)
+        items = value if isinstance(value, list) else [value]
+        for index, item in enumerate(items):
+            if isinstance(item, _Record):
+                place = f"{where}.{name}" + (f"[{index}]" if isinstance(value, list) else "")
+                found += _unread(item, place)
+    return found
