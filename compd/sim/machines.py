@@ -78,6 +78,14 @@ class MachineCase:
     output: str  # displacement column, um
     #: What was drawn, for tests and for reading a benchmark's worst cases.
     facts: dict[str, object] = dataclasses.field(default_factory=dict, compare=False)
+    #: The whole timeline as one log from the calibration's start (between warm-up runs too,
+    #: the machine standing), zeroed there; and the time the verify programme starts in it (s).
+    #: How the daemon meets that programme: running on from the calibration, its state
+    #: carried (``compd compare --data log.csv --from CUT``).
+    log: pd.DataFrame | None = dataclasses.field(default=None, compare=False)
+    cut_s: float | None = None
+    #: Where each file (calibration, then verify) starts in the log, s.
+    file_starts_s: tuple[float, ...] = ()
 
 
 def _scatter(rng: np.random.Generator, value: float, spread: float) -> float:
@@ -271,8 +279,12 @@ def random_machine(seed: int) -> MachineCase:
     with_speed = bool(rng.random() < 0.5)
     output = f"disp_{axis}_um"
     probe = np.random.default_rng([seed, 20, 5])
-    frames = []
-    for a, b in files:
+    # The probe's noise per logged sample: each file's own draws (a sample two files share, the
+    # cut, is read once per file); the log both files were cut from reads the files' samples.
+    noise = [probe.normal(0.0, noise_um, b + 1 - a) for a, b in files]
+
+    def frame(a: int, b: int, probe_noise: np.ndarray) -> pd.DataFrame:
+        """Samples ``a .. b`` as a log that started at ``a``: zeroed there (temperatures if rises)."""
         part = slice(a, b + 1)
         columns: dict[str, np.ndarray] = {TIME_COLUMN: time_s[part] - time_s[a]}
         if with_speed:
@@ -280,9 +292,17 @@ def random_machine(seed: int) -> MachineCase:
         for name, values in temperatures.items():
             values = values[part]
             columns[name] = _quantised(values - values[0] if rises else values, 0.01)
-        moved = true_um[part] - true_um[a] + probe.normal(0.0, noise_um, b + 1 - a)
-        columns[output] = _quantised(moved, quantum_um)
-        frames.append(pd.DataFrame(columns))
+        columns[output] = _quantised(true_um[part] - true_um[a] + probe_noise, quantum_um)
+        return pd.DataFrame(columns)
+
+    frames = [frame(a, b, n) for (a, b), n in zip(files, noise, strict=True)]
+    # The whole timeline as one log, logged between the files too (the machine standing
+    # between warm-up runs): each file's samples read as in the file, the rest freshly.
+    first = files[0][0]
+    log_noise = np.random.default_rng([seed, 20, 6]).normal(0.0, noise_um, files[-1][1] + 1 - first)
+    for (a, b), n in reversed(list(zip(files, noise, strict=True))):  # a shared cut: the earlier's
+        log_noise[a - first : b + 1 - first] = n
+    log = frame(first, files[-1][1], log_noise)
     calibration, verify = frames[: plan.n_calibration], frames[plan.n_calibration :]
     runs = (
         f"one {len(calibration[0]) * ts / _H:.1f} h record"
@@ -322,6 +342,9 @@ def random_machine(seed: int) -> MachineCase:
         tuple(temperatures),
         output,
         facts,
+        log,
+        float(time_s[files[plan.n_calibration][0]] - time_s[first]),
+        tuple(float(time_s[a] - time_s[first]) for a, _ in files),
     )
 
 
@@ -350,3 +373,18 @@ def write_case(case: MachineCase, folder: Path) -> tuple[list[Path], list[Path]]
             frame.to_csv(path, index=False, float_format="%.8g")
             paths.append(path)
     return written
+
+
+def write_log(case: MachineCase, folder: Path) -> Path | None:
+    """The case's whole timeline as ``log.csv`` in ``folder`` (None: a case without one).
+
+    What ``compd compare --data log.csv --from CUT`` (:attr:`MachineCase.cut_s`)
+    judges: the model run from the log's start through the calibration into the
+    verify programme, as the daemon would have run it.
+    """
+    if case.log is None:
+        return None
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "log.csv"
+    case.log.to_csv(path, index=False, float_format="%.8g")
+    return path

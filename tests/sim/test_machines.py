@@ -18,6 +18,7 @@ from compd.sim.machines import (
     MachineCase,
     random_machine,
     write_case,
+    write_log,
 )
 from compd.toolkit.evaluate import evaluate, pooled_comparisons
 from compd.toolkit.fit import fit_data
@@ -140,6 +141,44 @@ def test_written_files_load_as_the_experiments_compd_fit_reads(tmp_path: Path) -
     assert np.allclose(data.column(case.output), case.verify[0][case.output], atol=1e-6)
     if case.facts["with_speed"]:
         assert data.has(SPEED_COLUMN)
+
+
+def test_the_log_is_the_timeline_the_files_were_cut_from(cases: list[MachineCase]) -> None:
+    """One log per case from the calibration's start: the files' samples in it, the verify from cut_s.
+
+    It is how the daemon meets the verify programme (running on, its state
+    carried), what ``compare --data log.csv --from CUT`` judges.
+    """
+    for case in cases:
+        log, ts = case.log, case.sample_time_s
+        assert log is not None and case.cut_s is not None
+        first = case.calibration[0]
+        assert np.allclose(log.iloc[: len(first)].to_numpy(), first.to_numpy())
+        assert np.allclose(np.diff(log[TIME_COLUMN]), ts)
+        files = [*case.calibration, *case.verify]
+        samples = sum(len(f) for f in files) - (len(files) - 1 if case.facts["continuous"] else 0)
+        assert (len(log) == samples) if case.facts["continuous"] else (len(log) > samples)
+        starts = [round(t / ts) for t in case.file_starts_s]
+        assert starts[len(case.calibration)] == round(case.cut_s / ts)
+        noise = float(case.facts["noise_um"])  # type: ignore[arg-type]
+        for start, file in zip(starts, files, strict=True):
+            part = log.iloc[start : start + len(file)]
+            moved = part[case.output].to_numpy() - part[case.output].iloc[0]
+            measured = file[case.output].to_numpy() - file[case.output].iloc[0]
+            assert np.allclose(moved, measured, atol=8 * noise + 0.2)
+            for name in case.inputs:
+                rise = part[name].to_numpy() - part[name].iloc[0]
+                assert np.allclose(rise, file[name] - file[name].iloc[0], atol=0.021)
+        if not case.facts["continuous"]:
+            assert case.cut_s > sum(_hours(f) for f in case.calibration) * 3600.0
+
+
+def test_written_log_loads_as_one_record(tmp_path: Path) -> None:
+    case = random_machine(3)  # warm-up runs: the log holds the hours between them too
+    path = write_log(case, tmp_path)
+    assert path is not None and case.log is not None
+    data = load_data(path)
+    assert len(data) == len(case.log) and data.sample_time_s == pytest.approx(case.sample_time_s)
 
 
 def test_creep_and_hidden_effects_occur_on_a_minority_of_machines(cases: list[MachineCase]) -> None:
