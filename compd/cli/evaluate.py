@@ -49,6 +49,7 @@ from compd.toolkit.evaluate import (
     compare,
     evaluate,
     measured_columns,
+    mid_transient_note,
     pooled_comparisons,
 )
 from compd.toolkit.span import evaluate_span
@@ -159,12 +160,14 @@ def _compare(args: argparse.Namespace) -> int:
             tolerance_um=args.tolerance_um,
             window_s=args.window_s,
         )
+    transient = mid_transient_note(evaluation, args.output) if args.init == "steady" else None
     if args.json:
         summary = compare_summary(evaluation, comparisons, windows)
+        summary["notes"] = [*summary["notes"], *([transient] if transient else [])]
         print(json_text(summary))
         return 0
     print_notes(evaluation)
-    for note in (n for w in windows for n in w.notes):
+    for note in (*(n for w in windows for n in w.notes), *([transient] if transient else [])):
         print(f"note: {note}", file=sys.stderr)
     out = console()
     out.print(comparison_table(evaluation, comparisons))
@@ -221,6 +224,9 @@ def _compare_several(args: argparse.Namespace, experiments: list[DataSet]) -> in
     out = console()
     for evaluation, comparisons, windows in per_file:
         print_notes(evaluation)
+        transient = mid_transient_note(evaluation, args.output) if args.init == "steady" else None
+        if transient:
+            print(f"note: {evaluation.data.path}: {transient}", file=sys.stderr)
         out.print(comparison_table(evaluation, comparisons))
         for result in windows:
             out.print(windows_summary(result))

@@ -18,7 +18,7 @@ from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile
 from compd.model.compiled import CompiledModel, ModelState
 from compd.model.initial import estimate_initial_state
-from compd.model.metrics import Comparison
+from compd.model.metrics import Comparison, fit_percent
 from compd.model.run import SimulationResult, simulate
 
 if TYPE_CHECKING:  # compd.toolkit.span builds on this module
@@ -166,3 +166,49 @@ def pooled_comparisons(
             )
         )
     return pooled
+
+
+#: ``compare`` says a record seems to start mid-transient when a model started from its
+#: estimated state fits the record after :data:`ESTIMATE_WINDOW_S` this many points better.
+MID_TRANSIENT_POINTS = 5.0
+
+
+def mid_transient_note(evaluation: Evaluation, column: str | None = None) -> str | None:
+    """A note when ``evaluation`` (started in equilibrium) is unfair to a model with state.
+
+    A file split off a running log, or a run that starts soon after the last,
+    begins mid-transient: the default ``--init steady`` then starts every TF
+    in equilibrium, so a dynamic model pays for a past the daemon, which
+    carries its state, would have known (a static regression has none to
+    lose). On the random machines of ``benchmarks/bench_machines.py`` the
+    estimated start raised the default lag bank's fit after the first hour by
+    5 points or more on 55 % of one-record verify files and 38 % of warm-up
+    runs; never a regression's. None when the start is fair, the model has no
+    state, the record is shorter than two estimation windows, or its measured
+    columns are not named as the model's outputs (``--init estimate`` needs that).
+    """
+    data = evaluation.data
+    window = max(2, round(ESTIMATE_WINDOW_S / data.sample_time_s))
+    if evaluation.whole is not None or len(data) < 2 * window:
+        return None
+    if not any(tf.order > 0 for tf in evaluation.compiled.discrete):
+        return None
+    # --init estimate reads the measured outputs by the model's names: the others cannot take it.
+    pairs = {o: m for o, m in measured_columns(evaluation, column).items() if o == m}
+    if not pairs:
+        return None
+    estimated = evaluate(evaluation.model_file, data, init="estimate")
+    for output, measured in pairs.items():
+        y = data.column(measured)[window:]
+        steady = float(fit_percent(y, evaluation.predicted(output)[window:]))
+        started = float(fit_percent(y, estimated.predicted(output)[window:]))
+        if np.isfinite(started) and started >= steady + MID_TRANSIENT_POINTS:
+            hours, minutes = divmod(round(window * data.sample_time_s / 60.0), 60)
+            return (
+                f"{output}: the record seems to start mid-transient (split off a running log, or "
+                f"soon after a run): from {hours}:{minutes:02d} on, the model fits {steady:.1f} % "
+                f"started in equilibrium and {started:.1f} % from a state estimated on the time "
+                "before. The daemon carries its state: judge as it runs with --init estimate "
+                f"--from {hours}:{minutes:02d}, or on the whole log with --from"
+            )
+    return None
