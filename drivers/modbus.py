@@ -427,16 +427,20 @@ def _checked_byte_count(data: bytes) -> None:
         raise ModbusIOException(f"register reply with byte count {count} and {len(data) - 1} bytes")
 
 
-class _StrictHoldingRegisters(ReadHoldingRegistersResponse):
+class _StrictByteCount:
+    """A register reply that checks its byte count before pymodbus decodes it."""
+
     def decode(self, data: bytes) -> None:
         _checked_byte_count(data)
-        super().decode(data)
+        super().decode(data)  # type: ignore[misc]
 
 
-class _StrictInputRegisters(ReadInputRegistersResponse):
-    def decode(self, data: bytes) -> None:
-        _checked_byte_count(data)
-        super().decode(data)
+class _StrictHoldingRegisters(_StrictByteCount, ReadHoldingRegistersResponse):
+    pass
+
+
+class _StrictInputRegisters(_StrictByteCount, ReadInputRegistersResponse):
+    pass
 
 
 #: Replies decoded strictly: pymodbus drops a malformed frame, and the request times out.

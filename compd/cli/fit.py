@@ -22,6 +22,7 @@ from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
 from compd.cli.terminal import console
 from compd.errors import DataFileError
+from compd.files.modelschema import median_fold_how
 from compd.model.collinear import MIN_ABS_CORRELATION
 from compd.model.identify import MIN_SAMPLES
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
@@ -274,10 +275,7 @@ def expectation_line(result: FitResult) -> str | None:
         return None
     how = "nested cross-validation" if score.nested_fit_percent is not None else "cross-validation"
     if score.median_fold_percent is not None and score.held_out_percent is not None:
-        how += (
-            f": the median of its {len(score.fold_fit_percent)} held-out folds, "
-            f"pooled {fmt(score.held_out_percent, 1)} %"
-        )
+        how += median_fold_how(score.held_out_percent, len(score.fold_fit_percent))
     return (
         f"{score.method} kept: expected fit on new data {fmt(score.expected_percent, 1)} % ({how}); "
         f"{fmt(result.identification.fit_percent, 1)} % on the data it was fitted on"

@@ -302,9 +302,15 @@ class CrossValidationDoc(_Record):
         name = self.kept
         pooled = self.nested_fit_percent.get(name, self.fit_percent.get(name))
         if name in self.fold_median_percent and pooled is not None:
-            return f": the median of its held-out folds, pooled {pooled:.1f} %"
+            return median_fold_how(pooled)
         spread = self.fold_spread_percent.get(name)
         return f" less its spread over the folds, {spread:.1f} points" if spread else ""
+
+
+def median_fold_how(pooled_percent: float, n_folds: int | None = None) -> str:
+    """How an expected figure that is the median of the held-out folds was made, after its method."""
+    folds = "held-out folds" if n_folds is None else f"{n_folds} held-out folds"
+    return f": the median of its {folds}, pooled {pooled_percent:.1f} %"
 
 
 class ProvenanceDoc(_Record):
