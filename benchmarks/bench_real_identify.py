@@ -56,7 +56,6 @@ from compd.model.lagbank import (  # noqa: E402
     regression_cv,
 )
 from compd.model.metrics import fit_percent  # noqa: E402
-from compd.model.shrinkbank import ShrunkBank  # noqa: E402
 from compd.toolkit.nestedselect import compare_candidates  # noqa: E402
 
 RECORD = Path(__file__).resolve().parents[1] / "tests" / "data" / "fl_thermal_train.csv"
@@ -120,7 +119,6 @@ def _default(y: np.ndarray, u: np.ndarray, folds: Folds, dt_s: float) -> dict[st
         y, inputs, sample_time_s=dt_s, folds=folds, candidates=("lagbank", "mlr"),
         new_recordings=True,
     )  # fmt: skip
-    bank = ShrunkBank(y, u, sample_time_s=dt_s, folds=folds)
     nested = np.full(y.size, np.nan)
     for fold in range(folds.n_folds):
         held = folds.labels == fold
@@ -128,8 +126,8 @@ def _default(y: np.ndarray, u: np.ndarray, folds: Folds, dt_s: float) -> dict[st
             y, inputs, sample_time_s=dt_s, folds=folds, candidates=("lagbank", "mlr"),
             fitted=~held,
         )  # fmt: skip
-        if inner.kept == "lagbank":
-            nested[held] = bank.fit(~held).predicted_um[held]
+        if inner.kept == "lagbank" and inner.lag_bank is not None:
+            nested[held] = inner.lag_bank.predicted_um[held]
         else:
             nested[held] = (u @ np.linalg.lstsq(u[~held], y[~held], rcond=None)[0])[held]
     score = selection.score(selection.kept)

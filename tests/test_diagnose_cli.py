@@ -150,3 +150,44 @@ def test_a_found_effect_the_rule_refuses_is_said_not_to_survive() -> None:
     few_folds = judged((0.5, 1.05, 1.05)).verdict  # 13 % of the error, on one fold of three
     assert "would not survive" in few_folds and "lowers it on 1 of 3 folds" in few_folds
     assert "would not survive" not in judged((0.8, 0.8, 0.8)).verdict
+
+
+def test_a_coarsely_logged_record_is_diagnosed_on_fewer_blocks(tmp_path: Path, capsys) -> None:
+    """72 samples of 10 min (12 h logged as coarsely as issue 20's record C) are diagnosed, not refused.
+
+    A record of 60-99 samples is cut into 3 or 4 blocks of at least 20 instead
+    of the default 5; the missing power effect is still found.
+    """
+    model, _ = write_case(tmp_path)
+    # A logger's 10-min means: 72 samples, the rough cut among them.
+    frame = signals().groupby(np.arange(4320) // 60).mean()
+    frame["time_s"] = np.arange(len(frame)) * 600.0
+    frame.to_csv(tmp_path / "coarse.csv", index=False, float_format="%.6f")
+    report = diagnose_json(capsys, model, tmp_path / "coarse.csv")
+    assert report["candidates"], report
+    assert report["candidates"][0]["signal"] == "spindle_power_kw"
+
+
+def test_too_short_a_record_says_how_many_samples_and_hours_it_needs(
+    tmp_path: Path, capsys
+) -> None:
+    """Fewer than 60 samples: exit 2 naming the file, the 60 samples needed and what that is in hours."""
+    model, _ = write_case(tmp_path)
+    signals().iloc[::30].iloc[:50].to_csv(tmp_path / "short.csv", index=False)
+    code, _, err = run(capsys, "diagnose", model, tmp_path / "short.csv")
+    assert code == 2
+    assert "short.csv" in err and "50 samples" in err and "60" in err
+    assert "5 h at 300 s" in err
+
+
+def test_the_last_hour_of_a_long_record_is_judged_on_folds_of_that_hour(case, capsys) -> None:
+    """``--from`` inside the record's last fold: the extension is judged on blocks of the scored part.
+
+    The whole record's four blocks would leave the last hour in one of them,
+    with nothing to hold out against (it used to end in "no fold has both
+    held-out and fitted samples").
+    """
+    report = diagnose_json(capsys, *case, "--from", "11:00")
+    judged = [c["extended"] for c in report["candidates"] if c.get("extended")]
+    assert judged, report["candidates"][0]
+    assert all("of the scored part" in j["folds"] for j in judged)

@@ -22,6 +22,7 @@ from compd.cli.terminal import console
 from compd.files.data import DataSet
 from compd.files.effects import EffectCatalogue, load_catalogue
 from compd.files.modelfile import load_model
+from compd.model.diagnose import MIN_DIAGNOSED_SAMPLES
 from compd.toolkit.analysis import DiagnosisResult, diagnose_evaluation
 from compd.toolkit.evaluate import evaluate, measured_columns
 from compd.toolkit.extendjudge import RULE, held_out_json
@@ -30,8 +31,6 @@ from compd.toolkit.span import evaluate_span
 from compd.toolkit.summary import fmt, json_clean, json_text
 
 DEFAULT_TOP = 5
-#: Fewest samples diagnosed: the default 5 cross-validation blocks of 20.
-MIN_SAMPLES = 100
 
 
 def register(commands: Any) -> None:
@@ -93,7 +92,7 @@ def _diagnose(args: argparse.Namespace) -> int:
     if len(experiments) > 1:
         return _diagnose_several(args, experiments, catalogue)
     data = experiments[0]
-    span = span_from_args(args, data, min_samples=MIN_SAMPLES)
+    span = span_from_args(args, data, min_samples=MIN_DIAGNOSED_SAMPLES)
     evaluation = evaluate_span(load_model(args.model), data, span, init=args.init)
     output, _, result = _diagnose_one(evaluation, data, args, catalogue)
     if args.json:

@@ -39,11 +39,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from compd.model.correlation import Correlations, correlate, whiteness_exceedances
+from compd.model.crossval import MIN_FOLD_SAMPLES
 from compd.model.lagscore import fit_candidate, time_constant_bank
 
 Array = NDArray[np.float64]
 
 MAX_LAG_S = 7200.0
+#: Fewest contiguous blocks a residue is cross-validated on. A short record (a 6 h warm-up run
+#: at 5 min is 72 samples) is cut into fewer blocks than asked, never fewer than this.
+MIN_BLOCKS = 3
+#: Fewest samples diagnosed: :data:`MIN_BLOCKS` blocks of ``MIN_FOLD_SAMPLES``.
+MIN_DIAGNOSED_SAMPLES = MIN_BLOCKS * MIN_FOLD_SAMPLES
 MIN_EXPLAINED_PERCENT = 10.0
 """Below this cross-validated share no candidate is named as the missing effect."""
 
@@ -120,6 +126,21 @@ class Diagnosis:
         )
 
 
+def diagnosis_blocks(n_samples: int, wanted: int = 5) -> int:
+    """How many contiguous blocks (up to ``wanted``) a residue of ``n_samples`` is diagnosed on.
+
+    Each block holds at least ``MIN_FOLD_SAMPLES`` samples; fewer than
+    :data:`MIN_BLOCKS` of them is a ValueError saying how many samples are needed.
+    """
+    blocks = min(wanted, n_samples // MIN_FOLD_SAMPLES)
+    if blocks < MIN_BLOCKS:
+        raise ValueError(
+            f"{n_samples} samples are too few to cross-validate: at least "
+            f"{MIN_DIAGNOSED_SAMPLES} are needed ({MIN_BLOCKS} blocks of {MIN_FOLD_SAMPLES})"
+        )
+    return blocks
+
+
 def diagnose_residue(
     residue_um: Array,
     candidates: Mapping[str, Array],
@@ -145,7 +166,8 @@ def diagnose_residue(
     sample_time_s
         Sample time of both, s.
     folds
-        Contiguous cross-validation blocks (at least 20 samples each).
+        Contiguous cross-validation blocks (at least 20 samples each; fewer on
+        a short record, :func:`diagnosis_blocks`).
     max_lag_s
         Largest correlation lag and the Bartlett lag window, s (clipped to a
         quarter of the record).
@@ -163,8 +185,7 @@ def diagnose_residue(
     whole = np.asarray(residue_um, dtype=float)
     e = whole[first_sample:]
     n = len(e)
-    if n < 20 * folds:
-        raise ValueError(f"{n} samples are too few to cross-validate on {folds} blocks")
+    folds = diagnosis_blocks(n, folds)
     names = list(candidates)
     raw = np.array([np.asarray(candidates[name], dtype=float) for name in names]).reshape(
         len(names), len(whole)

@@ -25,7 +25,7 @@ import numpy as np
 from compd.errors import DataFileError
 from compd.files.data import DataSet
 from compd.files.effects import EffectCatalogue, load_catalogue
-from compd.model.diagnose import Diagnosis, diagnose_residue
+from compd.model.diagnose import MIN_DIAGNOSED_SAMPLES, Diagnosis, diagnose_residue
 from compd.model.windows import FailingWindow, failing_windows, window_count
 from compd.toolkit.evaluate import Evaluation
 from compd.toolkit.extendjudge import (
@@ -39,6 +39,7 @@ from compd.toolkit.extendjudge import (
     same_record_extensions,
     without_prior,
 )
+from compd.toolkit.span import longer_record_fix
 
 #: Operating conditions reported per failing window (column-name globs, case-insensitive),
 #: besides every signal the model reads.
@@ -298,7 +299,7 @@ def diagnose_evaluation(
         )
     except ValueError as exc:  # too short a record to cross-validate
         raise DataFileError(
-            data.path, str(exc), fix="Diagnose a longer record (hours of data, not minutes)"
+            data.path, str(exc), fix=longer_record_fix(MIN_DIAGNOSED_SAMPLES, data.sample_time_s)
         ) from exc
     effects = {name: catalogue.effect_for(name) for name in signals}
     measured = data.column(measured_column)[evaluation.first_sample :]

@@ -24,7 +24,7 @@ from compd.files.data import DataSet
 from compd.files.modelschema import CrossValidationDoc
 from compd.model.collinear import contribution_shares
 from compd.model.compiled import compile_model, qualified_names
-from compd.model.crossval import Folds, blocked_folds, cycle_folds
+from compd.model.crossval import MIN_FOLD_SAMPLES, Folds, blocked_folds, cycle_folds
 from compd.model.experiments import ONE, each
 from compd.model.guards import Finding, Severity, check_model
 from compd.model.identify import Identification, IdentifiedTF
@@ -58,14 +58,40 @@ def operating_signal(data: DataSet, explicit: str | None, gate: str | None) -> s
     return None
 
 
-def folds_of(data: DataSet, signal: str | None) -> Folds:
-    """Leave-one-cycle-out folds of ``signal``, or contiguous blocks without one."""
+def folds_of(data: DataSet, signal: str | None, first_sample: int = 0) -> Folds:
+    """Leave-one-cycle-out folds of ``signal``, or contiguous blocks without one.
+
+    Only samples from ``first_sample`` on are fitted and judged (``--from``).
+    When the whole record's folds leave that part in fewer than
+    :data:`MIN_SCORED_FOLDS` of them (the last hours of a long log, inside its
+    last cycle), the folds are made of that part alone; the samples before it
+    join its first fold (they are run through, never scored).
+    """
+    whole = _folds(data, signal, np.arange(len(data)))
+    if first_sample == 0 or _scored_folds(whole, first_sample) >= MIN_SCORED_FOLDS:
+        return whole
+    part = _folds(data, signal, np.arange(first_sample, len(data)))
+    labels = np.concatenate([np.zeros(first_sample, dtype=int), part.labels])
+    return Folds(labels, f"{part.kind} of the scored part")
+
+
+#: Fewest folds that must hold scored samples for the whole record's folds to be used.
+MIN_SCORED_FOLDS = 3
+
+
+def _folds(data: DataSet, signal: str | None, rows: np.ndarray) -> Folds:
     try:
         if signal is None:
-            return blocked_folds(len(data))
-        return cycle_folds(data.column(signal), name=signal)
+            return blocked_folds(rows.size)
+        return cycle_folds(data.column(signal)[rows], name=signal)
     except ModelError as exc:
         raise DataFileError(data.path, exc.message, where="--cycles") from exc
+
+
+def _scored_folds(folds: Folds, first_sample: int) -> int:
+    """How many folds hold at least one cross-validation block's worth of scored samples."""
+    counts = np.bincount(folds.labels[first_sample:], minlength=folds.n_folds)
+    return int(np.sum(counts >= MIN_FOLD_SAMPLES))
 
 
 def lag_bank_identification(

@@ -32,6 +32,7 @@ from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile
 from compd.files.yamlplace import resolve_path
 from compd.model.crossval import Folds
+from compd.model.diagnose import diagnosis_blocks
 from compd.model.lagbank import LagBankFit, fit_lag_bank
 from compd.model.lagscore import fit_candidate, time_constant_bank
 from compd.model.metrics import fit_percent
@@ -194,7 +195,8 @@ def judge_signal(
     Returns the judgement and the lag bank on all signals fitted on every
     scored sample, which ``--method lagbank`` adds as the sub-models.
     """
-    folds = folds_of(data, operating_signal(data, None, None)) if folds is None else folds
+    if folds is None:
+        folds = folds_of(data, operating_signal(data, None, None), first_sample)
     residue = measured - predicted
     fitted = np.arange(len(residue)) >= first_sample
     changes = np.column_stack(
@@ -321,7 +323,7 @@ def follow_percent(data: DataSet, leader: str, follower: str, first_sample: int 
             x / spread,
             taus,
             data.sample_time_s,
-            folds=5,
+            folds=diagnosis_blocks(len(y) - first_sample),
             pair_margin_percent=2.0,
             first_sample=first_sample,
         )
@@ -349,7 +351,7 @@ def judge_signals(
 ) -> dict[str, HeldOut]:
     """:func:`judge_signal` for each of ``signals`` on ``evaluation``'s record (the same folds)."""
     data = evaluation.data
-    folds = folds_of(data, operating_signal(data, None, None))
+    folds = folds_of(data, operating_signal(data, None, None), first_sample)
     measured = data.column(measured_column)
     out = {}
     for signal in signals:

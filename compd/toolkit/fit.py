@@ -190,7 +190,7 @@ def fit_data(
             fix="Use --method oe or arx for those structures, or drop them",
         )
     folds = (
-        folds_of(data, operating_signal(data, cycles, phase_gate))
+        folds_of(data, operating_signal(data, cycles, phase_gate), first)
         if len(starts) == 1
         else experiment_folds(len(data), starts)
     )

@@ -131,6 +131,12 @@ def resolve_span(
     # Half a sample of slack: a time given as a sample's time selects that sample.
     start = 0 if from_s is None else int(np.searchsorted(data.time_s, from_s - 0.5 * step))
     stop = len(data) if until_s is None else int(np.searchsorted(data.time_s, until_s - 0.5 * step))
+    if stop - start < min_samples and from_s is None and until_s is None:
+        raise DataFileError(
+            data.path,
+            f"the record holds {len(data)} samples, fewer than the {min_samples} needed",
+            fix=longer_record_fix(min_samples, step),
+        )
     if stop - start < min_samples:
         where = "--from" if until_s is None else "--until"
         raise DataFileError(
@@ -141,6 +147,15 @@ def resolve_span(
             fix=f"Widen the window; {record}",
         )
     return Span(data.path, from_s, until_s, start, stop, step)
+
+
+def longer_record_fix(min_samples: int, sample_time_s: float) -> str:
+    """What to give instead of a record too short to work on: the samples, and the hours they take."""
+    hours = min_samples * sample_time_s / 3600
+    return (
+        f"Give a record of at least {min_samples} samples ({hours:.3g} h at {sample_time_s:g} s): "
+        "a longer one, or one logged at a shorter sample time"
+    )
 
 
 def until_stop(data: DataSet, span: Span) -> DataSet:
