@@ -225,3 +225,16 @@ def test_fitted_model_carries_the_calibrations_first_values_as_its_thermal_zero(
     y = np.asarray(compiled.b[:, 0] * rises + steady.z[:, 0])  # the DF2T output at the next tick
     assert y.sum() == pytest.approx(float(static_gain @ rises), rel=1e-9)
     assert abs(y.sum()) > 1.0, "a warm machine's drift from the thermal zero is compensated"
+
+
+def test_fit_from_inside_the_records_last_cycle_is_judged_on_folds_of_that_part(
+    calibration_csv, tmp_path, capsys
+):
+    """``--from 22:00`` of a 24 h record of 3 h cycles: the last 2 h are cut into their own folds.
+
+    The whole record's cycles leave those hours in one fold, with nothing to
+    hold out against (it used to end in "no held-out predictions to score").
+    """
+    assert _fit(calibration_csv, tmp_path / "m.yaml", "--from", "22:00") == 0
+    out = capsys.readouterr().out
+    assert "of the scored part" in out and "expected fit on new data" in out
