@@ -319,7 +319,8 @@ def fit_arx(
         raise ModelError(
             f"the least-squares ARX model of order na = {na} is unstable (largest pole "
             f"|z| = {max_pole_magnitude(parameters.a):.9g}): the data does not support this "
-            "order. Use a lower order, a longer record with more excitation, or --order auto"
+            "order. Use a lower order or --order auto; or the default fit (no --method: the "
+            "lag bank or the static regression, which have no denominator to go unstable)"
         )
     return parameters
 

@@ -90,7 +90,9 @@ def fit_arx_order(
     if best.parameters is None:
         raise ModelError(
             "every ARX order up to 3 gave an unstable model on this data: it does not show "
-            "how the output responds to the inputs. Use a longer record with more excitation"
+            "how the output responds to the inputs through one shared denominator (slow drift, "
+            "inputs that move together). Fit without --method: the lag bank or the static "
+            "regression need no stable denominator"
         )
     assert search.validation is not None  # search_arx always holds data back
     # The whole record: the sum of both parts' normal equations.
