@@ -171,13 +171,13 @@ def test_a_coarsely_logged_record_is_diagnosed_on_fewer_blocks(tmp_path: Path, c
 def test_too_short_a_record_says_how_many_samples_and_hours_it_needs(
     tmp_path: Path, capsys
 ) -> None:
-    """Fewer than 60 samples: exit 2 naming the file, the 60 samples needed and what that is in hours."""
+    """Fewer than 64 samples: exit 2 naming the file, the 64 samples needed and what that is in hours."""
     model, _ = write_case(tmp_path)
     signals().iloc[::30].iloc[:50].to_csv(tmp_path / "short.csv", index=False)
     code, _, err = run(capsys, "diagnose", model, tmp_path / "short.csv")
     assert code == 2
-    assert "short.csv" in err and "50 samples" in err and "60" in err
-    assert "5 h at 300 s" in err
+    assert "short.csv" in err and "50 samples" in err and "64" in err
+    assert "5.33 h at 300 s" in err
 
 
 def test_the_last_hour_of_a_long_record_is_judged_on_folds_of_that_hour(case, capsys) -> None:

@@ -131,10 +131,10 @@ def test_a_constant_candidate_is_refused(candidates: dict) -> None:
 
 
 def test_a_short_record_is_cut_into_fewer_blocks_of_at_least_20_samples() -> None:
-    """5 blocks where the record holds them, down to 3 (60 samples); fewer is refused, saying how many."""
+    """5 blocks where the record holds them, down to 3 (64 samples); fewer is refused, saying how many."""
     from compd.model.diagnose import MIN_DIAGNOSED_SAMPLES, diagnosis_blocks
 
-    assert [diagnosis_blocks(n) for n in (60, 72, 99, 100, 5000)] == [3, 3, 4, 5, 5]
-    assert MIN_DIAGNOSED_SAMPLES == 60
-    with pytest.raises(ValueError, match="59 samples are too few to cross-validate: at least 60"):
-        diagnosis_blocks(59)
+    assert [diagnosis_blocks(n) for n in (64, 72, 99, 100, 5000)] == [3, 3, 4, 5, 5]
+    assert MIN_DIAGNOSED_SAMPLES == 64
+    with pytest.raises(ValueError, match="63 samples are too few to cross-validate: at least 64"):
+        diagnosis_blocks(63)

@@ -96,7 +96,7 @@ def test_on_off_signals_share_one_axis(seed000: Evaluation) -> None:
 def test_too_short_a_record_gives_a_reason_instead_of_a_ranking(seed000: Evaluation) -> None:
     """A record too short to cross-validate still gets windows and metrics; the ranking is replaced by why."""
     data = seed000.data
-    k = 50  # 8 minutes at 10 s: fewer than the 60 samples of three cross-validation blocks
+    k = 50  # 8 minutes at 10 s: fewer than the 64 a diagnosis needs
     short = DataSet(
         data.path,
         data.time_s[:k],
