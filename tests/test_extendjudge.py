@@ -88,3 +88,19 @@ def test_an_offset_in_disguise_is_refused() -> None:
     assert judged.accepted
     disguised = dataclasses.replace(judged, rms_offset_um=5.07)
     assert not disguised.accepted and "a constant offset alone would leave" in disguised.describe()
+
+
+def test_on_a_record_too_short_to_diagnose_neither_signal_is_said_to_follow() -> None:
+    """50 samples (extend takes them, diagnose does not): which follows which is not judged, no error."""
+    door = (np.sin(np.arange(50) * 2 * np.pi / 24.0) > 0.6).astype(float)
+    temperature = 20.0 + 3.0 * scipy.signal.lfilter([0.2], [1, -0.8], door)
+    data = DataSet(
+        "short.csv",
+        np.arange(50) * 300.0,
+        300.0,
+        {"door_open": door, "T_door_degC": temperature},
+        None,
+        (),
+    )
+    assert follow_percent(data, "door_open", "T_door_degC") == 0.0
+    assert follow_percent(data, "T_door_degC", "door_open") == 0.0

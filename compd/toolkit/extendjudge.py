@@ -32,7 +32,7 @@ from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile
 from compd.files.yamlplace import resolve_path
 from compd.model.crossval import Folds
-from compd.model.diagnose import diagnosis_blocks
+from compd.model.diagnose import MIN_DIAGNOSED_SAMPLES, diagnosis_blocks
 from compd.model.lagbank import LagBankFit, fit_lag_bank
 from compd.model.lagscore import fit_candidate, time_constant_bank
 from compd.model.metrics import fit_percent
@@ -309,12 +309,14 @@ def follow_percent(data: DataSet, leader: str, follower: str, first_sample: int 
     """Share of ``follower``'s changes (RMS) that one or two lags of ``leader`` reproduce, held out.
 
     The candidate score of :func:`compd.model.lagscore.fit_candidate` with
-    ``follower`` in place of the residue.
+    ``follower`` in place of the residue; 0 (cannot tell) on a record too
+    short to diagnose.
     """
     x = data.column(leader) - data.column(leader)[0]
     y = data.column(follower) - data.column(follower)[0]
     spread = float(np.std(x[first_sample:]))
-    if spread == 0.0 or float(np.std(y[first_sample:])) == 0.0:
+    too_short = len(y) - first_sample < MIN_DIAGNOSED_SAMPLES
+    if too_short or spread == 0.0 or float(np.std(y[first_sample:])) == 0.0:
         return 0.0
     taus = time_constant_bank(data.sample_time_s, (len(y) - first_sample) * data.sample_time_s)
     with threadpool_limits(limits=1, user_api="blas"):
