@@ -238,3 +238,37 @@ def test_fit_from_inside_the_records_last_cycle_is_judged_on_folds_of_that_part(
     assert _fit(calibration_csv, tmp_path / "m.yaml", "--from", "22:00") == 0
     out = capsys.readouterr().out
     assert "of the scored part" in out and "expected fit on new data" in out
+
+
+def test_an_oe_model_that_cannot_run_is_refused_as_a_fit_with_the_default_named(tmp_path, capsys):
+    """Random machine 4 (14 sensors, one record): OE at order 1 finds a pole so near 1 that a gain is 2e7 um/K.
+
+    The refusal names the data file and the option, and points to the default
+    fit, instead of a model-file message about units and coefficients.
+    """
+    from compd.sim.machines import random_machine, write_case
+
+    case = random_machine(4)
+    write_case(case, tmp_path)
+    code = main(
+        [
+            "fit",
+            "--data",
+            str(tmp_path / "calibration"),
+            "--output",
+            case.output,
+            "--inputs",
+            ",".join(case.inputs),
+            "--method",
+            "oe",
+            "--order",
+            "1",
+            "--out",
+            str(tmp_path / "m.yaml"),
+        ]
+    )
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "calibration/01.csv" in err and "--method oe" in err and "cannot run" in err
+    assert "the default (no --method)" in err
+    assert not (tmp_path / "m.yaml").exists()

@@ -265,7 +265,16 @@ def fit_data(
         baked = bake_lowpasses(model, identification, data, denoised, units)
         model, identification, denoise_doc = baked.model, baked.identification, baked.doc
     comparison = Comparison.of(output, y[first:], identification.simulated_um[first:])
-    contributions = contributions_of(data, model, starts)
+    try:
+        contributions = contributions_of(data, model, starts)
+    except ModelError as exc:  # e.g. a pole so near 1 that the static gain is absurd
+        raise DataFileError(
+            data.path,
+            f"the {chosen} model identified on this data cannot run: {exc.message}",
+            where=f"--method {chosen}",
+            fix="Fit a lower --order or another --method; the default (no --method) is the lag "
+            "bank or the static regression, which have no poles to fit",
+        ) from exc
     findings = guard_findings(data, model, contributions)
     if not force:
         refuse_errors(
