@@ -11,10 +11,19 @@ from typing import Any
 from rich.table import Table
 from rich.text import Text
 
-from compd.cli.common import data_options, load_data_from_args, order_arg, span_from_args
+from compd.cli.common import (
+    data_options,
+    experiments_label,
+    load_data_from_args,
+    load_experiments_from_args,
+    order_arg,
+    refuse_with_several,
+    span_from_args,
+)
 from compd.cli.progress import progress_reporter
 from compd.cli.terminal import console
 from compd.files.effects import load_catalogue
+from compd.files.experiments import single, stack
 from compd.files.modelfile import load_model
 from compd.files.provenancepaths import write_model_text
 from compd.model.identify import MIN_SAMPLES
@@ -36,7 +45,9 @@ def register(commands: Any) -> None:
         type=Path,
         nargs="+",
         metavar="DATA",
-        help="a record with the effect: a file, or the files (a folder) of one recorded run",
+        help="a record with the effect: a file, the files (a folder) of one recorded run, or "
+        "several experiments (warm-up runs, days): each run from its own start, judged one "
+        "file out at a time",
     )
     extend.add_argument(
         "--effect",
@@ -91,7 +102,12 @@ def register(commands: Any) -> None:
 
 def _extend(args: argparse.Namespace) -> int:
     parent = load_model(args.model)
-    data = load_data_from_args(args)
+    experiments = load_experiments_from_args(args)
+    refuse_with_several(
+        experiments, {"--from": args.from_s is not None, "--until": args.until_s is not None}
+    )
+    record = stack(experiments) if len(experiments) > 1 else single(experiments[0])
+    data = record.data
     span = span_from_args(args, data, min_samples=MIN_SAMPLES)
     for note in data.notes:  # what was joined, repaired or left out
         print(f"note: {note}", file=sys.stderr)
@@ -100,9 +116,9 @@ def _extend(args: argparse.Namespace) -> int:
     command = (
         "compd " + shlex.join(["extend", *sys.argv[2:]]) if sys.argv[1:2] == ["extend"] else ""
     )
-    signals = effect_signals(args.effect, parent, data, column=args.output, span=span)
+    signals = effect_signals(args.effect, parent, record, column=args.output, span=span)
     choice = (
-        choose_effect(parent, data, signals, column=args.output, force=args.force, span=span)
+        choose_effect(parent, record, signals, column=args.output, force=args.force, span=span)
         if len(signals) > 1 or args.effect.strip() == "auto"
         else None
     )
@@ -111,7 +127,7 @@ def _extend(args: argparse.Namespace) -> int:
     with progress_reporter(enabled=not args.json) as progress:
         extension = extend_model(
             parent,
-            data,
+            record,
             signal=signal,
             effect=effect,
             column=args.output,
@@ -209,7 +225,12 @@ def _extend(args: argparse.Namespace) -> int:
     )
     held = extension.held_out
     rows = [
-        (data.path, extension.fit_before, extension.fit_after),
+        (
+            experiments_label(experiments)
+            + (" (pooled, each run from its start)" if len(experiments) > 1 else ""),
+            extension.fit_before,
+            extension.fit_after,
+        ),
         (f"held-out parts of it ({held.folds}; regularised)", held.before, held.after),
     ]
     if verified is not None:
@@ -217,7 +238,12 @@ def _extend(args: argparse.Namespace) -> int:
     for name, before, after in rows:
         table.add_row(name, fmt(before, 1), fmt(after, 1), fmt(after - before, 1))
     out.print(table)
-    if args.method == "auto" and extension.identification.method == "lagbank":
+    if len(experiments) > 1:
+        out.print(
+            f"over {len(experiments)} experiments: the regularised lag bank of the held-out check "
+            "(every lag from rest at each file's start)"
+        )
+    elif args.method == "auto" and extension.identification.method == "lagbank":
         out.print(
             "the oe sub-model failed the guard rails: the regularised lag bank of the held-out "
             "check was added instead"

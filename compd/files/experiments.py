@@ -160,6 +160,11 @@ class Stacked:
     experiments: tuple[DataSet, ...]
 
 
+def single(data: DataSet) -> Stacked:
+    """One record as a stack of one experiment (the data set itself, unchanged)."""
+    return Stacked(data, (0,), (data,))
+
+
 def stack(experiments: Sequence[DataSet]) -> Stacked:
     """One data set of ``experiments`` end to end (columns as each file's: references are the caller's)."""
     check_alike(experiments)

@@ -32,6 +32,15 @@ def spans(n_samples: int, starts: Sequence[int]) -> list[slice]:
     return [slice(a, b) for a, b in zip(bounds, [*bounds[1:], n_samples], strict=True)]
 
 
+def start_values(values: np.ndarray, starts: Sequence[int]) -> np.ndarray:
+    """Each sample's reference: the first value of its experiment (of the record, for one)."""
+    values = np.asarray(values)
+    if len(starts) == 1:
+        return values[:1]  # broadcasts
+    lengths = np.diff([*starts, values.size])
+    return np.repeat(values[list(starts)], lengths)
+
+
 def each(
     run: Callable[[np.ndarray], np.ndarray], x: np.ndarray, starts: Sequence[int]
 ) -> np.ndarray:

@@ -15,8 +15,10 @@ import numpy as np
 
 from compd.errors import DataFileError
 from compd.files.data import DataSet
+from compd.files.experiments import Stacked
 from compd.files.modelfile import ModelFile
 from compd.model.compiled import CompiledModel, ModelState
+from compd.model.experiments import ONE
 from compd.model.initial import estimate_initial_state
 from compd.model.metrics import Comparison, fit_percent
 from compd.model.run import SimulationResult, simulate
@@ -42,6 +44,9 @@ class Evaluation:
     span: Span | None = None
     #: When this is a later part of a run: that run, from the record's first sample.
     whole: Evaluation | None = None
+    #: The first sample of each experiment in :attr:`data` (several files stacked:
+    #: :func:`evaluate_each`), where the model started again from its initial state.
+    starts: tuple[int, ...] = ONE
 
     @property
     def first_sample(self) -> int:
@@ -107,6 +112,33 @@ def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "stea
         )
     result = simulate(compiled, signals, state)
     return Evaluation(model_file, compiled, data, result, tuple(notes))
+
+
+def evaluate_each(
+    model_file: ModelFile, record: Stacked, *, init: InitialState = "steady"
+) -> Evaluation:
+    """``model_file`` run over each experiment of ``record`` from its own start, stacked again.
+
+    What ``compd compare`` does with several files, as one evaluation on the
+    stacked data (:attr:`Evaluation.starts` says where each run begins), so
+    that what judges a residue can judge it over every file at once. One
+    experiment is exactly :func:`evaluate`.
+    """
+    runs = [evaluate(model_file, data, init=init) for data in record.experiments]
+    if len(runs) == 1:
+        return runs[0]
+    results = [run.result for run in runs]
+    residuals = [r.residuals for r in results if r.residuals is not None]
+    result = SimulationResult(
+        outputs=np.concatenate([r.outputs for r in results]),
+        contributions=np.concatenate([r.contributions for r in results]),
+        final_state=results[-1].final_state,
+        residuals=np.concatenate(residuals) if len(residuals) == len(results) else None,
+    )
+    notes = tuple(dict.fromkeys(note for run in runs for note in run.notes))
+    return Evaluation(
+        model_file, runs[0].compiled, record.data, result, notes, starts=record.starts
+    )
 
 
 def measured_columns(evaluation: Evaluation, column: str | None = None) -> dict[str, str]:

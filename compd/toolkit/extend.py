@@ -23,6 +23,7 @@ import numpy as np
 
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
+from compd.files.experiments import Stacked, single
 from compd.files.modelfile import ModelFile, parse_model
 from compd.files.modelwriter import model_to_yaml
 from compd.model.guards import Finding, Severity
@@ -32,7 +33,7 @@ from compd.model.metrics import fit_percent
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF, resample_discrete
 from compd.toolkit.candidates import guard_findings, lag_bank_identification, refuse_errors
-from compd.toolkit.evaluate import Evaluation, compare, evaluate, measured_columns
+from compd.toolkit.evaluate import Evaluation, compare, evaluate, evaluate_each, measured_columns
 from compd.toolkit.extendjudge import (
     RULE,
     HeldOut,
@@ -71,7 +72,7 @@ class Extension:
 
 def extend_model(
     parent: ModelFile,
-    data: DataSet,
+    data: DataSet | Stacked,
     *,
     signal: str,
     effect: str,
@@ -100,18 +101,33 @@ def extend_model(
     ``method``: ``auto`` is ``oe``, or the lag bank the held-out check fitted
     when the OE sub-model fails the guard rails (a near-integrator that
     another cancels); ``oe``, ``arx`` or ``lagbank`` as named.
+
+    ``data`` may be several experiments (:class:`~compd.files.experiments.Stacked`:
+    warm-up runs, days, files that are not one run): the model runs from its
+    initial state at each file's start, the sub-model is judged leaving one
+    file out at a time and is the regularised lag bank over all of them,
+    every lag from rest at each start (OE and ARX identify one record).
     """
+    runs = data if isinstance(data, Stacked) else single(data)
+    data, starts = runs.data, runs.starts
+    several = len(starts) > 1
+    if several:
+        _check_several(data, method, len(starts), span)
+        method = "lagbank"
     first = 0
-    if span is not None:
+    if span is not None and not several:
         data, first = until_stop(data, span), span.start
-    before = evaluate(parent, data)
+        runs = single(data)
+    before = evaluate_each(parent, runs)
     output, measured_name = _one_output(before, column)
     check_effect_signal(data, signal, measured_name)
     measured = data.column(measured_name)
     prior = same_record_extensions(parent, output, data, signal)
     root = without_prior(before, output, prior)
     residue = measured - root
-    held_out, bank = judge_signal(data, measured, root, signal, prior=prior, first_sample=first)
+    held_out, bank = judge_signal(
+        data, measured, root, signal, prior=prior, first_sample=first, starts=starts
+    )
     if not held_out.accepted and not force:
         raise DataFileError(
             data.path,
@@ -140,7 +156,7 @@ def extend_model(
                 progress=progress,
                 first_sample=first,
             )
-        made = _submodels(found, effects, taken, data, parent)
+        made = _submodels(found, effects, taken, data, parent, starts)
         # The new signal's sub-models first, then those refitted with it.
         return found, tuple(sorted(made, key=lambda sub: sub.input.signal != signal))
 
@@ -153,7 +169,7 @@ def extend_model(
     model = _with_submodels(parent.model, output, submodels, signal, drop=prior.submodels)
     record = ExtensionRecord(signal, names, prior.signals, tuple(tried), held_out)
     provisional = extension_yaml(parent, model, data, record, {}, {}, command)
-    after = evaluate(parse_model(provisional, parent.path), data)
+    after = evaluate_each(parse_model(provisional, parent.path), runs)
     fit_before = fit_percent(measured[first:], before.predicted(output)[first:])
     fit_after = fit_percent(measured[first:], after.predicted(output)[first:])
     added = sum(_contribution(after, output, name) for name in names)
@@ -201,8 +217,13 @@ def _submodels(
     taken: set[str],
     data: DataSet,
     parent: ModelFile,
+    starts: Sequence[int],
 ) -> tuple[SubModel, ...]:
-    """The identified channels as sub-models named ``SIGNAL_effect`` (a lag bank's: per lag)."""
+    """The identified channels as sub-models named ``SIGNAL_effect`` (a lag bank's: per lag).
+
+    Each input's reference, its thermal zero, is its first value: over several
+    experiments the mean of their first values (as ``compd fit`` sets them).
+    """
     bank = found.method == "lagbank"
     names = set(taken)
     out = []
@@ -218,11 +239,33 @@ def _submodels(
                 name=name,
                 effect=f"{effect} (lag {tau:g} s, lagbank)" if bank else effect,
                 # Fitted as changes from the record's first value: that is the input's thermal zero.
-                input=InputSpec(c.input_name, reference=float(data.column(c.input_name)[0])),
+                input=InputSpec(
+                    c.input_name, reference=float(np.mean(data.column(c.input_name)[list(starts)]))
+                ),
                 tf=_at_model_rate(c.tf, data, parent),
             )
         )
     return tuple(out)
+
+
+def _check_several(data: DataSet, method: str, experiments: int, span: Span | None) -> None:
+    """Refuse what works on one record only when ``data`` stacks several experiments."""
+    if method in ("oe", "arx"):
+        raise DataFileError(
+            data.path,
+            f"--method {method} identifies a sub-model on one record, and the data make "
+            f"{experiments} experiments (files or runs each run from their own start)",
+            where=f"--method {method}",
+            fix="Leave --method at auto (the regularised lag bank over every file), or extend "
+            "on one file",
+        )
+    if span is not None and not span.whole:
+        raise DataFileError(
+            data.path,
+            f"--from/--until select part of one record, and the data make {experiments} experiments",
+            where="--from/--until",
+            fix="Give the files to extend on, or one file with --from/--until",
+        )
 
 
 def _guard_errors(

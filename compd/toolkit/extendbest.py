@@ -17,9 +17,11 @@ import numpy as np
 
 from compd.errors import DataFileError
 from compd.files.data import DataSet
+from compd.files.experiments import Stacked, single
 from compd.files.modelfile import ModelFile
+from compd.model.diagnose import MIN_DIAGNOSED_SAMPLES
 from compd.toolkit.analysis import default_candidates, diagnose_evaluation
-from compd.toolkit.evaluate import evaluate
+from compd.toolkit.evaluate import evaluate, evaluate_each
 from compd.toolkit.extend import check_effect_signal, one_output
 from compd.toolkit.extendjudge import RULE, HeldOut, judge_signals, rank_judged
 from compd.toolkit.extendrecord import Tried
@@ -42,11 +44,24 @@ class Choice:
 
 
 def effect_signals(
-    text: str, parent: ModelFile, data: DataSet, *, column: str | None, span: Span | None
+    text: str,
+    parent: ModelFile,
+    data: DataSet | Stacked,
+    *,
+    column: str | None,
+    span: Span | None,
 ) -> list[str]:
-    """``--effect``'s signals: ``A,B,...`` as given, or ``auto``: diagnose's first candidates."""
+    """``--effect``'s signals: ``A,B,...`` as given, or ``auto``: diagnose's first candidates.
+
+    Over several experiments, diagnose's candidates in each file diagnosed
+    alone, ranked by the median share of the residue they explain.
+    """
     if text.strip() != "auto":
         return list(dict.fromkeys(s.strip() for s in text.split(",") if s.strip()))
+    if isinstance(data, Stacked):
+        if len(data.experiments) > 1:
+            return _auto_over_experiments(parent, data, column)
+        data = data.data
     whole = evaluate(parent, data if span is None else until_stop(data, span))
     evaluation = whole if span is None else scored_part(whole, span)
     output, measured = one_output(whole, column)
@@ -60,9 +75,32 @@ def effect_signals(
     return [c.signal for c in result.diagnosis.candidates[:AUTO_CANDIDATES]]
 
 
+def _auto_over_experiments(parent: ModelFile, record: Stacked, column: str | None) -> list[str]:
+    explained: dict[str, list[float]] = {}
+    for data in record.experiments:
+        if len(data) < MIN_DIAGNOSED_SAMPLES:
+            continue
+        evaluation = evaluate(parent, data)
+        output, measured = one_output(evaluation, column)
+        if not any(np.ptp(data.column(n)) > 0.0 for n in default_candidates(evaluation, measured)):
+            continue
+        result = diagnose_evaluation(evaluation, output, measured, judged=0)
+        for c in result.diagnosis.candidates:
+            explained.setdefault(c.signal, []).append(c.explained_percent)
+    if not explained:
+        raise DataFileError(
+            record.data.path,
+            "--effect auto: no file holds a varying signal besides the model's own in at least "
+            f"{MIN_DIAGNOSED_SAMPLES} samples",
+            fix="Name the signal: --effect SIGNAL",
+        )
+    ranked = sorted(explained, key=lambda s: -float(np.median(explained[s])))
+    return ranked[:AUTO_CANDIDATES]
+
+
 def choose_effect(
     parent: ModelFile,
-    data: DataSet,
+    data: DataSet | Stacked,
     signals: Sequence[str],
     *,
     column: str | None = None,
@@ -74,15 +112,18 @@ def choose_effect(
     With none accepted, a :class:`DataFileError` lists each one's figures
     (``force``: the best of them is kept anyway).
     """
+    record = data if isinstance(data, Stacked) else single(data)
+    data = record.data
     first = 0
-    if span is not None:
+    if span is not None and len(record.starts) == 1:
         data, first = until_stop(data, span), span.start
-    evaluation = evaluate(parent, data)
+        record = single(data)
+    evaluation = evaluate_each(parent, record)
     output, measured = one_output(evaluation, column)
     for signal in signals:
         check_effect_signal(data, signal, measured)
     judged = judge_signals(evaluation, output, measured, list(signals), first_sample=first)
-    order = list(rank_judged(judged, data, first).order)
+    order = list(rank_judged(judged, data, first, record.starts).order)
     passing = [s for s in order if judged[s].accepted]
     if not passing and not force:
         figures = "; ".join(f"{s}: a sub-model on it {judged[s].describe()}" for s in order)

@@ -31,8 +31,9 @@ from threadpoolctl import threadpool_limits
 from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile
 from compd.files.yamlplace import resolve_path
-from compd.model.crossval import Folds
+from compd.model.crossval import Folds, experiment_folds
 from compd.model.diagnose import MIN_DIAGNOSED_SAMPLES, diagnosis_blocks
+from compd.model.experiments import ONE, spans, start_values
 from compd.model.lagbank import LagBankFit, fit_lag_bank
 from compd.model.lagscore import fit_candidate, time_constant_bank
 from compd.model.metrics import fit_percent
@@ -186,25 +187,33 @@ def judge_signal(
     prior: Prior = NO_PRIOR,
     first_sample: int = 0,
     folds: Folds | None = None,
+    starts: Sequence[int] = ONE,
 ) -> tuple[HeldOut, LagBankFit]:
     """How a regularised sub-model on ``signal`` changes the error on parts of ``data`` it never saw.
 
     ``predicted`` is the model without ``prior``'s sub-models; the residue is
     fitted by a lag bank on ``prior``'s signals (before) and on those and
-    ``signal`` (after), leaving one operating cycle (or block) out at a time.
+    ``signal`` (after), leaving one operating cycle (or block) out at a time;
+    with several experiments stacked (``starts``), one experiment (file) out
+    at a time, every lag from rest at each start.
     Returns the judgement and the lag bank on all signals fitted on every
     scored sample, which ``--method lagbank`` adds as the sub-models.
     """
     if folds is None:
-        folds = folds_of(data, operating_signal(data, None, None), first_sample)
+        folds = judging_folds(data, first_sample, starts)
     residue = measured - predicted
     fitted = np.arange(len(residue)) >= first_sample
     changes = np.column_stack(
-        [data.column(s) - data.column(s)[0] for s in (*prior.signals, signal)]
+        [data.column(s) - start_values(data.column(s), starts) for s in (*prior.signals, signal)]
     )
     with threadpool_limits(limits=1, user_api="blas"):
         after = fit_lag_bank(
-            residue, changes, sample_time_s=data.sample_time_s, folds=folds, fitted=fitted
+            residue,
+            changes,
+            sample_time_s=data.sample_time_s,
+            folds=folds,
+            fitted=fitted,
+            starts=starts,
         )
         before = (
             fit_lag_bank(
@@ -213,6 +222,7 @@ def judge_signal(
                 sample_time_s=data.sample_time_s,
                 folds=folds,
                 fitted=fitted,
+                starts=starts,
             ).cv_predicted_um
             if prior.signals
             else np.zeros_like(residue)
@@ -244,6 +254,13 @@ def judge_signal(
         rms_offset_um=_rms(error_offset[held]),
     )
     return judged, after
+
+
+def judging_folds(data: DataSet, first_sample: int = 0, starts: Sequence[int] = ONE) -> Folds:
+    """The held-out parts an extension is judged on: the record's cycles, or each experiment."""
+    if len(starts) > 1:
+        return experiment_folds(len(data), starts)
+    return folds_of(data, operating_signal(data, None, None), first_sample)
 
 
 def tied(first: HeldOut, second: HeldOut) -> bool:
@@ -279,7 +296,12 @@ class Ranking:
     """For a tie: how much of the second's changes lags of the first reproduce, and the reverse."""
 
 
-def rank_judged(judged: Mapping[str, HeldOut], data: DataSet, first_sample: int = 0) -> Ranking:
+def rank_judged(
+    judged: Mapping[str, HeldOut],
+    data: DataSet,
+    first_sample: int = 0,
+    starts: Sequence[int] = ONE,
+) -> Ranking:
     """Best extended model first; of two tied ones, the one the other follows first.
 
     When the data cannot tell two signals apart, one of them is usually a
@@ -297,34 +319,56 @@ def rank_judged(judged: Mapping[str, HeldOut], data: DataSet, first_sample: int 
     if len(order) < 2 or not tied(judged[order[0]], judged[order[1]]):
         return Ranking(tuple(order))
     first, second = order[0], order[1]
-    forward = follow_percent(data, first, second, first_sample)
-    backward = follow_percent(data, second, first, first_sample)
+    forward = follow_percent(data, first, second, first_sample, starts)
+    backward = follow_percent(data, second, first, first_sample, starts)
     if backward >= FOLLOW_MIN_PERCENT and backward - forward >= FOLLOW_MARGIN_POINTS:
         order[0], order[1] = second, first
         forward, backward = backward, forward
     return Ranking(tuple(order), (order[0], order[1]), (forward, backward))
 
 
-def follow_percent(data: DataSet, leader: str, follower: str, first_sample: int = 0) -> float:
+def follow_percent(
+    data: DataSet,
+    leader: str,
+    follower: str,
+    first_sample: int = 0,
+    starts: Sequence[int] = ONE,
+) -> float:
     """Share of ``follower``'s changes (RMS) that one or two lags of ``leader`` reproduce, held out.
 
     The candidate score of :func:`compd.model.lagscore.fit_candidate` with
     ``follower`` in place of the residue; 0 (cannot tell) on a record too
-    short to diagnose.
+    short to diagnose. Several experiments (``starts``): the mean over them,
+    each judged alone, weighted by its samples.
     """
-    x = data.column(leader) - data.column(leader)[0]
-    y = data.column(follower) - data.column(follower)[0]
+    if len(starts) > 1:
+        parts = spans(len(data), starts)
+        shares = [
+            _follow_percent(data.column(leader)[p], data.column(follower)[p], data.sample_time_s)
+            for p in parts
+        ]
+        return float(np.average(shares, weights=[p.stop - p.start for p in parts]))
+    return _follow_percent(
+        data.column(leader), data.column(follower), data.sample_time_s, first_sample
+    )
+
+
+def _follow_percent(
+    leader: np.ndarray, follower: np.ndarray, sample_time_s: float, first_sample: int = 0
+) -> float:
+    x = leader - leader[0]
+    y = follower - follower[0]
     spread = float(np.std(x[first_sample:]))
     too_short = len(y) - first_sample < MIN_DIAGNOSED_SAMPLES
     if too_short or spread == 0.0 or float(np.std(y[first_sample:])) == 0.0:
         return 0.0
-    taus = time_constant_bank(data.sample_time_s, (len(y) - first_sample) * data.sample_time_s)
+    taus = time_constant_bank(sample_time_s, (len(y) - first_sample) * sample_time_s)
     with threadpool_limits(limits=1, user_api="blas"):
         fit = fit_candidate(
             y - np.mean(y[first_sample:]),
             x / spread,
             taus,
-            data.sample_time_s,
+            sample_time_s,
             folds=diagnosis_blocks(len(y) - first_sample),
             pair_margin_percent=2.0,
             first_sample=first_sample,
@@ -353,14 +397,21 @@ def judge_signals(
 ) -> dict[str, HeldOut]:
     """:func:`judge_signal` for each of ``signals`` on ``evaluation``'s record (the same folds)."""
     data = evaluation.data
-    folds = folds_of(data, operating_signal(data, None, None), first_sample)
+    folds = judging_folds(data, first_sample, evaluation.starts)
     measured = data.column(measured_column)
     out = {}
     for signal in signals:
         prior = same_record_extensions(evaluation.model_file, output, data, signal)
         predicted = without_prior(evaluation, output, prior)
         out[signal], _ = judge_signal(
-            data, measured, predicted, signal, prior=prior, first_sample=first_sample, folds=folds
+            data,
+            measured,
+            predicted,
+            signal,
+            prior=prior,
+            first_sample=first_sample,
+            folds=folds,
+            starts=evaluation.starts,
         )
     return out
 

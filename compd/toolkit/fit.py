@@ -31,7 +31,7 @@ from compd.files.modelschema import ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.collinear import collinear_groups
 from compd.model.crossval import experiment_folds
-from compd.model.experiments import ONE
+from compd.model.experiments import ONE, start_values
 from compd.model.guards import Finding
 from compd.model.identify import Identification, identify
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
@@ -162,7 +162,7 @@ def fit_data(
     denoised = denoise_columns(data, denoise, inputs, denoise_imfs) if denoise else {}
     changes = {
         column: (denoised[column].emd if column in denoised else data.column(column))
-        - _references(data.column(column), starts)
+        - start_values(data.column(column), starts)
         for column in inputs
     }
     gate = None
@@ -325,14 +325,6 @@ def fit_data(
         input_shares=input_shares(model, contributions),
         selection_steps=steps,
     )
-
-
-def _references(values: np.ndarray, starts: Sequence[int]) -> np.ndarray:
-    """Each sample's reference: the first value of its experiment (of the record, for one)."""
-    if len(starts) == 1:
-        return values[0]  # type: ignore[no-any-return]
-    lengths = np.diff([*starts, values.size])
-    return np.repeat(values[list(starts)], lengths)
 
 
 def _check_several(
