@@ -21,11 +21,13 @@ from compd.cli.common import (
 from compd.cli.terminal import console
 from compd.files.data import DataSet
 from compd.files.effects import EffectCatalogue, load_catalogue
+from compd.files.experiments import stack
 from compd.files.modelfile import load_model
 from compd.model.diagnose import MIN_DIAGNOSED_SAMPLES
 from compd.toolkit.analysis import DiagnosisResult, diagnose_evaluation
-from compd.toolkit.evaluate import evaluate, measured_columns
-from compd.toolkit.extendjudge import RULE, held_out_json
+from compd.toolkit.evaluate import evaluate, evaluate_each, measured_columns
+from compd.toolkit.extendbest import AUTO_CANDIDATES
+from compd.toolkit.extendjudge import RULE, HeldOut, held_out_json, judge_signals
 from compd.toolkit.selection import select_columns
 from compd.toolkit.span import evaluate_span
 from compd.toolkit.summary import fmt, json_clean, json_text
@@ -136,6 +138,9 @@ def _diagnose_several(
     found = Counter(
         r.diagnosis.missing_effect.signal for _, r, _ in results if r.diagnosis.missing_effect
     )
+    over_files = _judged_over_files(
+        model_file, experiments, [s for s, _ in found.most_common(AUTO_CANDIDATES)], output, args
+    )
     name = results[0][0].compiled.name
     if args.json:
         summary = {
@@ -146,6 +151,7 @@ def _diagnose_several(
             "pooled": {
                 "residue_rms_um": pooled_rms_um,
                 "missing_effects": dict(found.most_common()),
+                "extended_over_files": {s: held_out_json(h) for s, h in over_files.items()},
             },
         }
         print(json_text(summary))
@@ -161,7 +167,29 @@ def _diagnose_several(
         f"pooled over {len(results)} files: residue RMS {pooled_rms_um:.2f} um about its mean; "
         f"a missing effect found: {agreed} of {len(results)} files"
     )
+    for signal, held in over_files.items():
+        verdict = "passes the rule" if held.accepted else "refused by the rule"
+        out.print(
+            f"over all {len(results)} files, as compd extend on them would judge it: a sub-model "
+            f"on {signal} {held.describe()}: {verdict}",
+            soft_wrap=True,
+        )
     return 0
+
+
+def _judged_over_files(
+    model_file: Any,
+    experiments: list[DataSet],
+    signals: list[str],
+    output: str,
+    args: argparse.Namespace,
+) -> dict[str, HeldOut]:
+    """The effects the files name, judged over all of them one file out at a time (``extend``'s check)."""
+    if not signals:
+        return {}
+    evaluation = evaluate_each(model_file, stack(experiments), init=args.init)
+    measured = measured_columns(evaluation, args.output)[output]
+    return judge_signals(evaluation, output, measured, signals)
 
 
 def diagnosis_json(model_name: str, result: DiagnosisResult) -> dict[str, object]:

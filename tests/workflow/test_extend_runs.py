@@ -150,3 +150,13 @@ def test_each_run_is_evaluated_from_its_own_start(base: Path, runs: Path) -> Non
     np.testing.assert_array_equal(
         evaluate_each(model, stack([one])).predicted(OUTPUT), evaluate(model, one).predicted(OUTPUT)
     )
+
+
+def test_diagnose_over_the_runs_judges_the_named_effect_as_extend_on_them_does(
+    extended: tuple[Path, dict], base: Path, runs: Path
+) -> None:
+    """Each file diagnosed alone names the effect; over all of them it is judged as ``extend`` judges it."""
+    _, summary = extended
+    pooled = compd_json("diagnose", base, runs)["pooled"]
+    assert pooled["missing_effects"] == {SIGNAL: 3}
+    assert pooled["extended_over_files"][SIGNAL] == summary["held_out"]
