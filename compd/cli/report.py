@@ -7,8 +7,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from compd.cli.common import data_options, load_data_from_args, span_from_args, window_options
+from compd.cli.common import (
+    data_options,
+    load_experiments_from_args,
+    refuse_with_several,
+    span_from_args,
+    window_options,
+)
+from compd.files.experiments import stack
 from compd.files.modelfile import load_model
+from compd.toolkit.evaluate import Evaluation, evaluate_each
 from compd.toolkit.span import evaluate_span
 
 
@@ -24,7 +32,8 @@ def register(commands: Any) -> None:
         type=Path,
         nargs="+",
         metavar="DATA",
-        help="a data file, or the files (a folder) of one recorded run",
+        help="a data file, the files (a folder) of one recorded run, or several experiments "
+        "(separate runs): drawn end to end, each run from its own start",
     )
     report.add_argument("--out", type=Path, required=True, metavar="REPORT.html")
     report.add_argument(
@@ -43,14 +52,22 @@ def _report(args: argparse.Namespace) -> int:
     # (and the 1 Hz service) starts without it.
     from compd.report import write_report
 
-    data = load_data_from_args(args)
-    span = span_from_args(args, data)
-    evaluation = evaluate_span(load_model(args.model), data, span, init=args.init)
-    other = (
-        None
-        if args.compare is None
-        else evaluate_span(load_model(args.compare), data, span, init=args.init)
+    experiments = load_experiments_from_args(args)
+    refuse_with_several(
+        experiments, {"--from": args.from_s is not None, "--until": args.until_s is not None}
     )
+    several = stack(experiments) if len(experiments) > 1 else None
+    data = experiments[0] if several is None else several.data
+    span = span_from_args(args, data)
+
+    def run(model: Path) -> Evaluation:
+        """One record (its span), or several files end to end, each run from its own start."""
+        if several is None:
+            return evaluate_span(load_model(model), data, span, init=args.init)
+        return evaluate_each(load_model(model), several, init=args.init)
+
+    evaluation = run(args.model)
+    other = None if args.compare is None else run(args.compare)
     path = write_report(
         args.out,
         evaluation,

@@ -88,6 +88,8 @@ def _time_axis(fig: go.Figure, report: ReportData) -> go.Figure:
     t = report.data.time_s
     fig.update_xaxes(range=[float(t[0]) / 3600.0, float(t[-1]) / 3600.0])
     fig.update_layout(margin=TIME_MARGIN)
+    for start in report.primary.evaluation.starts[1:]:  # several files end to end
+        fig.add_vline(x=float(t[start]) / 3600.0, line={"dash": "dot", "color": "#888", "width": 1})
     return fig
 
 

@@ -176,6 +176,12 @@ def _run(
 
 def _diagnose(evaluation: Evaluation, output: str, measured: str) -> DiagnosisResult | str:
     """The candidate ranking, or why there is none (the report still shows everything else)."""
+    if len(evaluation.starts) > 1:
+        return (
+            f"the data are {len(evaluation.starts)} files, each run from its own start: compd "
+            "diagnose MODEL.yaml FILES diagnoses each alone and judges the effects they name "
+            "over all of them"
+        )
     if not default_candidates(evaluation, measured):
         return "the data file has no signal besides the model's own to test as a candidate"
     try:

@@ -119,6 +119,13 @@ def build_html(report: ReportData) -> str:
             f", judged on {data.time_s[0] / 3600:.2f} h .. {data.time_s[-1] / 3600:.2f} h of the "
             "record, model run from the file's start"
         )
+    starts = report.primary.evaluation.starts
+    if len(starts) > 1:
+        span = (
+            f", {len(starts)} files end to end, the model run from its initial state at each "
+            "file's start (dotted lines); every figure is pooled over them, as compd compare "
+            "prints it"
+        )
     meta = (
         f"data <code>{escape(data.path)}</code>: {len(data)} samples at {data.sample_time_s:g} s, "
         f"{duration_h:.2f} h{escape(start)}{span}"

@@ -1,11 +1,13 @@
-"""``compd extend`` over several runs: warm-up runs or days as separate files, each its own experiment.
+"""The hidden-effect loop over several runs: warm-up runs or days as separate files, each its own experiment.
 
 A calibration of separate runs (record C of issue 20: five 6 h warm-up runs)
 is fitted with ``compd fit --data runs/``; the hidden-effect loop takes the
 same folder. The base model runs from its initial state at each file's
 start, the new sub-model is judged leaving one file out at a time, and it
 is the regularised lag bank over every file, its lags from rest at each
-start. Three cutting runs of 5 h (twin seeds 2-4) and an unseen fourth
+start. ``compd diagnose`` on the folder judges the effect it names the same
+way, and ``compd report`` draws the runs end to end with compare's pooled
+figures. Three cutting runs of 5 h (twin seeds 2-4) and an unseen fourth
 (seed 5).
 """
 
@@ -23,6 +25,7 @@ from compd.files.experiments import load_experiments, stack
 from compd.files.modelfile import load_model
 from compd.toolkit.evaluate import evaluate, evaluate_each
 from tests.clirun import compd, compd_result
+from tests.report.test_page import parse
 from tests.workflow.test_hidden_effects import base_model, compd_json, fit_of, twin
 
 RUN_HOURS = 5
@@ -160,3 +163,31 @@ def test_diagnose_over_the_runs_judges_the_named_effect_as_extend_on_them_does(
     pooled = compd_json("diagnose", base, runs)["pooled"]
     assert pooled["missing_effects"] == {SIGNAL: 3}
     assert pooled["extended_over_files"][SIGNAL] == summary["held_out"]
+
+
+def test_the_report_over_the_runs_is_what_compare_prints_pooled(
+    extended: tuple[Path, dict], base: Path, runs: Path, folder: Path
+) -> None:
+    """The runs end to end, each from its own start; the figures are compare's pooled ones."""
+    path, _ = extended
+    out = folder / "runs.html"
+    compd("report", path, runs, "--compare", base, "--out", out)
+    html = out.read_text()
+    scripts = parse(html).scripts
+    for element_id, model in (("compd-summary", path), ("compd-summary-compare", base)):
+        pooled = compd_json("compare", model, runs)["pooled"]["outputs"][OUTPUT]
+        assert json.loads(scripts[element_id])["outputs"][OUTPUT]["fit_percent"] == (
+            pytest.approx(pooled["fit_percent"], abs=1e-9)
+        )
+    assert "3 files end to end" in html
+    assert "compd diagnose MODEL.yaml FILES" in html  # no candidates filtered across the files
+
+
+def test_the_report_refuses_a_span_of_several_runs(
+    extended: tuple[Path, dict], runs: Path, folder: Path
+) -> None:
+    path, _ = extended
+    code, _, err = compd_result(
+        "report", path, runs, "--until", "2:00", "--out", folder / "part.html"
+    )
+    assert code != 0 and "--until" in err and "3 experiments" in err
