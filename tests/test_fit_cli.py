@@ -272,3 +272,26 @@ def test_an_oe_model_that_cannot_run_is_refused_as_a_fit_with_the_default_named(
     assert "calibration/01.csv" in err and "--method oe" in err and "cannot run" in err
     assert "the default (no --method)" in err
     assert not (tmp_path / "m.yaml").exists()
+
+
+def test_oe_whose_every_start_is_unstable_points_to_the_default_not_a_longer_record(
+    tmp_path, capsys
+):
+    """Random machine 2 (a 37 h record, 11 sensors): the ARX start of every OE order has a pole outside the unit circle.
+
+    More data would not help: the refusal says which start failed and that
+    the default fit needs no poles of its own.
+    """
+    from compd.sim.machines import random_machine, write_case
+
+    case = random_machine(2)
+    write_case(case, tmp_path)
+    argv = ["fit", "--data", str(tmp_path / "calibration"), "--output", case.output]
+    argv += ["--inputs", ",".join(case.inputs), "--method", "oe", "--out", str(tmp_path / "m.yaml")]
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "no output-error model of order 1..3" in err and "at order 1" in err
+    assert "unstable" in err and "Fit without --method" in err
+    assert "longer record" not in err
+    assert not (tmp_path / "m.yaml").exists()

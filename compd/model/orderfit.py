@@ -157,13 +157,15 @@ def fit_oe_order(
     nk = (1,) * n_channels
     split = first + split_index(y.size - first)
     candidates: list[_OeCandidate] = []
+    reasons: list[str] = []
     for n in range(1, MAX_ORDER + 1):
         stage = f"OE order {n} (first two thirds)"
         try:
             params = _oe_run(
                 y[:split], u[:split], n, nk, report, stage, CANDIDATE_ITERATIONS, first
             )
-        except ModelError:
+        except ModelError as exc:
+            reasons.append(f"order {n}, {exc.message}")
             report(stage, 1.0)
             continue
         score = fit_percent(y[split:], simulate_oe(params, u)[split:])
@@ -176,8 +178,11 @@ def fit_oe_order(
         candidates.append(candidate)
     if not candidates:
         raise ModelError(
-            "no output-error model of order 1..3 could be fitted to this data; use a longer "
-            "record with more excitation"
+            "no output-error model of order 1..3 could be fitted to this data (at "
+            + reasons[0].split(". ")[0]
+            + "): the output does not follow these inputs through stable poles of their own "
+            "(slow drift, inputs that move together). Fit without --method: the lag bank or the "
+            "static regression need no poles of their own; or give OE fewer inputs"
         )
     best = choose(candidates)
     n = best.order
