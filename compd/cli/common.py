@@ -165,14 +165,17 @@ def load_data_from_args(
     return load_data(one, max_gap_s=args.max_gap_s, resample=args.resample)
 
 
-def load_experiments_from_args(args: argparse.Namespace) -> list[DataSet]:
-    """``args.data``, files and folders, as experiments (:mod:`compd.files.experiments`).
+def load_experiments_from_args(
+    args: argparse.Namespace, path: str | os.PathLike[str] | list[Path] | None = None
+) -> list[DataSet]:
+    """``path`` (default ``args.data``), files and folders, as experiments (:mod:`compd.files.experiments`).
 
     One file is one experiment, read as ``load_data`` reads it; folders and
     several files are checked to be alike, and the files of one recorded run
     joined (``--experiments``).
     """
-    paths = args.data if isinstance(args.data, list) else [args.data]
+    path = args.data if path is None else path
+    paths = path if isinstance(path, list) else [path]
     if len(paths) == 1 and not os.path.isdir(paths[0]):
         return [load_data_from_args(args, paths[0])]
     return _experiments(args, paths)

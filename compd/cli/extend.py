@@ -14,7 +14,6 @@ from rich.text import Text
 from compd.cli.common import (
     data_options,
     experiments_label,
-    load_data_from_args,
     load_experiments_from_args,
     order_arg,
     refuse_with_several,
@@ -22,8 +21,9 @@ from compd.cli.common import (
 )
 from compd.cli.progress import progress_reporter
 from compd.cli.terminal import console
+from compd.files.data import DataSet
 from compd.files.effects import load_catalogue
-from compd.files.experiments import single, stack
+from compd.files.experiments import Stacked, single, stack
 from compd.files.modelfile import load_model
 from compd.files.provenancepaths import write_model_text
 from compd.model.identify import MIN_SAMPLES
@@ -78,8 +78,9 @@ def register(commands: Any) -> None:
     extend.add_argument(
         "--verify",
         type=Path,
-        metavar="OTHER.csv",
-        help="also report fit %% before/after on this record (not used for fitting)",
+        metavar="OTHER",
+        help="also report fit %% before/after on this record, or on these runs pooled (a "
+        "folder; not used for fitting)",
     )
     extend.add_argument(
         "--catalogue",
@@ -111,7 +112,10 @@ def _extend(args: argparse.Namespace) -> int:
     span = span_from_args(args, data, min_samples=MIN_SAMPLES)
     for note in data.notes:  # what was joined, repaired or left out
         print(f"note: {note}", file=sys.stderr)
-    verify_data = load_data_from_args(args, args.verify) if args.verify else None
+    verify_data = None
+    if args.verify:
+        verified_on = load_experiments_from_args(args, args.verify)
+        verify_data = stack(verified_on) if len(verified_on) > 1 else verified_on[0]
     catalogue = load_catalogue(args.catalogue)
     command = (
         "compd " + shlex.join(["extend", *sys.argv[2:]]) if sys.argv[1:2] == ["extend"] else ""
@@ -143,7 +147,7 @@ def _extend(args: argparse.Namespace) -> int:
     verified: tuple[float, float] | None = None
     if verify_data is not None:
         verified = verify_extension(extension, verify_data)
-        yaml_text = with_verification(extension, verify_data.path, *verified)
+        yaml_text = with_verification(extension, _path(verify_data), *verified)
     write_model_text(
         args.out, yaml_text, parent=parent.doc.provenance, parent_path=Path(parent.path)
     )
@@ -260,6 +264,10 @@ def _extend(args: argparse.Namespace) -> int:
         out.print(span.describe("fitted"))
     out.print(f"wrote {args.out}")
     return 0
+
+
+def _path(data: DataSet | Stacked) -> str:
+    return data.data.path if isinstance(data, Stacked) else data.path
 
 
 def _tried_table(choice: Choice) -> Table:

@@ -33,7 +33,7 @@ from compd.model.metrics import fit_percent
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF, resample_discrete
 from compd.toolkit.candidates import guard_findings, lag_bank_identification, refuse_errors
-from compd.toolkit.evaluate import Evaluation, compare, evaluate, evaluate_each, measured_columns
+from compd.toolkit.evaluate import Evaluation, compare, evaluate_each, measured_columns
 from compd.toolkit.extendjudge import (
     RULE,
     HeldOut,
@@ -306,12 +306,18 @@ def one_output(evaluation: Evaluation, column: str | None) -> tuple[str, str]:
     return _one_output(evaluation, column)
 
 
-def verify_extension(extension: Extension, data: DataSet) -> tuple[float, float]:
-    """Fit % of the parent and of the extended model on data not used for fitting."""
+def verify_extension(extension: Extension, data: DataSet | Stacked) -> tuple[float, float]:
+    """Fit % of the parent and of the extended model on data not used for fitting.
+
+    Several files (:class:`~compd.files.experiments.Stacked`): each run from
+    its own start, the fit pooled over them, as ``compd compare`` pools it.
+    """
+    runs = data if isinstance(data, Stacked) else single(data)
+    data = runs.data
     column = extension.measured_column if data.has(extension.measured_column) else None
     fits = []
     for model_file in (extension.parent, extension.extended):
-        evaluation = evaluate(model_file, data)
+        evaluation = evaluate_each(model_file, runs)
         (comparison,) = [
             c for c in compare(evaluation, column) if c.output == extension.output
         ] or compare(evaluation, extension.output)

@@ -14,6 +14,7 @@ figures. Three cutting runs of 5 h (twin seeds 2-4) and an unseen fourth
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -191,3 +192,20 @@ def test_the_report_refuses_a_span_of_several_runs(
         "report", path, runs, "--until", "2:00", "--out", folder / "part.html"
     )
     assert code != 0 and "--until" in err and "3 experiments" in err
+
+
+def test_verify_on_a_folder_of_unseen_runs_is_compares_pooled_figure(
+    base: Path, runs: Path, unseen: Path, folder: Path
+) -> None:
+    later = folder / "later"
+    later.mkdir()
+    shutil.copy(unseen, later / "cutting-5.csv")
+    shutil.copy(twin(folder, "cutting", RUN_HOURS, seed=6), later / "cutting-6.csv")
+    out = folder / "verified.yaml"
+    summary = json.loads(
+        compd("extend", base, runs, "--effect", SIGNAL, "--verify", later, "--out", out, "--json")
+    )
+    for key, model in (("fit_percent_before", base), ("fit_percent_after", out)):
+        pooled = compd_json("compare", model, later)["pooled"]["outputs"][OUTPUT]["fit_percent"]
+        assert summary["verify"][key] == pytest.approx(pooled, abs=1e-9)
+    assert summary["verify"]["fit_percent_after"] >= 85.0
