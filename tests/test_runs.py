@@ -167,11 +167,18 @@ def test_commands_join_runs_and_take_the_override(two_runs: Path) -> None:
 
 
 def test_a_command_of_one_record_takes_one_run_and_refuses_two(two_runs: Path) -> None:
-    """report reads a run's files as one record, and refuses a folder of two runs, saying what it holds."""
+    """residual reads a run's files as one record, and refuses a folder of two runs, saying what it holds.
+
+    report reads a run's files as one record too, and two runs end to end, each from its own start.
+    """
     model = two_runs.parent / "m.yaml"
     compd("fit", "--data", two_runs, "--output", "disp_um", "--inputs", "T_degC",
           "--method", "mlr", "--out", model)  # fmt: skip
     first_run = recorded(two_runs)[:2]
-    compd("report", model, *first_run, "--out", two_runs.parent / "r.html")
+    page = two_runs.parent / "r.html"
+    compd("report", model, *first_run, "--out", page)
+    assert "experiments (separate files or runs) end to end" not in page.read_text()
+    compd("report", model, two_runs, "--out", page)
+    assert "2 experiments (separate files or runs) end to end" in page.read_text()
     with pytest.raises(AssertionError, match=r"4 files, 2 runs of 20\.0 min each from mill-a"):
-        compd("report", model, two_runs, "--out", two_runs.parent / "r.html")
+        compd("residual", model, two_runs, "--out", two_runs.parent / "r.yaml")

@@ -18,6 +18,7 @@ import numpy as np
 from compd.errors import DataFileError
 from compd.files.data import DataSet
 from compd.model.compiled import qualified_names
+from compd.model.experiments import spans
 from compd.model.lagbank import lag_prefix
 from compd.model.metrics import Comparison
 from compd.toolkit.analysis import (
@@ -43,6 +44,8 @@ class OutputAnalysis:
     windows: WindowsResult
     #: The candidate ranking, or the reason there is none.
     diagnosis: DiagnosisResult | str
+    #: Several files: each file's own figures (its run from its own start), as compare prints them.
+    per_file: tuple[tuple[str, Comparison], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -167,11 +170,29 @@ def _run(
     ]
     outputs = {
         c.output: OutputAnalysis(
-            c.output, pairs[c.output], c, w, _diagnose(evaluation, c.output, pairs[c.output])
+            c.output,
+            pairs[c.output],
+            c,
+            w,
+            _diagnose(evaluation, c.output, pairs[c.output]),
+            _per_file(evaluation, c.output, pairs[c.output]),
         )
         for c, w in zip(comparisons, windows, strict=True)
     }
     return ModelRun(evaluation, outputs, compare_summary(evaluation, comparisons, windows))
+
+
+def _per_file(
+    evaluation: Evaluation, output: str, measured: str
+) -> tuple[tuple[str, Comparison], ...]:
+    if len(evaluation.starts) < 2:
+        return ()
+    y, predicted = evaluation.data.column(measured), evaluation.predicted(output)
+    parts = spans(len(y), evaluation.starts)
+    return tuple(
+        (name, Comparison.of(output, y[part], predicted[part]))
+        for name, part in zip(evaluation.experiments, parts, strict=True)
+    )
 
 
 def _diagnose(evaluation: Evaluation, output: str, measured: str) -> DiagnosisResult | str:

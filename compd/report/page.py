@@ -122,9 +122,9 @@ def build_html(report: ReportData) -> str:
     starts = report.primary.evaluation.starts
     if len(starts) > 1:
         span = (
-            f", {len(starts)} files end to end, the model run from its initial state at each "
-            "file's start (dotted lines); every figure is pooled over them, as compd compare "
-            "prints it"
+            f", {len(starts)} experiments (separate files or runs) end to end, the model run from "
+            "its initial state at each one's start (dotted lines); every figure is pooled over "
+            "them, as compd compare prints it"
         )
     meta = (
         f"data <code>{escape(data.path)}</code>: {len(data)} samples at {data.sample_time_s:g} s, "
@@ -174,6 +174,7 @@ def _output_section(report: ReportData, output: str) -> str:
         f'<h2>{escape(output)} <span class="meta">measured column '
         f"<code>{escape(primary.measured_column)}</code></span></h2>",
         tables.metrics_table(report, output),
+        tables.per_file_table(report, output),
         figure_html(figures.measured_vs_simulated(report, output), f"fig-{output}-measured"),
         figure_html(figures.residue(report, output), f"fig-{output}-residue"),
         "<h3>Failing windows</h3>",

@@ -75,6 +75,31 @@ def metrics_table(report: ReportData, output: str) -> str:
     return table(head, rows, cls="metrics")
 
 
+def per_file_table(report: ReportData, output: str) -> str:
+    """Several files: each file's fit % and residue RMS per model, as ``compare`` prints them ("" for one)."""
+    runs = [
+        (i, r)
+        for i, r in enumerate(report.runs)
+        if output in r.outputs and r.outputs[output].per_file
+    ]
+    if not runs:
+        return ""
+    head = ["file"]
+    for i, r in runs:
+        swatch = f'<span class="swatch m{i}"></span>{escape(r.name)}'
+        head += [f"{swatch}: fit %", f"{swatch}: residue RMS (um)"]
+    rows = []
+    for k, (name, _) in enumerate(runs[0][1].outputs[output].per_file):
+        cells = [f"<code>{escape(name)}</code>"]
+        for _, r in runs:
+            c = r.outputs[output].per_file[k][1]
+            cells += [fmt(c.fit_percent, 1), fmt(c.residue.rms_um, 2)]
+        rows.append(cells)
+    return "<h3>Each experiment (file or run), the model run from its start</h3>" + table(
+        head, rows, cls="per-file"
+    )
+
+
 def _output_summary(run: ModelRun, output: str) -> Mapping[str, float | None]:
     outputs = run.summary["outputs"]
     assert isinstance(outputs, Mapping)

@@ -47,6 +47,8 @@ class Evaluation:
     #: The first sample of each experiment in :attr:`data` (several files stacked:
     #: :func:`evaluate_each`), where the model started again from its initial state.
     starts: tuple[int, ...] = ONE
+    #: Each experiment's file (several files stacked), in the order of :attr:`starts`.
+    experiments: tuple[str, ...] = ()
 
     @property
     def first_sample(self) -> int:
@@ -137,7 +139,13 @@ def evaluate_each(
     )
     notes = tuple(dict.fromkeys(note for run in runs for note in run.notes))
     return Evaluation(
-        model_file, runs[0].compiled, record.data, result, notes, starts=record.starts
+        model_file,
+        runs[0].compiled,
+        record.data,
+        result,
+        notes,
+        starts=record.starts,
+        experiments=tuple(data.path for data in record.experiments),
     )
 
 

@@ -169,7 +169,7 @@ def test_diagnose_over_the_runs_judges_the_named_effect_as_extend_on_them_does(
 def test_the_report_over_the_runs_is_what_compare_prints_pooled(
     extended: tuple[Path, dict], base: Path, runs: Path, folder: Path
 ) -> None:
-    """The runs end to end, each from its own start; the figures are compare's pooled ones."""
+    """The runs end to end, each from its own start; the figures are compare's, pooled and per file."""
     path, _ = extended
     out = folder / "runs.html"
     compd("report", path, runs, "--compare", base, "--out", out)
@@ -180,8 +180,15 @@ def test_the_report_over_the_runs_is_what_compare_prints_pooled(
         assert json.loads(scripts[element_id])["outputs"][OUTPUT]["fit_percent"] == (
             pytest.approx(pooled["fit_percent"], abs=1e-9)
         )
-    assert "3 files end to end" in html
+    assert "3 experiments (separate files or runs) end to end" in html
     assert "compd diagnose MODEL.yaml FILES" in html  # no candidates filtered across the files
+    each = html[html.index('<table class="per-file">') :]
+    rows = each[: each.index("</table>")].split("<tr>")[2:]
+    experiments = compd_json("compare", path, runs)["experiments"]
+    assert len(rows) == len(experiments) == 3
+    for row, experiment in zip(rows, experiments, strict=True):
+        assert f"<code>{experiment['data']}</code>" in row
+        assert f"<td>{experiment['outputs'][OUTPUT]['fit_percent']:.1f}</td>" in row
 
 
 def test_the_report_refuses_a_span_of_several_runs(
