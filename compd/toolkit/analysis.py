@@ -26,6 +26,7 @@ from compd.errors import DataFileError
 from compd.files.data import DataSet
 from compd.files.effects import EffectCatalogue, load_catalogue
 from compd.model.diagnose import MIN_DIAGNOSED_SAMPLES, Diagnosis, diagnose_residue
+from compd.model.experiments import spans
 from compd.model.windows import FailingWindow, failing_windows, window_count
 from compd.toolkit.evaluate import Evaluation
 from compd.toolkit.extendjudge import (
@@ -201,17 +202,19 @@ def find_failing_windows(
             "signals outside the calibration range are not judged"
         )
     names = condition_signals(data, evaluation.compiled.signals, exclude=(measured_column,))
-    if tolerance == 0.0:  # a perfect model on this record: nothing can fail
-        windows: list[FailingWindow] = []
-    else:
-        windows = failing_windows(
-            data.time_s,
-            residue,
-            tolerance_um=tolerance,
-            window_s=window_s,
-            conditions={n: data.column(n) for n in names},
-            ranges=ranges,
-        )
+    # Several experiments stacked: each judged in windows from its own start, none straddling two.
+    parts = spans(len(data), evaluation.starts)
+    windows: list[FailingWindow] = []
+    if tolerance > 0.0:  # a perfect model on this record: nothing can fail
+        for part in parts:
+            windows += failing_windows(
+                data.time_s[part],
+                residue[part],
+                tolerance_um=tolerance,
+                window_s=window_s,
+                conditions={n: data.column(n)[part] for n in names},
+                ranges=ranges,
+            )
     return WindowsResult(
         output=output,
         measured_column=measured_column,
@@ -219,7 +222,7 @@ def find_failing_windows(
         tolerance_um=tolerance,
         tolerance_source=source,
         windows=tuple(windows),
-        window_count=window_count(data.time_s, window_s),
+        window_count=sum(window_count(data.time_s[part], window_s) for part in parts),
         conditions=names,
         calibration_ranges=MappingProxyType(ranges),
         notes=tuple(notes),

@@ -191,6 +191,23 @@ def test_the_report_over_the_runs_is_what_compare_prints_pooled(
         assert f"<td>{experiment['outputs'][OUTPUT]['fit_percent']:.1f}</td>" in row
 
 
+def test_the_reports_windows_start_again_at_each_run(
+    extended: tuple[Path, dict], runs: Path, folder: Path
+) -> None:
+    """No failing window straddles two runs: each run is judged in windows from its own start."""
+    path, _ = extended
+    out = folder / "windows.html"
+    compd("report", path, runs, "--tolerance-um", "0.5", "--out", out)
+    summary = json.loads(parse(out.read_text()).scripts["compd-summary"])
+    firsts = np.cumsum([0, *(len(pd.read_csv(f)) for f in sorted(runs.glob("*.csv")))])[1:-1]
+    run_starts_s = firsts * 10.0
+    windows = summary["failing_windows"]
+    assert windows
+    for w in windows:
+        assert not any(w["start_s"] < t < w["end_s"] for t in run_starts_s), w
+    assert any(w["start_s"] == t for w in windows for t in run_starts_s)
+
+
 def test_the_report_refuses_a_span_of_several_runs(
     extended: tuple[Path, dict], runs: Path, folder: Path
 ) -> None:
