@@ -22,7 +22,7 @@ from compd.cli.terminal import console
 from compd.files.data import DataSet
 from compd.files.effects import EffectCatalogue, load_catalogue
 from compd.files.experiments import stack
-from compd.files.modelfile import load_model
+from compd.files.modelfile import ModelFile, load_model
 from compd.model.diagnose import MIN_DIAGNOSED_SAMPLES
 from compd.toolkit.analysis import DiagnosisResult, diagnose_evaluation
 from compd.toolkit.evaluate import evaluate, evaluate_each, measured_columns
@@ -178,16 +178,19 @@ def _diagnose_several(
 
 
 def _judged_over_files(
-    model_file: Any,
+    model_file: ModelFile,
     experiments: list[DataSet],
     signals: list[str],
     output: str,
     args: argparse.Namespace,
 ) -> dict[str, HeldOut]:
-    """The effects the files name, judged over all of them one file out at a time (``extend``'s check)."""
+    """The effects the files name, judged over all of them one file out at a time (``extend``'s check).
+
+    As ``extend`` runs the model: from equilibrium at each file's start, whatever ``--init``.
+    """
     if not signals:
         return {}
-    evaluation = evaluate_each(model_file, stack(experiments), init=args.init)
+    evaluation = evaluate_each(model_file, stack(experiments))
     measured = measured_columns(evaluation, args.output)[output]
     return judge_signals(evaluation, output, measured, signals)
 

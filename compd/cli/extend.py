@@ -97,6 +97,7 @@ def register(commands: Any) -> None:
     data_options(
         extend,
         scored="fitted and scored (the residue is that of the model run from the file's start)",
+        initial_state=False,  # the residue is that of the model from equilibrium at each start
     )
     extend.set_defaults(handler=_extend)
 

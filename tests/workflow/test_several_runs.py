@@ -156,12 +156,17 @@ def test_each_run_is_evaluated_from_its_own_start(base: Path, runs: Path) -> Non
     )
 
 
+@pytest.mark.parametrize("init", ["steady", "rest"])
 def test_diagnose_over_the_runs_judges_the_named_effect_as_extend_on_them_does(
-    extended: tuple[Path, dict], base: Path, runs: Path
+    extended: tuple[Path, dict], base: Path, runs: Path, init: str
 ) -> None:
-    """Each file diagnosed alone names the effect; over all of them it is judged as ``extend`` judges it."""
+    """Each file diagnosed alone names the effect; over all of them it is judged as ``extend`` judges it.
+
+    ``extend`` runs the model from equilibrium at each start, so that judgement does too,
+    whatever ``--init`` the per-file diagnosis takes.
+    """
     _, summary = extended
-    pooled = compd_json("diagnose", base, runs)["pooled"]
+    pooled = compd_json("diagnose", base, runs, "--init", init)["pooled"]
     assert pooled["missing_effects"] == {SIGNAL: 3}
     assert pooled["extended_over_files"][SIGNAL] == summary["held_out"]
 
