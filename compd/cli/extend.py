@@ -108,15 +108,12 @@ def _extend(args: argparse.Namespace) -> int:
     refuse_with_several(
         experiments, {"--from": args.from_s is not None, "--until": args.until_s is not None}
     )
-    record = stack(experiments) if len(experiments) > 1 else single(experiments[0])
+    record = _runs(experiments)
     data = record.data
     span = span_from_args(args, data, min_samples=MIN_SAMPLES)
     for note in data.notes:  # what was joined, repaired or left out
         print(f"note: {note}", file=sys.stderr)
-    verify_data = None
-    if args.verify:
-        verified_on = load_experiments_from_args(args, args.verify)
-        verify_data = stack(verified_on) if len(verified_on) > 1 else verified_on[0]
+    verify_data = _runs(load_experiments_from_args(args, args.verify)) if args.verify else None
     catalogue = load_catalogue(args.catalogue)
     command = (
         "compd " + shlex.join(["extend", *sys.argv[2:]]) if sys.argv[1:2] == ["extend"] else ""
@@ -148,7 +145,7 @@ def _extend(args: argparse.Namespace) -> int:
     verified: tuple[float, float] | None = None
     if verify_data is not None:
         verified = verify_extension(extension, verify_data)
-        yaml_text = with_verification(extension, _path(verify_data), *verified)
+        yaml_text = with_verification(extension, verify_data.data.path, *verified)
     write_model_text(
         args.out, yaml_text, parent=parent.doc.provenance, parent_path=Path(parent.path)
     )
@@ -267,8 +264,9 @@ def _extend(args: argparse.Namespace) -> int:
     return 0
 
 
-def _path(data: DataSet | Stacked) -> str:
-    return data.data.path if isinstance(data, Stacked) else data.path
+def _runs(experiments: list[DataSet]) -> Stacked:
+    """One record, or several experiments end to end (each run from its own start)."""
+    return stack(experiments) if len(experiments) > 1 else single(experiments[0])
 
 
 def _tried_table(choice: Choice) -> Table:

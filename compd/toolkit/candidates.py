@@ -24,7 +24,13 @@ from compd.files.data import DataSet
 from compd.files.modelschema import CrossValidationDoc
 from compd.model.collinear import contribution_shares
 from compd.model.compiled import compile_model, qualified_names
-from compd.model.crossval import MIN_FOLD_SAMPLES, Folds, blocked_folds, cycle_folds
+from compd.model.crossval import (
+    MIN_FOLD_SAMPLES,
+    Folds,
+    blocked_folds,
+    cycle_folds,
+    experiment_folds,
+)
 from compd.model.experiments import ONE, each
 from compd.model.guards import Finding, Severity, check_model
 from compd.model.identify import Identification, IdentifiedTF
@@ -58,15 +64,20 @@ def operating_signal(data: DataSet, explicit: str | None, gate: str | None) -> s
     return None
 
 
-def folds_of(data: DataSet, signal: str | None, first_sample: int = 0) -> Folds:
+def folds_of(
+    data: DataSet, signal: str | None, first_sample: int = 0, starts: Sequence[int] = ONE
+) -> Folds:
     """Leave-one-cycle-out folds of ``signal``, or contiguous blocks without one.
 
+    Several experiments stacked (``starts``): leave one experiment out instead.
     Only samples from ``first_sample`` on are fitted and judged (``--from``).
     When the whole record's folds leave that part in fewer than
     :data:`MIN_SCORED_FOLDS` of them (the last hours of a long log, inside its
     last cycle), the folds are made of that part alone; the samples before it
     join its first fold (they are run through, never scored).
     """
+    if len(starts) > 1:
+        return experiment_folds(len(data), starts)
     whole = _folds(data, signal, np.arange(len(data)))
     if first_sample == 0 or _scored_folds(whole, first_sample) >= MIN_SCORED_FOLDS:
         return whole

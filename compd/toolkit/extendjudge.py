@@ -31,7 +31,7 @@ from threadpoolctl import threadpool_limits
 from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile
 from compd.files.yamlplace import resolve_path
-from compd.model.crossval import Folds, experiment_folds
+from compd.model.crossval import Folds
 from compd.model.diagnose import MIN_DIAGNOSED_SAMPLES, diagnosis_blocks
 from compd.model.experiments import ONE, spans, start_values
 from compd.model.lagbank import LagBankFit, fit_lag_bank
@@ -200,7 +200,7 @@ def judge_signal(
     scored sample, which ``--method lagbank`` adds as the sub-models.
     """
     if folds is None:
-        folds = judging_folds(data, first_sample, starts)
+        folds = folds_of(data, operating_signal(data, None, None), first_sample, starts)
     residue = measured - predicted
     fitted = np.arange(len(residue)) >= first_sample
     changes = np.column_stack(
@@ -254,13 +254,6 @@ def judge_signal(
         rms_offset_um=_rms(error_offset[held]),
     )
     return judged, after
-
-
-def judging_folds(data: DataSet, first_sample: int = 0, starts: Sequence[int] = ONE) -> Folds:
-    """The held-out parts an extension is judged on: the record's cycles, or each experiment."""
-    if len(starts) > 1:
-        return experiment_folds(len(data), starts)
-    return folds_of(data, operating_signal(data, None, None), first_sample)
 
 
 def tied(first: HeldOut, second: HeldOut) -> bool:
@@ -397,7 +390,7 @@ def judge_signals(
 ) -> dict[str, HeldOut]:
     """:func:`judge_signal` for each of ``signals`` on ``evaluation``'s record (the same folds)."""
     data = evaluation.data
-    folds = judging_folds(data, first_sample, evaluation.starts)
+    folds = folds_of(data, operating_signal(data, None, None), first_sample, evaluation.starts)
     measured = data.column(measured_column)
     out = {}
     for signal in signals:

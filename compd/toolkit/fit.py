@@ -30,7 +30,6 @@ from compd.files.experiments import stack
 from compd.files.modelschema import ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.collinear import collinear_groups
-from compd.model.crossval import experiment_folds
 from compd.model.experiments import ONE, start_values
 from compd.model.guards import Finding
 from compd.model.identify import Identification, identify
@@ -189,11 +188,7 @@ def fit_data(
             where="--method lagbank",
             fix="Use --method oe or arx for those structures, or drop them",
         )
-    folds = (
-        folds_of(data, operating_signal(data, cycles, phase_gate), first)
-        if len(starts) == 1
-        else experiment_folds(len(data), starts)
-    )
+    folds = folds_of(data, operating_signal(data, cycles, phase_gate), first, starts)
     if select_inputs_first and (structured or method not in ("auto", "lagbank")):
         raise DataFileError(
             data.path,
