@@ -43,7 +43,7 @@ def register(commands: Any) -> None:
         "first-order lags of each explain on held-out data (blocked cross-validation), against "
         "the share reached by chance (the signal shifted in time), with the residue/input "
         "cross-correlation against its 99 % Bartlett bound as evidence. The first three are "
-        "then ranked by the model's fit on held-out cycles with the extension each would make "
+        "then ranked by the model's fit on held-out folds with the extension each would make "
         "(as compd extend judges it), and two within the noise of the folds are called a tie.",
     )
     diag.add_argument("model", type=Path, metavar="MODEL.yaml")

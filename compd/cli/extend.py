@@ -54,7 +54,7 @@ def register(commands: Any) -> None:
         required=True,
         metavar="SIGNAL",
         help="the excitation: a column of DATA.csv; several (A,B,...) or 'auto' (the first "
-        f"{AUTO_CANDIDATES} candidates of compd diagnose): each is judged on held-out cycles and "
+        f"{AUTO_CANDIDATES} candidates of compd diagnose): each is judged on held-out folds and "
         "the best the rule accepts is added",
     )
     extend.add_argument("--out", type=Path, required=True, metavar="NEW.yaml")
@@ -276,7 +276,7 @@ def _tried_table(choice: Choice) -> Table:
         "error removed %",
         "folds better",
         "rule",
-        title="the effects tried (each judged on the same held-out cycles)",
+        title="the effects tried (each judged on the same held-out folds)",
     )
     for signal, held in choice.judged.items():
         verdict = "kept" if signal == choice.kept else ("passes" if held.accepted else "refused")

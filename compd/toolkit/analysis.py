@@ -138,7 +138,7 @@ class DiagnosisResult:
         judged = self.extended.get(found.signal)
         if judged is not None:
             verdict += (
-                f"; with it the model fits {judged.after:.1f} % on held-out cycles "
+                f"; with it the model fits {judged.after:.1f} % on held-out folds "
                 f"(now {judged.before:.1f} %)"
             )
         if self.tied and found.signal in self.tied:
@@ -276,7 +276,7 @@ def diagnose_evaluation(
     The first ``judged`` candidates by explained residue, and any signal an
     earlier ``extend`` of the model tried, are then judged as ``extend``
     judges them (:func:`compd.toolkit.extendjudge.judge_signals`: the model's
-    fit on held-out cycles with a sub-model on each) and ranked first, best
+    fit on held-out folds with a sub-model on each) and ranked first, best
     extended model first; the first two are ``tied`` when their extensions
     are within the noise of the folds.
     """

@@ -4,7 +4,7 @@
 :data:`AUTO_CANDIDATES` candidates of ``compd diagnose`` by explained
 residue) judges every signal by :data:`~compd.toolkit.extendjudge.RULE` on
 the same folds (:func:`~compd.toolkit.extendjudge.judge_signals`), keeps the
-one whose extended model fits the held-out cycles best among those the rule
+one whose extended model fits the held-out folds best among those the rule
 accepts, and records all of them in the extension's provenance.
 """
 

@@ -1,4 +1,4 @@
-"""Whether an extension earns its place: judged by what it does to the error on held-out cycles.
+"""Whether an extension earns its place: judged by what it does to the error on held-out folds.
 
 ``compd extend`` and ``compd diagnose`` ask the same question of a candidate
 signal: fit the residue by a regularised lag bank on the signal
@@ -45,7 +45,7 @@ MIN_ERROR_REMOVED_PERCENT = 10.0
 #: The rule, as printed with every judgement.
 RULE = (
     f"an extension is kept when it removes at least {MIN_ERROR_REMOVED_PERCENT:g} % of the "
-    "remaining error on held-out cycles (and as much beyond what a constant offset would) and "
+    "remaining error on held-out folds (and as much beyond what a constant offset would) and "
     "lowers it on most of them"
 )
 #: Two candidates whose extended fits differ by less than this many standard errors of the
@@ -59,7 +59,7 @@ FOLLOW_MARGIN_POINTS = 20.0
 
 @dataclass(frozen=True)
 class HeldOut:
-    """The model's error on held-out cycles without and with a (regularised) sub-model on a signal."""
+    """The model's error on held-out folds without and with a (regularised) sub-model on a signal."""
 
     folds: str
     before: float
@@ -113,7 +113,7 @@ class HeldOut:
     def describe(self) -> str:
         """The figures of the rule in one clause."""
         return (
-            f"removes {self.error_removed_percent:.0f} % of the remaining error on held-out cycles "
+            f"removes {self.error_removed_percent:.0f} % of the remaining error on held-out folds "
             f"(RMS {self.rms_before_um:.3g} -> {self.rms_after_um:.3g} um, fit "
             f"{self.before:.1f} % -> {self.after:.1f} %, {self.rise_points:+.1f} points) and lowers "
             f"it on {self.folds_improved} of {self.n_folds} folds ({self.folds})"

@@ -189,7 +189,7 @@ def test_an_effect_on_another_axis_is_refused_with_the_rule_and_its_figures(
         )
     message = str(refused.value)
     assert (
-        "does not help enough" in message and "of the remaining error on held-out cycles" in message
+        "does not help enough" in message and "of the remaining error on held-out folds" in message
     )
     assert "folds" in message and "at least 10 %" in message
     assert not (folder / "x.yaml").exists()
