@@ -215,9 +215,11 @@ def experiments_label(experiments: list[DataSet]) -> str:
     return f"{len(experiments)} files ({experiments[0].path} .. {experiments[-1].path})"
 
 
-def print_notes(evaluation: Evaluation) -> None:
+def print_notes(evaluation: Evaluation, *, named: bool = False) -> None:
+    """The data's and the evaluation's notes on stderr; ``named``: each after its file's path."""
+    prefix = f"{evaluation.data.path}: " if named else ""
     for note in (*evaluation.data.notes, *evaluation.notes):
-        print(f"note: {note}", file=sys.stderr)
+        print(f"note: {prefix}{note}", file=sys.stderr)
 
 
 def comparison_table(evaluation: Evaluation, comparisons: list[Comparison]) -> Table:

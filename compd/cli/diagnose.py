@@ -131,7 +131,7 @@ def _diagnose_several(
     for data in experiments:
         evaluation = evaluate(model_file, data, init=args.init)
         output, measured, result = _diagnose_one(evaluation, data, args, catalogue)
-        residue = data.column(measured) - evaluation.predicted(output)
+        residue = evaluation.data.column(measured) - evaluation.predicted(output)
         results.append((evaluation, result, residue))
     residue = np.concatenate([r for _, _, r in results])
     pooled_rms_um = float(np.sqrt(np.mean((residue - residue.mean()) ** 2)))

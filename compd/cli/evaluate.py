@@ -223,7 +223,7 @@ def _compare_several(args: argparse.Namespace, experiments: list[DataSet]) -> in
         return 0
     out = console()
     for evaluation, comparisons, windows in per_file:
-        print_notes(evaluation)
+        print_notes(evaluation, named=True)
         transient = mid_transient_note(evaluation, args.output) if args.init == "steady" else None
         if transient:
             print(f"note: {evaluation.data.path}: {transient}", file=sys.stderr)

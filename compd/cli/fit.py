@@ -221,6 +221,8 @@ def _fit(args: argparse.Namespace) -> int:
             progress=progress,
             span=span,
         )
+    for note in result.notes:
+        print(f"note: {note}", file=sys.stderr)
     write_fit(result, data, args, span)
     _report(result, args)
     if not span.whole:

@@ -15,13 +15,15 @@ import numpy as np
 
 from compd.errors import DataFileError
 from compd.files.data import DataSet
-from compd.files.experiments import Stacked
+from compd.files.experiments import Stacked, stack
 from compd.files.modelfile import ModelFile
 from compd.model.compiled import CompiledModel, ModelState
 from compd.model.experiments import ONE
 from compd.model.initial import estimate_initial_state
 from compd.model.metrics import Comparison, fit_percent
 from compd.model.run import SimulationResult, simulate
+from compd.toolkit.selection import is_displacement
+from compd.toolkit.zeroing import zero_displacements
 
 if TYPE_CHECKING:  # compd.toolkit.span builds on this module
     from compd.toolkit.span import Span
@@ -93,6 +95,12 @@ def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "stea
     # The record's displacement is measured from its start (the probe zeroed there), so its
     # inputs are too: a model's absolute references (its thermal zero) are for the daemon.
     compiled = model_file.compile(data.sample_time_s).referenced_to_start()
+    displacements = [
+        name
+        for name in (*compiled.output_names, *filter(is_displacement, data.columns))
+        if name not in compiled.signals
+    ]
+    data, _ = zero_displacements(data, displacements)
     signals = signal_matrix(compiled, data)
     state: ModelState = (
         compiled.rest_state(signals[0]) if init == "rest" else compiled.steady_state(signals[0])
@@ -138,10 +146,12 @@ def evaluate_each(
         residuals=np.concatenate(residuals) if len(residuals) == len(results) else None,
     )
     notes = tuple(dict.fromkeys(note for run in runs for note in run.notes))
+    # A run whose measured displacement was zeroed (compd.toolkit.zeroing) is stacked as judged.
+    zeroed = any(run.data is not data for run, data in zip(runs, record.experiments, strict=True))
     return Evaluation(
         model_file,
         runs[0].compiled,
-        record.data,
+        stack([run.data for run in runs]).data if zeroed else record.data,
         result,
         notes,
         starts=record.starts,

@@ -121,7 +121,7 @@ def extend_model(
     before = evaluate_each(parent, runs)
     output, measured_name = _one_output(before, column)
     check_effect_signal(data, signal, measured_name)
-    measured = data.column(measured_name)
+    measured = before.data.column(measured_name)  # as judged (compd.toolkit.zeroing)
     prior = same_record_extensions(parent, output, data, signal)
     root = without_prior(before, output, prior)
     residue = measured - root

@@ -60,6 +60,7 @@ from compd.toolkit.fitmodel import (
 )
 from compd.toolkit.nestedselect import Selection, SelectionStep, compare_candidates
 from compd.toolkit.span import Span, until_stop
+from compd.toolkit.zeroing import zero_displacements
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,6 +82,8 @@ class FitResult:
     input_shares: dict[str, float] = field(default_factory=dict)
     #: With ``select``: the inputs in the order forward selection added them.
     selection_steps: list[SelectionStep] = field(default_factory=list)
+    #: What the fit did to the data that the user should know (a displacement not zeroed).
+    notes: tuple[str, ...] = ()
 
 
 def fit_data(
@@ -128,6 +131,12 @@ def fit_data(
     column, and the fix) for bad arguments and for data the method cannot fit.
     """
     starts: tuple[int, ...] = ONE
+    # A displacement not zeroed at a file's start is taken as its change from there, per file.
+    zeroed = [
+        zero_displacements(d, [output]) for d in ([data] if isinstance(data, DataSet) else data)
+    ]
+    zeroing_notes = tuple(f"{d.path}: {note}" for d, notes in zeroed for note in notes)
+    data = zeroed[0][0] if isinstance(data, DataSet) else [d for d, _ in zeroed]
     if not isinstance(data, DataSet):
         several = list(data)
         if len(several) > 1:
@@ -298,6 +307,13 @@ def fit_data(
     if selection.lag_bank is not None and chosen == "lagbank":
         notes = f"{provenance.notes}; {describe_lag_bank(selection.lag_bank)}"
         provenance = provenance.model_copy(update={"notes": notes})
+    if zeroing_notes:
+        unzeroed = ", ".join(d.path for d, added in zeroed if added)
+        notes = (
+            f"{provenance.notes}; {output} not zeroed at the start of {unzeroed}: taken as its "
+            "change from its first value there"
+        )
+        provenance = provenance.model_copy(update={"notes": notes})
     if denoise_doc is not None:
         notes = f"{provenance.notes}; {denoise_note(denoise_doc)}"
         provenance = provenance.model_copy(update={"denoise": denoise_doc, "notes": notes})
@@ -319,6 +335,7 @@ def fit_data(
         collinear=collinear_groups(np.column_stack(list(changes.values()))[first:], list(changes)),
         input_shares=input_shares(model, contributions),
         selection_steps=steps,
+        notes=zeroing_notes,
     )
 
 

@@ -204,6 +204,7 @@ def stack_on_model(
     if span is not None:
         data = until_stop(data, span)
     evaluation = evaluate(model_file, data)
+    data = evaluation.data  # its measured displacement as judged (compd.toolkit.zeroing)
     (predicted, measured), *others = measured_columns(evaluation, output).items()
     if others:
         raise DataFileError(

@@ -46,6 +46,7 @@ from compd.model.metrics import fit_percent
 from compd.toolkit.evaluate import InitialState
 from compd.toolkit.gainsets import Decomposition, Gain, decompose, model_gains, with_gains
 from compd.toolkit.probes import ProbeRows, Probes, probe_rows, probed_outputs
+from compd.toolkit.zeroing import zero_displacements
 
 #: Intervals between changes shorter than this are too short for eq. 7 to judge a gain.
 MIN_SEGMENT_S = 300.0
@@ -74,6 +75,7 @@ def find_characteristic(
     init: InitialState = "steady",
 ) -> Characteristic:
     """Optimise the gains on every interval of constant ``segment_signal`` of a measured run."""
+    data, _ = zero_displacements(data, [output])
     measured = data.column(output)
     signal = data.column(segment_signal)
     decomposition = decompose(model_file, gains, data, init=init)
@@ -179,9 +181,10 @@ def update_model(
                 "rather than a gain (Post-process 2024 sect. 4)"
             )
     fit_before, fit_after = {}, {}
+    judged, _ = zero_displacements(data, outputs)  # as compare judges the run
     for name in outputs:
-        if data.has(name):
-            measured = data.column(name)
+        if judged.has(name):
+            measured = judged.column(name)
             fit_before[name] = fit_percent(measured, decomposition.predicted(name, before))
             fit_after[name] = fit_percent(measured, decomposition.predicted(name, result.gains))
     characteristic_fit = None
