@@ -74,7 +74,9 @@ def signal_matrix(compiled: CompiledModel, data: DataSet) -> np.ndarray:
     return np.vstack([data.column(name) for name in compiled.signals]).T
 
 
-def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "steady") -> Evaluation:
+def evaluate(
+    model_file: ModelFile, data: DataSet, *, init: InitialState = "steady", as_logged: bool = False
+) -> Evaluation:
     """Compile ``model_file`` at the data's sample time and simulate it over the whole record.
 
     Every input is taken from its value at the record's first sample, as the
@@ -84,6 +86,11 @@ def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "stea
     ``"estimate"`` starts from the steady state corrected to fit the measured
     outputs (columns named as the model's outputs) over the first
     :data:`ESTIMATE_WINDOW_S` (:mod:`compd.model.initial`).
+
+    A measured displacement that did not start at 0 is judged as its change
+    from its first value (:mod:`compd.toolkit.zeroing`), unless ``as_logged``:
+    a part judged from a later sample (``--from``), where the samples before
+    it are only run through and may hold anything.
     """
     notes = []
     model_s = model_file.model.sample_time_s
@@ -100,7 +107,8 @@ def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "stea
         for name in (*compiled.output_names, *filter(is_displacement, data.columns))
         if name not in compiled.signals
     ]
-    data, _ = zero_displacements(data, displacements)
+    if not as_logged:
+        data, _ = zero_displacements(data, displacements)
     signals = signal_matrix(compiled, data)
     state: ModelState = (
         compiled.rest_state(signals[0]) if init == "rest" else compiled.steady_state(signals[0])
@@ -125,7 +133,11 @@ def evaluate(model_file: ModelFile, data: DataSet, *, init: InitialState = "stea
 
 
 def evaluate_each(
-    model_file: ModelFile, record: Stacked, *, init: InitialState = "steady"
+    model_file: ModelFile,
+    record: Stacked,
+    *,
+    init: InitialState = "steady",
+    as_logged: bool = False,
 ) -> Evaluation:
     """``model_file`` run over each experiment of ``record`` from its own start, stacked again.
 
@@ -134,7 +146,9 @@ def evaluate_each(
     that what judges a residue can judge it over every file at once. One
     experiment is exactly :func:`evaluate`.
     """
-    runs = [evaluate(model_file, data, init=init) for data in record.experiments]
+    runs = [
+        evaluate(model_file, data, init=init, as_logged=as_logged) for data in record.experiments
+    ]
     if len(runs) == 1:
         return runs[0]
     results = [run.result for run in runs]

@@ -118,7 +118,7 @@ def extend_model(
     if span is not None and not several:
         data, first = until_stop(data, span), span.start
         runs = single(data)
-    before = evaluate_each(parent, runs)
+    before = evaluate_each(parent, runs, as_logged=first > 0)
     output, measured_name = _one_output(before, column)
     check_effect_signal(data, signal, measured_name)
     measured = before.data.column(measured_name)  # as judged (compd.toolkit.zeroing)

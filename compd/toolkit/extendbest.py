@@ -62,7 +62,8 @@ def effect_signals(
         if len(data.experiments) > 1:
             return _auto_over_experiments(parent, data, column)
         data = data.data
-    whole = evaluate(parent, data if span is None else until_stop(data, span))
+    later = span is not None and span.start > 0
+    whole = evaluate(parent, data if span is None else until_stop(data, span), as_logged=later)
     evaluation = whole if span is None else scored_part(whole, span)
     output, measured = one_output(whole, column)
     if not any(np.ptp(data.column(n)) > 0.0 for n in default_candidates(whole, measured)):
@@ -118,7 +119,7 @@ def choose_effect(
     if span is not None and len(record.starts) == 1:
         data, first = until_stop(data, span), span.start
         record = single(data)
-    evaluation = evaluate_each(parent, record)
+    evaluation = evaluate_each(parent, record, as_logged=first > 0)
     output, measured = one_output(evaluation, column)
     for signal in signals:
         check_effect_signal(data, signal, measured)

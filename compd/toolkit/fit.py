@@ -131,9 +131,11 @@ def fit_data(
     column, and the fix) for bad arguments and for data the method cannot fit.
     """
     starts: tuple[int, ...] = ONE
-    # A displacement not zeroed at a file's start is taken as its change from there, per file.
+    # A displacement not zeroed at a file's start is taken as its change from there, per file
+    # (not with --from: the samples before it are never fitted and may hold anything).
+    columns = [output] if span is None or span.start == 0 else []
     zeroed = [
-        zero_displacements(d, [output]) for d in ([data] if isinstance(data, DataSet) else data)
+        zero_displacements(d, columns) for d in ([data] if isinstance(data, DataSet) else data)
     ]
     zeroing_notes = tuple(f"{d.path}: {note}" for d, notes in zeroed for note in notes)
     data = zeroed[0][0] if isinstance(data, DataSet) else [d for d, _ in zeroed]

@@ -203,7 +203,7 @@ def stack_on_model(
     """
     if span is not None:
         data = until_stop(data, span)
-    evaluation = evaluate(model_file, data)
+    evaluation = evaluate(model_file, data, as_logged=span is not None and span.start > 0)
     data = evaluation.data  # its measured displacement as judged (compd.toolkit.zeroing)
     (predicted, measured), *others = measured_columns(evaluation, output).items()
     if others:

@@ -167,7 +167,10 @@ def evaluate_span(
     model_file: ModelFile, data: DataSet, span: Span, *, init: InitialState = "steady"
 ) -> Evaluation:
     """``model_file`` run over ``data`` from its first sample; the part ``span`` selects."""
-    return scored_part(evaluate(model_file, until_stop(data, span), init=init), span)
+    later = span.start > 0  # the samples before it are run through, never judged: as logged
+    return scored_part(
+        evaluate(model_file, until_stop(data, span), init=init, as_logged=later), span
+    )
 
 
 def span_data(data: DataSet, span: Span) -> DataSet:
