@@ -42,8 +42,11 @@ starts mid-transient, where ``compare`` starts every model in equilibrium;
 the static regression has no state to lose there, the lag bank does.
 
 Run: ``PYTHONPATH=. python benchmarks/bench_machines.py [--seeds 100] [--jobs 1]
-[--first 0] [--seed-list 3,21] [--json out.json]`` from the repository root; ``--seeds 10`` for a
-quick look (the figures then say little). Seeds are ``first .. first+seeds-1``.
+[--first 0] [--seed-list 3,21] [--json out.json] [--calibration-scale 1]`` from the
+repository root; ``--seeds 10`` for a quick look (the figures then say little). Seeds
+are ``first .. first+seeds-1``. ``--calibration-scale 4``: every one-record machine's
+calibration four times as long, the machine otherwise the same (round 7 of
+benchmarks/README.md: what a longer calibration buys).
 
 Baseline, main at 4d6ed08 (the lag-bank default of issue 12), seeds 0..99, 161 s:
 default not below mlr on 54 % of machines (strictly above on 36 %); median gap
@@ -80,6 +83,7 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_name] = "1"
 
 import argparse  # noqa: E402
+import functools  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -167,10 +171,10 @@ def printed_estimate(result: FitResult) -> float | None:
     return None if doc is None else doc.expected_percent(result.identification.method)
 
 
-def judge(seed: int) -> CaseResult:
+def judge(seed: int, calibration_scale: float = 1.0) -> CaseResult:
     """Draw machine ``seed``, write its files, fit every method on them and judge it on its verify files."""
     started = time.perf_counter()
-    case = random_machine(seed)
+    case = random_machine(seed, calibration_scale=calibration_scale)
     result = CaseResult(seed, case.description, time.perf_counter() - started, facts=case.facts)
     with tempfile.TemporaryDirectory() as tmp:
         calibration_paths, verify_paths = write_case(case, Path(tmp))
@@ -444,7 +448,17 @@ def main(argv: list[str] | None = None) -> int:
         "--seed-list", help="comma-separated seeds to run instead (e.g. the worst of a full run)"
     )
     parser.add_argument("--json", type=Path, help="write every machine's figures to this file")
+    parser.add_argument(
+        "--calibration-scale",
+        type=float,
+        default=1.0,
+        help="one-record machines' calibrations this many times as long, the machines otherwise "
+        "the same (default 1: as the issue specifies; 4: benchmarks/README.md round 7)",
+    )
     args = parser.parse_args(argv)
+    if not args.calibration_scale > 0.0:
+        parser.error(f"--calibration-scale must be > 0, got {args.calibration_scale}")
+    judge_one = functools.partial(judge, calibration_scale=args.calibration_scale)
     print(environment())
     seeds: list[int] = (
         [int(s) for s in args.seed_list.split(",")]
@@ -455,12 +469,12 @@ def main(argv: list[str] | None = None) -> int:
     results: list[CaseResult] = []
     if args.jobs > 1:
         with Pool(args.jobs) as pool:
-            for r in pool.imap(judge, seeds):
+            for r in pool.imap(judge_one, seeds):
                 results.append(r)
                 print(_row(r), flush=True)
     else:
         for seed in seeds:
-            results.append(judge(seed))
+            results.append(judge_one(seed))
             print(_row(results[-1]), flush=True)
     passed = summarise(results, time.perf_counter() - started)
     if args.json is not None:

@@ -148,7 +148,13 @@ def _hours_at_least(rng: np.random.Generator, low_h: float, high_h: float, ts: f
     return max(MIN_SAMPLES, round(hours * _H / ts)) * ts / _H
 
 
-def _plan(rng: np.random.Generator, ts: float, max_rpm: float) -> _Plan:
+def _plan(
+    rng: np.random.Generator,
+    ts: float,
+    max_rpm: float,
+    calibration_scale: float = 1.0,
+    longer: np.random.Generator | None = None,
+) -> _Plan:
     kinds = list(PROGRAMMES)
     calibration_kind = str(rng.choice(kinds))
     verify_kind = str(rng.choice([k for k in kinds if k != calibration_kind]))
@@ -158,7 +164,13 @@ def _plan(rng: np.random.Generator, ts: float, max_rpm: float) -> _Plan:
         cal_h = _hours_at_least(rng, 3.0, MAX_RECORD_H, ts)
         ver_h = _hours_at_least(rng, 3.0, max(3.0, rng.uniform(0.3, 0.7) * cal_h), ts)
         cal_s, ver_s = cal_h * _H, ver_h * _H
-        segments.append((0.0, cal_s, draw_programme(calibration_kind, rng, cal_s, max_rpm)))
+        steps = draw_programme(calibration_kind, rng, cal_s, max_rpm)
+        if calibration_scale != 1.0 and longer is not None:
+            # A longer calibration of the same kind from its own stream: the machine, its
+            # sensors and the verify programme are drawn as at scale 1.
+            cal_s = max(1, round(cal_s * calibration_scale / ts)) * ts
+            steps = draw_programme(calibration_kind, longer, cal_s, max_rpm)
+        segments.append((0.0, cal_s, steps))
         segments.append((cal_s, cal_s + ver_s, draw_programme(verify_kind, rng, ver_s, max_rpm)))
         n_calibration = 1
     else:
@@ -230,13 +242,20 @@ def _hidden_effects(
     return cutting_kw, door, effects
 
 
-def random_machine(seed: int) -> MachineCase:
-    """The machine, logging and programmes of ``seed``: the same seed gives the same case."""
+def random_machine(seed: int, *, calibration_scale: float = 1.0) -> MachineCase:
+    """The machine, logging and programmes of ``seed``: the same seed gives the same case.
+
+    ``calibration_scale``: a one-record machine's calibration that many times
+    as long (the same programme kind, drawn afresh), everything else drawn as
+    at 1: what a longer calibration buys the same machine
+    (``benchmarks/bench_machines.py --calibration-scale``). Warm-up runs are
+    not changed.
+    """
     rng = np.random.default_rng([seed, 20, 4])
     params, variant = random_parameters(rng)
     ts = float(rng.choice(SAMPLE_TIMES_S))
     max_rpm = float(rng.choice([8000.0, 10000.0, 12000.0, 15000.0]))
-    plan = _plan(rng, ts, max_rpm)
+    plan = _plan(rng, ts, max_rpm, calibration_scale, np.random.default_rng([seed, 20, 9]))
     substeps = math.ceil(ts / MAX_STEP_S)
     step_s = ts / substeps
     time_s = np.arange(round(plan.total_s / step_s) + 1) * step_s

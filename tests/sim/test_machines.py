@@ -46,6 +46,30 @@ def test_the_same_seed_gives_the_same_case_and_another_seed_another() -> None:
     assert first.description != other.description
 
 
+def test_a_longer_calibration_keeps_the_machine_its_sensors_and_its_verify_programme() -> None:
+    """``calibration_scale``: what a longer calibration buys the same machine (benchmarks round 7)."""
+    base, longer = random_machine(0), random_machine(0, calibration_scale=4.0)
+    assert base.facts["continuous"]
+    assert len(longer.calibration[0]) - 1 == pytest.approx(
+        4 * (len(base.calibration[0]) - 1), abs=1
+    )
+    assert list(longer.calibration[0].columns) == list(base.calibration[0].columns)
+    assert longer.sample_time_s == base.sample_time_s
+    assert [len(v) for v in longer.verify] == [len(v) for v in base.verify]
+    assert longer.facts["kinds"] == base.facts["kinds"]
+    assert longer.facts["verify_kind"] == base.facts["verify_kind"]
+    warm_up_runs = random_machine(3)  # warm-up runs are not changed
+    for a, b in zip(
+        warm_up_runs.calibration,
+        random_machine(3, calibration_scale=4.0).calibration,
+        strict=True,
+    ):
+        pd.testing.assert_frame_equal(a, b)
+    pd.testing.assert_frame_equal(
+        random_machine(0, calibration_scale=1.0).calibration[0], base.calibration[0]
+    )
+
+
 def test_sensor_counts_sample_times_and_amplitudes_span_the_spec(cases: list[MachineCase]) -> None:
     """Over 30 seeds: 4-24 sensors, 15 s-5 min samples, 2-100 um, each range visited at both ends."""
     sensors = [len(c.inputs) for c in cases]
