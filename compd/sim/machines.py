@@ -175,13 +175,24 @@ def _plan(
         n_calibration = 1
     else:
         n_calibration = int(rng.integers(3, 7))
+        n_verify = int(rng.integers(1, 3))
+        # More warm-up runs of the same kind from their own stream, after the drawn ones.
+        extra = round(n_calibration * (calibration_scale - 1.0)) if longer is not None else 0
         now_s = 0.0
-        for k in range(n_calibration + int(rng.integers(1, 3))):
-            run_s = _hours_at_least(rng, 2.0, 8.0, ts) * _H
-            kind = calibration_kind if k < n_calibration else verify_kind
-            segments.append((now_s, now_s + run_s, draw_programme(kind, rng, run_s, max_rpm)))
+
+        def run(kind: str, draws: np.random.Generator) -> None:
+            nonlocal now_s
+            run_s = _hours_at_least(draws, 2.0, 8.0, ts) * _H
+            segments.append((now_s, now_s + run_s, draw_programme(kind, draws, run_s, max_rpm)))
             # Standing between runs: overnight, or a short break (the next run starts warm).
-            now_s = round((now_s + run_s + rng.uniform(1.0, 16.0) * _H) / ts) * ts
+            now_s = round((now_s + run_s + draws.uniform(1.0, 16.0) * _H) / ts) * ts
+
+        for k in range(n_calibration + n_verify):
+            run(calibration_kind if k < n_calibration else verify_kind, rng)
+            if k == n_calibration - 1 and longer is not None:
+                for _ in range(max(0, extra)):
+                    run(calibration_kind, longer)
+        n_calibration += max(0, extra)
     # Each segment's steps are cut at its end: the programme is what ran during the file.
     starts = np.array([s for s, _, _ in segments])
     stops = np.array([e for _, e, _ in segments])
@@ -246,10 +257,10 @@ def random_machine(seed: int, *, calibration_scale: float = 1.0) -> MachineCase:
     """The machine, logging and programmes of ``seed``: the same seed gives the same case.
 
     ``calibration_scale``: a one-record machine's calibration that many times
-    as long (the same programme kind, drawn afresh), everything else drawn as
-    at 1: what a longer calibration buys the same machine
-    (``benchmarks/bench_machines.py --calibration-scale``). Warm-up runs are
-    not changed.
+    as long (the same programme kind, drawn afresh), or that many times as
+    many warm-up runs (the drawn ones first, then more of the same kind);
+    everything else drawn as at 1: what a longer calibration buys the same
+    machine (``benchmarks/bench_machines.py --calibration-scale``).
     """
     rng = np.random.default_rng([seed, 20, 4])
     params, variant = random_parameters(rng)
