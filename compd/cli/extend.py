@@ -21,9 +21,8 @@ from compd.cli.common import (
 )
 from compd.cli.progress import progress_reporter
 from compd.cli.terminal import console
-from compd.files.data import DataSet
 from compd.files.effects import load_catalogue
-from compd.files.experiments import Stacked, single, stack
+from compd.files.experiments import as_stacked
 from compd.files.modelfile import load_model
 from compd.files.provenancepaths import write_model_text
 from compd.model.identify import MIN_SAMPLES
@@ -108,12 +107,12 @@ def _extend(args: argparse.Namespace) -> int:
     refuse_with_several(
         experiments, {"--from": args.from_s is not None, "--until": args.until_s is not None}
     )
-    record = _runs(experiments)
+    record = as_stacked(experiments)
     data = record.data
     span = span_from_args(args, data, min_samples=MIN_SAMPLES)
     for note in data.notes:  # what was joined, repaired or left out
         print(f"note: {note}", file=sys.stderr)
-    verify_data = _runs(load_experiments_from_args(args, args.verify)) if args.verify else None
+    verify_data = as_stacked(load_experiments_from_args(args, args.verify)) if args.verify else None
     catalogue = load_catalogue(args.catalogue)
     command = (
         "compd " + shlex.join(["extend", *sys.argv[2:]]) if sys.argv[1:2] == ["extend"] else ""
@@ -262,11 +261,6 @@ def _extend(args: argparse.Namespace) -> int:
         out.print(span.describe("fitted"))
     out.print(f"wrote {args.out}")
     return 0
-
-
-def _runs(experiments: list[DataSet]) -> Stacked:
-    """One record, or several experiments end to end (each run from its own start)."""
-    return stack(experiments) if len(experiments) > 1 else single(experiments[0])
 
 
 def _tried_table(choice: Choice) -> Table:

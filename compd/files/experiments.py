@@ -165,6 +165,15 @@ def single(data: DataSet) -> Stacked:
     return Stacked(data, (0,), (data,))
 
 
+def as_stacked(data: DataSet | Stacked | Sequence[DataSet]) -> Stacked:
+    """``data`` as experiments: a stack as it is, one record as a stack of one, several end to end."""
+    if isinstance(data, Stacked):
+        return data
+    if isinstance(data, DataSet):
+        return single(data)
+    return stack(data) if len(data) > 1 else single(data[0])
+
+
 def stack(experiments: Sequence[DataSet]) -> Stacked:
     """One data set of ``experiments`` end to end (columns as each file's: references are the caller's)."""
     check_alike(experiments)

@@ -23,7 +23,7 @@ import numpy as np
 
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
-from compd.files.experiments import Stacked, single
+from compd.files.experiments import Stacked, as_stacked, single
 from compd.files.modelfile import ModelFile, parse_model
 from compd.files.modelwriter import model_to_yaml
 from compd.model.guards import Finding, Severity
@@ -108,7 +108,7 @@ def extend_model(
     file out at a time and is the regularised lag bank over all of them,
     every lag from rest at each start (OE and ARX identify one record).
     """
-    runs = data if isinstance(data, Stacked) else single(data)
+    runs = as_stacked(data)
     data, starts = runs.data, runs.starts
     several = len(starts) > 1
     if several:
@@ -312,7 +312,7 @@ def verify_extension(extension: Extension, data: DataSet | Stacked) -> tuple[flo
     Several files (:class:`~compd.files.experiments.Stacked`): each run from
     its own start, the fit pooled over them, as ``compd compare`` pools it.
     """
-    runs = data if isinstance(data, Stacked) else single(data)
+    runs = as_stacked(data)
     data = runs.data
     column = extension.measured_column if data.has(extension.measured_column) else None
     fits = []

@@ -17,11 +17,11 @@ import numpy as np
 
 from compd.errors import DataFileError
 from compd.files.data import DataSet
-from compd.files.experiments import Stacked, single
+from compd.files.experiments import Stacked, as_stacked, single
 from compd.files.modelfile import ModelFile
 from compd.model.diagnose import MIN_DIAGNOSED_SAMPLES
 from compd.toolkit.analysis import default_candidates, diagnose_evaluation
-from compd.toolkit.evaluate import evaluate, evaluate_each
+from compd.toolkit.evaluate import Evaluation, evaluate, evaluate_each
 from compd.toolkit.extend import check_effect_signal, one_output
 from compd.toolkit.extendjudge import RULE, HeldOut, judge_signals, rank_judged
 from compd.toolkit.extendrecord import Tried
@@ -66,7 +66,7 @@ def effect_signals(
     whole = evaluate(parent, data if span is None else until_stop(data, span), as_logged=later)
     evaluation = whole if span is None else scored_part(whole, span)
     output, measured = one_output(whole, column)
-    if not any(np.ptp(data.column(n)) > 0.0 for n in default_candidates(whole, measured)):
+    if not _any_varying(whole, measured):
         raise DataFileError(
             data.path,
             "--effect auto: the file has no varying signal besides the model's own",
@@ -76,6 +76,12 @@ def effect_signals(
     return [c.signal for c in result.diagnosis.candidates[:AUTO_CANDIDATES]]
 
 
+def _any_varying(evaluation: Evaluation, measured: str) -> bool:
+    """Whether a signal besides the model's own varies in the evaluated record: one to diagnose."""
+    data = evaluation.data
+    return any(np.ptp(data.column(n)) > 0.0 for n in default_candidates(evaluation, measured))
+
+
 def _auto_over_experiments(parent: ModelFile, record: Stacked, column: str | None) -> list[str]:
     explained: dict[str, list[float]] = {}
     for data in record.experiments:
@@ -83,7 +89,7 @@ def _auto_over_experiments(parent: ModelFile, record: Stacked, column: str | Non
             continue
         evaluation = evaluate(parent, data)
         output, measured = one_output(evaluation, column)
-        if not any(np.ptp(data.column(n)) > 0.0 for n in default_candidates(evaluation, measured)):
+        if not _any_varying(evaluation, measured):
             continue
         result = diagnose_evaluation(evaluation, output, measured, judged=0)
         for c in result.diagnosis.candidates:
@@ -113,7 +119,7 @@ def choose_effect(
     With none accepted, a :class:`DataFileError` lists each one's figures
     (``force``: the best of them is kept anyway).
     """
-    record = data if isinstance(data, Stacked) else single(data)
+    record = as_stacked(data)
     data = record.data
     first = 0
     if span is not None and len(record.starts) == 1:
