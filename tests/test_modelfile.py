@@ -293,3 +293,11 @@ def test_model_check_lists_the_provenance_keys_it_does_not_read(tmp_path: Path) 
     code, out, _ = compd_result("model", "check", write(tmp_path, NEWER_PROVENANCE))
     assert code == 0
     assert "does not read" in out and "provenance.cross_validation.fold_trimmed_percent" in out
+
+
+def test_a_count_beyond_any_float_is_refused_not_an_overflow(tmp_path: Path) -> None:
+    """A calibration of 10^400 samples is refused by its bound; it never reaches float arithmetic (OverflowError)."""
+    text = (CONFIG / "simulated_model.yaml").read_text()
+    assert "samples: 8641" in text
+    message = refusal(tmp_path, text.replace("samples: 8641", "samples: 1" + "0" * 400))
+    assert "(provenance.calibration.samples): Input should be less than or equal to" in message

@@ -101,3 +101,20 @@ def test_a_fifo_or_a_device_is_refused_without_blocking(tmp_path: Path) -> None:
     assert messages == [
         f"{path}: not a regular file. Give the path of a YAML file" for path in (fifo, "/dev/zero")
     ]
+
+
+def test_an_integer_of_5000_digits_is_refused_naming_its_place() -> None:
+    """An integer longer than Python converts (4,300 digits) is a ModelFileError on its line, not a ValueError."""
+    message = refused(
+        VALID.replace("den: [0.002098, 2.379, 1.0]", f"den: [0.002098, {'7' * 5000}]")
+    )
+    assert message.startswith("m.yaml: line 18 (outputs.disp_z_um.submodels[0].tf.den[1]): ")
+    assert "an integer of 5000 digits (at most 4300)" in message and len(message) < 500
+
+
+def test_a_date_that_is_no_date_in_a_config_is_a_config_error(tmp_path: Path) -> None:
+    """A scalar YAML types as a date but no calendar holds (2024-13-45) is refused naming file and place."""
+    path = tmp_path / "compd.yaml"
+    path.write_text("schema: compd.config/1\nperiod_s: 1\nmachine_id: 2024-13-45\n")
+    with pytest.raises(ConfigFileError, match=r"compd.yaml: line 3 \(machine_id\): '2024-13-45'"):
+        load_config(path)

@@ -21,6 +21,11 @@ from compd.schemas import MODEL_SCHEMA
 SCHEMA = MODEL_SCHEMA
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+#: The largest count a file may record (samples, folds, trees): 2^53, the largest integer a
+#: float holds exactly. Beyond it a count is corrupt, and arithmetic with floats overflows.
+MAX_COUNT = 2**53
+#: A random seed: numpy's generators take up to 128 bits.
+MAX_SEED = 2**128 - 1
 
 
 class _Strict(BaseModel):
@@ -128,9 +133,9 @@ class ResidualDoc(_Strict):
     time_constants_s: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]] = Field(min_length=1)
     file: str = Field(min_length=1)
     sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
-    trees: int | None = Field(default=None, ge=1)
-    max_depth: int | None = Field(default=None, ge=1)
-    seed: int | None = None
+    trees: int | None = Field(default=None, ge=1, le=MAX_COUNT)
+    max_depth: int | None = Field(default=None, ge=1, le=MAX_COUNT)
+    seed: int | None = Field(default=None, ge=0, le=MAX_SEED)
     calibration_tf_alone: ResidualFiguresDoc | None = None
     calibration_stacked: ResidualFiguresDoc | None = None
 
@@ -163,7 +168,7 @@ class CalibrationDoc(_Record):
     """
 
     data: str
-    samples: int = Field(ge=1)
+    samples: int = Field(ge=1, le=MAX_COUNT)
     sample_time_s: FiniteFloat = Field(gt=0)
     fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
     rms_um: dict[str, FiniteFloat] = Field(default_factory=dict)
@@ -177,8 +182,8 @@ class TriedDoc(_Record):
     held_out_fit_percent_before: FiniteFloat
     held_out_fit_percent_after: FiniteFloat
     error_removed_percent: FiniteFloat
-    folds_improved: int = Field(ge=0)
-    folds: int = Field(ge=0)
+    folds_improved: int = Field(ge=0, le=MAX_COUNT)
+    folds: int = Field(ge=0, le=MAX_COUNT)
     kept: bool = False
 
 
@@ -206,7 +211,7 @@ class CharacteristicDoc(_Record):
 
     data: str
     segment_signal: str
-    segments: int = Field(ge=0)
+    segments: int = Field(ge=0, le=MAX_COUNT)
     bounds: dict[str, tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=dict)
     fit_percent_before: FiniteFloat | None = None
     fit_percent_after: FiniteFloat | None = None
@@ -232,7 +237,7 @@ class UpdateDoc(_Record):
     probe_rms_after_um: FiniteFloat | None = None
     fit_percent_before: dict[str, FiniteFloat] = Field(default_factory=dict)
     fit_percent_after: dict[str, FiniteFloat] = Field(default_factory=dict)
-    seed: int | None = None
+    seed: int | None = Field(default=None, ge=0, le=MAX_SEED)
     created: str | None = None
 
 
@@ -241,7 +246,8 @@ class DenoisedInputDoc(_Record):
 
     input: str
     unit: str = "-"
-    imfs_removed: int = Field(default=1, ge=1)  # the first N EMD modes (Swiss-lathe paper: 1)
+    #: The first N EMD modes (Swiss-lathe paper: 1).
+    imfs_removed: int = Field(default=1, ge=1, le=MAX_COUNT)
     lowpass_tau_s: FiniteFloat = Field(gt=0)
     lowpass_stages: int = Field(ge=1, le=2)
     lowpass_vs_emd_rms: FiniteFloat = Field(ge=0)  # matched causal low-pass minus EMD-denoised

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import stat
+import sys
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -91,7 +92,12 @@ def parse_yaml(
         loader = _Loader(text)
         try:
             root = loader.get_single_node()
-            return (None if root is None else loader.construct_document(root)), root
+            try:
+                return (None if root is None else loader.construct_document(root)), root
+            except (ValueError, OverflowError) as exc:
+                # A scalar the YAML resolver types but Python cannot build: an integer of more
+                # digits than int() converts (4300), a date such as 2024-13-45.
+                raise _unbuildable(root, exc, path, error) from exc
         finally:
             loader.dispose()
     except yaml.YAMLError as exc:
@@ -108,6 +114,46 @@ def parse_yaml(
                 fix="Flatten the structure",
             ) from exc
         raise error(path, f"not valid YAML: {problem}", where=where) from exc
+
+
+def _unbuildable(
+    root: yaml.Node | None, exc: Exception, path: object, error: type[InputFileError]
+) -> InputFileError:
+    """The refusal of the first scalar under ``root`` that cannot be built, with its place.
+
+    Only on the error path: each scalar is built again on its own, in document
+    order, until one fails as the whole document did.
+    """
+    builder = _Loader("")
+    try:
+        stack: list[tuple[yaml.Node, tuple[str | int, ...]]] = [] if root is None else [(root, ())]
+        while stack:
+            node, location = stack.pop()
+            if isinstance(node, yaml.MappingNode):
+                children = [(v, (*location, str(k.value))) for k, v in node.value]
+                stack.extend(reversed(children))
+            elif isinstance(node, yaml.SequenceNode):
+                stack.extend(reversed([(v, (*location, i)) for i, v in enumerate(node.value)]))
+            else:
+                try:
+                    builder.construct_object(node, deep=True)
+                except (ValueError, OverflowError) as failed:
+                    huge = "digits" in str(failed)  # "Exceeds the limit (4300 digits) ..."
+                    digits = sum(c.isdigit() for c in str(node.value))
+                    why = (
+                        f"an integer of {digits} digits (at most {sys.get_int_max_str_digits()})"
+                        if huge
+                        else str(failed)
+                    )
+                    return error(
+                        path,
+                        f"{shorten(node.value)} is not a value compd reads: {why}",
+                        where=where(root, location),
+                        fix="Give a number of a few digits" if huge else "Correct it, or quote it",
+                    )
+    finally:
+        builder.dispose()
+    return error(path, f"a value compd cannot read ({exc})")
 
 
 class _Frame:

@@ -124,6 +124,19 @@ def test_model_load_refuses_a_bad_model(tmp_path, capsys):
     assert installed_model(config.state_dir) is None
 
 
+def test_model_load_of_a_5000_digit_gain_names_the_file_and_place(tmp_path, capsys):
+    """A model file holding an integer of 5,000 digits: exit 2, the file and the place, no traceback."""
+    config = write_config(tmp_path, {"control_socket": str(short_socket())})
+    text = config.model_path.read_text()
+    assert "gain: 1.0" in text
+    bad = tmp_path / "huge.yaml"
+    bad.write_text(text.replace("gain: 1.0", "gain: " + "9" * 5000, 1))
+    assert main(["model", "load", str(bad), "--config", str(config.path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: line " in err and ".gain): " in err and "an integer of 5000 digits" in err
+    assert installed_model(config.state_dir) is None
+
+
 def test_status_without_a_daemon(tmp_path, capsys):
     """status with no daemon running exits 2 asking whether compd runs, and how to start this config's."""
     config = write_config(tmp_path, {"control_socket": str(short_socket())})
