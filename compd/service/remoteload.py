@@ -29,7 +29,10 @@ broker's retained store hands it out again on every connection, rolling later
 roll-outs back), a ``request_id`` seen before (a replay; the ids are kept in
 the state directory, :mod:`compd.service.seenrequests`) and a request sent
 more than :data:`~compd.service.seenrequests.WINDOW_S` from the machine's
-clock (or without ``sent_unix_s``) are refused, and the reply says which.
+clock (or without ``sent_unix_s``) are refused, and the reply says which. So
+is a request holding a number compd does not read (NaN, Infinity, 1e400, an
+integer of more than :data:`MAX_DIGITS` digits), wherever it stands; any other
+failure while checking it is answered ``refused`` as well, never left unanswered.
 The broker itself drops a payload larger than the daemon's MQTT maximum packet
 size (:meth:`compd.service.telemetry.Telemetry.listen`) before it is sent.
 """
@@ -61,6 +64,9 @@ SCHEMA = "compd.model_load/1"
 COMMAND = "model_load"
 #: The largest payload read: a model file at its size limit, base64-encoded, and the rest.
 MAX_PAYLOAD_BYTES = 4 * (MAX_YAML_BYTES // 3 + 1) + 4096
+#: The most digits of an integer in a request (its times have ten): more is corrupt, or an attack
+#: on ``int()`` (Python converts at most 4,300 digits, and slowly).
+MAX_DIGITS = 30
 #: A request id is one topic level of the reply's topic: no wildcards, no separators.
 REQUEST_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,100}$")
 
@@ -102,15 +108,27 @@ class RemoteLoads:
             return
         request_id = request["request_id"]
         by = shorten(str(request.get("requested_by", "?")), 200)
-        answer: dict[str, Any] = {"request_id": request_id, "sha256": request.get("sha256")}
+        sha256 = request.get("sha256")
+        answer: dict[str, Any] = {
+            "request_id": request_id,
+            "sha256": sha256 if isinstance(sha256, str) else None,
+        }
         try:
+            if (unread := _unread_number(request)) is not None:
+                raise CompdError(f"the request holds a number compd does not read: {unread}")
             await self._admit(request, retained)
             answer |= await self._load(request, by)
         except CompdError as exc:
-            answer |= {"result": "refused", "reason": str(exc)}
-            details = {"reason": str(exc), "sha256": answer["sha256"], "requested_by": by}
-            self.events(Event("model_refused", "remote model load refused", details))
+            self._refuse(answer, str(exc), by)
+        except Exception as exc:  # a bug must not leave the sender without an answer
+            log.exception("remote model load failed", request_id=request_id)
+            self._refuse(answer, f"the daemon failed to check it ({type(exc).__name__})", by)
         self.reply(request_id, answer)
+
+    def _refuse(self, answer: dict[str, Any], reason: str, by: str) -> None:
+        answer |= {"result": "refused", "reason": reason}
+        details = {"reason": reason, "sha256": answer["sha256"], "requested_by": by}
+        self.events(Event("model_refused", "remote model load refused", details))
 
     async def _admit(self, request: dict[str, Any], retained: bool) -> None:
         """Raise CompdError for a retained, replayed or stale request; else remember its id (saved)."""
@@ -162,12 +180,55 @@ class RemoteLoads:
         return {"result": "accepted", "model": reply["model"], "blend_s": reply["blend_s"]}
 
 
+class _Unread:
+    """A number in a request that compd does not read (NaN, 1e400, 10^5000): refused once the id is known."""
+
+    def __init__(self, why: str) -> None:
+        self.why = why
+
+    def __repr__(self) -> str:
+        return self.why
+
+
+def _int(text: str) -> int | _Unread:
+    digits = len(text.lstrip("-"))
+    return _Unread(f"an integer of {digits} digits") if digits > MAX_DIGITS else int(text)
+
+
+def _float(text: str) -> float | _Unread:
+    value = float(text)
+    return value if math.isfinite(value) else _Unread(f"{text[:40]} (beyond any float)")
+
+
+def _constant(text: str) -> _Unread:
+    return _Unread(f"{text} (not a finite number)")
+
+
+def _unread_number(request: dict[str, Any]) -> str | None:
+    """``key: why`` of the first number in ``request`` that compd does not read, else None."""
+    stack: list[tuple[str, Any]] = list(request.items())
+    while stack:
+        key, value = stack.pop(0)
+        if isinstance(value, _Unread):
+            return f"{key[:100]}: {value.why}"
+        if isinstance(value, dict):
+            stack.extend((f"{key}.{k}", v) for k, v in value.items())
+        elif isinstance(value, list):
+            stack.extend((f"{key}[{i}]", v) for i, v in enumerate(value))
+    return None
+
+
 def _parse(payload: bytes) -> dict[str, Any]:
-    """The request as a dict with a usable ``request_id``; raises CompdError saying what is wrong."""
+    """The request as a dict with a usable ``request_id``; raises CompdError saying what is wrong.
+
+    Numbers compd does not read (NaN, Infinity, 1e400, integers of more than
+    :data:`MAX_DIGITS` digits) parse as :class:`_Unread`, so that the request
+    is refused with an answer to its id rather than dropped unanswered.
+    """
     try:
-        request = json.loads(payload)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CompdError(f"the request is not JSON ({exc})") from exc
+        request = json.loads(payload, parse_int=_int, parse_float=_float, parse_constant=_constant)
+    except (UnicodeDecodeError, ValueError) as exc:  # json.JSONDecodeError is a ValueError
+        raise CompdError(f"the request is not JSON ({shorten(str(exc), 200)})") from exc
     except RecursionError as exc:  # json's parser recurses per [ or {: 1M "[" ends here
         raise CompdError(f"the request is not JSON compd reads: {TOO_DEEP}") from exc
     if not isinstance(request, dict):

@@ -79,7 +79,8 @@ def _read(path: Path) -> dict[str, float]:
         }
     except FileNotFoundError:
         return {}
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+    # ValueError: an integer of more than 4,300 digits; OverflowError: one of 400, as a float.
+    except (OSError, ValueError, OverflowError, KeyError, TypeError, AttributeError) as exc:
         log.warning(
             "roll-out request ids not readable: starting afresh (the age check still holds)",
             file=str(path),

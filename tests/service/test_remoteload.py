@@ -29,6 +29,7 @@ from compd.service.mqttlink import Broker, Topics
 from compd.service.remoteload import MAX_PAYLOAD_BYTES, SCHEMA, RemoteLoads
 from compd.service.telemetry import Telemetry
 from tests.mosquitto import MODEL, WAIT_S, Mosquitto, Subscriber, machine_config, mosquitto_binary
+from tests.service.daemon_setup import write_config
 
 RAW = MODEL.read_bytes()
 
@@ -142,6 +143,54 @@ def test_a_request_nested_too_deeply_is_refused_as_an_event_not_a_traceback():
     assert not daemon.loads and not daemon.replies
     (event,) = daemon.events
     assert event.kind == "model_refused" and TOO_DEEP in event.details["reason"]
+
+
+@pytest.mark.parametrize(
+    ("field", "number", "reason"),
+    [
+        ("sent_unix_s", "1" * 5000, "sent_unix_s: an integer of 5000 digits"),
+        ("sent_unix_s", "1e400", "sent_unix_s: 1e400 (beyond any float)"),
+        ("requested_by", "-Infinity", "requested_by: -Infinity (not a finite number)"),
+    ],
+)
+def test_a_number_compd_does_not_read_is_refused_with_an_answer(
+    field: str, number: str, reason: str
+):
+    """An integer of 5,000 digits, 1e400 or -Infinity in the request: refused, answered and told, never a traceback."""
+    payload = json.loads(request())
+    payload[field] = "NUMBER"
+    daemon = Daemon(ACCEPTED)
+    daemon.handle(json.dumps(payload).replace('"NUMBER"', number).encode())
+    assert not daemon.loads
+    ((request_id, reply),) = daemon.replies
+    assert request_id == "r1" and reply["result"] == "refused"
+    assert reply["reason"] == f"the request holds a number compd does not read: {reason}"
+    assert [e.kind for e in daemon.events] == ["model_refused"]
+
+
+def test_a_model_of_a_5000_digit_gain_is_refused_with_an_answer(tmp_path: Path):
+    """The model inside the request holds an integer of 5,000 digits: the daemon's load refuses it, named."""
+    config = write_config(tmp_path)
+    text = config.model_path.read_text()
+    raw = text.replace("gain: 1.0", "gain: " + "9" * 5000, 1).encode()
+    sha256 = hashlib.sha256(raw).hexdigest()
+    service = Service(config, clock=VirtualClock(), control=False)
+    daemon = Daemon(ACCEPTED)
+    daemon.load = service.load_model  # type: ignore[method-assign]
+    daemon.handle(request(model_base64=base64.b64encode(raw).decode(), sha256=sha256))
+    ((_, reply),) = daemon.replies
+    assert reply["result"] == "refused", reply
+    assert ".gain): " in reply["reason"] and "an integer of 5000 digits" in reply["reason"]
+    assert [e.kind for e in daemon.events] == ["model_refused"]
+
+
+def test_a_failure_checking_a_request_is_answered_refused():
+    """An exception that is no refusal (a bug) still answers the sender, and is told as an event."""
+    daemon = Daemon(ZeroDivisionError("bug"))
+    daemon.handle(request())
+    ((_, reply),) = daemon.replies
+    assert reply["result"] == "refused" and "ZeroDivisionError" in reply["reason"]
+    assert [e.kind for e in daemon.events] == ["model_refused"]
 
 
 def test_models_from_the_network_are_off_unless_the_config_says_so(tmp_path: Path):

@@ -174,7 +174,8 @@ def test_a_command_far_over_the_bound_is_dropped_by_the_broker_never_received(tm
         (NOW + WINDOW_S + 5, "sent dated 605 s ahead"),
         (None, "carries no sent_unix_s"),
         ("yesterday", "carries no sent_unix_s"),
-        (float("nan"), "carries no sent_unix_s"),
+        (float("nan"), "a number compd does not read: sent_unix_s: NaN (not a finite number)"),
+        (1e400, "sent_unix_s: Infinity (not a finite number)"),
     ],
 )
 def test_a_stale_undated_or_future_request_is_refused(sent_unix_s: object, reason: str):
@@ -207,3 +208,6 @@ def test_a_seen_ids_file_that_is_not_json_is_started_afresh(tmp_path: Path):
     assert SeenRequests(path).sent == {}
     path.write_text(json.dumps({"sent_unix_s": {"a": 1.0, "b": "x", "c": float("inf")}}))
     assert SeenRequests(path).sent == {"a": 1.0}
+    for huge in ("1" * 400, "1" * 5000):  # beyond any float; beyond what int() converts
+        path.write_text(f'{{"sent_unix_s": {{"a": {huge}}}}}')
+        assert SeenRequests(path).sent == {}
