@@ -23,7 +23,11 @@ No client can starve the daemon (:mod:`compd.service.peers`): at most
 is low), the rest wait in the kernel's queue, and a connection with no
 request under way for ``http.idle_timeout_s`` (one sending its headers
 slowly, or idle between requests) is closed, as is one that leaves an
-answer unread that long.
+answer unread that long. Nor can clients starve a scraper: with every
+connection taken, the one idle longest is closed for the next in the queue
+(:class:`compd.service.peers.Served`), so 1,000 clients that connect and
+send nothing hold ``/metrics`` up for milliseconds, not for the idle timeout
+once per ``max_connections`` of them.
 """
 
 from __future__ import annotations
@@ -44,7 +48,7 @@ from compd.service.compensator import TickRecord
 from compd.service.control import jsonable
 from compd.service.history import RecentFaults, TickHistory
 from compd.service.metrics import ServiceMetrics
-from compd.service.peers import FdBudget, Listener, serve_protocol
+from compd.service.peers import FdBudget, Listener, Served
 from compd.service.safety import Flag, Level
 
 if TYPE_CHECKING:
@@ -115,7 +119,8 @@ class StatusServer:
         self._last_tick_real_s: float | None = None
         self._next_tick_real_s = -float("inf")  # time.perf_counter() time
         self._ticked = asyncio.Event()
-        self.app = web.Application(middlewares=[_read_only, self._clear_of_ticks])
+        self._served: Served | None = None
+        self.app = web.Application(middlewares=[self._in_use, _read_only, self._clear_of_ticks])
         for route in PAGE_FILES:
             self.app.router.add_get(route, self._page)
         self.app.router.add_get("/metrics", self._metrics)
@@ -181,8 +186,9 @@ class StatusServer:
         budget = self.budget or FdBudget()
         cap = budget.take(self.max_connections, "http")
         assert runner.server is not None
-        admit = serve_protocol(runner.server, stall_timeout_s=self.idle_timeout_s)
-        self._listener = Listener(sock, cap, admit, name="http")
+        served = Served(runner.server, stall_timeout_s=self.idle_timeout_s)
+        self._listener = Listener(sock, cap, served, name="http", evict=served.evict_idlest)
+        self._served = served
         self._listener.start()
         self._runner = runner
         log.info(
@@ -196,6 +202,19 @@ class StatusServer:
             await self._runner.cleanup()
             self._runner = None
         self._listener = None
+
+    @property
+    def evicted(self) -> int:
+        """Idle connections closed so far to serve new clients with every slot taken."""
+        return 0 if self._served is None else self._served.evicted
+
+    @web.middleware
+    async def _in_use(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        """Mark the connection busy while its request is answered: it is never closed for another."""
+        if self._served is None:
+            return await handler(request)
+        with self._served.busy(request.transport):
+            return await handler(request)
 
     @web.middleware
     async def _clear_of_ticks(self, request: web.Request, handler: Handler) -> web.StreamResponse:

@@ -10,6 +10,16 @@ accepts at most its cap of connections at once; further clients wait in the
 kernel's accept queue (they cost the daemon nothing there) until a slot
 frees, and a slow client is cut by its server's own idle timeout.
 
+That queue is first come, first served, so a flood of clients that connect
+and send nothing (or half a request) would hold a scraper behind it for the
+idle timeout times the queue over the cap. A listener given ``evict``
+(the HTTP server's, :class:`Served`) therefore never waits behind idle
+connections: when every slot is taken it closes the connection that has
+been idle longest (no request under way, nothing left to send, nothing
+received for :data:`EVICT_IDLE_S`) and accepts the next client in its
+place, so the queue drains at the rate of accepting, and a client that
+sends its request gets it answered however many idle ones there are.
+
 The caps come from one :class:`FdBudget` per process: the open-files limit,
 less the descriptors already open, less :data:`RESERVED_FDS` kept for the
 machine's own links and files. A cap the budget cannot honour is lowered,
@@ -30,7 +40,7 @@ import os
 import resource
 import socket
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import structlog
 
@@ -48,6 +58,14 @@ ACCEPT_RETRY_S = 0.5
 STARVED = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
 #: accept() errors of one client that went away while queued.
 GONE = frozenset({errno.ECONNABORTED, errno.EPROTO, errno.EPERM})
+#: A connection idle this long (s: no request under way, nothing received) may be closed
+#: for a new client when every slot is taken. Long enough for a client just accepted to
+#: send its request (it usually arrives with the handshake's last packet); short, so
+#: the slots turn over fast enough (cap / this, 3,200 a second at 64) to drain a
+#: full accept queue of a thousand in well under a second.
+EVICT_IDLE_S = 0.02
+#: The longest a listener waits for an evicted connection's slot before it looks again (s).
+EVICT_WAIT_S = 1.0
 
 #: Called with each accepted connection (non-blocking); it must call ``release`` once
 #: when the connection is closed, however it ends.
@@ -94,13 +112,26 @@ class Listener:
     Each accepted connection goes to ``admit`` with the function that gives
     its slot back. :meth:`start` begins accepting, :meth:`close` stops and
     closes ``sock`` (the connections are their server's to close).
+
+    ``evict``, where given, is asked to close an idle connection whenever
+    every slot is taken and returns whether it did (:meth:`Served.evict_idlest`);
+    without it, further clients wait until a connection ends.
     """
 
-    def __init__(self, sock: socket.socket, cap: int, admit: Admit, *, name: str) -> None:
+    def __init__(
+        self,
+        sock: socket.socket,
+        cap: int,
+        admit: Admit,
+        *,
+        name: str,
+        evict: Callable[[], bool] | None = None,
+    ) -> None:
         self.sock = sock
         self.cap = cap
         self.admit = admit
         self.name = name
+        self.evict = evict
         #: Connections accepted and not yet released.
         self.open = 0
         self._room = asyncio.Event()
@@ -134,16 +165,30 @@ class Listener:
 
         return release
 
+    async def _room_within(self, timeout_s: float) -> None:
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(timeout_s):
+                await self._room.wait()
+
     async def _accept_loop(self) -> None:
         loop = asyncio.get_running_loop()
         while True:
             if self.open >= self.cap:
+                self._room.clear()
+                if self.evict is None:
+                    self._full.failed(
+                        "too many connections: further clients wait until one closes",
+                        connections=self.open,
+                    )
+                    await self._room.wait()
+                    continue
                 self._full.failed(
-                    "too many connections: further clients wait until one closes",
+                    "too many connections: the longest idle are closed for new clients",
                     connections=self.open,
                 )
-                self._room.clear()
-                await self._room.wait()
+                # Evicted, its slot comes back at its connection_lost (the next loop
+                # iteration); none idle long enough, look again a moment later.
+                await self._room_within(EVICT_WAIT_S if self.evict() else EVICT_IDLE_S)
                 continue
             try:
                 try:
@@ -178,22 +223,50 @@ class Counted(asyncio.Protocol):
     It also cuts a client that stops reading: answers wait for a client whose
     buffers are full (flow control pauses the writer), and one that keeps
     them full for ``stall_timeout_s`` is aborted instead of holding its slot.
+    And it knows whether the connection is idle, for :meth:`Served.evict_idlest`.
     """
 
     def __init__(
-        self, inner: asyncio.Protocol, release: Callable[[], None], stall_timeout_s: float
+        self,
+        inner: asyncio.Protocol,
+        release: Callable[[], None],
+        stall_timeout_s: float,
+        live: dict[asyncio.BaseTransport, Counted] | None = None,
     ) -> None:
         self.inner = inner
         self.release = release
         self.stall_timeout_s = stall_timeout_s
+        #: Requests under way (:meth:`Served.busy`): a connection with one is never evicted.
+        self.requests = 0
+        #: When it last received data or finished an answer (``loop.time()`` s).
+        self.active_s = asyncio.get_running_loop().time()
+        self._live = live
         self._transport: asyncio.BaseTransport | None = None
         self._stalled: asyncio.TimerHandle | None = None
 
+    @property
+    def idle(self) -> bool:
+        """No request under way, nothing left to send, not closing: closing it loses nothing."""
+        transport = self._transport
+        if transport is None or transport.is_closing() or self.requests:
+            return False
+        return not isinstance(transport, asyncio.WriteTransport) or not (
+            transport.get_write_buffer_size()
+        )
+
+    def evict(self) -> None:
+        """Close the connection (idle: it has nothing to send, the close is at once)."""
+        if self._transport is not None:
+            self._transport.close()
+
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self._transport = transport
+        if self._live is not None:
+            self._live[transport] = self
         self.inner.connection_made(transport)
 
     def data_received(self, data: bytes) -> None:
+        self.active_s = asyncio.get_running_loop().time()
         self.inner.data_received(data)
 
     def eof_received(self) -> bool | None:
@@ -224,21 +297,40 @@ class Counted(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         if self._stalled is not None:
             self._stalled.cancel()
+        if self._live is not None and self._transport is not None:
+            self._live.pop(self._transport, None)
         try:
             self.inner.connection_lost(exc)
         finally:
             self.release()
 
 
-def serve_protocol(factory: Callable[[], asyncio.Protocol], *, stall_timeout_s: float) -> Admit:
-    """An :data:`Admit` that serves each connection with a new ``factory()`` protocol.
+class Served:
+    """An :data:`Admit` that serves each connection with a new ``factory()`` protocol, and frees slots.
 
-    ``stall_timeout_s``: the longest a client may leave an answer unread (:class:`Counted`).
+    ``stall_timeout_s``: the longest a client may leave an answer unread
+    (:class:`Counted`). The server marks each request under way with
+    :meth:`busy`; :meth:`evict_idlest` is the :class:`Listener`'s ``evict``.
     """
 
-    def admit(conn: socket.socket, release: Callable[[], None]) -> None:
+    def __init__(
+        self,
+        factory: Callable[[], asyncio.Protocol],
+        *,
+        stall_timeout_s: float,
+        evict_idle_s: float = EVICT_IDLE_S,
+    ) -> None:
+        self.factory = factory
+        self.stall_timeout_s = stall_timeout_s
+        self.evict_idle_s = evict_idle_s
+        #: The connections being served, by transport.
+        self.live: dict[asyncio.BaseTransport, Counted] = {}
+        #: Connections closed to make room so far.
+        self.evicted = 0
+
+    def __call__(self, conn: socket.socket, release: Callable[[], None]) -> None:
         loop = asyncio.get_running_loop()
-        protocol = Counted(factory(), release, stall_timeout_s)
+        protocol = Counted(self.factory(), release, self.stall_timeout_s, self.live)
         task = loop.create_task(loop.connect_accepted_socket(lambda: protocol, conn))
 
         def settled(task: asyncio.Task[object]) -> None:
@@ -248,4 +340,28 @@ def serve_protocol(factory: Callable[[], asyncio.Protocol], *, stall_timeout_s: 
 
         task.add_done_callback(settled)
 
-    return admit
+    @contextlib.contextmanager
+    def busy(self, transport: asyncio.BaseTransport | None) -> Iterator[None]:
+        """While a request on ``transport`` is answered: its connection is not idle."""
+        conn = None if transport is None else self.live.get(transport)
+        if conn is None:
+            yield
+            return
+        conn.requests += 1
+        try:
+            yield
+        finally:
+            conn.requests -= 1
+            conn.active_s = asyncio.get_running_loop().time()
+
+    def evict_idlest(self) -> bool:
+        """Close the connection idle longest, if one has been for ``evict_idle_s``; whether one was."""
+        idle = [conn for conn in self.live.values() if conn.idle]
+        if not idle:
+            return False
+        idlest = min(idle, key=lambda conn: conn.active_s)
+        if asyncio.get_running_loop().time() - idlest.active_s < self.evict_idle_s:
+            return False
+        idlest.evict()
+        self.evicted += 1
+        return True

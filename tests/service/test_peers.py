@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import json
 import os
@@ -17,6 +18,7 @@ import urllib.request
 from pathlib import Path
 
 from compd.cli import main
+from compd.service.peers import EVICT_IDLE_S, Listener, Served
 from tests.ports import free_port
 
 from .daemon_setup import short_socket, write_config
@@ -161,6 +163,88 @@ def test_a_client_that_never_reads_its_answers_is_cut(tmp_path: Path) -> None:
             assert run.get("/status.json")[0] == 200
         finally:
             client.close()
+
+
+def silent_connections(port: int, count: int) -> list[socket.socket]:
+    """``count`` connections to ``port`` that send nothing."""
+    clients = []
+    for _ in range(count):
+        client = socket.create_connection(("127.0.0.1", port), timeout=HANG_S)
+        clients.append(client)
+    return clients
+
+
+def test_metrics_are_served_with_every_connection_held_by_half_open_clients(
+    tmp_path: Path,
+) -> None:
+    """With every slot and more held by clients sending nothing or half a request, /metrics still gets a 200.
+
+    The idle timeout is an hour: only closing the idlest connection for the
+    newcomer serves the scrape within the (generous) timeout.
+    """
+    cap = 4
+    config = http_config(tmp_path, max_connections=cap, idle_timeout_s=3600)
+    with running_compd(config, hold_at=5) as run:
+        assert run.service is not None and run.service.http is not None
+        http = run.service.http
+        port = int(run.url.rsplit(":", 1)[1].rstrip("/"))
+        clients = silent_connections(port, 3 * cap) + half_sent_requests(port, 3 * cap)
+        try:
+            deadline = time.monotonic() + HANG_S
+            while http.connections < cap and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert http.connections == cap, "the half-open clients never took the slots"
+            for _ in range(3):
+                with urllib.request.urlopen(run.url + "metrics", timeout=60) as response:
+                    assert response.status == 200
+                    assert b"compd_ticks_total" in response.read()
+            assert http.evicted > 0
+        finally:
+            for client in clients:
+                client.close()
+
+
+class Hold(asyncio.Protocol):
+    """A server protocol that answers nothing: the test marks what it holds busy or not."""
+
+    def __init__(self, transports: list[asyncio.BaseTransport]) -> None:
+        self.transports = transports
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transports.append(transport)
+
+
+def test_a_connection_with_a_request_under_way_is_never_closed_for_another() -> None:
+    """One slot, held by a request under way: newcomers wait; once it is idle it is closed for the next."""
+
+    async def scenario() -> None:
+        transports: list[asyncio.BaseTransport] = []
+        sock = socket.create_server(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+        served = Served(lambda: Hold(transports), stall_timeout_s=HANG_S)
+        listener = Listener(sock, 1, served, name="test", evict=served.evict_idlest)
+        listener.start()
+        first, first_writer = await asyncio.open_connection("127.0.0.1", port)
+        async with asyncio.timeout(HANG_S):
+            while not transports:
+                await asyncio.sleep(0.01)
+        with served.busy(transports[0]):
+            _, second_writer = await asyncio.open_connection("127.0.0.1", port)
+            # Long past the eviction age: the busy one is still open, the newcomer queued.
+            for _ in range(20):
+                await asyncio.sleep(EVICT_IDLE_S)
+            assert (len(transports), served.evicted) == (1, 0)
+            assert not transports[0].is_closing()
+        async with asyncio.timeout(HANG_S):
+            assert await first.read() == b""  # closed for the newcomer
+            while len(transports) < 2:
+                await asyncio.sleep(0.01)
+        assert served.evicted == 1 and listener.open == 1
+        for writer in (first_writer, second_writer):
+            writer.close()
+        await listener.close()
+
+    asyncio.run(scenario())
 
 
 #: A control socket in a process whose descriptors something else used up, then gave back.
