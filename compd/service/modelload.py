@@ -12,7 +12,8 @@ A model that later fails while running is unloaded by the loop
 (:class:`~compd.service.compensator.Compensator`); :meth:`ModelLoader.failed` then makes
 the model it restored the one the next start picks, so a bad model is never
 started again by a restart. At start-up an installed model that is refused
-falls back on the config's model, with an ERROR naming both.
+falls back on the config's model, with an ERROR naming both; one that cannot
+be read at all is also set aside (:func:`startup_slots`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import base64
 import binascii
 import contextlib
 import dataclasses
+import re
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -30,12 +32,13 @@ from typing import Any, TypeVar
 import structlog
 
 from compd.errors import CompdError, ConfigFileError, ModelFileError
-from compd.files.modelfile import parse_model_bytes
+from compd.files.modelfile import ModelFile, parse_model_bytes
 from compd.files.yamlplace import MAX_YAML_BYTES, read_limited, shorten
 from compd.service.config import Config
 from compd.service.modelcheck import check_model
 from compd.service.slots import ModelSlot
 from compd.service.state import install_model_bytes, installed_model, reinstate_model
+from compd.service.unreadable import set_aside
 
 log = structlog.get_logger("compd.service.modelload")
 T = TypeVar("T")
@@ -43,6 +46,8 @@ T = TypeVar("T")
 #: Longest a load may take to validate and install before it is refused (s);
 #: within the model limits it takes well under a second.
 LOAD_TIMEOUT_S = 30.0
+#: An installed model's name: the sha256 of its bytes.
+SHA256 = re.compile(r"[0-9a-f]{64}")
 
 
 def slot_from_bytes(
@@ -56,7 +61,11 @@ def slot_from_bytes(
             where="outputs",
             fix="Add 'model' and 'outputs' to the config and restart compd to compensate with it",
         )
-    model_file = parse_model_bytes(raw, name)
+    return slot_from_file(config, parse_model_bytes(raw, name), loaded_at_unix_s)
+
+
+def slot_from_file(config: Config, model_file: ModelFile, loaded_at_unix_s: float) -> ModelSlot:
+    """:func:`slot_from_bytes` for a model file already read."""
     model_file.check_plausible()  # what `compd model check` refuses, the daemon never runs
     compiled = model_file.compile(config.doc.period_s)
     check_model(config, model_file, compiled)
@@ -75,7 +84,10 @@ def startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot | None, 
 
     The model installed with ``compd model load`` comes first, with the
     config's as its fallback; an installed model that is refused is logged,
-    un-installed, and the config's model starts instead.
+    un-installed, and the config's model starts instead. One that cannot even
+    be read (a corrupt file: not a model file, a number no model holds, bytes
+    that are not those installed under their sha256) is set aside as well
+    (renamed ``<sha256>.yaml.corrupt-<UTC time>``, nothing deleted).
     """
     if config.model_path is None:
         return None, None
@@ -83,7 +95,13 @@ def startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot | None, 
     if installed is None:
         return load_slot(config, config.model_path, now_unix_s), None
     try:
-        slot = load_slot(config, installed, now_unix_s)
+        model_file = read_installed(installed)
+    except ModelFileError as exc:
+        _set_aside_installed(installed, config.model_path, str(exc))
+        reinstate_model(config.state_dir, config.model_path)
+        return load_slot(config, config.model_path, now_unix_s), None
+    try:
+        slot = slot_from_file(config, model_file, now_unix_s)
     except CompdError as exc:
         log.error(
             "the installed model is refused; starting with the config's model",
@@ -104,6 +122,38 @@ def startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot | None, 
         log.warning("the config's model cannot be a fallback", error=str(exc))
         fallback = None
     return slot, fallback
+
+
+def read_installed(path: Path) -> ModelFile:
+    """An installed model, read and parsed; ModelFileError if it cannot be (corrupt).
+
+    A file named by a sha256 (as :func:`~compd.service.state.install_model_bytes`
+    names them) must hold the bytes of that sha256.
+    """
+    raw = read_limited(path, ModelFileError)
+    model_file = parse_model_bytes(raw, path)
+    if SHA256.fullmatch(path.stem) and model_file.sha256 != path.stem:
+        raise ModelFileError(
+            path,
+            f"its bytes are not those installed (their sha256 is {model_file.sha256[:12]}...)",
+            fix="Load the model again with 'compd model load'",
+        )
+    return model_file
+
+
+def _set_aside_installed(installed: Path, config_model: Path, reason: str) -> None:
+    """The unreadable installed model set aside, in one ERROR line naming both files and why."""
+    try:
+        target: str | None = str(set_aside(installed))
+    except OSError as exc:
+        target, reason = None, f"{reason}; cannot set it aside ({exc.strerror})"
+    log.error(
+        "the installed model cannot be read: set aside; starting with the config's model",
+        installed=str(installed),
+        set_aside_as=target,
+        config_model=str(config_model),
+        reason=reason,
+    )
 
 
 def load_request(raw: bytes, name: str | Path) -> dict[str, Any]:

@@ -12,12 +12,19 @@ belongs to the same model (same sha256) and is younger than
 ``resume_max_age_s``. Otherwise the model starts at steady state with the
 first good inputs, so a cold machine starts with zero offsets rather than a
 transient, and a warm one with its equilibrium offsets.
+
+A state file that cannot be read (not JSON, another format, a number that is
+not finite or out of range: ``"ticks": Infinity``, ``saved_at_unix_s: NaN``,
+an integer of 5,000 digits) is set aside (:func:`~compd.service.unreadable.set_aside`: renamed to
+``state.json.corrupt-<UTC time>``, nothing deleted) with one ERROR line, and
+the daemon starts as without one: a corrupt file must never stop it starting.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import tempfile
 import time
@@ -26,11 +33,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import structlog
 
 from compd.errors import CompdError, ModelError
+from compd.files.yamlplace import shorten
 from compd.model.compiled import CompiledModel, ModelState
 from compd.model.reach import check_reachable
+from compd.service.unreadable import finite, json_int, set_aside, whole
 
 if TYPE_CHECKING:
     from compd.service.clock import Clock
@@ -45,6 +55,10 @@ CURRENT_MODEL = "current-model"
 #: The model ``current-model`` named before the last ``compd model load`` (empty: the config's).
 PREVIOUS_MODEL = "previous-model"
 FORMAT = "compd.state/1"
+#: The times a state may carry (s since the epoch, up to the year 5138): beyond, it is corrupt.
+MAX_UNIX_S = 1e11
+#: The tick counter's bound: 2^53, the largest whole number a float holds exactly.
+MAX_TICKS = 2**53
 
 
 class StateError(CompdError):
@@ -78,22 +92,38 @@ class SavedState:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> SavedState:
+        """The state ``data`` holds; :class:`StateError` naming the key of anything unusable.
+
+        Every number must be finite and in its range: the daemon writes none
+        other (``allow_nan=False``), so anything else is a corrupt file.
+        """
         if data.get("format") != FORMAT:
-            raise StateError(f"state format {data.get('format')!r} is not {FORMAT!r}")
+            raise StateError(f"state format {shorten(data.get('format'))} is not {FORMAT!r}")
         try:
+            real = data.get("saved_real_unix_s")
             return cls(
                 model_sha256=str(data["model_sha256"]),
                 model_name=str(data["model_name"]),
-                saved_at_unix_s=float(data["saved_at_unix_s"]),
-                model_state=ModelState.from_dict(data["model_state"]),
-                offsets_um={str(k): float(v) for k, v in data["offsets_um"].items()},
-                ticks=int(data["ticks"]),
+                saved_at_unix_s=finite(data["saved_at_unix_s"], "saved_at_unix_s", 0, MAX_UNIX_S),
+                model_state=_model_state(data["model_state"]),
+                offsets_um={
+                    str(k): finite(v, f"offsets_um.{str(k)[:40]}")
+                    for k, v in data["offsets_um"].items()
+                },
+                ticks=whole(data["ticks"], "ticks", 0, MAX_TICKS),
                 saved_real_unix_s=None
-                if data.get("saved_real_unix_s") is None
-                else float(data["saved_real_unix_s"]),
+                if real is None
+                else finite(real, "saved_real_unix_s", 0, MAX_UNIX_S),
             )
-        except (KeyError, TypeError, ValueError, AttributeError, ModelError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError, AttributeError, ModelError) as exc:
             raise StateError(f"state is malformed ({exc})") from exc
+
+
+def _model_state(data: Any) -> ModelState:
+    state = ModelState.from_dict(data)
+    if not all(np.isfinite(a).all() for a in (state.z, state.reference, state.residual)):
+        raise ValueError("model_state holds NaN or infinity (or a number beyond any float)")
+    return state
 
 
 @dataclass(frozen=True)
@@ -142,8 +172,8 @@ def load_state(state_dir: Path) -> SavedState | None:
     except UnicodeDecodeError as exc:
         raise StateError(f"{path}: not text ({exc.reason} at byte {exc.start})") from exc
     try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
+        data = json.loads(text, parse_int=json_int)
+    except ValueError as exc:  # json.JSONDecodeError
         raise StateError(f"{path}: not JSON ({exc})") from exc
     except RecursionError as exc:  # json's parser recurses per [ or {
         raise StateError(f"{path}: not a state file (arrays nested too deeply to parse)") from exc
@@ -180,6 +210,8 @@ def resume_decision(
     age_s = now_unix_s - saved.saved_at_unix_s
     if time_scale != 1.0 and real_now_unix_s is not None and saved.saved_real_unix_s is not None:
         age_s = (real_now_unix_s - saved.saved_real_unix_s) * time_scale
+    if not math.isfinite(age_s):  # NaN passes every comparison below
+        return Resume(False, f"saved state's age is {age_s}: its time is not a finite number")
     if age_s < 0:
         # The wall clock was set back, or the state was saved by a time-scaled run
         # (``compd run --time-scale``), whose clock runs ahead of real time.
@@ -297,7 +329,7 @@ def resumable_state(
     try:
         saved = load_state(config.state_dir)
     except StateError as exc:
-        log.warning("saved state ignored", reason=str(exc))
+        set_aside_state(config.state_dir / STATE_FILE, str(exc))
         saved = None
     decision = resume_decision(
         saved,
@@ -320,6 +352,28 @@ def resumable_state(
         reason=decision.reason,
     )
     return saved if decision.resume else None
+
+
+def set_aside_state(path: Path, reason: str) -> None:
+    """The unreadable state file ``path`` set aside, in one ERROR line; the daemon starts without it."""
+    try:
+        target = set_aside(path)
+    except FileNotFoundError:
+        target = None  # gone (or never there: a state directory that cannot be read)
+    except OSError as exc:
+        log.error(
+            "saved state cannot be read, nor set aside; starting without it",
+            file=str(path),
+            reason=reason,
+            error=str(exc),
+        )
+        return
+    log.error(
+        "saved state cannot be read: set aside; starting without it",
+        file=str(path),
+        set_aside_as=None if target is None else str(target),
+        reason=reason,
+    )
 
 
 def calibration_ranges(slot: ModelSlot) -> Mapping[str, tuple[float, float]]:

@@ -80,7 +80,7 @@ def test_run_on_a_real_machine_config_shows_the_same_live_view(short_dir: Path) 
     """Without a simulation (the replay driver): one header, progress to --duration-s, the warning in the panel."""
     config = write_config(short_dir, {"control_socket": str(short_dir / "c.sock")})
     config.state_dir.mkdir(parents=True, exist_ok=True)
-    (config.state_dir / "state.json").write_text("{ not json")  # a WARNING at start
+    (config.state_dir / "state.json").write_text("{ not json")  # an ERROR at start (the file set aside)
     argv = ["run", "--config", str(config.path), "--time-scale", "50", "--duration-s", "120"]
     screen, head, panel = one_view(argv, "compd model example-gated-arx-y")
     text = "\n".join(screen.lines)
@@ -89,8 +89,8 @@ def test_run_on_a_real_machine_config_shows_the_same_live_view(short_dir: Path) 
     assert any("model drift um  sign  offset written um (sign x drift" in line for line in view)
     # Logged before the first frame: not over the view but in the panel, then in full after it.
     assert re.search(r"warnings and errors \([1-9]", screen.lines[panel]), text
-    assert not any("saved state ignored" in line for line in screen.lines[:head]), text
-    assert any("saved state ignored" in line for line in screen.lines[panel:]), text
+    assert not any("saved state cannot be read" in line for line in screen.lines[:head]), text
+    assert any("saved state cannot be read" in line for line in screen.lines[panel:]), text
 
 
 def test_a_view_taller_than_the_terminal_is_cropped_not_scrolled(short_dir: Path) -> None:

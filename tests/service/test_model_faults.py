@@ -166,6 +166,39 @@ def test_an_installed_model_refused_at_start_falls_back_to_the_configs(tmp_path)
     assert installed_model(config.state_dir) is None
 
 
+def test_an_installed_model_that_cannot_be_read_is_set_aside_and_the_configs_starts(tmp_path):
+    """An installed model with a 5,000-digit gain: set aside (kept), one ERROR naming it; the config's starts."""
+    config = write_config(tmp_path)
+    text = config.model_path.read_text().replace("gain: 1.0       # g2", "gain: " + "9" * 5000)
+    installed = install_model_bytes(config.state_dir, text.encode())
+    with capture_logs() as logs:
+        service, records = run(config, 10.0)
+    assert service.compensator.active.compiled.name == CONFIG_MODEL and len(records) == 11
+    (error,) = [e for e in logs if e["log_level"] == "error"]
+    (aside,) = installed.parent.glob(f"{installed.name}.corrupt-*")
+    assert error["event"] == (
+        "the installed model cannot be read: set aside; starting with the config's model"
+    )
+    assert error["installed"] == str(installed) and error["set_aside_as"] == str(aside)
+    assert ".gain): " in error["reason"] and "an integer of 5000 digits" in error["reason"]
+    assert aside.read_text() == text and not installed.exists()
+    assert installed_model(config.state_dir) is None
+
+
+def test_an_installed_model_whose_bytes_changed_is_set_aside(tmp_path):
+    """An installed model whose bytes no longer match the sha256 it is named by (bit rot) is not started."""
+    config = write_config(tmp_path)
+    text = config.model_path.read_text().replace("gain: 1.0       # g2", "gain: 1.1       # g2")
+    installed = install_model_bytes(config.state_dir, text.encode())
+    installed.write_text(text.replace("gain: 1.1", "gain: 9.1"))
+    with capture_logs() as logs:
+        service, _ = run(config, 2.0)
+    assert service.compensator.active.compiled.name == CONFIG_MODEL
+    (error,) = [e for e in logs if e["log_level"] == "error"]
+    assert "its bytes are not those installed" in error["reason"]
+    assert installed_model(config.state_dir) is None
+
+
 def test_the_model_fault_bit_follows_the_signal_and_mismatch_bits():
     """The model-fault bit is the one after the readback-mismatch bit, itself after the signals'; none past bit 31."""
     assert model_fault_bit(3) == mismatch_bit(3) + 1 == SIGNAL_BIT0 + 4

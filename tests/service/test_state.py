@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from structlog.testing import capture_logs
 
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import resolve_path
@@ -203,3 +204,75 @@ def test_a_daemon_with_a_1e300_state_file_starts_fresh_and_its_offsets_stay_smal
     clamp_um = config.doc.outputs["Y"].max_offset_um
     assert abs(records[0].offsets_um["Y"]) < 1e-9
     assert max(abs(r.offsets_um["Y"]) for r in records) < clamp_um / 2
+
+
+def _state_text(data: dict, **replace: str) -> str:
+    """The state ``data`` as JSON, with the values of ``replace``'s keys written as given."""
+    data = dict(data)
+    for key in replace:
+        data[key] = f"@{key}@"
+    text = json.dumps(data)
+    for key, value in replace.items():
+        text = text.replace(f'"@{key}@"', value)
+    return text
+
+
+@pytest.mark.parametrize(
+    ("replace", "reason"),
+    [
+        ({"ticks": "Infinity"}, "ticks is inf, not a finite number"),
+        ({"ticks": "1e400"}, "ticks is inf, not a finite number"),
+        ({"ticks": "-Infinity"}, "ticks is -inf, not a finite number"),
+        ({"ticks": "1" * 5000}, "ticks is an integer of 5000 digits"),
+        ({"ticks": "-1"}, "ticks = -1 is beyond [0, 9.0072e+15]"),
+        ({"ticks": "2.5"}, "ticks = 2.5 is not a whole number"),
+        ({"saved_at_unix_s": "NaN"}, "saved_at_unix_s is nan, not a finite number"),
+        ({"saved_at_unix_s": "1e300"}, "saved_at_unix_s = 1e+300 is beyond [0, 1e+11]"),
+        ({"saved_real_unix_s": "-5"}, "saved_real_unix_s = -5 is beyond [0, 1e+11]"),
+        ({"offsets_um": '{"Y": NaN}'}, "offsets_um.Y is nan, not a finite number"),
+        ({"offsets_um": '{"Y": "1"}'}, "offsets_um.Y is '1', not a number"),
+        ({"model_state": '{"z": [[NaN]], "reference": [0]}'}, "model_state holds NaN or inf"),
+        ({"model_state": '{"z": [[1' + "0" * 400 + ']], "reference": [0]}'}, "NaN or infinity"),
+    ],
+)
+def test_a_number_that_is_not_finite_or_out_of_range_is_a_state_error(
+    tmp_path, model, replace, reason
+):
+    """Infinity, NaN, 1e400, 5,000 digits or a value out of range in a state file: a StateError naming the key."""
+    (tmp_path / STATE_FILE).write_text(_state_text(saved_for(model).to_dict(), **replace))
+    with pytest.raises(StateError) as info:
+        load_state(tmp_path)
+    assert reason in str(info.value)
+
+
+def test_a_state_stamped_nan_is_not_resumed(model):
+    """A state whose time is NaN (built in memory, not read) is never resumed: NaN passes no age check."""
+    saved = saved_for(model, saved_at=float("nan"))
+    decision = resume_decision(saved, model[0].sha256, model[1], 1500.0, 900.0)
+    assert not decision.resume and "not a finite number" in decision.reason
+
+
+@pytest.mark.parametrize(
+    "replace",
+    [{"ticks": "Infinity"}, {"ticks": "9" * 5000}, {"saved_at_unix_s": "NaN"}],
+    ids=["infinity", "5000-digits", "nan-time"],
+)
+def test_a_daemon_with_a_corrupt_state_file_sets_it_aside_and_starts(tmp_path, replace):
+    """The file is renamed state.json.corrupt-<time> (kept), one ERROR names it; the daemon starts afresh."""
+    config = write_config(tmp_path)
+    run(config, 5.0)  # a good state, to corrupt
+    state = config.state_dir / STATE_FILE
+    data = json.loads(state.read_text())
+    corrupt = _state_text(data, **replace)
+    state.write_text(corrupt)
+    clock = VirtualClock(wall0_unix_s=data["saved_at_unix_s"] + 1.0)
+    with capture_logs() as logs:
+        service, records = run(config, 5.0, clock=clock)
+    assert not service.resumed and len(records) == 6
+    (error,) = [e for e in logs if e["log_level"] == "error"]
+    (aside,) = config.state_dir.glob(f"{STATE_FILE}.corrupt-*")
+    assert error["event"] == "saved state cannot be read: set aside; starting without it"
+    assert error["file"] == str(state) and error["set_aside_as"] == str(aside)
+    assert next(iter(replace)) in error["reason"]
+    assert aside.read_text() == corrupt, "kept as it was"
+    assert load_state(config.state_dir) is not None, "a new state saved at shutdown"
