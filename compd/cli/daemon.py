@@ -106,6 +106,8 @@ def address_notes(config: Config) -> list[tuple[str, str]]:
 
 
 def run_command(args: argparse.Namespace) -> int:
+    # SIGHUP's default ends the process: ignored until the loop takes it (install_signal_handlers).
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
     config = config_from_arg(args.config)
     json_lines = {"auto": None, "json": True, "console": False}[args.log_format]
     configure_logging(json_lines=json_lines, level=args.log_level.upper())
@@ -276,6 +278,8 @@ async def model_load(config: Config, model_path: Path) -> int:
 
 
 def install_signal_handlers(service: Service) -> None:
+    """SIGTERM and SIGINT stop the service cleanly; SIGHUP re-reads its config and never stops it."""
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, service.stop)
+    loop.add_signal_handler(signal.SIGHUP, service.reload)

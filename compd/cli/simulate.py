@@ -134,6 +134,7 @@ def run_simulated(
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, service.stop)
+        loop.add_signal_handler(signal.SIGHUP, service.reload)  # never stops it
 
     with screen if screen is not None else contextlib.nullcontext():
         result = asyncio.run(

@@ -18,7 +18,7 @@ recorded file says which run it belongs to (the recorder's metadata, CSV
     why this file was started: ``start`` (the run's first), ``rotated`` (age or
     size), ``model`` (the active model changed), ``columns`` (the row's keys
     changed), ``clock`` (the clock was set back), ``resumed`` (after a failed
-    write);
+    write), ``reopened`` (the daemon was sent SIGHUP);
 ``run_gap_s``
     seconds from the previous file's last row to this file's first;
 

@@ -12,7 +12,9 @@ model, the last tick, the inputs and their health, and the counters) and
 ``load`` (switch to a model file the client sends: validated, compiled and
 installed off the loop by :mod:`compd.service.modelload`, a bad one refused while
 the running model goes on untouched; a good one blended in bumplessly by the
-loop, and unloaded again should it fail while running). Shutdown (SIGTERM, SIGINT, end of
+loop, and unloaded again should it fail while running). SIGHUP never stops it: the
+config is re-read and checked, the recording re-opened (:mod:`compd.service.reload`).
+Shutdown (SIGTERM, SIGINT, end of
 ``duration_s``) saves the state, writes a last status word with the STOPPED
 bit (only after a first tick: a start that failed writes nothing), closes
 the drivers and exits cleanly.
@@ -40,6 +42,7 @@ from compd.service.identity import column_units, identity, recording_metadata, s
 from compd.service.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.notify import SystemdNotifier
 from compd.service.peers import FdBudget
+from compd.service.reload import Reloader
 from compd.service.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
 from compd.service.safety import HEARTBEAT_MODULO
 from compd.service.seenrequests import FILE as SEEN_FILE
@@ -140,6 +143,10 @@ class Service:
             if config.recorder_dir is not None
             else None
         )
+        #: SIGHUP (:meth:`reload`): the config re-read, the recording re-opened.
+        self.reloader = Reloader(
+            config, self.recorder, self.notifier, ready=lambda: self.compensator.counters.ticks > 0
+        )
         self._recorder_fault = FaultLog(log)
         self._save_fault = FaultLog(log)  # saves fail every save_every_ticks: log once
         self._saving: asyncio.Future[None] | None = None
@@ -202,6 +209,11 @@ class Service:
     def stop(self) -> None:
         """Ask the loop to stop after the current tick (signal-handler safe)."""
         self.stop_event.set()
+
+    def reload(self) -> None:
+        """SIGHUP: re-read and check the config, re-open the recording; never stops (signal-handler safe)."""
+        if not self.stop_event.is_set():
+            self.reloader.request()
 
     def snapshot(self) -> SavedState | None:
         """What :meth:`save_state` writes: the active model's state and the offsets, now."""
@@ -320,6 +332,7 @@ class Service:
         self._killed = True
 
     async def _shutdown(self) -> None:
+        await self.reloader.close()
         if self._killed:  # the OS closes the sockets; the socket file stays (stale)
             await asyncio.gather(*(link.close() for link in self.links.values()))
             if self._control is not None:

@@ -153,6 +153,19 @@ class RecordingFiles:
         """The file being written, or None before the first row and after :meth:`close`."""
         return self._path
 
+    def reopen(self) -> Path | None:
+        """Close the file being written (SIGHUP): the next row starts a new one of the same run.
+
+        Its ``run_reason`` is ``reopened``. Returns the file closed (None if
+        none was open); raises RecorderError as :meth:`close` does.
+        """
+        closed = self._path
+        try:
+            self.close()
+        finally:
+            self.run.why = "reopened"
+        return closed
+
     def close(self) -> None:
         raise NotImplementedError
 

@@ -29,7 +29,8 @@ class RunMarks:
 
     ``why`` is set by the recorder when it starts a new file for a reason the
     times and columns do not show (``model``: the active model changed;
-    ``resumed``: after a failed write); ``units`` names each column's unit.
+    ``resumed``: after a failed write; ``reopened``: on SIGHUP); ``units`` names
+    each column's unit.
     """
 
     def __init__(self, units: Units | None = None) -> None:

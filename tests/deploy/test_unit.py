@@ -148,6 +148,11 @@ def test_the_service_is_confined(service):
     assert service["RuntimeDirectory"] == service["StateDirectory"]
 
 
+def test_reload_sends_sighup_which_compd_takes(service: dict[str, list[str]]) -> None:
+    """`systemctl reload` sends SIGHUP, which compd takes (config re-read, new recording) without exiting."""
+    assert service["ExecReload"] == ["/bin/kill -HUP $MAINPID"]
+
+
 def test_the_template_differs_from_the_unit_only_in_its_instance_places():
     """compd@.service has compd.service's every option, the same hardening, but per-instance config and directories."""
     unit = parse_unit(UNIT.read_text())

@@ -1,0 +1,155 @@
+"""SIGHUP: the daemon re-reads and checks its config, re-opens its recording, and never exits on it."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+from structlog.testing import capture_logs
+
+from compd.files.data import load_data
+from compd.service.clock import VirtualClock
+from compd.service.control import request_sync
+from compd.service.daemon import Service
+
+from .daemon_setup import short_socket, write_config
+
+#: A give-up bound for waits on another process or thread, never an assertion on elapsed time.
+GIVE_UP_S = 60.0
+
+
+def reloaded_while_running(service: Service, before_reload: Any = None) -> list[dict[str, Any]]:
+    """Run ``service`` on virtual time: 5 ticks, ``before_reload()``, SIGHUP's reload, 5 more ticks; the logs."""
+
+    async def main() -> None:
+        running = asyncio.create_task(service.run())
+        while service.compensator.counters.ticks < 5:
+            await asyncio.sleep(0)
+        if before_reload is not None:
+            before_reload()
+        service.reload()
+        while service.reloader.done < 1 and not running.done():
+            await asyncio.sleep(0.001)  # the config is read in a thread
+        after = service.compensator.counters.ticks
+        while service.compensator.counters.ticks < after + 5 and not running.done():
+            await asyncio.sleep(0)
+        service.stop()
+        await running
+
+    with capture_logs() as logs:
+        asyncio.run(main())
+    return logs
+
+
+def recordings(config: Any) -> list[Path]:
+    assert config.recorder_dir is not None
+    return sorted(config.recorder_dir.glob("compd-*.csv"))
+
+
+def test_a_reload_with_the_same_config_starts_a_new_recording_of_the_same_run(tmp_path):
+    """SIGHUP: config unchanged, the recorder closes its file, the next tick starts one marked reopened."""
+    config = write_config(tmp_path, {"recorder": {"enabled": True}})
+    service = Service(config, clock=VirtualClock(), control=False)
+    logs = reloaded_while_running(service)
+    (done,) = [e for e in logs if e["event"] == "reloaded"]
+    assert done["config"] == "unchanged" and done["recorder"].startswith(
+        "new file at the next tick"
+    )
+    assert not [e for e in logs if e["log_level"] in ("warning", "error")]
+    first, second = (load_data(path).metadata for path in recordings(config))
+    assert first["run_id"] == second["run_id"] and second["run_reason"] == "reopened"
+    assert second["run_previous"] == recordings(config)[0].name
+    assert service.compensator.counters.ticks >= 10
+
+
+def test_a_changed_config_is_not_applied_and_named(tmp_path):
+    """A config that changed (blend_s, an output's clamp) is checked, named in one WARNING, and not applied."""
+    config = write_config(tmp_path)
+    service = Service(config, clock=VirtualClock(), control=False)
+    doc = yaml.safe_load(config.path.read_text())
+    doc["blend_s"] = 5
+    doc["outputs"]["Y"]["max_offset_um"] = 10
+
+    def edit() -> None:
+        config.path.write_text(yaml.safe_dump(doc, sort_keys=False))
+
+    logs = reloaded_while_running(service, edit)
+    (warning,) = [e for e in logs if e["log_level"] == "warning"]
+    assert warning["changed"] == ["blend_s", "outputs"] and "restart" in warning["fix"]
+    (done,) = [e for e in logs if e["event"] == "reloaded"]
+    assert done["config"].startswith("changed (blend_s, outputs), not applied")
+    assert done["recorder"] == "off"
+    assert service.config.doc.blend_s == 60 and service.config.doc.outputs["Y"].max_offset_um == 50
+
+
+def test_a_config_with_an_error_is_refused_and_the_daemon_runs_on(tmp_path):
+    """A config broken on disk: one ERROR naming file and problem; the daemon goes on ticking."""
+    config = write_config(tmp_path)
+    service = Service(config, clock=VirtualClock(), control=False)
+
+    def break_it() -> None:
+        config.path.write_text(config.path.read_text().replace("period_s: 1.0", "period_s: fast"))
+
+    logs = reloaded_while_running(service, break_it)
+    (error,) = [e for e in logs if e["log_level"] == "error"]
+    assert error["event"].startswith("reload: the config is refused; running on with")
+    assert error["config"] == str(config.path) and "line " in error["error"]
+    assert "period_s" in error["error"]
+    assert service.compensator.counters.ticks >= 10
+
+
+def _status(socket: Path) -> dict[str, Any]:
+    reply = request_sync(socket, {"cmd": "status"})
+    assert reply["ok"], reply
+    return reply
+
+
+def _ticks_pass(daemon: subprocess.Popen[str], socket: Path, more: int) -> int:
+    """Wait (polling, a give-up bound) until the daemon has ticked ``more`` times since now."""
+    deadline = time.monotonic() + GIVE_UP_S
+    start = _status(socket)["counters"]["ticks"]
+    while True:
+        assert daemon.poll() is None, "the daemon exited"
+        ticks = _status(socket)["counters"]["ticks"]
+        if ticks >= start + more or time.monotonic() > deadline:
+            return ticks - start
+        time.sleep(0.05)
+
+
+def test_sighup_to_compd_run_keeps_it_running_and_sigterm_still_stops_it_cleanly(tmp_path):
+    """A real ``compd run``: SIGHUP, it goes on ticking in a new recording; SIGTERM then exits 0 with state saved."""
+    socket = short_socket()
+    config = write_config(tmp_path, {"control_socket": str(socket), "recorder": {"enabled": True}})
+    command = [sys.executable, "-m", "compd.cli", "run", "--config", str(config.path)]
+    daemon = subprocess.Popen(
+        [*command, "--time-scale", "20", "--log-format", "json"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + GIVE_UP_S
+        while not socket.exists() and daemon.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _ticks_pass(daemon, socket, 3) >= 3
+        daemon.send_signal(signal.SIGHUP)
+        assert _ticks_pass(daemon, socket, 3) >= 3, "ticking after SIGHUP"
+        assert daemon.poll() is None, "SIGHUP did not end the daemon"
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        _, stderr = daemon.communicate(timeout=GIVE_UP_S)
+    assert daemon.returncode == 0, stderr
+    events = [json.loads(line) for line in stderr.splitlines() if line.startswith("{")]
+    names = [e["event"] for e in events]
+    assert "reloaded" in names and names[-1] == "stopped", names
+    assert (config.state_dir / "state.json").is_file()
+    assert not socket.exists(), "the control socket is removed at a clean exit"
+    reasons = [load_data(path).metadata["run_reason"] for path in recordings(config)]
+    assert reasons == ["start", "reopened"]
