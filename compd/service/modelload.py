@@ -37,7 +37,7 @@ from compd.files.yamlplace import MAX_YAML_BYTES, read_limited, shorten
 from compd.service.config import Config
 from compd.service.modelcheck import check_model
 from compd.service.slots import ModelSlot
-from compd.service.state import install_model_bytes, installed_model, reinstate_model
+from compd.service.state import MODELS_DIR, install_model_bytes, installed_model, reinstate_model
 from compd.service.unreadable import set_aside
 
 log = structlog.get_logger("compd.service.modelload")
@@ -97,7 +97,7 @@ def startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot | None, 
     try:
         model_file = read_installed(installed)
     except ModelFileError as exc:
-        _set_aside_installed(installed, config.model_path, str(exc))
+        _set_aside_installed(config.state_dir, installed, config.model_path, str(exc))
         reinstate_model(config.state_dir, config.model_path)
         return load_slot(config, config.model_path, now_unix_s), None
     try:
@@ -141,14 +141,23 @@ def read_installed(path: Path) -> ModelFile:
     return model_file
 
 
-def _set_aside_installed(installed: Path, config_model: Path, reason: str) -> None:
-    """The unreadable installed model set aside, in one ERROR line naming both files and why."""
-    try:
-        target: str | None = str(set_aside(installed))
-    except OSError as exc:
-        target, reason = None, f"{reason}; cannot set it aside ({exc.strerror})"
+def _set_aside_installed(state_dir: Path, installed: Path, config_model: Path, reason: str) -> None:
+    """The unreadable installed model set aside, in one ERROR line naming both files and why.
+
+    Only a file in the state directory's ``models/`` is renamed: ``current-model``
+    may name any path, and the daemon renames none but its own files.
+    """
+    target: str | None = None
+    if installed.resolve().parent != (state_dir / MODELS_DIR).resolve():
+        reason = f"{reason}; not in {state_dir / MODELS_DIR}, so left where it is"
+    else:
+        try:
+            target = str(set_aside(installed))
+        except OSError as exc:
+            reason = f"{reason}; cannot set it aside ({exc.strerror})"
+    aside = ": set aside" if target is not None else ""
     log.error(
-        "the installed model cannot be read: set aside; starting with the config's model",
+        f"the installed model cannot be read{aside}; starting with the config's model",
         installed=str(installed),
         set_aside_as=target,
         config_model=str(config_model),

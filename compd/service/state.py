@@ -256,7 +256,7 @@ def install_model_bytes(state_dir: Path, content: bytes, config_model: Path | No
         write_atomic(installed, content)
     current = "\n" if own else f"{MODELS_DIR}/{installed.name}\n"
     try:
-        before = (state_dir / CURRENT_MODEL).read_text()
+        before = (state_dir / CURRENT_MODEL).read_text(errors="replace")  # corrupt: replaced
     except FileNotFoundError:
         before = "\n"  # the config's own model ran
     if before.strip() != current.strip():  # loading the same model again keeps the way back
@@ -281,7 +281,8 @@ def previous_model(state_dir: Path, config_model: Path | None) -> Path | None:
     ``None`` if no model was ever loaded here, or the file it names is gone.
     """
     try:
-        name = (state_dir / PREVIOUS_MODEL).read_text().strip()
+        # Not UTF-8 (a corrupt file): a name no file has, so none.
+        name = (state_dir / PREVIOUS_MODEL).read_text(errors="replace").strip()
     except FileNotFoundError:
         return None
     if not name:
@@ -301,7 +302,8 @@ def installed_models(state_dir: Path) -> list[Path]:
 def installed_model(state_dir: Path) -> Path | None:
     """The model last installed with ``compd model load``, if any."""
     try:
-        name = (state_dir / CURRENT_MODEL).read_text().strip()
+        # Not UTF-8 (a corrupt file): a name no file has, so the config's model starts.
+        name = (state_dir / CURRENT_MODEL).read_text(errors="replace").strip()
     except FileNotFoundError:
         return None
     path = state_dir / name

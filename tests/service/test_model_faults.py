@@ -199,6 +199,33 @@ def test_an_installed_model_whose_bytes_changed_is_set_aside(tmp_path):
     assert installed_model(config.state_dir) is None
 
 
+def test_a_file_outside_the_state_directory_named_as_installed_is_never_renamed(tmp_path):
+    """current-model naming a file elsewhere that is no model: the config's model starts, that file stays put."""
+    config = write_config(tmp_path)
+    elsewhere = tmp_path / "not-a-model.yaml"
+    elsewhere.write_text("schema: compd.config/1\n")
+    config.state_dir.mkdir(parents=True, exist_ok=True)
+    (config.state_dir / "current-model").write_text(f"{elsewhere}\n")
+    with capture_logs() as logs:
+        service, _ = run(config, 2.0)
+    assert service.compensator.active.compiled.name == CONFIG_MODEL
+    (error,) = [e for e in logs if e["log_level"] == "error"]
+    assert error["event"] == "the installed model cannot be read; starting with the config's model"
+    assert error["set_aside_as"] is None and "so left where it is" in error["reason"]
+    assert elsewhere.read_text() == "schema: compd.config/1\n"
+
+
+def test_a_current_model_file_that_is_not_text_starts_the_configs_model(tmp_path):
+    """current-model holding bytes that are not UTF-8 (a corrupt card): the config's model starts, no traceback."""
+    config = write_config(tmp_path)
+    config.state_dir.mkdir(parents=True, exist_ok=True)
+    (config.state_dir / "current-model").write_bytes(b"\xff\xfe models/x.yaml\n")
+    (config.state_dir / "previous-model").write_bytes(b"\xff\n")
+    assert installed_model(config.state_dir) is None
+    service, records = run(config, 2.0)
+    assert service.compensator.active.compiled.name == CONFIG_MODEL and len(records) == 3
+
+
 def test_the_model_fault_bit_follows_the_signal_and_mismatch_bits():
     """The model-fault bit is the one after the readback-mismatch bit, itself after the signals'; none past bit 31."""
     assert model_fault_bit(3) == mismatch_bit(3) + 1 == SIGNAL_BIT0 + 4
