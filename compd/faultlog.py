@@ -43,12 +43,17 @@ class FaultLog:
     """The log lines of one kind of fault; ``context`` is added to each (e.g. ``driver="plc"``).
 
     ``level`` is the level of an episode's first line: ``error``, or
-    ``warning`` for a fault the caller still tolerates (a missed reply).
+    ``warning`` for a fault the caller still tolerates (a missed reply);
+    ``end_level`` that of its last (``error`` where both ends must reach
+    ``journalctl -p err``: a sensor replaced by its prediction).
     """
 
-    def __init__(self, logger: Any, *, level: str = "error", **context: Any) -> None:
+    def __init__(
+        self, logger: Any, *, level: str = "error", end_level: str = "info", **context: Any
+    ) -> None:
         self._log = logger
         self._start = getattr(logger, level)
+        self._end = getattr(logger, end_level)
         self._context = context
         #: A fault episode is under way: it failed and has not cleared since.
         self.active = False
@@ -77,7 +82,7 @@ class FaultLog:
         """
         if self.active:
             self.active = False
-            self._log.info(event, **self._context, **details)
+            self._end(event, **self._context, **details)
             if self.sink is not None:
                 self.sink(Event("cleared", event, {**self._context, **details}))
                 if also is not None:

@@ -19,7 +19,12 @@ from compd.service.compensator import TickRecord
 from compd.service.safety import Level
 from compd.service.signals import Health
 
-HEALTH_STYLE = {Health.OK: "green", Health.HELD: "yellow", Health.FAULTED: "bold red"}
+HEALTH_STYLE = {
+    Health.OK: "green",
+    Health.HELD: "yellow",
+    Health.ESTIMATED: "magenta",
+    Health.FAULTED: "bold red",
+}
 LEVEL_STYLE = {Level.OK: "green", Level.DEGRADED: "yellow", Level.FAULTED: "bold red"}
 
 #: The axis columns every view has, each naming its quantity and sign.

@@ -17,3 +17,12 @@ RUN_REASON = "run_reason"
 RUN_GAP_S = "run_gap_s"
 #: ``unit.<column>``: the column's unit, as the config's signal names it.
 UNIT_PREFIX = "unit."
+
+#: Columns compd's recorder adds beside the signals: what it did, not what the machine measured.
+RECORDED_PREFIXES = ("health.", "read.", "model.", "offset.", "readback.", "gain.")
+RECORDED_NAMES = ("status", "heartbeat", "t_s")
+
+
+def is_recorded_column(name: str) -> bool:
+    """Whether ``name`` is one of the recorder's own columns (status, health, model outputs...)."""
+    return name in RECORDED_NAMES or name.startswith(RECORDED_PREFIXES)

@@ -18,11 +18,19 @@ import yaml
 from pydantic import ValidationError
 
 from compd.errors import ModelError, ModelFileError
-from compd.files.modelschema import SCHEMA, GateDoc, ModelDoc, ResidualDoc, TFDoc
+from compd.files.modelschema import (
+    SCHEMA,
+    ConsistencyDoc,
+    GateDoc,
+    ModelDoc,
+    ResidualDoc,
+    TFDoc,
+)
 from compd.files.yamlplace import BUNDLED, parse_yaml, read_limited, resolve_path, shorten
 from compd.files.yamlplace import describe as _describe
 from compd.files.yamlplace import where as _where
 from compd.model.compiled import CompiledModel, compile_model
+from compd.model.consistency import ConsistencyModel
 from compd.model.guards import Finding, Severity
 from compd.model.guards import check_model as check_plausibility
 from compd.model.residual import DoorFeatures, ResidualModel
@@ -81,6 +89,24 @@ class ModelFile:
                 fix=errors[0].fix,
             )
         return findings
+
+    def consistency(self) -> ConsistencyModel | None:
+        """How each input follows the others (the daemon's plausibility check); None in older files."""
+        doc = self.doc.consistency
+        if doc is None:
+            return None
+        return ConsistencyModel(
+            signals=tuple(doc.signals),
+            checked=tuple(doc.checked),
+            taus_s=tuple(doc.taus_s),
+            heated=tuple(doc.heated),
+            mean=np.array(doc.mean),
+            cov=np.array(doc.covariance),
+            low=np.array(doc.low),
+            high=np.array(doc.high),
+            sigma=tuple(doc.sigma[c] for c in doc.checked),
+            max_rate_per_s=tuple(doc.max_rate_per_s[c] for c in doc.checked),
+        )
 
     def compile(self, sample_time_s: float | None = None) -> CompiledModel:
         """Compile for running; a refusal names this file and the sub-model."""
@@ -255,3 +281,19 @@ _FIXES = {
     "too_long": "Give fewer items (see the bounds in README.md, 'Model files')",
     "less_than_equal": "Give a smaller value (see the bounds in README.md, 'Model files')",
 }
+
+
+def consistency_doc(model: ConsistencyModel) -> ConsistencyDoc:
+    """The model file's ``consistency`` block for ``model``."""
+    return ConsistencyDoc(
+        signals=list(model.signals),
+        checked=list(model.checked),
+        taus_s=list(model.taus_s),
+        heated=list(model.heated),
+        mean=model.mean.tolist(),
+        covariance=model.cov.tolist(),
+        low=model.low.tolist(),
+        high=model.high.tolist(),
+        sigma=dict(zip(model.checked, model.sigma, strict=True)),
+        max_rate_per_s=dict(zip(model.checked, model.max_rate_per_s, strict=True)),
+    )

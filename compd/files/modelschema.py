@@ -334,6 +334,49 @@ class ProvenanceDoc(_Record):
     notes: str = ""
 
 
+class ConsistencyDoc(_Strict):
+    """How each model input follows the other logged signals (:mod:`compd.model.consistency`).
+
+    Written by ``compd fit``; the daemon checks every reading of a ``checked``
+    input against its prediction from the others and stands in with the
+    prediction while the sensor is wrong (:mod:`compd.service.plausibility`).
+    ``mean`` and ``covariance`` are those of the features: per signal its
+    value and its low-passes at ``taus_s``, and for a ``heated`` speed also its
+    heat feature and that one's low-passes.
+    """
+
+    signals: list[str] = Field(min_length=2)
+    checked: list[str] = Field(min_length=1)
+    taus_s: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]]
+    heated: list[str] = Field(default_factory=list)
+    mean: list[FiniteFloat]
+    covariance: list[list[FiniteFloat]]
+    low: list[FiniteFloat]
+    high: list[FiniteFloat]
+    sigma: dict[str, Annotated[float, Field(ge=0, allow_inf_nan=False)]]
+    max_rate_per_s: dict[str, Annotated[float, Field(ge=0, allow_inf_nan=False)]]
+
+    @model_validator(mode="after")
+    def _shapes(self) -> ConsistencyDoc:
+        unknown = [n for n in [*self.checked, *self.heated] if n not in self.signals]
+        if unknown:
+            raise ValueError(f"checked and heated must be among its signals; not: {unknown}")
+        n = (1 + len(self.taus_s)) * (len(self.signals) + len(self.heated))
+        for key in ("mean", "low", "high"):
+            if len(getattr(self, key)) != n:
+                raise ValueError(
+                    f"'{key}' needs {n} values (one per feature), has {len(getattr(self, key))}"
+                )
+        if len(self.covariance) != n or any(len(row) != n for row in self.covariance):
+            raise ValueError(f"'covariance' must be {n} x {n} (one row and column per feature)")
+        missing = [c for c in self.checked if c not in self.sigma or c not in self.max_rate_per_s]
+        if missing:
+            raise ValueError(
+                f"'sigma' and 'max_rate_per_s' need every checked signal; missing {missing}"
+            )
+        return self
+
+
 class ModelDoc(_Strict):
     schema_: Literal["compd.model/1"] = Field(alias="schema")
     name: str = Field(min_length=1)
@@ -342,6 +385,7 @@ class ModelDoc(_Strict):
     signals: dict[str, SignalDoc] | None = None
     ambient: AmbientDoc | None = None
     outputs: dict[str, OutputDoc] = Field(min_length=1)
+    consistency: ConsistencyDoc | None = None
     provenance: ProvenanceDoc = ProvenanceDoc()
 
 

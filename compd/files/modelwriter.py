@@ -17,7 +17,7 @@ from collections.abc import Iterable, Mapping
 
 import yaml
 
-from compd.files.modelschema import SCHEMA, ProvenanceDoc, ResidualDoc
+from compd.files.modelschema import SCHEMA, ConsistencyDoc, ProvenanceDoc, ResidualDoc
 from compd.model.structure import Gate, InputSpec, Model, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
 
@@ -126,6 +126,7 @@ def model_to_yaml(
     signals: Mapping[str, str] | None = None,
     provenance: ProvenanceDoc | None = None,
     residuals: Mapping[str, ResidualDoc] | None = None,
+    consistency: ConsistencyDoc | None = None,
 ) -> str:
     """The model file text for ``model``; ``signals`` maps each signal name to its unit.
 
@@ -194,6 +195,31 @@ def model_to_yaml(
             lines += _submodel(sub)
         if output.name in residuals:
             lines += _residual(residuals[output.name])
+    if consistency is not None:
+        lines += consistency_lines(consistency)
     if provenance is not None:
         lines += provenance_lines(provenance)
     return "\n".join(lines) + "\n"
+
+
+def consistency_lines(doc: ConsistencyDoc) -> list[str]:
+    """The ``consistency:`` block: how each input follows the others (the daemon's plausibility check)."""
+    lines = [
+        "# each input predicted from the other logged signals (compd.model.consistency): the daemon",
+        "# checks every reading against it and stands in with the prediction while a sensor is wrong",
+        "consistency:",
+        f"  signals: [{', '.join(_string(n) for n in doc.signals)}]",
+        f"  checked: [{', '.join(_string(n) for n in doc.checked)}]",
+        f"  taus_s: {_numbers(doc.taus_s)}",
+        f"  heated: [{', '.join(_string(n) for n in doc.heated)}]",
+    ]
+    for key in ("sigma", "max_rate_per_s"):
+        values: dict[str, float] = getattr(doc, key)
+        lines.append(
+            f"  {key}: {{{', '.join(f'{_string(k)}: {yaml_float(v)}' for k, v in values.items())}}}"
+        )
+    for key in ("mean", "low", "high"):
+        lines.append(f"  {key}: {_numbers(getattr(doc, key))}")
+    lines.append("  covariance:")
+    lines += [f"    - {_numbers(row)}" for row in doc.covariance]
+    return lines

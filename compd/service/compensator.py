@@ -12,18 +12,20 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import structlog
 
-from compd.faultlog import Event, EventSink
+from compd.faultlog import Event, EventSink, FaultLog
 from compd.model.compiled import ModelState
+from compd.model.consistency import ConsistencyCheck
 from compd.service.links import DriverLink
 from compd.service.offsets import AxisPoint, HeldOffsets
+from compd.service.plausibility import DEFAULT_SETTINGS, Plausibility, PlausibilitySettings
 from compd.service.points import DriverBatches, SignalPoint, StatusPoint
 from compd.service.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
 from compd.service.schedule import GainScheduler
-from compd.service.signals import Health, SignalMonitor
+from compd.service.signals import Health, Reading, SignalMonitor
 from compd.service.slots import ModelSlot, ModelSlots
 
 log = structlog.get_logger("compd.service.compensator")
@@ -35,6 +37,7 @@ class TickRecord:
 
     t_s: float
     wall_unix_s: float
+    #: The value each input had for the model this tick (held, or estimated from the others).
     values: dict[str, float]
     health: dict[str, Health]
     reasons: dict[str, str]
@@ -51,6 +54,8 @@ class TickRecord:
     acknowledged_um: dict[str, float] = field(default_factory=dict)
     #: Per axis with readback, the offset the device held at the start of the tick (NaN: unknown).
     readback_um: dict[str, float] = field(default_factory=dict)
+    #: What each input read this tick, scaled (NaN: no new value); ``values`` is what was used.
+    read: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -65,6 +70,8 @@ class Counters:
     model_failures: int = 0
     #: Offsets read back (per axis and tick) outside the clamp or not finite, replaced not followed.
     offsets_out_of_clamp: int = 0
+    #: Episodes of an input replaced by its prediction from the other sensors.
+    signal_estimates: int = 0
 
 
 class Compensator:
@@ -110,6 +117,9 @@ class Compensator:
         history_ticks: int = 28_800,
         on_model_failure: Callable[[ModelSlot, ModelSlot], None] | None = None,
         zero_now: bool = False,
+        period_s: float = 1.0,
+        plausibility: PlausibilitySettings | None = DEFAULT_SETTINGS,
+        units: Mapping[str, str] | None = None,
     ) -> None:
         self.signals = list(signals)
         self.monitors = dict(monitors)
@@ -151,6 +161,19 @@ class Compensator:
         #: Signals whose fault was told and not yet its end: ``cleared`` only ever follows a ``fault``
         #: (every signal starts faulted, "no value yet", and its first good value is no recovery).
         self._told_faulted: set[str] = set()
+        #: One ERROR line at the start and one at the end of each signal's fault episode.
+        self._signal_faults = {
+            p.name: FaultLog(log, signal=p.name, end_level="error") for p in self.signals
+        }
+        self.period_s = period_s
+        self.units = dict(units or {})
+        self.plausibility_settings = plausibility
+        #: The inputs checked against each other (:mod:`compd.service.plausibility`), from the
+        #: running model's consistency model; None without one (older model files, a logger).
+        self.plausibility: Plausibility | None = None
+        self._plausibility_of: str | None = None
+        self._estimates_seen = 0
+        self._configured_jumps = {name: m.checks.max_jump for name, m in self.monitors.items()}
 
     # The model slots as the status and the tests see them (:class:`ModelSlots`).
     @property
@@ -191,6 +214,50 @@ class Compensator:
         self.events = sink
         if self.models is not None:  # a data logger has none
             self.models.events = sink
+        if self.plausibility is not None:
+            self.plausibility.report_to(sink)
+
+    def _plausible(
+        self, t_s: float, readings: dict[str, Reading], read: Mapping[str, float | None]
+    ) -> dict[str, Reading]:
+        """The readings after the inputs were checked against each other (unchanged without a check)."""
+        slot = self.running
+        if slot is None or self.plausibility_settings is None:
+            return readings
+        if self._plausibility_of != slot.sha256:
+            self._plausibility_of = slot.sha256
+            self.plausibility = self._plausibility_for(slot)
+        if self.plausibility is None:
+            return readings
+        out = self.plausibility.judge(t_s, readings, read)
+        self.counters.signal_estimates += self.plausibility.count - self._estimates_seen
+        self._estimates_seen = self.plausibility.count
+        return out
+
+    def _plausibility_for(self, slot: ModelSlot) -> Plausibility | None:
+        """The check of ``slot``'s inputs against each other; each input's rate limit defaults to its calibration's."""
+        model = slot.model_file.consistency()
+        for name, monitor in self.monitors.items():  # a new model: its own defaults
+            monitor.checks = replace(monitor.checks, max_jump=self._configured_jumps[name])
+        if model is None:
+            log.info(
+                "model has no consistency model: inputs are checked one by one",
+                model=slot.compiled.name,
+            )
+            return None
+        assert self.plausibility_settings is not None
+        settings = self.plausibility_settings
+        for name, rate in zip(model.checked, model.max_rate_per_s, strict=True):
+            checked = self.monitors.get(name)
+            if checked is not None and checked.checks.max_jump is None:
+                jump = max(3.0 * rate * self.period_s, settings.min_tolerance)
+                checked.checks = replace(checked.checks, max_jump=jump)
+        check = ConsistencyCheck(model, self.period_s, frozenset(self.monitors))
+        plausibility = Plausibility(check, self.monitors, self.units, self.period_s, settings)
+        if self.events is not None:
+            plausibility.report_to(self.events)
+        self._estimates_seen = 0
+        return plausibility
 
     def _tell(self, kind: str, message: str, **details: object) -> None:
         if self.events is not None:
@@ -203,17 +270,30 @@ class Compensator:
         out_of_clamp = self.held.out_of_clamp
         self.counters.offsets_out_of_clamp += len(out_of_clamp)
         readings = {}
+        was = {point.name: self.monitors[point.name].reading.health for point in self.signals}
         for point in self.signals:
-            monitor = self.monitors[point.name]
-            was = monitor.reading.health
-            readings[point.name] = reading = monitor.update(t_s, values.get(point.name))
-            if reading.health is Health.FAULTED and was is not Health.FAULTED:
+            readings[point.name] = self.monitors[point.name].update(t_s, values.get(point.name))
+        readings = self._plausible(t_s, readings, values)
+        for point in self.signals:
+            reading = readings[point.name]
+            if reading.health is Health.FAULTED and was[point.name] is not Health.FAULTED:
                 self.counters.signal_faults += 1
                 self._told_faulted.add(point.name)
                 self._tell("fault", "signal faulted", signal=point.name, reason=reading.reason)
+                if reading.reason != "no value yet":
+                    read = values.get(point.name)
+                    self._signal_faults[point.name].failed(
+                        "signal faulted: the axes that depend on it freeze",
+                        reason=reading.reason,
+                        read=read,
+                        held=reading.value,
+                    )
             elif reading.health is not Health.FAULTED and point.name in self._told_faulted:
                 self._told_faulted.discard(point.name)
                 self._tell("cleared", "signal usable again", signal=point.name)
+                self._signal_faults[point.name].cleared(
+                    "signal usable again", health=reading.health.name.lower()
+                )
         checked = {name: r.value for name, r in readings.items()}
         if self.schedule is not None:
             key = readings[self.schedule.table.signal]
@@ -289,6 +369,7 @@ class Compensator:
             gains=dict(self.schedule.applied) if self.schedule is not None else {},
             acknowledged_um={a.name: acknowledged.get(a.name, math.nan) for a in self.axes},
             readback_um={a.name: _um(a, held.get(a.name)) for a in self.axes if a.readback},
+            read={p.name: _finite(values.get(p.name)) for p in self.signals},
         )
         return self.last
 
@@ -323,6 +404,10 @@ def _model_outputs(slot: ModelSlot | None) -> tuple[dict[str, float], dict[str, 
     if runner is None:
         return outputs, {name: math.nan for name in slot.names}
     return outputs, dict(zip(slot.names, runner.contributions.tolist(), strict=True))
+
+
+def _finite(value: float | None) -> float:
+    return math.nan if value is None else float(value)
 
 
 def _um(axis: AxisPoint, raw: float | None) -> float:

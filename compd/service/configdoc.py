@@ -30,6 +30,7 @@ from compd.service.docbase import FiniteFloat, Positive, Strict
 from compd.service.fleetdoc import HttpDoc, TelemetryDoc
 from compd.service.links import DriverLink
 from compd.service.offsets import AxisPoint
+from compd.service.plausibility import PlausibilitySettings
 from compd.service.points import SignalPoint, StatusPoint
 from compd.service.recorder import Recorder
 from compd.service.recorder_marks import Units
@@ -44,8 +45,20 @@ SCHEMA = CONFIG_SCHEMA
 MAX_SIGNALS = 24
 
 
+#: Units of a temperature: stuck detection is on by default for them (a live sensor read at
+#: its resolution always shows noise; where one does not, the config says ``stuck_s: null``).
+TEMPERATURE_UNITS = frozenset({"degC", "K", "degF"})
+#: How long a temperature may read exactly the same value before it is judged stuck (s).
+DEFAULT_STUCK_S = 60.0
+
+
 class ChecksDoc(Strict):
-    """Per-signal plausibility checks (see :mod:`compd.service.signals`), in the signal's unit."""
+    """Per-signal plausibility checks (see :mod:`compd.service.signals`), in the signal's unit.
+
+    ``stuck_s`` left out: :data:`DEFAULT_STUCK_S` for a temperature, off for
+    other units; ``null`` switches it off. ``max_jump`` left out: the model's
+    calibration sets it where the model file has a consistency model.
+    """
 
     min: FiniteFloat | None = None
     max: FiniteFloat | None = None
@@ -61,8 +74,15 @@ class ChecksDoc(Strict):
             raise ValueError(f"'min' ({self.min}) must be below 'max' ({self.max})")
         return self
 
-    def checks(self) -> Checks:
-        return Checks(**self.model_dump())
+    def checks(self, unit: str = "") -> Checks:
+        values = self.model_dump()
+        if "stuck_s" not in self.model_fields_set and unit in TEMPERATURE_UNITS:
+            values["stuck_s"] = DEFAULT_STUCK_S
+        return Checks(**values)
+
+    def stuck_off(self, unit: str) -> bool:
+        """Whether stuck detection is off for a signal in ``unit`` (check-config lists those)."""
+        return self.checks(unit).stuck_s is None
 
 
 class SignalDoc(Strict):
@@ -83,7 +103,7 @@ class SignalDoc(Strict):
 
     def monitor(self, name: str) -> SignalMonitor:
         """The plausibility checks of the signal ``name``, with no reading yet."""
-        return SignalMonitor(name, self.checks.checks())
+        return SignalMonitor(name, self.checks.checks(self.unit))
 
 
 class EncodingDoc(Strict):
@@ -187,6 +207,28 @@ class SafetyDoc(Strict):
     #: ``edge`` the nearest clamp edge (then slewing on), ``refuse`` nothing until the PLC
     #: holds a value within the clamp (:class:`compd.service.safety.OutOfClamp`).
     on_offset_out_of_clamp: Literal["hold", "edge", "refuse"] = "hold"
+
+
+class PlausibilityDoc(Strict):
+    """``plausibility:``: every model input checked against its prediction from the others.
+
+    Needs a model file with a consistency model (``compd fit`` writes one);
+    see :mod:`compd.service.plausibility`. ``enabled: false`` checks each
+    input on its own only, as before.
+    """
+
+    enabled: bool = True
+    #: A reading this many residue sigmas from its prediction is wrong...
+    k_sigma: Annotated[float, Field(ge=1, allow_inf_nan=False)] = 8.0
+    #: ...and never closer than this, in the signal's unit.
+    min_tolerance: Positive = 1.0
+    #: Ticks a returning sensor must agree with the others before it is used again.
+    confirm_ticks: int = Field(default=30, ge=1, le=86_400)
+
+    def settings(self) -> PlausibilitySettings | None:
+        if not self.enabled:
+            return None
+        return PlausibilitySettings(self.k_sigma, self.min_tolerance, self.confirm_ticks)
 
 
 class StateDoc(Strict):
@@ -373,6 +415,7 @@ class ConfigDoc(Strict):
     outputs: dict[str, OutputDoc] = Field(default_factory=dict)
     status: StatusDoc | None = None
     safety: SafetyDoc = SafetyDoc()
+    plausibility: PlausibilityDoc = PlausibilityDoc()
     state: StateDoc = StateDoc()
     recorder: RecorderDoc = RecorderDoc()
     effects: dict[str, EffectDoc] = Field(default_factory=dict)

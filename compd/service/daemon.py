@@ -115,6 +115,9 @@ class Service:
             history_ticks=round(HISTORY_S / doc.period_s),
             schedule=doc.gain_schedule.scheduler() if doc.gain_schedule else None,
             on_model_failure=self.loader.failed,
+            period_s=doc.period_s,
+            plausibility=doc.plausibility.settings(),
+            units={name: s.unit for name, s in doc.signals.items()},
         )
         if self.compensator.models is not None:
             self.compensator.models.fallback = fallback
@@ -299,6 +302,8 @@ class Service:
         assert self.recorder is not None
         row: dict[str, float | int | str] = {"t_s": record.t_s}
         row |= record.values
+        # What each signal read, beside the value used (held, or estimated from the others).
+        row |= {f"read.{k}": v for k, v in record.read.items()}
         row |= {f"health.{k}": int(v) for k, v in record.health.items()}
         row |= {f"model.{k}": v for k, v in record.model_outputs.items()}
         row |= {f"model.{k.replace('/', '.')}": v for k, v in record.contributions.items()}

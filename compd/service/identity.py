@@ -24,7 +24,7 @@ def identity(config: Config, slot: ModelSlot | None, started_unix_s: float) -> d
         "signals": {n: _signal(s.unit, s.description) for n, s in doc.signals.items()},
         # The status's numbers are in engineering units: each input's its signal's, the rest um.
         "units": {"inputs": "signals.<name>.unit", "model_outputs": "um", "offsets": "um"},
-        "health_codes": {"ok": 0, "held": 1, "faulted": 2},
+        "health_codes": {"ok": 0, "held": 1, "faulted": 2, "estimated": 3},
         "axes": {
             axis: {"model_output": out.model_output, "max_offset_um": out.max_offset_um}
             for axis, out in doc.outputs.items()
@@ -49,7 +49,11 @@ def recording_metadata(config: Config) -> dict[str, str]:
 
 #: Units of the columns the daemon adds to a recording's signals, by name or by prefix.
 _COLUMN_UNITS = {"t_s": "s", "status": "bits", "heartbeat": "count"}
-_PREFIX_UNITS = {"health": "0 ok, 1 held, 2 faulted", "model": "um", "offset": "um"}
+_PREFIX_UNITS = {
+    "health": "0 ok, 1 held, 2 faulted, 3 estimated",
+    "model": "um",
+    "offset": "um",
+}
 _PREFIX_UNITS |= {"readback": "um", "gain": "1"}
 
 
@@ -60,7 +64,9 @@ def column_units(config: Config) -> Callable[[str], str | None]:
     def unit(column: str) -> str | None:
         if column in signals:
             return signals[column] or None
-        prefix, dot, _ = column.partition(".")
+        prefix, dot, rest = column.partition(".")
+        if prefix == "read" and dot:  # what a signal read, in its own unit
+            return signals.get(rest) or None
         return _PREFIX_UNITS.get(prefix) if dot else _COLUMN_UNITS.get(column)
 
     return unit

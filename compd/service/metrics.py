@@ -135,13 +135,15 @@ class LiveCollector(Collector):
         )
         faults = CounterMetricFamily(
             "compd_faults",
-            "Fault episodes by kind: signal (an input faulted), driver (a link failed), "
+            "Fault episodes by kind: signal (an input faulted), signal_estimated (an input replaced "
+            "by its prediction from the other sensors), driver (a link failed), "
             "write (a tick's writes failed), model (a model failed and was unloaded), "
             "readback_mismatch (an offset read back was not what compd wrote), "
             "offset_out_of_clamp (an offset read back outside its clamp or not finite).",
             labels=["kind"],
         )
         faults.add_metric(["signal"], counters.signal_faults)
+        faults.add_metric(["signal_estimated"], counters.signal_estimates)
         faults.add_metric(["driver"], sum(link.faults for link in links.values()))
         faults.add_metric(["write"], counters.write_failures)
         faults.add_metric(["model"], counters.model_failures)
@@ -194,7 +196,7 @@ class LiveCollector(Collector):
         values: dict[str, GaugeMetricFamily] = {}
         health = GaugeMetricFamily(
             "compd_signal_health",
-            "Each input's health: 0 ok, 1 held, 2 faulted.",
+            "Each input's health: 0 ok, 1 held, 2 faulted, 3 estimated from the other sensors.",
             labels=["signal"],
         )
         for name, monitor in comp.monitors.items():

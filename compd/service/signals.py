@@ -15,7 +15,9 @@ A bad reading is replaced by the last good value (``HELD``) for at most
 ``FAULTED`` and the axes that depend on it freeze (see :mod:`compd.service.safety`).
 A good reading ends a hold or a fault at once. After a fault the spike check
 is suspended for the first reading: the true value may have moved further
-than ``max_jump`` meanwhile, and it must be possible to recover.
+than ``max_jump`` meanwhile, and it must be possible to recover. With a
+consistency model (:mod:`compd.service.plausibility`) that reading is not
+trusted on its own: it must agree with the other sensors for a while first.
 
 Pure: the caller passes the time, nothing here reads a clock.
 """
@@ -28,11 +30,17 @@ from enum import IntEnum
 
 
 class Health(IntEnum):
-    """A signal's state at one tick, ordered by severity."""
+    """A signal's state at one tick.
+
+    ``ESTIMATED`` (a wrong reading replaced by its prediction from the other
+    sensors, :mod:`compd.service.plausibility`) is numbered after the others so
+    that recorded codes keep their meaning; it ranks between held and faulted.
+    """
 
     OK = 0
     HELD = 1
     FAULTED = 2
+    ESTIMATED = 3
 
 
 @dataclass(frozen=True)
@@ -87,6 +95,15 @@ class SignalMonitor:
             held = self.last_good_t is not None and now_s - self.bad_since < self.checks.hold_s
             self.reading = Reading(self.last_good, Health.HELD if held else Health.FAULTED, problem)
         return self.reading
+
+    def rebase(self, reading: Reading) -> None:
+        """Take ``reading`` (a stand-in for a wrong value) as what the checks compare the next reading with.
+
+        The rate check then measures a returning sensor against the value the
+        model used, not against the wrong reading it replaced.
+        """
+        self.last_good = reading.value
+        self.reading = reading
 
     def _problem(self, now_s: float, value: float | None) -> str | None:
         """``None`` if good, ``""`` if missing but not yet stale, else the reason it is bad."""

@@ -343,6 +343,7 @@ def with_verification(extension: Extension, verify_path: str, before: float, aft
         description=doc.description,
         signals=extension.extended.signal_units(),
         provenance=provenance,
+        consistency=doc.consistency,
     )
 
 

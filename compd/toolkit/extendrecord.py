@@ -98,7 +98,13 @@ def extension_yaml(
             "command": command or doc.provenance.command,
         }
     )
-    return model_to_yaml(model, description=doc.description, signals=units, provenance=provenance)
+    return model_to_yaml(
+        model,
+        description=doc.description,
+        signals=units,
+        provenance=provenance,
+        consistency=doc.consistency,
+    )
 
 
 def widened_calibration(

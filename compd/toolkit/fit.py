@@ -25,11 +25,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from compd.errors import DataFileError, ModelError
+from compd.files.columns import is_recorded_column
 from compd.files.data import DataSet
 from compd.files.experiments import stack
-from compd.files.modelschema import ProvenanceDoc
+from compd.files.modelfile import consistency_doc
+from compd.files.modelschema import ConsistencyDoc, ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.collinear import collinear_groups
+from compd.model.consistency import fit_consistency
 from compd.model.experiments import ONE, start_values
 from compd.model.guards import Finding
 from compd.model.identify import Identification, identify
@@ -59,6 +62,7 @@ from compd.toolkit.fitmodel import (
     with_references,
 )
 from compd.toolkit.nestedselect import Selection, SelectionStep, compare_candidates
+from compd.toolkit.selection import is_displacement
 from compd.toolkit.span import Span, until_stop
 from compd.toolkit.zeroing import zero_displacements
 
@@ -325,6 +329,7 @@ def fit_data(
         description=f"{output} from {', '.join(inputs)}, identified by compd fit --method {chosen}",
         signals=signals,
         provenance=provenance,
+        consistency=consistency_of(data, list(model.signals()), output, starts, span),
     )
     return FitResult(
         identification,
@@ -339,6 +344,36 @@ def fit_data(
         selection_steps=steps,
         notes=zeroing_notes,
     )
+
+
+def consistency_of(
+    data: DataSet,
+    inputs: Sequence[str],
+    output: str,
+    starts: Sequence[int] = ONE,
+    span: Span | None = None,
+) -> ConsistencyDoc | None:
+    """How each input follows the other logged signals of the calibration (the daemon's plausibility check).
+
+    Every signal column takes part, not only the model's inputs: the
+    daemon reads more than the model uses (a spindle speed predicts the
+    spindle's temperature). Displacements, the output and compd's own
+    recorded columns (``health.*``, ``status``, ...) do not.
+    """
+    first = 0 if span is None else span.start
+    stop = len(data) if span is None else span.stop
+    columns = {
+        name: values[first:stop]
+        for name, values in data.columns.items()
+        if name != output and not is_displacement(name) and not is_recorded_column(name)
+    }
+    model = fit_consistency(
+        columns,
+        list(inputs),
+        data.sample_time_s,
+        starts=[s - first for s in starts if first <= s < stop] or [0],
+    )
+    return None if model is None else consistency_doc(model)
 
 
 def _check_several(

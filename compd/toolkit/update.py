@@ -237,7 +237,11 @@ def update_model(
         }
     )
     text = model_to_yaml(
-        model, description=doc.description, signals=parent.signal_units(), provenance=provenance
+        model,
+        description=doc.description,
+        signals=parent.signal_units(),
+        provenance=provenance,
+        consistency=doc.consistency,
     )
     updated = parse_model(text, "<updated model>")
     return Update(

@@ -235,6 +235,8 @@ class SimulatedMachine:
                 return math.nan
             if fault.kind == "value" and fault.value is not None:
                 return fault.value
+            if fault.kind == "offset" and fault.value is not None:
+                return value + fault.value
         return value
 
     async def _faults_at(self, t_s: float) -> None:

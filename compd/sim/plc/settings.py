@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from compd.errors import ConfigFileError
 from compd.service.config import Config, validation_error
 
-FaultKind = Literal["stuck", "nan", "value", "drop", "restart"]
+FaultKind = Literal["stuck", "nan", "value", "offset", "drop", "restart"]
 TwinAxis = Literal["x", "y", "z"]
 Seconds = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
@@ -31,6 +31,8 @@ class SimFaultDoc(_Strict):
     - ``stuck`` / ``nan`` / ``value``: the sensor behind ``signal`` reads its value at
       ``at_s`` / NaN (a float point; an integer point reads its type's minimum, a
       wire-break code) / ``value`` (in the signal's unit, e.g. out of range);
+    - ``offset``: the sensor behind ``signal`` reads ``value`` (its unit) off the truth: a
+      plausible wrong value that follows the signal (a bad contact, a wrong linearisation);
     - ``drop``: the controller behind ``driver`` is unreachable for ``duration_s``;
     - ``restart``: the controller behind ``driver`` restarts (connections drop) at ``at_s``.
     """
@@ -49,8 +51,8 @@ class SimFaultDoc(_Strict):
             raise ValueError(f"a {self.kind!r} fault needs 'driver': the controller it hits")
         if not on_driver and not self.signal:
             raise ValueError(f"a {self.kind!r} fault needs 'signal': the sensor it hits")
-        if self.kind == "value" and self.value is None:
-            raise ValueError("a 'value' fault needs 'value', in the signal's unit")
+        if self.kind in ("value", "offset") and self.value is None:
+            raise ValueError(f"a {self.kind!r} fault needs 'value', in the signal's unit")
         if self.kind != "restart" and not self.duration_s > 0:
             raise ValueError(f"a {self.kind!r} fault needs 'duration_s' above 0")
         return self

@@ -1,0 +1,217 @@
+"""Each model input against the others, and the virtual sensor that stands in for a wrong one.
+
+A sensor can be wrong inside every limit of its own: a Pt100 reading 45 degC
+where the spindle is at 30 passes the range check, and once the hold is over
+any rate check has nothing left to compare with. The other sensors know
+better. With a consistency model in the model file
+(:mod:`compd.model.consistency`), every tick:
+
+1. each checked input whose own checks passed (:mod:`compd.service.signals`) is
+   compared with its prediction from the other signals: its residue (reading
+   minus prediction) may move from its level of the last minutes by at most
+   the tolerance ``max(k_sigma * sigma, min_tolerance)`` (its unit), and may
+   not exceed three tolerances at all; the one furthest out is judged wrong and
+   left out of the others' predictions, and so on until all that remain agree:
+   one wrong sensor does not drag its neighbours along;
+2. an input judged wrong, or failing its own checks, is **replaced by its
+   prediction** (health ``ESTIMATED``: a status bit and level degraded; the
+   axis keeps compensating), shifted by the residue it had before the
+   episode (the prediction's own error is slow, so this keeps the model's
+   output continuous);
+3. it is used again only after its readings passed its own checks and agreed
+   with the prediction for ``confirm_ticks`` ticks in a row: a reading that
+   merely stopped jumping is not yet a good one.
+
+Each episode is one ERROR line at its start (the sensor, what it read, the
+prediction and the tolerance) and one at its end, an event and a count.
+When the remaining signals explain too little of an input (too few healthy
+sensors, or all of them outside what the calibration saw), there is no
+prediction and the input is held and faulted as without a consistency model.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import structlog
+
+from compd.faultlog import EventSink, FaultLog
+from compd.model.consistency import ConsistencyCheck, Prediction
+from compd.service.signals import Health, Reading, SignalMonitor
+
+log = structlog.get_logger("compd.service.plausibility")
+
+#: A good input's residue (reading minus prediction) is followed over about this long (s): a
+#: reading is judged by how far its residue jumped from that level, and a stand-in is the
+#: prediction shifted by it. The prediction's own error drifts slowly (a programme the
+#: calibration did not run), a failing sensor jumps or freezes.
+ANCHOR_TAU_S = 300.0
+#: The residue itself may not exceed this many tolerances, whatever its recent level (a
+#: sensor already wrong when the daemon starts).
+GROSS_TOLERANCES = 3.0
+
+
+@dataclass(frozen=True)
+class PlausibilitySettings:
+    """How far from its prediction a reading may be, and how long it must agree to be trusted again."""
+
+    k_sigma: float = 8.0
+    #: The smallest tolerance, in the signal's unit: a prediction is never trusted closer than this.
+    min_tolerance: float = 1.0
+    confirm_ticks: int = 30
+
+
+#: The settings a config without a ``plausibility`` section gets.
+DEFAULT_SETTINGS = PlausibilitySettings()
+
+
+@dataclass
+class _Episode:
+    started_s: float
+    reason: str
+    agreeing: int = 0
+
+
+class Plausibility:
+    """Judges the checked inputs each tick; :meth:`judge` returns the readings the model should use."""
+
+    def __init__(
+        self,
+        check: ConsistencyCheck,
+        monitors: Mapping[str, SignalMonitor],
+        units: Mapping[str, str],
+        period_s: float,
+        settings: PlausibilitySettings = DEFAULT_SETTINGS,
+    ) -> None:
+        self.check = check
+        self.monitors = monitors
+        self.units = dict(units)
+        self.settings = settings
+        self.checked = [name for name in check.model.checked if name in monitors]
+        self._anchor_a = math.exp(-period_s / ANCHOR_TAU_S)
+        #: Per checked input, its recent residue (reading minus prediction) while it was good.
+        self.residue: dict[str, float] = {}
+        self.episodes: dict[str, _Episode] = {}
+        self.predictions: dict[str, Prediction | None] = {}
+        self.faults = {name: FaultLog(log, signal=name, end_level="error") for name in self.checked}
+        #: Episodes begun since start (a virtual sensor stood in).
+        self.count = 0
+
+    def report_to(self, sink: EventSink) -> None:
+        for fault in self.faults.values():
+            fault.sink = sink
+
+    def tolerance(self, prediction: Prediction) -> float:
+        return max(self.settings.k_sigma * prediction.sigma, self.settings.min_tolerance)
+
+    def judge(
+        self, t_s: float, readings: dict[str, Reading], read: Mapping[str, float | None]
+    ) -> dict[str, Reading]:
+        """The readings to use this tick, wrong inputs replaced by their predictions (``read``: what each read)."""
+        check = self.check
+        values = {name: r.value for name, r in readings.items()}
+        z = check.features(values)
+        suspect = {n for n in self.checked if n in self.episodes}
+        bad = {n for n, r in readings.items() if r.health is not Health.OK} | suspect
+        ok = check.usable(z, bad)
+        candidates = [n for n in self.checked if n not in bad]
+        predictions: dict[str, Prediction | None] = {}
+        while candidates:
+            worst, worst_score = None, 1.0
+            for name in candidates:
+                predictions[name] = p = check.predict(z, name, ok)
+                if p is None:
+                    continue
+                score = self._score(name, values[name], p)
+                if score > worst_score:
+                    worst, worst_score = name, score
+            if worst is None:
+                break
+            p = predictions[worst]
+            assert p is not None
+            self._begin(t_s, worst, read.get(worst), p, "disagrees with the other sensors")
+            candidates.remove(worst)
+            ok[check.model.signals.index(worst)] = False
+        out = dict(readings)
+        for name in self.checked:
+            reading = readings[name]
+            if name in candidates:
+                self._learn(name, values[name], predictions.get(name))
+                continue
+            p = predictions[name] = check.predict(z, name, ok)
+            if name not in self.episodes and reading.health is not Health.OK and p is not None:
+                self._begin(t_s, name, read.get(name), p, reading.reason)
+            episode = self.episodes.get(name)
+            if episode is None:
+                continue
+            if p is None:
+                # Nothing left to predict it from: held at what the model last used, and faulted
+                # (the axes freeze, then ramp) as a failing sensor is without a consistency model.
+                last = self.monitors[name].last_good
+                out[name] = Reading(last, Health.FAULTED, f"no prediction: {episode.reason}")
+                self.monitors[name].rebase(out[name])
+                continue
+            agrees = reading.health is Health.OK and abs(reading.value - p.value) <= self.tolerance(
+                p
+            )
+            episode.agreeing = episode.agreeing + 1 if agrees else 0
+            if episode.agreeing >= self.settings.confirm_ticks:
+                self._end(t_s, name, reading.value, p)
+                self._learn(name, reading.value, p)
+                continue
+            estimate = p.value + self.residue.get(name, 0.0)
+            why = f"estimated from the other sensors: {episode.reason}"
+            out[name] = Reading(estimate, Health.ESTIMATED, why)
+            self.monitors[name].rebase(out[name])
+        self.predictions = predictions
+        check.advance(check.features({n: r.value for n, r in out.items()}))
+        return out
+
+    def _score(self, name: str, value: float, p: Prediction) -> float:
+        """How far ``value`` is out of its tolerance (above 1: wrong)."""
+        residue = value - p.value
+        tolerance = self.tolerance(p)
+        jump = abs(residue - self.residue.get(name, residue)) / tolerance
+        return max(jump, abs(residue) / (GROSS_TOLERANCES * tolerance))
+
+    def _learn(self, name: str, value: float, p: Prediction | None) -> None:
+        if p is None or not math.isfinite(value):
+            return
+        r = value - p.value
+        a = self._anchor_a
+        self.residue[name] = a * self.residue[name] + (1 - a) * r if name in self.residue else r
+
+    def _begin(
+        self, t_s: float, name: str, value: float | None, p: Prediction, reason: str
+    ) -> None:
+        self.episodes[name] = _Episode(t_s, reason)
+        self.count += 1
+        unit = self.units.get(name, "")
+        self.faults[name].failed(
+            "signal replaced by its prediction from the other sensors",
+            read=_round(value),
+            predicted=_round(p.value + self.residue.get(name, 0.0)),
+            tolerance=_round(self.tolerance(p)),
+            unit=unit,
+            reason=reason,
+            predicted_from=list(p.used),
+        )
+
+    def _end(self, t_s: float, name: str, value: float, p: Prediction) -> None:
+        episode = self.episodes.pop(name)
+        self.faults[name].cleared(
+            "signal agrees with the other sensors again: its readings are used",
+            read=_round(value),
+            predicted=_round(p.value),
+            unit=self.units.get(name, ""),
+            lasted_s=round(t_s - episode.started_s, 1),
+        )
+
+
+def _round(value: float | None) -> float | str | None:
+    """A figure for the log: rounded, or what it was (``nan``, ``inf``; None: nothing was read)."""
+    if value is None:
+        return None
+    return round(value, 3) if math.isfinite(value) else str(value)
