@@ -36,6 +36,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import math
 import os
 import resource
 import socket
@@ -59,13 +60,17 @@ STARVED = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
 #: accept() errors of one client that went away while queued.
 GONE = frozenset({errno.ECONNABORTED, errno.EPROTO, errno.EPERM})
 #: A connection idle this long (s: no request under way, nothing received) may be closed
-#: for a new client when every slot is taken. Long enough for a client just accepted to
-#: send its request (it usually arrives with the handshake's last packet); short, so
-#: the slots turn over fast enough (cap / this, 3,200 a second at 64) to drain a
-#: full accept queue of a thousand in well under a second.
-EVICT_IDLE_S = 0.02
-#: The longest a listener waits for an evicted connection's slot before it looks again (s).
-EVICT_WAIT_S = 1.0
+#: for a new client when every slot is taken. What keeps a client just accepted until its
+#: request is read (it usually arrives with the handshake's last packet, a loop iteration
+#: or two later) is the order: the idlest goes first, and one client is accepted per
+#: eviction, so a newcomer outlives the cap's worth of clients accepted after it. This
+#: is a floor under that on a stalled loop, short, so the slots turn over fast enough
+#: (at most cap / this, 12,800 a second at 64) to drain a queue of a thousand in well
+#: under a second.
+EVICT_IDLE_S = 0.005
+#: The longest a listener waits, none being idle (each answering a request), before it
+#: looks again (s).
+EVICT_WAIT_S = 0.05
 
 #: Called with each accepted connection (non-blocking); it must call ``release`` once
 #: when the connection is closed, however it ends.
@@ -114,8 +119,9 @@ class Listener:
     closes ``sock`` (the connections are their server's to close).
 
     ``evict``, where given, is asked to close an idle connection whenever
-    every slot is taken and returns whether it did (:meth:`Served.evict_idlest`);
-    without it, further clients wait until a connection ends.
+    every slot is taken (:meth:`Served.evict_idlest`): it returns 0 if it
+    did, else the seconds until one may be closed (``inf``: none is idle).
+    Without it, further clients wait until a connection ends.
     """
 
     def __init__(
@@ -125,7 +131,7 @@ class Listener:
         admit: Admit,
         *,
         name: str,
-        evict: Callable[[], bool] | None = None,
+        evict: Callable[[], float] | None = None,
     ) -> None:
         self.sock = sock
         self.cap = cap
@@ -182,13 +188,18 @@ class Listener:
                     )
                     await self._room.wait()
                     continue
-                self._full.failed(
-                    "too many connections: the longest idle are closed for new clients",
-                    connections=self.open,
-                )
-                # Evicted, its slot comes back at its connection_lost (the next loop
-                # iteration); none idle long enough, look again a moment later.
-                await self._room_within(EVICT_WAIT_S if self.evict() else EVICT_IDLE_S)
+                if not self._full.active:  # not even a DEBUG line per client: thousands a second
+                    self._full.failed(
+                        "too many connections: the longest idle are closed for new clients",
+                        connections=self.open,
+                    )
+                wait_s = self.evict()
+                if wait_s == 0:
+                    # Idle, it had nothing to send: its connection_lost, and the slot, come
+                    # in the next loop iteration.
+                    await self._room.wait()
+                else:  # look again once the idlest may go
+                    await self._room_within(min(wait_s, EVICT_WAIT_S))
                 continue
             try:
                 try:
@@ -265,8 +276,15 @@ class Counted(asyncio.Protocol):
             self._live[transport] = self
         self.inner.connection_made(transport)
 
-    def data_received(self, data: bytes) -> None:
+    def touch(self) -> None:
+        """It is active now: the last of the live connections in the order of idleness."""
         self.active_s = asyncio.get_running_loop().time()
+        if self._live is not None and self._transport is not None:
+            self._live.pop(self._transport, None)
+            self._live[self._transport] = self
+
+    def data_received(self, data: bytes) -> None:
+        self.touch()
         self.inner.data_received(data)
 
     def eof_received(self) -> bool | None:
@@ -323,7 +341,7 @@ class Served:
         self.factory = factory
         self.stall_timeout_s = stall_timeout_s
         self.evict_idle_s = evict_idle_s
-        #: The connections being served, by transport.
+        #: The connections being served, by transport, idlest first (:meth:`Counted.touch`).
         self.live: dict[asyncio.BaseTransport, Counted] = {}
         #: Connections closed to make room so far.
         self.evicted = 0
@@ -352,16 +370,22 @@ class Served:
             yield
         finally:
             conn.requests -= 1
-            conn.active_s = asyncio.get_running_loop().time()
+            conn.touch()
 
-    def evict_idlest(self) -> bool:
-        """Close the connection idle longest, if one has been for ``evict_idle_s``; whether one was."""
-        idle = [conn for conn in self.live.values() if conn.idle]
-        if not idle:
-            return False
-        idlest = min(idle, key=lambda conn: conn.active_s)
-        if asyncio.get_running_loop().time() - idlest.active_s < self.evict_idle_s:
-            return False
-        idlest.evict()
-        self.evicted += 1
-        return True
+    def evict_idlest(self) -> float:
+        """Close the connection idle longest if it has been for ``evict_idle_s`` and return 0.
+
+        Else the seconds until it will have been (``inf``: every connection is
+        answering a request or closing).
+        """
+        now = asyncio.get_running_loop().time()
+        for conn in self.live.values():  # idlest first; the busy and closing are skipped
+            if not conn.idle:
+                continue
+            wait_s = conn.active_s + self.evict_idle_s - now
+            if wait_s > 0:
+                return wait_s
+            conn.evict()
+            self.evicted += 1
+            return 0.0
+        return math.inf

@@ -18,7 +18,7 @@ import urllib.request
 from pathlib import Path
 
 from compd.cli import main
-from compd.service.peers import EVICT_IDLE_S, Listener, Served
+from compd.service.peers import EVICT_WAIT_S, Listener, Served
 from tests.ports import free_port
 
 from .daemon_setup import short_socket, write_config
@@ -231,8 +231,8 @@ def test_a_connection_with_a_request_under_way_is_never_closed_for_another() -> 
         with served.busy(transports[0]):
             _, second_writer = await asyncio.open_connection("127.0.0.1", port)
             # Long past the eviction age: the busy one is still open, the newcomer queued.
-            for _ in range(20):
-                await asyncio.sleep(EVICT_IDLE_S)
+            for _ in range(10):
+                await asyncio.sleep(EVICT_WAIT_S)
             assert (len(transports), served.evicted) == (1, 0)
             assert not transports[0].is_closing()
         async with asyncio.timeout(HANG_S):
