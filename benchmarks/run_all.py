@@ -26,6 +26,7 @@ SCRIPTS = (
     "bench_tick.py",
     "bench_recorder_parquet.py",
     "bench_metrics.py",
+    "bench_http_flood.py",
     "bench_diagnose.py",
     "bench_residual.py",
     "bench_report.py",
