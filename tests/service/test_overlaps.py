@@ -4,8 +4,13 @@ from __future__ import annotations
 
 import asyncio
 import copy
+import ipaddress
+import os
 import re
+import socket
+import stat
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -174,6 +179,77 @@ def test_a_serial_line_is_one_driver_entrys_alone(tmp_path, second):
     other.touch()
     second["settings"][port_key] = str(other)
     assert "probe" in write_config(tmp_path, doc=doc).doc.drivers
+
+
+@pytest.fixture
+def pty_twin(tmp_path: Path) -> Iterator[tuple[str, Path]]:
+    """A pseudo-terminal's slave device and a second device node for it (``mknod``, same major/minor)."""
+    controller, line = os.openpty()
+    try:
+        path = os.ttyname(line)
+        twin = tmp_path / "ttyTWIN"
+        try:
+            os.mknod(twin, stat.S_IFCHR | 0o600, os.stat(path).st_rdev)
+        except (PermissionError, OSError) as exc:
+            pytest.skip(f"cannot make a device node here (mknod: {exc.strerror}): needs CAP_MKNOD")
+        yield path, twin
+    finally:
+        os.close(line)
+        os.close(controller)
+
+
+@pytest.mark.parametrize(
+    "second",
+    [
+        {"type": "modbus", "settings": {"transport": "rtu", "device_id": 2}},
+        {"type": "serial_sensor", "settings": {"channels": ["1"]}},
+    ],
+    ids=["modbus-rtu", "serial-sensor"],
+)
+def test_a_second_device_node_of_one_serial_line_is_the_same_line(tmp_path, pty_twin, second):
+    """A node made with mknod for the PLC's line (same major/minor, another path) is that line: refused."""
+    path, twin = pty_twin
+    doc = rtu_doc(tmp_path, 2)
+    doc["drivers"]["plc"]["settings"]["serial_port"] = path
+    port_key = "serial_port" if second["type"] == "modbus" else "port"
+    second["settings"][port_key] = str(twin)
+    doc["drivers"]["probe"] = second
+    major, minor = os.major(os.stat(path).st_rdev), os.minor(os.stat(path).st_rdev)
+    message = refusal(tmp_path, doc)
+    assert re.search(
+        rf"driver 'probe' opens serial {re.escape(str(twin))} \(device {major}:{minor}\), "
+        r"as driver 'plc' at line \d+ \(drivers\.plc\) does",
+        message,
+    ), message
+    other_controller, other_line = os.openpty()  # another pseudo-terminal: another line
+    try:
+        second["settings"][port_key] = os.ttyname(other_line)
+        assert "probe" in write_config(tmp_path, doc=doc).doc.drivers
+    finally:
+        os.close(other_line)
+        os.close(other_controller)
+
+
+def own_address() -> str:
+    """This machine's address on the interface of its default route (a UDP connect sends nothing)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.connect(("192.0.2.1", 9))  # TEST-NET-1: only routed, never reached
+        except OSError as exc:
+            pytest.skip(f"no IPv4 route off this machine: {exc}")
+        address = str(probe.getsockname()[0])
+    if ipaddress.ip_address(address).is_loopback:
+        pytest.skip("this machine has no IPv4 address but loopback")
+    return address
+
+
+def test_this_machines_own_address_and_name_are_the_loopback_plc(tmp_path):
+    """127.0.0.1 and the host's own interface address (or its name) on one port are one PLC: refused."""
+    address = own_address()
+    assert host_key(address) == host_key("127.0.0.1") == LOOPBACK
+    assert host_key(socket.gethostname()) == LOOPBACK
+    for host in (address, socket.gethostname()):
+        assert "both drivers reach modbus loopback:15020" in refusal(tmp_path, issue_doc(host=host))
 
 
 def gateway_entry(output_register: int = 0, **settings: Any) -> dict[str, Any]:
