@@ -206,7 +206,9 @@ def pty_twin(tmp_path: Path) -> Iterator[tuple[str, Path]]:
     ],
     ids=["modbus-rtu", "serial-sensor"],
 )
-def test_a_second_device_node_of_one_serial_line_is_the_same_line(tmp_path, pty_twin, second):
+def test_a_second_device_node_of_one_serial_line_is_the_same_line(
+    tmp_path: Path, pty_twin: tuple[str, Path], second: dict[str, Any]
+) -> None:
     """A node made with mknod for the PLC's line (same major/minor, another path) is that line: refused."""
     path, twin = pty_twin
     doc = rtu_doc(tmp_path, 2)
@@ -243,7 +245,7 @@ def own_address() -> str:
     return address
 
 
-def test_this_machines_own_address_and_name_are_the_loopback_plc(tmp_path):
+def test_this_machines_own_address_and_name_are_the_loopback_plc(tmp_path: Path) -> None:
     """127.0.0.1 and the host's own interface address (or its name) on one port are one PLC: refused."""
     address = own_address()
     assert host_key(address) == host_key("127.0.0.1") == LOOPBACK
