@@ -39,6 +39,30 @@ from compd.service.writepoints import written_points
 
 if TYPE_CHECKING:
     from compd.cli.livescreen import LiveScreen
+    from compd.files.modelfile import ModelFile
+    from compd.service.configdoc import ConfigDoc
+
+
+def plausibility_line(model_file: ModelFile, doc: ConfigDoc) -> str:
+    """What the daemon will check each model input against: the others, or each on its own."""
+    consistency = model_file.consistency()
+    if not doc.plausibility.enabled:
+        return "plausibility: off in this config (plausibility.enabled: false): inputs checked one by one"
+    if consistency is None:
+        return (
+            "plausibility: the model file has no consistency model (fitted before compd wrote one): "
+            "inputs are checked one by one, a wrong reading within its limits is not caught; refit "
+            "with compd fit to add one"
+        )
+    read = set(doc.signals)
+    checked = [c for c in consistency.checked if c in read]
+    unread = [s for s in consistency.signals if s not in read]
+    line = f"plausibility: {', '.join(checked)} checked against the other signals"
+    if unread:
+        line += (
+            f" (the calibration also logged {', '.join(unread)}, which this config does not read)"
+        )
+    return line
 
 
 def check_config_command(args: argparse.Namespace) -> int:
@@ -64,8 +88,15 @@ def check_config_command(args: argparse.Namespace) -> int:
             f"{doc.period_s:g} s; outputs {', '.join(compiled.output_names)}"
             + (" (installed with 'compd model load')" if installed else "")
         )
+        out.print(f"  {plausibility_line(model_file, doc)}")
     out.print(f"  drivers: {', '.join(f'{n} ({d.type})' for n, d in doc.drivers.items())}")
     out.print(f"  signals: {', '.join(doc.signals)}")
+    unstuck = [n for n, s in doc.signals.items() if s.checks.stuck_off(s.unit)]
+    if unstuck:
+        out.print(
+            f"  note: no stuck detection on {', '.join(unstuck)} (a temperature gets "
+            "stuck_s: 60 unless its checks say stuck_s: null; other units only where set)"
+        )
     for place, note in address_notes(config):
         out.print(f"  note: {place}: {note}")
     for axis, o in doc.outputs.items():

@@ -170,6 +170,21 @@ def _check(args: argparse.Namespace) -> int:
             f"compd?), kept as they are: {', '.join(unread)}",
             markup=False,
         )
+    consistency = model_file.consistency()
+    if consistency is None:
+        out.print(
+            "note: no consistency model (fitted before compd wrote one): the daemon checks each "
+            "input on its own, and a wrong reading within its limits is not caught; refit with "
+            "compd fit to add one",
+            markup=False,
+        )
+    else:
+        out.print(
+            f"plausibility: {', '.join(consistency.checked)} each predicted from the other "
+            f"logged signals ({', '.join(consistency.signals)}); held-out residue sigma "
+            + ", ".join(f"{s:.3g}" for s in consistency.sigma),
+            markup=False,
+        )
     out.print(Text.assemble(("ok", "green"), ": compiles, causal and stable"))
     return 0
 

@@ -30,6 +30,10 @@ from compd.service.slots import ModelSlot, ModelSlots
 
 log = structlog.get_logger("compd.service.compensator")
 
+#: The smallest rate limit (per tick, in the signal's unit) a calibration sets for an input
+#: whose config names none: 3x the fastest move it saw, but never below this.
+MIN_DEFAULT_JUMP = 1.0
+
 
 @dataclass
 class TickRecord:
@@ -161,10 +165,8 @@ class Compensator:
         #: Signals whose fault was told and not yet its end: ``cleared`` only ever follows a ``fault``
         #: (every signal starts faulted, "no value yet", and its first good value is no recovery).
         self._told_faulted: set[str] = set()
-        #: One ERROR line at the start and one at the end of each signal's fault episode.
-        self._signal_faults = {
-            p.name: FaultLog(log, signal=p.name, end_level="error") for p in self.signals
-        }
+        #: One ERROR line at the start of each signal's fault episode, one INFO line at its end.
+        self._signal_faults = {p.name: FaultLog(log, signal=p.name) for p in self.signals}
         self.period_s = period_s
         self.units = dict(units or {})
         self.plausibility_settings = plausibility
@@ -240,8 +242,8 @@ class Compensator:
         for name, monitor in self.monitors.items():  # a new model: its own defaults
             monitor.checks = replace(monitor.checks, max_jump=self._configured_jumps[name])
         if model is None:
-            log.info(
-                "model has no consistency model: inputs are checked one by one",
+            log.debug(
+                "no consistency check in this file: inputs are checked one by one",
                 model=slot.compiled.name,
             )
             return None
@@ -250,7 +252,7 @@ class Compensator:
         for name, rate in zip(model.checked, model.max_rate_per_s, strict=True):
             checked = self.monitors.get(name)
             if checked is not None and checked.checks.max_jump is None:
-                jump = max(3.0 * rate * self.period_s, settings.min_tolerance)
+                jump = max(3.0 * rate * self.period_s, MIN_DEFAULT_JUMP)
                 checked.checks = replace(checked.checks, max_jump=jump)
         check = ConsistencyCheck(model, self.period_s, frozenset(self.monitors))
         plausibility = Plausibility(check, self.monitors, self.units, self.period_s, settings)
@@ -280,7 +282,8 @@ class Compensator:
                 self.counters.signal_faults += 1
                 self._told_faulted.add(point.name)
                 self._tell("fault", "signal faulted", signal=point.name, reason=reading.reason)
-                if reading.reason != "no value yet":
+                link = self.links.get(point.driver)
+                if reading.reason != "no value yet" and (link is None or link.up):
                     read = values.get(point.name)
                     self._signal_faults[point.name].failed(
                         "signal faulted: the axes that depend on it freeze",

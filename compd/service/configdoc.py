@@ -221,7 +221,7 @@ class PlausibilityDoc(Strict):
     #: A reading this many residue sigmas from its prediction is wrong...
     k_sigma: Annotated[float, Field(ge=1, allow_inf_nan=False)] = 8.0
     #: ...and never closer than this, in the signal's unit.
-    min_tolerance: Positive = 1.0
+    min_tolerance: Positive = 3.0
     #: Ticks a returning sensor must agree with the others before it is used again.
     confirm_ticks: int = Field(default=30, ge=1, le=86_400)
 

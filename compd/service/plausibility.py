@@ -9,10 +9,13 @@ better. With a consistency model in the model file
 1. each checked input whose own checks passed (:mod:`compd.service.signals`) is
    compared with its prediction from the other signals: its residue (reading
    minus prediction) may move from its level of the last minutes by at most
-   the tolerance ``max(k_sigma * sigma, min_tolerance)`` (its unit), and may
-   not exceed three tolerances at all; the one furthest out is judged wrong and
-   left out of the others' predictions, and so on until all that remain agree:
-   one wrong sensor does not drag its neighbours along;
+   the tolerance ``max(k_sigma * sigma, min_tolerance)`` (its unit); the one
+   furthest out is judged wrong and left out of the others' predictions, and
+   so on until all that remain agree: one wrong sensor does not drag its
+   neighbours along. The tolerance is wide on purpose: a stand-in costs
+   compensation accuracy (the model's gains on collinear temperatures are
+   large), so only a reading far off is replaced on the others' word alone;
+   steps, freezes and wire breaks are caught by the signal's own checks;
 2. an input judged wrong, or failing its own checks, is **replaced by its
    prediction** (health ``ESTIMATED``: a status bit and level degraded; the
    axis keeps compensating), shifted by the residue it had before the
@@ -48,9 +51,6 @@ log = structlog.get_logger("compd.service.plausibility")
 #: prediction shifted by it. The prediction's own error drifts slowly (a programme the
 #: calibration did not run), a failing sensor jumps or freezes.
 ANCHOR_TAU_S = 300.0
-#: The residue itself may not exceed this many tolerances, whatever its recent level (a
-#: sensor already wrong when the daemon starts).
-GROSS_TOLERANCES = 3.0
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,7 @@ class PlausibilitySettings:
 
     k_sigma: float = 8.0
     #: The smallest tolerance, in the signal's unit: a prediction is never trusted closer than this.
-    min_tolerance: float = 1.0
+    min_tolerance: float = 3.0
     confirm_ticks: int = 30
 
 
@@ -170,11 +170,9 @@ class Plausibility:
         return out
 
     def _score(self, name: str, value: float, p: Prediction) -> float:
-        """How far ``value`` is out of its tolerance (above 1: wrong)."""
+        """How far ``value``'s residue jumped from its recent level, in tolerances (above 1: wrong)."""
         residue = value - p.value
-        tolerance = self.tolerance(p)
-        jump = abs(residue - self.residue.get(name, residue)) / tolerance
-        return max(jump, abs(residue) / (GROSS_TOLERANCES * tolerance))
+        return abs(residue - self.residue.get(name, residue)) / self.tolerance(p)
 
     def _learn(self, name: str, value: float, p: Prediction | None) -> None:
         if p is None or not math.isfinite(value):

@@ -46,6 +46,10 @@ def test_faults_during_a_shift_degrade_safely_and_recover(
     )
     doc["signals"]["T_spindle_degC"]["checks"].update(stuck_s=300, stuck_tolerance=0.0)
     doc["safety"] = {"on_fault": "ramp", "fault_ramp_after_s": 60}
+    # The fallback where no other sensor can stand in (a model file without a consistency
+    # model, or too few healthy sensors): freeze, then ramp. The stand-in is
+    # test_sensor_faults.py's.
+    doc["plausibility"] = {"enabled": False}
     config = write_config(short_dir, doc)
     records: list[TickRecord] = []
 

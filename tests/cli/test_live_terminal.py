@@ -80,7 +80,8 @@ def test_run_on_a_real_machine_config_shows_the_same_live_view(short_dir: Path) 
     """Without a simulation (the replay driver): one header, progress to --duration-s, the warning in the panel."""
     config = write_config(short_dir, {"control_socket": str(short_dir / "c.sock")})
     config.state_dir.mkdir(parents=True, exist_ok=True)
-    (config.state_dir / "state.json").write_text("{ not json")  # an ERROR at start (the file set aside)
+    # An ERROR at start (the file set aside).
+    (config.state_dir / "state.json").write_text("{ not json")
     argv = ["run", "--config", str(config.path), "--time-scale", "50", "--duration-s", "120"]
     screen, head, panel = one_view(argv, "compd model example-gated-arx-y")
     text = "\n".join(screen.lines)

@@ -49,14 +49,14 @@ def model() -> ConsistencyModel:
     return fitted
 
 
-def run(model: ConsistencyModel, record: dict[str, np.ndarray], unusable: set[str] = set()):
+def run(model: ConsistencyModel, record: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Each checked input's prediction minus its reading, tick by tick, at the model's sample time."""
     check = ConsistencyCheck(model, SAMPLE_S, frozenset(record))
     residues: dict[str, list[float]] = {name: [] for name in CHECKED}
     for k in range(len(record["T_air_degC"])):
         values = {name: float(x[k]) for name, x in record.items()}
         z = check.features(values)
-        ok = check.usable(z, unusable)
+        ok = check.usable(z, set())
         for name in CHECKED:
             p = check.predict(z, name, ok)
             residues[name].append(np.nan if p is None else values[name] - p.value)
@@ -68,8 +68,9 @@ def test_no_reading_of_a_record_it_was_not_fitted_on_falls_outside_the_daemons_t
     model: ConsistencyModel,
 ) -> None:
     """The daemon (:mod:`compd.service.plausibility`) judges a reading by how far its residue moved
-    from its recent level (averaged over minutes), and by the residue itself against three times
-    that tolerance (max(8 sigma, 1 degC)): neither trips on a healthy machine's new record."""
+    from its recent level (averaged over minutes): within max(8 sigma, 1 degC), a third of the
+    daemon's smallest tolerance, on a healthy machine's new record; the residue itself stays
+    within three times that."""
     residues = run(model, machine(8, seed=7))
     for name in CHECKED:
         late = residues[name][360:]
@@ -122,7 +123,8 @@ def test_the_model_file_carries_it_exactly(model: ConsistencyModel) -> None:
             "outputs:",
             "  y:",
             "    submodels:",
-            "      - {name: s, effect: e, input: {signal: T_spindle_degC}, tf: {form: discrete, power_order: ascending, num: [1.0], den: [1.0]}}",
+            "      - {name: s, effect: e, input: {signal: T_spindle_degC},",
+            "         tf: {form: discrete, power_order: ascending, num: [1.0], den: [1.0]}}",
             *consistency_lines(consistency_doc(model)),
         ]
     )
@@ -148,7 +150,8 @@ def test_a_file_whose_covariance_does_not_fit_its_signals_is_refused(
             "outputs:",
             "  y:",
             "    submodels:",
-            "      - {name: s, effect: e, input: {signal: T_spindle_degC}, tf: {form: discrete, power_order: ascending, num: [1.0], den: [1.0]}}",
+            "      - {name: s, effect: e, input: {signal: T_spindle_degC},",
+            "         tf: {form: discrete, power_order: ascending, num: [1.0], den: [1.0]}}",
             *lines,
         ]
     )

@@ -193,6 +193,8 @@ def schedule_config(
     doc = simulated_doc()
     doc["signals"]["spindle_head"] = head_signal()
     del doc["signals"]["spindle_speed_rpm"]
+    # The replayed shop floor is an exact 20.0 (no sensor noise): the config says so.
+    doc["signals"]["T_shopfloor_degC"]["checks"]["stuck_s"] = None
     ours: dict[str, object] = {
         "model": str(model),
         "gain_schedule": {"signal": "spindle_head", "table": ROWS, "ramp_s": RAMP_S} | schedule,

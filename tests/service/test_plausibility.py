@@ -1,0 +1,114 @@
+"""The inputs checked against each other: a wrong sensor is found, stood in for, and trusted again only slowly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from structlog.testing import capture_logs
+
+from compd.model.consistency import ConsistencyCheck, ConsistencyModel, fit_consistency
+from compd.service.plausibility import Plausibility, PlausibilitySettings
+from compd.service.signals import Checks, Health, Reading, SignalMonitor
+from tests.model.test_consistency import CHECKED, SAMPLE_S, machine
+
+UNITS = {name: "degC" for name in CHECKED} | {"spindle_speed_rpm": "rpm", "spindle_power_kw": "kW"}
+
+
+@pytest.fixture(scope="module")
+def model() -> ConsistencyModel:
+    fitted = fit_consistency(machine(24, seed=1), CHECKED, SAMPLE_S)
+    assert fitted is not None
+    return fitted
+
+
+class Bench:
+    """The monitors and the plausibility stage, fed a record tick by tick (at its 10 s sample time)."""
+
+    def __init__(
+        self, model: ConsistencyModel, record: dict[str, np.ndarray], **settings: float
+    ) -> None:
+        self.record = record
+        self.monitors = {
+            name: SignalMonitor(
+                name, Checks(min=-50, max=20_000, stale_s=60) if name in CHECKED else Checks()
+            )
+            for name in record
+        }
+        check = ConsistencyCheck(model, SAMPLE_S, frozenset(record))
+        self.stage = Plausibility(
+            check,
+            self.monitors,
+            UNITS,
+            SAMPLE_S,
+            PlausibilitySettings(**settings),  # type: ignore[arg-type]
+        )
+
+    def tick(self, k: int, wrong: dict[str, float] | None = None) -> dict[str, Reading]:
+        read = {name: float(x[k]) for name, x in self.record.items()} | (wrong or {})
+        readings = {name: m.update(k * SAMPLE_S, read[name]) for name, m in self.monitors.items()}
+        return self.stage.judge(k * SAMPLE_S, readings, read)
+
+
+def test_a_plausible_wrong_value_is_replaced_by_its_prediction_and_its_neighbours_stay_ok(
+    model: ConsistencyModel,
+) -> None:
+    """+10 degC on the spindle sensor, within its range (no rate limit here): the others still agree."""
+    record = machine(6, seed=5)
+    bench = Bench(model, record)
+    for k in range(720):
+        assert all(r.health is Health.OK for r in bench.tick(k).values())
+    for k in range(720, 1080):
+        truth = float(record["T_spindle_degC"][k])
+        out = bench.tick(k, {"T_spindle_degC": truth + 10.0})
+        assert out["T_spindle_degC"].health is Health.ESTIMATED
+        assert abs(out["T_spindle_degC"].value - truth) < 1.0
+        assert all(out[n].health is Health.OK for n in CHECKED if n != "T_spindle_degC")
+
+
+def test_a_sensor_that_returns_is_trusted_only_after_agreeing_for_confirm_ticks(
+    model: ConsistencyModel,
+) -> None:
+    record = machine(4, seed=5)
+    bench = Bench(model, record, confirm_ticks=12)
+    for k in range(400):
+        bench.tick(k)
+    for k in range(400, 410):
+        bench.tick(k, {"T_head_degC": float(record["T_head_degC"][k]) + 20.0})
+    healths = [bench.tick(k)["T_head_degC"].health for k in range(410, 430)]
+    assert healths[:11] == [Health.ESTIMATED] * 11
+    assert healths[11] is Health.OK
+
+
+def test_each_episode_is_one_error_line_at_its_start_and_one_at_its_end(
+    model: ConsistencyModel,
+) -> None:
+    record = machine(4, seed=5)
+    bench = Bench(model, record, confirm_ticks=5)
+    with capture_logs() as logs:
+        for k in range(400):
+            bench.tick(k)
+        for k in range(400, 460):
+            bench.tick(k, {"T_column_degC": float(record["T_column_degC"][k]) - 15.0})
+        for k in range(460, 500):
+            bench.tick(k)
+    errors = [e for e in logs if e["log_level"] == "error"]
+    assert [e["signal"] for e in errors] == ["T_column_degC", "T_column_degC"]
+    start, end = errors
+    assert start["read"] == pytest.approx(record["T_column_degC"][400] - 15.0, abs=1e-3)
+    assert abs(start["predicted"] - record["T_column_degC"][400]) < 1.0
+    assert end["lasted_s"] == pytest.approx(64 * SAMPLE_S)
+    assert bench.stage.count == 1
+
+
+def test_without_signals_to_predict_from_the_input_faults_as_before(
+    model: ConsistencyModel,
+) -> None:
+    """Only the speed is read besides the column, which follows the shop air: no stand-in."""
+    record = {
+        k: v for k, v in machine(2, seed=5).items() if k in ("T_column_degC", "spindle_speed_rpm")
+    }
+    bench = Bench(model, record)
+    for k in range(100):
+        bench.tick(k)
+    out = bench.tick(100, {"T_column_degC": float("nan")})
+    assert out["T_column_degC"].health is Health.HELD  # its own checks: held, then faulted
