@@ -25,8 +25,10 @@ from compd.sim.plc.machine import SimulatedMachine
 from tests.acceptance.conftest import axis, machine_doc, offset_steps_um, simulate, write_config
 
 MODEL = resolve_path("bundled:simulated_model.yaml", Path("."))
-AT_S = 3600.0
-HOURS = 3
+AT_S = 1800.0
+HOURS = 2
+#: The 4 h freeze's run: it ends at 4.5 h, and the sensor is trusted again before the end.
+LONG_HOURS = 5
 
 CASES = [
     ("T_spindle_degC", {"kind": "offset", "value": 15, "duration_s": 3600}),
@@ -61,7 +63,7 @@ def run(
 def fault_free_max_um(tmp_path_factory: pytest.TempPathFactory) -> dict[float, float]:
     """The compensated max error of the fault-free runs, by length (h)."""
     out = {}
-    for hours in (HOURS, 5):
+    for hours in (HOURS, LONG_HOURS):
         directory = Path(tmp_path_factory.mktemp("free"))
         result, _ = run(directory, [], hours)
         out[hours] = axis(result).max_compensated_um
@@ -71,10 +73,10 @@ def fault_free_max_um(tmp_path_factory: pytest.TempPathFactory) -> dict[float, f
 @pytest.mark.parametrize(
     ("signal", "fault"), CASES, ids=[f"{s}-{f['kind']}-{f.get('value', '')}" for s, f in CASES]
 )
-def test_a_failing_sensor_costs_at_most_twice_the_fault_free_error_more(
+def test_a_failing_sensor_keeps_the_error_within_three_times_the_fault_free_runs(
     signal: str, fault: dict[str, Any], short_dir: Path, fault_free_max_um: dict[float, float]
 ) -> None:
-    hours = 5 if fault["kind"] == "stuck" else HOURS
+    hours = LONG_HOURS if fault["kind"] == "stuck" else HOURS
     with capture_logs() as logs:
         result, records = run(short_dir, [{"signal": signal, "at_s": AT_S, **fault}], hours)
     z = axis(result)
