@@ -12,9 +12,14 @@ PLC's own program (500 um, -3000 um, the int32 extremes); for 5-30 s half
 the PLC's replies malformed (well-framed Modbus of the wrong shape); for
 10-60 s hundreds of slow clients holding half-sent requests on the status
 page's HTTP port, the control socket or both, while the status is asked for
-over both. The first nine faults are one of each kind. Every service is
-also handed a fleet roll-out command as a broker would: retained (at every
-start) and replayed.
+over both and ``/metrics`` scraped; a reload (SIGHUP's code path) with the
+config file unchanged, changed or broken; and a model input's sensor, each
+in turn, reading +15 or -25 degC off the truth (60-115 s), 60 degC for 40 s,
+stuck (60-115 s) or broken (327.67, -200 or NaN for 30-115 s). The state
+file's corruptions include ``"ticks": Infinity``, ``1e400``, ``-Infinity``,
+an integer of 5,000 digits and ``"saved_at_unix_s": NaN``. The first
+fourteen faults are one of each kind. Every service is also handed a fleet
+roll-out command as a broker would: retained (at every start) and replayed.
 
 A witness on the PLC's write path judges every value the offset register
 receives against what it held just before. Printed beside the targets:
@@ -28,7 +33,14 @@ receives against what it held just before. Printed beside the targets:
 - retained or replayed roll-out commands the daemon took;
 - driver exceptions outside the DriverError contract (malformed replies);
 - status requests left unanswered under slow clients (``busy`` is an answer);
-- ticks whose heartbeat the PLC missed under slow clients.
+- ticks whose heartbeat the PLC missed under slow clients;
+- ``/metrics`` scrapes that failed under slow clients;
+- reloads not taken (a service stopped by one is counted a crash).
+
+Then, per sensor fault, the compensated error's excess over the same shift
+run first without faults (:mod:`compd.sim.soaksensors`): the largest
+|error| during the fault and the 10 minutes after it, less the fault-free
+run's over the same window (um; a figure, not a target).
 
 Then, on the real clock 60 times faster, 20 minutes of the shift with
 compd as ``compd run`` child processes, ``--real-kills`` of them (default 4)
@@ -36,7 +48,7 @@ killed with SIGKILL at random times and started again, behind the same
 witness: crashes (a daemon that exits by itself, or not with 0 on the last
 SIGTERM) and steps above the slew limit.
 
-Targets (issues 14 and 22): 0, 0, 0, 0, 0, 0, 0, 0 and 0; 0 and 0. Exit 1 if one is missed.
+Targets (issues 14, 22 and 33): 0, 0, 0, 0, 0, 0, 0, 0, 0, 0 and 0; 0 and 0. Exit 1 if one is missed.
 Run: ``PYTHONPATH=. python benchmarks/soak_faults.py [--hours H] [--seed N] [--real-kills K]``.
 """
 
@@ -68,6 +80,7 @@ from compd.service.ticks import run_periodic
 from compd.sim.plc.run import start_machine
 from compd.sim.soak import Soak, soak_config
 from compd.sim.soakfaults import FAULT_KINDS, draw_faults
+from compd.sim.soaksensors import excess_lines
 from compd.sim.soakwitness import SoakResult
 
 
@@ -207,6 +220,8 @@ def main() -> int:
         ("driver exceptions outside the contract", result.driver_bugs),
         ("status requests unanswered (slow clients)", result.status_unanswered),
         ("heartbeats missed (slow clients)", result.heartbeats_missed),
+        ("/metrics scrapes failed (slow clients)", result.scrapes_unanswered),
+        ("reloads not taken", result.faults["sighup"] - result.reloads_done),
     )
     print_counts(rows)
     print()
@@ -224,8 +239,14 @@ def main() -> int:
         f"episodes under malformed replies {result.malformed_faults}; slow clients opened "
         f"{result.slow_clients}, status requests answered {result.status_answered}, "
         f"turned away busy {result.status_busy}, longest real gap between two ticks under "
-        f"them {result.largest_tick_gap_s * 1000:.0f} ms"
+        f"them {result.largest_tick_gap_s * 1000:.0f} ms, /metrics scrapes answered "
+        f"{result.scrapes_answered}; reloads taken {result.reloads_done}; state files set "
+        f"aside {result.states_set_aside}; the fault-free reference run "
+        f"{result.reference_wall_s:.0f} s wall"
     )
+    print()
+    for line in excess_lines(result.sensor_faults):
+        print(line)
     for error in result.errors[:20]:
         print("  ", error)
     passed = result.passed

@@ -9,7 +9,8 @@ Every few (virtual) minutes a fault drawn with a seeded generator strikes:
 - ``garbage``: another server holds the port for a while, answering bytes
   that are not Modbus (random bytes, a broken frame header), then the PLC returns;
 - ``state_corrupt``: the service is stopped, its state file corrupted
-  (garbage, truncated, NaN, an offset of 1e9 um, ...), and started again;
+  (garbage, truncated, NaN, an offset of 1e9 um, ``"ticks": 1e400``, an
+  integer of 5,000 digits, ...), and started again;
 - ``bad_model``: a model file that must be refused (a non-finite gain, a
   huge ``nk``, garbage bytes) is sent to ``load`` over the control socket;
 - ``kill``: the service is dropped as SIGKILL leaves a process -- no final
@@ -25,7 +26,13 @@ Every few (virtual) minutes a fault drawn with a seeded generator strikes:
   the link reconnects from, never an exception out of the loop;
 - ``slow_clients``: for a while, hundreds of clients hold half-sent requests
   on the status page's HTTP port, the control socket or both, while the
-  status is asked for over both (:mod:`compd.sim.soakclients`).
+  status is asked for over both and ``/metrics`` scraped (:mod:`compd.sim.soakclients`);
+- ``sighup``: the service is told to reload, as SIGHUP does, its config file
+  unchanged, changed or broken meanwhile (:mod:`compd.sim.soakreload`);
+- ``sensor_offset``, ``glitch``, ``stuck``, ``wire_break``: a model input's
+  sensor, each in turn, reads +15 or -25 degC off the truth, 60 degC for 40 s,
+  its last value, or 327.67, -200 or NaN, for a while
+  (:mod:`compd.sim.soaksensors`, through the simulated machine's own fault injection).
 
 The draw and the makings of each fault are :mod:`compd.sim.soakfaults`; the
 witness below is :mod:`compd.sim.soakwitness`. The services run as
@@ -38,7 +45,13 @@ service that cannot be built), writes outside the clamp, steps above the
 slew limit (``max_rate_um_per_s * period_s``) from a value within the clamp,
 and offsets the service reports as acknowledged
 (:attr:`~compd.service.compensator.TickRecord.acknowledged_um`, what the
-recorder writes) that the PLC never received. Targets: 0, 0, 0, 0.
+recorder writes) that the PLC never received. Targets: 0, 0, 0, 0. A
+service that ends before the shift does is a crash too (a reload must never
+stop it).
+
+With sensor faults, the same config and seed first runs without faults, and
+each sensor fault is measured against it: the compensated error's excess over
+the fault-free run in the fault's window (:mod:`compd.sim.soaksensors`).
 """
 
 from __future__ import annotations
@@ -48,21 +61,17 @@ import contextlib
 import functools
 import math
 import random
-import socket
 import time
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from pathlib import Path
 from typing import Any
-
-import yaml
 
 from compd.drivers.modbus import ModbusDriver
 from compd.drivers.modbus_settings import ModbusSettings
 from compd.errors import CompdError
-from compd.files.yamlplace import resolve_path
 from compd.service.clock import VirtualClock
 from compd.service.compensator import TickRecord
-from compd.service.config import Config, load_config
+from compd.service.config import Config
 from compd.service.control import request
 from compd.service.daemon import Service
 from compd.service.modelload import load_request
@@ -72,40 +81,27 @@ from compd.sim.plc.machine import MachineClock, SimulatedMachine
 from compd.sim.plc.modbus import ModbusPlcServer
 from compd.sim.plc.run import settle, start_machine
 from compd.sim.soakclients import SlowClients
+from compd.sim.soakconfig import soak_config
 from compd.sim.soakfaults import (
     OUT_OF_CLAMP_UM,
     RESTARTS,
+    SENSOR_KINDS,
+    DyingDriver,
     Fault,
     bad_models,
     corrupt_state,
     garbage_server,
     malformed_replies,
 )
+from compd.sim.soakreload import sighup
 from compd.sim.soakrollouts import deliver, rollout_command
+from compd.sim.soaksensors import SensorFaults
 from compd.sim.soakwitness import SoakResult, Witness
+
+__all__ = ["RESTART_S", "Soak", "SoakClock", "soak_config"]
 
 #: Virtual seconds between the end of one service and the start of the next.
 RESTART_S = 3.0
-
-
-def soak_config(directory: Path, *, hours: float, seed: int) -> Config:
-    """The bundled simulated machine (Modbus TCP) on a free port, its files under ``directory``.
-
-    ``directory`` should be short (under /tmp): it holds the control socket.
-    """
-    doc = yaml.safe_load(resolve_path("bundled:simulated.yaml", Path(".")).read_text())
-    doc["model"] = str(resolve_path("bundled:simulated_model.yaml", Path(".")))
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        doc["drivers"]["plc"]["settings"]["port"] = s.getsockname()[1]
-    doc["state"] = {"directory": str(directory / "state"), "save_every_ticks": 60}
-    doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
-    doc["control_socket"] = str(directory / "c.sock")
-    doc["http"] = {"port": 0}  # any free port: each service of the soak listens anew
-    doc["simulation"] = {"scenario": "production", "hours": hours, "seed": seed}
-    path = directory / "compd.yaml"
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return load_config(path)
 
 
 class SoakClock(MachineClock):
@@ -123,9 +119,15 @@ class SoakClock(MachineClock):
 
 
 class Soak:
-    """One soak run over ``config`` (a simulated Modbus machine); :meth:`run` returns the result."""
+    """One soak run over ``config`` (a simulated Modbus machine); :meth:`run` returns the result.
 
-    def __init__(self, config: Config, faults: Sequence[Fault], *, seed: int = 0) -> None:
+    ``reference``: with sensor faults, run the shift without faults first and
+    measure each sensor fault's excess over it (else the excess is NaN).
+    """
+
+    def __init__(
+        self, config: Config, faults: Sequence[Fault], *, seed: int = 0, reference: bool = True
+    ) -> None:
         self.config = config
         self.faults = list(faults)
         self.rng = random.Random(seed)
@@ -153,6 +155,8 @@ class Soak:
         self._rollout = rollout_command(config.model_path.read_bytes())
         self._variant = ""
         self._slow: SlowClients | None = None
+        self.sensors = SensorFaults(config, self.machine, self.axis, self.result.sensor_faults)
+        self._reference = reference and any(f.kind in SENSOR_KINDS for f in self.faults)
 
     def _replace_server(self) -> None:
         """The PLC's Modbus server again, its write sink passing through the witness."""
@@ -172,6 +176,10 @@ class Soak:
         self.machine.servers[name] = self.server
 
     async def run(self) -> SoakResult:
+        if self._reference:
+            started = time.perf_counter()
+            await self.sensors.run_reference()
+            self.result.reference_wall_s = time.perf_counter() - started
         started = time.perf_counter()
         (self.config.state_dir / STATE_FILE).unlink(missing_ok=True)
         await start_machine(self.config, self.machine)
@@ -183,6 +191,10 @@ class Soak:
             await self.machine.stop()
         self.result.simulated_s = self.machine.now_s
         self.result.wall_s = time.perf_counter() - started
+        self.result.states_set_aside = len(
+            list(self.config.state_dir.glob(f"{STATE_FILE}.corrupt-*"))
+        )
+        self.sensors.measure()
         return self.result
 
     async def _services(self, end_s: float) -> None:
@@ -222,6 +234,8 @@ class Soak:
             self.result.driver_bugs += sum(link.unexpected for link in service.links.values())
             self.service = None
             if how is None and task.exception() is None:
+                if self.clock.now() < end_s - self.config.doc.period_s:
+                    self._crash("the service stopped before the end of the shift")
                 return  # the shift is over
             if how == "state_corrupt":
                 self._corrupt_state()
@@ -286,25 +300,13 @@ class Soak:
         assert self._restart is not None
         restart: asyncio.Future[str] = self._restart
 
-        class Dying:
-            async def open(self) -> None:
-                await driver.open()
+        def die() -> bool:
+            if restart.done():  # stopped by another fault first: no kill
+                return False
+            restart.set_result("kill")
+            return True
 
-            async def read(self, points: Sequence[str]) -> dict[str, float]:
-                values: dict[str, float] = await driver.read(points)
-                return values
-
-            async def write(self, values: Mapping[str, float]) -> None:
-                await driver.write(values)
-                if restart.done():  # stopped by another fault first: no kill
-                    return
-                restart.set_result("kill")
-                await asyncio.Event().wait()  # frozen until killed
-
-            async def close(self) -> None:
-                await driver.close()
-
-        driver, link.driver = link.driver, Dying()
+        link.driver = DyingDriver(link.driver, die)
 
     async def _begin(self, fault: Fault, t_s: float) -> None:
         if fault.kind == "plc_reset":
@@ -334,6 +336,11 @@ class Soak:
             await self._malformed(fault, t_s)
         elif fault.kind == "slow_clients":
             await self._slow_clients(fault, t_s)
+        elif fault.kind == "sighup":
+            assert self.service is not None
+            await sighup(self.service, fault.variant, self.result)
+        elif fault.kind in SENSOR_KINDS:
+            self.sensors.strike(fault)
 
     async def _malformed(self, fault: Fault, t_s: float) -> None:
         """Half the PLC's replies malformed for a while; the driver faults the service saw meanwhile."""

@@ -7,10 +7,11 @@ half a request and sits, as a slowloris does. The servers hold at most their
 cap of them (:mod:`compd.service.peers`): the rest wait in the kernel's queue
 or, on the control socket, are told ``busy`` and closed. Meanwhile the soak
 asks for the status as an operator would, over HTTP and over the control
-socket, and counts the episode's ticks and the heartbeats the PLC receives.
+socket, scrapes ``/metrics`` as Prometheus would, and counts the episode's
+ticks and the heartbeats the PLC receives.
 
-Judged: a status request that gets no answer (a ``busy`` refusal is an
-answer: the soak's clients are the daemon's own user, who may take every
+Judged: a status request or a scrape that gets no answer (a ``busy`` refusal
+is an answer: the soak's clients are the daemon's own user, who may take every
 slot), and ticks whose heartbeat the PLC never received during an episode
 (the loop must keep ticking and writing). Measured: the longest real time
 between two ticks during an episode. Over HTTP the status waits in the
@@ -118,12 +119,15 @@ class SlowClients:
     async def probe(
         self, http_port: int | None, control: Path, serving: Callable[[], bool]
     ) -> None:
-        """Ask for the status over HTTP and the control socket during the episode, and after it."""
+        """Ask for the status over HTTP and the control socket, and scrape, during the episode; the status after it."""
         asks = [self._control(control)]
         if http_port is not None:
-            asks.append(_http_status(http_port))
-        for outcome in await asyncio.gather(*asks):
+            asks += [_http_get(http_port, "/status.json"), _http_get(http_port, "/metrics")]
+        control_outcome, *http = await asyncio.gather(*asks)
+        for outcome in (control_outcome, *http[:1]):
             self._count(outcome, serving())
+        for outcome in http[1:]:
+            self._scraped(outcome, serving())
         await self._over.wait()
         for _ in range(AFTER_TRIES):  # the slots free as the server sees the clients gone
             outcome = await self._control(control)
@@ -150,15 +154,22 @@ class SlowClients:
             self.result.status_unanswered += 1
             self.result.errors.append(f"slow clients ({self.variant}): a status went unanswered")
 
+    def _scraped(self, outcome: str, serving: bool) -> None:
+        if outcome == "answered":
+            self.result.scrapes_answered += 1
+        elif serving:
+            self.result.scrapes_unanswered += 1
+            self.result.errors.append(f"slow clients ({self.variant}): a /metrics scrape failed")
 
-async def _http_status(port: int) -> str:
-    """``GET /status.json`` as a browser or a scraper sends it: ``answered`` on a 200."""
+
+async def _http_get(port: int, path: str) -> str:
+    """``GET path`` as a browser or a scraper sends it: ``answered`` on a 200."""
     try:
         async with asyncio.timeout(PROBE_TIMEOUT_S):
             reader, writer = await asyncio.open_connection("127.0.0.1", port)
             try:
                 writer.write(
-                    b"GET /status.json HTTP/1.1\r\nHost: compd\r\nConnection: close\r\n\r\n"
+                    f"GET {path} HTTP/1.1\r\nHost: compd\r\nConnection: close\r\n\r\n".encode()
                 )
                 await writer.drain()
                 head = await reader.readline()

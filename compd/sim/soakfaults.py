@@ -14,8 +14,17 @@ the offset register: 500 um, -3000 um, or the int32 register's extremes),
 of the wrong shape: too short or too long, a byte count that lies, another
 function code, an exception code no device uses, a PDU cut short) and
 ``slow_clients`` (for a while, hundreds of clients hold connections to the
-HTTP server, the control socket or both, each having sent half a request:
-:mod:`compd.sim.soakclients`).
+HTTP server, the control socket or both, each having sent half a request,
+while the status is asked for and ``/metrics`` scraped:
+:mod:`compd.sim.soakclients`); ``sighup`` (the service told to reload, as
+SIGHUP does, with its config file as it was, changed in what only a restart
+applies, or broken: :mod:`compd.sim.soakreload`); and the sensor faults of
+:data:`SENSOR_KINDS`, each on a model input in turn
+(:mod:`compd.sim.soaksensors`): ``sensor_offset`` (a plausible wrong value,
++15 or -25 degC off the truth), ``glitch`` (60 degC for 40 s), ``stuck`` and
+``wire_break`` (the reading at its type's top, 327.67, at -200, or NaN).
+The state file's numbers go wrong too: ``"ticks": Infinity``, ``1e400``,
+``-Infinity`` or an integer of 5,000 digits, ``"saved_at_unix_s": NaN``.
 """
 
 from __future__ import annotations
@@ -27,8 +36,10 @@ import math
 import random
 import re
 import struct
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+
+from compd.drivers.base import Driver
 
 FAULT_KINDS = (
     "plc_reset",
@@ -40,15 +51,26 @@ FAULT_KINDS = (
     "out_of_clamp",
     "malformed",
     "slow_clients",
+    "sighup",
+    "sensor_offset",
+    "glitch",
+    "stuck",
+    "wire_break",
 )
 #: Faults that stop the service (the others strike while it runs).
 RESTARTS = ("state_corrupt", "kill")
+#: Faults of a model input's sensor, struck through the simulated machine's own fault injection.
+SENSOR_KINDS = ("sensor_offset", "glitch", "stuck", "wire_break")
 #: The faults that last a while: how long (virtual s, uniform), shorter than the shortest gap.
 DURATIONS_S = {
     "link_drop": (5.0, 60.0),
     "garbage": (5.0, 30.0),
     "malformed": (5.0, 30.0),
     "slow_clients": (10.0, 60.0),
+    "sensor_offset": (60.0, 115.0),
+    "glitch": (40.0, 40.0),
+    "stuck": (60.0, 115.0),
+    "wire_break": (30.0, 115.0),
 }
 #: The share of the PLC's replies a ``malformed`` fault rewrites.
 MALFORMED_SHARE = 0.5
@@ -124,20 +146,42 @@ def corrupt_state(saved: bytes, variant: str) -> bytes:
     if variant == "offset_nan":  # NaN is not JSON, but a hand-edited file may hold it
         doc["offsets_um"] = {"Z": math.nan}
         return json.dumps(doc).encode()
+    if variant in BAD_NUMBERS:  # written as text: json.dumps cannot write 1e400 or 5,000 digits
+        key, text = BAD_NUMBERS[variant]
+        doc[key] = _PLACE
+        return json.dumps(doc).replace(json.dumps(_PLACE), text).encode()
     doc["model_sha256"] = "0" * 64  # "other_model"
     return json.dumps(doc).encode()
 
+
+#: The ``state_corrupt`` variants that put a number no saved state holds into a key: the text written.
+BAD_NUMBERS = {
+    "ticks_infinity": ("ticks", "Infinity"),
+    "ticks_1e400": ("ticks", "1e400"),
+    "ticks_-infinity": ("ticks", "-Infinity"),
+    "ticks_5000_digits": ("ticks", "9" * 5000),
+    "saved_at_nan": ("saved_at_unix_s", "NaN"),
+}
+_PLACE = "<the bad number>"
 
 VARIANTS: dict[str, tuple[str, ...]] = {
     "plc_reset": ("",),
     "link_drop": ("",),
     "garbage": ("random", "bad_header", "close"),
-    "state_corrupt": ("garbage", "truncated", "empty", "offset_1e9", "offset_nan", "other_model"),
+    "state_corrupt": (
+        *("garbage", "truncated", "empty", "offset_1e9", "offset_nan", "other_model"),
+        *BAD_NUMBERS,
+    ),
     "bad_model": ("gain_1e308", "nk_1e6", "unstable", "garbage"),
     "kill": ("between_ticks", "mid_write"),
     "out_of_clamp": ("500um", "-3000um", "int32_max", "int32_min"),
     "malformed": ("short", "long", "byte_count", "function", "exception", "truncated"),
     "slow_clients": ("http", "socket", "both"),
+    "sighup": ("unchanged", "changed", "broken"),
+    "sensor_offset": ("+15", "-25"),
+    "glitch": ("60",),
+    "stuck": ("",),
+    "wire_break": ("high", "low", "nan"),
 }
 #: What the PLC's program puts into the offset register (um) for each ``out_of_clamp`` variant;
 #: at the bundled config's 0.1 um counts the extremes are the int32 register's.
@@ -204,3 +248,30 @@ def _wrong_pdu(pdu: bytes, variant: str, rng: random.Random) -> bytes:
     if variant == "exception":  # codes no device uses
         return bytes([function | 0x80, rng.choice([0, 9, 12, 0x55, 0xFF])])
     return pdu[: rng.randint(0, 1)]  # "truncated"
+
+
+class DyingDriver:
+    """``driver``, but its next write is its last: the PLC applies it, then the service hangs.
+
+    ``die()`` is asked after that write: True, and the write never returns (a
+    ``mid_write`` kill: the soak kills the service meanwhile); False, and it
+    was an ordinary write (the service was stopped by another fault first).
+    """
+
+    def __init__(self, driver: Driver, die: Callable[[], bool]) -> None:
+        self.driver = driver
+        self.die = die
+
+    async def open(self) -> None:
+        await self.driver.open()
+
+    async def read(self, points: Sequence[str]) -> dict[str, float]:
+        return await self.driver.read(points)
+
+    async def write(self, values: Mapping[str, float]) -> None:
+        await self.driver.write(values)
+        if self.die():
+            await asyncio.Event().wait()  # frozen until killed
+
+    async def close(self) -> None:
+        await self.driver.close()

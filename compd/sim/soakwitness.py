@@ -17,6 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from compd.service.compensator import TickRecord
+from compd.sim.soaksensors import SensorEpisode
 
 #: Slack on a step, um: the register holds whole counts, so only float noise.
 STEP_TOLERANCE_UM = 1e-6
@@ -24,7 +25,7 @@ STEP_TOLERANCE_UM = 1e-6
 
 @dataclass
 class SoakResult:
-    """What the soak saw: faults by kind, the three counts judged, and what explains them."""
+    """What the soak saw: faults by kind, the counts judged, what explains them, and what sensor faults cost."""
 
     faults: Counter[str] = field(default_factory=Counter)
     crashes: int = 0
@@ -62,6 +63,17 @@ class SoakResult:
     status_unanswered: int = 0
     heartbeats_missed: int = 0
     largest_tick_gap_s: float = 0.0
+    #: ``slow_clients`` over HTTP: the ``/metrics`` scrapes answered and unanswered meanwhile.
+    scrapes_answered: int = 0
+    scrapes_unanswered: int = 0
+    #: ``sighup``: the reloads the services took (:mod:`compd.sim.soakreload`).
+    reloads_done: int = 0
+    #: ``state_corrupt``: the state files the services set aside as unreadable.
+    states_set_aside: int = 0
+    #: The sensor faults, each with its window's largest error and the fault-free run's
+    #: (:mod:`compd.sim.soaksensors`); the reference run's wall time (s).
+    sensor_faults: list[SensorEpisode] = field(default_factory=list)
+    reference_wall_s: float = 0.0
     #: Why each bad model was refused (the daemon's reply).
     refusals: list[str] = field(default_factory=list)
     simulated_s: float = 0.0
@@ -80,6 +92,8 @@ class SoakResult:
             and self.driver_bugs == 0
             and self.status_unanswered == 0
             and self.heartbeats_missed == 0
+            and self.scrapes_unanswered == 0
+            and self.reloads_done == self.faults["sighup"]
         )
 
 

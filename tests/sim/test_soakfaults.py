@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import json
 import time
 from pathlib import Path
 
@@ -12,10 +13,21 @@ import pytest
 from compd.drivers.modbus import ModbusDriver
 from compd.drivers.modbus_settings import ModbusSettings
 from compd.errors import CompdError, DriverError
+from compd.files.modelfile import load_model
+from compd.files.yamlplace import resolve_path
 from compd.service.modelload import slot_from_bytes
+from compd.service.state import STATE_FILE, SavedState, StateError, load_state
 from compd.sim.plc.modbus import ModbusPlcServer
 from compd.sim.soak import soak_config
-from compd.sim.soakfaults import FAULT_KINDS, VARIANTS, bad_models, draw_faults, malformed_replies
+from compd.sim.soakfaults import (
+    BAD_NUMBERS,
+    FAULT_KINDS,
+    VARIANTS,
+    bad_models,
+    corrupt_state,
+    draw_faults,
+    malformed_replies,
+)
 
 from ..drivers.modbus_server import free_port
 
@@ -66,3 +78,20 @@ def test_the_plcs_malformed_replies_are_driver_errors_and_the_next_true_reply_re
             await server.stop()
 
     asyncio.run(main())
+
+
+@pytest.mark.parametrize("variant", BAD_NUMBERS)
+def test_a_bad_number_in_the_state_file_is_written_as_text_and_refused_by_its_key(
+    tmp_path: Path, variant: str
+):
+    """Ticks of 1e400, Infinity, -Infinity or 5,000 digits, a NaN save time: the state is refused, naming the key."""
+    model = load_model(resolve_path("bundled:simulated_model.yaml", Path(".")))
+    compiled = model.compile()
+    state = compiled.steady_state({name: 21.0 for name in model.model.signals()})
+    saved = SavedState(model.sha256, compiled.name, 1000.0, state, {"Z": 1.5}, 42)
+    key, text = BAD_NUMBERS[variant]
+    corrupt = corrupt_state(json.dumps(saved.to_dict()).encode(), variant)
+    assert f'"{key}": {text}'.encode() in corrupt
+    (tmp_path / STATE_FILE).write_bytes(corrupt)
+    with pytest.raises(StateError, match=key):
+        load_state(tmp_path)

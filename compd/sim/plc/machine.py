@@ -22,6 +22,7 @@ always exactly at the time of compd's tick.
 from __future__ import annotations
 
 import asyncio
+import bisect
 import math
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
@@ -190,6 +191,13 @@ class SimulatedMachine:
             self.plc.heartbeat_changes += 1
             self.plc.last_heartbeat_s = self.now_s
         self.plc.heartbeat = value
+
+    def inject(self, fault: SimFaultDoc) -> None:
+        """Add ``fault`` to those to come (a soak's, drawn as it runs): it strikes at its ``at_s``.
+
+        One due now strikes at the next step (the service reads it at its next tick).
+        """
+        bisect.insort(self._faults, fault, key=lambda f: f.at_s)
 
     # -- time -------------------------------------------------------------
 
