@@ -204,6 +204,7 @@ class ConsistencyCheck:
         self._missing = np.array([n not in self.available for n in model.signals])
         self._state: np.ndarray | None = None
         self._cache: dict[tuple[int, frozenset[int]], tuple[np.ndarray, float, np.ndarray]] = {}
+        self._all: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._checked = {name: model.signals.index(name) for name in model.checked}
         self._variance = {
             i: float(model.cov[self._starts[i], self._starts[i]]) for i in self._checked.values()
@@ -258,6 +259,37 @@ class ConsistencyCheck:
         value = float(model.mean[at] + (z[rest] - model.mean[rest]) @ w)
         sigma = model.sigma[model.checked.index(name)] * math.sqrt(variance / self._full[i])
         return Prediction(value, sigma, tuple(model.signals[j] for j in sorted(keep)))
+
+    def predict_all(self, z: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every checked input predicted at once: values and sigmas in :attr:`ConsistencyModel.checked`
+        order, NaN where the others explain too little (as :meth:`predict`, one product per tick)."""
+        key = ok.tobytes()
+        if key not in self._all:
+            if len(self._all) > 256:  # a bound: the combinations seen are few
+                self._all.clear()
+            self._all[key] = self._stack(ok)
+        weights, offsets, sigmas = self._all[key]
+        # A feature of a signal left out has weight 0, and may be NaN (a sensor that read NaN).
+        return offsets + weights @ np.where(np.isfinite(z), z, 0.0), sigmas
+
+    def _stack(self, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        model = self.model
+        weights = np.zeros((len(model.checked), len(model.mean)))
+        offsets = np.full(len(model.checked), np.nan)
+        sigmas = np.full(len(model.checked), np.nan)
+        for row, name in enumerate(model.checked):
+            i = self._checked[name]
+            keep = frozenset(int(j) for j in np.flatnonzero(ok) if j != i)
+            if not keep:
+                continue
+            w, variance, rest = self._solve(i, keep)
+            if variance > (1 - MIN_EXPLAINED) * self._variance[i]:
+                continue
+            weights[row, rest] = w
+            at = self._starts[i]
+            offsets[row] = model.mean[at] - model.mean[rest] @ w
+            sigmas[row] = model.sigma[row] * math.sqrt(variance / self._full[i])
+        return weights, offsets, sigmas
 
     def _solve(self, i: int, keep: frozenset[int]) -> tuple[np.ndarray, float, np.ndarray]:
         key = (i, keep)

@@ -38,6 +38,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+import numpy as np
 import structlog
 
 from compd.faultlog import EventSink, FaultLog
@@ -117,32 +118,31 @@ class Plausibility:
         bad = {n for n, r in readings.items() if r.health is not Health.OK} | suspect
         ok = check.usable(z, bad)
         candidates = [n for n in self.checked if n not in bad]
-        predictions: dict[str, Prediction | None] = {}
+        predictions = self._predictions(z, ok)
         while candidates:
-            worst, worst_score = None, 1.0
-            for name in candidates:
-                predictions[name] = p = check.predict(z, name, ok)
-                if p is None:
-                    continue
-                score = self._score(name, values[name], p)
-                if score > worst_score:
-                    worst, worst_score = name, score
-            if worst is None:
+            scores = {
+                name: self._score(name, values[name], p)
+                for name in candidates
+                if (p := predictions[name]) is not None
+            }
+            worst = max(scores, key=scores.__getitem__, default=None)
+            if worst is None or scores[worst] <= 1.0:
                 break
             p = predictions[worst]
             assert p is not None
-            self._begin(t_s, worst, read.get(worst), p, "disagrees with the other sensors")
+            self._begin(t_s, worst, read.get(worst), p, "disagrees with the other sensors", ok)
             candidates.remove(worst)
             ok[check.model.signals.index(worst)] = False
+            predictions = self._predictions(z, ok)
         out = dict(readings)
         for name in self.checked:
             reading = readings[name]
+            p = predictions[name]
             if name in candidates:
-                self._learn(name, values[name], predictions.get(name))
+                self._learn(name, values[name], p)
                 continue
-            p = predictions[name] = check.predict(z, name, ok)
             if name not in self.episodes and reading.health is not Health.OK and p is not None:
-                self._begin(t_s, name, read.get(name), p, reading.reason)
+                self._begin(t_s, name, read.get(name), p, reading.reason, ok)
             episode = self.episodes.get(name)
             if episode is None:
                 continue
@@ -153,9 +153,7 @@ class Plausibility:
                 out[name] = Reading(last, Health.FAULTED, f"no prediction: {episode.reason}")
                 self.monitors[name].rebase(out[name])
                 continue
-            agrees = reading.health is Health.OK and abs(reading.value - p.value) <= self.tolerance(
-                p
-            )
+            agrees = reading.health is Health.OK and self._score(name, reading.value, p) <= 1.0
             episode.agreeing = episode.agreeing + 1 if agrees else 0
             if episode.agreeing >= self.settings.confirm_ticks:
                 self._end(t_s, name, reading.value, p)
@@ -166,7 +164,22 @@ class Plausibility:
             out[name] = Reading(estimate, Health.ESTIMATED, why)
             self.monitors[name].rebase(out[name])
         self.predictions = predictions
-        check.advance(check.features({n: r.value for n, r in out.items()}))
+        if any(
+            out[n] is not readings[n] for n in self.checked
+        ):  # the low-passes take what was used
+            z = check.features({n: r.value for n, r in out.items()})
+        check.advance(z)
+        return out
+
+    def _predictions(self, z: np.ndarray, ok: np.ndarray) -> dict[str, Prediction | None]:
+        """Every checked input's prediction from the signals ``ok`` marks (None: too little to go on)."""
+        values, sigmas = self.check.predict_all(z, ok)
+        out: dict[str, Prediction | None] = {}
+        for name, value, sigma in zip(self.check.model.checked, values, sigmas, strict=True):
+            if not math.isfinite(sigma):
+                out[name] = None
+                continue
+            out[name] = Prediction(float(value), float(sigma))
         return out
 
     def _score(self, name: str, value: float, p: Prediction) -> float:
@@ -182,7 +195,13 @@ class Plausibility:
         self.residue[name] = a * self.residue[name] + (1 - a) * r if name in self.residue else r
 
     def _begin(
-        self, t_s: float, name: str, value: float | None, p: Prediction, reason: str
+        self,
+        t_s: float,
+        name: str,
+        value: float | None,
+        p: Prediction,
+        reason: str,
+        ok: np.ndarray,
     ) -> None:
         self.episodes[name] = _Episode(t_s, reason)
         self.count += 1
@@ -194,7 +213,11 @@ class Plausibility:
             tolerance=_round(self.tolerance(p)),
             unit=unit,
             reason=reason,
-            predicted_from=list(p.used),
+            predicted_from=[
+                s
+                for s, good in zip(self.check.model.signals, ok, strict=True)
+                if good and s != name
+            ],
         )
 
     def _end(self, t_s: float, name: str, value: float, p: Prediction) -> None:
