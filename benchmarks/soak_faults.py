@@ -37,10 +37,11 @@ receives against what it held just before. Printed beside the targets:
 - ``/metrics`` scrapes that failed under slow clients;
 - reloads not taken (a service stopped by one is counted a crash).
 
-Then, per sensor fault, the compensated error's excess over the same shift
-run first without faults (:mod:`compd.sim.soaksensors`): the largest
-|error| during the fault and the 10 minutes after it, less the fault-free
-run's over the same window (um; a figure, not a target).
+Then, per sensor fault, how long the service stood in for the sensor, and
+the compensated error's excess over the same shift run first without faults
+(:mod:`compd.sim.soaksensors`): the largest |error| during the fault and the
+10 minutes after it, less the fault-free run's over the same window (um; a
+figure, not a target).
 
 Then, on the real clock 60 times faster, 20 minutes of the shift with
 compd as ``compd run`` child processes, ``--real-kills`` of them (default 4)

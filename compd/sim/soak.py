@@ -130,6 +130,7 @@ class Soak:
     ) -> None:
         self.config = config
         self.faults = list(faults)
+        self.drawn = tuple(faults)
         self.rng = random.Random(seed)
         self.result = SoakResult()
         doc = config.doc
@@ -194,7 +195,7 @@ class Soak:
         self.result.states_set_aside = len(
             list(self.config.state_dir.glob(f"{STATE_FILE}.corrupt-*"))
         )
-        self.sensors.measure()
+        self.sensors.measure(self.drawn)
         return self.result
 
     async def _services(self, end_s: float) -> None:
@@ -263,6 +264,7 @@ class Soak:
 
     def _tick(self, record: TickRecord) -> None:
         self.witness.tick(record, self.axis)
+        self.sensors.tick(record)
         if self._slow is not None:
             self._slow.tick(record)
 

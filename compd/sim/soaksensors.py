@@ -27,21 +27,31 @@ over the fault and the 10 minutes after it (a wrong input lives on in the
 model's slow states). That window is measured, not attributed: another fault
 in it (a kill, a link drop, a PLC reset, the next sensor fault) adds its own
 cost, and a service restarted earlier may carry other states than the
-reference's. A negative excess is a window the faulted run happened to do
-better in. The reference is the running service with its slew limit,
+reference's. Each line names the other faults drawn into its window, and
+the summary is given apart for the windows with none but :data:`QUIET`
+ones. A negative excess is a window the faulted run happened to do better
+in. The reference is the running service with its slew limit,
 blending and checks, not the model run offline on the fault-free readings:
 that would also count what the safety stage does as the fault's cost.
+
+Beside it, how long the service stood in for the sensor (health
+``ESTIMATED``, :mod:`compd.service.plausibility`) from the fault until the
+next fault on the same input: a stand-in that outlasts its fault by far
+explains an excess that does.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from compd.files.modelfile import load_model
+from compd.service.compensator import TickRecord
 from compd.service.config import Config
+from compd.service.signals import Health
 from compd.sim.plc.machine import AXES, SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from compd.sim.plc.settings import SimFaultDoc
@@ -49,6 +59,9 @@ from compd.sim.soakfaults import Fault
 
 #: How long after a sensor fault its cost is still measured (s): the model's slow states.
 AFTER_S = 600.0
+#: Faults that write nothing to the machine and leave the service's state as it was: a window
+#: holding only these is a sensor fault's own.
+QUIET = ("bad_model", "sighup", "slow_clients")
 #: What each kind and variant makes of the reading: the machine's fault kind and value (degC).
 MACHINE_FAULTS: dict[tuple[str, str], tuple[str, float | None]] = {
     ("sensor_offset", "+15"): ("offset", 15.0),
@@ -73,6 +86,15 @@ class SensorEpisode:
     #: max |e| over the window in the soak, and in the fault-free reference (NaN: not measured).
     max_error_um: float = math.nan
     reference_um: float = math.nan
+    #: Ticks' time the service stood in for the sensor, from the fault to the next one on it (s).
+    estimated_s: float = 0.0
+    #: The kinds of the other faults drawn into the window.
+    others: tuple[str, ...] = ()
+
+    @property
+    def alone(self) -> bool:
+        """No fault but :data:`QUIET` ones in the window: the excess is this fault's own."""
+        return all(kind in QUIET for kind in self.others)
 
     @property
     def window_s(self) -> tuple[float, float]:
@@ -115,6 +137,8 @@ class SensorFaults:
         self.axis = axis
         self.episodes = episodes
         self.inputs = model_inputs(config)
+        self._latest: dict[str, SensorEpisode] = {}  # per input, its last fault
+        self._struck: list[tuple[Fault, SensorEpisode]] = []
         #: The fault-free run's compensated error (:meth:`run_reference`); None: not run.
         self.reference_um: np.ndarray | None = None
 
@@ -123,17 +147,34 @@ class SensorFaults:
         signal = self.inputs[len(self.episodes) % len(self.inputs)]
         at_s = self.machine.now_s
         self.machine.inject(machine_fault(fault, signal, at_s))
-        self.episodes.append(
-            SensorEpisode(fault.kind, fault.variant, signal, at_s, fault.duration_s)
-        )
+        episode = SensorEpisode(fault.kind, fault.variant, signal, at_s, fault.duration_s)
+        self.episodes.append(episode)
+        self._latest[signal] = episode
+        self._struck.append((fault, episode))
+
+    def tick(self, record: TickRecord) -> None:
+        """A tick of a service: a stand-in's time goes to the last fault on that input."""
+        for signal, episode in self._latest.items():
+            if record.health.get(signal) is Health.ESTIMATED:
+                episode.estimated_s += self.config.doc.period_s
 
     async def run_reference(self) -> None:
         """The shift without faults; before the soak's machine starts (it takes the same port and files)."""
         result = await run_simulation(self.config)
         self.reference_um = compensated_um(result.machine, self.axis)
 
-    def measure(self) -> None:
-        """Each episode's largest |error| over its window, in the soak and (if run) the reference."""
+    def measure(self, faults: Sequence[Fault]) -> None:
+        """Each episode's largest |error| over its window, in the soak and (if run) the reference.
+
+        ``faults``: all the soak's faults, as drawn: those in an episode's window are named in it.
+        """
+        for fault, episode in self._struck:
+            start_s, end_s = episode.window_s
+            episode.others = tuple(
+                f.kind
+                for f in faults
+                if f is not fault and f.at_s <= end_s and f.at_s + f.duration_s >= start_s
+            )
         soak_um = compensated_um(self.machine, self.axis)
         dt_s = self.machine.sample_time_s
         for episode in self.episodes:
@@ -159,18 +200,27 @@ def excess_lines(episodes: list[SensorEpisode]) -> list[str]:
     """The verdict's table: one line per sensor fault, its window's largest error and the excess."""
     lines = [
         f"{'sensor fault':<26}{'signal':<22}{'at':>8}{'for':>6}"
-        f"{'max |e|':>10}{'no fault':>10}{'excess':>9}   (um, fault + 10 min)"
+        f"{'stand-in':>9}{'max |e|':>10}{'no fault':>10}{'excess':>9}"
+        "   (um, over the fault + 10 min; the other faults in that window)"
     ]
     for e in episodes:
         what = f"{e.kind} {e.variant}".strip()
         lines.append(
             f"{what:<26}{e.signal:<22}{e.at_s / 60:>7.1f}m{e.duration_s:>5.0f}s"
-            f"{e.max_error_um:>10.2f}{e.reference_um:>10.2f}{e.excess_um:>+9.2f}"
+            f"{e.estimated_s:>8.0f}s{e.max_error_um:>10.2f}{e.reference_um:>10.2f}{e.excess_um:>+9.2f}"
+            + (f"   also: {', '.join(e.others)}" if e.others else "")
         )
-    excess = [e.excess_um for e in episodes if math.isfinite(e.excess_um)]
-    if excess:
-        lines.append(
-            f"excess over the fault-free run: median {np.median(excess):+.2f} um, "
-            f"largest {max(excess):+.2f} um ({len(excess)} sensor faults)"
-        )
+    for name, chosen in (
+        ("excess over the fault-free run", episodes),
+        (
+            f"  with no other fault but {', '.join(QUIET)} in the window",
+            [e for e in episodes if e.alone],
+        ),
+    ):
+        excess = [e.excess_um for e in chosen if math.isfinite(e.excess_um)]
+        if excess:
+            lines.append(
+                f"{name}: median {np.median(excess):+.2f} um, largest {max(excess):+.2f} um "
+                f"({len(excess)} sensor faults)"
+            )
     return lines

@@ -83,18 +83,20 @@ def test_a_fault_injected_while_the_machine_runs_reaches_the_reading_and_ends(tm
 
 
 def test_the_verdict_has_one_line_per_sensor_fault_with_its_excess():
-    """Each fault's window maximum, the fault-free run's and the difference; then median and largest."""
+    """Per fault: stand-in time, window maximum, the fault-free run's, the excess, other faults; then the summary."""
     episodes = [
-        SensorEpisode("sensor_offset", "+15", "T_spindle_degC", 300.0, 100.0, 12.5, 2.0),
-        SensorEpisode("stuck", "", "T_headstock_degC", 600.0, 80.0, 3.0, 3.25),
+        SensorEpisode("sensor_offset", "+15", "T_spindle_degC", 300.0, 100.0, 12.5, 2.0, 130.0),
+        SensorEpisode("stuck", "", "T_headstock_degC", 600.0, 80.0, 3.0, 3.25, 0.0, ("kill",)),
     ]
     assert episodes[0].window_s == (300.0, 1000.0) and episodes[1].excess_um == -0.25
-    header, first, second, summary = excess_lines(episodes)
-    assert "excess" in header
-    assert first.startswith("sensor_offset +15") and first.endswith("+10.50")
-    assert second.startswith("stuck ") and second.endswith("-0.25")
+    assert episodes[0].alone and not episodes[1].alone
+    header, first, second, summary, alone = excess_lines(episodes)
+    assert "stand-in" in header and "excess" in header
+    assert first.startswith("sensor_offset +15") and first.endswith("+10.50") and " 130s " in first
+    assert second.startswith("stuck ") and second.endswith("-0.25   also: kill")
     assert summary == (
         "excess over the fault-free run: median +5.12 um, largest +10.50 um (2 sensor faults)"
     )
+    assert alone.endswith("in the window: median +10.50 um, largest +10.50 um (1 sensor faults)")
     no_reference = SensorEpisode("glitch", "60", "T_ambient_degC", 0.0, 40.0, 1.0)
     assert math.isnan(no_reference.excess_um) and len(excess_lines([no_reference])) == 2
