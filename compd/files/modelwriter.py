@@ -220,6 +220,6 @@ def consistency_lines(doc: ConsistencyDoc) -> list[str]:
         )
     for key in ("mean", "low", "high"):
         lines.append(f"  {key}: {_numbers(getattr(doc, key))}")
-    lines.append("  covariance:")
-    lines += [f"    - {_numbers(row)}" for row in doc.covariance]
+    lines.append("  covariance:  # 10 significant digits: ample for a ridge-regularised covariance")
+    lines += [f"    - {_numbers(float(f'{v:.10g}') for v in row)}" for row in doc.covariance]
     return lines

@@ -37,16 +37,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Low-pass time constants of every signal's lag features (s).
-TAUS_S: tuple[float, ...] = (600.0, 3600.0)
+#: Low-pass time constants of every signal's lag features (s): the default lag bank's
+#: (:mod:`compd.model.lagbank`), minutes to hours, as the structure answers heat.
+#: Written out, not imported: the daemon loads this module, and the lag bank needs scipy.
+TAUS_S: tuple[float, ...] = (300.0, 1200.0, 3600.0, 10800.0)
 #: The exponent of a spindle speed's heat feature, ``(|n| / 1000 rpm) ** HEAT_EXPONENT``.
 HEAT_EXPONENT = 1.5
 #: Ridge on the covariance, relative to each feature's variance.
 RIDGE = 1e-3
 #: A predictor this far (in its calibration span) beyond the calibration's range is left out.
 RANGE_MARGIN = 0.25
-#: A prediction is usable while it explains at least half of the input's calibration variance.
-MIN_EXPLAINED = 0.5
+#: A prediction is usable while it explains at least 80 % of the input's calibration variance (in
+#: sample: a day's calibration lets a speed's hour-long low-passes "explain" two thirds of
+#: the shop air by chance).
+MIN_EXPLAINED = 0.8
 
 
 def speed_feature(name: str) -> bool:
@@ -239,7 +243,11 @@ class ConsistencyCheck:
 
     def usable(self, z: np.ndarray, unusable: set[str]) -> np.ndarray:
         """Per signal: whether it may predict the others this tick (read, finite, within its calibration)."""
-        inside = np.isfinite(z) & (z >= self._low) & (z <= self._high)
+        # Finite everywhere; within range where it is read now (its value, a speed's heat): its
+        # low-passes follow a past the calibration may not have had (a start on a warm machine).
+        inside = np.isfinite(z)
+        at = self._base_at
+        inside[at] &= (z[at] >= self._low[at]) & (z[at] <= self._high[at])
         ok: np.ndarray = np.logical_and.reduceat(inside, self._starts) & ~self._missing
         for name in unusable:
             ok[self.model.signals.index(name)] = False

@@ -33,8 +33,8 @@ LONG_HOURS = 5
 CASES = [
     ("T_spindle_degC", {"kind": "offset", "value": 15, "duration_s": 3600}),
     ("T_headstock_degC", {"kind": "offset", "value": -25, "duration_s": 3600}),
-    ("T_column_front_degC", {"kind": "value", "value": 60, "duration_s": 40}),
-    ("T_ambient_degC", {"kind": "stuck", "duration_s": 4 * 3600}),
+    ("T_ambient_degC", {"kind": "value", "value": 60, "duration_s": 40}),
+    ("T_column_front_degC", {"kind": "stuck", "duration_s": 4 * 3600}),
     ("T_headstock_degC", {"kind": "value", "value": 327.67, "duration_s": 3600}),
     ("T_column_front_degC", {"kind": "value", "value": -200, "duration_s": 3600}),
     ("T_spindle_degC", {"kind": "nan", "duration_s": 3600}),
