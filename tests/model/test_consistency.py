@@ -163,4 +163,4 @@ def test_its_lags_are_the_default_lag_banks() -> None:
     from compd.model.consistency import TAUS_S
     from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 
-    assert TAUS_S == tuple(t for t in DEFAULT_TIME_CONSTANTS_S if t > 0)
+    assert tuple(t for t in DEFAULT_TIME_CONSTANTS_S if t > 0) == TAUS_S
