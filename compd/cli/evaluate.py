@@ -34,6 +34,7 @@ from compd.cli.common import (
     span_from_args,
     window_options,
 )
+from compd.cli.probes import compare_with_probes, probe_options, wants_probes
 from compd.cli.terminal import console
 from compd.files.data import DataSet
 from compd.files.modelfile import load_model
@@ -103,6 +104,7 @@ def register(commands: Any) -> None:
     )
     window_options(cmp_)
     data_options(cmp_, scored="judged (fit %%, RMS, windows; JSON from_s/until_s)")
+    probe_options(cmp_)
     cmp_.set_defaults(handler=_compare)
 
 
@@ -133,6 +135,8 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
+    if wants_probes(args):
+        return compare_with_probes(args)
     experiments = load_experiments_from_args(args)
     if len(experiments) > 1:
         return _compare_several(args, experiments)

@@ -377,6 +377,36 @@ class ConsistencyDoc(_Strict):
         return self
 
 
+class ProbePriorDoc(_Strict):
+    """One output's prior for the probe update (:mod:`compd.model.probeupdate`), written by ``compd fit``.
+
+    ``parameters``: the output's sub-models (their gains, 1 in the file) then
+    ``bias`` (0); ``covariance``: their prior covariance (gain^2, um^2), the
+    calibration's ridge posterior widened by the residue's autocorrelation;
+    ``residue_sigma_um``: the calibration residue's standard deviation;
+    ``samples`` and ``effective_samples``: the calibration's length and its
+    effective sample size; ``output_peak_um``: the largest ``|output|`` of the
+    model over its calibration (scales the update's rails). A model file
+    without it gets a conservative default.
+    """
+
+    parameters: list[str] = Field(min_length=2)
+    covariance: list[list[FiniteFloat]]
+    residue_sigma_um: FiniteFloat = Field(gt=0)
+    samples: int = Field(ge=1, le=MAX_COUNT)
+    effective_samples: FiniteFloat = Field(gt=0)
+    output_peak_um: FiniteFloat = Field(default=0.0, ge=0)
+
+    @model_validator(mode="after")
+    def _shape(self) -> ProbePriorDoc:
+        n = len(self.parameters)
+        if self.parameters[-1] != "bias":
+            raise ValueError("'parameters' end with 'bias'")
+        if len(self.covariance) != n or any(len(row) != n for row in self.covariance):
+            raise ValueError(f"'covariance' must be {n} x {n} (one row and column per parameter)")
+        return self
+
+
 class ModelDoc(_Strict):
     schema_: Literal["compd.model/1"] = Field(alias="schema")
     name: str = Field(min_length=1)
@@ -386,6 +416,7 @@ class ModelDoc(_Strict):
     ambient: AmbientDoc | None = None
     outputs: dict[str, OutputDoc] = Field(min_length=1)
     consistency: ConsistencyDoc | None = None
+    probe_prior: dict[str, ProbePriorDoc] | None = None
     provenance: ProvenanceDoc = ProvenanceDoc()
 
 

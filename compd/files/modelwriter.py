@@ -17,7 +17,13 @@ from collections.abc import Iterable, Mapping
 
 import yaml
 
-from compd.files.modelschema import SCHEMA, ConsistencyDoc, ProvenanceDoc, ResidualDoc
+from compd.files.modelschema import (
+    SCHEMA,
+    ConsistencyDoc,
+    ProbePriorDoc,
+    ProvenanceDoc,
+    ResidualDoc,
+)
 from compd.model.structure import Gate, InputSpec, Model, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
 
@@ -127,6 +133,7 @@ def model_to_yaml(
     provenance: ProvenanceDoc | None = None,
     residuals: Mapping[str, ResidualDoc] | None = None,
     consistency: ConsistencyDoc | None = None,
+    probe_prior: Mapping[str, ProbePriorDoc] | None = None,
 ) -> str:
     """The model file text for ``model``; ``signals`` maps each signal name to its unit.
 
@@ -197,6 +204,8 @@ def model_to_yaml(
             lines += _residual(residuals[output.name])
     if consistency is not None:
         lines += consistency_lines(consistency)
+    if probe_prior:
+        lines += probe_prior_lines(probe_prior)
     if provenance is not None:
         lines += provenance_lines(provenance)
     return "\n".join(lines) + "\n"
@@ -222,4 +231,25 @@ def consistency_lines(doc: ConsistencyDoc) -> list[str]:
         lines.append(f"  {key}: {_numbers(getattr(doc, key))}")
     lines.append("  covariance:  # 10 significant digits: ample for a ridge-regularised covariance")
     lines += [f"    - {_numbers(float(f'{v:.10g}') for v in row)}" for row in doc.covariance]
+    return lines
+
+
+def probe_prior_lines(docs: Mapping[str, ProbePriorDoc]) -> list[str]:
+    """The ``probe_prior:`` block: per output, what the probe update starts from (compd.model.probeupdate)."""
+    lines = [
+        "# per output, the prior of the probe update (compd.model.probeupdate): each sub-model's gain",
+        "# and a bias, the calibration's posterior widened by its residue's autocorrelation",
+        "probe_prior:",
+    ]
+    for output, doc in docs.items():
+        lines += [
+            f"  {_string(output)}:",
+            f"    parameters: [{', '.join(_string(n) for n in doc.parameters)}]",
+            f"    residue_sigma_um: {yaml_float(doc.residue_sigma_um)}",
+            f"    samples: {doc.samples}",
+            f"    effective_samples: {yaml_float(doc.effective_samples)}",
+            f"    output_peak_um: {yaml_float(doc.output_peak_um)}",
+            "    covariance:  # 10 significant digits",
+        ]
+        lines += [f"      - {_numbers(float(f'{v:.10g}') for v in row)}" for row in doc.covariance]
     return lines

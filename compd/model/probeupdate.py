@@ -20,12 +20,15 @@ walk; a probe measures ``z = y + v``, ``v ~ N(0, R)``:
 
 Guard rails (issue 35 item 3):
 
-- an innovation beyond ``reject_sigma`` * sqrt(S) is flagged and not used,
-  unless the next probe confirms it (also beyond, same sign): then the
-  covariance is widened so the confirmed innovation is one sigma
-  (``P *= (e^2 - R) / (x' P x)``: the random walk did not allow for a jump of
+- an innovation beyond ``reject_sigma`` * sqrt(S) and beyond ``reject_floor_um``
+  (the model's structural error on a new programme is not a mis-probe) is
+  flagged and not used,
+  unless the next probe confirms it (also beyond, same sign): then the bias's
+  variance is widened so the confirmed innovation is one sigma
+  (``P_bb += e^2 - R - x' P x``: the random walk did not allow for a shift of
   that size) and both probes are taken in time order;
-- gains are clipped to ``gain_bounds``; the updated prediction at the probe
+- gains are clipped to ``gain_bounds``, the bias keeping the updated
+  prediction at the probe; the updated prediction at the probe
   may not be further than ``max_departure_um`` from the calibration model's
   (``x' theta0``): the bias, the one parameter with no guard rail, takes up
   the excess.
@@ -52,10 +55,19 @@ DEFAULT_DRIFT_SIGMAS_PER_SQRT_H = 0.3
 DEFAULT_REJECT_SIGMA = 4.0
 #: Default guard rails of every gain (the file's gain is 1).
 DEFAULT_GAIN_BOUNDS = (0.0, 3.0)
-#: Default bound on the updated prediction's departure from the calibration model's,
-#: in calibration residue sigmas, and never below :data:`MIN_DEPARTURE_UM`.
-DEFAULT_DEPARTURE_SIGMAS = 10.0
+#: Default bound on the updated prediction's departure from the calibration model's: this
+#: share of the largest output the calibration model gave (the compensation's own scale; the
+#: calibration residue is in-sample and says nothing of the error on new programmes), never
+#: below :data:`MIN_DEPARTURE_UM`; :data:`UNKNOWN_DEPARTURE_UM` when the scale is unknown.
+DEFAULT_DEPARTURE_SHARE = 0.5
 MIN_DEPARTURE_UM = 5.0
+UNKNOWN_DEPARTURE_UM = 25.0
+#: An innovation is flagged beyond ``reject_sigma`` predicted sigmas and beyond this share of
+#: the calibration model's largest output (a model off by its structural error on a new
+#: programme is not a mis-probe), never below :data:`MIN_REJECT_FLOOR_UM`.
+DEFAULT_REJECT_FLOOR_SHARE = 0.2
+MIN_REJECT_FLOOR_UM = 2.0
+UNKNOWN_REJECT_FLOOR_UM = 10.0
 #: The conservative prior of a model file without one: gain sd, and bias sd in calibration RMS.
 DEFAULT_GAIN_SD = 0.3
 DEFAULT_BIAS_SD_RMS = 2.0
@@ -72,7 +84,8 @@ class Prior:
     ``names``: each gain's sub-model, then :data:`BIAS`; ``residue_sigma_um``:
     the calibration residue's standard deviation; ``samples`` and
     ``effective_samples``: the calibration's length and its effective sample
-    size (0 for a default prior); ``source``: ``"calibration"`` (``compd fit``
+    size (0 for a default prior); ``output_peak_um``: the largest ``|output|``
+    the calibration model gave over its calibration (0: unknown); ``source``: ``"calibration"`` (``compd fit``
     stored it) or ``"default"`` (:func:`default_prior`).
     """
 
@@ -81,6 +94,7 @@ class Prior:
     residue_sigma_um: float
     samples: int = 0
     effective_samples: float = 0.0
+    output_peak_um: float = 0.0
     source: Literal["calibration", "default"] = "calibration"
 
     def __post_init__(self) -> None:
@@ -104,17 +118,27 @@ class ProbeSettings:
     probe_noise_um: float
     drift_um_per_sqrt_h: float
     max_departure_um: float
+    reject_floor_um: float = 0.0
     reject_sigma: float = DEFAULT_REJECT_SIGMA
     gain_bounds: tuple[float, float] = DEFAULT_GAIN_BOUNDS
 
     @classmethod
     def defaults(cls, prior: Prior, **overrides: float) -> ProbeSettings:
         """The documented defaults, scaled by the prior's calibration residue sigma."""
-        sigma = prior.residue_sigma_um
+        sigma, peak = prior.residue_sigma_um, prior.output_peak_um
         values: dict[str, float] = {
             "probe_noise_um": DEFAULT_PROBE_NOISE_UM,
             "drift_um_per_sqrt_h": DEFAULT_DRIFT_SIGMAS_PER_SQRT_H * sigma,
-            "max_departure_um": max(MIN_DEPARTURE_UM, DEFAULT_DEPARTURE_SIGMAS * sigma),
+            "max_departure_um": (
+                max(MIN_DEPARTURE_UM, DEFAULT_DEPARTURE_SHARE * peak)
+                if peak > 0
+                else UNKNOWN_DEPARTURE_UM
+            ),
+            "reject_floor_um": (
+                max(MIN_REJECT_FLOOR_UM, DEFAULT_REJECT_FLOOR_SHARE * peak)
+                if peak > 0
+                else UNKNOWN_REJECT_FLOOR_UM
+            ),
         }
         values.update(overrides)
         return cls(**values)  # type: ignore[arg-type]
@@ -158,6 +182,8 @@ class ProbeUpdater:
     theta: np.ndarray = field(init=False)
     covariance: np.ndarray = field(init=False)
     last_time_s: float | None = field(init=False, default=None)
+    #: Up to when the random walk has been added to ``covariance`` (the last probe taken).
+    drifted_to_s: float | None = field(init=False, default=None)
     pending: _Pending | None = field(init=False, default=None)
 
     def __post_init__(self) -> None:
@@ -186,13 +212,16 @@ class ProbeUpdater:
             raise ModelError(
                 f"probes must come in time order: {time_s} s after {self.last_time_s} s"
             )
-        self._drift(x, 0.0 if self.last_time_s is None else time_s - self.last_time_s)
         self.last_time_s = time_s
         predicted = float(fixed_um + x @ self.theta)
-        variance = float(x @ self.covariance @ x)
+        # x' Q(dt) x is the drift over dt by Q's construction; P itself drifts only when a
+        # probe is taken, so a flagged one changes nothing at all.
+        variance = float(x @ self.covariance @ x) + self._drift_variance(time_s)
         innovation = measured_um - predicted
         sd = float(np.sqrt(variance + self.settings.probe_noise_um**2))
-        beyond = abs(innovation) > self.settings.reject_sigma * sd
+        beyond = abs(innovation) > max(
+            self.settings.reject_sigma * sd, self.settings.reject_floor_um
+        )
         pending, self.pending = self.pending, None
         if not beyond:
             step = self._take(time_s, x, fixed_um, measured_um, predicted, sd, "accepted")
@@ -201,21 +230,22 @@ class ProbeUpdater:
             self.pending = _Pending(time_s, x, fixed_um, measured_um, innovation)
             held = ProbeStep(time_s, measured_um, predicted, sd, innovation, innovation, "flagged")
             return [*self._dropped(pending), held]
-        # Confirmed: the machine moved further than the random walk allows. Widen P so this
-        # innovation is one sigma, then take both probes in time order.
+        # Confirmed: the machine moved further than the random walk allows (a shift: a crash,
+        # a re-clamped part). The bias's variance is widened so this innovation is one sigma,
+        # then both probes are taken in time order.
         r = self.settings.probe_noise_um**2
-        self.covariance *= max(1.0, (innovation**2 - r) / max(variance, 1e-300))
-        first = self.pending_step(pending)
+        self.covariance[-1, -1] += max(0.0, innovation**2 - r - variance)
+        first = self._pending_step(pending)
         predicted = float(fixed_um + x @ self.theta)
-        sd = float(np.sqrt(x @ self.covariance @ x + r))
+        sd = float(np.sqrt(x @ self.covariance @ x + self._drift_variance(time_s) + r))
         return [first, self._take(time_s, x, fixed_um, measured_um, predicted, sd, "confirmed")]
 
-    def pending_step(self, pending: _Pending) -> ProbeStep:
+    def _pending_step(self, pending: _Pending) -> ProbeStep:
         """A flagged probe taken once confirmed."""
         predicted = float(pending.fixed_um + pending.x @ self.theta)
-        sd = float(
-            np.sqrt(pending.x @ self.covariance @ pending.x + self.settings.probe_noise_um**2)
-        )
+        x = pending.x
+        drift = self._drift_variance(pending.time_s)
+        sd = float(np.sqrt(x @ self.covariance @ x + drift + self.settings.probe_noise_um**2))
         return self._take(
             pending.time_s,
             pending.x,
@@ -238,8 +268,15 @@ class ProbeUpdater:
             )
         ]
 
-    def _drift(self, x: np.ndarray, dt_s: float) -> None:
-        """``P += Q(dt_s)``: the prior's shape, the prediction at ``x`` drifting as configured."""
+    def _drift_variance(self, time_s: float) -> float:
+        """``x' Q(dt) x`` (um^2): the drift of the prediction since the last probe taken."""
+        dt_s = 0.0 if self.drifted_to_s is None else max(0.0, time_s - self.drifted_to_s)
+        return self.settings.drift_um_per_sqrt_h**2 * dt_s / 3600.0
+
+    def _drift(self, x: np.ndarray, time_s: float) -> None:
+        """``P += Q(dt)`` up to ``time_s``: the prior's shape, the prediction at ``x`` drifting as configured."""
+        dt_s = 0.0 if self.drifted_to_s is None else time_s - self.drifted_to_s
+        self.drifted_to_s = time_s
         if dt_s <= 0.0 or self.settings.drift_um_per_sqrt_h <= 0.0:
             return
         p0 = self.prior.covariance
@@ -258,7 +295,8 @@ class ProbeUpdater:
         sd_um: float,
         result: ProbeResult,
     ) -> ProbeStep:
-        """The Kalman measurement update (Joseph form), then the rails."""
+        """The time update to ``time_s``, the Kalman measurement update (Joseph form), then the rails."""
+        self._drift(x, time_s)
         r = self.settings.probe_noise_um**2
         p = self.covariance
         px = p @ x
@@ -269,8 +307,12 @@ class ProbeUpdater:
         # Joseph form (I - k x') P (I - k x')' + r k k', expanded to O(p^2): with
         # P x = px it is P - k px' - px k' + (x' P x + r) k k', symmetric by construction.
         self.covariance = p - np.outer(k, px) - np.outer(px, k) + s * np.outer(k, k)
+        # A gain clipped to its rails would take back part of the update at this probe: the
+        # bias (no rail) keeps the updated prediction here.
+        updated = float(x @ self.theta)
         low, high = self.settings.gain_bounds
         np.clip(self.theta[:-1], low, high, out=self.theta[:-1])
+        self.theta[-1] += updated - float(x @ self.theta)
         calibration = float(x @ self.prior.mean)
         departure = float(x @ self.theta) - calibration
         bound = self.settings.max_departure_um
@@ -326,6 +368,7 @@ def calibration_prior(
     if e.size < 3:
         raise ModelError("a calibration prior needs at least 3 samples")
     x = np.column_stack([c, np.ones(e.size)])
+    peak = float(np.max(np.abs(c.sum(axis=1))))
     sigma = float(np.std(e))
     sigma = max(sigma, 1e-6)
     n_eff = effective_samples(e)
@@ -334,7 +377,7 @@ def calibration_prior(
     information = (n_eff / e.size) * (x.T @ x) / sigma**2 + np.diag(ridge)
     covariance = np.linalg.pinv(information, hermitian=True)
     covariance = 0.5 * (covariance + covariance.T)
-    return Prior(names, covariance, sigma, int(e.size), float(n_eff))
+    return Prior(names, covariance, sigma, int(e.size), float(n_eff), peak)
 
 
 def effective_samples(residue: np.ndarray, window_c: float = 5.0) -> float:

@@ -31,6 +31,7 @@ from compd.files.experiments import stack
 from compd.files.modelfile import consistency_doc
 from compd.files.modelschema import ConsistencyDoc, ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml
+from compd.files.probeprior import calibration_probe_priors
 from compd.model.collinear import collinear_groups
 from compd.model.consistency import fit_consistency
 from compd.model.experiments import ONE, start_values
@@ -330,6 +331,8 @@ def fit_data(
         signals=signals,
         provenance=provenance,
         consistency=consistency_of(data, list(model.signals()), output, starts, span),
+        # Issue 35: what the probe update starts from, the calibration's own posterior.
+        probe_prior=calibration_probe_priors(contributions, y, first),
     )
     return FitResult(
         identification,

@@ -1,0 +1,97 @@
+"""A model file's prior for the probe update: the ``probe_prior`` block, or the documented default.
+
+``compd fit`` stores per output the calibration's posterior
+(:func:`compd.model.probeupdate.calibration_prior`); a model file without it
+(written before, by another tool, or extended since) gets
+:func:`compd.model.probeupdate.default_prior`: every gain ``1 +- 0.3``, the
+bias ``0 +- 2x`` the calibration RMS (the provenance's, else 1 um), and a
+note the tools print.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from compd.files.modelfile import ModelFile
+from compd.files.modelschema import ProbePriorDoc
+from compd.model.probeupdate import BIAS, Prior, calibration_prior, default_prior
+
+#: The calibration RMS a model file that records none is taken to have, um.
+UNKNOWN_RMS_UM = 1.0
+
+
+@dataclass(frozen=True)
+class OutputPrior:
+    """One output's prior and, when it is the default, why (a note for the user)."""
+
+    prior: Prior
+    note: str | None = None
+
+
+def probe_prior_doc(prior: Prior) -> ProbePriorDoc:
+    """The model file's ``probe_prior`` entry for ``prior``."""
+    return ProbePriorDoc(
+        parameters=list(prior.names),
+        covariance=[[float(v) for v in row] for row in prior.covariance],
+        residue_sigma_um=prior.residue_sigma_um,
+        samples=prior.samples,
+        effective_samples=prior.effective_samples,
+        output_peak_um=prior.output_peak_um,
+    )
+
+
+def output_prior(model_file: ModelFile, output: str, submodels: tuple[str, ...]) -> OutputPrior:
+    """``output``'s prior over ``submodels`` (its sub-models' names in the compiled order) and a bias."""
+    names = (*submodels, BIAS)
+    stored = (model_file.doc.probe_prior or {}).get(output)
+    if stored is not None and tuple(stored.parameters) == names:
+        prior = Prior(
+            names,
+            np.array(stored.covariance, dtype=float),
+            stored.residue_sigma_um,
+            stored.samples,
+            stored.effective_samples,
+            stored.output_peak_um,
+        )
+        return OutputPrior(prior)
+    calibration = model_file.doc.provenance.calibration
+    rms = None if calibration is None else calibration.rms_um.get(output)
+    why = (
+        "has no probe_prior for it"
+        if stored is None
+        else "has a probe_prior for other sub-models (changed since the fit)"
+    )
+    source = (
+        f"the calibration RMS {rms:.3g} um" if rms else f"{UNKNOWN_RMS_UM:g} um (no RMS recorded)"
+    )
+    rms = rms or UNKNOWN_RMS_UM
+    note = (
+        f"{output}: the model file {why}: the probe update starts from the conservative default "
+        f"(every gain 1 +- 0.3, bias 0 +- {2 * rms:.3g} um: twice {source}); refit with "
+        "compd fit to store the calibration's own"
+    )
+    return OutputPrior(default_prior(names, rms), note)
+
+
+def calibration_probe_priors(
+    outputs: dict[str, dict[str, np.ndarray]], measured_um: np.ndarray, first: int = 0
+) -> dict[str, ProbePriorDoc]:
+    """Each output's ``probe_prior`` entry from its calibration (what ``compd fit`` stores).
+
+    ``outputs``: per output, each sub-model's contribution (um) over the
+    calibration in the model's order; ``measured_um``: the measured output
+    (one output: what ``compd fit`` identifies); samples before ``first``
+    (a ``--from``) are not used.
+    """
+    docs = {}
+    for output, terms in outputs.items():
+        c = np.column_stack(list(terms.values()))[first:]
+        y = np.asarray(measured_um, dtype=float)[first:]
+        residue = y - c.sum(axis=1)
+        if y.size < 3 or not np.all(np.isfinite(residue)) or np.std(residue) <= 0.0:
+            continue
+        prior = calibration_prior((*terms, BIAS), c, residue)
+        docs[output] = probe_prior_doc(prior)
+    return docs

@@ -1,0 +1,147 @@
+"""A model judged with probe updates, as the daemon will run it (``compd compare --probe-every``, issue 35 item 7).
+
+The model is run over the record as ``compare`` runs it (its evaluation, a
+``--from`` part included); then, in time order, each probe updates the
+output's gains and bias (:class:`compd.model.probeupdate.ProbeUpdater`, the
+core the daemon steps). Every sample is predicted with the parameters as
+updated at the last probe before it; the sample at a probe instant is
+predicted before its update. The prediction with probes and the open-loop
+one (the model as it is) are judged over the same samples.
+
+Probes come from a file (``--probes``: columns ``time_s`` and the output's
+name, values in um on the record's time axis) or are drawn from the measured
+column every ``--probe-every`` from the judged part's start (the first one
+interval after it) plus seeded Gaussian noise of ``--probe-noise-um``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from compd.errors import DataFileError
+from compd.files.probeprior import OutputPrior, output_prior
+from compd.model.compiled import qualified_names
+from compd.model.metrics import Comparison
+from compd.model.probeupdate import ProbeSettings, ProbeStep, ProbeUpdater
+from compd.toolkit.evaluate import Evaluation
+
+
+@dataclass(frozen=True)
+class Probes:
+    """Probe instants (s, the record's time axis) and measured values (um), in time order."""
+
+    time_s: np.ndarray
+    measured_um: np.ndarray
+
+    @classmethod
+    def every(
+        cls,
+        time_s: np.ndarray,
+        measured_um: np.ndarray,
+        every_s: float,
+        *,
+        noise_um: float = 0.5,
+        seed: int = 0,
+    ) -> Probes:
+        """Probes drawn from the measured column every ``every_s`` after its first sample, plus noise."""
+        if not every_s > 0:
+            raise ValueError(f"the probe interval must be above 0 s, is {every_s}")
+        instants = np.arange(time_s[0] + every_s, time_s[-1] + 1e-9, every_s)
+        index = np.searchsorted(time_s, instants - 1e-9)
+        index = index[index < len(time_s)]
+        noise = np.random.default_rng(seed).normal(0.0, noise_um, index.size)
+        return cls(np.asarray(time_s)[index], np.asarray(measured_um)[index] + noise)
+
+
+@dataclass(frozen=True)
+class ProbeRun:
+    """One output judged open loop and with probes; ``steps``: every probe as the update took it."""
+
+    output: str
+    predicted_um: np.ndarray
+    steps: tuple[ProbeStep, ...]
+    prior: OutputPrior
+    settings: ProbeSettings
+    open_loop: Comparison
+    with_probes: Comparison
+
+    def count(self, result: str) -> int:
+        """Steps with ``result``; a probe flagged then confirmed is counted under both."""
+        return sum(step.result == result for step in self.steps)
+
+    @property
+    def probe_count(self) -> int:
+        return len({step.time_s for step in self.steps})
+
+
+def run_probes(
+    evaluation: Evaluation,
+    output: str,
+    measured: str,
+    probes: Probes,
+    **settings: float,
+) -> ProbeRun:
+    """``evaluation``'s ``output`` updated at ``probes``, judged against column ``measured``.
+
+    ``settings`` override :meth:`ProbeSettings.defaults` (``probe_noise_um``,
+    ``drift_um_per_sqrt_h``, ``max_departure_um``, ``reject_sigma``).
+    """
+    compiled = evaluation.compiled
+    out = compiled.output_names.index(output)
+    owned = np.flatnonzero(compiled.output_matrix[out])
+    qualified = qualified_names(compiled)
+    names = tuple(qualified[int(s)].partition("/")[2] for s in owned)
+    prior = output_prior(evaluation.model_file, output, names)
+    updater = ProbeUpdater(prior.prior, ProbeSettings.defaults(prior.prior, **settings))
+    time_s = evaluation.data.time_s
+    contributions = evaluation.result.contributions[:, owned]
+    x = np.column_stack([contributions, np.ones(len(time_s))])
+    open_loop = evaluation.predicted(output)
+    fixed = open_loop - contributions.sum(axis=1)  # what no gain scales (a residual model)
+    inside = (probes.time_s >= time_s[0]) & (probes.time_s <= time_s[-1])
+    if not np.any(inside):
+        raise DataFileError(
+            evaluation.data.path,
+            f"no probe falls in the judged part ({time_s[0]:g} .. {time_s[-1]:g} s)",
+            fix="Give probe times on the record's time axis (time_s), inside the judged part",
+        )
+    predicted = np.empty_like(open_loop)
+    steps: list[ProbeStep] = []
+    done = 0  # samples predicted so far
+    for t, z in zip(probes.time_s[inside], probes.measured_um[inside], strict=True):
+        # Up to and including the probe instant: the parameters before this probe.
+        upto = int(np.searchsorted(time_s, t, side="right"))
+        predicted[done:upto] = updater.predict(x[done:upto], fixed[done:upto])
+        done = upto
+        at = np.array([np.interp(t, time_s, column) for column in x.T])
+        steps += updater.probe(float(t), at, float(z), float(np.interp(t, time_s, fixed)))
+    predicted[done:] = updater.predict(x[done:], fixed[done:])
+    y = evaluation.data.column(measured)
+    return ProbeRun(
+        output,
+        predicted,
+        tuple(steps),
+        prior,
+        updater.settings,
+        Comparison.of(output, y, open_loop),
+        Comparison.of(output, y, predicted),
+    )
+
+
+def read_probes(path: str, output: str, frame_columns: dict[str, Sequence[float]]) -> Probes:
+    """Probes from a table's ``time_s`` and ``output`` columns; a missing column names the file and the fix."""
+    missing = [c for c in ("time_s", output) if c not in frame_columns]
+    if missing:
+        raise DataFileError(
+            path,
+            f"the probe file has no column(s) {missing}",
+            fix=f"Give it a time_s column and one named {output!r} (the measured value, um)",
+        )
+    t = np.asarray(frame_columns["time_s"], dtype=float)
+    z = np.asarray(frame_columns[output], dtype=float)
+    keep = np.isfinite(t) & np.isfinite(z)
+    order = np.argsort(t[keep], kind="stable")
+    return Probes(t[keep][order], z[keep][order])
