@@ -46,8 +46,8 @@ from typing import Any
 import bench_modbus
 from common import environment, verdict
 
-from compd.drivers.gateway import GatewayDriver, GatewaySettings
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.gateway.driver import GatewayDriver, GatewaySettings
+from compd.drivers.modbus.settings import ModbusSettings
 from compd.service.clock import RealClock
 from compd.service.links import DriverLink
 from compd.sim.plc.gateway import GatewayServer

@@ -34,8 +34,8 @@ from pathlib import Path
 
 from common import environment, verdict
 
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.modbus.driver import ModbusDriver
+from compd.drivers.modbus.settings import ModbusSettings
 from compd.service.clock import RealClock
 from compd.service.links import DriverLink
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 from common import environment, verdict
 
-from compd.drivers.opcua import OpcUaDriver, OpcUaSettings
+from compd.drivers.opcua.driver import OpcUaDriver, OpcUaSettings
 from compd.service.clock import RealClock
 from compd.service.links import DriverLink
 from tests.drivers.opcua_server import (

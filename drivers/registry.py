@@ -23,9 +23,9 @@ ENTRY_POINT_GROUP = "compd.drivers"
 #: compd's own driver types: config name -> ``module:class``, imported on first use.
 BUILTIN: dict[str, str] = {
     "linuxcnc": "compd.drivers.linuxcnc:LinuxCncDriver",
-    "modbus": "compd.drivers.modbus:ModbusDriver",
-    "opcua": "compd.drivers.opcua:OpcUaDriver",
-    "profibus_gateway": "compd.drivers.gateway:GatewayDriver",
+    "modbus": "compd.drivers.modbus.driver:ModbusDriver",
+    "opcua": "compd.drivers.opcua.driver:OpcUaDriver",
+    "profibus_gateway": "compd.drivers.gateway.driver:GatewayDriver",
     "serial_sensor": "compd.drivers.serial_sensor:SerialSensorDriver",
     "simulated": "compd.drivers.simulated:SimulatedDriver",
 }

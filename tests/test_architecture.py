@@ -13,6 +13,7 @@ import pytest
 import yaml
 
 from tests.acceptance.conftest import machine_doc
+from tests.installed import run_installed
 
 ROOT = Path(__file__).parents[1]
 BUNDLED_MODEL = ROOT / "config" / "simulated_model.yaml"
@@ -23,18 +24,10 @@ NOT_IN_THE_DAEMON = ("pandas", "sklearn", "plotly", "PyEMD", "matplotlib", "rich
 NOT_IN_A_PARSER = ("numpy", "scipy", "pandas", "pydantic", "structlog", "pymodbus", "asyncua")
 
 
-def in_checkout(*argv: str) -> subprocess.CompletedProcess[str]:
-    """Run ``argv`` on this checkout's sources (``compd/drivers`` links to ``drivers/``)."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, env=env, timeout=300)
-
-
 def test_each_room_imports_only_the_rooms_below_it() -> None:
     """import-linter checks pyproject.toml's contracts: layers; what the daemon and the driver API may load."""
     lint = shutil.which("lint-imports") or pytest.fail("import-linter is in the test extras")
-    done = in_checkout(
-        lint, "--no-cache"
-    )  # the contracts of ./pyproject.toml, as a developer runs it
+    done = run_installed(lint, "--no-cache")  # as a developer runs it: python -m tests.installed
     assert done.returncode == 0, done.stdout + done.stderr
     assert "0 broken" in done.stdout
 
@@ -49,10 +42,10 @@ def test_no_module_imports_itself_through_others() -> None:
         "    graphlib.TopologicalSorter(edges).prepare()\n"
         "except graphlib.CycleError as exc:\n"
         "    print(' -> '.join(exc.args[1])); raise SystemExit(1)\n"
-        "assert 'compd.drivers.modbus' in edges, 'the drivers are in the graph'\n"
+        "assert 'compd.drivers.modbus.driver' in edges, 'the drivers are in the graph'\n"
         "print(len(edges), 'modules')\n"
     )
-    done = in_checkout(sys.executable, "-c", script)
+    done = run_installed(sys.executable, "-c", script)
     assert done.returncode == 0, f"an import circle: {done.stdout}{done.stderr}"
 
 
@@ -128,6 +121,8 @@ def test_run_for_a_real_machine_loads_no_toolkit_twin_or_plotting(short_dir: Pat
         machine.terminate()
         machine.wait(timeout=30)
     assert status == 0, out
-    assert {"compd.service.daemon", "compd.drivers.modbus"} <= modules, loaded(modules, ("compd",))
+    assert {"compd.service.daemon", "compd.drivers.modbus.driver"} <= modules, loaded(
+        modules, ("compd",)
+    )
     assert loaded(modules, NOT_IN_THE_DAEMON) == []
     assert loaded(modules, ("asyncua", "can")) == [], "only the drivers the config names"

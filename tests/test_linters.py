@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.installed import run_installed
+
 ROOT = Path(__file__).parent.parent
 
 
@@ -26,7 +28,7 @@ def test_ruff_is_clean(argv: tuple[str, ...]) -> None:
 
 
 def test_mypy_is_clean_on_the_package_and_its_drivers() -> None:
-    """mypy (strict on the numeric core) passes on compd, the drivers checked through the link as installed."""
+    """mypy (strict on the numeric core) passes on compd, the drivers checked as the compd.drivers installed."""
     pytest.importorskip("mypy", reason="pip install -c .ci/requirements.lock -e '.[dev]'")
-    done = _run(sys.executable, "-m", "mypy")
+    done = run_installed(sys.executable, "-m", "mypy")
     assert done.returncode == 0, done.stdout + done.stderr

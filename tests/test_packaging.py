@@ -1,18 +1,107 @@
-"""Packaging: every Python package in the tree ships in the wheel."""
+"""Packaging: every Python package in the tree ships in the wheel, and every install imports its own files."""
 
+import json
+import os
+import shutil
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).parent.parent
+SETUPTOOLS = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
 
 
 def test_every_package_folder_is_listed_in_pyproject() -> None:
-    """A package folder under compd/ missing from pyproject's explicit list would vanish from `pip install .`."""
-    listed = set(
-        tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
-    )
-    found = {
-        ".".join(init.parent.relative_to(ROOT).parts)
-        for init in (ROOT / "compd").rglob("__init__.py")
+    """A package folder under compd/, drivers/ or config/ missing from pyproject's list would vanish from a wheel."""
+    roots = {"compd": ROOT / "compd"} | {
+        package: ROOT / folder for package, folder in SETUPTOOLS["package-dir"].items()
     }
-    assert found - listed == set()
+    found = {
+        ".".join((package, *init.parent.relative_to(folder).parts))
+        for package, folder in roots.items()
+        for init in folder.rglob("__init__.py")
+    }
+    assert "compd.drivers.modbus" in found
+    assert found - set(SETUPTOOLS["packages"]) == set()
+
+
+def git(*argv: str) -> str:
+    try:
+        done = subprocess.run(["git", *argv], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    except FileNotFoundError:
+        pytest.skip("git is not installed")
+    if done.returncode != 0:
+        pytest.skip(f"not a git checkout: {done.stderr.strip()}")
+    return done.stdout
+
+
+def test_the_repository_holds_no_symlink() -> None:
+    """drivers/ reaches compd.drivers by package-dir alone: a link would resolve to whatever it points at."""
+    links = [line for line in git("ls-files", "-s").splitlines() if line.startswith("120000 ")]
+    assert links == []
+
+
+#: Run by the fresh environment's Python, outside any checkout: where compd's files come from.
+WHERE = """
+import json
+import compd, compd.drivers, compd.drivers.modbus.driver
+from compd.drivers.registry import load_driver_type
+from compd.files.yamlplace import resolve_path
+print(json.dumps({
+    "compd": compd.__file__,
+    "drivers": compd.drivers.__file__,
+    "modbus": load_driver_type("modbus").__module__,
+    "bundled": str(resolve_path("bundled:simulated.yaml", ".")),
+}))
+"""
+
+
+def side_clone(dest: Path) -> Path:
+    """A second clone: this checkout's files as they are now (tracked and new), without the tests."""
+    listed = git("ls-files", "-z", "--cached", "--others", "--exclude-standard").split("\0")
+    for name in listed:
+        source = ROOT / name
+        wanted = name.split("/")[0] in ("compd", "drivers", "config") or "/" not in name
+        if wanted and source.is_file() and not source.is_symlink():
+            (dest / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, dest / name)
+    return dest
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("editable", [True, False], ids=["pip install -e", "pip install"])
+def test_a_second_clone_installed_imports_its_own_drivers_and_configs(
+    tmp_path: Path, editable: bool
+) -> None:
+    """Another clone installed in a fresh environment imports compd.drivers and bundled: from its own files.
+
+    The environment sees this checkout's install too (``--system-site-packages``,
+    ``--no-deps``: no download): the new install must win for every file. About 15 s.
+    """
+    clone = side_clone(tmp_path / "clone")
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", venv], check=True)
+    python = venv / "bin" / "python"
+    install = [python, "-m", "pip", "install", "-q", "--no-deps", "--disable-pip-version-check"]
+    installed = subprocess.run(
+        [*install, *(["-e"] if editable else []), clone],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert installed.returncode == 0, installed.stdout + installed.stderr
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
+    done = subprocess.run(
+        [python, "-c", WHERE], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    where = {key: Path(value) for key, value in json.loads(done.stdout).items() if key != "modbus"}
+    home = clone if editable else venv
+    assert all(path.is_relative_to(home) for path in where.values()), where
+    if editable:
+        assert where["drivers"] == clone / "drivers" / "__init__.py"
+        assert where["bundled"] == clone / "config" / "simulated.yaml"
+    else:
+        assert where["drivers"].parent == where["compd"].parent / "drivers"
+    assert json.loads(done.stdout)["modbus"] == "compd.drivers.modbus.driver"

@@ -22,11 +22,11 @@ from typing import TYPE_CHECKING, Any
 
 import can
 
-from compd.drivers.gateway_settings import FRAME_BYTES, GatewaySettings
+from compd.drivers.gateway.settings import FRAME_BYTES, GatewaySettings
 from compd.errors import DriverDisconnectedError, DriverProtocolError, DriverTimeoutError
 
 if TYPE_CHECKING:
-    from compd.drivers.gateway_status import StatusWatch
+    from compd.drivers.gateway.status import StatusWatch
 
 SYNC_ID = 0x080
 

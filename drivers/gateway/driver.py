@@ -30,7 +30,7 @@ into the DP output area. Two kinds of other side are supported
     address reads the image this driver last sent: an RPDO cannot be read
     back, so the service does not take it for the PLC's value.
 
-Addresses are byte offsets into the image (:mod:`compd.drivers.gateway_image`),
+Addresses are byte offsets into the image (:mod:`compd.drivers.gateway.image`),
 e.g. ``in:4:int32`` or ``in:12.3``. **32-bit consistency:** a CAN frame is
 one gateway cycle, so a multi-byte value split over two frames could pair
 halves of two cycles; the config rejects such an address. Over Modbus TCP
@@ -57,7 +57,7 @@ from typing import Protocol
 
 from compd.drivers.base import RawReading
 from compd.drivers.endpoints import modbus_units
-from compd.drivers.gateway_image import (
+from compd.drivers.gateway.image import (
     BYTE_TYPES,
     SYNTAX,
     ImagePoint,
@@ -66,9 +66,9 @@ from compd.drivers.gateway_image import (
     frame_of,
     parse_address,
 )
-from compd.drivers.gateway_modbus import ModbusTransport
-from compd.drivers.gateway_settings import FRAME_BYTES, GatewaySettings
-from compd.drivers.gateway_status import StatusWatch
+from compd.drivers.gateway.modbus import ModbusTransport
+from compd.drivers.gateway.settings import FRAME_BYTES, GatewaySettings
+from compd.drivers.gateway.status import StatusWatch
 from compd.drivers.points import INT_RANGES
 from compd.errors import DriverDisconnectedError, DriverProtocolError
 
@@ -172,7 +172,7 @@ class GatewayDriver:
         if self.settings.transport == "modbus_tcp":
             transport: Transport = ModbusTransport(self.settings, self.watch)
         else:
-            from compd.drivers.gateway_can import CanTransport  # python-can only when used
+            from compd.drivers.gateway.can import CanTransport  # python-can only when used
 
             transport = CanTransport(self.settings, self.watch)
         self._lock = asyncio.Lock()

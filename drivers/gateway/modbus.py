@@ -5,8 +5,8 @@ area and one writes the whole output area, so a tick's values come from one
 gateway cycle and the PLC sees one consistent output image. The requests,
 the connection and the translation of pymodbus errors are the Modbus
 driver's own, through its public single-request methods
-(:meth:`~compd.drivers.modbus.ModbusDriver.read_span`,
-:meth:`~compd.drivers.modbus.ModbusDriver.write_registers`).
+(:meth:`~compd.drivers.modbus.driver.ModbusDriver.read_span`,
+:meth:`~compd.drivers.modbus.driver.ModbusDriver.write_registers`).
 """
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from compd.drivers.gateway_settings import GatewaySettings
-from compd.drivers.gateway_status import StatusWatch
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.gateway.settings import GatewaySettings
+from compd.drivers.gateway.status import StatusWatch
+from compd.drivers.modbus.driver import ModbusDriver
+from compd.drivers.modbus.settings import ModbusSettings
 
 
 class ModbusTransport:

@@ -3,7 +3,7 @@
 Checked as they are read: each transport's limits (whole registers and one
 request per area over Modbus TCP; at most four 8-byte PDOs per direction
 over CANopen, one id per frame for raw CAN), and the status and live bits
-inside their areas. See :mod:`compd.drivers.gateway` for what they mean.
+inside their areas. See :mod:`compd.drivers.gateway.driver` for what they mean.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from compd.drivers.endpoints import Endpoint, can_endpoint, tcp_endpoint
-from compd.drivers.gateway_image import MAX_AREA_BYTES
+from compd.drivers.gateway.image import MAX_AREA_BYTES
 from compd.drivers.points import Order
 
 #: Bytes a CAN frame (a PDO) carries.

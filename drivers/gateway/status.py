@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import time
 
-from compd.drivers.gateway_image import frame_of
-from compd.drivers.gateway_settings import FRAME_BYTES, GatewaySettings
+from compd.drivers.gateway.image import frame_of
+from compd.drivers.gateway.settings import FRAME_BYTES, GatewaySettings
 from compd.errors import DriverProtocolError, DriverTimeoutError
 
 

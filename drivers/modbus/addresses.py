@@ -1,6 +1,6 @@
 """Modbus addresses: ``TABLE:ADDRESS[:TYPE][:byte=..][:word=..][:device=N]`` parsed once into a point.
 
-The grammar is documented with the driver (:mod:`compd.drivers.modbus`); the
+The grammar is documented with the driver (:mod:`compd.drivers.modbus.driver`); the
 simulated PLC's Modbus server lays out its registers with the same parser,
 so both sides agree on every address by construction.
 """

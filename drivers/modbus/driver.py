@@ -55,7 +55,7 @@ from pymodbus.pdu.register_message import (
 from compd.drivers.base import RawReading
 from compd.drivers.endpoints import modbus_units
 from compd.drivers.library_logs import quiet_library
-from compd.drivers.modbus_addresses import (
+from compd.drivers.modbus.addresses import (
     BIT_TABLES,
     WRITABLE_TABLES,
     ModbusPoint,
@@ -63,7 +63,7 @@ from compd.drivers.modbus_addresses import (
     parse_address,
     translation_note,
 )
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.modbus.settings import ModbusSettings
 from compd.drivers.points import INT_RANGES
 from compd.errors import (
     DriverDisconnectedError,

@@ -8,7 +8,7 @@ and one Read call; after that every tick is ONE Read service call for all
 requested nodes (the loop polls; a 1 s subscription would add up to a period
 of latency and its own reconnect logic).
 
-Values are typed by the server (:mod:`compd.drivers.opcua_values`): reads
+Values are typed by the server (:mod:`compd.drivers.opcua.values`): reads
 give floats, writes go out with each node's own variant type, integers
 range-checked and never wrapped.
 
@@ -22,7 +22,7 @@ the server's endpoints (readable without security) are checked: a server
 presenting another certificate is refused at once as "not trusted", where
 the secured handshake alone would only time out. A username's password
 comes from a file or an environment variable; secrets are never logged or
-put into error messages (:mod:`compd.drivers.opcua_security`).
+put into error messages (:mod:`compd.drivers.opcua.security`).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from asyncua.ua.uaerrors import UaError, UaStatusCodeError, UaStringParsingError
 
 from compd.drivers.base import HostProblem, RawReading
 from compd.drivers.library_logs import quiet_library
-from compd.drivers.opcua_security import (
+from compd.drivers.opcua.security import (
     REFUSALS,
     certificate_der,
     certificate_uri,
@@ -51,8 +51,8 @@ from compd.drivers.opcua_security import (
     read_password,
     settings_file,
 )
-from compd.drivers.opcua_settings import POLICIES, OpcUaSecurity, OpcUaSettings
-from compd.drivers.opcua_values import NUMERIC_TYPES, to_float, to_variant, variant_type
+from compd.drivers.opcua.settings import POLICIES, OpcUaSecurity, OpcUaSettings
+from compd.drivers.opcua.values import NUMERIC_TYPES, to_float, to_variant, variant_type
 from compd.errors import (
     DriverDisconnectedError,
     DriverError,
@@ -60,7 +60,7 @@ from compd.errors import (
     DriverTimeoutError,
 )
 
-log = structlog.get_logger("compd.drivers.opcua")
+log = structlog.get_logger("compd.drivers.opcua.driver")
 quiet_library("asyncua")  # a line per read at INFO, per dropped session at WARNING
 
 

@@ -23,7 +23,7 @@ from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 
 from compd.drivers.base import HostProblem
-from compd.drivers.opcua_settings import OpcUaSettings
+from compd.drivers.opcua.settings import OpcUaSettings
 from compd.errors import DriverError, DriverProtocolError
 from compd.files.yamlplace import resolve_path
 

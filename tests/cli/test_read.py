@@ -19,8 +19,8 @@ import pytest
 import serial
 import yaml
 
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.modbus.driver import ModbusDriver
+from compd.drivers.modbus.settings import ModbusSettings
 from tests.clirun import compd_result as compd
 from tests.drivers.instrument import PtyInstrument
 from tests.drivers.modbus_server import free_port, running_tcp_server
@@ -385,7 +385,7 @@ def test_read_loads_the_daemons_stack_only(tmp_path):
 
     status, modules, out = imported_by("read", "--config", machine_config(tmp_path, free_port()))
     assert status == 1 and "cannot connect" in out
-    assert "compd.drivers.modbus" in modules
+    assert "compd.drivers.modbus.driver" in modules
     assert loaded(modules, (*NOT_IN_THE_DAEMON, "asyncua", "can")) == []
 
 

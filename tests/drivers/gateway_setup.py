@@ -15,7 +15,7 @@ from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
 
-from compd.drivers.gateway import GatewayDriver, GatewaySettings
+from compd.drivers.gateway.driver import GatewayDriver, GatewaySettings
 from compd.sim.plc.gateway import GatewayServer
 
 #: Raw values the gateway publishes: every type, both orders, bytes and bits, all inside one 8-byte frame each.

@@ -17,7 +17,7 @@ from typing import Any
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from compd.drivers.modbus_addresses import parse_address
+from compd.drivers.modbus.addresses import parse_address
 from tests.ports import free_port as free_port  # re-exported: tests import it from here
 
 # Input registers preset with values in several layouts (addresses 0-based).

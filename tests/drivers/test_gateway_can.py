@@ -16,7 +16,7 @@ from hypothesis import given
 from hypothesis import settings as settings_
 from hypothesis import strategies as st
 
-from compd.drivers.gateway import GatewayDriver, GatewaySettings
+from compd.drivers.gateway.driver import GatewayDriver, GatewaySettings
 from compd.drivers.registry import load_driver_type
 from compd.errors import DriverError, DriverProtocolError, DriverTimeoutError
 from compd.service.clock import VirtualClock

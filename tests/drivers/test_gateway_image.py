@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from compd.drivers.gateway_image import ImagePoint, check_one_frame, parse_address
+from compd.drivers.gateway.image import ImagePoint, check_one_frame, parse_address
 from compd.errors import DriverProtocolError
 
 

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from compd.drivers.gateway import GatewayDriver, GatewaySettings
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.gateway.driver import GatewayDriver, GatewaySettings
+from compd.drivers.modbus.driver import ModbusDriver
+from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import ConfigFileError, DriverProtocolError, DriverTimeoutError
 from compd.service.clock import VirtualClock
 from compd.service.config import parse_config

@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 from structlog.testing import capture_logs
 
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.modbus.driver import ModbusDriver
+from compd.drivers.modbus.settings import ModbusSettings
 from compd.drivers.registry import load_driver_type
 from compd.errors import (
     ConfigFileError,

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compd.drivers.modbus_addresses import parse_address, translation_note
+from compd.drivers.modbus.addresses import parse_address, translation_note
 from tests.clirun import compd_result as compd
 
 from ..service.daemon_setup import merge, simulated_doc

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 from pymodbus.server import ModbusSerialServer
 
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.modbus.driver import ModbusDriver
+from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import DriverProtocolError, DriverTimeoutError
 
 from .contract import ContractSetup, DriverContract

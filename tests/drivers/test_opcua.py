@@ -22,8 +22,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from compd.drivers.opcua import OpcUaDriver, OpcUaSettings
-from compd.drivers.opcua_values import NUMERIC_TYPES
+from compd.drivers.opcua.driver import OpcUaDriver, OpcUaSettings
+from compd.drivers.opcua.values import NUMERIC_TYPES
 from compd.drivers.registry import driver_names, load_driver_type
 from compd.errors import (
     ConfigFileError,

@@ -7,7 +7,7 @@ import math
 import pytest
 from asyncua import ua
 
-from compd.drivers.opcua_values import INT_RANGES, to_float, to_variant, variant_type
+from compd.drivers.opcua.values import INT_RANGES, to_float, to_variant, variant_type
 from compd.errors import DriverProtocolError
 
 

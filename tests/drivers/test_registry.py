@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compd.drivers.registry import driver_names, load_driver_type
+from compd.drivers.registry import BUILTIN, driver_names, load_driver_type
 from compd.errors import ConfigFileError
 from compd.service.config import load_config
 from tests.acceptance.conftest import machine_doc
@@ -136,3 +136,12 @@ def test_a_driver_hook_that_raises_is_named_not_a_traceback(
     message = " ".join(str(caught.value).split())
     assert f"driver 'plc' (type 'mybus') {said}" in message
     assert "report it to its maintainer" in message
+
+
+@pytest.mark.parametrize("name", sorted(BUILTIN))
+def test_each_builtin_name_is_its_class_in_the_module_it_names(name: str):
+    """A built-in type loads from the module ``BUILTIN`` names (a protocol's sub-package: its ``driver``)."""
+    module, _, attribute = BUILTIN[name].partition(":")
+    kind = load_driver_type(name)
+    assert (kind.__module__, kind.__name__) == (module, attribute)
+    assert module.startswith("compd.drivers.")

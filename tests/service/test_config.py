@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from compd.drivers.gateway import GatewayDriver
-from compd.drivers.gateway_settings import GatewaySettings
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.gateway.driver import GatewayDriver
+from compd.drivers.gateway.settings import GatewaySettings
+from compd.drivers.modbus.driver import ModbusDriver
+from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import ConfigFileError
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import resolve_path

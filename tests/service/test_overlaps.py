@@ -19,8 +19,8 @@ import yaml
 
 from compd.cli import main
 from compd.drivers.endpoints import LOOPBACK, host_key
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.modbus.driver import ModbusDriver
+from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import ConfigFileError
 from compd.files.yamlplace import resolve_path
 

@@ -26,8 +26,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_addresses import parse_address
+from compd.drivers.modbus.addresses import parse_address
+from compd.drivers.modbus.driver import ModbusDriver
 from compd.files.yamlplace import resolve_path
 from compd.service.clock import VirtualClock
 from compd.service.compensator import TickRecord

@@ -13,9 +13,9 @@ from typing import Any
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_addresses import parse_address
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.modbus.addresses import parse_address
+from compd.drivers.modbus.driver import ModbusDriver
+from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import DriverProtocolError
 from compd.service.clock import VirtualClock
 from compd.service.links import DriverLink

@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 
 import pytest
 
-from compd.drivers.opcua import OpcUaDriver, OpcUaSettings
+from compd.drivers.opcua.driver import OpcUaDriver, OpcUaSettings
 from compd.errors import DriverProtocolError
 from compd.service.clock import VirtualClock
 from compd.service.links import DriverLink

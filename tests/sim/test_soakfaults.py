@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from compd.drivers.modbus import ModbusDriver
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.modbus.driver import ModbusDriver
+from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import CompdError, DriverError
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import resolve_path

@@ -8,7 +8,7 @@ server at ``host:port`` (the input area as input registers from
 the input area as TPDOs / raw frames every ``cycle_s`` (or, with
 ``sync: true``, on every SYNC) and takes the output area from RPDOs / raw
 frames. Values sit in the image exactly as the driver decodes them (the same
-:mod:`compd.drivers.gateway_image` codec and default orders), and every
+:mod:`compd.drivers.gateway.image` codec and default orders), and every
 received output frame or register write is reported as
 ``on_write(address, raw)`` for the output addresses it carries.
 
@@ -38,10 +38,10 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simcore import SimCore
 
-from compd.drivers.gateway import GatewayDriver
-from compd.drivers.gateway_can import SYNC_ID, close_bus, frame_sizes, listen, open_bus
-from compd.drivers.gateway_image import ImagePoint, parse_address
-from compd.drivers.gateway_settings import FRAME_BYTES, GatewaySettings
+from compd.drivers.gateway.can import SYNC_ID, close_bus, frame_sizes, listen, open_bus
+from compd.drivers.gateway.driver import GatewayDriver
+from compd.drivers.gateway.image import ImagePoint, parse_address
+from compd.drivers.gateway.settings import FRAME_BYTES, GatewaySettings
 from compd.errors import DriverError
 from compd.sim.plc.server import WriteSink, servable
 

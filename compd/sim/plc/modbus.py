@@ -6,7 +6,7 @@ exactly the addresses of the config, nothing else, as a PLC programmer maps
 them: the inputs compd reads (any table, type and order, any ``device=``)
 and the outputs compd writes (holding registers and coils). Values are laid
 out by compd's own codec
-(:func:`compd.drivers.modbus_addresses.parse_address`), so a published raw
+(:func:`compd.drivers.modbus.addresses.parse_address`), so a published raw
 value reads back as that very value through the driver.
 
 Writes are accepted only at output addresses; a write touching an input or
@@ -44,8 +44,8 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simcore import SimCore
 
-from compd.drivers.modbus_addresses import WRITABLE_TABLES, ModbusPoint, parse_address
-from compd.drivers.modbus_settings import ModbusSettings
+from compd.drivers.modbus.addresses import WRITABLE_TABLES, ModbusPoint, parse_address
+from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import DriverProtocolError
 from compd.sim.plc.server import PlcServerType, WriteSink, servable
 

@@ -46,8 +46,8 @@ from asyncua.ua.object_ids import ObjectIds
 from asyncua.ua.status_codes import StatusCodes
 from asyncua.ua.uaerrors import UaStatusCodeError
 
-from compd.drivers.opcua_security import read_password
-from compd.drivers.opcua_settings import OpcUaSettings
+from compd.drivers.opcua.security import read_password
+from compd.drivers.opcua.settings import OpcUaSettings
 from compd.errors import DriverError
 from compd.files.yamlplace import resolve_path
 from compd.sim.plc.opcua_security import (

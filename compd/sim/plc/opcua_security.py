@@ -11,7 +11,7 @@ server's pair and the client's pair are generated here (asyncua's
 where the settings name them, PEM or DER by suffix as the driver reads them.
 Existing files are used as they are; a half pair is an error naming the fix.
 Certificates are loaded with the driver's own
-:func:`~compd.drivers.opcua_security.load_certificate`.
+:func:`~compd.drivers.opcua.security.load_certificate`.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from cryptography.hazmat.primitives.serialization import (
 )
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
-from compd.drivers.opcua_security import load_certificate
+from compd.drivers.opcua.security import load_certificate
 from compd.errors import DriverError
 
 log = structlog.get_logger("compd.sim.plc.opcua")
