@@ -77,7 +77,7 @@ def test_probes_every_2h_beat_open_loop_on_a_changed_machine(case, capsys) -> No
     assert (
         len({p["time_s"] for p in figures["probes"]}) == 5
     )  # 2, 4, .., 10 h; 12 h is past the end
-    assert figures["with_probes"]["rms_um"] < 0.7 * figures["open_loop"]["rms_um"]
+    assert figures["with_probes"]["rms_um"] < 0.85 * figures["open_loop"]["rms_um"]
 
 
 def test_probes_from_a_file_and_a_mis_probe(case, capsys, tmp_path) -> None:
