@@ -20,10 +20,11 @@ subset ``K`` of the other signals is the conditional mean::
 One fit serves every combination of failed or unavailable predictors, and a
 predictor outside what the calibration saw (25 % of its span beyond it; heavy
 cutting at 10 kW after a calibration at 0.5 kW) is left out rather than
-extrapolated. The spread of the residue is judged honestly: fitted on one
-half of the calibration, judged on the other, and the other way round
-(:attr:`ConsistencyModel.sigma`); the residue of a thermal record is
-autocorrelated, so the in-sample spread would be far too small.
+extrapolated. The spread that matters is how far the residue drifts from
+where it was (a slow bias persists on a programme the calibration did not
+run; the daemon takes it out): the RMS of its change over an hour, judged
+honestly, fitted on one half of the calibration and judged on the other and
+the other way round (:attr:`ConsistencyModel.sigma`).
 
 Pure numpy; the daemon steps :class:`ConsistencyCheck` once a tick.
 """
@@ -43,6 +44,10 @@ import numpy as np
 TAUS_S: tuple[float, ...] = (300.0, 1200.0, 3600.0, 10800.0)
 #: The exponent of a spindle speed's heat feature, ``(|n| / 1000 rpm) ** HEAT_EXPONENT``.
 HEAT_EXPONENT = 1.5
+#: The residue's spread is judged as its change over this long (s): the daemon compares a
+#: reading with its prediction shifted by the residue it had before (a bias that persists for
+#: hours on a programme the calibration did not run), and a stand-in lasts about this long.
+DRIFT_HORIZON_S = 3600.0
 #: Ridge on the covariance, relative to each feature's variance.
 RIDGE = 1e-3
 #: A predictor this far (in its calibration span) beyond the calibration's range is left out.
@@ -75,7 +80,8 @@ class ConsistencyModel:
     #: Each feature's range on the calibration.
     low: np.ndarray
     high: np.ndarray
-    #: Per checked input: the held-out RMS of its residue (its unit) when predicted from all others.
+    #: Per checked input: the held-out RMS of its residue's change over :data:`DRIFT_HORIZON_S`
+    #: (its unit) when predicted from all others.
     sigma: tuple[float, ...]
     #: Per checked input: the largest rate it moved at on the calibration (its unit per s).
     max_rate_per_s: tuple[float, ...]
@@ -138,6 +144,7 @@ def fit_consistency(
     features = feature_rows(columns, signals, heated, taus, sample_time_s, starts)
     mean, cov = _moments(features)
     half = len(features) // 2
+    lag = max(1, round(DRIFT_HORIZON_S / sample_time_s))
     halves = [(slice(0, half), slice(half, None)), (slice(half, None), slice(0, half))]
     partial = ConsistencyModel(
         tuple(signals), tuple(checked), taus, heated, mean, cov,
@@ -155,8 +162,11 @@ def fit_consistency(
             rest = [f for j in others for f in groups[j]]
             pred = m[groups[i][0]] + (features[judge_part][:, rest] - m[rest]) @ w
             residue = features[judge_part][:, groups[i][0]] - pred
-            squares += float(residue @ residue)
-            n += len(residue)
+            drift = (
+                residue[lag:] - residue[:-lag] if len(residue) > lag else residue - residue.mean()
+            )
+            squares += float(drift @ drift)
+            n += len(drift)
         sigma.append(math.sqrt(squares / max(n, 1)))
         x = np.asarray(columns[name], dtype=float)
         steps = np.abs(np.diff(x))

@@ -151,7 +151,7 @@ class Plausibility:
                 # (the axes freeze, then ramp) as a failing sensor is without a consistency model.
                 last = self.monitors[name].last_good
                 out[name] = Reading(last, Health.FAULTED, f"no prediction: {episode.reason}")
-                self.monitors[name].rebase(out[name])
+                self.monitors[name].rebase(out[name], last)
                 continue
             agrees = reading.health is Health.OK and self._score(name, reading.value, p) <= 1.0
             episode.agreeing = episode.agreeing + 1 if agrees else 0
@@ -162,11 +162,12 @@ class Plausibility:
             estimate = p.value + self.residue.get(name, 0.0)
             why = f"estimated from the other sensors: {episode.reason}"
             out[name] = Reading(estimate, Health.ESTIMATED, why)
-            self.monitors[name].rebase(out[name])
+            now = read.get(name)
+            reference = now if now is not None and math.isfinite(now) else out[name].value
+            self.monitors[name].rebase(out[name], reference)
         self.predictions = predictions
-        if any(
-            out[n] is not readings[n] for n in self.checked
-        ):  # the low-passes take what was used
+        if any(out[n] is not readings[n] for n in self.checked):
+            # The low-passes take what was used.
             z = check.features({n: r.value for n, r in out.items()})
         check.advance(z)
         return out

@@ -96,13 +96,16 @@ class SignalMonitor:
             self.reading = Reading(self.last_good, Health.HELD if held else Health.FAULTED, problem)
         return self.reading
 
-    def rebase(self, reading: Reading) -> None:
-        """Take ``reading`` (a stand-in for a wrong value) as what the checks compare the next reading with.
+    def rebase(self, reading: Reading, reference: float) -> None:
+        """Use ``reading`` (a stand-in for a wrong value) this tick; the next reading's rate is
+        checked against ``reference``.
 
-        The rate check then measures a returning sensor against the value the
-        model used, not against the wrong reading it replaced.
+        While a stand-in is used, the reference is the sensor's own last
+        reading (where it read a finite value): a sensor back from a fault
+        reads steadily again, and whether that value is right is for the
+        other sensors to say, not for a stand-in that may be a few degrees off.
         """
-        self.last_good = reading.value
+        self.last_good = reference
         self.reading = reading
 
     def _problem(self, now_s: float, value: float | None) -> str | None:
