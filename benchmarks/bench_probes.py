@@ -133,7 +133,7 @@ def summarise_machines(results: list[dict[str, object]]) -> None:
         f"(quartiles {np.percentile(hours_judged, 25):.1f} .. {np.percentile(hours_judged, 75):.1f})"
     )
     print(
-        "  every | beats own open loop | median change (points) | q05 change | "
+        "  every | beats own open loop | median change (points) | q05 / worst change | "
         "not below mlr updated | median fit default / mlr"
     )
     for k, hours in enumerate(INTERVALS_H, start=1):
@@ -142,7 +142,8 @@ def summarise_machines(results: list[dict[str, object]]) -> None:
         not_below = 100.0 * float(np.mean(default[:, k] >= mlr[:, k] - TIE_POINTS))
         print(
             f"  {hours:4.0f} h | {beats:18.0f} % | {np.median(change):+22.2f} | "
-            f"{np.percentile(change, 5):+10.2f} | {not_below:20.0f} % | "
+            f"{np.percentile(change, 5):+10.2f} / {np.min(change):+.1f} (seed "
+            f"{judged[int(np.argmin(change))]['seed']}) | {not_below:20.0f} % | "
             f"{np.median(default[:, k]):.1f} / {np.median(mlr[:, k]):.1f}"
         )
         probed = default[:, n + k] > 0
@@ -232,15 +233,24 @@ def main(argv: list[str] | None = None) -> int:
         help="compare settings: the drift in calibration sigmas per sqrt(h) "
         f"(default {probeupdate.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H})",
     )
+    parser.add_argument(
+        "--gain-scale",
+        type=float,
+        help="compare settings: the calibration prior's gain scale "
+        f"(default {probeupdate.DEFAULT_PRIOR_GAIN_SCALE})",
+    )
     args = parser.parse_args(argv)
     # Module defaults read at each call: set before the workers fork, they take them too.
     if args.reject_floor_share is not None:
         probeupdate.DEFAULT_REJECT_FLOOR_SHARE = args.reject_floor_share
+    if args.gain_scale is not None:
+        probeupdate.DEFAULT_PRIOR_GAIN_SCALE = args.gain_scale
     if args.drift_sigmas is not None:
         probeupdate.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H = args.drift_sigmas
     print(
         f"settings: reject floor {probeupdate.DEFAULT_REJECT_FLOOR_SHARE} x output peak, drift "
-        f"{probeupdate.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H} sigma per sqrt(h), probe noise {NOISE_UM} um"
+        f"{probeupdate.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H} sigma per sqrt(h), prior gain scale "
+        f"{probeupdate.DEFAULT_PRIOR_GAIN_SCALE}, probe noise {NOISE_UM} um"
     )
     print(environment())
     print(f"one probe update at 81 parameters: {update_cost_ms():.3f} ms")

@@ -70,6 +70,12 @@ UNKNOWN_DEPARTURE_UM = 25.0
 DEFAULT_REJECT_FLOOR_SHARE = 0.5
 MIN_REJECT_FLOOR_UM = 2.0
 UNKNOWN_REJECT_FLOOR_UM = 10.0
+#: Before the calibration every gain is 1 +- this (the ridge of :func:`calibration_prior`): the
+#: default prior's gain sd, so the calibration's posterior is never wider than no calibration
+#: in any gain. Chosen on the random machines (benchmarks/bench_probes.py, 1.0 and 0.3 tried:
+#: at 2 h 0.3 halved the 5 % quantile of the change against open loop, -3.17 -> -1.67 points,
+#: beating open loop as often, 79 -> 78 %).
+DEFAULT_PRIOR_GAIN_SCALE = 0.3
 #: The conservative prior of a model file without one: gain sd, and bias sd in calibration RMS.
 DEFAULT_GAIN_SD = 0.3
 DEFAULT_BIAS_SD_RMS = 2.0
@@ -186,6 +192,7 @@ class ProbeUpdater:
     last_time_s: float | None = field(init=False, default=None)
     #: Up to when the random walk has been added to ``covariance`` (the last probe taken).
     drifted_to_s: float | None = field(init=False, default=None)
+    _recent: np.ndarray | None = field(init=False, default=None, repr=False)
     pending: _Pending | None = field(init=False, default=None)
 
     def __post_init__(self) -> None:
@@ -198,13 +205,22 @@ class ProbeUpdater:
         return predicted
 
     def probe(
-        self, time_s: float, x: np.ndarray, measured_um: float, fixed_um: float = 0.0
+        self,
+        time_s: float,
+        x: np.ndarray,
+        measured_um: float,
+        fixed_um: float = 0.0,
+        recent: np.ndarray | None = None,
     ) -> list[ProbeStep]:
         """Take one probe at ``time_s`` (s, not before the last); the steps taken, in time order.
 
         One step normally; two when this probe confirms a flagged one (the
-        flagged one first, taken now).
+        flagged one first, taken now). ``recent``: regressors (m, p) of the
+        time since the last probe; the departure bound holds over them too
+        (an update that fits the probe by moving gains the calibration could
+        not tell apart would swing the prediction elsewhere).
         """
+        self._recent = None if recent is None else np.asarray(recent, dtype=float)
         x = np.asarray(x, dtype=float)
         if x.shape != self.theta.shape:
             raise ModelError(f"a probe's regressor needs {self.theta.size} values, has {x.shape}")
@@ -299,6 +315,7 @@ class ProbeUpdater:
     ) -> ProbeStep:
         """The time update to ``time_s``, the Kalman measurement update (Joseph form), then the rails."""
         self._drift(x, time_s)
+        before = self.theta.copy()
         r = self.settings.probe_noise_um**2
         p = self.covariance
         px = p @ x
@@ -321,10 +338,34 @@ class ProbeUpdater:
         bounded = abs(departure) > bound
         if bounded:
             self.theta[-1] -= departure - np.copysign(bound, departure)
+        if self._recent is not None and len(self._recent):
+            step = self._within_bound(self._recent, before)
+            bounded = bounded or step < 1.0
         after = measured_um - float(fixed_um + x @ self.theta)
         return ProbeStep(
             time_s, measured_um, predicted_um, sd_um, innovation, after, result, bounded
         )
+
+    def _within_bound(self, rows: np.ndarray, before: np.ndarray) -> float:
+        """Shorten this update's step so the bound holds over ``rows``; the share of the step kept.
+
+        ``theta = before + a (theta - before)`` with the largest ``a`` in
+        [0, 1] for which every row's departure from the calibration model
+        stays within the bound (or, where ``before`` was already beyond it,
+        does not grow).
+        """
+        mean = self.prior.mean
+        start = rows @ (before - mean)
+        move = rows @ (self.theta - before)
+        end = start + move
+        limit = np.maximum(self.settings.max_departure_um, np.abs(start))
+        over = np.abs(end) > limit
+        if not np.any(over):
+            return 1.0
+        share = (np.sign(end[over]) * limit[over] - start[over]) / move[over]
+        a = float(np.clip(np.min(share), 0.0, 1.0))
+        self.theta = before + a * (self.theta - before)
+        return a
 
 
 def default_prior(names: tuple[str, ...], calibration_rms_um: float) -> Prior:
@@ -346,7 +387,7 @@ def calibration_prior(
     contributions_um: np.ndarray,
     residue_um: np.ndarray,
     *,
-    gain_scale: float = 1.0,
+    gain_scale: float | None = None,
 ) -> Prior:
     """The calibration's posterior as prior (issue 35 item 2).
 
@@ -374,7 +415,8 @@ def calibration_prior(
     sigma = float(np.std(e))
     sigma = max(sigma, 1e-6)
     n_eff = effective_samples(e)
-    ridge = np.full(len(names), 1.0 / gain_scale**2)
+    scale = DEFAULT_PRIOR_GAIN_SCALE if gain_scale is None else gain_scale
+    ridge = np.full(len(names), 1.0 / scale**2)
     ridge[-1] = 0.0
     information = (n_eff / e.size) * (x.T @ x) / sigma**2 + np.diag(ridge)
     covariance = np.linalg.pinv(information, hermitian=True)

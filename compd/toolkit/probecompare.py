@@ -28,6 +28,9 @@ from compd.model.metrics import Comparison
 from compd.model.probeupdate import ProbeSettings, ProbeStep, ProbeUpdater
 from compd.toolkit.evaluate import Evaluation
 
+#: The regressors since the last probe the departure bound is held over, at most this many.
+RECENT_ROWS = 240
+
 
 @dataclass(frozen=True)
 class Probes:
@@ -115,9 +118,12 @@ def run_probes(
         # Up to and including the probe instant: the parameters before this probe.
         upto = int(np.searchsorted(time_s, t, side="right"))
         predicted[done:upto] = updater.predict(x[done:upto], fixed[done:upto])
+        # The time since the last probe, as the daemon keeps it: at most RECENT_ROWS rows.
+        recent = x[done:upto][:: max(1, (upto - done) // RECENT_ROWS)]
         done = upto
         at = np.array([np.interp(t, time_s, column) for column in x.T])
-        steps += updater.probe(float(t), at, float(z), float(np.interp(t, time_s, fixed)))
+        fixed_at = float(np.interp(t, time_s, fixed))
+        steps += updater.probe(float(t), at, float(z), fixed_at, recent=recent)
     predicted[done:] = updater.predict(x[done:], fixed[done:])
     y = evaluation.data.column(measured)
     return ProbeRun(

@@ -8,6 +8,7 @@ import pytest
 from compd.errors import ModelError
 from compd.model.probeupdate import (
     BIAS,
+    DEFAULT_PRIOR_GAIN_SCALE,
     Prior,
     ProbeSettings,
     ProbeUpdater,
@@ -104,7 +105,7 @@ def test_probes_out_of_time_order_are_refused() -> None:
 
 
 def test_the_calibration_prior_is_the_inflated_ridge_posterior() -> None:
-    """P0 = ((n_eff/n) X'X / s^2 + L)^-1: a (3, 3) SPD matrix, widened by the residue's autocorrelation."""
+    """P0 = ((n_eff/n) X'X / s^2 + L)^-1: a (3, 3) SPD matrix, widened by the residue's autocorrelation, within L^-1."""
     c = _contributions(3000)
     rng = np.random.default_rng(2)
     white = rng.normal(0, 1.0, len(c))
@@ -123,7 +124,8 @@ def test_the_calibration_prior_is_the_inflated_ridge_posterior() -> None:
     x = np.column_stack([c, np.ones(len(c))])
     s2 = np.var(correlated)
     expected = np.linalg.inv(
-        autocorrelated.effective_samples / len(c) * x.T @ x / s2 + np.diag([1.0, 1.0, 0.0])
+        autocorrelated.effective_samples / len(c) * x.T @ x / s2
+        + np.diag([1.0, 1.0, 0.0]) / DEFAULT_PRIOR_GAIN_SCALE**2
     )
     np.testing.assert_allclose(autocorrelated.covariance, expected, rtol=1e-8)
 
@@ -157,3 +159,22 @@ def test_one_update_at_80_parameters_is_cheap() -> None:
     x = np.ones(81)
     steps = updater.probe(0.0, x, 1.0)
     assert steps[0].result in ("accepted", "flagged")
+
+
+def test_the_departure_bound_holds_over_the_time_since_the_last_probe() -> None:
+    """Given the regressors since the last probe, no update takes the prediction there beyond the bound.
+
+    (Where the parameters before the update were already beyond it, as the
+    regressors moved on, the update does not take them further.)
+    """
+    c = _contributions(400)
+    x = np.column_stack([c, np.ones(len(c))])
+    updater = _updater(max_departure_um=3.0, reject_sigma=1e9)
+    mean = updater.prior.mean
+    last = 0
+    for i in range(20, 400, 20):
+        rows = x[last : i + 1]
+        limit = np.maximum(3.0, np.abs(rows @ (updater.theta - mean)))
+        updater.probe(i * 60.0, x[i], float(x[i] @ mean) + 0.5 * c[i, 0], recent=rows)
+        assert np.all(np.abs(rows @ (updater.theta - mean)) <= limit + 1e-9)
+        last = i
