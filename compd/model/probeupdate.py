@@ -70,6 +70,9 @@ UNKNOWN_DEPARTURE_UM = 25.0
 DEFAULT_REJECT_FLOOR_SHARE = 0.5
 MIN_REJECT_FLOOR_UM = 2.0
 UNKNOWN_REJECT_FLOOR_UM = 10.0
+#: An update may move a prediction since the last probe by at most this many times the
+#: probe's innovation (chosen on the random machines: the worst machine at 2 h -62.7 -> -8.7 points).
+REACH = 2.0
 #: Before the calibration every gain is 1 +- this (the ridge of :func:`calibration_prior`): the
 #: default prior's gain sd, so the calibration's posterior is never wider than no calibration
 #: in any gain. Chosen on the random machines (benchmarks/bench_probes.py, 1.0 and 0.3 tried:
@@ -340,11 +343,30 @@ class ProbeUpdater:
             self.theta[-1] -= departure - np.copysign(bound, departure)
         if self._recent is not None and len(self._recent):
             step = self._within_bound(self._recent, before)
+            step *= self._within_reach(self._recent, innovation, before)
             bounded = bounded or step < 1.0
         after = measured_um - float(fixed_um + x @ self.theta)
         return ProbeStep(
             time_s, measured_um, predicted_um, sd_um, innovation, after, result, bounded
         )
+
+    def _within_reach(self, rows: np.ndarray, innovation: float, before: np.ndarray) -> float:
+        """Shorten this update's step so it moves no recent prediction by more than ``REACH`` |e|.
+
+        A probe tells how far the model is off at its instant (``e``, or the
+        probe noise if larger); an update that moves the prediction elsewhere
+        in the time since the last probe by more than ``REACH`` times that is
+        moving gains along directions the calibration could not tell apart.
+        Returns the share of the step kept.
+        """
+        delta = self.theta - before
+        cap = REACH * max(abs(innovation), self.settings.probe_noise_um)
+        largest = float(np.max(np.abs(rows @ delta)))
+        if largest <= cap:
+            return 1.0
+        a = cap / largest
+        self.theta = before + a * delta
+        return a
 
     def _within_bound(self, rows: np.ndarray, before: np.ndarray) -> float:
         """Shorten this update's step so the bound holds over ``rows``; the share of the step kept.

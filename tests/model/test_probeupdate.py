@@ -9,6 +9,7 @@ from compd.errors import ModelError
 from compd.model.probeupdate import (
     BIAS,
     DEFAULT_PRIOR_GAIN_SCALE,
+    REACH,
     Prior,
     ProbeSettings,
     ProbeUpdater,
@@ -178,3 +179,20 @@ def test_the_departure_bound_holds_over_the_time_since_the_last_probe() -> None:
         updater.probe(i * 60.0, x[i], float(x[i] @ mean) + 0.5 * c[i, 0], recent=rows)
         assert np.all(np.abs(rows @ (updater.theta - mean)) <= limit + 1e-9)
         last = i
+
+
+def test_an_update_moves_no_recent_prediction_by_more_than_twice_the_innovation() -> None:
+    """Over the time since the last probe, an update moves the prediction at most REACH times the innovation."""
+    rng = np.random.default_rng(4)
+    names = (*(f"g{i}" for i in range(8)), BIAS)
+    prior = Prior(names, 0.09 * np.eye(9), residue_sigma_um=1.0)
+    updater = ProbeUpdater(prior, ProbeSettings.defaults(prior, reject_sigma=1e9))
+    rows = np.column_stack([rng.normal(0, 10, (100, 8)), np.ones(100)])
+    for k in range(1, 10):
+        before = updater.theta.copy()
+        recent = rows[10 * (k - 1) : 10 * k + 1]
+        (step,) = updater.probe(
+            k * 3600.0, recent[-1], float(recent[-1] @ before) + 5.0, recent=recent
+        )
+        moved = np.abs(recent @ (updater.theta - before))
+        assert np.max(moved) <= REACH * abs(step.innovation_before_um) + 1e-9
