@@ -31,9 +31,16 @@ Guard rails (issue 35 item 3):
   prediction at the probe; the updated prediction at the probe
   may not be further than ``max_departure_um`` from the calibration model's
   (``x' theta0``): the bias, the one parameter with no guard rail, takes up
-  the excess.
+  the excess;
+- given the regressors of the time since the last probe (``recent``), the
+  update's step is shortened so that the departure bound holds over them
+  too and no prediction there moves by more than :data:`REACH` times the
+  innovation: a probe says how far the model is off at one instant, and an
+  update that fits it by moving gains the calibration could not tell apart
+  (temperatures that move together) swings the prediction elsewhere.
 
-One probe costs O(p^2) for p parameters (about 0.1 ms at 80 in numpy).
+One probe costs O(p^2 + m p) for p parameters and m recent rows (about 0.1 ms
+at 80 parameters in numpy).
 numpy only: no files, no logging; the daemon steps it as ``compd compare
 --probe-every`` does.
 """
@@ -95,9 +102,10 @@ class Prior:
     ``names``: each gain's sub-model, then :data:`BIAS`; ``residue_sigma_um``:
     the calibration residue's standard deviation; ``samples`` and
     ``effective_samples``: the calibration's length and its effective sample
-    size (0 for a default prior); ``output_peak_um``: the largest ``|output|``
-    the calibration model gave over its calibration (0: unknown); ``source``: ``"calibration"`` (``compd fit``
-    stored it) or ``"default"`` (:func:`default_prior`).
+    size (0 for a default prior); ``output_peak_um``: the largest
+    ``|output|`` the calibration model gave over its calibration (0:
+    unknown); ``source``: ``"calibration"`` (``compd fit`` stored it) or
+    ``"default"`` (:func:`default_prior`).
     """
 
     names: tuple[str, ...]
