@@ -114,16 +114,20 @@ def run_probes(
     predicted = np.empty_like(open_loop)
     steps: list[ProbeStep] = []
     done = 0  # samples predicted so far
+    since = 0  # the sample after the last probe taken (a flagged one changes nothing)
     for t, z in zip(probes.time_s[inside], probes.measured_um[inside], strict=True):
         # Up to and including the probe instant: the parameters before this probe.
         upto = int(np.searchsorted(time_s, t, side="right"))
         predicted[done:upto] = updater.predict(x[done:upto], fixed[done:upto])
-        # The time since the last probe, as the daemon keeps it: at most RECENT_ROWS rows.
-        recent = x[done:upto][:: max(1, (upto - done) // RECENT_ROWS)]
         done = upto
+        # The time since the last probe taken, as the daemon keeps it: at most RECENT_ROWS rows.
+        recent = x[since:upto][:: max(1, (upto - since) // RECENT_ROWS)]
         at = np.array([np.interp(t, time_s, column) for column in x.T])
         fixed_at = float(np.interp(t, time_s, fixed))
-        steps += updater.probe(float(t), at, float(z), fixed_at, recent=recent)
+        taken = updater.probe(float(t), at, float(z), fixed_at, recent=recent)
+        if any(step.result in ("accepted", "confirmed") for step in taken):
+            since = upto
+        steps += taken
     predicted[done:] = updater.predict(x[done:], fixed[done:])
     y = evaluation.data.column(measured)
     return ProbeRun(
