@@ -213,8 +213,13 @@ class ConsistencyCheck:
         self._lows_at = self._base_at[:, None] + np.arange(1, per)[None, :]
         alpha = np.array([math.exp(-self.period_s / tau) for tau in model.taus_s])
         self._alpha = alpha[None, :]
-        margin = RANGE_MARGIN * (model.high - model.low)
-        self._low, self._high = model.low - margin, model.high + margin
+        # Every feature against the range its base (a value, a heat) had on the calibration: a
+        # low-pass never leaves its input's range, so this admits a warm start and refuses a
+        # low-pass still full of a heat the calibration never saw (hours of 10 kW cutting).
+        base_of = np.repeat(self._base_at, self._lows_at.shape[1] + 1)
+        low, high = model.low[base_of], model.high[base_of]
+        margin = RANGE_MARGIN * (high - low)
+        self._low, self._high = low - margin, high + margin
         self._missing = np.array([n not in self.available for n in model.signals])
         self._state: np.ndarray | None = None
         self._cache: dict[tuple[int, frozenset[int]], tuple[np.ndarray, float, np.ndarray]] = {}
@@ -253,11 +258,7 @@ class ConsistencyCheck:
 
     def usable(self, z: np.ndarray, unusable: set[str]) -> np.ndarray:
         """Per signal: whether it may predict the others this tick (read, finite, within its calibration)."""
-        # Finite everywhere; within range where it is read now (its value, a speed's heat): its
-        # low-passes follow a past the calibration may not have had (a start on a warm machine).
-        inside = np.isfinite(z)
-        at = self._base_at
-        inside[at] &= (z[at] >= self._low[at]) & (z[at] <= self._high[at])
+        inside = np.isfinite(z) & (z >= self._low) & (z <= self._high)
         ok: np.ndarray = np.logical_and.reduceat(inside, self._starts) & ~self._missing
         for name in unusable:
             ok[self.model.signals.index(name)] = False
