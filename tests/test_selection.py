@@ -42,3 +42,14 @@ def test_a_pattern_matching_nothing_lists_the_columns(data) -> None:
     """The error names the pattern, the option and the file's columns."""
     with pytest.raises(DataFileError, match=r"'t\*' matches no column.*T1, T2, T10"):
         select_columns(data, "t*", option="--inputs")
+
+
+def test_all_leaves_out_what_compds_recorder_adds_beside_the_signals(tmp_path: Path) -> None:
+    """A recording of compd's own: ``all`` is its signals, not their health, readings or status."""
+    path = tmp_path / "rec.csv"
+    columns = ["T_spindle_degC", "read.T_spindle_degC", "health.T_spindle_degC", "model.disp_z_um"]
+    columns += ["offset.Z_um", "readback.Z_um", "gain.g1", "status", "heartbeat"]
+    frame = pd.DataFrame({name: [1.0, 2.0, 3.0] for name in columns})
+    frame.insert(0, "time_s", [0.0, 1.0, 2.0])
+    frame.to_csv(path, index=False)
+    assert select_columns(load_data(path), "all", option="--inputs") == ["T_spindle_degC"]

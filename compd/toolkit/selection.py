@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from fnmatch import fnmatchcase
 
 from compd.errors import DataFileError
+from compd.files.columns import is_recorded_column
 from compd.files.data import DataSet
 
 #: Column names of measured displacements (case-insensitive): never an input under ``all``.
@@ -34,15 +35,21 @@ def select_columns(
     Plain names are kept as given, repeats included, so the caller's own
     checks (unknown column, named twice, the output as an input) still
     speak; a glob or ``all`` adds the columns it matches that are not
-    ``exclude``\\ d and not already chosen, in the file's column order.
+    ``exclude``\\ d and not already chosen, in the file's column order; ``all``
+    means the signals, never a displacement nor what compd's recorder adds
+    beside them (``health.*``, ``read.*``, ``model.*``, ``status``, ...).
     """
     chosen: list[str] = []
     eligible = [name for name in data.columns if name not in exclude]
     for item in (part.strip() for part in text.split(",")):
         if not item:
             continue
-        if item.lower() == "all":
-            matches = [name for name in eligible if not is_displacement(name)]
+        if item.lower() == "all":  # the signals: not displacements, nor the recorder's own columns
+            matches = [
+                name
+                for name in eligible
+                if not is_displacement(name) and not is_recorded_column(name)
+            ]
         elif _GLOB_CHARACTERS & set(item):
             matches = [name for name in eligible if fnmatchcase(name, item)]
         else:
