@@ -46,9 +46,10 @@ from compd.errors import CompdError  # noqa: E402
 from compd.files.data import load_data  # noqa: E402
 from compd.files.experiments import load_experiments  # noqa: E402
 from compd.files.modelfile import parse_model  # noqa: E402
-from compd.model import probeupdate  # noqa: E402
+from compd.model import probeupdate, updateprior  # noqa: E402
 from compd.model.metrics import fit_percent  # noqa: E402
-from compd.model.probeupdate import BIAS, ProbeSettings, ProbeUpdater, default_prior  # noqa: E402
+from compd.model.probeupdate import ProbeSettings, ProbeUpdater  # noqa: E402
+from compd.model.updateprior import BIAS, default_prior  # noqa: E402
 from compd.sim.machines import random_machine, write_case, write_log  # noqa: E402
 from compd.toolkit.fit import fit_data  # noqa: E402
 from compd.toolkit.probecompare import Probes, run_probes  # noqa: E402
@@ -237,20 +238,20 @@ def main(argv: list[str] | None = None) -> int:
         "--gain-scale",
         type=float,
         help="compare settings: the calibration prior's gain scale "
-        f"(default {probeupdate.DEFAULT_PRIOR_GAIN_SCALE})",
+        f"(default {updateprior.DEFAULT_PRIOR_GAIN_SCALE})",
     )
     args = parser.parse_args(argv)
     # Module defaults read at each call: set before the workers fork, they take them too.
     if args.reject_floor_share is not None:
         probeupdate.DEFAULT_REJECT_FLOOR_SHARE = args.reject_floor_share
     if args.gain_scale is not None:
-        probeupdate.DEFAULT_PRIOR_GAIN_SCALE = args.gain_scale
+        updateprior.DEFAULT_PRIOR_GAIN_SCALE = args.gain_scale
     if args.drift_sigmas is not None:
         probeupdate.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H = args.drift_sigmas
     print(
         f"settings: reject floor {probeupdate.DEFAULT_REJECT_FLOOR_SHARE} x output peak, drift "
         f"{probeupdate.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H} sigma per sqrt(h), prior gain scale "
-        f"{probeupdate.DEFAULT_PRIOR_GAIN_SCALE}, probe noise {NOISE_UM} um"
+        f"{updateprior.DEFAULT_PRIOR_GAIN_SCALE}, probe noise {NOISE_UM} um"
     )
     print(environment())
     print(f"one probe update at 81 parameters: {update_cost_ms():.3f} ms")

@@ -10,7 +10,7 @@ from compd.files.modelfile import parse_model
 from compd.files.modelwriter import model_to_yaml
 from compd.files.probeprior import output_prior, probe_prior_doc
 from compd.model import ContinuousTF, InputSpec, Model, Output, SubModel
-from compd.model.probeupdate import BIAS, calibration_prior
+from compd.model.updateprior import BIAS, calibration_prior
 
 
 def _model() -> Model:

@@ -1,9 +1,9 @@
 """A model file's prior for the probe update: the ``probe_prior`` block, or the documented default.
 
 ``compd fit`` stores per output the calibration's posterior
-(:func:`compd.model.probeupdate.calibration_prior`); a model file without it
+(:func:`compd.model.updateprior.calibration_prior`); a model file without it
 (written before, by another tool, or extended since) gets
-:func:`compd.model.probeupdate.default_prior`: every gain ``1 +- 0.3``, the
+:func:`compd.model.updateprior.default_prior`: every gain ``1 +- 0.3``, the
 bias ``0 +- 2x`` the calibration RMS (the provenance's, else 1 um), and a
 note the tools print.
 """
@@ -16,7 +16,7 @@ import numpy as np
 
 from compd.files.modelfile import ModelFile
 from compd.files.modelschema import ProbePriorDoc
-from compd.model.probeupdate import BIAS, Prior, calibration_prior, default_prior
+from compd.model.updateprior import BIAS, Prior, calibration_prior, default_prior
 
 #: The calibration RMS a model file that records none is taken to have, um.
 UNKNOWN_RMS_UM = 1.0

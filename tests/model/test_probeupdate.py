@@ -6,13 +6,11 @@ import numpy as np
 import pytest
 
 from compd.errors import ModelError
-from compd.model.probeupdate import (
+from compd.model.probeupdate import REACH, ProbeSettings, ProbeUpdater
+from compd.model.updateprior import (
     BIAS,
     DEFAULT_PRIOR_GAIN_SCALE,
-    REACH,
     Prior,
-    ProbeSettings,
-    ProbeUpdater,
     calibration_prior,
     default_prior,
     effective_samples,
