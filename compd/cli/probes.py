@@ -88,6 +88,14 @@ def compare_with_probes(args: argparse.Namespace) -> int:
             fix="Give one record, or join a recorded run's files into one",
         )
     data = experiments[0]
+    if getattr(args, "report", None) or getattr(args, "wide", False):
+        raise DataFileError(
+            data.path,
+            "--report and --wide do not take probe updates yet: the probe comparison is a table "
+            "(or --json) of its own",
+            where="--report/--wide with --probe-every/--probes",
+            fix="Run compare once with the probes and once with --report",
+        )
     span = span_from_args(args, data)
     evaluation = evaluate_span(load_model(args.model), data, span, init=args.init)
     runs = []

@@ -118,3 +118,13 @@ def test_a_model_file_without_the_prior_uses_the_default_and_says_so(
     assert "conservative default" in note and "gain 1 +- 0.3" in note
     assert main(["compare", str(bare), str(folder / "later.csv"), "--probe-every", "2h"]) == 0
     assert "conservative default" in capsys.readouterr().err
+
+
+def test_probes_with_a_report_are_refused(case, capsys) -> None:
+    """--report is not drawn with probe updates: refused with exit 2, not silently ignored."""
+    folder, model = case
+    code = main(["compare", str(model), str(folder / "later.csv"), "--probe-every", "2h",
+                 "--report", str(folder / "r.html")])  # fmt: skip
+    assert code == 2
+    assert "--report" in capsys.readouterr().err
+    assert not (folder / "r.html").exists()
