@@ -64,7 +64,7 @@ NOISE_UM = 0.5
 
 
 def _fits(model, log, output: str, cut_s: float, seed: int) -> list[float]:
-    """Open-loop fit %, with probes every :data:`INTERVALS_H`, then each interval's probe count.
+    """Open-loop fit %, with probes every :data:`INTERVALS_H`, each interval's probe count, open-loop RMS um.
 
     The model run on from the log's start, judged from ``cut_s``.
     """
@@ -80,7 +80,8 @@ def _fits(model, log, output: str, cut_s: float, seed: int) -> list[float]:
         run = run_probes(run_on, output, output, probes) if probes.time_s.size else None
         figures.append(figures[0] if run is None else run.with_probes.fit_percent)
         counts.append(float(probes.time_s.size))
-    return [*figures, *counts]
+    residue = measured - run_on.predicted(output)
+    return [*figures, *counts, float(np.sqrt(np.mean(residue**2)))]
 
 
 def judge_machine(seed: int) -> dict[str, object]:
@@ -160,6 +161,18 @@ def summarise_machines(results: list[dict[str, object]]) -> None:
             f"        regression updated: beats own open loop {100 * np.mean(mlr_change > 0):.0f} %, "
             f"median change {np.median(mlr_change):+.2f}"
         )
+    # A probe carries little where the model is already better than the probe: there an
+    # update is a small random perturbation of a good model.
+    small = default[:, -1] < NOISE_UM
+    change = default[:, 1] - default[:, 0]
+    for label, part in (("below", small), ("at or above", ~small)):
+        if part.any():
+            print(
+                f"  every {INTERVALS_H[0]:g} h, open-loop RMS {label} the probe noise ({NOISE_UM} um): "
+                f"{int(part.sum())} machines, beats own open loop {100 * np.mean(change[part] > 0):.0f} %, "
+                f"median change {np.median(change[part]):+.2f}, 5 % quantile "
+                f"{np.percentile(change[part], 5):+.2f}"
+            )
     kept = [str(r.get("default_kept")) for r in judged]
     print(f"  default kept: {', '.join(f'{m} {kept.count(m)}' for m in sorted(set(kept)))}")
 
