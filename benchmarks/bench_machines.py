@@ -106,7 +106,7 @@ from compd.model.metrics import fit_percent  # noqa: E402
 from compd.sim.machines import random_machine, write_case, write_log  # noqa: E402
 from compd.sim.programmes import PROGRAMMES  # noqa: E402
 from compd.toolkit.evaluate import evaluate, pooled_comparisons  # noqa: E402
-from compd.toolkit.fit import FitResult, fit_data  # noqa: E402
+from compd.toolkit.fit import FitRequest, FitResult, fit_data  # noqa: E402
 from compd.toolkit.span import evaluate_span, resolve_span  # noqa: E402
 
 #: The default, then the candidates judged in hindsight.
@@ -216,11 +216,13 @@ def _judge_method(
         try:
             fitted = fit_data(
                 calibration,
-                output=output,
-                inputs=list(inputs),
-                method="auto" if method == "default" else method,
-                order=order,
-                force=method != "default",
+                FitRequest(
+                    output=output,
+                    inputs=list(inputs),
+                    method="auto" if method == "default" else method,
+                    order=order,
+                    force=method != "default",
+                ),
             )
             model = parse_model(fitted.yaml_text)
             pooled = pooled_comparisons([evaluate(model, data) for data in verify], output)[0]

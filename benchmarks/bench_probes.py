@@ -51,7 +51,7 @@ from compd.model.metrics import fit_percent  # noqa: E402
 from compd.model.probeupdate import ProbeSettings, ProbeUpdater  # noqa: E402
 from compd.model.updateprior import BIAS, default_prior  # noqa: E402
 from compd.sim.machines import random_machine, write_case, write_log  # noqa: E402
-from compd.toolkit.fit import fit_data  # noqa: E402
+from compd.toolkit.fit import FitRequest, fit_data  # noqa: E402
 from compd.toolkit.probecompare import Probes, run_probes  # noqa: E402
 from compd.toolkit.span import evaluate_span, resolve_span  # noqa: E402
 
@@ -104,10 +104,12 @@ def judge_machine(seed: int) -> dict[str, object]:
             try:
                 fitted = fit_data(
                     calibration,
-                    output=case.output,
-                    inputs=list(case.inputs),
-                    method="auto" if method == "default" else method,
-                    force=method != "default",
+                    FitRequest(
+                        output=case.output,
+                        inputs=list(case.inputs),
+                        method="auto" if method == "default" else method,
+                        force=method != "default",
+                    ),
                 )
                 model = parse_model(fitted.yaml_text)
                 result[method] = _fits(model, log, case.output, case.cut_s, seed)
@@ -191,11 +193,13 @@ def judge_record() -> None:
         for method in METHODS:
             fitted = fit_data(
                 [data],
-                output=channel,
-                inputs=inputs,
-                method="auto" if method == "default" else method,
-                force=method != "default",
-                span=resolve_span(data, None, 24 * 3600.0),
+                FitRequest(
+                    output=channel,
+                    inputs=inputs,
+                    method="auto" if method == "default" else method,
+                    force=method != "default",
+                    span=resolve_span(data, None, 24 * 3600.0),
+                ),
             )
             model = parse_model(fitted.yaml_text)
             run_on = evaluate_span(model, data, resolve_span(data, 24 * 3600.0, None))

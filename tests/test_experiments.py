@@ -15,7 +15,7 @@ from compd.files.experiments import load_experiments, stack
 from compd.files.modelfile import load_model
 from compd.model.crossval import experiment_folds
 from compd.toolkit.evaluate import evaluate
-from compd.toolkit.fit import fit_data
+from compd.toolkit.fit import FitRequest, fit_data
 from tests.clirun import compd
 
 N = 1500
@@ -150,7 +150,8 @@ def test_an_arx_fit_on_two_files_takes_no_lag_across_them(two: list[Path]) -> No
     """ARX on [a, b] equals lstsq on each file's regressors stacked, not on the joined record."""
     inputs = ["T_spindle_degC", "spindle_rpm"]
     result = fit_data(
-        load_experiments(two), output="disp_z_um", inputs=inputs, method="arx", order=1
+        load_experiments(two),
+        FitRequest(output="disp_z_um", inputs=inputs, method="arx", order=1),
     )
     channels = result.identification.channels
     a1 = channels[0].tf.a[1]
@@ -169,7 +170,8 @@ def test_an_arx_fit_on_two_files_takes_no_lag_across_them(two: list[Path]) -> No
 def test_a_lag_bank_fit_on_two_files_leaves_one_file_out(two: list[Path]) -> None:
     """fit --method auto over two files: folds are the files; the lags restart at each."""
     result = fit_data(
-        load_experiments(two), output="disp_z_um", inputs=["T_spindle_degC"], method="auto"
+        load_experiments(two),
+        FitRequest(output="disp_z_um", inputs=["T_spindle_degC"], method="auto"),
     )
     assert result.selection is not None
     assert result.selection.folds.describe() == "leave one of 2 experiments (files) out"
@@ -180,9 +182,13 @@ def test_options_of_one_record_are_refused_with_several(two: list[Path]) -> None
     """OE and ARX order search work on one record: refused with the fix."""
     experiments = load_experiments(two)
     with pytest.raises(DataFileError, match="--method oe works on one record"):
-        fit_data(experiments, output="disp_z_um", inputs=["T_spindle_degC"], method="oe")
+        fit_data(
+            experiments, FitRequest(output="disp_z_um", inputs=["T_spindle_degC"], method="oe")
+        )
     with pytest.raises(DataFileError, match="give the order"):
-        fit_data(experiments, output="disp_z_um", inputs=["T_spindle_degC"], method="arx")
+        fit_data(
+            experiments, FitRequest(output="disp_z_um", inputs=["T_spindle_degC"], method="arx")
+        )
 
 
 def test_a_one_row_file_in_a_folder_is_left_out_with_a_note(two: list[Path]) -> None:

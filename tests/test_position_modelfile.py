@@ -11,7 +11,7 @@ from compd.files.data import load_data
 from compd.files.modelfile import parse_model
 from compd.files.modelwriter import model_to_yaml
 from compd.model import DiscreteTF, InputSpec, Model, Output, Position, SubModel, compile_model
-from compd.toolkit.fit import fit_data
+from compd.toolkit.fit import FitRequest, fit_data
 
 TF = DiscreteTF.from_coefficients([0.0012345678901234567, -3.3e-7], [1.0, -0.95], 1)
 
@@ -95,7 +95,9 @@ def test_fit_data_refuses_bad_position_arguments(
     """A position that is an input, combined with a phase gate, unknown, or a NaN reference is refused by name."""
     data = load_data(positions_csv)
     with pytest.raises(DataFileError, match=message) as raised:
-        fit_data(data, output="disp_x_um", inputs=["T_screw_degC"], method="mlr", **options)
+        fit_data(
+            data, FitRequest(output="disp_x_um", inputs=["T_screw_degC"], method="mlr", **options)
+        )
     assert where in str(raised.value)
 
 
@@ -103,7 +105,10 @@ def test_fit_data_with_a_position_writes_offset_and_slope_submodels(positions_cs
     """An MLR fit with a position gives an offset and a slope sub-model; the slope is alpha (0.0115 um/(mm K))."""
     data = load_data(positions_csv)
     result = fit_data(
-        data, output="disp_x_um", inputs=["T_screw_degC"], method="mlr", position="X_position_mm"
+        data,
+        FitRequest(
+            output="disp_x_um", inputs=["T_screw_degC"], method="mlr", position="X_position_mm"
+        ),
     )
     offset, slope = result.model.outputs[0].submodels
     assert offset.position is None and slope.position == Position("X_position_mm", 0.0)

@@ -16,7 +16,7 @@ from compd.files.data import load_data
 from compd.files.modelfile import parse_model
 from compd.model.outputstart import unzeroed_start
 from compd.toolkit.evaluate import compare, evaluate
-from compd.toolkit.fit import fit_data
+from compd.toolkit.fit import FitRequest, fit_data
 from tests.clirun import compd, compd_result
 
 REAL_RECORD = Path(__file__).parent / "data" / "fl_thermal_train.csv"
@@ -60,12 +60,12 @@ def test_fit_takes_an_unzeroed_output_as_its_change_and_fits_the_same_model(
     tmp_path: Path,
 ) -> None:
     zeroed = fit_data(
-        load_data(write_record(tmp_path / "zeroed.csv")), output="disp_z_um", inputs=["T1"]
+        load_data(write_record(tmp_path / "zeroed.csv")),
+        FitRequest(output="disp_z_um", inputs=["T1"]),
     )
     offset = fit_data(
         load_data(write_record(tmp_path / "offset.csv", OFFSET_UM)),
-        output="disp_z_um",
-        inputs=["T1"],
+        FitRequest(output="disp_z_um", inputs=["T1"]),
     )
     assert offset.identification.method == zeroed.identification.method
     assert offset.comparison.fit_percent == pytest.approx(zeroed.comparison.fit_percent)

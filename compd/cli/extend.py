@@ -244,7 +244,7 @@ def _extend(args: argparse.Namespace) -> int:
             f"over {len(experiments)} experiments: the regularised lag bank of the held-out check "
             "(every lag from rest at each file's start)"
         )
-    elif args.method == "auto" and extension.identification.method == "lagbank":
+    elif extension.fell_back:
         out.print(
             "the oe sub-model failed the guard rails: the regularised lag bank of the held-out "
             "check was added instead"

@@ -26,8 +26,9 @@ from compd.files.modelschema import median_fold_how
 from compd.model.collinear import MIN_ABS_CORRELATION
 from compd.model.identify import MIN_SAMPLES
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
-from compd.toolkit.candidates import FIT_METHODS
-from compd.toolkit.fit import FitResult, fit_data
+from compd.toolkit.fit import FitRequest, FitResult, fit_data
+from compd.toolkit.methods import FIT_METHODS, writes_lags
+from compd.toolkit.nestedselect import BASELINE
 from compd.toolkit.selection import select_columns
 from compd.toolkit.summary import fmt
 
@@ -201,8 +202,7 @@ def _fit(args: argparse.Namespace) -> int:
     inputs = select_columns(data, args.inputs, option="--inputs", exclude=taken)
     command = shlex.join(["compd", *sys.argv[1:]]) if sys.argv[1:] else None
     with progress_reporter() as progress:
-        result = fit_data(
-            experiments,
+        request = FitRequest(
             output=args.output,
             inputs=inputs,
             method=args.method,
@@ -218,9 +218,9 @@ def _fit(args: argparse.Namespace) -> int:
             denoise_imfs=args.denoise_imfs,
             name=args.name,
             command=command,
-            progress=progress,
             span=span,
         )
+        result = fit_data(experiments, request, progress=progress)
     for note in result.notes:
         print(f"note: {note}", file=sys.stderr)
     write_fit(result, data, args, span)
@@ -252,7 +252,7 @@ def _candidates_table(result: FitResult) -> Table:
 
     for score in selection.scores:
         note = "kept" if score.method == kept else ""
-        if score.method == "mlr" and kept != "mlr":
+        if score.method == BASELINE and kept != BASELINE:
             note = "static regression, the baseline"
         table.add_row(
             score.method,
@@ -317,7 +317,7 @@ def _lag_bank_table(result: FitResult, args: argparse.Namespace) -> Table:
 def _report(result: FitResult, args: argparse.Namespace) -> None:
     identification = result.identification
     sample_s = identification.sample_time_s
-    if identification.method == "lagbank":
+    if writes_lags(identification.method):
         _report_tail(result, args, _lag_bank_table(result, args))
         return
     table = Table(
@@ -383,7 +383,7 @@ def _report_tail(result: FitResult, args: argparse.Namespace, table: Table) -> N
             f"inputs that move together (|r| >= {MIN_ABS_CORRELATION}, one piece of information "
             f"per group): {groups}"
         )
-    if len(result.input_shares) > 1 and identification.method != "lagbank":
+    if len(result.input_shares) > 1 and not writes_lags(identification.method):
         carried = ", ".join(f"{name} {share:.0%}" for name, share in result.input_shares.items())
         out.print(f"share of the model's output carried by each input: {carried}")
     for finding in result.findings:

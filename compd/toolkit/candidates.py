@@ -38,10 +38,8 @@ from compd.model.lagbank import LagBankFit
 from compd.model.orderfit import Orders
 from compd.model.run import simulate
 from compd.model.structure import Model
-from compd.toolkit.nestedselect import Selection
+from compd.toolkit.nestedselect import BASELINE, LAG_BANK, Selection
 
-#: What ``compd fit --method`` accepts; ``auto`` compares lagbank and mlr by cross-validation.
-FIT_METHODS = ("auto", "lagbank", "oe", "arx", "mlr")
 #: Columns whose rising edges start an operating cycle, in order of preference.
 OPERATING_SIGNALS = ("spindle_speed*", "*_rpm", "spindle_power*", "*_kw")
 
@@ -121,7 +119,7 @@ def lag_bank_identification(
         nk=tuple(c.tf.nk for c in channels),
     )
     return Identification(
-        method="lagbank",
+        method=LAG_BANK,
         channels=tuple(channels),
         sample_time_s=sample_time_s,
         fit_percent=fit.fit_percent,
@@ -209,8 +207,8 @@ def refuse_errors(data: DataSet, findings: Sequence[Finding], *, what: str, wher
 
 def check_against_regression(data: DataSet, selection: Selection, chosen: str, force: bool) -> None:
     """Refuse a model expected to hold worse on new data than the static regression (unless forced)."""
-    score, regression = selection.score(chosen), selection.score("mlr")
-    if force or score is None or regression is None or chosen == "mlr":
+    score, regression = selection.score(chosen), selection.score(BASELINE)
+    if force or score is None or regression is None or chosen == BASELINE:
         return
     mine, baseline = score.held_out_percent, regression.held_out_percent
     if mine is None or baseline is None:

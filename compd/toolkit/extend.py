@@ -27,12 +27,12 @@ from compd.files.experiments import Stacked, as_stacked, single
 from compd.files.modelfile import ModelFile, parse_model
 from compd.files.modelwriter import model_to_yaml
 from compd.model.guards import Finding, Severity
-from compd.model.identify import Identification, identify
+from compd.model.identify import Identification
 from compd.model.lagbank import lag_name
 from compd.model.metrics import fit_percent
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF, resample_discrete
-from compd.toolkit.candidates import guard_findings, lag_bank_identification, refuse_errors
+from compd.toolkit.candidates import guard_findings, refuse_errors
 from compd.toolkit.evaluate import Evaluation, compare, evaluate_each, measured_columns
 from compd.toolkit.extendjudge import (
     RULE,
@@ -43,6 +43,8 @@ from compd.toolkit.extendjudge import (
     without_prior,
 )
 from compd.toolkit.extendrecord import ExtensionRecord, Tried, extension_yaml
+from compd.toolkit.methods import FitMethod, Prepared, method_named, writes_lags
+from compd.toolkit.nestedselect import LAG_BANK
 from compd.toolkit.span import Span, span_data, until_stop
 
 
@@ -68,6 +70,8 @@ class Extension:
     findings: list[Finding]
     #: Signals of earlier extensions on this record, re-identified together with this one.
     refitted: tuple[str, ...] = ()
+    #: The method's first choice failed the guard rails; its fallback was added instead.
+    fell_back: bool = False
 
 
 def extend_model(
@@ -111,9 +115,10 @@ def extend_model(
     runs = as_stacked(data)
     data, starts = runs.data, runs.starts
     several = len(starts) > 1
+    how = method_named(method)
     if several:
-        _check_several(data, method, len(starts), span)
-        method = "lagbank"
+        _check_several(data, how, len(starts), span)
+        how = method_named(LAG_BANK)  # the regularised lag bank over every file
     first = 0
     if span is not None and not several:
         data, first = until_stop(data, span), span.start
@@ -142,29 +147,30 @@ def extend_model(
         s.name for o in parent.model.outputs for s in o.submodels if s.name not in prior.submodels
     }
 
-    def submodels_by(how: str) -> tuple[Identification, tuple[SubModel, ...]]:
-        if how == "lagbank":
-            # The regularised lag bank that earned the signal its place is the sub-model itself.
-            found = lag_bank_identification(bank, list(signals), data.sample_time_s)
-        else:
-            found = identify(
-                residue,
-                {s: data.column(s) - data.column(s)[0] for s in signals},
-                sample_time_s=data.sample_time_s,
-                method=how,  # type: ignore[arg-type]
-                order=order,  # type: ignore[arg-type]
-                progress=progress,
-                first_sample=first,
-            )
+    # The regularised lag bank that earned the signal its place is the lag bank's sub-model.
+    prepared = Prepared(
+        residue,
+        {s: data.column(s) - data.column(s)[0] for s in signals},
+        data.sample_time_s,
+        order=order,
+        first_sample=first,
+        progress=progress,
+    )
+
+    def submodels_by(by: FitMethod) -> tuple[Identification, tuple[SubModel, ...]]:
+        found = by.identify(prepared, bank)
         made = _submodels(found, effects, taken, data, parent, starts)
         # The new signal's sub-models first, then those refitted with it.
         return found, tuple(sorted(made, key=lambda sub: sub.input.signal != signal))
 
-    identification, submodels = submodels_by("oe" if method == "auto" else method)
-    if method == "auto" and _guard_errors(data, parent, output, submodels, signal, prior):
+    first_choice, fallback = how.for_extension()
+    identification, submodels = submodels_by(first_choice)
+    fell_back = False
+    if fallback is not None and _guard_errors(data, parent, output, submodels, signal, prior):
         # OE found an implausible sub-model (a near-integrator balanced by another): the
         # regularised lag bank the held-out check fitted is stable by construction.
-        identification, submodels = submodels_by("lagbank")
+        identification, submodels = submodels_by(fallback)
+        fell_back = True
     names = [sub.name for sub in submodels]
     model = _with_submodels(parent.model, output, submodels, signal, drop=prior.submodels)
     record = ExtensionRecord(signal, names, prior.signals, tuple(tried), held_out)
@@ -208,6 +214,7 @@ def extend_model(
         held_out=held_out,
         findings=findings,
         refitted=prior.signals,
+        fell_back=fell_back,
     )
 
 
@@ -224,7 +231,7 @@ def _submodels(
     Each input's reference, its thermal zero, is its first value: over several
     experiments the mean of their first values (as ``compd fit`` sets them).
     """
-    bank = found.method == "lagbank"
+    bank = writes_lags(found.method)
     names = set(taken)
     out = []
     for c in found.channels:
@@ -248,9 +255,10 @@ def _submodels(
     return tuple(out)
 
 
-def _check_several(data: DataSet, method: str, experiments: int, span: Span | None) -> None:
+def _check_several(data: DataSet, how: FitMethod, experiments: int, span: Span | None) -> None:
     """Refuse what works on one record only when ``data`` stacks several experiments."""
-    if method in ("oe", "arx"):
+    if how.extends_one_record:
+        method = how.name
         raise DataFileError(
             data.path,
             f"--method {method} identifies a sub-model on one record, and the data make "

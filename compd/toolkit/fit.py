@@ -36,7 +36,7 @@ from compd.model.collinear import collinear_groups
 from compd.model.consistency import fit_consistency
 from compd.model.experiments import ONE, start_values
 from compd.model.guards import Finding
-from compd.model.identify import Identification, identify
+from compd.model.identify import Identification
 from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 from compd.model.metrics import Comparison
 from compd.model.orderfit import Progress
@@ -45,11 +45,9 @@ from compd.toolkit.candidates import (
     check_against_regression,
     contributions_of,
     cross_validation_doc,
-    describe_lag_bank,
     folds_of,
     guard_findings,
     input_shares,
-    lag_bank_identification,
     operating_signal,
     refuse_errors,
 )
@@ -62,6 +60,7 @@ from compd.toolkit.fitmodel import (
     unit_of,
     with_references,
 )
+from compd.toolkit.methods import METHODS, Prepared, method_named
 from compd.toolkit.nestedselect import Selection, SelectionStep, compare_candidates
 from compd.toolkit.selection import is_displacement
 from compd.toolkit.span import Span, until_stop
@@ -91,28 +90,9 @@ class FitResult:
     notes: tuple[str, ...] = ()
 
 
-def fit_data(
-    data: DataSet | Sequence[DataSet],
-    *,
-    output: str,
-    inputs: Sequence[str],
-    method: str = "auto",
-    order: int | str = "auto",
-    cycles: str | None = None,
-    force: bool = False,
-    time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S,
-    select_inputs_first: bool = False,
-    phase_gate: str | None = None,
-    position: str | None = None,
-    position_reference_mm: float = 0.0,
-    denoise: Sequence[str] = (),
-    denoise_imfs: int = 1,
-    name: str | None = None,
-    command: str | None = None,
-    progress: Progress | None = None,
-    span: Span | None = None,
-) -> FitResult:
-    """Identify ``output`` from ``inputs`` (columns of ``data``) and build the model file.
+@dataclass(frozen=True)
+class FitRequest:
+    """What a fit is asked: the columns, the method by name (:data:`~compd.toolkit.methods.METHODS`) and its options.
 
     ``position``: an axis-position column (mm); every input then also gets a
     slope sub-model multiplied by ``position - position_reference_mm``.
@@ -120,11 +100,50 @@ def fit_data(
     through a matched causal low-pass baked into their TFs (:mod:`compd.toolkit.denoise`);
     ``denoise_imfs`` modes are removed (Swiss-lathe paper: 1). ``span``: fit only its
     samples, the model run from the record's start (nothing after it is read).
-    ``method="auto"`` keeps whichever of the lag bank and the static
+    ``cycles``: the column whose rising edges start the held-out operating cycles.
+    ``select_inputs_first``: forward selection of the inputs (for the lag bank).
+    ``force``: write a model the guard rails or the regression check refuse.
+    ``name`` and ``command``: the model's name and the command line, for the file.
+    """
+
+    output: str
+    inputs: Sequence[str]
+    method: str = "auto"
+    order: int | str = "auto"
+    cycles: str | None = None
+    force: bool = False
+    time_constants_s: Sequence[float] = DEFAULT_TIME_CONSTANTS_S
+    select_inputs_first: bool = False
+    phase_gate: str | None = None
+    position: str | None = None
+    position_reference_mm: float = 0.0
+    denoise: Sequence[str] = ()
+    denoise_imfs: int = 1
+    name: str | None = None
+    command: str | None = None
+    span: Span | None = None
+
+    def __post_init__(self) -> None:
+        # Frozen all the way down: a list given is kept as a tuple.
+        for name in ("inputs", "time_constants_s", "denoise"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
+
+
+def fit_data(
+    data: DataSet | Sequence[DataSet],
+    request: FitRequest,
+    *,
+    progress: Progress | None = None,
+) -> FitResult:
+    """Identify ``request.output`` from ``request.inputs`` (columns of ``data``) and build the model file.
+
+    The method is looked up by name (:func:`~compd.toolkit.methods.method_named`).
+    ``auto`` keeps whichever of the lag bank and the static
     regression fits held-out operating cycles (``cycles``: the column whose
     rising edges start them) best; a lag bank that holds worse than the
     regression is refused unless ``force``. With a phase gate, a position or
     denoising, ``auto`` is ``oe`` (the lag bank has none of them yet).
+    ``progress``: told how the order search goes.
 
     ``data`` may be several experiments (:func:`~compd.files.experiments.load_experiments`):
     inputs are then changes from each file's first values, the lag bank's
@@ -135,6 +154,9 @@ def fit_data(
     Raises :class:`~compd.errors.DataFileError` (naming the file, the option or
     column, and the fix) for bad arguments and for data the method cannot fit.
     """
+    output, inputs, method, order = request.output, request.inputs, request.method, request.order
+    force, phase_gate, position = request.force, request.phase_gate, request.position
+    denoise, span = request.denoise, request.span
     starts: tuple[int, ...] = ONE
     # A displacement not zeroed at a file's start is taken as its change from there, per file
     # (not with --from: the samples before it are never fitted and may hold anything).
@@ -147,7 +169,8 @@ def fit_data(
     if not isinstance(data, DataSet):
         several = list(data)
         if len(several) > 1:
-            _check_several(several[0].path, method, span, phase_gate, position, denoise)
+            one_record = method in METHODS and method_named(method).one_record
+            _check_several(several[0].path, method, one_record, span, phase_gate, position, denoise)
             stacked = stack(several)
             data, starts = stacked.data, stacked.starts
             span = None  # a whole span of one file (checked above): the whole of every file
@@ -165,6 +188,7 @@ def fit_data(
                 fix="Fit with --denoise and --until only, or without --denoise",
             )
     check_arguments(data, output, inputs, order, method)
+    how = method_named(method)
     y = data.column(output)
     if denoise and phase_gate is not None:
         raise DataFileError(
@@ -174,7 +198,7 @@ def fit_data(
             where="--denoise",
             fix="Fit without --phase-gate, or denoise the column before fitting",
         )
-    denoised = denoise_columns(data, denoise, inputs, denoise_imfs) if denoise else {}
+    denoised = denoise_columns(data, denoise, inputs, request.denoise_imfs) if denoise else {}
     changes = {
         column: (denoised[column].emd if column in denoised else data.column(column))
         - start_values(data.column(column), starts)
@@ -185,8 +209,8 @@ def fit_data(
         gate = data.column(phase_gate) > 0.0
     slope = None
     if position is not None:
-        check_position(data, position, position_reference_mm, output, inputs, phase_gate)
-        slope = Position(position, float(position_reference_mm))
+        check_position(data, position, request.position_reference_mm, output, inputs, phase_gate)
+        slope = Position(position, float(request.position_reference_mm))
     if phase_gate is not None and phase_gate in inputs:
         raise DataFileError(
             data.path,
@@ -197,15 +221,16 @@ def fit_data(
             fix="Gate temperature inputs on the spindle speed, or fit the speed without a gate",
         )
     structured = phase_gate is not None or position is not None or bool(denoise)
-    if method == "lagbank" and structured:
+    if structured and not how.takes_structure:
         raise DataFileError(
             data.path,
-            "the lag bank does not take --phase-gate, --position or --denoise",
-            where="--method lagbank",
+            f"{how.title} does not take --phase-gate, --position or --denoise",
+            where=f"--method {method}",
             fix="Use --method oe or arx for those structures, or drop them",
         )
-    folds = folds_of(data, operating_signal(data, cycles, phase_gate), first, starts)
-    if select_inputs_first and (structured or method not in ("auto", "lagbank")):
+    folds = folds_of(data, operating_signal(data, request.cycles, phase_gate), first, starts)
+    select_inputs_first = request.select_inputs_first
+    if select_inputs_first and (structured or not how.scores_lag_bank):
         raise DataFileError(
             data.path,
             "--select-inputs chooses inputs for the lag bank",
@@ -213,9 +238,7 @@ def fit_data(
             fix="Use it with --method auto or lagbank, without --phase-gate/--position/--denoise",
         )
     # The regression is always scored: every fit is printed beside it.
-    candidates = (
-        ("lagbank", "mlr") if method in ("auto", "lagbank") and not structured else ("mlr",)
-    )
+    candidates = how.candidates(structured)
     try:
         selection = compare_candidates(
             y,
@@ -223,7 +246,7 @@ def fit_data(
             sample_time_s=data.sample_time_s,
             folds=folds,
             candidates=candidates,
-            time_constants_s=time_constants_s,
+            time_constants_s=request.time_constants_s,
             first_sample=first,
             starts=starts,
             choose_inputs=select_inputs_first,
@@ -235,30 +258,23 @@ def fit_data(
     if select_inputs_first:
         changes = {step.input: changes[step.input] for step in steps}
         inputs = list(changes)
-    chosen = method
-    if method == "auto":
-        chosen = "oe" if structured else selection.kept
-    if method != "auto":  # auto chose by these figures already (and never a refused regression)
+    kept = how.kept(selection, structured)
+    chosen = kept.name
+    if how.judged_against_regression:
         check_against_regression(data, selection, chosen, force)
+    prepared = Prepared(
+        y,
+        changes,
+        data.sample_time_s,
+        order=order,
+        gate=gate,
+        position=None if slope is None else data.column(slope.signal) - slope.reference_mm,
+        first_sample=first,
+        starts=starts,
+        progress=progress,
+    )
     try:
-        if chosen == "lagbank":
-            assert selection.lag_bank is not None
-            identification = lag_bank_identification(
-                selection.lag_bank, list(changes), data.sample_time_s
-            )
-        else:
-            identification = identify(
-                y,
-                changes,
-                sample_time_s=data.sample_time_s,
-                method=chosen,  # type: ignore[arg-type]  # one of METHODS: checked above
-                order="auto" if order == "auto" else int(order),
-                gate=gate,
-                position=None if slope is None else data.column(slope.signal) - slope.reference_mm,
-                progress=progress,
-                first_sample=first,
-                starts=starts,
-            )
+        identification = kept.identify(prepared, selection.lag_bank)
     except ModelError as exc:
         where = f"--phase-gate {phase_gate}" if "phase-gate" in exc.message else ""
         where = f"--position {position}" if "position" in exc.message else where
@@ -266,7 +282,7 @@ def fit_data(
     model = identification_to_model(
         identification,
         output=output,
-        name=name or f"{output}-{chosen}",
+        name=request.name or f"{output}-{chosen}",
         gate_signal=phase_gate,
         position=slope,
     )
@@ -298,7 +314,9 @@ def fit_data(
     # the fit took the inputs as changes from; the daemon starts from it (no "value at start").
     references = {c: float(np.mean(data.column(c)[list(starts)])) for c in inputs}
     model = with_references(model, references)
-    provenance = fit_provenance(data, identification, comparison, command, phase_gate, slope, span)
+    provenance = fit_provenance(
+        data, identification, comparison, request.command, phase_gate, slope, span
+    )
     provenance = provenance.model_copy(
         update={"notes": f"{provenance.notes}; {describe_references(model, references)}"}
     )
@@ -311,8 +329,9 @@ def fit_data(
             "start with inputs as changes from its first values; no lag spans two files"
         )
         provenance = provenance.model_copy(update={"notes": notes})
-    if selection.lag_bank is not None and chosen == "lagbank":
-        notes = f"{provenance.notes}; {describe_lag_bank(selection.lag_bank)}"
+    method_notes = kept.notes(selection)
+    if method_notes:
+        notes = f"{provenance.notes}; {method_notes}"
         provenance = provenance.model_copy(update={"notes": notes})
     if zeroing_notes:
         unzeroed = ", ".join(d.path for d, added in zeroed if added)
@@ -382,6 +401,7 @@ def consistency_of(
 def _check_several(
     path: str,
     method: str,
+    one_record: bool,
     span: Span | None,
     phase_gate: str | None,
     position: str | None,
@@ -395,7 +415,7 @@ def _check_several(
             ("--phase-gate", phase_gate is not None),
             ("--position", position is not None),
             ("--denoise", bool(denoise)),
-            ("--method oe", method == "oe"),
+            (f"--method {method}", one_record),
         )
         if used
     ]

@@ -14,7 +14,7 @@ import numpy as np
 from compd.errors import DataFileError
 from compd.files.data import DataSet
 from compd.model.orderfit import MAX_ORDER
-from compd.toolkit.candidates import FIT_METHODS
+from compd.toolkit.methods import FIT_METHODS
 
 
 def check_arguments(

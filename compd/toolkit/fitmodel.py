@@ -33,6 +33,7 @@ from compd.model.structure import (
     Position,
     SubModel,
 )
+from compd.toolkit.methods import writes_lags
 
 # Types only: unit_of is wanted where the data reader (pandas) and the
 # identification stack (scipy.signal) are not (compd.toolkit.residual).
@@ -204,7 +205,7 @@ def fit_provenance(
             f"orders chosen automatically: fit {identification.validation_fit_percent:.4f} % "
             "on the held-back last third, estimated on the first two thirds"
         )
-    if identification.method != "lagbank":  # its orders are all first-order lags: said below
+    if not writes_lags(identification.method):  # all first-order lags: said below
         notes.append(
             f"orders: na={orders.na} nb={list(orders.nb)} nf={list(orders.nf)} nk={list(orders.nk)}"
         )

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -29,6 +30,11 @@ from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S, LagBankFit, regression
 from compd.model.metrics import fit_percent
 from compd.model.nested import nested_prediction, scored_fit_percent
 from compd.model.shrinkbank import ShrunkBank, regression_written
+
+#: The static regression's name: always scored, the baseline every candidate is judged beside.
+BASELINE: Final = "mlr"
+#: The regularised lag bank's name: the other candidate the folds score.
+LAG_BANK: Final = "lagbank"
 
 #: Forward selection stops when the next input adds less than this to the held-out fit (points).
 SELECTION_MIN_GAIN_POINTS = 1.0
@@ -159,7 +165,7 @@ def compare_candidates(
         lag_bank = None
         nested = None
         steps: tuple[SelectionStep, ...] = ()
-        if "lagbank" in candidates or choose_inputs:
+        if LAG_BANK in candidates or choose_inputs:
             bank = ShrunkBank(
                 y,
                 u,
@@ -187,7 +193,7 @@ def compare_candidates(
             )
             scores.append(
                 CandidateScore(
-                    "lagbank",
+                    LAG_BANK,
                     lag_bank.fit_percent,
                     lag_bank.cv_fit_percent,
                     scored_fit_percent(bank.fresh_y, nested),
@@ -212,7 +218,7 @@ def compare_candidates(
         regression_cv_percent = scored_fit_percent(fresh_y, baseline)
         scores.append(
             CandidateScore(
-                "mlr",
+                BASELINE,
                 regression_fit,
                 regression_cv_percent,
                 regression_cv_percent,
@@ -226,13 +232,13 @@ def compare_candidates(
         # The guard rails would refuse the regression (collinear inputs balanced against each
         # other, a gain far beyond the output's range); the lag bank, plausible by construction,
         # is the model to write.
-        judged = [s for s in judged if s.method != "mlr"]
+        judged = [s for s in judged if s.method != BASELINE]
     kept = max(judged, key=_preference).method
-    if kept == "lagbank" and "mlr" in {s.method for s in judged}:
+    if kept == LAG_BANK and BASELINE in {s.method for s in judged}:
         gain = _held_out_gain(scores)
         worth_it = gain is None or gain >= DYNAMICS_MIN_GAIN_POINTS
         consistent = _consistently_better(fresh_y, nested, baseline, folds)
-        kept = "lagbank" if worth_it and consistent else "mlr"
+        kept = LAG_BANK if worth_it and consistent else BASELINE
     return Selection(folds, tuple(scores), kept, lag_bank, steps)
 
 
@@ -249,7 +255,7 @@ DYNAMICS_MIN_GAIN_POINTS = SELECTION_MIN_GAIN_POINTS
 def _held_out_gain(scores: Sequence[CandidateScore]) -> float | None:
     """The lag bank's pooled held-out fit minus the regression's, points (None: one not judged)."""
     figures = {s.method: s.held_out_percent for s in scores}
-    bank, regression = figures.get("lagbank"), figures.get("mlr")
+    bank, regression = figures.get(LAG_BANK), figures.get(BASELINE)
     return None if bank is None or regression is None else bank - regression
 
 
@@ -308,7 +314,7 @@ def _preference(score: CandidateScore) -> tuple[float, bool]:
     better after the cut).
     """
     held_out = score.held_out_percent
-    return (-np.inf if held_out is None else round(held_out, 6), score.method == "mlr")
+    return (-np.inf if held_out is None else round(held_out, 6), score.method == BASELINE)
 
 
 def forward_selection(

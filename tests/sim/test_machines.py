@@ -21,7 +21,7 @@ from compd.sim.machines import (
     write_log,
 )
 from compd.toolkit.evaluate import evaluate, pooled_comparisons
-from compd.toolkit.fit import fit_data
+from compd.toolkit.fit import FitRequest, fit_data
 
 SEEDS = range(30)
 
@@ -221,7 +221,8 @@ def test_a_case_fits_on_its_calibration_files_and_compares_on_its_verify_files(
     case = random_machine(5)  # four warm-up runs at 5 min: a small fit
     calibration, verify = write_case(case, tmp_path)
     fitted = fit_data(
-        load_experiments(calibration), output=case.output, inputs=case.inputs, method="mlr"
+        load_experiments(calibration),
+        FitRequest(output=case.output, inputs=case.inputs, method="mlr"),
     )
     model = parse_model(fitted.yaml_text)
     pooled = pooled_comparisons([evaluate(model, load_data(p)) for p in verify], case.output)
@@ -250,7 +251,7 @@ def test_the_default_fit_writes_a_model_on_machines_it_once_refused(
     """``compd fit`` with its defaults ends with a model the guard rails pass, not a refusal."""
     case = random_machine(seed)
     calibration, verify = write_case(case, tmp_path)
-    fitted = fit_data(_load(calibration), output=case.output, inputs=case.inputs)
+    fitted = fit_data(_load(calibration), FitRequest(output=case.output, inputs=case.inputs))
     assert not [f for f in fitted.findings if f.severity.name == "ERROR"]
     model = parse_model(fitted.yaml_text)
     pooled = pooled_comparisons([evaluate(model, load_data(p)) for p in verify], case.output)
