@@ -53,7 +53,7 @@ holds the model's state and the inputs' references of the whole log.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -164,6 +164,68 @@ def _check_gate(gate: np.ndarray | None, n: int) -> np.ndarray | None:
     return g.astype(float)
 
 
+#: What an estimator returns: the channels' TFs, their orders, the held-back fit % when the
+#: order was searched (else None), and the output simulated over the record (um).
+Estimate = tuple[list[DiscreteTF], Orders, float | None, np.ndarray]
+#: An estimator: (y, u, order, progress, first sample, experiment starts) -> its estimate.
+Estimator = Callable[
+    [np.ndarray, np.ndarray, int | Literal["auto"], Progress, int, Sequence[int]], Estimate
+]
+
+
+def _mlr(
+    y: np.ndarray,
+    u: np.ndarray,
+    order: int | Literal["auto"],
+    report: Progress,
+    first_sample: int,
+    starts: Sequence[int],
+) -> Estimate:
+    """Static gains by least squares: y = u k."""
+    gains = np.linalg.lstsq(u[first_sample:], y[first_sample:], rcond=None)[0]
+    tfs = [DiscreteTF.from_coefficients([k], [1.0], 0) for k in gains]
+    n = len(tfs)
+    return tfs, Orders(0, (1,) * n, (0,) * n, (0,) * n), None, u @ gains
+
+
+def _arx(
+    y: np.ndarray,
+    u: np.ndarray,
+    order: int | Literal["auto"],
+    report: Progress,
+    first_sample: int,
+    starts: Sequence[int],
+) -> Estimate:
+    """ARX by least squares, one shared denominator (:mod:`compd.model.arx`)."""
+    arx, orders, validation = fit_arx_order(y, u, order, report, first_sample, starts)
+    tfs = [DiscreteTF.from_coefficients(b, arx.a, nk) for b, nk in zip(arx.b, arx.nk, strict=True)]
+    # One recursion for the shared denominator: the same output as one
+    # lfilter per channel (what compare runs) to rounding, in half the time.
+    return tfs, orders, validation, simulate_arx(arx, u, starts)
+
+
+def _oe(
+    y: np.ndarray,
+    u: np.ndarray,
+    order: int | Literal["auto"],
+    report: Progress,
+    first_sample: int,
+    starts: Sequence[int],
+) -> Estimate:
+    """Output-error TFs, one record (:mod:`compd.model.oe`)."""
+    oe, orders, validation = fit_oe_order(y, u, order, report, first_sample)
+    tfs = [
+        DiscreteTF.from_coefficients(b, f, nk) for b, f, nk in zip(oe.b, oe.f, oe.nk, strict=True)
+    ]
+    return tfs, orders, validation, simulate_channels(tfs, u)
+
+
+#: Each method of :data:`METHODS` by name: its estimator.
+ESTIMATORS: dict[str, Estimator] = {"arx": _arx, "oe": _oe, "mlr": _mlr}
+#: The methods that fit one record only (not several experiments stacked).
+ONE_RECORD = frozenset({"oe"})
+
+
 def identify(
     y: np.ndarray,
     inputs: Mapping[str, np.ndarray],
@@ -213,7 +275,7 @@ def identify(
             "a phase gate and a position together are not supported; fit the axis with one"
         )
     several = len(spans(y.size, starts)) > 1
-    if several and (method == "oe" or gate is not None or position is not None):
+    if several and (method in ONE_RECORD or gate is not None or position is not None):
         raise ModelError(
             "several experiments are fitted by mlr, arx (at a given order) or the lag bank; "
             "OE, a phase gate and a position need one record"
@@ -225,27 +287,9 @@ def identify(
         if progress is not None:
             progress(message, fraction)
 
-    validation: float | None = None
-    if method == "mlr":
-        gains = np.linalg.lstsq(u[first_sample:], y[first_sample:], rcond=None)[0]
-        tfs = [DiscreteTF.from_coefficients([k], [1.0], 0) for k in gains]
-        orders = Orders(0, (1,) * len(names), (0,) * len(names), (0,) * len(names))
-        simulated = u @ gains
-    elif method == "arx":
-        arx, orders, validation = fit_arx_order(y, u, order, report, first_sample, starts)
-        tfs = [
-            DiscreteTF.from_coefficients(b, arx.a, nk) for b, nk in zip(arx.b, arx.nk, strict=True)
-        ]
-        # One recursion for the shared denominator: the same output as one
-        # lfilter per channel (what compare runs) to rounding, in half the time.
-        simulated = simulate_arx(arx, u, starts)
-    else:
-        oe, orders, validation = fit_oe_order(y, u, order, report, first_sample)
-        tfs = [
-            DiscreteTF.from_coefficients(b, f, nk)
-            for b, f, nk in zip(oe.b, oe.f, oe.nk, strict=True)
-        ]
-        simulated = simulate_channels(tfs, u)
+    tfs, orders, validation, simulated = ESTIMATORS[method](
+        y, u, order, report, first_sample, starts
+    )
     if scale is not None:
         sloped = [slope for _, _, slope in names]
         unscaled = np.column_stack([np.asarray(inputs[name], dtype=float) for name, _, _ in names])
