@@ -14,6 +14,7 @@ import yaml
 
 from tests.acceptance.conftest import machine_doc
 from tests.installed import run_installed
+from tests.loop_rate import at_loop_rate
 
 ROOT = Path(__file__).parents[1]
 BUNDLED_MODEL = ROOT / "config" / "simulated_model.yaml"
@@ -101,8 +102,14 @@ def short_dir() -> Iterator[Path]:
 
 
 def test_run_for_a_real_machine_loads_no_toolkit_twin_or_plotting(short_dir: Path) -> None:
-    """The daemon against a controller elsewhere (here the twin's own process) imports no modelling stack."""
-    doc = machine_doc(short_dir, BUNDLED_MODEL, simulation={"scenario": "production", "hours": 1})
+    """The daemon against a controller elsewhere (here the twin's own process) imports no modelling stack.
+
+    With the bundled model's TFs at the loop's period (as the daemon compiles
+    them), it loads no scipy either: compiled, checked and stepped with numpy.
+    """
+    model = at_loop_rate(BUNDLED_MODEL, short_dir / "model_1s.yaml", 1.0)
+    doc = machine_doc(short_dir, model, simulation={"scenario": "production", "hours": 1})
+    assert doc["period_s"] == 1.0
     machine_config = short_dir / "machine.yaml"
     machine_config.write_text(yaml.safe_dump(doc))
     del doc["simulation"]
@@ -126,3 +133,5 @@ def test_run_for_a_real_machine_loads_no_toolkit_twin_or_plotting(short_dir: Pat
     )
     assert loaded(modules, NOT_IN_THE_DAEMON) == []
     assert loaded(modules, ("asyncua", "can")) == [], "only the drivers the config names"
+    # A model file of discrete TFs is compiled, checked and stepped with numpy alone.
+    assert loaded(modules, ("scipy",)) == [], "scipy (~100 MB) only converts continuous TFs"

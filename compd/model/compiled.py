@@ -25,9 +25,9 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
-import scipy.signal
 
 from compd.errors import ModelError
+from compd.model.dfilter import lfilter
 from compd.model.limits import (
     CHECK_SAMPLES,
     MAX_GAIN_UM_PER_UNIT,
@@ -383,7 +383,7 @@ def _check_step_responses(b: np.ndarray, a: np.ndarray, gain: np.ndarray, paths:
     step = np.ones(CHECK_SAMPLES)
     for row, path in enumerate(paths):
         with np.errstate(all="ignore"):
-            response = scipy.signal.lfilter(b[row], a[row], step) * gain[row]
+            response = lfilter(b[row], a[row], step)[0] * gain[row]
             peak = float(np.max(np.abs(response)))
         if not (np.isfinite(peak) and peak <= MAX_GAIN_UM_PER_UNIT):
             raise ModelError(

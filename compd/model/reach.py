@@ -25,10 +25,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
-import scipy.signal
 
 from compd.errors import ModelError
 from compd.model.compiled import CompiledModel, ModelState, qualified_names
+from compd.model.dfilter import lfilter
 from compd.model.limits import CHECK_SAMPLES
 
 #: The calibration's span of a signal is widened by this many spans on each side.
@@ -93,7 +93,7 @@ def _state_gains(b: np.ndarray, a: np.ndarray) -> np.ndarray:
     with np.errstate(all="ignore"):
         impulse = np.zeros(CHECK_SAMPLES)
         impulse[0] = 1.0
-        l1 = float(np.sum(np.abs(scipy.signal.lfilter(b, a, impulse))))
+        l1 = float(np.sum(np.abs(lfilter(b, a, impulse)[0])))
         static = abs(float(b.sum() / a.sum()))
     gain = max(l1, static)
     terms = np.abs(b[1:]) + np.abs(a[1:]) * gain

@@ -16,10 +16,10 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.signal
 
 from compd.errors import ModelError
 from compd.model.compiled import CompiledModel, ModelState
+from compd.model.dfilter import lfilter
 
 
 def df2t_matrix(b: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -199,7 +199,8 @@ def simulate(compiled: CompiledModel, signals: np.ndarray, state: ModelState) ->
     def run_submodel(s: int) -> None:
         contributions[s], final_z[s] = _submodel_response(compiled, rows, state, s)
 
-    # lfilter releases the GIL: long records run their sub-models on every core.
+    # scipy's lfilter (the toolkit loads it: compd.model.dfilter) releases the GIL: long
+    # records run their sub-models on every core.
     workers = min(compiled.n_submodels, os.cpu_count() or 1)
     if workers > 1 and n_samples * compiled.n_submodels >= _PARALLEL_MIN_SAMPLES:
         with ThreadPoolExecutor(workers) as pool:
@@ -248,7 +249,7 @@ def _submodel_response(
     if gate is not None and compiled.gate_on_input[s]:
         u *= gate
     if compiled.n_states:
-        response, final_z = scipy.signal.lfilter(compiled.b[s], compiled.a[s], u, zi=state.z[s])
+        response, final_z = lfilter(compiled.b[s], compiled.a[s], u, zi=state.z[s])
     else:
         response, final_z = compiled.b[s, 0] * u, state.z[s].copy()
     if gate is not None and not compiled.gate_on_input[s]:

@@ -15,6 +15,10 @@ model's sample time, which is exact for inputs held constant between samples
 (what a 1 Hz sampler delivers).
 
 Everything here is pure numerics: numpy and scipy, no files, no logging.
+scipy is imported only by the conversions between the two forms (and from
+one sample time to another): poles (``np.roots``), gains and stability need
+numpy alone, so the daemon, given discrete TFs at its loop period, never
+loads scipy's ~100 MB.
 """
 
 from __future__ import annotations
@@ -25,8 +29,6 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
-import scipy.signal
 
 from compd.errors import ModelError
 from compd.model.limits import MAX_DELAY_SAMPLES, MAX_ORDER
@@ -40,6 +42,8 @@ _UNIT_CIRCLE_MARGIN = 1e-9
 @contextmanager
 def _quiet_conversions() -> Iterator[None]:
     """scipy warns when a converted numerator has ~1e-17 leading terms; they are rounding, not a fault."""
+    import scipy.signal  # see the module's docstring: only conversions load scipy
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", scipy.signal.BadCoefficients)
         yield
@@ -47,9 +51,9 @@ def _quiet_conversions() -> Iterator[None]:
 
 @contextmanager
 def _numerics(what: str) -> Iterator[None]:
-    """scipy's failures on extreme coefficients (overflow, a singular matrix) as a ModelError."""
+    """Failures on extreme coefficients (overflow, a singular matrix) as a ModelError."""
     try:
-        with np.errstate(all="ignore"), _quiet_conversions():
+        with np.errstate(all="ignore"):
             yield
     except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
         raise ModelError(
@@ -234,7 +238,10 @@ class ContinuousTF:
         den_desc = np.asarray(self.den[::-1])
         if len(self.den) == 1:  # a static gain
             return DiscreteTF.from_coefficients([self.num[0] / self.den[0]], [1.0], nk)
-        with _numerics(f"discretising at {sample_time_s:g} s"):
+        import scipy.linalg  # see the module's docstring: only conversions load scipy
+        import scipy.signal
+
+        with _numerics(f"discretising at {sample_time_s:g} s"), _quiet_conversions():
             a_c, b_c, c_c, d_c = scipy.signal.tf2ss(num_desc, den_desc)
             n_states = a_c.shape[0]
             block = np.zeros((n_states + 1, n_states + 1))
@@ -290,7 +297,10 @@ def continuous_equivalent(tf: DiscreteTF, sample_time_s: float) -> ContinuousTF:
     b = tf.b
     leading_zeros = int(np.argmax(b != 0.0)) if np.any(b != 0.0) else 0
     delay_samples = max(leading_zeros - 1, 0)
-    with _numerics("converting to continuous time"):
+    import scipy.linalg  # see the module's docstring: only conversions load scipy
+    import scipy.signal
+
+    with _numerics("converting to continuous time"), _quiet_conversions():
         a_d, b_d, c_d, d_d = scipy.signal.tf2ss(*_padded(b[delay_samples:], tf.a))
         n_states = a_d.shape[0]
         block = np.eye(n_states + 1)
