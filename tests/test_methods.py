@@ -9,7 +9,14 @@ from pathlib import Path
 import pytest
 
 from compd.toolkit.fit import FitRequest
-from compd.toolkit.methods import FIT_METHODS, METHODS, FitMethod, method_named, writes_lags
+from compd.toolkit.methods import (
+    EXTEND_METHODS,
+    FIT_METHODS,
+    METHODS,
+    FitMethod,
+    method_named,
+    writes_lags,
+)
 
 ROOT = Path(__file__).resolve().parents[1] / "compd"
 #: A method name compared as a string: ``method == "oe"``, ``x.method != 'mlr'``, ``method in ("a", "b")``.
@@ -31,6 +38,7 @@ def test_no_method_name_is_compared_outside_the_table() -> None:
 def test_every_method_is_one_class_by_its_name() -> None:
     """The table maps each ``--method`` name to the class of that name; auto is the default."""
     assert FIT_METHODS[0] == "auto"
+    assert set(EXTEND_METHODS) == set(FIT_METHODS) - {"mlr"}  # extend adds dynamics
     for name, cls in METHODS.items():
         assert issubclass(cls, FitMethod) and cls.name == name and cls.title
         assert method_named(name).name == name

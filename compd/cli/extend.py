@@ -30,6 +30,7 @@ from compd.model.transfer import DiscreteTF
 from compd.toolkit.extend import extend_model, verify_extension, with_verification
 from compd.toolkit.extendbest import AUTO_CANDIDATES, Choice, choose_effect, effect_signals
 from compd.toolkit.extendjudge import RULE, held_out_json
+from compd.toolkit.methods import EXTEND_METHODS
 from compd.toolkit.summary import fmt, json_clean, json_text
 
 
@@ -65,7 +66,7 @@ def register(commands: Any) -> None:
     )
     extend.add_argument(
         "--method",
-        choices=("auto", "oe", "arx", "lagbank"),
+        choices=EXTEND_METHODS,
         default="auto",
         help="identification method; auto (default): oe, or the lag bank when the oe sub-model "
         "fails the guard rails; lagbank: first-order lags at fixed time "

@@ -59,6 +59,8 @@ class FitMethod:
     takes_structure: ClassVar[bool] = True
     #: ``compd fit`` over several files refuses it (it searches one record).
     one_record: ClassVar[bool] = False
+    #: ``compd extend --method`` takes it (a static regression adds no dynamics to a residue).
+    extends: ClassVar[bool] = True
     #: ``compd extend`` over several experiments refuses it (it identifies one record).
     extends_one_record: ClassVar[bool] = False
     #: Its channels are the lags of a bank: one sub-model per input and time constant.
@@ -120,6 +122,7 @@ class Regression(FitMethod):
 
     name = BASELINE
     title = "the static regression"
+    extends = False
 
 
 class OutputError(FitMethod):
@@ -177,8 +180,10 @@ def method_named(name: str) -> FitMethod:
     return METHODS[name]()
 
 
-#: What ``--method`` accepts, the default first.
+#: What ``compd fit --method`` accepts, the default first.
 FIT_METHODS = tuple(METHODS)
+#: What ``compd extend --method`` accepts, the default first.
+EXTEND_METHODS = tuple(name for name, method in METHODS.items() if method.extends)
 
 
 def writes_lags(identified_by: str) -> bool:
