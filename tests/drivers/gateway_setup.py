@@ -73,7 +73,9 @@ def modbus_settings(port: int, **changes: Any) -> GatewaySettings:
         "output_register": 100,
         "input_bytes": 32,
         "output_bytes": 16,
-        "request_timeout_s": 0.5,
+        # A read on a loaded 2-core machine has missed 0.5 s (the contract's float read, once in
+        # a full suite run beside other jobs); tests of the timeouts set their own.
+        "request_timeout_s": 2.0,
         "status": STATUS,
         "live_timeout_s": 0.5,
         "output_live": OUTPUT_LIVE,
