@@ -147,8 +147,12 @@ class Plausibility:
             if episode is None:
                 continue
             if p is None:
-                # Nothing left to predict it from: held at what the model last used, and faulted
-                # (the axes freeze, then ramp) as a failing sensor is without a consistency model.
+                # Nothing left to predict it from: as without a consistency model. A reading that
+                # passes its own checks is used (nothing can confirm or refute it); else it is
+                # held at what the model last used, and faulted (the axes freeze, then ramp).
+                if reading.health is Health.OK:
+                    self._end(t_s, name, reading.value, None)
+                    continue
                 last = self.monitors[name].last_good
                 out[name] = Reading(last, Health.FAULTED, f"no prediction: {episode.reason}")
                 self.monitors[name].rebase(out[name], last)
@@ -221,12 +225,14 @@ class Plausibility:
             ],
         )
 
-    def _end(self, t_s: float, name: str, value: float, p: Prediction) -> None:
+    def _end(self, t_s: float, name: str, value: float, p: Prediction | None) -> None:
         episode = self.episodes.pop(name)
         self.faults[name].cleared(
-            "signal agrees with the other sensors again: its readings are used",
+            "signal agrees with the other sensors again: its readings are used"
+            if p is not None
+            else "signal passes its own checks again (no other sensors to judge it): its readings are used",
             read=_round(value),
-            predicted=_round(p.value),
+            predicted=None if p is None else _round(p.value),
             unit=self.units.get(name, ""),
             lasted_s=round(t_s - episode.started_s, 1),
         )

@@ -112,3 +112,23 @@ def test_without_signals_to_predict_from_the_input_faults_as_before(
         bench.tick(k)
     out = bench.tick(100, {"T_column_degC": float("nan")})
     assert out["T_column_degC"].health is Health.HELD  # its own checks: held, then faulted
+
+
+def test_a_returning_sensor_with_no_one_left_to_judge_it_is_used_as_without_a_consistency_model(
+    model: ConsistencyModel,
+) -> None:
+    """Its stand-in's predictors all failed meanwhile: a reading passing its own checks ends the episode."""
+    record = machine(2, seed=5)
+    bench = Bench(model, record)
+    for k in range(400):
+        bench.tick(k)
+    for k in range(400, 405):
+        assert (
+            bench.tick(k, {"T_spindle_degC": float("nan")})["T_spindle_degC"].health
+            is Health.ESTIMATED
+        )
+    others = {name: float("nan") for name in record if name != "T_spindle_degC"}
+    out = bench.tick(405, others)
+    assert out["T_spindle_degC"].health is Health.OK
+    assert out["T_spindle_degC"].value == pytest.approx(record["T_spindle_degC"][405])
+    assert not bench.stage.episodes
