@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from compd.errors import ModelFileError
 from compd.files.modelfile import consistency_doc, parse_model
+from compd.files.modelschema import ConsistencyDoc
 from compd.files.modelwriter import consistency_lines
 from compd.model.consistency import ConsistencyCheck, ConsistencyModel, fit_consistency
 
@@ -114,8 +116,9 @@ def test_no_prediction_when_the_remaining_signals_explain_too_little(
     assert check.predict(z, "T_air_degC", check.usable(z, set())) is None
 
 
-def test_the_model_file_carries_it_exactly(model: ConsistencyModel) -> None:
-    text = "\n".join(
+def model_file_with(doc: ConsistencyDoc) -> str:
+    """A one-sub-model file carrying ``doc`` as its consistency block."""
+    return "\n".join(
         [
             "schema: compd.model/1",
             "name: m",
@@ -125,10 +128,13 @@ def test_the_model_file_carries_it_exactly(model: ConsistencyModel) -> None:
             "    submodels:",
             "      - {name: s, effect: e, input: {signal: T_spindle_degC},",
             "         tf: {form: discrete, power_order: ascending, num: [1.0], den: [1.0]}}",
-            *consistency_lines(consistency_doc(model)),
+            *consistency_lines(doc),
         ]
     )
-    loaded = parse_model(text).consistency()
+
+
+def test_the_model_file_carries_it_exactly(model: ConsistencyModel) -> None:
+    loaded = parse_model(model_file_with(consistency_doc(model))).consistency()
     assert loaded is not None
     assert loaded.signals == model.signals and loaded.checked == model.checked
     np.testing.assert_allclose(loaded.cov, model.cov, rtol=1e-9)  # written to 10 digits
@@ -138,23 +144,8 @@ def test_the_model_file_carries_it_exactly(model: ConsistencyModel) -> None:
 def test_a_file_whose_covariance_does_not_fit_its_signals_is_refused(
     model: ConsistencyModel,
 ) -> None:
-    from compd.errors import ModelFileError
-
     doc = consistency_doc(model)
-    lines = consistency_lines(doc.model_copy(update={"covariance": doc.covariance[:-1]}))
-    text = "\n".join(
-        [
-            "schema: compd.model/1",
-            "name: m",
-            "sample_time_s: 10.0",
-            "outputs:",
-            "  y:",
-            "    submodels:",
-            "      - {name: s, effect: e, input: {signal: T_spindle_degC},",
-            "         tf: {form: discrete, power_order: ascending, num: [1.0], den: [1.0]}}",
-            *lines,
-        ]
-    )
+    text = model_file_with(doc.model_copy(update={"covariance": doc.covariance[:-1]}))
     with pytest.raises(ModelFileError, match="covariance"):
         parse_model(text, "bad.yaml")
 
