@@ -62,10 +62,10 @@ import yaml
 from common import environment, verdict
 
 from compd.files.yamlplace import resolve_path
-from compd.service.compensator import TickRecord
-from compd.service.config import Config, load_config
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import Config, load_config
 from compd.service.daemon import Service
-from compd.service.links import DriverLink
+from compd.service.loop.links import DriverLink
 from compd.sim.plc.machine import MachineClock, SimulatedMachine
 from compd.sim.plc.run import run_simulation
 

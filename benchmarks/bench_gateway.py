@@ -1,7 +1,7 @@
 """Per-tick I/O latency of the Profibus gateway driver against the simulated gateway, on CAN and Modbus TCP.
 
 Each tick the loop reads its signals and writes its offsets, status word and
-heartbeat through a :class:`compd.service.links.DriverLink` (timeouts included). This
+heartbeat through a :class:`compd.service.loop.links.DriverLink` (timeouts included). This
 times ``--ticks`` such ticks of the benchmark model's size: 7 signals in the
 DP input area (5 int16 in 0.01 degC, 2 float32) and 3 int32 offsets in
 0.1 um plus status and heartbeat in the output area, with the gateway's
@@ -48,8 +48,8 @@ from common import environment, verdict
 
 from compd.drivers.gateway.driver import GatewayDriver, GatewaySettings
 from compd.drivers.modbus.settings import ModbusSettings
-from compd.service.clock import RealClock
-from compd.service.links import DriverLink
+from compd.service.loop.clock import RealClock
+from compd.service.loop.links import DriverLink
 from compd.sim.plc.gateway import GatewayServer
 
 MAX_P99_MS = 20.0

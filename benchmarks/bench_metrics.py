@@ -14,7 +14,7 @@ them. Reported per run:
   the ticks (ms): the tick, plus the server's answers when it is on.
 
 Also, on their own (best of 3 x 1000, CPU time): what a tick adds with the
-server on (:meth:`compd.service.httpserver.StatusServer.tick`: two histogram
+server on (:meth:`compd.service.http.server.StatusServer.tick`: two histogram
 observations, a history row, the fault check) and what one ``/metrics``
 answer costs to build.
 
@@ -39,9 +39,9 @@ import yaml
 from bench_tick import write_config
 from common import environment, verdict
 
-from compd.service.clock import RealClock, VirtualClock
-from compd.service.compensator import TickRecord
-from compd.service.config import load_config
+from compd.service.loop.clock import RealClock, VirtualClock
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import load_config
 from compd.service.daemon import Service
 
 MAX_P99_GROWTH_MS = 1.0

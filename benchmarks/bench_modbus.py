@@ -1,7 +1,7 @@
 """Per-tick I/O latency of the Modbus driver against a local pymodbus server (TCP, and RTU on a pty).
 
 Each tick the loop reads its signals and writes its offsets, status word and
-heartbeat through a :class:`compd.service.links.DriverLink` (timeouts included). This
+heartbeat through a :class:`compd.service.loop.links.DriverLink` (timeouts included). This
 times ``--ticks`` such ticks of the benchmark model's size: 7 signals in PLC
 input registers (5 int16 in 0.01 degC, 2 float32 word-swapped: one merged
 read) and 3 int32 offsets in 0.1 um plus status and heartbeat in holding
@@ -36,8 +36,8 @@ from common import environment, verdict
 
 from compd.drivers.modbus.driver import ModbusDriver
 from compd.drivers.modbus.settings import ModbusSettings
-from compd.service.clock import RealClock
-from compd.service.links import DriverLink
+from compd.service.loop.clock import RealClock
+from compd.service.loop.links import DriverLink
 
 MAX_P99_TCP_MS = 5.0
 MAX_P99_ANY_MS = 20.0

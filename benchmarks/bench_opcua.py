@@ -1,7 +1,7 @@
 """Per-tick I/O latency of the OPC UA driver against a local, secured asyncua server.
 
 Each tick the loop reads its signals and writes its offsets, status word and
-heartbeat through a :class:`compd.service.links.DriverLink` (timeouts included). This
+heartbeat through a :class:`compd.service.loop.links.DriverLink` (timeouts included). This
 times ``--ticks`` such ticks of the benchmark model's size: 7 signals (Double,
 Float, UInt16, Int32, Boolean nodes: one Read request) and 5 writes (a Double
 offset, Int16 and Int32 offsets in 0.1 um, a UInt16 status word and a Boolean
@@ -31,8 +31,8 @@ from pathlib import Path
 from common import environment, verdict
 
 from compd.drivers.opcua.driver import OpcUaDriver, OpcUaSettings
-from compd.service.clock import RealClock
-from compd.service.links import DriverLink
+from compd.service.loop.clock import RealClock
+from compd.service.loop.links import DriverLink
 from tests.drivers.opcua_server import (
     PASSWORD,
     USERNAME,

@@ -2,7 +2,7 @@
 
 The Parquet recorder keeps every file readable after a crash by writing the
 open file again, whole, footer included, every ``flush_every_rows`` rows
-(:mod:`compd.service.recorder_parquet`), on its own thread. Two figures per
+(:mod:`compd.service.recording.parquet`), on its own thread. Two figures per
 file length (10 min, 1 h, 1 day at 1 Hz, 40 signals and the status: what a
 service with 6 inputs, 3 axes and their sub-models records):
 
@@ -28,8 +28,8 @@ from pathlib import Path
 
 from common import environment, verdict
 
-from compd.service.recorder import Recorder
-from compd.service.recorder_parquet import ParquetRecorder, _write_file
+from compd.service.recording.recorder import Recorder
+from compd.service.recording.parquet import ParquetRecorder, _write_file
 
 SIGNALS = 40
 FLUSH_ROWS = 60

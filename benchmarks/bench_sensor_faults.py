@@ -31,8 +31,8 @@ sys.path.insert(0, str(HERE.parent))
 
 from compd.cli.serving import configure_logging  # noqa: E402
 from compd.files.yamlplace import resolve_path  # noqa: E402
-from compd.service.config import load_config  # noqa: E402
-from compd.service.signals import Health  # noqa: E402
+from compd.service.config.loading import load_config  # noqa: E402
+from compd.service.loop.signals import Health  # noqa: E402
 from compd.sim.plc.run import run_simulation  # noqa: E402
 from tests.ports import free_port  # noqa: E402
 

@@ -1,7 +1,7 @@
 """Per-tick I/O latency of the serial-sensor driver against a simulated scanner on a pseudo-terminal.
 
 Each tick the loop reads every scanner channel through its
-:class:`compd.service.links.DriverLink` (timeout included); a scanner is read-only, so
+:class:`compd.service.loop.links.DriverLink` (timeout included); a scanner is read-only, so
 a tick's I/O is that read alone. This times ``--ticks`` such reads of 8
 channels against the test suite's :class:`tests.drivers.instrument.PtyInstrument`
 (in its own process, as a real scanner is its own device; XOR checksums both
@@ -35,8 +35,8 @@ from pathlib import Path
 from common import environment, verdict
 
 from compd.drivers.serial_sensor import SerialSensorDriver, SerialSensorSettings
-from compd.service.clock import RealClock
-from compd.service.links import DriverLink
+from compd.service.loop.clock import RealClock
+from compd.service.loop.links import DriverLink
 from tests.drivers.instrument import PtyInstrument, answer, xor_hex
 
 MAX_P99_MS = 20.0

@@ -11,7 +11,7 @@
    at most 1 ms to the p99 lateness.
 
 2. A fleet into one broker. 50 publishers -- compd's own
-   :class:`compd.service.telemetry.Telemetry`, each with its own MQTT client,
+   :class:`compd.service.fleet.telemetry.Telemetry`, each with its own MQTT client,
    connection and session, in one process (they stand for 50 daemons'
    telemetry streams; one process spares starting 50 Pythons, the broker sees
    50 clients all the same) -- publish a status at 1 Hz each, staggered over
@@ -40,11 +40,11 @@ import yaml
 from bench_tick import measure_config, write_config
 from common import environment, verdict
 
-from compd.service.compensator import TickRecord
-from compd.service.config import load_config
-from compd.service.mqttlink import Broker, Topics
-from compd.service.signals import Health
-from compd.service.telemetry import Telemetry
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import load_config
+from compd.service.fleet.mqttlink import Broker, Topics
+from compd.service.loop.signals import Health
+from compd.service.fleet.telemetry import Telemetry
 from tests.mosquitto import Mosquitto, Subscriber
 
 MAX_P99_GROWTH_MS = 1.0

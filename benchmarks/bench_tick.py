@@ -35,11 +35,11 @@ import numpy as np
 import yaml
 from common import build_model, environment, verdict, week_signals
 
-from compd.service.clock import RealClock
-from compd.service.compensator import TickRecord
-from compd.service.config import Config, load_config
+from compd.service.loop.clock import RealClock
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import Config, load_config
 from compd.service.daemon import Service
-from compd.service.recorder import Recorder
+from compd.service.recording.recorder import Recorder
 
 MAX_P99_LATENESS_MS = 5.0
 MAX_CPU_MS_PER_TICK = 1.0

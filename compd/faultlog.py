@@ -9,7 +9,7 @@ holds everywhere and is tested once.
 
 The same episodes, with model loads and failures, are also told to an
 :data:`EventSink` where one is attached (the MQTT telemetry,
-:mod:`compd.service.telemetry`): structured events, never parsed from the log.
+:mod:`compd.service.fleet.telemetry`): structured events, never parsed from the log.
 """
 
 from __future__ import annotations

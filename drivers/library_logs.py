@@ -4,7 +4,7 @@ pymodbus logs every failed connect attempt (WARNING) and every unanswered
 request with a hex dump of the last frames (ERROR); its server logs each
 request it cannot serve with a traceback. asyncua logs every read at INFO
 and each dropped session at WARNING. Each failure also reaches compd as an
-exception, which the driver link reports once per fault (:mod:`compd.service.links`):
+exception, which the driver link reports once per fault (:mod:`compd.service.loop.links`):
 the libraries' copies, once per attempt or per tick, flooded the journal with
 dozens of errors and hex dumps per link drop. So a library's logger is set to
 WARNING (nothing below is even formatted) and what it still logs stops there

@@ -18,7 +18,7 @@ from typing import Any
 import yaml
 from prometheus_client.parser import text_string_to_metric_families
 
-from compd.service.compensator import TickRecord
+from compd.service.loop.compensator import TickRecord
 from compd.service.daemon import Service
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
@@ -58,7 +58,7 @@ def render_metrics(directory: Path, broker_port: int) -> Render:
     doc["http"] = {"port": 0}
     doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
     config.path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    from compd.service.config import load_config
+    from compd.service.config.loading import load_config
 
     config = load_config(config.path)
     seen: dict[str, Any] = {}

@@ -25,7 +25,7 @@ import yaml
 from paho.mqtt.enums import CallbackAPIVersion
 
 from compd.files.yamlplace import resolve_path
-from compd.service.config import Config, load_config
+from compd.service.config.loading import Config, load_config
 from tests.ports import free_port
 
 #: Real-time bound of the waits below: generous, a busy CI machine must not fail them.

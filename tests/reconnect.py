@@ -5,8 +5,8 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Sequence
 
-from compd.service.clock import VirtualClock
-from compd.service.links import DriverLink
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.links import DriverLink
 
 #: Link-clock seconds between polls, as ticks would be.
 POLL_S = 0.05

@@ -90,7 +90,7 @@ def test_status_finds_the_socket_without_loading_the_service(tmp_path: Path) -> 
     config.write_text(yaml.safe_dump(doc))
     status, modules, out = imported_by("status", "--config", config)
     assert status == 2 and str(tmp_path / "c.sock") in out
-    assert loaded(modules, (*NOT_IN_A_PARSER, "compd.service.config", "compd.model")) == []
+    assert loaded(modules, (*NOT_IN_A_PARSER, "compd.service.config.loading", "compd.model")) == []
 
 
 @pytest.fixture

@@ -10,7 +10,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from compd.files.experiments import load_experiments
-from compd.service.recorder import Recorder
+from compd.service.recording.recorder import Recorder
 from tests.clirun import compd
 
 T0_S = 1_795_428_900.0  # 2026-11-23T10:15:00Z

@@ -11,7 +11,7 @@ import pytest
 from compd.errors import ConfigFileError, InputFileError, ModelFileError
 from compd.files.modelfile import load_model, parse_model
 from compd.files.yamlplace import MAX_YAML_BYTES, MAX_YAML_DEPTH, MAX_YAML_NODES, parse_yaml
-from compd.service.config import load_config
+from compd.service.config.loading import load_config
 
 from .test_modelfile import VALID
 

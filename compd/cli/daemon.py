@@ -24,23 +24,23 @@ from compd.drivers.registry import load_driver_type
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
 from compd.files.modelfile import load_model, model_source
 from compd.files.yamlplace import read_limited
-from compd.service.clock import RealClock
-from compd.service.compensator import TickRecord
-from compd.service.config import Config
-from compd.service.control import request
+from compd.service.loop.clock import RealClock
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import Config
+from compd.service.control.socket import request
 from compd.service.daemon import Service
-from compd.service.modelcheck import check_model
-from compd.service.modelload import LOAD_TIMEOUT_S, load_request, slot_from_bytes
+from compd.service.config.modelcheck import check_model
+from compd.service.control.modelload import LOAD_TIMEOUT_S, load_request, slot_from_bytes
 from compd.service.notify import SystemdNotifier
-from compd.service.safety import Level
-from compd.service.signals import Health
-from compd.service.state import install_model_bytes, installed_model
-from compd.service.writepoints import written_points
+from compd.service.loop.safety import Level
+from compd.service.loop.signals import Health
+from compd.service.store.state import install_model_bytes, installed_model
+from compd.service.config.writepoints import written_points
 
 if TYPE_CHECKING:
     from compd.cli.livescreen import LiveScreen
     from compd.files.modelfile import ModelFile
-    from compd.service.configdoc import ConfigDoc
+    from compd.service.config.docs import ConfigDoc
 
 
 def plausibility_line(model_file: ModelFile, doc: ConfigDoc) -> str:

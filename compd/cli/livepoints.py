@@ -1,9 +1,9 @@
 """What ``compd read`` and ``compd probe`` read, and one read of it: points, rows, driver faults.
 
 A :class:`LivePoint` is one address on one driver with the daemon's own
-decoding (a signal's :class:`~compd.service.points.SignalPoint`, an axis's
-:class:`~compd.service.offsets.AxisPoint`) and, for a signal, its
-:class:`~compd.service.signals.SignalMonitor`, so the verdict shown is the one
+decoding (a signal's :class:`~compd.service.loop.points.SignalPoint`, an axis's
+:class:`~compd.service.loop.offsets.AxisPoint`) and, for a signal, its
+:class:`~compd.service.loop.signals.SignalMonitor`, so the verdict shown is the one
 the daemon would reach on the same readings (range at once; spike, stuck and
 stale as ``--watch`` goes on). :class:`LiveReader` reads every driver's points
 as one batch through the driver's ``read_raw`` hook
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 from compd.drivers.base import Driver, RawReading, read_raw
 from compd.errors import DriverError, DriverProtocolError
-from compd.service.signals import Health, SignalMonitor
+from compd.service.loop.signals import Health, SignalMonitor
 
 #: Said when a serial line cannot be opened because another process holds it.
 SERIAL_BUSY_HINT = (

@@ -44,7 +44,7 @@ from compd.files.keyhints import unknown_key_hint
 from compd.files.yamlplace import describe, parse_yaml, read_limited, resolve_path
 
 if TYPE_CHECKING:
-    from compd.service.config import Config
+    from compd.service.config.loading import Config
 
 #: Exit status when a point could not be read or failed its checks (2 stays "bad input").
 EXIT_POINT_FAILED = 1

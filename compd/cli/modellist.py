@@ -14,9 +14,9 @@ from pathlib import Path
 
 from compd.errors import CompdError, ControlError
 from compd.files.modelfile import load_model
-from compd.service.config import Config
-from compd.service.control import request
-from compd.service.state import installed_model, installed_models, previous_model
+from compd.service.config.loading import Config
+from compd.service.control.socket import request
+from compd.service.store.state import installed_model, installed_models, previous_model
 
 
 def previous_or_refuse(config: Config) -> Path:

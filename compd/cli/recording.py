@@ -1,6 +1,6 @@
 """What ``compd record`` does: run a config as a data logger into a directory, then say what to fit.
 
-The config runs as :meth:`compd.service.config.Config.recording` makes it:
+The config runs as :meth:`compd.service.config.loading.Config.recording` makes it:
 its drivers and signals, checked every period exactly as ``compd run``
 checks them, recorded by the service's own recorder, and nothing written to
 the machine (no offsets, no status word, no heartbeat). A config with a
@@ -20,12 +20,12 @@ from compd.cli.daemon import install_signal_handlers
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import Text, console
 from compd.errors import CompdError
-from compd.service.clock import RealClock
-from compd.service.compensator import TickRecord
-from compd.service.config import Config
+from compd.service.loop.clock import RealClock
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import Config
 from compd.service.daemon import Service
 from compd.service.notify import SystemdNotifier
-from compd.service.recorder import NAME
+from compd.service.recording.recorder import NAME
 
 #: A recording's file is closed at this size and the next one opened: under the 1 GiB that
 #: ``compd fit --data`` reads (:data:`compd.files.data.MAX_FILE_BYTES`), so each file fits as it is.
@@ -33,7 +33,7 @@ FILE_BYTES = 1_000_000_000
 
 
 def recordings(directory: Path) -> list[Path]:
-    """The recorder's files in ``directory`` (:data:`compd.service.recorder.NAME`), oldest first."""
+    """The recorder's files in ``directory`` (:data:`compd.service.recording.recorder.NAME`), oldest first."""
     if not directory.is_dir():
         return []
     return sorted(p for p in directory.iterdir() if NAME.match(p.name))

@@ -2,7 +2,7 @@
 
 The model is checked here first (as ``compd model check`` does), then sent to
 each machine's ``<prefix>/<machine_id>/cmd/model_load``
-(:mod:`compd.service.remoteload`: the daemon's own checks, install, blend and
+(:mod:`compd.service.fleet.remoteload`: the daemon's own checks, install, blend and
 refusal follow). Before that, each machine's retained ``desired`` record
 names the model (:func:`desired_record`; ``--pending`` sends it later to a
 machine away now). The answers come back on ``reply/<request_id>``; with
@@ -32,11 +32,11 @@ from pydantic import ValidationError
 
 from compd.errors import CompdError, ConfigFileError
 from compd.files.yamlplace import parse_yaml, read_limited
-from compd.service.config import validation_error
-from compd.service.fleetdoc import TelemetryDoc
-from compd.service.modelload import load_request
-from compd.service.mqttlink import mqtt_client
-from compd.service.remoteload import COMMAND, SCHEMA
+from compd.service.config.loading import validation_error
+from compd.service.config.fleetdoc import TelemetryDoc
+from compd.service.control.modelload import load_request
+from compd.service.fleet.mqttlink import mqtt_client
+from compd.service.fleet.remoteload import COMMAND, SCHEMA
 
 #: ``<prefix>/<machine_id>/desired`` (retained): the model a roll-out left for the machine.
 DESIRED = "desired"
@@ -219,7 +219,7 @@ def desired_record(request: dict[str, Any]) -> bytes:
     Machines read it only to say in their birth whether they run it; the
     model travels in it so that ``--pending`` can send it later. Kept on
     ``desired``, which no daemon acts on (a retained ``cmd`` would be loaded
-    again at every connection, and is refused: :mod:`compd.service.remoteload`).
+    again at every connection, and is refused: :mod:`compd.service.fleet.remoteload`).
     """
     keys = ("name", "model_base64", "sha256", "requested_by", "sent_unix_s")
     record = {"schema": DESIRED_SCHEMA, "rollout_id": uuid.uuid4().hex}
@@ -234,7 +234,7 @@ def presence(listener: Listener, machine: str) -> str:
     """Sparkplug's rule: online while the newest birth's session is newer than the newest death's.
 
     A death counts only for the birth of the same instance (a daemon standing
-    by, compd.service.mqttclaim, leaves its will on the same topic).
+    by, compd.service.fleet.claim, leaves its will on the same topic).
     """
     births, deaths = listener.of(machine, "birth"), listener.of(machine, "death")
     if not births:

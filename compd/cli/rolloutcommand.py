@@ -17,8 +17,8 @@ from compd.cli.rollout import Outcome, broker_section, rollout
 from compd.cli.rolloutpending import online, pending
 from compd.errors import CompdError, ModelFileError
 from compd.files.yamlplace import read_limited
-from compd.service.fleetdoc import TelemetryDoc
-from compd.service.remoteload import REQUEST_ID
+from compd.service.config.fleetdoc import TelemetryDoc
+from compd.service.fleet.remoteload import REQUEST_ID
 
 
 def in_waves(

@@ -27,7 +27,7 @@ from compd.cli.rollout import (
     rollout,
 )
 from compd.errors import CompdError
-from compd.service.fleetdoc import TelemetryDoc
+from compd.service.config.fleetdoc import TelemetryDoc
 
 
 def retained(section: TelemetryDoc, base_dir: Path, timeout_s: float) -> Listener:

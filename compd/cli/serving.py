@@ -11,7 +11,7 @@ import structlog
 
 from compd.drivers.library_logs import quiet_library
 from compd.files.yamlplace import resolve_path
-from compd.service.config import Config, load_config
+from compd.service.config.loading import Config, load_config
 
 
 def config_from_arg(text: str) -> Config:

@@ -1,7 +1,7 @@
 """``compd status``: ask the running daemon over its control socket, at once.
 
 The socket comes from two keys of the config's YAML
-(:func:`compd.service.paths.control_socket_of`), not from validating the
+(:func:`compd.service.config.paths.control_socket_of`), not from validating the
 whole config and its model: status must answer in a blink on an edge PC,
 also to say that nothing is running. A file that is not a YAML mapping
 is loaded in full, for the error that names the place.
@@ -16,8 +16,8 @@ from pathlib import Path
 from compd.cli.terminal import Text, console
 from compd.errors import CompdError, ConfigFileError, NotRunningError
 from compd.files.yamlplace import parse_yaml, read_limited, resolve_path
-from compd.service.control import request_sync
-from compd.service.paths import control_socket_of
+from compd.service.control.socket import request_sync
+from compd.service.config.paths import control_socket_of
 
 
 def control_socket(config_text: str) -> Path:

@@ -15,9 +15,9 @@ from rich.console import Console, Group, RenderableType
 from rich.table import Table
 from rich.text import Text
 
-from compd.service.compensator import TickRecord
-from compd.service.safety import Level
-from compd.service.signals import Health
+from compd.service.loop.compensator import TickRecord
+from compd.service.loop.safety import Level
+from compd.service.loop.signals import Health
 
 HEALTH_STYLE = {
     Health.OK: "green",

@@ -87,7 +87,7 @@ def _subparser(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentP
 
 def config_page() -> str:
     from compd.files.yamlplace import resolve_path
-    from compd.service.configdoc import SCHEMA, ConfigDoc
+    from compd.service.config.docs import SCHEMA, ConfigDoc
 
     example = resolve_path("bundled:compd.example.yaml", Path("."))
     head = [
@@ -213,11 +213,11 @@ def units_page() -> str:
 
 
 def status_word_page() -> str:
-    from compd.service.safety import HEARTBEAT_MODULO, SIGNAL_BIT0, STATUS_BITS, Flag, Level
+    from compd.service.loop.safety import HEARTBEAT_MODULO, SIGNAL_BIT0, STATUS_BITS, Flag, Level
 
     lines = [
         f"The status word ({STATUS_BITS} bits) compd writes to the PLC beside the offsets, "
-        "every tick (compd.service.safety):",
+        "every tick (compd.service.loop.safety):",
         "",
         "  bits 0-1  level: " + ", ".join(f"{level.value} {level.name.lower()}" for level in Level),
     ]

@@ -339,7 +339,7 @@ class ConsistencyDoc(_Strict):
 
     Written by ``compd fit``; the daemon checks every reading of a ``checked``
     input against its prediction from the others and stands in with the
-    prediction while the sensor is wrong (:mod:`compd.service.plausibility`).
+    prediction while the sensor is wrong (:mod:`compd.service.loop.plausibility`).
     ``mean`` and ``covariance`` are those of the features: per signal its
     value and its low-passes at ``taus_s``, and for a ``heated`` speed also its
     heat feature and that one's low-passes.

@@ -1,16 +1,16 @@
 """The compensation service's lifecycle: config -> model -> drivers -> loop -> shutdown.
 
 Start-up validates everything before the first write to a machine: the
-config (:mod:`compd.service.config`), the model (the one last installed with
+config (:mod:`compd.service.config.loading`), the model (the one last installed with
 ``compd model load``, else the config's), and that the two fit. It then
-decides whether to resume the saved model state (:mod:`compd.service.state`), opens
+decides whether to resume the saved model state (:mod:`compd.service.store.state`), opens
 the drivers, the control socket and the recorder, tells systemd it is ready
-and runs the loop (:mod:`compd.service.ticks`, :mod:`compd.service.compensator`) until stopped.
+and runs the loop (:mod:`compd.service.loop.ticks`, :mod:`compd.service.loop.compensator`) until stopped.
 
 While running, the control socket answers ``status`` (a snapshot of the
 model, the last tick, the inputs and their health, and the counters) and
 ``load`` (switch to a model file the client sends: validated, compiled and
-installed off the loop by :mod:`compd.service.modelload`, a bad one refused while
+installed off the loop by :mod:`compd.service.control.modelload`, a bad one refused while
 the running model goes on untouched; a good one blended in bumplessly by the
 loop, and unloaded again should it fail while running). SIGHUP never stops it: the
 config is re-read and checked, the recording re-opened (:mod:`compd.service.reload`).
@@ -34,25 +34,25 @@ import structlog
 from compd.drivers.base import Driver
 from compd.errors import RecorderError
 from compd.faultlog import Event, FaultLog
-from compd.service.clock import Clock
-from compd.service.compensator import Compensator, TickRecord
-from compd.service.config import Config
-from compd.service.control import ControlServer
+from compd.service.loop.clock import Clock
+from compd.service.loop.compensator import Compensator, TickRecord
+from compd.service.config.loading import Config
+from compd.service.control.socket import ControlServer
 from compd.service.identity import column_units, identity, recording_metadata, systemd_summary
-from compd.service.modelload import ModelLoader, request_bytes, startup_slots
+from compd.service.control.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.notify import SystemdNotifier
-from compd.service.peers import FdBudget
+from compd.service.control.peers import FdBudget
 from compd.service.reload import Reloader
-from compd.service.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
-from compd.service.safety import HEARTBEAT_MODULO
-from compd.service.seenrequests import FILE as SEEN_FILE
-from compd.service.seenrequests import SeenRequests
-from compd.service.state import SavedState, resumable_state, save_state
-from compd.service.statusview import status_snapshot
-from compd.service.ticks import TickTiming, run_periodic
+from compd.service.fleet.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
+from compd.service.loop.safety import HEARTBEAT_MODULO
+from compd.service.fleet.seenrequests import FILE as SEEN_FILE
+from compd.service.fleet.seenrequests import SeenRequests
+from compd.service.store.state import SavedState, resumable_state, save_state
+from compd.service.loop.statusview import status_snapshot
+from compd.service.loop.ticks import TickTiming, run_periodic
 
 if TYPE_CHECKING:
-    from compd.service.httpserver import StatusServer
+    from compd.service.http.server import StatusServer
 
 log = structlog.get_logger("compd.service.daemon")
 
@@ -153,7 +153,7 @@ class Service:
         self._recorder_fault = FaultLog(log)
         self._save_fault = FaultLog(log)  # saves fail every save_every_ticks: log once
         self._saving: asyncio.Future[None] | None = None
-        #: MQTT telemetry (:mod:`compd.service.telemetry`) where the config asks for it.
+        #: MQTT telemetry (:mod:`compd.service.fleet.telemetry`) where the config asks for it.
         self.telemetry = (
             doc.telemetry.telemetry(config.base_dir, identity=self._describe, wall=clock.wall)
             if doc.telemetry is not None
@@ -367,7 +367,7 @@ class Service:
     async def load_model(self, message: dict[str, Any]) -> dict[str, Any]:
         """Check, install and switch to the model in ``message`` (the control socket's ``load``).
 
-        ``message`` is :func:`compd.service.modelload.load_request`'s; raises
+        ``message`` is :func:`compd.service.control.modelload.load_request`'s; raises
         CompdError if the model is refused, the running one untouched. The
         entry point for anything else that delivers a model (a fleet roll-out).
         """
@@ -404,7 +404,7 @@ class Service:
         return self.status()
 
     def status(self) -> dict[str, Any]:
-        """A JSON-able snapshot (:mod:`compd.service.statusview`)."""
+        """A JSON-able snapshot (:mod:`compd.service.loop.statusview`)."""
         return status_snapshot(
             self.compensator,
             self.links,

@@ -6,12 +6,12 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from compd import __version__
-from compd.service.metricunits import prometheus_unit
+from compd.service.config.metricunits import prometheus_unit
 
 if TYPE_CHECKING:
-    from compd.service.compensator import TickRecord
-    from compd.service.config import Config
-    from compd.service.slots import ModelSlot
+    from compd.service.loop.compensator import TickRecord
+    from compd.service.config.loading import Config
+    from compd.service.loop.slots import ModelSlot
 
 
 def identity(config: Config, slot: ModelSlot | None, started_unix_s: float) -> dict[str, Any]:

@@ -32,9 +32,9 @@ from pathlib import Path
 import structlog
 
 from compd.errors import RecorderError
-from compd.service.config import Config, load_config
+from compd.service.config.loading import Config, load_config
 from compd.service.notify import SystemdNotifier
-from compd.service.recorder import RecordingFiles
+from compd.service.recording.recorder import RecordingFiles
 
 log = structlog.get_logger("compd.service.reload")
 

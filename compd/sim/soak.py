@@ -44,7 +44,7 @@ any reset): the soak counts crashes (an exception out of the service, or a
 service that cannot be built), writes outside the clamp, steps above the
 slew limit (``max_rate_um_per_s * period_s``) from a value within the clamp,
 and offsets the service reports as acknowledged
-(:attr:`~compd.service.compensator.TickRecord.acknowledged_um`, what the
+(:attr:`~compd.service.loop.compensator.TickRecord.acknowledged_um`, what the
 recorder writes) that the PLC never received. Targets: 0, 0, 0, 0. A
 service that ends before the shift does is a crash too (a reload must never
 stop it).
@@ -69,13 +69,13 @@ from typing import Any
 from compd.drivers.modbus.driver import ModbusDriver
 from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import CompdError
-from compd.service.clock import VirtualClock
-from compd.service.compensator import TickRecord
-from compd.service.config import Config
-from compd.service.control import request
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import Config
+from compd.service.control.socket import request
 from compd.service.daemon import Service
-from compd.service.modelload import load_request
-from compd.service.state import STATE_FILE
+from compd.service.control.modelload import load_request
+from compd.service.store.state import STATE_FILE
 from compd.sim.plc.build import build_machine
 from compd.sim.plc.machine import MachineClock, SimulatedMachine
 from compd.sim.plc.modbus import ModbusPlcServer

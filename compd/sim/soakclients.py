@@ -4,7 +4,7 @@ A ``slow_clients`` fault (:mod:`compd.sim.soakfaults`) opens, for a while,
 :data:`HTTP_PER_SLOT` connections per slot of the status page's server, or
 :data:`CONTROL_PER_SLOT` per slot of the control socket, or both; each sends
 half a request and sits, as a slowloris does. The servers hold at most their
-cap of them (:mod:`compd.service.peers`): the rest wait in the kernel's queue
+cap of them (:mod:`compd.service.control.peers`): the rest wait in the kernel's queue
 or, on the control socket, are told ``busy`` and closed. Meanwhile the soak
 asks for the status as an operator would, over HTTP and over the control
 socket, scrapes ``/metrics`` as Prometheus would, and counts the episode's
@@ -30,10 +30,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from compd.errors import CompdError
-from compd.service.control import MAX_CONNECTIONS, request
+from compd.service.control.socket import MAX_CONNECTIONS, request
 
 if TYPE_CHECKING:
-    from compd.service.compensator import TickRecord
+    from compd.service.loop.compensator import TickRecord
     from compd.service.daemon import Service
     from compd.sim.soakwitness import SoakResult, Witness
 

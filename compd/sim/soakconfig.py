@@ -14,7 +14,7 @@ from pathlib import Path
 import yaml
 
 from compd.files.yamlplace import resolve_path
-from compd.service.config import Config, load_config
+from compd.service.config.loading import Config, load_config
 
 
 def soak_config(directory: Path, *, hours: float, seed: int) -> Config:

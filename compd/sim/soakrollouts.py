@@ -2,10 +2,10 @@
 
 A roll-out command left retained on the broker is handed to the daemon again
 at every connection, and a captured one can be sent again: both must be
-refused (:mod:`compd.service.remoteload`), by every service of the soak,
+refused (:mod:`compd.service.fleet.remoteload`), by every service of the soak,
 across its kills and restarts (the ids taken are kept in the state
 directory). The soak has no broker: each service gets the deliveries a
-broker would make, through the same :class:`~compd.service.remoteload.RemoteLoads`
+broker would make, through the same :class:`~compd.service.fleet.remoteload.RemoteLoads`
 the daemon builds for its MQTT link. The command carries the running model
 (taken as ``already_running``: the shift's compensation is not changed).
 """
@@ -19,9 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from compd.service.daemon import Service
-from compd.service.modelload import load_request
-from compd.service.remoteload import SCHEMA, RemoteLoads
-from compd.service.seenrequests import FILE, SeenRequests
+from compd.service.control.modelload import load_request
+from compd.service.fleet.remoteload import SCHEMA, RemoteLoads
+from compd.service.fleet.seenrequests import FILE, SeenRequests
 from compd.sim.soakwitness import SoakResult
 
 REQUEST_ID = "soak-rollout-1"

@@ -35,7 +35,7 @@ blending and checks, not the model run offline on the fault-free readings:
 that would also count what the safety stage does as the fault's cost.
 
 Beside it, how long the service stood in for the sensor (health
-``ESTIMATED``, :mod:`compd.service.plausibility`) from the fault until the
+``ESTIMATED``, :mod:`compd.service.loop.plausibility`) from the fault until the
 next fault on the same input: a stand-in that outlasts its fault by far
 explains an excess that does.
 """
@@ -49,9 +49,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from compd.files.modelfile import load_model
-from compd.service.compensator import TickRecord
-from compd.service.config import Config
-from compd.service.signals import Health
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import Config
+from compd.service.loop.signals import Health
 from compd.sim.plc.machine import AXES, SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from compd.sim.plc.settings import SimFaultDoc

@@ -5,7 +5,7 @@ against what the register held just before (after any reset): writes
 outside the clamp, steps above the slew limit (from a value within the
 clamp: the write that replaces a value outside it is a correction, counted
 apart, and must land within the clamp), heartbeats (counted), and offsets the service reports as acknowledged
-(:attr:`~compd.service.compensator.TickRecord.acknowledged_um`) that the PLC never
+(:attr:`~compd.service.loop.compensator.TickRecord.acknowledged_um`) that the PLC never
 received. The counts go into a :class:`SoakResult`.
 """
 
@@ -16,7 +16,7 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from compd.service.compensator import TickRecord
+from compd.service.loop.compensator import TickRecord
 from compd.sim.soaksensors import SensorEpisode
 
 #: Slack on a step, um: the register holds whole counts, so only float noise.

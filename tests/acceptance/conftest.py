@@ -19,7 +19,7 @@ import pytest
 import yaml
 
 from compd.files.yamlplace import resolve_path
-from compd.service.config import Config, load_config
+from compd.service.config.loading import Config, load_config
 from compd.sim.plc.machine import AxisSummary
 from compd.sim.plc.run import SimulationResult, run_simulation
 from tests.clirun import compd

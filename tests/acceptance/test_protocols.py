@@ -84,7 +84,7 @@ def test_the_shift_through_secured_opc_ua_matches_modbus(
         "reconnect_max_s": 2.0,
     }
     # Every node named one way: compd cannot tell a NodeId and a browse path apart offline
-    # on a server it writes to (compd.service.overlaps); the driver tests take browse paths.
+    # on a server it writes to (compd.service.config.overlaps); the driver tests take browse paths.
     addresses = {name: f"ns=2;s=Machine.{name}" for name in doc["signals"]}
     addresses |= {
         "Z": "ns=2;s=Machine.comp_z_um",

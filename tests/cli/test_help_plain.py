@@ -34,7 +34,7 @@ def test_schema_pages_have_no_restructuredtext_markup(topic):
     assert not MARKUP.findall(page), [line for line in page.splitlines() if MARKUP.search(line)]
     if topic == "config":
         assert "# 'value = raw * scale + offset' in 'unit'." in page
-        assert "(see compd.service.signals)" in page
+        assert "(see compd.service.loop.signals)" in page
 
 
 def test_no_help_text_or_effect_says_seed():

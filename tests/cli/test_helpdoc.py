@@ -16,8 +16,8 @@ from compd.cli import COMMANDS, build_parser
 from compd.cli.topics import UNIT_SUFFIXES, help_text
 from compd.files.modelschema import ModelDoc
 from compd.schemas import CONFIG_SCHEMA, MODEL_SCHEMA
-from compd.service.configdoc import ConfigDoc
-from compd.service.safety import Flag
+from compd.service.config.docs import ConfigDoc
+from compd.service.loop.safety import Flag
 from compd.toolkit.fitmodel import unit_of
 
 SYSTEM_PACKAGES = ".ci/install-system-packages"

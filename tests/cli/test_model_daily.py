@@ -9,7 +9,7 @@ from pathlib import Path
 import yaml
 
 from compd.files.yamlplace import resolve_path
-from compd.service.config import load_config
+from compd.service.config.loading import load_config
 from tests.clirun import compd
 
 from .test_live_terminal import short_dir, simulated_config

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from compd.service.safety import HEARTBEAT_MODULO, Flag, Level
+from compd.service.loop.safety import HEARTBEAT_MODULO, Flag, Level
 
 ST = Path(__file__).parents[2] / "deploy" / "plc" / "FB_CompdOffset.st"
 

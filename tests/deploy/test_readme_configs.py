@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from compd.files.yamlplace import resolve_path
-from compd.service.config import ConfigDoc
+from compd.service.config.loading import ConfigDoc
 
 from ..clirun import compd
 

@@ -19,8 +19,8 @@ from hypothesis import strategies as st
 from compd.drivers.gateway.driver import GatewayDriver, GatewaySettings
 from compd.drivers.registry import load_driver_type
 from compd.errors import DriverError, DriverProtocolError, DriverTimeoutError
-from compd.service.clock import VirtualClock
-from compd.service.links import DriverLink
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.links import DriverLink
 from compd.sim.plc.gateway import GatewayServer
 from tests.reconnect import seconds_until_read
 

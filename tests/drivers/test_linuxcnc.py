@@ -23,9 +23,9 @@ import yaml
 from compd.drivers.linuxcnc import LinuxCncDriver, LinuxCncSettings
 from compd.drivers.registry import load_driver_type
 from compd.errors import ConfigFileError, DriverDisconnectedError, DriverProtocolError
-from compd.service.clock import RealClock
-from compd.service.compensator import TickRecord
-from compd.service.config import load_config
+from compd.service.loop.clock import RealClock
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import load_config
 from compd.service.daemon import Service
 
 from ..service.daemon_setup import write_config

@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 
 from compd.drivers.linuxcnc import LinuxCncDriver, LinuxCncSettings
-from compd.service.clock import RealClock
-from compd.service.compensator import TickRecord
+from compd.service.loop.clock import RealClock
+from compd.service.loop.compensator import TickRecord
 from compd.service.daemon import Service
-from compd.service.safety import Level
+from compd.service.loop.safety import Level
 
 from ..service.daemon_setup import write_config
 from . import linuxcnc_machine

@@ -20,7 +20,7 @@ from structlog.testing import capture_logs
 
 from compd.drivers.linuxcnc import LinuxCncDriver, LinuxCncSettings
 from compd.errors import DriverError, DriverProtocolError
-from compd.service.clock import VirtualClock
+from compd.service.loop.clock import VirtualClock
 from compd.service.daemon import Service
 
 from ..service.daemon_setup import write_config

@@ -25,12 +25,12 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
-from compd.service.clock import RealClock, VirtualClock
-from compd.service.compensator import TickRecord
-from compd.service.config import parse_config
+from compd.service.loop.clock import RealClock, VirtualClock
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import parse_config
 from compd.service.daemon import Service
-from compd.service.links import DriverLink
-from compd.service.safety import Flag
+from compd.service.loop.links import DriverLink
+from compd.service.loop.safety import Flag
 from tests.reconnect import seconds_until_read
 
 from ..service.daemon_setup import write_config

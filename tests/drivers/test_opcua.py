@@ -32,9 +32,9 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
-from compd.service.clock import RealClock, VirtualClock
-from compd.service.config import parse_config
-from compd.service.links import DriverLink
+from compd.service.loop.clock import RealClock, VirtualClock
+from compd.service.config.loading import parse_config
+from compd.service.loop.links import DriverLink
 from tests.reconnect import seconds_until_read
 
 from .contract import ContractSetup, DriverContract

@@ -10,7 +10,7 @@ import yaml
 
 from compd.drivers.registry import BUILTIN, driver_names, load_driver_type
 from compd.errors import ConfigFileError
-from compd.service.config import load_config
+from compd.service.config.loading import load_config
 from tests.acceptance.conftest import machine_doc
 
 BUNDLED_MODEL = Path(__file__).parents[2] / "config" / "simulated_model.yaml"

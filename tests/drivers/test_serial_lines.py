@@ -16,7 +16,7 @@ from compd.drivers.serial_lines import (
     reply_payload,
 )
 from compd.errors import ConfigFileError, DriverProtocolError
-from compd.service.config import parse_config
+from compd.service.config.loading import parse_config
 
 EXAMPLE_CONFIG = Path(__file__).parents[2] / "config" / "compd.example.yaml"
 

@@ -25,12 +25,12 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
-from compd.service.clock import RealClock
-from compd.service.compensator import TickRecord
-from compd.service.config import Config
+from compd.service.loop.clock import RealClock
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import Config
 from compd.service.daemon import Service
-from compd.service.links import DriverLink
-from compd.service.signals import Health
+from compd.service.loop.links import DriverLink
+from compd.service.loop.signals import Health
 
 from ..service.daemon_setup import write_config
 from .contract import ContractSetup, DriverContract

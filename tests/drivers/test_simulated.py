@@ -13,7 +13,7 @@ from compd.drivers.base import Driver
 from compd.drivers.registry import BUILTIN, UnknownDriverError, driver_names, load_driver_type
 from compd.drivers.simulated import SimulatedDriver, SimulatedSettings
 from compd.errors import DriverDisconnectedError, DriverProtocolError
-from compd.service.clock import VirtualClock
+from compd.service.loop.clock import VirtualClock
 
 from .contract import ContractSetup, DriverContract
 

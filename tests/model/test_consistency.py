@@ -69,7 +69,7 @@ def run(model: ConsistencyModel, record: dict[str, np.ndarray]) -> dict[str, np.
 def test_no_reading_of_a_record_it_was_not_fitted_on_falls_outside_the_daemons_tolerance(
     model: ConsistencyModel,
 ) -> None:
-    """The daemon (:mod:`compd.service.plausibility`) judges a reading by how far its residue moved
+    """The daemon (:mod:`compd.service.loop.plausibility`) judges a reading by how far its residue moved
     from its recent level (averaged over minutes): within max(8 sigma, 1 degC), a third of the
     daemon's smallest tolerance, on a healthy machine's new record; the residue itself stays
     within three times that."""

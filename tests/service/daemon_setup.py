@@ -12,9 +12,9 @@ from typing import Any
 import yaml
 
 from compd.files.yamlplace import resolve_path
-from compd.service.clock import VirtualClock
-from compd.service.compensator import TickRecord
-from compd.service.config import Config, load_config
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import Config, load_config
 from compd.service.daemon import Service
 
 BUNDLED_SIMULATED = resolve_path("bundled:replay.yaml", Path("."))

@@ -22,7 +22,7 @@ from typing import Any
 import yaml
 
 from compd.files.yamlplace import resolve_path
-from compd.service.config import load_config
+from compd.service.config.loading import load_config
 from compd.service.daemon import Service
 from compd.sim.plc.run import run_simulation
 from tests.acceptance.conftest import machine_doc

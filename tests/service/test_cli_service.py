@@ -17,8 +17,8 @@ from typing import Any
 from compd.cli import daemon as cli_daemon
 from compd.cli import main
 from compd.cli.starthint import start_hint
-from compd.service.control import ControlServer
-from compd.service.state import installed_model
+from compd.service.control.socket import ControlServer
+from compd.service.store.state import installed_model
 
 from .daemon_setup import short_socket, write_config
 

@@ -15,8 +15,8 @@ from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import ConfigFileError
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import resolve_path
-from compd.service.config import load_config, parse_config
-from compd.service.modelcheck import check_model
+from compd.service.config.loading import load_config, parse_config
+from compd.service.config.modelcheck import check_model
 
 from .daemon_setup import BUNDLED_SIMULATED, simulated_doc, write_config
 

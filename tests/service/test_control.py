@@ -20,8 +20,8 @@ from typing import Any
 import pytest
 
 from compd.errors import ControlError, ModelFileError
-from compd.service.admission import Access, Peer
-from compd.service.control import MAX_LINE_BYTES, TOO_DEEP, ControlServer, request, request_sync
+from compd.service.config.admission import Access, Peer
+from compd.service.control.socket import MAX_LINE_BYTES, TOO_DEEP, ControlServer, request, request_sync
 
 
 @pytest.fixture

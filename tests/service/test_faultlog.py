@@ -8,9 +8,9 @@ import structlog
 from structlog.testing import capture_logs
 
 from compd.faultlog import Event, FaultLog
-from compd.service.clock import VirtualClock
+from compd.service.loop.clock import VirtualClock
 from compd.service.daemon import Service
-from compd.service.state import STATE_FILE
+from compd.service.store.state import STATE_FILE
 
 from .daemon_setup import write_config
 

@@ -16,10 +16,10 @@ from compd.files.modelfile import load_model
 from compd.files.modelwriter import model_to_yaml
 from compd.model import InputSpec, Model, Output, SubModel, compile_model
 from compd.model.run import TickRunner, simulate
-from compd.service.config import Config
-from compd.service.modelcheck import check_model
-from compd.service.safety import Flag
-from compd.service.schedule import GainRow, GainScheduler, GainTable, first_overlap
+from compd.service.config.loading import Config
+from compd.service.config.modelcheck import check_model
+from compd.service.loop.safety import Flag
+from compd.service.loop.schedule import GainRow, GainScheduler, GainTable, first_overlap
 from tests.model.conftest import first_order
 
 from .daemon_setup import run, simulated_doc, write_config

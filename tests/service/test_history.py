@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 
-from compd.service.compensator import TickRecord
-from compd.service.history import TickHistory
-from compd.service.signals import Health
+from compd.service.loop.compensator import TickRecord
+from compd.service.http.history import TickHistory
+from compd.service.loop.signals import Health
 
 
 def record(k: int, *, offset_um: float | None = None) -> TickRecord:

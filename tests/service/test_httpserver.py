@@ -13,8 +13,8 @@ import yaml
 from prometheus_client.parser import text_string_to_metric_families
 
 from compd.errors import CompdError, ConfigFileError
-from compd.service.config import load_config
-from compd.service.configdoc import HttpDoc
+from compd.service.config.loading import load_config
+from compd.service.config.docs import HttpDoc
 from tests.clirun import compd
 from tests.service.httprun import RunningCompd, http_config, running_compd
 
@@ -199,7 +199,7 @@ def test_bad_http_section_names_the_place(tmp_path: Path) -> None:
 
 def test_disabled_http_builds_no_server(tmp_path: Path) -> None:
     """``http: {enabled: false}``: no server, no metrics, nothing measured in the tick."""
-    from compd.service.clock import VirtualClock
+    from compd.service.loop.clock import VirtualClock
     from compd.service.daemon import Service
 
     config = load_config(http_config(tmp_path, enabled=False))
@@ -225,11 +225,11 @@ def test_page_files_ship_in_the_wheel() -> None:
     import fnmatch
     import tomllib
 
-    from compd.service.httpserver import PAGE_DIR, PAGE_FILES
+    from compd.service.http.server import PAGE_DIR, PAGE_FILES
 
     root = Path(__file__).parents[2]
     setuptools = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
-    patterns = setuptools["package-data"]["compd.service"]
+    patterns = setuptools["package-data"]["compd.service.http"]
     for file, _ in PAGE_FILES.values():
         assert (PAGE_DIR / file).is_file()
         assert any(fnmatch.fnmatch(f"statuspage/{file}", p) for p in patterns), file
@@ -239,7 +239,7 @@ def test_a_service_ended_as_killed_stops_listening_on_its_http_port(tmp_path: Pa
     """A service left as SIGKILL leaves it (the soak's in-process kills) closes its HTTP port, as the OS would."""
     import asyncio
 
-    from compd.service.clock import VirtualClock
+    from compd.service.loop.clock import VirtualClock
     from compd.service.daemon import Service
 
     config = load_config(http_config(tmp_path))

@@ -6,8 +6,8 @@ import pytest
 from structlog.testing import capture_logs
 
 from compd.files.modelfile import parse_model
-from compd.service.compensator import Counters
-from compd.service.slots import ModelSlot, ModelSlots
+from compd.service.loop.compensator import Counters
+from compd.service.loop.slots import ModelSlot, ModelSlots
 
 #: A first-order lag of static gain 2 um/degC on the spindle temperature, at 1 s.
 MODEL = """\

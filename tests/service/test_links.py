@@ -13,9 +13,9 @@ from structlog.testing import capture_logs
 
 from compd.drivers.base import Driver
 from compd.errors import DriverDisconnectedError
-from compd.service.clock import VirtualClock
+from compd.service.loop.clock import VirtualClock
 from compd.service.daemon import Service
-from compd.service.links import DriverLink
+from compd.service.loop.links import DriverLink
 
 from .daemon_setup import write_config
 

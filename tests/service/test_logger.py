@@ -14,8 +14,8 @@ from compd.cli import main
 from compd.errors import ConfigFileError
 from compd.files.data import load_data
 from compd.files.yamlplace import resolve_path
-from compd.service.config import Config, load_config
-from compd.service.modelload import slot_from_bytes
+from compd.service.config.loading import Config, load_config
+from compd.service.control.modelload import slot_from_bytes
 from compd.sim.plc.run import run_simulation
 
 from ..drivers.modbus_server import free_port

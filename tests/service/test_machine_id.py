@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from compd.errors import ConfigFileError
-from compd.service.config import load_config
+from compd.service.config.loading import load_config
 
 ROOT = Path(__file__).parents[2]
 

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import pytest
 
 from compd import __version__
-from compd.service.safety import Flag
+from compd.service.loop.safety import Flag
 from tests.metricsrender import MACHINE_ID, Render, rendered_with_broker
 from tests.mosquitto import mosquitto_binary
 

@@ -10,14 +10,14 @@ from typing import Any
 import numpy as np
 from structlog.testing import capture_logs
 
-from compd.service.clock import VirtualClock
-from compd.service.compensator import TickRecord
-from compd.service.configdoc import MAX_SIGNALS
-from compd.service.control import request
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.docs import MAX_SIGNALS
+from compd.service.control.socket import request
 from compd.service.daemon import Service
-from compd.service.modelload import load_request
-from compd.service.safety import SIGNAL_BIT0, Level, mismatch_bit, model_fault_bit
-from compd.service.state import install_model_bytes, installed_model
+from compd.service.control.modelload import load_request
+from compd.service.loop.safety import SIGNAL_BIT0, Level, mismatch_bit, model_fault_bit
+from compd.service.store.state import install_model_bytes, installed_model
 
 from .daemon_setup import run, short_socket, ticked, write_config
 from .test_service import SLEW_UM, bad_and_good_models, offsets
@@ -114,7 +114,7 @@ def test_a_new_model_that_cannot_start_is_dropped_and_the_running_one_goes_on(
     def broken_handover(*args: Any, **kwargs: Any) -> Any:
         raise np.linalg.LinAlgError("singular matrix")
 
-    monkeypatch.setattr("compd.service.slots.handover_state", broken_handover)
+    monkeypatch.setattr("compd.service.loop.slots.handover_state", broken_handover)
     service, records, replies, logs = run_with_load(tmp_path, lambda s, r: None, ticks_after=200)
     assert replies["load"]["ok"]  # accepted: it failed only when the loop started it
     assert len(records) >= 300 and service.compensator.active.compiled.name == CONFIG_MODEL

@@ -12,12 +12,12 @@ from typing import Any
 import pytest
 
 from compd.errors import ConfigFileError
-from compd.service import modelload
-from compd.service.clock import VirtualClock
-from compd.service.control import request
+from compd.service.control import modelload
+from compd.service.loop.clock import VirtualClock
+from compd.service.control.socket import request
 from compd.service.daemon import Service
-from compd.service.modelload import load_request, startup_slots
-from compd.service.state import install_model_bytes
+from compd.service.control.modelload import load_request, startup_slots
+from compd.service.store.state import install_model_bytes
 
 from .daemon_setup import short_socket, ticked, write_config
 from .test_service import bad_and_good_models

@@ -5,8 +5,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from compd.service.mqttclaim import Claim, Instance
-from compd.service.points import SignalPoint
+from compd.service.fleet.claim import Claim, Instance
+from compd.service.loop.points import SignalPoint
 
 
 def _birth(instance: Instance, session: int) -> dict[str, object]:

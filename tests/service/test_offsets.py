@@ -7,8 +7,8 @@ import math
 import numpy as np
 from structlog.testing import capture_logs
 
-from compd.service.offsets import AxisPoint, HeldOffsets
-from compd.service.safety import AxisLimits, AxisSafety, OutOfClamp
+from compd.service.loop.offsets import AxisPoint, HeldOffsets
+from compd.service.loop.safety import AxisLimits, AxisSafety, OutOfClamp
 
 LIMITS = AxisLimits(max_offset_um=50.0, max_rate_um_per_s=1.0)
 

@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 import yaml
 
-from compd.service.paths import control_socket_of, default_state_dir
+from compd.service.config.paths import control_socket_of, default_state_dir
 
 from .daemon_setup import merge, simulated_doc
 
@@ -28,7 +28,7 @@ def test_the_socket_from_the_yaml_is_the_one_load_config_finds(
     tmp_path: Path, changes: dict[str, Any], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """For a valid config, the two-key reading and the full validation agree on the socket."""
-    from compd.service.config import load_config
+    from compd.service.config.loading import load_config
 
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg"))
     doc = merge(simulated_doc(), {"recorder": {"enabled": False}, **changes})
@@ -53,7 +53,7 @@ def test_without_a_state_directory_the_socket_is_in_the_xdg_state_home(
 def test_the_paths_module_imports_neither_pydantic_nor_numpy() -> None:
     """A quick ``compd status`` can find the socket without the config's schema or the numerics."""
     code = (
-        "import sys, compd.service.paths; "
+        "import sys, compd.service.config.paths; "
         "print(sorted({m.split('.')[0] for m in sys.modules} & {'pydantic', 'numpy', 'scipy'}))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -18,7 +18,7 @@ import urllib.request
 from pathlib import Path
 
 from compd.cli import main
-from compd.service.peers import EVICT_WAIT_S, Listener, Served
+from compd.service.control.peers import EVICT_WAIT_S, Listener, Served
 from tests.ports import free_port
 
 from .daemon_setup import short_socket, write_config
@@ -254,7 +254,7 @@ STARVED_SERVER = """
 import asyncio, concurrent.futures.thread, logging, os, resource, sys
 from pathlib import Path
 import structlog
-from compd.service.control import ControlServer
+from compd.service.control.socket import ControlServer
 
 structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.INFO))
 resource.setrlimit(resource.RLIMIT_NOFILE, (128, 128))

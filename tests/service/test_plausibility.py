@@ -7,8 +7,8 @@ import pytest
 from structlog.testing import capture_logs
 
 from compd.model.consistency import ConsistencyCheck, ConsistencyModel, fit_consistency
-from compd.service.plausibility import Plausibility, PlausibilitySettings
-from compd.service.signals import Checks, Health, Reading, SignalMonitor
+from compd.service.loop.plausibility import Plausibility, PlausibilitySettings
+from compd.service.loop.signals import Checks, Health, Reading, SignalMonitor
 from tests.model.test_consistency import CHECKED, SAMPLE_S, machine
 
 UNITS = {name: "degC" for name in CHECKED} | {"spindle_speed_rpm": "rpm", "spindle_power_kw": "kW"}

@@ -17,9 +17,9 @@ from typing import Any
 import pytest
 import yaml
 
-from compd.service.compensator import TickRecord
-from compd.service.config import Config, load_config
-from compd.service.safety import Level
+from compd.service.loop.compensator import TickRecord
+from compd.service.config.loading import Config, load_config
+from compd.service.loop.safety import Level
 from tests.service.test_readback import MISMATCH_BIT, STEP_COUNTS, Plc, plc_config, run_against
 
 MAX_UM = 150.0

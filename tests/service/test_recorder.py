@@ -15,7 +15,7 @@ from numpy.testing import assert_allclose
 from compd.cli import main
 from compd.errors import RecorderError
 from compd.files.data import load_data
-from compd.service.recorder import Recorder
+from compd.service.recording.recorder import Recorder
 
 CONFIG = Path(__file__).parents[2] / "config"
 DATA = CONFIG / "example_spectrum.csv"
@@ -197,7 +197,7 @@ _DISK_FULL_SCRIPT = """
 import itertools, resource, signal, sys
 from pathlib import Path
 from compd.errors import RecorderError
-from compd.service.recorder import Recorder
+from compd.service.recording.recorder import Recorder
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of death, as ENOSPC would be
 resource.setrlimit(resource.RLIMIT_FSIZE, (1000, 1000))
 rec = Recorder(Path(sys.argv[1]), max_file_bytes=10**9, max_file_age_s=1e9, max_total_bytes=10**10,

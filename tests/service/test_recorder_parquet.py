@@ -19,9 +19,9 @@ from numpy.testing import assert_allclose
 
 from compd.files.data import load_data
 from compd.files.experiments import load_experiments
-from compd.service.configdoc import RecorderDoc
-from compd.service.recorder import Recorder
-from compd.service.recorder_parquet import RETRY_MAX_S, ParquetRecorder
+from compd.service.config.docs import RecorderDoc
+from compd.service.recording.recorder import Recorder
+from compd.service.recording.parquet import RETRY_MAX_S, ParquetRecorder
 
 T0_S = 1_795_428_900.0  # 2026-11-23T10:15:00Z
 BIG = 1 << 30
@@ -98,7 +98,7 @@ WRITER = textwrap.dedent(
     """
     import sys
     from pathlib import Path
-    from compd.service.recorder_parquet import ParquetRecorder
+    from compd.service.recording.parquet import ParquetRecorder
 
     rec = ParquetRecorder(
         Path(sys.argv[1]), max_file_bytes=1 << 30, max_file_age_s=300,
@@ -147,7 +147,7 @@ FULL_DISK = textwrap.dedent(
     from pathlib import Path
     import pyarrow.parquet as pq
     from compd.errors import RecorderError
-    from compd.service.recorder_parquet import ParquetRecorder
+    from compd.service.recording.parquet import ParquetRecorder
 
     disk, bound = Path(sys.argv[1]), int(sys.argv[2])
     options = {"max_unwritten_rows": bound} if bound else {}
@@ -222,7 +222,7 @@ SYNCED = textwrap.dedent(
     """
     import sys
     from pathlib import Path
-    from compd.service.recorder_parquet import ParquetRecorder
+    from compd.service.recording.parquet import ParquetRecorder
 
     rec = ParquetRecorder(Path(sys.argv[1]), max_file_bytes=1 << 30, max_file_age_s=600,
                           max_total_bytes=1 << 32, flush_every_rows=10)

@@ -15,8 +15,8 @@ import yaml
 from structlog.testing import capture_logs
 
 from compd.files.data import load_data
-from compd.service.clock import VirtualClock
-from compd.service.control import request_sync
+from compd.service.loop.clock import VirtualClock
+from compd.service.control.socket import request_sync
 from compd.service.daemon import Service
 
 from .daemon_setup import short_socket, write_config

@@ -19,10 +19,10 @@ import paho.mqtt.client as mqtt
 import pytest
 from paho.mqtt.enums import CallbackAPIVersion
 
-from compd.service.mqttlink import Broker, Topics
-from compd.service.remoteload import MAX_PAYLOAD_BYTES, RemoteLoads
-from compd.service.seenrequests import WINDOW_S, SeenRequests
-from compd.service.telemetry import Telemetry
+from compd.service.fleet.mqttlink import Broker, Topics
+from compd.service.fleet.remoteload import MAX_PAYLOAD_BYTES, RemoteLoads
+from compd.service.fleet.seenrequests import WINDOW_S, SeenRequests
+from compd.service.fleet.telemetry import Telemetry
 from tests.mosquitto import WAIT_S, Mosquitto, Subscriber, mosquitto_binary
 from tests.service.test_remoteload import ACCEPTED, Daemon, request
 

@@ -7,7 +7,7 @@ import math
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from compd.service.safety import (
+from compd.service.loop.safety import (
     SIGNAL_BIT0,
     AxisLimits,
     AxisSafety,

@@ -12,13 +12,13 @@ from numpy.testing import assert_allclose
 from compd.files.data import load_data
 from compd.files.modelfile import load_model
 from compd.model.run import simulate
-from compd.service.clock import VirtualClock
-from compd.service.control import request
+from compd.service.loop.clock import VirtualClock
+from compd.service.control.socket import request
 from compd.service.daemon import Service
-from compd.service.modelload import load_request
-from compd.service.safety import SIGNAL_BIT0, Flag, Level
-from compd.service.signals import Health
-from compd.service.state import load_state
+from compd.service.control.modelload import load_request
+from compd.service.loop.safety import SIGNAL_BIT0, Flag, Level
+from compd.service.loop.signals import Health
+from compd.service.store.state import load_state
 
 from .daemon_setup import run, short_socket, ticked, write_config
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from compd.service.signals import Checks, Health, SignalMonitor
+from compd.service.loop.signals import Checks, Health, SignalMonitor
 
 
 def feed(monitor: SignalMonitor, values, start_s: float = 0.0):

@@ -13,8 +13,8 @@ from structlog.testing import capture_logs
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import resolve_path
 from compd.model.compiled import ModelState
-from compd.service.clock import VirtualClock
-from compd.service.state import (
+from compd.service.loop.clock import VirtualClock
+from compd.service.store.state import (
     STATE_FILE,
     SavedState,
     StateError,

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from compd.service.compensator import TickRecord
+from compd.service.loop.compensator import TickRecord
 from compd.service.daemon import Service
 from compd.sim.plc.machine import SimulatedMachine
 from tests.mosquitto import Mosquitto, Subscriber, machine_config, mosquitto_binary

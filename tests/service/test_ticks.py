@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from compd.service.clock import RealClock, VirtualClock
-from compd.service.ticks import TickTiming, run_periodic
+from compd.service.loop.clock import RealClock, VirtualClock
+from compd.service.loop.ticks import TickTiming, run_periodic
 
 
 def test_virtual_clock_ticks_on_exact_deadlines():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any, cast
 
-from compd.service.clock import RealClock, VirtualClock
+from compd.service.loop.clock import RealClock, VirtualClock
 from compd.sim.plc.machine import MachineClock, SimulatedMachine
 
 NO_MACHINE = cast(SimulatedMachine, cast(Any, None))  # the scale never touches the machine

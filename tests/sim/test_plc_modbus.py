@@ -17,8 +17,8 @@ from compd.drivers.modbus.addresses import parse_address
 from compd.drivers.modbus.driver import ModbusDriver
 from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import DriverProtocolError
-from compd.service.clock import VirtualClock
-from compd.service.links import DriverLink
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.links import DriverLink
 from compd.sim.plc.modbus import ModbusPlcServer
 from tests.reconnect import seconds_until_read
 

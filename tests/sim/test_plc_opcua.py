@@ -21,8 +21,8 @@ import pytest
 
 from compd.drivers.opcua.driver import OpcUaDriver, OpcUaSettings
 from compd.errors import DriverProtocolError
-from compd.service.clock import VirtualClock
-from compd.service.links import DriverLink
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.links import DriverLink
 from compd.sim.plc.opcua import OpcUaPlcServer, parse_address
 from compd.sim.plc.opcua_security import ensure_client_certificate, ensure_server_certificate
 from tests.ports import free_port

@@ -13,8 +13,8 @@ import pytest
 from compd.drivers.serial_lines import SerialSensorSettings, checksum_hex
 from compd.drivers.serial_sensor import SerialSensorDriver
 from compd.errors import DriverProtocolError
-from compd.service.clock import VirtualClock
-from compd.service.links import DriverLink
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.links import DriverLink
 from compd.sim.plc.serial import SerialPlcServer
 from tests.reconnect import seconds_until_read
 

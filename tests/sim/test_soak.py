@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from compd.service.compensator import TickRecord
+from compd.service.loop.compensator import TickRecord
 from compd.sim.soakwitness import SoakResult, Witness
 
 OFFSET = "holding:100:int32"

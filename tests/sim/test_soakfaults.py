@@ -15,8 +15,8 @@ from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import CompdError, DriverError
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import resolve_path
-from compd.service.modelload import slot_from_bytes
-from compd.service.state import STATE_FILE, SavedState, StateError, load_state
+from compd.service.control.modelload import slot_from_bytes
+from compd.service.store.state import STATE_FILE, SavedState, StateError, load_state
 from compd.sim.plc.modbus import ModbusPlcServer
 from compd.sim.soak import soak_config
 from compd.sim.soakfaults import (

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from compd.errors import CompdError
-from compd.service.config import load_config
+from compd.service.config.loading import load_config
 from compd.sim.soak import soak_config
 from compd.sim.soakreload import edited
 

@@ -11,7 +11,7 @@ import importlib
 import re
 
 from compd.errors import ConfigFileError
-from compd.service.config import Config
+from compd.service.config.loading import Config
 from compd.sim.plc.machine import ServedAxis, ServedSignal, SimulatedMachine
 from compd.sim.plc.server import PlcServer, PlcServerType
 from compd.sim.plc.settings import simulation_of

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import structlog
 
-from compd.service.clock import Clock
+from compd.service.loop.clock import Clock
 from compd.sim.plc.server import PlcServer
 from compd.sim.plc.settings import SimFaultDoc, SimulationDoc
 from compd.sim.scenarios import scenario_inputs

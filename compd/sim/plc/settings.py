@@ -14,7 +14,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from compd.errors import ConfigFileError
-from compd.service.config import Config, validation_error
+from compd.service.config.loading import Config, validation_error
 
 FaultKind = Literal["stuck", "nan", "value", "offset", "drop", "restart"]
 TwinAxis = Literal["x", "y", "z"]

@@ -1,0 +1,445 @@
+"""The config file's schema: one frozen pydantic document per section, each building its runtime object.
+
+After Klipper, a config section maps to the object it configures: a signal
+section builds the point it is read at and the monitor that checks it
+(:meth:`SignalDoc.point`, :meth:`SignalDoc.monitor`), an output section the
+axis's write point and its safety stage (:meth:`OutputDoc.point`,
+:meth:`OutputDoc.stage`), a driver section its driver and the link that
+supervises it (:meth:`DriverDoc.driver`, :meth:`DriverDoc.link`), and so on;
+the service (:mod:`compd.service.daemon`) only assembles them. Validation
+across sections (references, addresses, written points) is
+:mod:`compd.service.config.loading`'s.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, Field, StrictInt, model_validator
+
+from compd.drivers.base import Driver
+from compd.drivers.registry import load_driver_type
+from compd.schemas import CONFIG_SCHEMA
+from compd.service.config.admission import Access
+from compd.service.loop.clock import Clock
+from compd.service.config.docbase import FiniteFloat, Positive, Strict
+from compd.service.config.fleetdoc import HttpDoc, TelemetryDoc
+from compd.service.loop.links import DriverLink
+from compd.service.loop.offsets import AxisPoint
+from compd.service.loop.plausibility import PlausibilitySettings
+from compd.service.loop.points import SignalPoint, StatusPoint
+from compd.service.recording.recorder import Recorder
+from compd.service.recording.marks import Units
+from compd.service.recording.parquet import DEFAULT_FLUSH_EVERY_ROWS, ParquetRecorder
+from compd.service.loop.safety import AxisLimits, AxisSafety, FaultMode, OutOfClamp
+from compd.service.loop.schedule import GainRow, GainScheduler, GainTable
+from compd.service.loop.signals import Checks, SignalMonitor
+
+SCHEMA = CONFIG_SCHEMA
+#: Signals beyond this many cannot each have a bit in the 32-bit status word (bits 8..31); the
+#: readback-mismatch and model-fault bits follow them where bits are left (:mod:`compd.service.loop.safety`).
+MAX_SIGNALS = 24
+
+
+#: Units of a temperature: stuck detection is on by default for them (a live sensor read at
+#: its resolution always shows noise; where one does not, the config says ``stuck_s: null``).
+TEMPERATURE_UNITS = frozenset({"degC", "K", "degF"})
+#: How long a temperature may read exactly the same value before it is judged stuck (s).
+DEFAULT_STUCK_S = 60.0
+
+
+class ChecksDoc(Strict):
+    """Per-signal plausibility checks (see :mod:`compd.service.loop.signals`), in the signal's unit.
+
+    ``stuck_s`` left out: :data:`DEFAULT_STUCK_S` for a temperature, off for
+    other units; ``null`` switches it off. ``max_jump`` left out: the model's
+    calibration sets it where the model file has a consistency model.
+    """
+
+    min: FiniteFloat | None = None
+    max: FiniteFloat | None = None
+    stale_s: Positive = 10.0
+    stuck_s: Positive | None = None
+    stuck_tolerance: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    max_jump: Positive | None = None
+    hold_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 30.0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ChecksDoc:
+        if self.min is not None and self.max is not None and self.min >= self.max:
+            raise ValueError(f"'min' ({self.min}) must be below 'max' ({self.max})")
+        return self
+
+    def checks(self, unit: str = "") -> Checks:
+        values = self.model_dump()
+        if "stuck_s" not in self.model_fields_set and unit in TEMPERATURE_UNITS:
+            values["stuck_s"] = DEFAULT_STUCK_S
+        return Checks(**values)
+
+    def stuck_off(self, unit: str) -> bool:
+        """Whether stuck detection is off for a signal in ``unit`` (check-config lists those)."""
+        return self.checks(unit).stuck_s is None
+
+
+class SignalDoc(Strict):
+    """``value = raw * scale + offset`` in ``unit``."""
+
+    driver: str
+    address: str = Field(min_length=1)
+    type: Literal["float", "int", "bool"] = "float"
+    scale: FiniteFloat = 1.0
+    offset: FiniteFloat = 0.0
+    unit: str
+    description: str = ""
+    checks: ChecksDoc = ChecksDoc()
+
+    def point(self, name: str) -> SignalPoint:
+        """Where the signal ``name`` is read, and how its raw value is scaled."""
+        return SignalPoint(name, self.driver, self.address, self.scale, self.offset, self.type)
+
+    def monitor(self, name: str) -> SignalMonitor:
+        """The plausibility checks of the signal ``name``, with no reading yet."""
+        return SignalMonitor(name, self.checks.checks(self.unit))
+
+
+class EncodingDoc(Strict):
+    """How an offset in um is written: ``round(offset_um * scale)`` for ``int``."""
+
+    type: Literal["float", "int"] = "float"
+    scale: Positive = 1.0
+
+
+class OutputDoc(Strict):
+    """One compensated axis: ``offset_um = sign * model_output`` after the safety stage."""
+
+    model_output: str
+    driver: str
+    address: str = Field(min_length=1)
+    encoding: EncodingDoc = EncodingDoc()
+    sign: Literal[-1, 1] = -1
+    max_offset_um: Positive
+    max_rate_um_per_s: Positive
+    #: Read the offset back each tick and slew from what the PLC holds; default: where the driver can.
+    readback: bool | None = None
+
+    def point(self, axis: str, *, integer: bool | None = None, readback: bool = False) -> AxisPoint:
+        """Where the axis's offset is written; ``integer``: whole counts (default: an int encoding).
+
+        Whether the point holds whole counts and is read back depends on its
+        driver: :class:`compd.service.config.loading.Config` knows, and passes them.
+        """
+        whole = self.encoding.type == "int" if integer is None else integer
+        return AxisPoint(
+            axis,
+            self.model_output,
+            self.driver,
+            self.address,
+            float(self.sign),
+            self.encoding.scale,
+            whole,
+            readback=readback,
+        )
+
+    def stage(self, period_s: float, safety: SafetyDoc, *, offset_um: float = 0.0) -> AxisSafety:
+        """The axis's safety stage at ``period_s``, seeded with ``offset_um`` (um)."""
+        return AxisSafety(
+            AxisLimits(self.max_offset_um, self.max_rate_um_per_s),
+            period_s,
+            on_fault=FaultMode(safety.on_fault),
+            fault_ramp_after_s=safety.fault_ramp_after_s,
+            offset_um=offset_um,
+            on_out_of_clamp=OutOfClamp(safety.on_offset_out_of_clamp),
+        )
+
+
+class StatusDoc(Strict):
+    """Where the status word and the heartbeat counter go, for the PLC's supervision."""
+
+    driver: str
+    status_address: str = Field(min_length=1)
+    heartbeat_address: str = Field(min_length=1)
+
+    def point(self, *, mismatch_bit: bool, model_fault_bit: bool) -> StatusPoint:
+        """Where the status word goes; which of the optional bits its point holds, the config knows."""
+        return StatusPoint(
+            self.driver,
+            self.status_address,
+            self.heartbeat_address,
+            mismatch_bit=mismatch_bit,
+            model_fault_bit=model_fault_bit,
+        )
+
+
+class DriverDoc(Strict):
+    type: str
+    settings: dict[str, Any] = Field(default_factory=dict)
+    timeout_s: Positive = 0.5
+    reconnect_min_s: Positive = 1.0
+    reconnect_max_s: Positive = 60.0
+
+    def driver(self, settings: BaseModel, *, now: Callable[[], float], base_dir: Path) -> Driver:
+        """The driver, not yet opened; its type's module is imported here, not before."""
+        return load_driver_type(self.type)(settings, now=now, base_dir=base_dir)
+
+    def link(self, name: str, driver: Driver, clock: Clock) -> DriverLink:
+        """The supervision of ``driver``: its timeout and reconnect backoff."""
+        return DriverLink(
+            name,
+            driver,
+            clock,
+            timeout_s=self.timeout_s,
+            backoff_min_s=self.reconnect_min_s,
+            backoff_max_s=self.reconnect_max_s,
+        )
+
+
+class SafetyDoc(Strict):
+    """``safety:``: what every axis's stage does on a faulted input and on an offset read back out of clamp."""
+
+    on_fault: Literal["ramp", "freeze"] = "ramp"
+    fault_ramp_after_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
+    #: An offset read back outside ``±max_offset_um`` or not finite is a fault, never followed;
+    #: written instead: ``hold`` the last valid offset (at start the resumed one, else 0),
+    #: ``edge`` the nearest clamp edge (then slewing on), ``refuse`` nothing until the PLC
+    #: holds a value within the clamp (:class:`compd.service.loop.safety.OutOfClamp`).
+    on_offset_out_of_clamp: Literal["hold", "edge", "refuse"] = "hold"
+
+
+class PlausibilityDoc(Strict):
+    """``plausibility:``: every model input checked against its prediction from the others.
+
+    Needs a model file with a consistency model (``compd fit`` writes one);
+    see :mod:`compd.service.loop.plausibility`. ``enabled: false`` checks each
+    input on its own only, as before.
+    """
+
+    enabled: bool = True
+    #: A reading this many residue sigmas from its prediction is wrong...
+    k_sigma: Annotated[float, Field(ge=1, allow_inf_nan=False)] = 8.0
+    #: ...and never closer than this, in the signal's unit.
+    min_tolerance: Positive = 3.0
+    #: Ticks a returning sensor must agree with the others before it is used again.
+    confirm_ticks: int = Field(default=30, ge=1, le=86_400)
+
+    def settings(self) -> PlausibilitySettings | None:
+        if not self.enabled:
+            return None
+        return PlausibilitySettings(self.k_sigma, self.min_tolerance, self.confirm_ticks)
+
+
+class StateDoc(Strict):
+    directory: str | None = None
+    save_every_ticks: int = Field(default=60, ge=1)
+    resume_max_age_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 900.0
+    #: Without a state to resume: ``thermal_zero`` starts each model at the steady state for
+    #: the current inputs from its calibration's thermal zero (drift before the start is
+    #: compensated at once); ``now`` takes today's readings as the zero and starts at rest,
+    #: offsets from 0 (a shop that touches off the warm machine whenever compd starts, so
+    #: that the work offset already holds the drift so far).
+    fresh_start: Literal["thermal_zero", "now"] = "thermal_zero"
+
+
+class RecorderDoc(Strict):
+    """``recorder:``: where and how each tick is logged (:mod:`compd.service.recording.recorder`)."""
+
+    enabled: bool = True
+    directory: str | None = None
+    #: ``csv`` (a row is on disk when written) or ``parquet`` (typed, compressed; a row group
+    #: every ``flush_every_rows`` rows, :mod:`compd.service.recording.parquet`).
+    format: Literal["csv", "parquet"] = "csv"
+    #: Rows gathered per write: default 1 for CSV, 60 for Parquet; a crash loses at most these.
+    flush_every_rows: int | None = Field(default=None, ge=1, le=86_400)
+    max_file_bytes: int = Field(default=20_000_000, ge=1024)
+    max_file_age_s: Positive = 86_400.0
+    max_total_bytes: int = Field(default=2_000_000_000, ge=1024)
+
+    @model_validator(mode="after")
+    def _parquet_needs_pyarrow(self) -> RecorderDoc:
+        # Found, not imported: the daemon loads pyarrow at the first write only.
+        if self.format == "parquet" and importlib.util.find_spec("pyarrow") is None:
+            raise ValueError(
+                "'format: parquet' needs pyarrow, which is not installed: "
+                "pip install 'compd[parquet]', or use 'format: csv'"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _total_holds_a_file(self) -> RecorderDoc:
+        if self.max_total_bytes < self.max_file_bytes:
+            raise ValueError(
+                f"'max_total_bytes' ({self.max_total_bytes}) must be at least 'max_file_bytes' "
+                f"({self.max_file_bytes}): the open file alone may reach that size"
+            )
+        return self
+
+    def recorder(
+        self,
+        directory: Path,
+        metadata: Mapping[str, str] | None = None,
+        units: Units | None = None,
+    ) -> Recorder | ParquetRecorder:
+        """The recorder writing into ``directory`` (resolved by :mod:`compd.service.config.paths`).
+
+        ``metadata`` (machine id, compd version, config path) goes into every
+        file, with each column's unit as ``units`` names it.
+        """
+        # pyarrow is imported by the Parquet recorder's first write, so only when configured.
+        kind = ParquetRecorder if self.format == "parquet" else Recorder
+        default_rows = DEFAULT_FLUSH_EVERY_ROWS if self.format == "parquet" else 1
+        recorder = kind(
+            directory,
+            max_file_bytes=self.max_file_bytes,
+            max_file_age_s=self.max_file_age_s,
+            max_total_bytes=self.max_total_bytes,
+            flush_every_rows=self.flush_every_rows or default_rows,
+            metadata=metadata,
+        )
+        recorder.run.units = units
+        return recorder
+
+
+class EffectDoc(Strict):
+    """An entry of the effect catalogue: a physical effect and the signals that excite it."""
+
+    description: str = ""
+    signals: list[str] = Field(default_factory=list)
+
+
+class WhenDoc(Strict):
+    """A gain-table key: ``when: 2`` (a whole number) or ``when: {min: 0, max: 250}`` (``min <= key < max``)."""
+
+    value: StrictInt | None = None
+    min: FiniteFloat | None = None
+    max: FiniteFloat | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _whole_or_range(cls, data: object) -> object:
+        if isinstance(data, int) and not isinstance(data, bool):
+            return {"value": data}
+        if not isinstance(data, dict) or "value" in data:
+            raise ValueError(
+                "'when' must be a whole number (a head or program number, e.g. 'when: 2') "
+                f"or a range (e.g. 'when: {{min: 0, max: 250}}'), got {data!r}"
+            )
+        return data
+
+    @model_validator(mode="after")
+    def _ordered(self) -> WhenDoc:
+        if self.value is None and self.min is None and self.max is None:
+            raise ValueError("a range needs 'min', 'max' or both")
+        if self.min is not None and self.max is not None and self.min >= self.max:
+            raise ValueError(f"'min' ({self.min}) must be below 'max' ({self.max})")
+        return self
+
+
+class GainRowDoc(Strict):
+    """A row of the gain table: ``gains`` (gain_name -> value) while the key matches ``when``."""
+
+    when: WhenDoc
+    gains: dict[str, FiniteFloat] = Field(min_length=1)
+
+    def row(self) -> GainRow:
+        when = self.when
+        return GainRow(
+            dict(self.gains),
+            value=when.value,
+            low=float("-inf") if when.min is None else when.min,
+            high=float("inf") if when.max is None else when.max,
+        )
+
+
+class GainScheduleDoc(Strict):
+    """Gains by operating condition (see :mod:`compd.service.loop.schedule`)."""
+
+    signal: str
+    table: list[GainRowDoc] = Field(min_length=1)
+    default: dict[str, FiniteFloat] | None = None
+    ramp_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 30.0
+
+    def gain_table(self) -> GainTable:
+        default = None if self.default is None else dict(self.default)
+        return GainTable(self.signal, tuple(r.row() for r in self.table), default, self.ramp_s)
+
+    def scheduler(self) -> GainScheduler:
+        return GainScheduler(self.gain_table())
+
+
+class LoadAccessDoc(Strict):
+    """Who may switch the running model over the control socket (``compd model load``).
+
+    Users and groups by name or number; a client is allowed when its uid is
+    listed or its primary gid is (the kernel reports one gid per connection).
+    Unset ``users``: the daemon's own user and root. ``compd status`` is open
+    to everyone who can open the socket (its group).
+    """
+
+    users: list[str | int] | None = None
+    groups: list[str | int] = Field(default_factory=list)
+
+    def ids(self) -> tuple[frozenset[int], frozenset[int]]:
+        """The uids and gids; raises LookupError naming an unknown user or group."""
+        import grp
+        import pwd
+
+        users = [os.getuid(), 0] if self.users is None else self.users
+        uids = [u if isinstance(u, int) else pwd.getpwnam(u).pw_uid for u in users]
+        gids = [g if isinstance(g, int) else grp.getgrnam(g).gr_gid for g in self.groups]
+        return frozenset(uids), frozenset(gids)
+
+    def access(self) -> Access:
+        """Who may load a model, as the control socket checks it."""
+        return Access(*self.ids())
+
+
+class ConfigDoc(Strict):
+    schema_: Literal["compd.config/1"] = Field(alias="schema")
+    #: This machine's name across a fleet: in every recording's metadata (and telemetry's topics).
+    machine_id: (
+        Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")] | None
+    ) = None
+    #: The model file; a config without ``outputs`` (a data logger, ``compd record``) needs none.
+    model: str | None = None
+    period_s: Positive = 1.0
+    blend_s: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 60.0
+    live_every_ticks: int = Field(default=60, ge=1)
+    control_socket: str | None = None
+    load_access: LoadAccessDoc = LoadAccessDoc()
+    drivers: dict[str, DriverDoc] = Field(min_length=1)
+    signals: dict[str, SignalDoc] = Field(min_length=1, max_length=MAX_SIGNALS)
+    #: Empty: a data logger, reading, checking and recording the signals, writing nothing.
+    outputs: dict[str, OutputDoc] = Field(default_factory=dict)
+    status: StatusDoc | None = None
+    safety: SafetyDoc = SafetyDoc()
+    plausibility: PlausibilityDoc = PlausibilityDoc()
+    state: StateDoc = StateDoc()
+    recorder: RecorderDoc = RecorderDoc()
+    effects: dict[str, EffectDoc] = Field(default_factory=dict)
+    gain_schedule: GainScheduleDoc | None = None
+    #: MQTT telemetry to a fleet's broker (:mod:`compd.service.fleet.telemetry`); none without.
+    telemetry: TelemetryDoc | None = None
+    #: Prometheus metrics and the read-only status page (:mod:`compd.service.http.server`).
+    http: HttpDoc | None = None
+    #: The simulated machine this config runs against (:mod:`compd.sim.plc.settings`).
+    simulation: dict[str, Any] | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_machine_id(cls, data: Any) -> Any:
+        """Telemetry's topics name the machine as its recordings do: ``telemetry.machine_id``
+        defaults to the top-level ``machine_id``, and the two may not differ."""
+        if not isinstance(data, dict) or not isinstance(data.get("telemetry"), dict):
+            return data
+        top, own = data.get("machine_id"), data["telemetry"].get("machine_id")
+        if own is None and top is not None:
+            return data | {"telemetry": data["telemetry"] | {"machine_id": top}}
+        if own is not None and top is not None and own != top:
+            raise ValueError(
+                f"telemetry.machine_id {own!r} differs from machine_id {top!r}: name the "
+                "machine once, at the top"
+            )
+        return data

@@ -1,0 +1,177 @@
+"""The config sections that connect a machine to its fleet: MQTT telemetry and roll-outs, metrics and the status page.
+
+Each builds its runtime object as :mod:`compd.service.config.docs`'s sections
+do; paho is imported only when a config has the section.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, Literal
+
+from pydantic import Field, model_validator
+
+from compd.files.yamlplace import resolve_path
+from compd.service.config.docbase import Strict
+
+if TYPE_CHECKING:
+    from compd.service.daemon import Service
+    from compd.service.http.server import StatusServer
+    from compd.service.fleet.mqttlink import Broker
+    from compd.service.fleet.telemetry import Telemetry
+
+
+class TelemetryTlsDoc(Strict):
+    """TLS to the broker: the CA that signed its certificate; a client certificate if it asks for one."""
+
+    ca_file: str = Field(min_length=1)
+    cert_file: str | None = None
+    key_file: str | None = None
+
+    @model_validator(mode="after")
+    def _pair(self) -> TelemetryTlsDoc:
+        if (self.cert_file is None) != (self.key_file is None):
+            raise ValueError(
+                "give both 'cert_file' and 'key_file' (a client certificate), or neither"
+            )
+        return self
+
+
+#: An MQTT topic level compd writes: no wildcards, no separators, no spaces.
+TopicLevel = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.:-]+$", max_length=100)]
+
+
+class TelemetryDoc(Strict):
+    """MQTT telemetry (:mod:`compd.service.fleet.telemetry`): where, as whom, how often, how much to queue."""
+
+    machine_id: TopicLevel
+    host: str = Field(default="localhost", min_length=1)
+    port: int | None = Field(
+        default=None, ge=1, le=65535, description="default: 1883, 8883 with tls"
+    )
+    topic_prefix: Annotated[str, Field(pattern=r"^[A-Za-z0-9_.:-]+(/[A-Za-z0-9_.:-]+)*$")] = "compd"
+    every_ticks: int = Field(default=1, ge=1)
+    queue_size: int = Field(default=1000, ge=1)
+    qos: Literal[0, 1, 2] = 1
+    keepalive_s: int = Field(default=15, ge=5)
+    reconnect_min_s: int = Field(default=1, ge=1)
+    reconnect_max_s: int = Field(default=30, ge=1)
+    client_id: str | None = None
+    username: str | None = None
+    password_file: str | None = None
+    tls: TelemetryTlsDoc | None = None
+    #: Load models sent to ``<prefix>/<machine_id>/cmd/model_load`` (``compd model rollout``).
+    #: Off unless asked: a machine takes no model from the network unless configured to.
+    accept_models: bool = False
+
+    @model_validator(mode="after")
+    def _consistent(self) -> TelemetryDoc:
+        if self.password_file is not None and self.username is None:
+            raise ValueError("'password_file' needs 'username'")
+        if self.reconnect_max_s < self.reconnect_min_s:
+            raise ValueError("'reconnect_max_s' must be at least 'reconnect_min_s'")
+        return self
+
+    @property
+    def broker_port(self) -> int:
+        """``port``, else MQTT's: 1883, or 8883 with TLS."""
+        return self.port or (1883 if self.tls is None else 8883)
+
+    def files(self) -> dict[str, str]:
+        """The files this section names, by key (``tls.ca_file``...), to check before start."""
+        named = {"password_file": self.password_file}
+        if self.tls is not None:
+            named |= {f"tls.{k}": v for k, v in self.tls.model_dump().items()}
+        return {k: v for k, v in named.items() if v is not None}
+
+    def telemetry(
+        self,
+        base_dir: Path,
+        *,
+        identity: Callable[[], dict[str, Any]],
+        wall: Callable[[], float],
+    ) -> Telemetry:
+        """The publisher, not yet connected; paho is imported here, only for a config that asks."""
+        from compd.service.fleet.claim import Instance
+        from compd.service.fleet.mqttlink import Topics
+        from compd.service.fleet.telemetry import Telemetry
+
+        # Each process its own client id: with one, two daemons would throw each other off the
+        # broker before either could see the other's birth (compd.service.fleet.claim).
+        instance = Instance.this_process()
+        return Telemetry(
+            self.broker(base_dir, self.client_id or f"compd-{self.machine_id}-{instance.id[:8]}"),
+            Topics(self.topic_prefix, self.machine_id),
+            instance=instance,
+            qos=self.qos,
+            every_ticks=self.every_ticks,
+            queue_size=self.queue_size,
+            identity=identity,
+            wall=wall,
+        )
+
+    def broker(self, base_dir: Path, client_id: str) -> Broker:
+        """Where and as whom to connect (the password file read now); also the roll-out's."""
+        from compd.service.fleet.mqttlink import Broker
+
+        def path(name: str | None) -> Path | None:
+            return None if name is None else resolve_path(name, base_dir)
+
+        password_path = path(self.password_file)
+        tls = self.tls
+        return Broker(
+            host=self.host,
+            port=self.broker_port,
+            client_id=client_id,
+            keepalive_s=self.keepalive_s,
+            reconnect_min_s=self.reconnect_min_s,
+            reconnect_max_s=self.reconnect_max_s,
+            username=self.username,
+            password=None if password_path is None else read_secret(password_path),
+            ca_file=None if tls is None else path(tls.ca_file),
+            cert_file=None if tls is None else path(tls.cert_file),
+            key_file=None if tls is None else path(tls.key_file),
+        )
+
+
+def read_secret(path: Path) -> str:
+    """A password file's first line (its line ending stripped); OSError names the file, never the text."""
+    return path.read_text(encoding="utf-8").rstrip("\r\n")
+
+
+class HttpDoc(Strict):
+    """The read-only HTTP server: Prometheus metrics at ``/metrics`` and the status page at ``/``.
+
+    It listens on the loopback address unless told otherwise: the page shows the
+    machine's state to whoever reaches the port, so opening it to a network is
+    a decision made in the config (``listen: 0.0.0.0``), never a default.
+    """
+
+    enabled: bool = True
+    listen: str = Field(default="127.0.0.1", min_length=1)
+    #: 0: any free port (tests); the port taken is logged.
+    port: int = Field(default=9780, ge=0, le=65535)
+    #: Connections open at once (a browser or two and a scraper need a handful); more wait
+    #: in the kernel's queue. Fewer where the open-files limit leaves too few descriptors.
+    max_connections: int = Field(default=64, ge=1, le=4096)
+    #: A connection with no request under way this long is closed (s): a client that sends
+    #: its headers slowly, or keeps an idle connection, cannot hold a slot for longer.
+    idle_timeout_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 10.0
+
+    def server(self, service: Service) -> StatusServer:
+        """The server for ``service`` (:class:`compd.service.http.server.StatusServer`), not yet started.
+
+        Its module (aiohttp, prometheus_client) is imported here: a config without
+        ``http`` loads neither.
+        """
+        from compd.service.http.server import StatusServer
+
+        return StatusServer(
+            service,
+            host=self.listen,
+            port=self.port,
+            max_connections=self.max_connections,
+            idle_timeout_s=self.idle_timeout_s,
+            budget=service.fd_budget,
+        )

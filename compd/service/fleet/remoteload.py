@@ -1,0 +1,239 @@
+"""Models rolled out over the broker: ``cmd/model_load`` in, the same load as the control socket's.
+
+``compd model rollout`` publishes, to each machine's
+``<prefix>/<machine_id>/cmd/model_load`` (QoS 1, not retained), a JSON
+object::
+
+    {"schema": "compd.model_load/1", "request_id": "...", "name": "twin-z.yaml",
+     "model_base64": "...", "sha256": "<hex of the model file's bytes>",
+     "requested_by": "who@where", "sent_unix_s": 1790000000.0}
+
+A daemon whose telemetry section says ``accept_models: true`` (off by
+default) takes it through :meth:`compd.service.daemon.Service.load_model`,
+the control socket's ``load``: the same checks, install, blend and refusal,
+off the tick. It answers on ``<prefix>/<machine_id>/reply/<request_id>``
+with ``result``: ``accepted`` (with ``blend_s``), ``already_running`` /
+``already_loading`` (nothing loaded, no blend) or ``refused`` (with
+``reason``, the running model untouched); the ``model_switched`` event and
+the re-birth naming the new sha256 then tell that it is switched in.
+
+Who may send is the broker's business: each machine logs in as its own user,
+and the broker's ACL lets only the roll-out user write ``<prefix>/+/cmd/#``
+(README "Many machines"). Here the payload is bounded (a model file's
+:data:`~compd.files.yamlplace.MAX_YAML_BYTES`, base64) and must carry the
+sha256 of the bytes it delivers, so a truncated or altered model is refused
+before it is parsed.
+
+A command is taken once, as sent, and only fresh: a retained message (the
+broker's retained store hands it out again on every connection, rolling later
+roll-outs back), a ``request_id`` seen before (a replay; the ids are kept in
+the state directory, :mod:`compd.service.fleet.seenrequests`) and a request sent
+more than :data:`~compd.service.fleet.seenrequests.WINDOW_S` from the machine's
+clock (or without ``sent_unix_s``) are refused, and the reply says which. So
+is a request holding a number compd does not read (NaN, Infinity, 1e400, an
+integer of more than :data:`MAX_DIGITS` digits), wherever it stands; any other
+failure while checking it is answered ``refused`` as well, never left unanswered.
+The broker itself drops a payload larger than the daemon's MQTT maximum packet
+size (:meth:`compd.service.fleet.telemetry.Telemetry.listen`) before it is sent.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import json
+import math
+import re
+import time
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import structlog
+
+from compd.errors import CompdError
+from compd.faultlog import Event, EventSink
+from compd.files.yamlplace import MAX_YAML_BYTES, shorten
+from compd.service.control.socket import TOO_DEEP
+from compd.service.control.modelload import load_request, request_bytes
+from compd.service.fleet.seenrequests import SeenRequests
+
+log = structlog.get_logger("compd.service.fleet.remoteload")
+
+SCHEMA = "compd.model_load/1"
+#: The command's topic level: ``<prefix>/<machine_id>/cmd/model_load``.
+COMMAND = "model_load"
+#: The largest payload read: a model file at its size limit, base64-encoded, and the rest.
+MAX_PAYLOAD_BYTES = 4 * (MAX_YAML_BYTES // 3 + 1) + 4096
+#: The most digits of an integer in a request (its times have ten): more is corrupt, or an attack
+#: on ``int()`` (Python converts at most 4,300 digits, and slowly).
+MAX_DIGITS = 30
+#: A request id is one topic level of the reply's topic: no wildcards, no separators.
+REQUEST_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,100}$")
+
+Load = Callable[[dict[str, Any]], Awaitable[dict[str, Any]]]
+Reply = Callable[[str, dict[str, Any]], object]
+
+
+class RemoteLoads:
+    """Handles ``cmd/model_load`` payloads: ``load`` is ``Service.load_model``, ``reply`` publishes."""
+
+    def __init__(
+        self,
+        load: Load,
+        reply: Reply,
+        events: EventSink,
+        *,
+        seen: SeenRequests | None = None,
+        now: Callable[[], float] = time.time,
+    ) -> None:
+        self.load = load
+        self.reply = reply
+        self.events = events
+        #: The ids taken lately (the state directory's file; in memory without one).
+        self.seen = seen or SeenRequests(None)
+        #: The machine's real clock (the sender's ``sent_unix_s`` is real time, also in a simulation).
+        self.now = now
+        self._saving = asyncio.Lock()
+
+    async def handle(self, payload: bytes, *, retained: bool = False) -> None:
+        """Parse, check and load one request; answer it (a request without a usable id: log only).
+
+        ``retained``: the broker's retain flag (a message from its retained store), refused.
+        """
+        try:
+            request = _parse(payload)
+        except CompdError as exc:
+            log.error("remote model load ignored", error=str(exc))
+            self.events(Event("model_refused", "remote model load ignored", {"reason": str(exc)}))
+            return
+        request_id = request["request_id"]
+        by = shorten(str(request.get("requested_by", "?")), 200)
+        sha256 = request.get("sha256")
+        answer: dict[str, Any] = {
+            "request_id": request_id,
+            "sha256": sha256 if isinstance(sha256, str) else None,
+        }
+        try:
+            if (unread := _unread_number(request)) is not None:
+                raise CompdError(f"the request holds a number compd does not read: {unread}")
+            await self._admit(request, retained)
+            answer |= await self._load(request, by)
+        except CompdError as exc:
+            self._refuse(answer, str(exc), by)
+        except Exception as exc:  # a bug must not leave the sender without an answer
+            log.exception("remote model load failed", request_id=request_id)
+            self._refuse(answer, f"the daemon failed to check it ({type(exc).__name__})", by)
+        self.reply(request_id, answer)
+
+    def _refuse(self, answer: dict[str, Any], reason: str, by: str) -> None:
+        answer |= {"result": "refused", "reason": reason}
+        details = {"reason": reason, "sha256": answer["sha256"], "requested_by": by}
+        self.events(Event("model_refused", "remote model load refused", details))
+
+    async def _admit(self, request: dict[str, Any], retained: bool) -> None:
+        """Raise CompdError for a retained, replayed or stale request; else remember its id (saved)."""
+        request_id = request["request_id"]
+        if retained:
+            raise CompdError(
+                "a retained command (the broker's retained store hands it out on every connection): "
+                "commands are taken only as sent. Clear it: publish an empty retained message to "
+                "its topic (mosquitto_pub -r -n -t TOPIC)"
+            )
+        if self.seen.seen(request_id):
+            raise CompdError(
+                f"request_id {request_id} was taken before: a replay, not loaded again"
+            )
+        sent = request.get("sent_unix_s")
+        now = self.now()
+        window_s = self.seen.window_s
+        if isinstance(sent, bool) or not isinstance(sent, int | float) or not math.isfinite(sent):
+            raise CompdError(
+                "the request carries no sent_unix_s (the time it was sent): send it with "
+                "compd model rollout of this version"
+            )
+        age_s = now - sent
+        if abs(age_s) > window_s:
+            when = f"{age_s:.0f} s ago" if age_s > 0 else f"dated {-age_s:.0f} s ahead"
+            raise CompdError(
+                f"the request was sent {when} by this machine's clock (taken within {window_s:g} s "
+                "either way): stale or replayed, or a clock is wrong (NTP)"
+            )
+        self.seen.add(request_id, float(sent), now)
+        async with self._saving:  # one write at a time, the newest ids; fsync off the event loop
+            await asyncio.to_thread(self.seen.save, self.seen.content())
+
+    async def _load(self, request: dict[str, Any], by: str) -> dict[str, Any]:
+        if request.get("schema") != SCHEMA:
+            raise CompdError(f"the request's schema is {request.get('schema')!r}, not {SCHEMA!r}")
+        raw, name = request_bytes(request)
+        sha256 = hashlib.sha256(raw).hexdigest()
+        if sha256 != request.get("sha256"):
+            raise CompdError(
+                f"the model's sha256 is {sha256}, the request says {request.get('sha256')}: "
+                "altered or truncated on the way; it was not loaded"
+            )
+        log.info("remote model load", name=name, sha256=sha256, requested_by=by)
+        reply = await self.load(load_request(raw, name))
+        for state in ("already_running", "already_loading"):
+            if reply.get(state):
+                return {"result": state, "model": reply["model"]}
+        return {"result": "accepted", "model": reply["model"], "blend_s": reply["blend_s"]}
+
+
+class _Unread:
+    """A number in a request that compd does not read (NaN, 1e400, 10^5000): refused once the id is known."""
+
+    def __init__(self, why: str) -> None:
+        self.why = why
+
+    def __repr__(self) -> str:
+        return self.why
+
+
+def _int(text: str) -> int | _Unread:
+    digits = len(text.lstrip("-"))
+    return _Unread(f"an integer of {digits} digits") if digits > MAX_DIGITS else int(text)
+
+
+def _float(text: str) -> float | _Unread:
+    value = float(text)
+    return value if math.isfinite(value) else _Unread(f"{text[:40]} (beyond any float)")
+
+
+def _constant(text: str) -> _Unread:
+    return _Unread(f"{text} (not a finite number)")
+
+
+def _unread_number(request: dict[str, Any]) -> str | None:
+    """``key: why`` of the first number in ``request`` that compd does not read, else None."""
+    stack: list[tuple[str, Any]] = list(request.items())
+    while stack:
+        key, value = stack.pop(0)
+        if isinstance(value, _Unread):
+            return f"{key[:100]}: {value.why}"
+        if isinstance(value, dict):
+            stack.extend((f"{key}.{k}", v) for k, v in value.items())
+        elif isinstance(value, list):
+            stack.extend((f"{key}[{i}]", v) for i, v in enumerate(value))
+    return None
+
+
+def _parse(payload: bytes) -> dict[str, Any]:
+    """The request as a dict with a usable ``request_id``; raises CompdError saying what is wrong.
+
+    Numbers compd does not read (NaN, Infinity, 1e400, integers of more than
+    :data:`MAX_DIGITS` digits) parse as :class:`_Unread`, so that the request
+    is refused with an answer to its id rather than dropped unanswered.
+    """
+    try:
+        request = json.loads(payload, parse_int=_int, parse_float=_float, parse_constant=_constant)
+    except (UnicodeDecodeError, ValueError) as exc:  # json.JSONDecodeError is a ValueError
+        raise CompdError(f"the request is not JSON ({shorten(str(exc), 200)})") from exc
+    except RecursionError as exc:  # json's parser recurses per [ or {: 1M "[" ends here
+        raise CompdError(f"the request is not JSON compd reads: {TOO_DEEP}") from exc
+    if not isinstance(request, dict):
+        raise CompdError("the request is not a JSON object")
+    request_id = request.get("request_id")
+    if not isinstance(request_id, str) or not REQUEST_ID.match(request_id):
+        raise CompdError("the request's request_id is not 1-100 letters, digits, _ . : -")
+    return request

@@ -1,0 +1,222 @@
+"""Driver supervision: one :class:`DriverLink` per configured driver.
+
+A link runs reads and writes under a timeout and never raises into the loop:
+a failed read returns no values, a failed write returns ``False``, and the
+link goes down. While down, it reconnects in the background with
+exponential backoff while the loop goes on. The first failure of an episode
+logs ERROR, repeats log DEBUG, the recovery logs INFO
+(:class:`compd.faultlog.FaultLog`). A reconnect is not yet a recovery: the
+episode ends with the first read or write that succeeds after it, so a peer
+that accepts connections but never answers is one fault, not one per
+reconnect, and its reconnects keep backing off.
+
+Drivers raise only compd's :class:`~compd.errors.DriverError` family, and a
+read returns floats for the addresses asked. A driver that breaks that
+contract (a ``TypeError`` from a reply of the wrong shape, a string for a
+value) has a bug, but one bad reply must not end the loop: the link takes
+any :class:`Exception` from a driver call, and a read of the wrong shape, as
+a driver fault like any other (it goes down and reconnects), and logs the
+unexpected exception's type with its traceback once per link.
+``CancelledError`` and ``KeyboardInterrupt`` are not :class:`Exception` and
+pass through.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import numbers
+import time
+from collections.abc import Callable, Mapping, Sequence
+
+import structlog
+
+from compd.drivers.base import Driver
+from compd.errors import DriverError, DriverProtocolError
+from compd.faultlog import EventSink, FaultLog
+from compd.service.loop.clock import Clock
+
+log = structlog.get_logger("compd.service.loop.links")
+
+
+class DriverLink:
+    """One supervised driver: timeouts, failure accounting, reconnect with exponential backoff.
+
+    Backoff after the n-th consecutive failure: ``min(backoff_max_s, backoff_min_s * 2**(n-1))``.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        driver: Driver,
+        clock: Clock,
+        *,
+        timeout_s: float,
+        backoff_min_s: float = 1.0,
+        backoff_max_s: float = 60.0,
+    ) -> None:
+        self.name = name
+        self.driver = driver
+        self.clock = clock
+        self.timeout_s = timeout_s
+        self.backoff_min_s = backoff_min_s
+        self.backoff_max_s = backoff_max_s
+        self.up = False
+        self.failures = 0  # consecutive, until a read or write succeeds
+        self.reconnects = 0
+        #: Driver exceptions outside the contract (not DriverError, TimeoutError, OSError): bugs.
+        self.unexpected = 0
+        self._fault = FaultLog(log, driver=name)
+        self.next_attempt_s = -math.inf
+        self._connecting: asyncio.Task[None] | None = None
+        self._ever_up = False
+        self._unexpected: set[type[BaseException]] = set()  # exception types logged once
+        #: Told ``(operation, seconds)`` after each read or write, failed ones too (:mod:`compd.service.http.metrics`).
+        self.observe: Callable[[str, float], None] | None = None
+
+    @property
+    def faults(self) -> int:
+        """Fault episodes so far: from a first failure to the next successful read or write."""
+        return self._fault.episodes
+
+    def report_to(self, sink: EventSink) -> None:
+        """Tell ``sink`` of each fault episode's start and end (:class:`compd.faultlog.Event`)."""
+        self._fault.sink = sink
+
+    @property
+    def connecting(self) -> bool:
+        """A reconnect is under way in the background."""
+        return self._connecting is not None
+
+    async def open(self) -> None:
+        """First connection attempt; a failure is logged and retried by :meth:`poll`."""
+        await self._connect()
+
+    def poll(self) -> None:
+        """While down, start a reconnect in the background when its backoff has passed."""
+        if self.up or self._connecting is not None or self.clock.now() < self.next_attempt_s:
+            return
+        self._connecting = asyncio.get_running_loop().create_task(self._connect())
+        self._connecting.add_done_callback(self._connected)
+
+    def _connected(self, _: asyncio.Task[None]) -> None:
+        self._connecting = None
+
+    async def _connect(self) -> None:
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                await self.driver.open()
+        except Exception as exc:  # any driver fault reconnects (module docstring)
+            self._failed("open", exc)
+            return
+        if self._ever_up:
+            self.reconnects += 1
+        self.up = True
+        if self._fault.active:  # recovered only once a read or write succeeds
+            log.debug("driver connection reopened", driver=self.name, after_failures=self.failures)
+        else:
+            log.info("driver connected", driver=self.name)
+            self._ever_up = True
+
+    async def read(self, points: Sequence[str]) -> dict[str, float]:
+        """Values by address; empty when the link is down or the read failed (never raises)."""
+        if not self.up:
+            self.poll()
+            return {}
+        started_s = time.perf_counter()
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                values = _floats(await self.driver.read(points), points)
+        except Exception as exc:  # any driver fault reconnects (module docstring)
+            self._failed("read", exc)
+            return {}
+        finally:
+            if self.observe is not None:
+                self.observe("read", time.perf_counter() - started_s)
+        self._succeeded()
+        return values
+
+    async def write(self, values: Mapping[str, float]) -> bool:
+        """Write; ``False`` when the link is down or the write failed (never raises)."""
+        if not self.up:
+            self.poll()
+            return False
+        started_s = time.perf_counter()
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                await self.driver.write(values)
+        except Exception as exc:  # any driver fault reconnects (module docstring)
+            self._failed("write", exc)
+            return False
+        finally:
+            if self.observe is not None:
+                self.observe("write", time.perf_counter() - started_s)
+        self._succeeded()
+        return True
+
+    async def close(self) -> None:
+        if self._connecting is not None:
+            self._connecting.cancel()
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                await self.driver.close()
+        except Exception as exc:  # close() never raises into the loop
+            log.debug("driver close failed", driver=self.name, error=repr(exc))
+        self.up = False
+
+    def _succeeded(self) -> None:
+        if self._fault.active:
+            event = "driver reconnected" if self._ever_up else "driver connected"
+            also = "reconnected" if self._ever_up else None
+            self._fault.cleared(event, also=also, after_failures=self.failures)
+            self.failures, self._ever_up = 0, True
+
+    def _failed(self, action: str, exc: Exception) -> None:
+        if not isinstance(exc, (DriverError, TimeoutError, OSError)):
+            self.unexpected += 1
+            self._log_unexpected(action, exc)
+        self._fault.failed(f"driver {action} failed", error=_text(exc))
+        self.up = False
+        self.failures += 1
+        backoff_s = min(self.backoff_max_s, self.backoff_min_s * 2 ** (self.failures - 1))
+        self.next_attempt_s = self.clock.now() + backoff_s
+
+    def _log_unexpected(self, action: str, exc: Exception) -> None:
+        """Once per exception type: the traceback of a driver raising outside its contract."""
+        if type(exc) in self._unexpected:
+            return
+        self._unexpected.add(type(exc))
+        log.error(
+            f"driver {action} raised {type(exc).__name__}, not a DriverError: a bug in the "
+            "driver; the link treats it as a fault and reconnects",
+            driver=self.name,
+            exc_info=exc,
+        )
+
+
+def _floats(values: object, points: Sequence[str]) -> dict[str, float]:
+    """A read's values as floats, for the addresses asked (others dropped); a non-number is a fault."""
+    if not isinstance(values, Mapping):
+        raise DriverProtocolError(f"read returned {type(values).__name__}, not values by address")
+    floats = {}
+    for address in points:
+        if address not in values:
+            continue
+        value = values[address]
+        if not isinstance(value, numbers.Real):  # numpy's scalars are Real too
+            raise DriverProtocolError(
+                f"read returned {type(value).__name__} {value!r:.40} for {address!r}, not a number"
+            )
+        try:
+            floats[address] = float(value)
+        except OverflowError as exc:  # an int beyond any float
+            raise DriverProtocolError(
+                f"read returned an integer beyond any float for {address!r}"
+            ) from exc
+    return floats
+
+
+def _text(exc: BaseException) -> str:
+    if isinstance(exc, TimeoutError):
+        return "timed out"
+    return f"{type(exc).__name__}: {exc}"

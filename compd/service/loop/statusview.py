@@ -1,0 +1,124 @@
+"""The answer to ``compd status``: a JSON-able snapshot of the running service.
+
+The model (active, pending, blending, faulted), the last tick and how long
+ago it ran, every input with its value, unit and health, the offsets the
+stage gives and those the PLC holds, the driver links and the counters. Built
+from the live objects on request, between ticks; nothing here is kept or written.
+
+Times are the wall clock's (UTC, ISO 8601), also under ``--time-scale``: the
+loop's clock then runs X times faster, and its stamps (the records', the saved
+state's) would lie in the future. Each is taken back to the real time it
+happened (``real now - clock age / X``); the clock's own time is given apart,
+as ``clock.machine_time``. On virtual time (``--time-scale max``) there is no
+real time to take it back to: the stamps are the machine's, and
+``clock.time_scale`` is ``"max"`` to say so.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from datetime import UTC, datetime
+from typing import Any
+
+from compd.service.loop.clock import Clock
+from compd.service.loop.compensator import Compensator
+from compd.service.loop.links import DriverLink
+from compd.service.loop.ticks import TickTiming
+
+
+def status_snapshot(
+    comp: Compensator,
+    links: Mapping[str, DriverLink],
+    timing: TickTiming,
+    *,
+    clock: Clock,
+    units: Mapping[str, str],
+    resumed: bool,
+    started_unix_s: float,
+    telemetry: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """A JSON-able snapshot: model, last tick and its age, inputs with units and health, offsets,
+    counters, telemetry."""
+    last, counters = comp.last, comp.counters
+    clock_now_s = clock.wall()
+    scale = getattr(clock, "time_scale", None)  # None: virtual time
+
+    def age_s(stamp_unix_s: float) -> float:
+        """Seconds since a clock stamp: real seconds, or the machine's on virtual time."""
+        return (clock_now_s - stamp_unix_s) / (scale or 1.0)
+
+    def when(stamp_unix_s: float) -> str:
+        real_unix_s = stamp_unix_s if scale is None else time.time() - age_s(stamp_unix_s)
+        return _iso(real_unix_s)
+
+    return {
+        "clock": {
+            "time_scale": "max" if scale is None else scale,
+            "machine_time": _iso(clock_now_s),
+        },
+        # None: a data logger (no outputs, no model), recording its signals.
+        "model": None if comp.models is None else _model(comp, when),
+        "gain_schedule": comp.schedule.status() if comp.schedule is not None else None,
+        "resumed": resumed,
+        "started": when(started_unix_s),
+        "last_tick": None if last is None else when(last.wall_unix_s),
+        "last_tick_age_s": None if last is None else round(age_s(last.wall_unix_s), 3),
+        "status_word": None if last is None else last.status,
+        "heartbeat": comp.heartbeat,
+        "offsets_um": {a: s.offset_um for a, s in comp.safety.items()},
+        # What the PLC holds as far as compd knows (read back, else acknowledged).
+        "offsets_held_um": comp.held.known_um(),
+        # The offset each axis aims at: sign x the model's output (its predicted drift).
+        "targets_um": {} if last is None else last.targets_um,
+        "signs": {axis.name: axis.sign for axis in comp.axes},
+        "inputs": {
+            name: {
+                "value": _finite(m.reading.value),
+                "unit": units.get(name, ""),
+                "health": m.reading.health.name.lower(),
+                "reason": m.reading.reason,
+            }
+            for name, m in comp.monitors.items()
+        },
+        "drivers": {name: ("up" if link.up else "down") for name, link in links.items()},
+        # MQTT telemetry: connected, messages published, acknowledged, dropped; None when off.
+        "telemetry": None if telemetry is None else dict(telemetry),
+        "counters": {
+            "ticks": counters.ticks,
+            "overruns": timing.overruns,
+            "max_lateness_ms": round(timing.max_lateness_s * 1e3, 3),
+            "signal_faults": counters.signal_faults,
+            "driver_faults": sum(link.faults for link in links.values()),
+            "reconnects": sum(link.reconnects for link in links.values()),
+            "write_failures": counters.write_failures,
+            "model_loads": counters.model_loads,
+            "offset_mismatches": counters.offset_mismatches,
+            "offsets_out_of_clamp": counters.offsets_out_of_clamp,
+            "model_failures": counters.model_failures,
+        },
+    }
+
+
+def _model(comp: Compensator, when: Callable[[float], str]) -> dict[str, Any]:
+    slot = comp.active
+    return {
+        "name": slot.compiled.name,
+        "sha256": slot.sha256,
+        "path": slot.model_file.path,
+        "loaded": when(slot.loaded_at_unix_s),
+        "started": slot.runner is not None,
+        "initialised": slot.initialised,
+        "pending": comp.pending.compiled.name if comp.pending else None,
+        "blending_from": comp.previous.compiled.name if comp.previous else None,
+        "fault": comp.model_fault,
+    }
+
+
+def _iso(unix_s: float) -> str:
+    return datetime.fromtimestamp(unix_s, UTC).isoformat(timespec="seconds")
+
+
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
