@@ -62,9 +62,9 @@ import yaml
 from common import environment, verdict
 
 from compd.files.yamlplace import resolve_path
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config, load_config
 from compd.service.daemon import Service
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.links import DriverLink
 from compd.sim.plc.machine import MachineClock, SimulatedMachine
 from compd.sim.plc.run import run_simulation

@@ -39,10 +39,10 @@ import yaml
 from bench_tick import write_config
 from common import environment, verdict
 
-from compd.service.loop.clock import RealClock, VirtualClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import load_config
 from compd.service.daemon import Service
+from compd.service.loop.clock import RealClock, VirtualClock
+from compd.service.loop.compensator import TickRecord
 
 MAX_P99_GROWTH_MS = 1.0
 
@@ -96,7 +96,7 @@ def measure(n_ticks: int, *, http: bool, page: bool) -> tuple[list[float], float
             lateness_ms.append(service.timing.last_lateness_s * 1e3)
             cpu_s.append(time.process_time())
 
-        service.on_tick = on_tick
+        service.subscribe(on_tick)
         scraper = None
         if http:
             url = f"http://127.0.0.1:{port}/"

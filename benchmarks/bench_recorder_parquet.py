@@ -28,8 +28,8 @@ from pathlib import Path
 
 from common import environment, verdict
 
-from compd.service.recording.recorder import Recorder
 from compd.service.recording.parquet import ParquetRecorder, _write_file
+from compd.service.recording.recorder import Recorder
 
 SIGNALS = 40
 FLUSH_ROWS = 60

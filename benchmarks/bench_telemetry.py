@@ -40,11 +40,11 @@ import yaml
 from bench_tick import measure_config, write_config
 from common import environment, verdict
 
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import load_config
 from compd.service.fleet.mqttlink import Broker, Topics
-from compd.service.loop.signals import Health
 from compd.service.fleet.telemetry import Telemetry
+from compd.service.loop.compensator import TickRecord
+from compd.service.loop.signals import Health
 from tests.mosquitto import Mosquitto, Subscriber
 
 MAX_P99_GROWTH_MS = 1.0

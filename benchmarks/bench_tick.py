@@ -35,10 +35,10 @@ import numpy as np
 import yaml
 from common import build_model, environment, verdict, week_signals
 
-from compd.service.loop.clock import RealClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config, load_config
 from compd.service.daemon import Service
+from compd.service.loop.clock import RealClock
+from compd.service.loop.compensator import TickRecord
 from compd.service.recording.recorder import Recorder
 
 MAX_P99_LATENESS_MS = 5.0
@@ -172,7 +172,7 @@ def measure_config(config: Config, n_ticks: int, period_s: float) -> tuple[list[
         lateness_ms.append(service.timing.last_lateness_s / scale * 1e3)
         cpu_s.append(time.process_time())
 
-    service.on_tick = on_tick
+    service.subscribe(on_tick)
     asyncio.run(service.run(duration_s=float(n_ticks - 1)))
     # From the first tick's end to the last's: start-up (imports, compile,
     # the one full garbage collection) is not a tick's cost.

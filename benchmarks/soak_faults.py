@@ -75,8 +75,8 @@ import yaml
 from common import environment, verdict
 
 from compd.errors import CompdError
-from compd.service.loop.clock import RealClock
 from compd.service.control.socket import request
+from compd.service.loop.clock import RealClock
 from compd.service.loop.ticks import run_periodic
 from compd.sim.plc.run import start_machine
 from compd.sim.soak import Soak, soak_config

@@ -24,18 +24,18 @@ from compd.drivers.registry import load_driver_type
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
 from compd.files.modelfile import load_model, model_source
 from compd.files.yamlplace import read_limited
-from compd.service.loop.clock import RealClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config
+from compd.service.config.modelcheck import check_model
+from compd.service.config.writepoints import written_points
+from compd.service.control.modelload import LOAD_TIMEOUT_S, load_request, slot_from_bytes
 from compd.service.control.socket import request
 from compd.service.daemon import Service
-from compd.service.config.modelcheck import check_model
-from compd.service.control.modelload import LOAD_TIMEOUT_S, load_request, slot_from_bytes
-from compd.service.notify import SystemdNotifier
+from compd.service.loop.clock import RealClock
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.safety import Level
 from compd.service.loop.signals import Health
+from compd.service.notify import SystemdNotifier
 from compd.service.store.state import install_model_bytes, installed_model
-from compd.service.config.writepoints import written_points
 
 if TYPE_CHECKING:
     from compd.cli.livescreen import LiveScreen
@@ -173,9 +173,9 @@ async def _serve(
     with screen if screen is not None else contextlib.nullcontext():
         service = Service(config, clock=clock, notifier=SystemdNotifier())
         if screen is not None:
-            service.on_tick = _live_view(service, screen, duration_s)
+            service.subscribe(_live_view(service, screen, duration_s))
         elif live_every:
-            service.on_tick = _live_printer(live_every, config)
+            service.subscribe(_live_printer(live_every, config))
         install_signal_handlers(service)
         await service.run(duration_s=duration_s)
     return 0

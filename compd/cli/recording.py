@@ -20,10 +20,10 @@ from compd.cli.daemon import install_signal_handlers
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import Text, console
 from compd.errors import CompdError
-from compd.service.loop.clock import RealClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config
 from compd.service.daemon import Service
+from compd.service.loop.clock import RealClock
+from compd.service.loop.compensator import TickRecord
 from compd.service.notify import SystemdNotifier
 from compd.service.recording.recorder import NAME
 

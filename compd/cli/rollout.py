@@ -32,9 +32,10 @@ from pydantic import ValidationError
 
 from compd.errors import CompdError, ConfigFileError
 from compd.files.yamlplace import parse_yaml, read_limited
-from compd.service.config.loading import validation_error
 from compd.service.config.fleetdoc import TelemetryDoc
+from compd.service.config.loading import validation_error
 from compd.service.control.modelload import load_request
+from compd.service.fleet.mqttlink import broker as broker_of
 from compd.service.fleet.mqttlink import mqtt_client
 from compd.service.fleet.remoteload import COMMAND, SCHEMA
 
@@ -172,7 +173,7 @@ def connected(
     section: TelemetryDoc, base_dir: Path, listener: Listener, timeout_s: float
 ) -> Iterator[mqtt.Client]:
     """A client of the broker, logged in, ``listener`` subscribed; disconnected afterwards."""
-    broker = section.broker(base_dir, f"compd-rollout-{uuid.uuid4().hex[:12]}")
+    broker = broker_of(section, base_dir, f"compd-rollout-{uuid.uuid4().hex[:12]}")
     client = mqtt_client(broker)
     client.on_connect = listener.on_connect
     client.on_subscribe = listener.on_subscribe

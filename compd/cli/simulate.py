@@ -24,9 +24,9 @@ from compd.cli.modellist import installed_notice
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import console
 from compd.cli.tickview import level_text, progress, tick_view, too_wide
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config
 from compd.service.daemon import Service
+from compd.service.loop.compensator import TickRecord
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import SimulationResult, run_simulation, serve_machine
 from compd.sim.plc.settings import SimulationDoc

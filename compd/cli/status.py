@@ -16,8 +16,8 @@ from pathlib import Path
 from compd.cli.terminal import Text, console
 from compd.errors import CompdError, ConfigFileError, NotRunningError
 from compd.files.yamlplace import parse_yaml, read_limited, resolve_path
-from compd.service.control.socket import request_sync
 from compd.service.config.paths import control_socket_of
+from compd.service.control.socket import request_sync
 
 
 def control_socket(config_text: str) -> Path:

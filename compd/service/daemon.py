@@ -34,24 +34,29 @@ import structlog
 from compd.drivers.base import Driver
 from compd.errors import RecorderError
 from compd.faultlog import Event, FaultLog
-from compd.service.loop.clock import Clock
-from compd.service.loop.compensator import Compensator, TickRecord
+from compd.service import build
 from compd.service.config.loading import Config
-from compd.service.control.socket import ControlServer
-from compd.service.identity import column_units, identity, recording_metadata, systemd_summary
 from compd.service.control.modelload import ModelLoader, request_bytes, startup_slots
-from compd.service.notify import SystemdNotifier
 from compd.service.control.peers import FdBudget
-from compd.service.reload import Reloader
+from compd.service.control.socket import ControlServer
 from compd.service.fleet.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
-from compd.service.loop.safety import HEARTBEAT_MODULO
 from compd.service.fleet.seenrequests import FILE as SEEN_FILE
 from compd.service.fleet.seenrequests import SeenRequests
-from compd.service.store.state import SavedState, resumable_state, save_state
+from compd.service.identity import identity
+from compd.service.loop.clock import Clock
+from compd.service.loop.compensator import Compensator, TickRecord
+from compd.service.loop.safety import HEARTBEAT_MODULO
+from compd.service.loop.snapshot import ModelId, TickSnapshot
 from compd.service.loop.statusview import status_snapshot
+from compd.service.loop.subscribers import Subscribers, TickCallback
 from compd.service.loop.ticks import TickTiming, run_periodic
+from compd.service.notify import SystemdNotifier
+from compd.service.recording.ticks import RecordingTicks
+from compd.service.reload import Reloader
+from compd.service.store.state import SavedState, resumable_state
 
 if TYPE_CHECKING:
+    from compd.service.fleet.telemetry import Telemetry
     from compd.service.http.server import StatusServer
 
 log = structlog.get_logger("compd.service.daemon")
@@ -85,7 +90,6 @@ class Service:
         self.background_saves = background_saves
         self.clock = clock
         self.notifier = notifier or SystemdNotifier(environ={})
-        self.on_tick = on_tick
         doc = config.doc
         now_unix = clock.wall()
         slot, fallback = startup_slots(config, now_unix)
@@ -139,40 +143,50 @@ class Service:
             if control
             else None
         )
-        self.recorder = (
-            doc.recorder.recorder(
-                config.recorder_dir, recording_metadata(config), column_units(config)
-            )
-            if config.recorder_dir is not None
-            else None
+        #: The last tick's snapshot (None before the first): what ``compd status`` and the page read.
+        self.last: TickSnapshot | None = None
+        self.telemetry: Telemetry | None = None  # the page reads these while it is built
+        self.recording: RecordingTicks | None = None
+        #: The loop's subscribers (:mod:`compd.service.build`), each told of every tick once.
+        subscribed = build.tick_subscribers(
+            config,
+            self,
+            notifier=self.notifier,
+            saved_state=self.saved_state,
+            background_saves=background_saves,
+            identity=self._describe,
+            wall=clock.wall,
         )
+        self.recording = subscribed.recording
+        self.recorder = None if self.recording is None else self.recording.recorder
+        self.saver = subscribed.saver
+        #: MQTT telemetry (:mod:`compd.service.fleet.telemetry`) where the config asks for it.
+        self.telemetry = subscribed.telemetry
+        #: Metrics and the status page (config ``http``); None without one: nothing measured then.
+        self.http: StatusServer | None = subscribed.http
         #: SIGHUP (:meth:`reload`): the config re-read, the recording re-opened.
         self.reloader = Reloader(
             config, self.recorder, self.notifier, ready=lambda: self.compensator.counters.ticks > 0
-        )
-        self._recorder_fault = FaultLog(log)
-        self._save_fault = FaultLog(log)  # saves fail every save_every_ticks: log once
-        self._saving: asyncio.Future[None] | None = None
-        #: MQTT telemetry (:mod:`compd.service.fleet.telemetry`) where the config asks for it.
-        self.telemetry = (
-            doc.telemetry.telemetry(config.base_dir, identity=self._describe, wall=clock.wall)
-            if doc.telemetry is not None
-            else None
         )
         if self.telemetry is not None:
             sink = self.telemetry.event
             for link in self.links.values():
                 link.report_to(sink)
             self.compensator.report_to(sink)
-            self._recorder_fault.sink = self._save_fault.sink = sink
+            self.saver.fault.sink = sink
+            if self.recording is not None:
+                self.recording.fault.sink = sink
             if doc.telemetry is not None and doc.telemetry.accept_models:
                 seen = SeenRequests(config.state_dir / SEEN_FILE)  # replays refused across restarts
                 remote = RemoteLoads(self.load_model, self.telemetry.reply, sink, seen=seen)
                 self.telemetry.listen(COMMAND, remote.handle, max_bytes=MAX_PAYLOAD_BYTES)
-        #: Metrics and the status page (config ``http``); None without one: nothing measured then.
-        self.http: StatusServer | None = (
-            doc.http.server(self) if doc.http is not None and doc.http.enabled else None
+        self.subscribers = Subscribers(
+            doc.period_s, sink=None if self.telemetry is None else self.telemetry.event
         )
+        for subscriber in subscribed.in_order():
+            self.subscribers.add(subscriber)
+        if on_tick is not None:
+            self.subscribe(on_tick)
 
     async def run(self, *, duration_s: float | None = None) -> TickTiming:
         """Run until :meth:`stop` (or ``duration_s`` of clock time); then shut down cleanly."""
@@ -218,8 +232,12 @@ class Service:
         if not self.stop_event.is_set():
             self.reloader.request()
 
-    def snapshot(self) -> SavedState | None:
-        """What :meth:`save_state` writes: the active model's state and the offsets, now."""
+    def subscribe(self, on_tick: Callable[[TickRecord], None], name: str = "on_tick") -> None:
+        """Call ``on_tick`` with every tick's record from now on (a live view, a test, the soak's witness)."""
+        self.subscribers.add(TickCallback(name, on_tick))
+
+    def saved_state(self) -> SavedState | None:
+        """What the state saver writes: the active model's state and the offsets, now."""
         slot = self.compensator.running
         if slot is None:
             return None  # a data logger: no model state to save
@@ -237,96 +255,30 @@ class Service:
 
     def save_state(self) -> None:
         """Save now, in the calling thread (at shutdown)."""
-        saved = self.snapshot()
-        if saved is not None:
-            self._write_state(saved)
-
-    def _save_in_background(self) -> None:
-        # fsync takes milliseconds on an SD card or a busy disk: the snapshot is
-        # taken here, between ticks, and written by a worker thread so a save
-        # never delays a tick. A save still running is not overtaken.
-        if self._saving is not None and not self._saving.done():
-            return
-        saved = self.snapshot()
-        if saved is not None and not self.background_saves:
-            self._write_state(saved)
-        elif saved is not None:
-            self._saving = asyncio.ensure_future(asyncio.to_thread(self._write_state, saved))
-
-    def _write_state(self, saved: SavedState) -> None:
-        directory = str(self.config.state_dir)
-        try:
-            save_state(self.config.state_dir, saved)
-        except OSError as exc:
-            self._save_fault.failed("cannot save state", error=str(exc), directory=directory)
-        else:
-            self._save_fault.cleared("state saved again", directory=directory)
+        self.saver.save_now()
 
     async def _tick(self, t_s: float) -> None:
         started_s = self.clock.now()
         cpu_started_s, real_started_s = time.thread_time(), time.perf_counter()
         record = await self.compensator.tick(t_s)
-        ticks = self.compensator.counters.ticks
-        if ticks == 1:
-            models = self.compensator.models
-            self.notifier.ready(
-                f"compensating with {models.active.compiled.name}"
-                if models is not None
-                else "recording (a data logger: nothing is written)"
-            )
-        # systemd's watchdog restarts a daemon whose loop has stalled or hangs in I/O: ping
-        # only for a tick that finished within its period, so a loop that can no longer keep
-        # its deadlines stops pinging. A machine that is merely unreachable (PLC off at
-        # night) still gets healthy ticks: freezing the offsets is the right behaviour
-        # there, and restarting would not help.
-        if self.clock.now() - started_s < self.config.doc.period_s:
-            self.notifier.watchdog()
-        if ticks % self.config.doc.live_every_ticks == 0:
-            self.notifier.status(systemd_summary(record))
-        if self.recorder is not None:
-            self._record(record)
-        if ticks % self.config.doc.state.save_every_ticks == 0:
-            self._save_in_background()
-        telemetry = self.telemetry
-        if telemetry is not None and ticks % telemetry.every_ticks == 0:
-            running = self.compensator.running
-            model = None if running is None else running.compiled.name
-            telemetry.tick(record, self._tick_counters(), model)
-        if self.http is not None:
-            cpu_s = time.thread_time() - cpu_started_s
-            self.http.tick(record, self.timing.last_lateness_s, cpu_s, real_started_s)
-        if self.on_tick is not None:
-            self.on_tick(record)
-
-    def _record(self, record: TickRecord) -> None:
-        assert self.recorder is not None
-        row: dict[str, float | int | str] = {"t_s": record.t_s}
-        row |= record.values
-        # What each signal read, beside the value used (held, or estimated from the others).
-        row |= {f"read.{k}": v for k, v in record.read.items()}
-        row |= {f"health.{k}": int(v) for k, v in record.health.items()}
-        row |= {f"model.{k}": v for k, v in record.model_outputs.items()}
-        row |= {f"model.{k.replace('/', '.')}": v for k, v in record.contributions.items()}
-        # What the devices acknowledged (NaN: not written), and what they held before the write.
-        row |= {f"offset.{k}_um": v for k, v in record.acknowledged_um.items()}
-        row |= {f"readback.{k}_um": v for k, v in record.readback_um.items()}
-        row |= {f"gain.{k}": v for k, v in record.gains.items()}
-        row |= {"status": record.status, "heartbeat": record.heartbeat}
-        try:
-            if (running := self.compensator.running) is not None:  # a logger names no model
-                self.recorder.set_model(running.compiled.name, running.sha256)
-            self.recorder.record(row, at_s=record.wall_unix_s)
-        except RecorderError as exc:
-            self._recorder_fault.failed("recorder failed", error=str(exc))
-        else:
-            if self._recorder_fault.active:  # once, at the end of the episode
-                lost = self.recorder.take_lost_rows()
-                self._recorder_fault.cleared("recorder works again", lost_rows=lost)
+        running = self.compensator.running
+        snapshot = TickSnapshot(
+            record=record,
+            ticks=self.compensator.counters.ticks,
+            counters=TickSnapshot.frozen(self.counters()),
+            model=None if running is None else ModelId(running.compiled.name, running.sha256),
+            lateness_s=self.timing.last_lateness_s,
+            cpu_s=time.thread_time() - cpu_started_s,
+            started_real_s=real_started_s,
+            on_time=self.clock.now() - started_s < self.config.doc.period_s,
+        )
+        self.last = snapshot
+        self.subscribers.publish(snapshot)
 
     @property
-    def recorder_fault(self) -> FaultLog:
-        """The recorder's fault episodes: ``active`` while it cannot write, ``episodes`` so far."""
-        return self._recorder_fault
+    def recorder_fault(self) -> FaultLog | None:
+        """The recorder's fault episodes (``active`` while it cannot write); None: nothing recorded."""
+        return None if self.recording is None else self.recording.fault
 
     def leave_as_killed(self) -> None:
         """Make the end of ``run`` what SIGKILL would leave: sockets closed, nothing saved or written.
@@ -346,8 +298,7 @@ class Service:
                 await self.http.close()
             return
         self.notifier.stopping("saving state")
-        if self._saving is not None:
-            await self._saving
+        await self.saver.finish()
         self.save_state()
         await self.compensator.write_stopped()
         await asyncio.gather(*(link.close() for link in self.links.values()))
@@ -413,14 +364,15 @@ class Service:
             units={name: signal.unit for name, signal in self.config.doc.signals.items()},
             resumed=self.resumed,
             started_unix_s=self.started_unix_s,
+            counters=self.counters() if self.last is None else self.last.counters,
             telemetry=None if self.telemetry is None else self.telemetry.status_counters(),
         )
 
     def _describe(self) -> dict[str, Any]:
         return identity(self.config, self.compensator.running, self.started_unix_s)
 
-    def _tick_counters(self) -> dict[str, int]:
-        """The counters a telemetry status message carries (as ``compd status``'s)."""
+    def counters(self) -> dict[str, int]:
+        """The service's counters, as ``compd status``, telemetry and the metrics give them."""
         links = self.links.values()
         return vars(self.compensator.counters) | {
             "overruns": self.timing.overruns,

@@ -1,4 +1,4 @@
-"""How a daemon describes itself: its telemetry identity, its recordings' metadata, its systemd status line."""
+"""How a daemon describes itself: its telemetry identity, its recordings' metadata."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ from compd import __version__
 from compd.service.config.metricunits import prometheus_unit
 
 if TYPE_CHECKING:
-    from compd.service.loop.compensator import TickRecord
     from compd.service.config.loading import Config
     from compd.service.loop.slots import ModelSlot
 
@@ -70,9 +69,3 @@ def column_units(config: Config) -> Callable[[str], str | None]:
         return _PREFIX_UNITS.get(prefix) if dot else _COLUMN_UNITS.get(column)
 
     return unit
-
-
-def systemd_summary(record: TickRecord) -> str:
-    """One line for ``systemctl status``: offsets and the status level."""
-    offsets = ", ".join(f"{axis} {value:+.2f} um" for axis, value in record.offsets_um.items())
-    return f"{offsets}; status word {record.status}"

@@ -23,6 +23,10 @@ import os
 import socket
 import time
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from compd.service.loop.snapshot import TickSnapshot
 
 log = logging.getLogger(__name__)
 
@@ -175,3 +179,39 @@ def _status(text: str | None) -> tuple[str, ...]:
     if text is None:
         return ()
     return ("STATUS=" + " ".join(text.splitlines()),)
+
+
+class SystemdTicks:
+    """The loop's subscriber that keeps systemd told: ready after the first tick, the watchdog, a status line.
+
+    The watchdog is pinged only for a tick that finished within its period, so a
+    loop that can no longer keep its deadlines (or hangs in I/O) stops pinging
+    and systemd restarts it. A machine that is merely unreachable (PLC off at
+    night) still gets healthy ticks: freezing the offsets is right there, and
+    restarting would not help.
+    """
+
+    name = "systemd"
+
+    def __init__(self, notifier: SystemdNotifier, *, status_every_ticks: int) -> None:
+        self.notifier = notifier
+        self.status_every_ticks = status_every_ticks
+
+    def on_tick(self, snapshot: TickSnapshot) -> None:
+        if snapshot.first:
+            self.notifier.ready(
+                "recording (a data logger: nothing is written)"
+                if snapshot.model is None
+                else f"compensating with {snapshot.model.name}"
+            )
+        if snapshot.on_time:
+            self.notifier.watchdog()
+        if snapshot.ticks % self.status_every_ticks == 0:
+            self.notifier.status(systemd_summary(snapshot))
+
+
+def systemd_summary(snapshot: TickSnapshot) -> str:
+    """One line for ``systemctl status``: offsets and the status word."""
+    record = snapshot.record
+    offsets = ", ".join(f"{axis} {value:+.2f} um" for axis, value in record.offsets_um.items())
+    return f"{offsets}; status word {record.status}"

@@ -69,12 +69,12 @@ from typing import Any
 from compd.drivers.modbus.driver import ModbusDriver
 from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import CompdError
-from compd.service.loop.clock import VirtualClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config
+from compd.service.control.modelload import load_request
 from compd.service.control.socket import request
 from compd.service.daemon import Service
-from compd.service.control.modelload import load_request
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.compensator import TickRecord
 from compd.service.store.state import STATE_FILE
 from compd.sim.plc.build import build_machine
 from compd.sim.plc.machine import MachineClock, SimulatedMachine

@@ -33,8 +33,8 @@ from compd.errors import CompdError
 from compd.service.control.socket import MAX_CONNECTIONS, request
 
 if TYPE_CHECKING:
-    from compd.service.loop.compensator import TickRecord
     from compd.service.daemon import Service
+    from compd.service.loop.compensator import TickRecord
     from compd.sim.soakwitness import SoakResult, Witness
 
 #: Slow clients per connection the server may hold: most of them wait in the kernel's queue.

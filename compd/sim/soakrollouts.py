@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from compd.service.daemon import Service
 from compd.service.control.modelload import load_request
+from compd.service.daemon import Service
 from compd.service.fleet.remoteload import SCHEMA, RemoteLoads
 from compd.service.fleet.seenrequests import FILE, SeenRequests
 from compd.sim.soakwitness import SoakResult

@@ -49,8 +49,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from compd.files.modelfile import load_model
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.signals import Health
 from compd.sim.plc.machine import AXES, SimulatedMachine
 from compd.sim.plc.run import run_simulation

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from compd.service.loop.compensator import TickRecord
 from compd.service.daemon import Service
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.safety import Level
 from compd.sim.plc.machine import SimulatedMachine
 from tests.acceptance.conftest import axis, machine_doc, offset_steps_um, simulate, write_config

@@ -26,9 +26,9 @@ import yaml
 
 from compd.cli import main
 from compd.cli.args import EXIT_INPUT_ERROR
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config
 from compd.service.daemon import Service
+from compd.service.loop.compensator import TickRecord
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from tests.mosquitto import (

@@ -14,8 +14,8 @@ import json
 from pathlib import Path
 
 from compd.cli.daemon import model_load
-from compd.service.loop.compensator import TickRecord
 from compd.service.daemon import Service
+from compd.service.loop.compensator import TickRecord
 from compd.sim.plc.machine import SimulatedMachine
 from tests.acceptance.conftest import machine_doc, offset_steps_um, simulate, write_config
 from tests.clirun import compd

@@ -18,8 +18,8 @@ import pytest
 from structlog.testing import capture_logs
 
 from compd.files.yamlplace import resolve_path
-from compd.service.loop.compensator import TickRecord
 from compd.service.daemon import Service
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.signals import Health
 from compd.sim.plc.machine import SimulatedMachine
 from tests.acceptance.conftest import axis, machine_doc, offset_steps_um, simulate, write_config

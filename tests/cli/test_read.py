@@ -396,7 +396,9 @@ def test_probe_loads_no_model_stack():
     argv = ("probe", "modbus", "--set", "host=127.0.0.1", "--set", f"port={free_port()}", "input:0")
     status, modules, out = imported_by(*argv)
     assert status == 1 and "cannot connect" in out
-    assert loaded(modules, ("scipy", "compd.model", "compd.service.config.loading", "asyncua")) == []
+    assert (
+        loaded(modules, ("scipy", "compd.model", "compd.service.config.loading", "asyncua")) == []
+    )
 
 
 class _DefectiveDriver:

@@ -298,9 +298,9 @@ def test_compd_run_speaks_the_units_protocol(notify_socket, short_dir):
 
 def test_the_open_files_limit_holds_every_client_cap_and_the_reserve(service):
     """LimitNOFILE is set, and holds the HTTP and control-socket caps, the fds kept for the machine and compd's own."""
-    from compd.service.control.socket import MAX_CONNECTIONS
     from compd.service.config.fleetdoc import HttpDoc
     from compd.service.control.peers import RESERVED_FDS
+    from compd.service.control.socket import MAX_CONNECTIONS
 
     (value,) = service["LimitNOFILE"]
     soft = int(value.split(":")[0])

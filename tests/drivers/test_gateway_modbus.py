@@ -14,8 +14,8 @@ from compd.drivers.gateway.driver import GatewayDriver, GatewaySettings
 from compd.drivers.modbus.driver import ModbusDriver
 from compd.drivers.modbus.settings import ModbusSettings
 from compd.errors import ConfigFileError, DriverProtocolError, DriverTimeoutError
-from compd.service.loop.clock import VirtualClock
 from compd.service.config.loading import parse_config
+from compd.service.loop.clock import VirtualClock
 from compd.service.loop.links import DriverLink
 from compd.sim.plc.gateway import GatewayServer
 from tests.reconnect import seconds_until_read

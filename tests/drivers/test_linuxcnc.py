@@ -23,10 +23,10 @@ import yaml
 from compd.drivers.linuxcnc import LinuxCncDriver, LinuxCncSettings
 from compd.drivers.registry import load_driver_type
 from compd.errors import ConfigFileError, DriverDisconnectedError, DriverProtocolError
-from compd.service.loop.clock import RealClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import load_config
 from compd.service.daemon import Service
+from compd.service.loop.clock import RealClock
+from compd.service.loop.compensator import TickRecord
 
 from ..service.daemon_setup import write_config
 from . import linuxcnc_machine
@@ -212,7 +212,7 @@ def test_service_compensates_through_linuxcnc(tmp_path, machine):
         if len(records) == 5:  # the spindle warms by 10 K, set on HAL as a sensor would
             threading.Thread(target=machine.halcmd, args=("sets", "T-spindle-degC", "35")).start()
 
-    service.on_tick = on_tick
+    service.subscribe(on_tick)
     try:
         asyncio.run(service.run(duration_s=300.0))
         (held,) = run_calls(make_driver(machine), ("read", ["axis.z", "joint.2.pos-cmd"]))

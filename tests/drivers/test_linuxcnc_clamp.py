@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 
 from compd.drivers.linuxcnc import LinuxCncDriver, LinuxCncSettings
+from compd.service.daemon import Service
 from compd.service.loop.clock import RealClock
 from compd.service.loop.compensator import TickRecord
-from compd.service.daemon import Service
 from compd.service.loop.safety import Level
 
 from ..service.daemon_setup import write_config
@@ -47,7 +47,7 @@ def test_an_offset_outside_the_clamp_held_by_linuxcnc_is_replaced(tmp_path, mach
     records: list[TickRecord] = []
     # Real time, 20x fast: HAL is real I/O, which a virtual clock would outrun.
     service = Service(config, clock=RealClock(20.0), control=False, background_saves=False)
-    service.on_tick = records.append
+    service.subscribe(records.append)
     try:
         asyncio.run(service.run(duration_s=20.0))
     finally:

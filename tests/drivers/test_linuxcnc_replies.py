@@ -20,8 +20,8 @@ from structlog.testing import capture_logs
 
 from compd.drivers.linuxcnc import LinuxCncDriver, LinuxCncSettings
 from compd.errors import DriverError, DriverProtocolError
-from compd.service.loop.clock import VirtualClock
 from compd.service.daemon import Service
+from compd.service.loop.clock import VirtualClock
 
 from ..service.daemon_setup import write_config
 from .fake_hal_helper import install

@@ -25,10 +25,10 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
-from compd.service.loop.clock import RealClock, VirtualClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import parse_config
 from compd.service.daemon import Service
+from compd.service.loop.clock import RealClock, VirtualClock
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.links import DriverLink
 from compd.service.loop.safety import Flag
 from tests.reconnect import seconds_until_read
@@ -456,7 +456,7 @@ def test_service_writes_offsets_to_the_plc_and_survives_its_restart(tmp_path, se
         elif len(records) == 12:
             plc.start()
 
-    service.on_tick = on_tick
+    service.subscribe(on_tick)
     try:
         asyncio.run(service.run(duration_s=22.0))
         (registers,) = run(

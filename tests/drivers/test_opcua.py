@@ -32,8 +32,8 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
-from compd.service.loop.clock import RealClock, VirtualClock
 from compd.service.config.loading import parse_config
+from compd.service.loop.clock import RealClock, VirtualClock
 from compd.service.loop.links import DriverLink
 from tests.reconnect import seconds_until_read
 

@@ -25,10 +25,10 @@ from compd.errors import (
     DriverProtocolError,
     DriverTimeoutError,
 )
-from compd.service.loop.clock import RealClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config
 from compd.service.daemon import Service
+from compd.service.loop.clock import RealClock
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.links import DriverLink
 from compd.service.loop.signals import Health
 
@@ -424,7 +424,7 @@ def test_service_survives_the_scanner_unplugged_and_resumes(tmp_path):
         elif len(records) == 20:
             scanner.plug()
 
-    service.on_tick = on_tick
+    service.subscribe(on_tick)
     try:
         asyncio.run(service.run(duration_s=35.0))
     finally:

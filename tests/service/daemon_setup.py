@@ -12,10 +12,10 @@ from typing import Any
 import yaml
 
 from compd.files.yamlplace import resolve_path
-from compd.service.loop.clock import VirtualClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config, load_config
 from compd.service.daemon import Service
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.compensator import TickRecord
 
 BUNDLED_SIMULATED = resolve_path("bundled:replay.yaml", Path("."))
 
@@ -66,7 +66,7 @@ def run(
             config, clock=clock or VirtualClock(), control=control, on_tick=records.append
         )
     else:
-        service.on_tick = records.append
+        service.subscribe(records.append)
     asyncio.run(service.run(duration_s=duration_s))
     return service, records
 

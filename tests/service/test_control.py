@@ -21,7 +21,13 @@ import pytest
 
 from compd.errors import ControlError, ModelFileError
 from compd.service.config.admission import Access, Peer
-from compd.service.control.socket import MAX_LINE_BYTES, TOO_DEEP, ControlServer, request, request_sync
+from compd.service.control.socket import (
+    MAX_LINE_BYTES,
+    TOO_DEEP,
+    ControlServer,
+    request,
+    request_sync,
+)
 
 
 @pytest.fixture

@@ -8,8 +8,8 @@ import structlog
 from structlog.testing import capture_logs
 
 from compd.faultlog import Event, FaultLog
-from compd.service.loop.clock import VirtualClock
 from compd.service.daemon import Service
+from compd.service.loop.clock import VirtualClock
 from compd.service.store.state import STATE_FILE
 
 from .daemon_setup import write_config
@@ -63,7 +63,7 @@ def test_failing_state_saves_log_one_error_then_info_when_they_work_again(tmp_pa
             blocker.rmdir()
             blocker.parent.rmdir()
 
-    service.on_tick = on_tick
+    service.subscribe(on_tick)
     with capture_logs() as events:
         asyncio.run(service.run(duration_s=420))
     saves = [(e["log_level"], e["event"]) for e in events if "save" in e["event"]]

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import math
 
-from compd.service.loop.compensator import TickRecord
 from compd.service.http.history import TickHistory
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.signals import Health
 
 

@@ -13,8 +13,8 @@ import yaml
 from prometheus_client.parser import text_string_to_metric_families
 
 from compd.errors import CompdError, ConfigFileError
-from compd.service.config.loading import load_config
 from compd.service.config.docs import HttpDoc
+from compd.service.config.loading import load_config
 from tests.clirun import compd
 from tests.service.httprun import RunningCompd, http_config, running_compd
 
@@ -199,8 +199,8 @@ def test_bad_http_section_names_the_place(tmp_path: Path) -> None:
 
 def test_disabled_http_builds_no_server(tmp_path: Path) -> None:
     """``http: {enabled: false}``: no server, no metrics, nothing measured in the tick."""
-    from compd.service.loop.clock import VirtualClock
     from compd.service.daemon import Service
+    from compd.service.loop.clock import VirtualClock
 
     config = load_config(http_config(tmp_path, enabled=False))
     assert Service(config, clock=VirtualClock(), control=False).http is None
@@ -239,13 +239,13 @@ def test_a_service_ended_as_killed_stops_listening_on_its_http_port(tmp_path: Pa
     """A service left as SIGKILL leaves it (the soak's in-process kills) closes its HTTP port, as the OS would."""
     import asyncio
 
-    from compd.service.loop.clock import VirtualClock
     from compd.service.daemon import Service
+    from compd.service.loop.clock import VirtualClock
 
     config = load_config(http_config(tmp_path))
     service = Service(config, clock=VirtualClock(), control=False)
     ports: list[int] = []
-    service.on_tick = lambda _: ports.append(service.http.port) if service.http else None
+    service.subscribe(lambda _: ports.append(service.http.port) if service.http else None)
     service.leave_as_killed()
     asyncio.run(service.run(duration_s=3.0))
     with socket.socket() as client, pytest.raises(ConnectionRefusedError):

@@ -13,8 +13,8 @@ from structlog.testing import capture_logs
 
 from compd.drivers.base import Driver
 from compd.errors import DriverDisconnectedError
-from compd.service.loop.clock import VirtualClock
 from compd.service.daemon import Service
+from compd.service.loop.clock import VirtualClock
 from compd.service.loop.links import DriverLink
 
 from .daemon_setup import write_config

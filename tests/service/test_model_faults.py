@@ -10,12 +10,12 @@ from typing import Any
 import numpy as np
 from structlog.testing import capture_logs
 
-from compd.service.loop.clock import VirtualClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.docs import MAX_SIGNALS
+from compd.service.control.modelload import load_request
 from compd.service.control.socket import request
 from compd.service.daemon import Service
-from compd.service.control.modelload import load_request
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.safety import SIGNAL_BIT0, Level, mismatch_bit, model_fault_bit
 from compd.service.store.state import install_model_bytes, installed_model
 
@@ -55,7 +55,7 @@ def run_with_load(
         records.append(record)
         on_tick(service, record)
 
-    service.on_tick = tick
+    service.subscribe(tick)
     replies: dict[str, Any] = {}
 
     async def scenario() -> None:
@@ -136,7 +136,7 @@ def test_a_non_finite_model_output_sets_the_status_bit_and_is_logged_once(tmp_pa
             service.compensator.active.runner._x[:] = np.nan  # type: ignore[union-attr]
 
     records: list[TickRecord] = []
-    service.on_tick = lambda record: (records.append(record), poison(record))
+    service.subscribe(lambda record: (records.append(record), poison(record)))
     with capture_logs() as logs:
         asyncio.run(service.run(duration_s=300.0))
     flagged = [i for i, r in enumerate(records) if faulted(r)]

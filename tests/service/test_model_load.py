@@ -13,10 +13,10 @@ import pytest
 
 from compd.errors import ConfigFileError
 from compd.service.control import modelload
-from compd.service.loop.clock import VirtualClock
+from compd.service.control.modelload import load_request, startup_slots
 from compd.service.control.socket import request
 from compd.service.daemon import Service
-from compd.service.control.modelload import load_request, startup_slots
+from compd.service.loop.clock import VirtualClock
 from compd.service.store.state import install_model_bytes
 
 from .daemon_setup import short_socket, ticked, write_config

@@ -29,10 +29,10 @@ from hypothesis import strategies as st
 from compd.drivers.modbus.addresses import parse_address
 from compd.drivers.modbus.driver import ModbusDriver
 from compd.files.yamlplace import resolve_path
-from compd.service.loop.clock import VirtualClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config, load_config
 from compd.service.daemon import Service
+from compd.service.loop.clock import VirtualClock
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.safety import SIGNAL_BIT0, Level
 from compd.service.store.state import STATE_FILE
 from compd.sim.plc.modbus import ModbusPlcServer

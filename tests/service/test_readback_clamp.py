@@ -17,8 +17,8 @@ from typing import Any
 import pytest
 import yaml
 
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config, load_config
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.safety import Level
 from tests.service.test_readback import MISMATCH_BIT, STEP_COUNTS, Plc, plc_config, run_against
 

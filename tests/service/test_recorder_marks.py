@@ -8,8 +8,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from compd.files.data import load_data
-from compd.service.recording.recorder import Recorder
 from compd.service.recording.parquet import ParquetRecorder
+from compd.service.recording.recorder import Recorder
 
 T0_S = 1_795_428_900.0  # 2026-11-23T10:15:00Z
 LIMITS = {"max_file_bytes": 1 << 30, "max_file_age_s": 60.0, "max_total_bytes": 1 << 32}

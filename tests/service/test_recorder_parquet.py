@@ -19,9 +19,10 @@ from numpy.testing import assert_allclose
 
 from compd.files.data import load_data
 from compd.files.experiments import load_experiments
+from compd.service import build
 from compd.service.config.docs import RecorderDoc
-from compd.service.recording.recorder import Recorder
 from compd.service.recording.parquet import RETRY_MAX_S, ParquetRecorder
+from compd.service.recording.recorder import Recorder
 
 T0_S = 1_795_428_900.0  # 2026-11-23T10:15:00Z
 BIG = 1 << 30
@@ -84,12 +85,12 @@ def test_the_disk_budget_counts_both_formats(tmp_path: Path) -> None:
 
 
 def test_the_config_builds_the_parquet_recorder(tmp_path: Path) -> None:
-    """recorder.format: parquet builds it, flushing every 60 rows unless told; csv stays the default."""
+    """recorder.format: parquet: the builder makes one flushing every 60 rows unless told; csv is the default."""
     doc = RecorderDoc.model_validate({"format": "parquet"})
-    recorder = doc.recorder(tmp_path, {"machine_id": "m1"})
+    recorder = build.recorder(doc, tmp_path, {"machine_id": "m1"})
     assert isinstance(recorder, ParquetRecorder) and recorder.flush_every_rows == 60
     assert recorder.metadata == {"machine_id": "m1"}
-    assert isinstance(RecorderDoc().recorder(tmp_path), Recorder)
+    assert isinstance(build.recorder(RecorderDoc(), tmp_path), Recorder)
     with pytest.raises(ValueError, match="format"):
         RecorderDoc.model_validate({"format": "xlsx"})
 

@@ -15,9 +15,9 @@ import yaml
 from structlog.testing import capture_logs
 
 from compd.files.data import load_data
-from compd.service.loop.clock import VirtualClock
 from compd.service.control.socket import request_sync
 from compd.service.daemon import Service
+from compd.service.loop.clock import VirtualClock
 
 from .daemon_setup import short_socket, write_config
 

@@ -18,8 +18,8 @@ from compd.model.residual import DoorFeatures
 from compd.model.run import simulate
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF
-from compd.service.loop.clock import VirtualClock
 from compd.service.daemon import Service
+from compd.service.loop.clock import VirtualClock
 from compd.service.store.state import load_state
 from compd.toolkit.residual import fit_residual
 

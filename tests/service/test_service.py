@@ -12,10 +12,10 @@ from numpy.testing import assert_allclose
 from compd.files.data import load_data
 from compd.files.modelfile import load_model
 from compd.model.run import simulate
-from compd.service.loop.clock import VirtualClock
+from compd.service.control.modelload import load_request
 from compd.service.control.socket import request
 from compd.service.daemon import Service
-from compd.service.control.modelload import load_request
+from compd.service.loop.clock import VirtualClock
 from compd.service.loop.safety import SIGNAL_BIT0, Flag, Level
 from compd.service.loop.signals import Health
 from compd.service.store.state import load_state
@@ -149,7 +149,7 @@ def test_hot_load_refuses_a_bad_model_and_blends_a_good_one(tmp_path):
     )
     service = Service(config, clock=VirtualClock(), control=True)
     records = []
-    service.on_tick = records.append
+    service.subscribe(records.append)
     replies = {}
 
     async def scenario() -> None:

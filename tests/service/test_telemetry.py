@@ -19,10 +19,10 @@ from typing import Any
 import pytest
 
 from compd.errors import ConfigFileError
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config
-from compd.service.daemon import Service
 from compd.service.control.modelload import load_slot
+from compd.service.daemon import Service
+from compd.service.loop.compensator import TickRecord
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import SimulationResult, run_simulation
 from tests.mosquitto import (

@@ -12,8 +12,8 @@ from typing import Any
 
 import pytest
 
-from compd.service.loop.compensator import TickRecord
 from compd.service.daemon import Service
+from compd.service.loop.compensator import TickRecord
 from compd.sim.plc.machine import SimulatedMachine
 from tests.mosquitto import Mosquitto, Subscriber, machine_config, mosquitto_binary
 from tests.service.test_telemetry import simulate, wait_until

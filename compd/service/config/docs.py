@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -25,16 +25,13 @@ from compd.drivers.base import Driver
 from compd.drivers.registry import load_driver_type
 from compd.schemas import CONFIG_SCHEMA
 from compd.service.config.admission import Access
-from compd.service.loop.clock import Clock
 from compd.service.config.docbase import FiniteFloat, Positive, Strict
 from compd.service.config.fleetdoc import HttpDoc, TelemetryDoc
+from compd.service.loop.clock import Clock
 from compd.service.loop.links import DriverLink
 from compd.service.loop.offsets import AxisPoint
 from compd.service.loop.plausibility import PlausibilitySettings
 from compd.service.loop.points import SignalPoint, StatusPoint
-from compd.service.recording.recorder import Recorder
-from compd.service.recording.marks import Units
-from compd.service.recording.parquet import DEFAULT_FLUSH_EVERY_ROWS, ParquetRecorder
 from compd.service.loop.safety import AxisLimits, AxisSafety, FaultMode, OutOfClamp
 from compd.service.loop.schedule import GainRow, GainScheduler, GainTable
 from compd.service.loop.signals import Checks, SignalMonitor
@@ -275,31 +272,6 @@ class RecorderDoc(Strict):
                 f"({self.max_file_bytes}): the open file alone may reach that size"
             )
         return self
-
-    def recorder(
-        self,
-        directory: Path,
-        metadata: Mapping[str, str] | None = None,
-        units: Units | None = None,
-    ) -> Recorder | ParquetRecorder:
-        """The recorder writing into ``directory`` (resolved by :mod:`compd.service.config.paths`).
-
-        ``metadata`` (machine id, compd version, config path) goes into every
-        file, with each column's unit as ``units`` names it.
-        """
-        # pyarrow is imported by the Parquet recorder's first write, so only when configured.
-        kind = ParquetRecorder if self.format == "parquet" else Recorder
-        default_rows = DEFAULT_FLUSH_EVERY_ROWS if self.format == "parquet" else 1
-        recorder = kind(
-            directory,
-            max_file_bytes=self.max_file_bytes,
-            max_file_age_s=self.max_file_age_s,
-            max_total_bytes=self.max_total_bytes,
-            flush_every_rows=self.flush_every_rows or default_rows,
-            metadata=metadata,
-        )
-        recorder.run.units = units
-        return recorder
 
 
 class EffectDoc(Strict):

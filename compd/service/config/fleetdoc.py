@@ -6,20 +6,12 @@ do; paho is imported only when a config has the section.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from compd.files.yamlplace import resolve_path
 from compd.service.config.docbase import Strict
-
-if TYPE_CHECKING:
-    from compd.service.daemon import Service
-    from compd.service.http.server import StatusServer
-    from compd.service.fleet.mqttlink import Broker
-    from compd.service.fleet.telemetry import Telemetry
 
 
 class TelemetryTlsDoc(Strict):
@@ -85,55 +77,6 @@ class TelemetryDoc(Strict):
             named |= {f"tls.{k}": v for k, v in self.tls.model_dump().items()}
         return {k: v for k, v in named.items() if v is not None}
 
-    def telemetry(
-        self,
-        base_dir: Path,
-        *,
-        identity: Callable[[], dict[str, Any]],
-        wall: Callable[[], float],
-    ) -> Telemetry:
-        """The publisher, not yet connected; paho is imported here, only for a config that asks."""
-        from compd.service.fleet.claim import Instance
-        from compd.service.fleet.mqttlink import Topics
-        from compd.service.fleet.telemetry import Telemetry
-
-        # Each process its own client id: with one, two daemons would throw each other off the
-        # broker before either could see the other's birth (compd.service.fleet.claim).
-        instance = Instance.this_process()
-        return Telemetry(
-            self.broker(base_dir, self.client_id or f"compd-{self.machine_id}-{instance.id[:8]}"),
-            Topics(self.topic_prefix, self.machine_id),
-            instance=instance,
-            qos=self.qos,
-            every_ticks=self.every_ticks,
-            queue_size=self.queue_size,
-            identity=identity,
-            wall=wall,
-        )
-
-    def broker(self, base_dir: Path, client_id: str) -> Broker:
-        """Where and as whom to connect (the password file read now); also the roll-out's."""
-        from compd.service.fleet.mqttlink import Broker
-
-        def path(name: str | None) -> Path | None:
-            return None if name is None else resolve_path(name, base_dir)
-
-        password_path = path(self.password_file)
-        tls = self.tls
-        return Broker(
-            host=self.host,
-            port=self.broker_port,
-            client_id=client_id,
-            keepalive_s=self.keepalive_s,
-            reconnect_min_s=self.reconnect_min_s,
-            reconnect_max_s=self.reconnect_max_s,
-            username=self.username,
-            password=None if password_path is None else read_secret(password_path),
-            ca_file=None if tls is None else path(tls.ca_file),
-            cert_file=None if tls is None else path(tls.cert_file),
-            key_file=None if tls is None else path(tls.key_file),
-        )
-
 
 def read_secret(path: Path) -> str:
     """A password file's first line (its line ending stripped); OSError names the file, never the text."""
@@ -158,20 +101,3 @@ class HttpDoc(Strict):
     #: A connection with no request under way this long is closed (s): a client that sends
     #: its headers slowly, or keeps an idle connection, cannot hold a slot for longer.
     idle_timeout_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 10.0
-
-    def server(self, service: Service) -> StatusServer:
-        """The server for ``service`` (:class:`compd.service.http.server.StatusServer`), not yet started.
-
-        Its module (aiohttp, prometheus_client) is imported here: a config without
-        ``http`` loads neither.
-        """
-        from compd.service.http.server import StatusServer
-
-        return StatusServer(
-            service,
-            host=self.listen,
-            port=self.port,
-            max_connections=self.max_connections,
-            idle_timeout_s=self.idle_timeout_s,
-            budget=service.fd_budget,
-        )

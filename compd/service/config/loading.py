@@ -48,10 +48,7 @@ from compd.files.yamlplace import (
 )
 from compd.service.config import paths
 from compd.service.config.docs import SCHEMA, ConfigDoc
-from compd.service.loop.offsets import AxisPoint
 from compd.service.config.overlaps import check_overlaps
-from compd.service.loop.points import StatusPoint
-from compd.service.loop.schedule import first_overlap
 from compd.service.config.writepoints import (
     ErrorAt,
     HookCall,
@@ -62,6 +59,9 @@ from compd.service.config.writepoints import (
     whole_counts,
     written_points,
 )
+from compd.service.loop.offsets import AxisPoint
+from compd.service.loop.points import StatusPoint
+from compd.service.loop.schedule import first_overlap
 
 if TYPE_CHECKING:  # annotations only: a config is read without loading the model stack
     pass

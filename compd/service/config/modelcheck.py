@@ -10,14 +10,14 @@ from typing import TYPE_CHECKING
 
 from compd.errors import ConfigFileError
 from compd.files.yamlplace import where
-from compd.service.loop.schedule import model_gains
 from compd.service.config.unitcheck import unit_problem
+from compd.service.loop.schedule import model_gains
 
 if TYPE_CHECKING:
     from compd.files.modelfile import ModelFile
     from compd.model.compiled import CompiledModel
-    from compd.service.config.loading import Config
     from compd.service.config.docs import GainScheduleDoc
+    from compd.service.config.loading import Config
 
 
 def check_model(config: Config, model_file: ModelFile, compiled: CompiledModel) -> None:

@@ -37,7 +37,12 @@ from compd.files.yamlplace import MAX_YAML_BYTES, read_limited, shorten
 from compd.service.config.loading import Config
 from compd.service.config.modelcheck import check_model
 from compd.service.loop.slots import ModelSlot
-from compd.service.store.state import MODELS_DIR, install_model_bytes, installed_model, reinstate_model
+from compd.service.store.state import (
+    MODELS_DIR,
+    install_model_bytes,
+    installed_model,
+    reinstate_model,
+)
 from compd.service.store.unreadable import set_aside
 
 log = structlog.get_logger("compd.service.control.modelload")

@@ -21,6 +21,9 @@ from paho.mqtt.enums import CallbackAPIVersion, MQTTProtocolVersion
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
+from compd.files.yamlplace import resolve_path
+from compd.service.config.fleetdoc import TelemetryDoc, read_secret
+
 
 @dataclass(frozen=True)
 class Broker:
@@ -76,3 +79,26 @@ def connect_properties(max_packet_bytes: int) -> Properties:
     properties = Properties(PacketTypes.CONNECT)  # type: ignore[no-untyped-call]
     properties.MaximumPacketSize = max_packet_bytes
     return properties
+
+
+def broker(doc: TelemetryDoc, base_dir: Path, client_id: str) -> Broker:
+    """Where and as whom to connect (the password file read now); also the roll-out's."""
+
+    def path(name: str | None) -> Path | None:
+        return None if name is None else resolve_path(name, base_dir)
+
+    password_path = path(doc.password_file)
+    tls = doc.tls
+    return Broker(
+        host=doc.host,
+        port=doc.broker_port,
+        client_id=client_id,
+        keepalive_s=doc.keepalive_s,
+        reconnect_min_s=doc.reconnect_min_s,
+        reconnect_max_s=doc.reconnect_max_s,
+        username=doc.username,
+        password=None if password_path is None else read_secret(password_path),
+        ca_file=None if tls is None else path(tls.ca_file),
+        cert_file=None if tls is None else path(tls.cert_file),
+        key_file=None if tls is None else path(tls.key_file),
+    )

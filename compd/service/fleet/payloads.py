@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING, Any
 
 from compd.faultlog import Event, EventSink
 from compd.service.fleet.claim import Instance
-from compd.service.fleet.mqttlink import Topics
 from compd.service.fleet.jsonwire import SCHEMA, compd_version, finite, finites
+from compd.service.fleet.mqttlink import Topics
 
 if TYPE_CHECKING:
     from compd.service.loop.compensator import TickRecord

@@ -53,8 +53,8 @@ import structlog
 from compd.errors import CompdError
 from compd.faultlog import Event, EventSink
 from compd.files.yamlplace import MAX_YAML_BYTES, shorten
-from compd.service.control.socket import TOO_DEEP
 from compd.service.control.modelload import load_request, request_bytes
+from compd.service.control.socket import TOO_DEEP
 from compd.service.fleet.seenrequests import SeenRequests
 
 log = structlog.get_logger("compd.service.fleet.remoteload")

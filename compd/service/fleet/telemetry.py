@@ -59,12 +59,13 @@ from paho.mqtt.enums import MQTTErrorCode
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from compd.faultlog import Event, FaultLog
-from compd.service.loop.compensator import TickRecord
 from compd.service.fleet.claim import Claim, Instance, where
-from compd.service.fleet.mqttlink import Broker, Topics, connect_properties, mqtt_client
 from compd.service.fleet.commands import Commands, Handler
 from compd.service.fleet.jsonwire import dumps
+from compd.service.fleet.mqttlink import Broker, Topics, connect_properties, mqtt_client
 from compd.service.fleet.payloads import DESIRED_KEYS, Payloads
+from compd.service.loop.compensator import TickRecord
+from compd.service.loop.snapshot import TickSnapshot
 
 log = structlog.get_logger("compd.service.fleet.telemetry")
 
@@ -184,6 +185,14 @@ class Telemetry:
         )
         self._client.loop_start()
         self._task = self._loop.create_task(self._publish_queued(), name="compd-telemetry")
+
+    name = "telemetry"
+
+    def on_tick(self, snapshot: TickSnapshot) -> None:
+        """The loop's subscriber: every ``every_ticks`` ticks, a status message queued."""
+        if snapshot.ticks % self.every_ticks == 0:
+            model = None if snapshot.model is None else snapshot.model.name
+            self.tick(snapshot.record, dict(snapshot.counters), model)
 
     def tick(self, record: TickRecord, counters: dict[str, int], model: str | None) -> None:
         """Queue the tick's status (cheap: no serialisation here); the oldest goes when full."""

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING
 
 from prometheus_client import (
     CollectorRegistry,
@@ -47,10 +46,8 @@ from prometheus_client.registry import Collector
 
 from compd import __version__
 from compd.service.config.metricunits import prometheus_unit
+from compd.service.http.view import ServiceView
 from compd.service.loop.safety import Flag
-
-if TYPE_CHECKING:
-    from compd.service.daemon import Service
 
 #: Offsets are kept in um; Prometheus's base unit is the meter.
 M_PER_UM = 1e-6
@@ -68,7 +65,7 @@ IO_BUCKETS_S = (
 class ServiceMetrics:
     """The registry of one service: its histograms, observed by the tick, and its live collector."""
 
-    def __init__(self, service: Service) -> None:
+    def __init__(self, service: ServiceView) -> None:
         # A ``_created`` series beside every counter and histogram only clutters: compd's
         # start time is its own gauge. The switch is process-wide, as compd is the process.
         disable_created_metrics()  # type: ignore[no-untyped-call]  # prometheus_client leaves it untyped
@@ -82,7 +79,7 @@ class ServiceMetrics:
         )
         self.cpu = Histogram(
             "compd_tick_cpu_seconds",
-            "CPU time of each tick on the loop's thread: read, check, model, safety, write, record.",
+            "CPU time of each tick's loop core on its thread: read, check, model, safety, write, read back.",
             buckets=TICK_BUCKETS_S,
             registry=self.registry,
         )
@@ -118,7 +115,7 @@ class ServiceMetrics:
 class LiveCollector(Collector):
     """The service's counters and state, read from the live objects at each scrape."""
 
-    def __init__(self, service: Service) -> None:
+    def __init__(self, service: ServiceView) -> None:
         self.service = service
 
     def collect(self) -> Iterator[Metric]:
@@ -254,7 +251,7 @@ class LiveCollector(Collector):
         yield from _link_metrics(service)
 
 
-def _model_metrics(service: Service) -> Iterator[Metric]:
+def _model_metrics(service: ServiceView) -> Iterator[Metric]:
     """The model running, its fit % as its provenance records it, loads and failures."""
     comp = service.compensator
     slot = comp.running
@@ -294,7 +291,7 @@ def _model_metrics(service: Service) -> Iterator[Metric]:
     )
 
 
-def _link_metrics(service: Service) -> Iterator[Metric]:
+def _link_metrics(service: ServiceView) -> Iterator[Metric]:
     """The MQTT link (where telemetry is on) and the recorder (where it records)."""
     if service.telemetry is not None:
         mqtt = service.telemetry.counters
@@ -320,8 +317,8 @@ def _link_metrics(service: Service) -> Iterator[Metric]:
             "Snapshots and events dropped: the oldest of a full queue, or refused by the client.",
             mqtt.dropped,
         )
-    if service.recorder is not None:
-        fault = service.recorder_fault
+    fault = service.recorder_fault
+    if fault is not None:
         yield _gauge(
             "compd_recorder_up", "1 while the recorder writes; 0 while it fails.", not fault.active
         )

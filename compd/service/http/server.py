@@ -44,15 +44,15 @@ import structlog
 from aiohttp import web
 
 from compd.errors import CompdError
-from compd.service.loop.compensator import TickRecord
+from compd.service.control.peers import FdBudget, Listener, Served
 from compd.service.control.socket import jsonable
 from compd.service.http.history import RecentFaults, TickHistory
 from compd.service.http.metrics import ServiceMetrics
-from compd.service.control.peers import FdBudget, Listener, Served
+from compd.service.http.view import ServiceView
 from compd.service.loop.safety import Flag, Level
+from compd.service.loop.snapshot import TickSnapshot
 
 if TYPE_CHECKING:
-    from compd.service.daemon import Service
     from compd.service.loop.slots import ModelSlot
 
 log = structlog.get_logger("compd.service.http.server")
@@ -93,7 +93,7 @@ class StatusServer:
 
     def __init__(
         self,
-        service: Service,
+        service: ServiceView,
         *,
         host: str,
         port: int,
@@ -133,16 +133,14 @@ class StatusServer:
         self._runner: web.AppRunner | None = None
         self._listener: Listener | None = None
 
-    def tick(
-        self, record: TickRecord, lateness_s: float, cpu_s: float, started_real_s: float
-    ) -> None:
-        """What each tick leaves here: its lateness and CPU (s), a row of history; answers held for it go on.
+    name = "http"
 
-        ``started_real_s``: when the tick started, ``time.perf_counter()`` time.
-        """
-        self.metrics.observe_tick(lateness_s, cpu_s)
-        self.history.append(record)
-        self.faults.update(record, self.service.compensator, self.service.links)
+    def on_tick(self, snapshot: TickSnapshot) -> None:
+        """What each tick leaves here: its lateness and CPU (s), a row of history; answers held for it go on."""
+        self.metrics.observe_tick(snapshot.lateness_s, snapshot.cpu_s)
+        self.history.append(snapshot.record)
+        self.faults.update(snapshot.record, self.service.compensator, self.service.links)
+        started_real_s = snapshot.started_real_s
         if self._last_tick_real_s is not None:
             self._next_tick_real_s = 2 * started_real_s - self._last_tick_real_s
         self._last_tick_real_s = started_real_s

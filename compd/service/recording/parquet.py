@@ -58,6 +58,7 @@ from pathlib import Path
 from typing import Any
 
 from compd.errors import RecorderError
+from compd.service.recording.marks import tidy_array
 from compd.service.recording.recorder import (
     TIME_COLUMN,
     Cell,
@@ -67,7 +68,6 @@ from compd.service.recording.recorder import (
     error,
     sync_directory,
 )
-from compd.service.recording.marks import tidy_array
 
 log = logging.getLogger(__name__)
 

@@ -43,8 +43,8 @@ from compd.model.reach import check_reachable
 from compd.service.store.unreadable import finite, json_int, set_aside, whole
 
 if TYPE_CHECKING:
-    from compd.service.loop.clock import Clock
     from compd.service.config.loading import Config
+    from compd.service.loop.clock import Clock
     from compd.service.loop.slots import ModelSlot
 
 log = structlog.get_logger("compd.service.store.state")

@@ -20,13 +20,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from compd.errors import CompdError
-from compd.service.loop.clock import Clock, RealClock, VirtualClock
-from compd.service.loop.compensator import TickRecord
 from compd.service.config.loading import Config
 from compd.service.daemon import Service
+from compd.service.loop.clock import Clock, RealClock, VirtualClock
+from compd.service.loop.compensator import TickRecord
 from compd.service.loop.links import DriverLink
-from compd.service.store.state import STATE_FILE
 from compd.service.loop.ticks import TickTiming, run_periodic
+from compd.service.store.state import STATE_FILE
 from compd.sim.plc.build import build_machine
 from compd.sim.plc.machine import AxisSummary, MachineClock, SimulatedMachine
 

@@ -1,0 +1,162 @@
+"""The builder: runtime objects from the config's documents, and the loop's subscribers in order.
+
+Config documents (:mod:`compd.service.config`) describe; this module builds
+what has a life of its own from them: the recorder, the MQTT publisher, the
+HTTP server, and the list of tick subscribers the daemon registers. A new
+subscriber is a class and a line in :func:`tick_subscribers`. Each optional
+room's libraries (paho, aiohttp, pyarrow) are imported only for a config
+that asks for it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from compd.service.config.docs import RecorderDoc
+from compd.service.config.fleetdoc import HttpDoc, TelemetryDoc
+from compd.service.config.loading import Config
+from compd.service.identity import column_units, recording_metadata
+from compd.service.loop.subscribers import Subscriber
+from compd.service.notify import SystemdNotifier, SystemdTicks
+from compd.service.recording.marks import Units
+from compd.service.recording.parquet import DEFAULT_FLUSH_EVERY_ROWS, ParquetRecorder
+from compd.service.recording.recorder import Recorder
+from compd.service.recording.ticks import RecordingTicks
+from compd.service.store.saver import StateSaver
+from compd.service.store.state import SavedState
+
+if TYPE_CHECKING:
+    from compd.service.fleet.telemetry import Telemetry
+    from compd.service.http.server import StatusServer
+    from compd.service.http.view import ServiceView
+
+
+def recorder(
+    doc: RecorderDoc,
+    directory: Path,
+    metadata: Mapping[str, str] | None = None,
+    units: Units | None = None,
+) -> Recorder | ParquetRecorder:
+    """The recorder writing into ``directory`` (resolved by :mod:`compd.service.config.paths`).
+
+    ``metadata`` (machine id, compd version, config path) goes into every
+    file, with each column's unit as ``units`` names it.
+    """
+    # pyarrow is imported by the Parquet recorder's first write, so only when configured.
+    kind = ParquetRecorder if doc.format == "parquet" else Recorder
+    default_rows = DEFAULT_FLUSH_EVERY_ROWS if doc.format == "parquet" else 1
+    made = kind(
+        directory,
+        max_file_bytes=doc.max_file_bytes,
+        max_file_age_s=doc.max_file_age_s,
+        max_total_bytes=doc.max_total_bytes,
+        flush_every_rows=doc.flush_every_rows or default_rows,
+        metadata=metadata,
+    )
+    made.run.units = units
+    return made
+
+
+def telemetry(
+    doc: TelemetryDoc,
+    base_dir: Path,
+    *,
+    identity: Callable[[], dict[str, Any]],
+    wall: Callable[[], float],
+) -> Telemetry:
+    """The publisher, not yet connected; paho is imported here, only for a config that asks."""
+    from compd.service.fleet.claim import Instance
+    from compd.service.fleet.mqttlink import Topics, broker
+    from compd.service.fleet.telemetry import Telemetry
+
+    # Each process its own client id: with one, two daemons would throw each other off the
+    # broker before either could see the other's birth (compd.service.fleet.claim).
+    instance = Instance.this_process()
+    return Telemetry(
+        broker(doc, base_dir, doc.client_id or f"compd-{doc.machine_id}-{instance.id[:8]}"),
+        Topics(doc.topic_prefix, doc.machine_id),
+        instance=instance,
+        qos=doc.qos,
+        every_ticks=doc.every_ticks,
+        queue_size=doc.queue_size,
+        identity=identity,
+        wall=wall,
+    )
+
+
+def http_server(doc: HttpDoc, service: ServiceView) -> StatusServer:
+    """The server for ``service`` (:class:`compd.service.http.server.StatusServer`), not yet started.
+
+    Its module (aiohttp, prometheus_client) is imported here: a config without
+    ``http`` loads neither.
+    """
+    from compd.service.http.server import StatusServer
+
+    return StatusServer(
+        service,
+        host=doc.listen,
+        port=doc.port,
+        max_connections=doc.max_connections,
+        idle_timeout_s=doc.idle_timeout_s,
+    )
+
+
+@dataclass
+class Subscribed:
+    """The loop's subscribers built for one service; the daemon keeps handles for their lifecycles."""
+
+    systemd: SystemdTicks
+    recording: RecordingTicks | None
+    saver: StateSaver
+    telemetry: Telemetry | None
+    http: StatusServer | None
+
+    def in_order(self) -> list[Subscriber]:
+        """The order each tick is told in: systemd's watchdog first, the page last."""
+        return [
+            s
+            for s in (self.systemd, self.recording, self.saver, self.telemetry, self.http)
+            if s is not None
+        ]
+
+
+def tick_subscribers(
+    config: Config,
+    view: ServiceView,
+    *,
+    notifier: SystemdNotifier,
+    saved_state: Callable[[], SavedState | None],
+    background_saves: bool,
+    identity: Callable[[], dict[str, Any]],
+    wall: Callable[[], float],
+) -> Subscribed:
+    """Everything that follows the loop, as ``config`` asks for it."""
+    doc = config.doc
+    recording = (
+        RecordingTicks(
+            recorder(
+                doc.recorder, config.recorder_dir, recording_metadata(config), column_units(config)
+            )
+        )
+        if config.recorder_dir is not None
+        else None
+    )
+    return Subscribed(
+        systemd=SystemdTicks(notifier, status_every_ticks=doc.live_every_ticks),
+        recording=recording,
+        saver=StateSaver(
+            config.state_dir,
+            saved_state,
+            every_ticks=doc.state.save_every_ticks,
+            background=background_saves,
+        ),
+        telemetry=(
+            telemetry(doc.telemetry, config.base_dir, identity=identity, wall=wall)
+            if doc.telemetry is not None
+            else None
+        ),
+        http=http_server(doc.http, view) if doc.http is not None and doc.http.enabled else None,
+    )
