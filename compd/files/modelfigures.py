@@ -69,7 +69,7 @@ def extension_headline(extension: ExtensionDoc, index: int, model: str) -> Headl
     in ``provenance.extensions``.
     """
     if extension.verify_fit_percent_after and extension.verify_data:
-        before = _values(extension.verify_fit_percent_before)
+        before = percent_text(extension.verify_fit_percent_before)
         return HeadlineDoc(
             name=VERIFIED,
             percent=dict(extension.verify_fit_percent_after),
@@ -217,14 +217,16 @@ def figure_lines(figures: Figures) -> list[tuple[str, str]]:
     fitted = _fitted(figures.fit_percent, figures.fit_data if derived else None, derived)
     if figures.headline is not None:
         h = figures.headline
-        lines.append((f"{h.name}: {_values(h.percent)}", f" ({h.description}){fitted}"))
+        lines.append((f"{h.name}: {percent_text(h.percent)}", f" ({h.description}){fitted}"))
     elif fitted:
         lines.append(("", fitted.removeprefix("; ")))
     base = figures.base
     if base is not None:
         h = base.headline
         lead = f"{figures.base_label}: " + (
-            f"{h.name} {_values(h.percent)} ({h.description})" if h is not None else "no figures"
+            f"{h.name} {percent_text(h.percent)} ({h.description})"
+            if h is not None
+            else "no figures"
         )
         lines.append(("", lead + _fitted(base.fit_percent, base.data)))
     if figures.updates:
@@ -243,10 +245,11 @@ def _fitted(percent: Mapping[str, float], data: str | None, extended: bool = Fal
         return ""
     what = "the data it was extended on" if extended else "the data it was fitted on"
     where = f"on {data}, {what}" if data else f"on {what}"
-    return f"; {_values(percent)} {where}"
+    return f"; {percent_text(percent)} {where}"
 
 
-def _values(percent: Mapping[str, float]) -> str:
+def percent_text(percent: Mapping[str, float]) -> str:
+    """``95.4 %`` for one output, ``disp_x_um 95.4 %, disp_z_um 93.1 %`` for several."""
     return ", ".join(
         f"{v:.1f} %" if len(percent) == 1 else f"{k} {v:.1f} %" for k, v in percent.items()
     )

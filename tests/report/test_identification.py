@@ -15,7 +15,7 @@ from compd.files.modelfile import load_model
 from compd.model import stepresponse
 from compd.model.lagbank import lag_tf
 from compd.model.transfer import DiscreteTF
-from compd.report import idfigures, tables
+from compd.report import idfigures, modelcard
 from compd.report.gather import ReportData, gather
 from compd.report.inputs import input_responses
 from compd.toolkit.evaluate import evaluate
@@ -36,7 +36,7 @@ def lagbank(tmp_path_factory: pytest.TempPathFactory) -> ReportData:
 
 def test_lag_bank_is_one_row_per_input(lagbank: ReportData) -> None:
     """The model card's per-input table has one row per lag-bank input; its dozen sub-models are folded."""
-    card = tables.model_card(lagbank.primary, 0)
+    card = modelcard.model_card(lagbank.primary, 0)
     inputs = card[
         card.index('class="inputs"') : card.index("</table>", card.index('class="inputs"'))
     ]
