@@ -74,7 +74,8 @@ def extension_headline(extension: ExtensionDoc, index: int, model: str) -> Headl
             name=VERIFIED,
             percent=dict(extension.verify_fit_percent_after),
             model=model,
-            description=f"{extension.verify_data}, a record not used for fitting"
+            data=extension.verify_data,
+            description="a record not used for fitting"
             + (f"; the model before this extension: {before}" if before else ""),
             source=f"extensions[{index}].verify_fit_percent_after",
         )
@@ -86,8 +87,9 @@ def extension_headline(extension: ExtensionDoc, index: int, model: str) -> Headl
         name=HELD_OUT,
         percent={output: kept[0].held_out_fit_percent_after},
         model=model,
-        description=f"held-out parts of {extension.data} ({kept[0].folds} folds), the new "
-        f"sub-model fitted without each; the model before this extension: "
+        data=extension.data,
+        description=f"its held-out parts ({kept[0].folds} folds), the new sub-model fitted "
+        "without each; the model before this extension: "
         f"{kept[0].held_out_fit_percent_before:.1f} %",
         source=f"extensions[{index}].tried[kept].held_out_fit_percent_after",
     )
@@ -217,14 +219,14 @@ def figure_lines(figures: Figures) -> list[tuple[str, str]]:
     fitted = _fitted(figures.fit_percent, figures.fit_data if derived else None, derived)
     if figures.headline is not None:
         h = figures.headline
-        lines.append((f"{h.name}: {percent_text(h.percent)}", f" ({h.description}){fitted}"))
+        lines.append((f"{h.name}: {percent_text(h.percent)}", f" ({headline_how(h)}){fitted}"))
     elif fitted:
         lines.append(("", fitted.removeprefix("; ")))
     base = figures.base
     if base is not None:
         h = base.headline
         lead = f"{figures.base_label}: " + (
-            f"{h.name} {percent_text(h.percent)} ({h.description})"
+            f"{h.name} {percent_text(h.percent)} ({headline_how(h)})"
             if h is not None
             else "no figures"
         )
@@ -238,6 +240,11 @@ def figure_lines(figures: Figures) -> list[tuple[str, str]]:
             )
         )
     return lines
+
+
+def headline_how(headline: HeadlineDoc) -> str:
+    """How a headline figure was measured, its record first when it names one."""
+    return ", ".join(t for t in (headline.data, headline.description) if t)
 
 
 def _fitted(percent: Mapping[str, float], data: str | None, extended: bool = False) -> str:

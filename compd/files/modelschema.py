@@ -330,7 +330,8 @@ class HeadlineDoc(_Record):
 
     ``name``: what the figure is ("expected fit on new data", "fit on new
     data"); ``percent``: its value per output (fit %); ``model``: the name of
-    the model it was measured for; ``description``: how it was measured;
+    the model it was measured for; ``data``: the record it was measured on
+    (absent: the calibration's folds); ``description``: how it was measured;
     ``source``: the provenance key it repeats, for scripts
     (``cross_validation.fold_median_percent.lagbank``). Files written before
     compd recorded it have none: :mod:`compd.files.modelfigures` derives it.
@@ -339,6 +340,7 @@ class HeadlineDoc(_Record):
     name: str = Field(min_length=1)
     percent: dict[str, FiniteFloat] = Field(default_factory=dict)
     model: str = ""
+    data: str | None = None
     description: str = ""
     source: str = ""
 

@@ -39,6 +39,7 @@ PATH_FIELDS = (
     ("calibration", "data"),
     ("calibration", "extended_with", "*"),
     ("base_model", "data"),
+    ("headline", "data"),
     ("extensions", "*", "data"),
     ("extensions", "*", "verify_data"),
     ("updates", "*", "data"),

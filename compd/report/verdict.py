@@ -15,7 +15,7 @@ from collections.abc import Mapping
 from html import escape
 from pathlib import Path
 
-from compd.files.modelfigures import model_figures, percent_text
+from compd.files.modelfigures import headline_how, model_figures, percent_text
 from compd.files.modelfile import ModelFile
 from compd.files.modelschema import ProvenanceDoc
 from compd.report.gather import ModelRun, ReportData
@@ -72,7 +72,7 @@ def _headline(index: int, run: ModelRun) -> str:
     if h is None:
         return f"<li>{swatch}: no headline figure recorded in its file</li>"
     values = escape(percent_text(h.percent))
-    return f"<li>{swatch}: {escape(h.name)} {values} ({escape(h.description)})</li>"
+    return f"<li>{swatch}: {escape(h.name)} {values} ({escape(headline_how(h))})</li>"
 
 
 def fitted_on(model_file: ModelFile, data_path: str) -> bool:

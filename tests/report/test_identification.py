@@ -111,3 +111,26 @@ def test_report_page_has_step_and_correlation_figures(lagbank: ReportData, tmp_p
     html = build_html(lagbank)
     assert f'id="fig-{OUTPUT}-steps-0"' in html
     assert f'id="fig-{OUTPUT}-correlations-0"' in html
+
+
+def test_gain_errors_are_least_squares_errors_widened_for_the_residues_autocorrelation() -> None:
+    """gain_check: the factor and its error are scipy's linregress slope and stderr, times sqrt((1+rho)/(1-rho))."""
+    from scipy.stats import linregress
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    contribution = np.cumsum(rng.normal(size=n))
+    noise = np.zeros(n)
+    for k in range(1, n):  # an AR(1) residue, rho 0.8
+        noise[k] = 0.8 * noise[k - 1] + rng.normal()
+    measured = 1.1 * contribution + 2.0 + noise
+    check = stepresponse.gain_check(contribution[:, None], measured)
+    fit = linregress(contribution, measured)
+    residue = measured - (fit.slope * contribution + fit.intercept)
+    rho = float(residue[1:] @ residue[:-1] / (residue @ residue))
+    assert_allclose(check.factors[0], fit.slope, rtol=1e-9)
+    assert_allclose(check.lag1_autocorrelation, rho, rtol=1e-9)
+    assert_allclose(check.widening, np.sqrt((1 + rho) / (1 - rho)), rtol=1e-9)
+    assert_allclose(check.relative_errors[0], fit.stderr * check.widening, rtol=1e-9)
+    assert_allclose(check.residue_rms, np.sqrt(np.mean(residue**2)), rtol=1e-9)
+    assert 0.75 < rho < 0.85
