@@ -205,7 +205,15 @@ def model_figures(doc: ModelDoc) -> Figures:
             f"{name} (sha256 {base.sha256[:12]}, before its "
             f"{'extension' if steps == 1 else f'{steps} extensions'})"
         )
-    return Figures(headline, fit, fit_data, base, label, updates=len(prov.updates))
+    return Figures(headline, fit, fit_data, base, label, updates=_updates_since(prov))
+
+
+def _updates_since(prov: ProvenanceDoc) -> int:
+    """The updates after the last extension (all of them without one): its figures predate them."""
+    since = prov.extensions[-1].created if prov.extensions else None
+    if since is None:
+        return len(prov.updates)
+    return sum(1 for u in prov.updates if u.created is None or u.created > since)
 
 
 def figure_lines(figures: Figures) -> list[tuple[str, str]]:
@@ -224,14 +232,14 @@ def figure_lines(figures: Figures) -> list[tuple[str, str]]:
         lines.append(("", fitted.removeprefix("; ")))
     base = figures.base
     if base is not None:
-        h = base.headline
+        theirs = base.headline
         lead = f"{figures.base_label}: " + (
-            f"{h.name} {percent_text(h.percent)} ({headline_how(h)})"
-            if h is not None
+            f"{theirs.name} {percent_text(theirs.percent)} ({headline_how(theirs)})"
+            if theirs is not None
             else "no figures"
         )
         lines.append(("", lead + _fitted(base.fit_percent, base.data)))
-    if figures.updates:
+    if figures.updates and lines:
         lines.append(
             (
                 "",
