@@ -246,3 +246,19 @@ def test_the_same_gains_errors_differ_by_what_the_record_leaves_and_the_report_s
     assert base_check.residue_rms > 5 * ext_check.residue_rms
     assert "A residue this slow is a drift" in model_card(report.primary, 0)
     assert "A residue this slow is a drift" not in model_card(other.primary, 1)
+
+
+def test_a_report_on_the_record_a_model_was_fitted_on_says_so_first(
+    loop: dict[str, Path], tmp_path: Path
+) -> None:
+    """One model on its own calibration: the lead gives its figures there and says they are in-sample."""
+    page = tmp_path / "own.html"
+    compd("report", loop["base"], loop["calib"], "--out", page)
+    html = page.read_text()
+    figures = compare(loop["base"], loop["calib"])
+    lead = f"<b>{OUTPUT}: fit {figures['fit_percent']:.1f} %</b>, residue RMS {figures['rms_um']:.2f} um"
+    assert lead in html and html.index(lead) < html.index('id="models"')
+    assert "was fitted on <code>" in html and "not on new data" in html
+    # and on a record it was not fitted on, no such line
+    compd("report", loop["base"], loop["cutting"], "--out", page)
+    assert "not on new data" not in page.read_text()
