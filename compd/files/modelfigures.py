@@ -193,6 +193,7 @@ def model_figures(doc: ModelDoc) -> Figures:
             if prov.cross_validation is None
             else fit_headline(prov.cross_validation, ""),
             cross_validation=prov.cross_validation,
+            notes=prov.notes,
         )
         headline = extension_headline(extensions[-1], len(extensions) - 1, doc.name)
         last = extensions[-1]

@@ -36,11 +36,11 @@ def provenance(run: ModelRun) -> str:
     ):
         if value:
             lines.append(f"<li>{label}: {escape(str(value))}</li>")
+    # An extended file of an older compd keeps its base model's calibration fit and notes here.
+    older = prov.base_model is None and bool(prov.extensions)
     if prov.calibration is not None:
-        # An extended file of an older compd keeps its base model's calibration fit here.
-        older = prov.base_model is None and bool(prov.extensions)
         lines += _calibration(prov.calibration, figures.base_label if older else "")
-    if prov.notes:
+    if prov.notes and not older:
         lines.append(f"<li>notes: {escape(prov.notes)}</li>")
     if figures.base is not None and figures.base.notes:
         lines.append(

@@ -162,6 +162,25 @@ def test_an_extended_file_of_an_older_compd_loads_and_says_whose_its_figures_are
     """Written before base_model: the fitted figures beside the extensions are printed as the base's."""
     base, extended = load_model(loop["base"]), load_model(loop["extended"])
     moved = extended.doc.provenance.base_model
+    assert moved is not None
+    old = _older_extended_file(loop, tmp_path)
+    figures = model_figures(load_model(old).doc)
+    assert figures.headline is not None and figures.headline.name == VERIFIED
+    assert figures.headline.percent == extended.doc.provenance.headline.percent  # type: ignore[union-attr]
+    assert figures.base is not None and figures.base.fit_percent == moved.fit_percent
+    assert figures.base_label == f"the base model (sha256 {base.sha256[:12]}, before its extension)"
+    text = " ".join(compd("model", "check", old).split())
+    own = text.index(f"{VERIFIED}: ")
+    theirs = text.index(
+        f"{figures.base_label}: {EXPECTED} {moved.headline.percent[OUTPUT]:.1f} %"  # type: ignore[union-attr]
+    )
+    assert own < theirs
+
+
+def _older_extended_file(loop: dict[str, Path], folder: Path) -> Path:
+    """The extended model as compd wrote it before base_model: the fitted figures at the top."""
+    extended = load_model(loop["extended"])
+    moved = extended.doc.provenance.base_model
     assert moved is not None and extended.doc.provenance.calibration is not None
     calibration = extended.doc.provenance.calibration.model_copy(
         update={"fit_percent": moved.fit_percent, "extended_with": []}
@@ -175,7 +194,7 @@ def test_an_extended_file_of_an_older_compd_loads_and_says_whose_its_figures_are
             "notes": moved.notes,
         }
     )
-    old = tmp_path / "old.yaml"
+    old = folder / "old.yaml"
     old.write_text(
         model_to_yaml(
             extended.model,
@@ -184,17 +203,7 @@ def test_an_extended_file_of_an_older_compd_loads_and_says_whose_its_figures_are
             provenance=older,
         )
     )
-    figures = model_figures(load_model(old).doc)
-    assert figures.headline is not None and figures.headline.name == VERIFIED
-    assert figures.headline.percent == extended.doc.provenance.headline.percent  # type: ignore[union-attr]
-    assert figures.base is not None and figures.base.fit_percent == moved.fit_percent
-    assert figures.base_label == f"the base model (sha256 {base.sha256[:12]}, before its extension)"
-    text = " ".join(compd("model", "check", old).split())
-    own = text.index(f"{VERIFIED}: ")
-    theirs = text.index(
-        f"{figures.base_label}: {EXPECTED} {moved.headline.percent[OUTPUT]:.1f} %"  # type: ignore[union-attr]
-    )
-    assert own < theirs
+    return old
 
 
 def test_the_report_leads_with_the_change_and_each_model_with_its_own_figure(
@@ -262,3 +271,20 @@ def test_a_report_on_the_record_a_model_was_fitted_on_says_so_first(
     # and on a record it was not fitted on, no such line
     compd("report", loop["base"], loop["cutting"], "--out", page)
     assert "not on new data" not in page.read_text()
+
+
+def test_the_report_of_an_older_extended_file_names_the_base_models_figures(
+    loop: dict[str, Path], tmp_path: Path
+) -> None:
+    """The report card of an extended file of an older compd gives its calibration fit and notes as the base's."""
+    from compd.files.data import load_data
+    from compd.report.gather import gather
+    from compd.report.modelcard import model_card
+    from compd.toolkit.evaluate import evaluate
+
+    old = _older_extended_file(loop, tmp_path)
+    card = model_card(gather(evaluate(load_model(old), load_data(loop["cutting2"]))).primary, 0)
+    label = model_figures(load_model(old).doc).base_label
+    assert f"fit of {label} " in card
+    assert f"<li>notes of {label}: free-run simulation fit" in card
+    assert "<li>notes: " not in card
