@@ -233,3 +233,23 @@ def test_help_renders(capsys) -> None:
         main(["update", "--help"])
     text = capsys.readouterr().out
     assert "--probes" in text and "--bounds" in text and "--characteristic-from" in text
+
+
+def test_model_check_says_the_recorded_figures_predate_the_update(case: dict[str, Path]) -> None:
+    """An updated model's headline was measured before its gains changed: model check says so."""
+    fitted = case["folder"] / "fitted.yaml"
+    fitted.write_text(
+        model_text()
+        + "provenance:\n  headline:\n    name: expected fit on new data\n"
+        + "    percent: {disp_z_um: 90.0}\n    description: nested cross-validation\n"
+    )
+    out = case["folder"] / "fitted-updated.yaml"
+    code, _, err = run("update", fitted, case["data"], "--probes", case["probes"], "--out", out)
+    assert code == 0, err
+    code, stdout, _ = run("model", "check", out)
+    text = " ".join(stdout.split())
+    assert code == 0
+    assert "expected fit on new data: 90.0 % (nested cross-validation)" in text
+    assert "measured before its 1 update(s): compd update re-optimised gains since" in text
+    code, stdout, _ = run("model", "check", fitted)
+    assert "update(s)" not in stdout

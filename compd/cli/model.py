@@ -105,6 +105,7 @@ def _check(args: argparse.Namespace) -> int:
 
     from compd import __version__
     from compd.cli.terminal import console
+    from compd.files.modelfigures import figure_lines, model_figures
     from compd.files.modelfile import load_model
     from compd.files.modelschema import unread_provenance_keys
     from compd.model.compiled import qualified_names
@@ -120,19 +121,8 @@ def _check(args: argparse.Namespace) -> int:
             f"sample time {compiled.sample_time_s:g} s  signals: {', '.join(compiled.signals)}",
         )
     )
-    held_out = model_file.doc.provenance.cross_validation
-    expected = None if held_out is None else held_out.expected_percent()
-    if held_out is not None and expected is not None:
-        how = (
-            "nested cross-validation"
-            if held_out.kept in held_out.nested_fit_percent
-            else "cross-validation, settings chosen on the same folds (optimistic)"
-        )
-        how += held_out.expected_how()
-        fitted = model_file.doc.provenance.fit_percent.get(held_out.output)
-        in_sample = "" if fitted is None else f"; {fitted:.1f} % on the data it was fitted on"
-        lead = Text(f"expected fit on new data: {expected:.1f} %", style="bold")
-        out.print(lead + Text(f" ({held_out.kept}, {how}, {held_out.folds}){in_sample}"))
+    for lead, rest in figure_lines(model_figures(model_file.doc)):
+        out.print(Text(lead, style="bold") + Text(rest))
     table = Table(
         "effect",
         "input",

@@ -164,7 +164,12 @@ class CalibrationDoc(_Record):
     ``rms_um`` is the free-run residue RMS per output on the calibration data
     (the default failing-window tolerance is twice it); ``ranges`` is
     ``[min, max]`` of every signal column of that data, so operating
-    conditions outside what the model has seen can be named.
+    conditions outside what the model has seen can be named. ``fit_percent``:
+    the model's fit on ``data``. An extended model has also been fitted on
+    ``extended_with`` (``compd extend``'s records): the ranges cover them, its
+    ``rms_um`` is the larger of the calibration's and its own on them, and the
+    fit of the output it extended is left out (the model before the extension
+    was fitted on ``data``; its figure is in ``provenance.base_model``).
     """
 
     data: str
@@ -173,6 +178,7 @@ class CalibrationDoc(_Record):
     fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
     rms_um: dict[str, FiniteFloat] = Field(default_factory=dict)
     ranges: dict[str, tuple[FiniteFloat, FiniteFloat]] = Field(default_factory=dict)
+    extended_with: list[str] = Field(default_factory=list)
 
 
 class TriedDoc(_Record):
@@ -319,14 +325,65 @@ def median_fold_how(pooled_percent: float, n_folds: int | None = None) -> str:
     return f": the median of its {folds}, pooled {pooled_percent:.1f} %"
 
 
+class HeadlineDoc(_Record):
+    """The figure a model leads with, in words a reader recognises, and whose figure it is.
+
+    ``name``: what the figure is ("expected fit on new data", "fit on new
+    data"); ``percent``: its value per output (fit %); ``model``: the name of
+    the model it was measured for; ``data``: the record it was measured on
+    (absent: the calibration's folds); ``description``: how it was measured;
+    ``source``: the provenance key it repeats, for scripts
+    (``cross_validation.fold_median_percent.lagbank``). Files written before
+    compd recorded it have none: :mod:`compd.files.modelfigures` derives it.
+    """
+
+    name: str = Field(min_length=1)
+    percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+    model: str = ""
+    data: str | None = None
+    description: str = ""
+    source: str = ""
+
+
+class BaseModelDoc(_Record):
+    """The model a derived one (``compd extend``) started from, with the figures ``compd fit`` recorded of it.
+
+    These are that model's figures, not the derived model's: its headline,
+    its fit on its calibration data (``fit_percent``, on ``data``), how its
+    candidates held on held-out folds (``cross_validation``) and what
+    ``compd fit`` noted (``notes``).
+    """
+
+    name: str = ""
+    sha256: str = ""
+    data: str | None = None
+    fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+    headline: HeadlineDoc | None = None
+    cross_validation: CrossValidationDoc | None = None
+    notes: str = ""
+
+
 class ProvenanceDoc(_Record):
+    """What the toolkit recorded about a model; every figure here is this model's own.
+
+    ``headline``: the figure the model leads with, named in words;
+    ``fit_percent``: its fit on the data it was fitted on, ``fit_data``
+    (absent: ``data``); ``base_model``: the model an extension started from,
+    with that model's figures. Files written before ``base_model`` existed keep
+    the fitted model's figures here beside their ``extensions``:
+    :mod:`compd.files.modelfigures` says whose each one is.
+    """
+
+    headline: HeadlineDoc | None = None
     data: str | None = None
     command: str | None = None
     created: str | None = None
     compd_version: str | None = None
     method: str | None = None
     fit_percent: dict[str, FiniteFloat] = Field(default_factory=dict)
+    fit_data: str | None = None
     calibration: CalibrationDoc | None = None
+    base_model: BaseModelDoc | None = None
     extensions: list[ExtensionDoc] = Field(default_factory=list)
     updates: list[UpdateDoc] = Field(default_factory=list)
     denoise: DenoiseDoc | None = None

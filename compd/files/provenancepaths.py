@@ -35,7 +35,11 @@ from compd.files.yamlplace import BUNDLED
 #: Where each path sits in a provenance record (``*``: every item of a list).
 PATH_FIELDS = (
     ("data",),
+    ("fit_data",),
     ("calibration", "data"),
+    ("calibration", "extended_with", "*"),
+    ("base_model", "data"),
+    ("headline", "data"),
     ("extensions", "*", "data"),
     ("extensions", "*", "verify_data"),
     ("updates", "*", "data"),

@@ -9,6 +9,7 @@ sure the gain is. The functions here are pure numpy/scipy on discrete TFs.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -78,38 +79,70 @@ def step_response(
     return time_s, y[index]
 
 
-def gain_standard_errors(contributions: Array, measured: Array) -> Array:
-    """Relative standard errors of scale factors on each column of ``contributions`` (N, G).
+@dataclass(frozen=True)
+class GainCheck:
+    """How one record judges a model's gains: the regression of the measured output on the contributions.
+
+    ``factors``: the scale on each contribution the record fits best (1: the
+    record agrees with the model's gain); ``relative_errors``: one standard
+    error of each factor (NaN: a zero or collinear contribution);
+    ``residue_rms``: what the regression leaves, in the output's unit;
+    ``lag1_autocorrelation``: of that residue; ``widening``: the factor
+    ``sqrt((1 + rho) / (1 - rho))`` the white-noise errors were widened by.
+    A residue that is an effect the model lacks (a slow drift, rho near 1)
+    is not noise: the errors then say how little this record pins the gains,
+    and they grow with it, whatever the gains' calibration.
+    """
+
+    factors: Array
+    relative_errors: Array
+    residue_rms: float
+    lag1_autocorrelation: float
+    widening: float
+
+
+def gain_check(contributions: Array, measured: Array) -> GainCheck:
+    """Scale factors on each column of ``contributions`` (N, G) that ``measured`` fits, with their errors.
 
     Regresses ``measured`` on the columns and a constant; at the model the
     factors are 1, so ``K_j * se_j`` is the standard error of input ``j``'s
     static gain with its dynamics held fixed. The ordinary least-squares
     covariance ``s^2 (C'C)^-1`` assumes a white residue; it is widened by
     ``sqrt((1 + rho) / (1 - rho))`` for the residue's lag-1 autocorrelation
-    ``rho`` (an AR(1) residue), so slow thermal residues are not overconfident.
-    NaN where a column is zero or collinear with the others.
+    ``rho`` (an AR(1) residue, rho at most 0.999), so slow thermal residues
+    are not overconfident.
     """
     c = np.asarray(contributions, dtype=float)
     y = np.asarray(measured, dtype=float)
     design = np.column_stack([c, np.ones(len(y))])
     keep = np.all(np.isfinite(design), axis=1) & np.isfinite(y)
     design, y = design[keep], y[keep]
-    out = np.full(c.shape[1], np.nan)
+    nothing = np.full(c.shape[1], np.nan)
     dof = len(y) - design.shape[1]
     if dof < 2:
-        return out
+        return GainCheck(nothing, nothing.copy(), np.nan, np.nan, np.nan)
     theta, *_ = np.linalg.lstsq(design, y, rcond=None)
     residue = y - design @ theta
-    variance = float(residue @ residue) / dof
-    gram = design.T @ design
-    if np.linalg.cond(gram) > 1e12:
-        return out
-    se = np.sqrt(np.clip(np.diag(np.linalg.inv(gram)) * variance, 0.0, None))
+    rms = float(np.sqrt(np.mean(residue**2)))
     centred = residue - residue.mean()
     denominator = float(centred @ centred)
     rho = float(centred[1:] @ centred[:-1]) / denominator if denominator > 0 else 0.0
-    rho = min(max(rho, 0.0), 0.999)
-    se *= np.sqrt((1.0 + rho) / (1.0 - rho))
-    out[:] = se[:-1]
+    widening = float(np.sqrt((1.0 + min(max(rho, 0.0), 0.999)) / (1.0 - min(max(rho, 0.0), 0.999))))
+    gram = design.T @ design
+    factors = theta[:-1].copy()
+    if np.linalg.cond(gram) > 1e12:
+        return GainCheck(factors, nothing, rms, rho, widening)
+    variance = float(residue @ residue) / dof
+    se = np.sqrt(np.clip(np.diag(np.linalg.inv(gram)) * variance, 0.0, None)) * widening
+    out = se[:-1].copy()
     out[~np.any(c[keep] != 0.0, axis=0)] = np.nan
-    return out
+    return GainCheck(factors, out, rms, rho, widening)
+
+
+def gain_standard_errors(contributions: Array, measured: Array) -> Array:
+    """Relative standard errors of scale factors on each column of ``contributions`` (N, G).
+
+    :func:`gain_check`'s ``relative_errors``: NaN where a column is zero or
+    collinear with the others.
+    """
+    return gain_check(contributions, measured).relative_errors

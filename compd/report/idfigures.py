@@ -83,7 +83,11 @@ def step_responses(run: ModelRun, output: str) -> go.Figure | None:
         error = "" if not np.isfinite(r.standard_error) else f" ± {r.standard_error:.2g}"
         per = f"um/mm per {unit}" if "mm)" in r.factors else f"um per {unit}"
         titles.append(f"{r.label}: {r.static_gain:.3g}{error} {per}")
-    fig = _grid(titles, f"{output}: step response of {run.name} to each input (unit step at 0)")
+    fig = _grid(
+        titles,
+        f"{output}: step response of {run.name} to each input (unit step at 0; ± one standard "
+        "error on this record, see the model's card)",
+    )
     for k, r in enumerate(found):
         keep = np.unique(np.linspace(0, len(r.time_s) - 1, _DRAWN_POINTS).astype(int))
         fig.add_trace(

@@ -30,7 +30,9 @@ class InputResponse:
     static_gain: float
     """Output units (um) per unit of the input (um/mm per unit for a position term)."""
     standard_error: float
-    """Of ``static_gain`` on the report's record (see :func:`stepresponse.gain_standard_errors`); NaN: none."""
+    """Of ``static_gain`` on the report's record (see :func:`stepresponse.gain_check`); NaN: none."""
+    record_factor: float
+    """The scale on this input's contribution the report's record fits best (1: it agrees)."""
     time_constants_s: tuple[float, ...]
     """The dominant ones, by the weight of their sub-model in the static gain."""
     time_s: np.ndarray
@@ -39,6 +41,13 @@ class InputResponse:
 
 def input_responses(run: ModelRun, output: str) -> tuple[InputResponse, ...]:
     """The inputs of ``output`` in ``run``'s model, in the order their first sub-model appears."""
+    return inputs_and_check(run, output)[0]
+
+
+def inputs_and_check(
+    run: ModelRun, output: str
+) -> tuple[tuple[InputResponse, ...], stepresponse.GainCheck | None]:
+    """:func:`input_responses` and how the report's record judges their gains (None: no inputs)."""
     compiled = run.evaluation.compiled
     row = compiled.output_matrix[compiled.output_names.index(output)]
     groups: dict[tuple[str, str], list[int]] = {}
@@ -51,15 +60,17 @@ def input_responses(run: ModelRun, output: str) -> tuple[InputResponse, ...]:
         )
         groups.setdefault((text, sub.describe_factors()), []).append(int(i))
     if not groups:
-        return ()
+        return (), None
     result = run.evaluation.result
     columns = np.column_stack([result.contributions[:, idx].sum(axis=1) for idx in groups.values()])
     measured = run.evaluation.data.column(run.outputs[output].measured_column)
     fixed = run.evaluation.predicted(output) - columns.sum(axis=1)  # e.g. a residual forest
-    relative = stepresponse.gain_standard_errors(columns, measured - fixed)
+    check = stepresponse.gain_check(columns, measured - fixed)
     ts = compiled.sample_time_s
     found = []
-    for ((label, factors), idx), rel in zip(groups.items(), relative, strict=True):
+    for ((label, factors), idx), rel, factor in zip(
+        groups.items(), check.relative_errors, check.factors, strict=True
+    ):
         tfs: list[DiscreteTF] = [compiled.discrete[i] for i in idx]
         gains = [float(compiled.gain[i]) for i in idx]
         gain = stepresponse.static_gain(tfs, gains)
@@ -71,9 +82,10 @@ def input_responses(run: ModelRun, output: str) -> tuple[InputResponse, ...]:
                 submodels=tuple(compiled.submodels[i].name for i in idx),
                 static_gain=gain,
                 standard_error=abs(gain) * float(rel),
+                record_factor=float(factor),
                 time_constants_s=stepresponse.dominant_time_constants_s(tfs, gains, ts),
                 time_s=time_s,
                 step_um=step,
             )
         )
-    return tuple(found)
+    return tuple(found), check

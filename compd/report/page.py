@@ -6,7 +6,9 @@ without internet); each figure is a ``div`` with the script
 that draws it. The ``compare --json`` object of each model is embedded as
 ``<script type="application/json" id="compd-summary">`` (and
 ``compd-summary-compare`` for ``--compare``) so scripts read the same numbers
-the tables show.
+the tables show. The page leads with what changed on the record
+(:mod:`compd.report.verdict`); the models' ids, gains and provenance follow
+the outputs.
 """
 
 from __future__ import annotations
@@ -24,7 +26,9 @@ import plotly.io as pio
 from compd import __version__
 from compd.report import figures, idfigures, tables
 from compd.report.gather import ModelRun, ReportData, gather
+from compd.report.modelcard import model_card
 from compd.report.plotlyjs import plotly_js
+from compd.report.verdict import verdict
 from compd.toolkit.evaluate import Evaluation
 from compd.toolkit.summary import json_finite
 
@@ -53,6 +57,7 @@ th { background: #f3f5f8; }
 table.metrics td:not(:first-child) { text-align: right; font-variant-numeric: tabular-nums; }
 table.metrics td:first-child { white-space: nowrap; }
 .muted { color: #777; } .ok { color: #2a7d2a; } .verdict { font-weight: 600; }
+p.lead { font-size: 1.1rem; margin: 0.5rem 0; }
 .better { color: #2a7d2a; font-weight: 600; } .worse { color: #b3261e; font-weight: 600; }
 .same { color: #777; }
 .meta { color: #555; font-size: 0.92rem; }
@@ -70,10 +75,13 @@ code { font-size: 0.88em; }
 <p class="meta">$meta</p>
 <nav>$nav</nav>
 </header>
+<section id="verdict"><h2>What changed on this record</h2>
+$verdict
+</section>
+$outputs
 <section id="models"><h2>Model$plural</h2>
 $models
 </section>
-$outputs
 <section id="conditions"><h2>Operating conditions</h2>
 $conditions
 </section>
@@ -130,9 +138,9 @@ def build_html(report: ReportData) -> str:
         f"data <code>{escape(data.path)}</code>: {len(data)} samples at {data.sample_time_s:g} s, "
         f"{duration_h:.2f} h{escape(start)}{span}"
     )
-    nav = ['<a href="#models">models</a>']
+    nav = ['<a href="#verdict">what changed</a>']
     nav += [f'<a href="#output-{escape(o)}">{escape(o)}</a>' for o in report.primary.outputs]
-    nav.append('<a href="#conditions">operating conditions</a>')
+    nav += ['<a href="#models">models</a>', '<a href="#conditions">operating conditions</a>']
     conditions = figures.conditions(report)
     notes = list(
         dict.fromkeys([*(n for r in report.runs for n in r.summary["notes"]), *report.notes])
@@ -147,7 +155,8 @@ def build_html(report: ReportData) -> str:
         meta=meta,
         nav="".join(nav),
         plural="s" if len(report.runs) > 1 else "",
-        models="\n".join(tables.model_card(r, i) for i, r in enumerate(report.runs)),
+        verdict=verdict(report),
+        models="\n".join(model_card(r, i) for i, r in enumerate(report.runs)),
         outputs="\n".join(_output_section(report, o) for o in report.primary.outputs),
         conditions=(
             figure_html(conditions, "fig-conditions")

@@ -24,6 +24,7 @@ import numpy as np
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
 from compd.files.experiments import Stacked, as_stacked, single
+from compd.files.modelfigures import extension_headline
 from compd.files.modelfile import ModelFile, parse_model
 from compd.files.modelwriter import model_to_yaml
 from compd.model.guards import Finding, Severity
@@ -343,8 +344,11 @@ def with_verification(extension: Extension, verify_path: str, before: float, aft
             "verify_fit_percent_after": {extension.output: after},
         }
     )
+    extensions = [*doc.provenance.extensions[:-1], last]
+    # The verification record was used for nothing: its figure is the model's headline.
+    headline = extension_headline(last, len(extensions) - 1, extension.extended.model.name)
     provenance = doc.provenance.model_copy(
-        update={"extensions": [*doc.provenance.extensions[:-1], last]}
+        update={"extensions": extensions, "headline": headline or doc.provenance.headline}
     )
     return model_to_yaml(
         extension.extended.model,

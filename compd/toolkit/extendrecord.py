@@ -3,7 +3,10 @@
 Each extension appends an :class:`~compd.files.modelschema.ExtensionDoc` to
 the parent's provenance (parent hash, data, signal, new sub-models, fit before
 and after) and widens the recorded calibration, so ``compd compare`` judges
-later data against everything the model has now been fitted on.
+later data against everything the model has now been fitted on. The
+parent's figures are not the new model's: they move to
+``provenance.base_model``, and the new model leads with its own
+(:mod:`compd.files.modelfigures`).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import numpy as np
 
 from compd import __version__
 from compd.files.data import DataSet
+from compd.files.modelfigures import derived_provenance, extension_headline
 from compd.files.modelfile import ModelFile
 from compd.files.modelschema import CalibrationDoc, ExtensionDoc, TriedDoc
 from compd.files.modelwriter import model_to_yaml
@@ -98,13 +102,33 @@ def extension_yaml(
             "command": command or doc.provenance.command,
         }
     )
+    if output and fit_after:
+        # The parent's figures are not this model's: they move to base_model, named as its.
+        provenance = derived_provenance(
+            provenance,
+            parent_name=parent.model.name,
+            parent_sha256=parent.sha256,
+            output=output,
+            fit_percent=fit_after,
+            fit_data=data.path,
+        )
+        index = len(provenance.extensions) - 1
+        provenance = provenance.model_copy(
+            update={"headline": extension_headline(extension, index, model.name)}
+        )
     return model_to_yaml(
         model,
-        description=doc.description,
+        description=extended_description(doc.description, signal, record.submodels),
         signals=units,
         provenance=provenance,
         consistency=doc.consistency,
     )
+
+
+def extended_description(description: str, signal: str, submodels: list[str]) -> str:
+    """The parent's description and what this extension added, so it describes this model."""
+    added = f"extended by compd extend with {signal} ({', '.join(submodels)})"
+    return f"{description}; {added}" if description else added
 
 
 def widened_calibration(
@@ -125,4 +149,7 @@ def widened_calibration(
         ranges[name] = (low, high)
     rms = dict(calibration.rms_um)
     rms[output] = max(rms.get(output, 0.0), rms_um)
-    return calibration.model_copy(update={"ranges": ranges, "rms_um": rms})
+    extended_with = [*calibration.extended_with, data.path]
+    return calibration.model_copy(
+        update={"ranges": ranges, "rms_um": rms, "extended_with": extended_with}
+    )

@@ -28,6 +28,7 @@ from compd.errors import DataFileError, ModelError
 from compd.files.columns import is_recorded_column
 from compd.files.data import DataSet
 from compd.files.experiments import stack
+from compd.files.modelfigures import fit_headline
 from compd.files.modelfile import consistency_doc
 from compd.files.modelschema import ConsistencyDoc, ProvenanceDoc
 from compd.files.modelwriter import model_to_yaml
@@ -320,8 +321,9 @@ def fit_data(
     provenance = provenance.model_copy(
         update={"notes": f"{provenance.notes}; {describe_references(model, references)}"}
     )
+    held_out = cross_validation_doc(output, selection)
     provenance = provenance.model_copy(
-        update={"cross_validation": cross_validation_doc(output, selection)}
+        update={"cross_validation": held_out, "headline": fit_headline(held_out, model.name)}
     )
     if len(starts) > 1:
         notes = (

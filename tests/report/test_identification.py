@@ -15,7 +15,7 @@ from compd.files.modelfile import load_model
 from compd.model import stepresponse
 from compd.model.lagbank import lag_tf
 from compd.model.transfer import DiscreteTF
-from compd.report import idfigures, tables
+from compd.report import idfigures, modelcard
 from compd.report.gather import ReportData, gather
 from compd.report.inputs import input_responses
 from compd.toolkit.evaluate import evaluate
@@ -36,7 +36,7 @@ def lagbank(tmp_path_factory: pytest.TempPathFactory) -> ReportData:
 
 def test_lag_bank_is_one_row_per_input(lagbank: ReportData) -> None:
     """The model card's per-input table has one row per lag-bank input; its dozen sub-models are folded."""
-    card = tables.model_card(lagbank.primary, 0)
+    card = modelcard.model_card(lagbank.primary, 0)
     inputs = card[
         card.index('class="inputs"') : card.index("</table>", card.index('class="inputs"'))
     ]
@@ -111,3 +111,26 @@ def test_report_page_has_step_and_correlation_figures(lagbank: ReportData, tmp_p
     html = build_html(lagbank)
     assert f'id="fig-{OUTPUT}-steps-0"' in html
     assert f'id="fig-{OUTPUT}-correlations-0"' in html
+
+
+def test_gain_errors_are_least_squares_errors_widened_for_the_residues_autocorrelation() -> None:
+    """gain_check: the factor and its error are scipy's linregress slope and stderr, times sqrt((1+rho)/(1-rho))."""
+    from scipy.stats import linregress
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    contribution = np.cumsum(rng.normal(size=n))
+    noise = np.zeros(n)
+    for k in range(1, n):  # an AR(1) residue, rho 0.8
+        noise[k] = 0.8 * noise[k - 1] + rng.normal()
+    measured = 1.1 * contribution + 2.0 + noise
+    check = stepresponse.gain_check(contribution[:, None], measured)
+    fit = linregress(contribution, measured)
+    residue = measured - (fit.slope * contribution + fit.intercept)
+    rho = float(residue[1:] @ residue[:-1] / (residue @ residue))
+    assert_allclose(check.factors[0], fit.slope, rtol=1e-9)
+    assert_allclose(check.lag1_autocorrelation, rho, rtol=1e-9)
+    assert_allclose(check.widening, np.sqrt((1 + rho) / (1 - rho)), rtol=1e-9)
+    assert_allclose(check.relative_errors[0], fit.stderr * check.widening, rtol=1e-9)
+    assert_allclose(check.residue_rms, np.sqrt(np.mean(residue**2)), rtol=1e-9)
+    assert 0.75 < rho < 0.85
