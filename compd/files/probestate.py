@@ -230,11 +230,14 @@ def restore_learners(
     sha256: str,
     setups: Mapping[str, tuple[Prior, ProbeSettings]],
     window: RegressorWindow | None = None,
+    *,
+    set_aside_unreadable: bool = True,
 ) -> RestoredLearners:
     """One learner per output of ``setups`` (its prior and settings), resumed from the file where it has one.
 
     A file that cannot be used is set aside and every output starts from
-    its prior (a wrong state must never stop the daemon, nor steer it).
+    its prior (a wrong state must never stop the daemon, nor steer it);
+    a reader that is not the daemon passes ``set_aside_unreadable=False``.
     Outputs the file holds but ``setups`` does not name are left out.
     """
     fresh = {
@@ -251,6 +254,8 @@ def restore_learners(
         learners, restored = _restored(raw, sha256, setups, window)
     except ValueError as exc:
         problem = f"{path}: {exc}"
+        if not set_aside_unreadable:
+            return RestoredLearners(fresh, problem=problem)
         try:
             moved: Path | None = set_aside(path)
         except OSError as error:

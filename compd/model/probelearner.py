@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from compd.errors import ModelError
+from compd.model.compiled import CompiledModel
 from compd.model.probeupdate import PendingProbe, ProbeSettings, ProbeStep, ProbeUpdater
 from compd.model.updateprior import Prior
 
@@ -51,6 +52,20 @@ DEFAULT_KEEP_S = 12 * 3600.0
 AHEAD_SLACK_S = 5.0
 #: The version of :meth:`OutputLearner.state`'s layout.
 STATE_VERSION = 1
+
+
+def output_columns(compiled: CompiledModel, output: str) -> tuple[np.ndarray, tuple[str, ...]]:
+    """``output``'s sub-models: their columns in the model's contributions, and their names.
+
+    The regressor of a tick is ``x = (contributions[columns], 1)``; the
+    names, then :data:`~compd.model.updateprior.BIAS`, are the prior's
+    parameters (:func:`compd.files.probeprior.output_prior`).
+    """
+    if output not in compiled.output_names:
+        raise ModelError(f"model {compiled.name!r} has no output {output!r}")
+    columns = np.flatnonzero(compiled.output_matrix[compiled.output_names.index(output)])
+    names = tuple(compiled.submodels[int(s)].name for s in columns)
+    return columns, names
 
 
 def probed_thermal_error_um(residue_um: float, offset_um: float, sign: float) -> float:

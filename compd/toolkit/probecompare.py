@@ -27,9 +27,13 @@ import numpy as np
 
 from compd.errors import DataFileError
 from compd.files.probeprior import OutputPrior, output_prior
-from compd.model.compiled import qualified_names
 from compd.model.metrics import Comparison
-from compd.model.probelearner import RECENT_ROWS, OutputLearner, RegressorWindow
+from compd.model.probelearner import (
+    RECENT_ROWS,
+    OutputLearner,
+    RegressorWindow,
+    output_columns,
+)
 from compd.model.probeupdate import ProbeSettings, ProbeStep
 from compd.toolkit.evaluate import Evaluation
 
@@ -96,11 +100,7 @@ def run_probes(
     ``settings`` override :meth:`ProbeSettings.defaults` (``probe_noise_um``,
     ``drift_um_per_sqrt_h``, ``max_departure_um``, ``reject_sigma``).
     """
-    compiled = evaluation.compiled
-    out = compiled.output_names.index(output)
-    owned = np.flatnonzero(compiled.output_matrix[out])
-    qualified = qualified_names(compiled)
-    names = tuple(qualified[int(s)].partition("/")[2] for s in owned)
+    owned, names = output_columns(evaluation.compiled, output)
     prior = output_prior(evaluation.model_file, output, names)
     # The daemon's learner, keeping every sample of the record (the daemon keeps one a minute).
     learner = OutputLearner(
