@@ -19,9 +19,10 @@ gain scales. :class:`OutputLearner` wraps the update for the loop:
   back. The kept regressors are not part of the state: after a restart a
   touch from before it is refused (its regressor is not known).
 
-Times are seconds on one axis that survives a restart (unix time in the
-daemon): the state carries the last probe's time, and probes come in time
-order.
+Times are seconds on one axis that survives a restart and only increases
+within a run (in the daemon: unix seconds, the loop's time mapped to the
+wall clock once at start, as ``Compensator.wall_at`` does): the state
+carries the last probe's time, and probes come in time order.
 
 :func:`probed_thermal_error_um` is the one place where what a probe measures
 becomes what the model predicts. numpy only: no files, no logging.
@@ -164,7 +165,13 @@ class OutputLearner:
     ``prior`` and ``settings`` as :class:`~compd.model.probeupdate.ProbeUpdater`
     takes them; ``window``: how the regressors are kept (the daemon's
     default: one row a minute over 12 h; ``compd compare --probe-every``
-    keeps every sample of the record).
+    keeps every sample of the record). Per tick, with ``columns`` from
+    :func:`output_columns` and the runner's ``contributions`` (gains
+    applied)::
+
+        x = np.append(contributions[columns], 1.0)
+        learner.observe(t_s, x, output_um - x[:-1].sum())
+        output_um += learner.adjustment_um(x)      # then sign, clamp and slew
     """
 
     def __init__(
@@ -178,6 +185,9 @@ class OutputLearner:
         self._latest: tuple[float, np.ndarray, float] | None = None
         #: The touch instant of the last probe taken (the departure bound holds over the rows after it).
         self.since_s = -math.inf
+        #: Probes in a row the update did not take (flagged, then not confirmed): at 2 the
+        #: model no longer describes the machine (issue 35 item 3's status bit).
+        self.untaken_in_a_row = 0
         self._delta = np.zeros(p)
 
     @property
@@ -192,6 +202,11 @@ class OutputLearner:
     def theta(self) -> np.ndarray:
         """The parameters: each sub-model's gain on its file contribution, then the bias (um)."""
         return self.updater.theta
+
+    @property
+    def last_taken_s(self) -> float | None:
+        """When the last probe the update took touched (None: none since the prior): "probe due" counts from it."""
+        return None if math.isinf(self.since_s) else self.since_s
 
     @property
     def updated(self) -> bool:
@@ -260,6 +275,9 @@ class OutputLearner:
         steps = self.updater.probe(touched_at_s, x, thermal_error_um, fixed_um, recent=recent)
         if any(step.result in ("accepted", "confirmed") for step in steps):
             self.since_s = touched_at_s
+            self.untaken_in_a_row = 0
+        else:
+            self.untaken_in_a_row += 1
         self._delta = self.updater.theta - self.prior.mean
         return steps
 
@@ -320,6 +338,7 @@ class OutputLearner:
         """Back to the prior: the calibration's parameters (the kept regressors stay)."""
         self.updater = ProbeUpdater(self.prior, self.settings)
         self.since_s = -math.inf
+        self.untaken_in_a_row = 0
         self._delta = np.zeros_like(self._delta)
 
     def state(self) -> dict[str, Any]:
@@ -333,7 +352,8 @@ class OutputLearner:
             "covariance": [[float(v) for v in row] for row in u.covariance],
             "last_time_s": u.last_time_s,
             "drifted_to_s": u.drifted_to_s,
-            "since_s": None if math.isinf(self.since_s) else self.since_s,
+            "since_s": self.last_taken_s,
+            "untaken_in_a_row": self.untaken_in_a_row,
             "pending": None
             if pending is None
             else {
@@ -374,6 +394,10 @@ class OutputLearner:
         u.drifted_to_s = _time(state.get("drifted_to_s"), "drifted_to_s")
         since = _time(state.get("since_s"), "since_s")
         learner.since_s = -math.inf if since is None else since
+        untaken = state.get("untaken_in_a_row")
+        if isinstance(untaken, bool) or not isinstance(untaken, int) or not 0 <= untaken <= 10**6:
+            raise ModelError(f"untaken_in_a_row is {untaken!r}, not a count")
+        learner.untaken_in_a_row = untaken
         pending = state.get("pending")
         if pending is not None:
             if not isinstance(pending, Mapping):

@@ -116,6 +116,19 @@ def test_the_adjustment_is_zero_until_a_probe_is_taken() -> None:
     )
 
 
+def test_two_probes_in_a_row_the_update_did_not_take_are_counted() -> None:
+    """Two mis-probes of opposite signs: 2 in a row not taken (the status bit's count); a good one: 0."""
+    learner = ticked(4 * 3600)
+    learner.probe(3600.0, 80.0)
+    assert learner.untaken_in_a_row == 1
+    steps = learner.probe(7200.0, -60.0)
+    assert [s.result for s in steps] == ["rejected", "flagged"]
+    assert learner.untaken_in_a_row == 2 and learner.last_taken_s is None
+    good = float(regressor(10800.0) @ PRIOR.mean) + 0.3 + 0.5
+    assert [s.result for s in learner.probe(10800.0, good)] == ["rejected", "accepted"]
+    assert learner.untaken_in_a_row == 0 and learner.last_taken_s == 10800.0
+
+
 def test_the_departure_bound_holds_over_at_most_240_rows_since_the_last_probe() -> None:
     """The recent rows are those after the last probe taken, evenly thinned to RECENT_ROWS."""
     learner = ticked(10 * 3600, row_every_s=0.0, keep_s=math.inf)
@@ -147,11 +160,13 @@ def test_the_state_round_trips_through_json_and_a_reset_returns_to_the_prior() -
     assert restored.adjustment_um(x) == learner.adjustment_um(x) != 0.0
     np.testing.assert_array_equal(restored.updater.covariance, learner.updater.covariance)
     assert restored.state() == learner.state()
-    assert restored.since_s == 3600.0 and restored.updater.last_time_s == 7000.0
+    assert restored.last_taken_s == 3600.0 and restored.updater.last_time_s == 7000.0
+    assert restored.untaken_in_a_row == 1
     restored.reset()
     assert restored.adjustment_um(x) == 0.0
     np.testing.assert_array_equal(restored.theta, PRIOR.mean)
     assert restored.updater.pending is None and restored.updater.last_time_s is None
+    assert restored.last_taken_s is None and restored.untaken_in_a_row == 0
 
 
 @pytest.mark.parametrize(
@@ -164,6 +179,7 @@ def test_the_state_round_trips_through_json_and_a_reset_returns_to_the_prior() -
         (lambda s: s.update(last_time_s="soon"), "last_time_s is 'soon', not a finite number"),
         (lambda s: s.update(version=9), "version is 9, not 1"),
         (lambda s: s["pending"].update(x=[1.0, math.inf, 1.0]), "pending.x has a value"),
+        (lambda s: s.update(untaken_in_a_row=-1), "untaken_in_a_row is -1, not a count"),
     ],
 )
 def test_a_damaged_state_is_refused_naming_what_is_wrong(change, message) -> None:
