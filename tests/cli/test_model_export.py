@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -167,3 +168,21 @@ def test_export_without_updates_names_the_state_directory_and_the_fix(
     err = capsys.readouterr().err
     assert "no probe updates of this model" in err and "--state-dir" in err
     assert str(learned_path(tmp_path, load_model(model).sha256).parent) in err
+
+
+def test_the_provenance_names_only_the_probes_since_the_last_reset(served, tmp_path) -> None:
+    """After a reset line in the log, the exported file names the probes logged after it, not before."""
+    _, model, state, _, steps, _, _ = served
+    copied = tmp_path / "state"
+    shutil.copytree(state, copied)
+    sha = load_model(model).sha256
+    append_record(copied, ProbeRecord(EPOCH_S + 43_000, sha, OUTPUT, "socket", "reset"))
+    later = ProbeRecord.of_step(steps[-1], model_sha256=sha, output=OUTPUT, source="cli")
+    append_record(copied, later)
+    out = tmp_path / "after-reset.yaml"
+    assert (
+        main(["model", "export", "--updated", "--state-dir", str(copied), str(model), str(out)])
+        == 0
+    )
+    (record,) = load_model(out).doc.provenance.probe_updates
+    assert [(p.source, p.result) for p in record.probes] == [("cli", "confirmed")]
