@@ -1,4 +1,8 @@
-"""``compd model check`` and ``compd model load``: one model file, checked or put into service."""
+"""``compd model check`` and ``compd model load``: one model file, checked or put into service.
+
+``compd model updates`` and ``export --updated`` (what the probes taught) are in
+:mod:`compd.cli.modelupdates`.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from compd.cli.args import daemon_options
+from compd.cli.modelupdates import register as register_updates
 
 
 def register(commands: Any) -> None:
@@ -97,6 +102,7 @@ def register(commands: Any) -> None:
         help="send without checking here first (the machines still check it)",
     )
     rollout.set_defaults(handler=_rollout)
+    register_updates(model)
 
 
 def _check(args: argparse.Namespace) -> int:

@@ -222,7 +222,9 @@ def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
                 where=_where(root, ("outputs", out_name, "residual", "signal")),
                 fix=f"Declare it with its unit, or use one of {sorted(declared)}",
             )
-        outputs.append(Output(out_name, tuple(subs), _residual(residual, out_name, path)))
+        outputs.append(
+            Output(out_name, tuple(subs), _residual(residual, out_name, path), out_doc.bias_um)
+        )
     ambient = doc.ambient
     if ambient is not None and declared is not None and ambient.signal not in declared:
         raise ModelFileError(

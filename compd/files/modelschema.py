@@ -141,8 +141,16 @@ class ResidualDoc(_Strict):
 
 
 class OutputDoc(_Strict):
+    """One output: the sum of its sub-models, a residual model's term, and ``bias_um``.
+
+    ``bias_um``: a constant added to the output (um); ``compd model export
+    --updated`` writes the bias the probes taught (issue 35). A daemon older
+    than the field refuses such a file rather than drop the bias.
+    """
+
     unit: Literal["um"] = "um"
     description: str = ""
+    bias_um: FiniteFloat = 0.0
     submodels: list[SubModelDoc] = Field(min_length=1, max_length=MAX_SUBMODELS)
     residual: ResidualDoc | None = None
 
@@ -244,6 +252,33 @@ class UpdateDoc(_Record):
     fit_percent_before: dict[str, FiniteFloat] = Field(default_factory=dict)
     fit_percent_after: dict[str, FiniteFloat] = Field(default_factory=dict)
     seed: int | None = Field(default=None, ge=0, le=MAX_SEED)
+    created: str | None = None
+
+
+class ProbeUsedDoc(_Record):
+    """One probe behind a ``compd model export --updated``: when it touched (unix s), what it gave (um)."""
+
+    touched_s: FiniteFloat
+    output: str
+    source: str
+    result: str
+    measured_um: FiniteFloat | None = None
+    innovation_before_um: FiniteFloat | None = None
+    innovation_after_um: FiniteFloat | None = None
+
+
+class ProbeUpdateDoc(_Record):
+    """One ``compd model export --updated``: the parent's parameters as the daemon's probes updated them.
+
+    ``parameters``: per output, each sub-model's learned factor on its gain
+    and the learned ``bias`` (um); ``probes``: those logged since the last
+    reset (issue 35 item 4); ``state``: the learned-state file read.
+    """
+
+    parent_sha256: str
+    state: str
+    probes: list[ProbeUsedDoc] = Field(default_factory=list)
+    parameters: dict[str, dict[str, FiniteFloat]] = Field(default_factory=dict)
     created: str | None = None
 
 
@@ -386,6 +421,7 @@ class ProvenanceDoc(_Record):
     base_model: BaseModelDoc | None = None
     extensions: list[ExtensionDoc] = Field(default_factory=list)
     updates: list[UpdateDoc] = Field(default_factory=list)
+    probe_updates: list[ProbeUpdateDoc] = Field(default_factory=list)
     denoise: DenoiseDoc | None = None
     cross_validation: CrossValidationDoc | None = None
     notes: str = ""

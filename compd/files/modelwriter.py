@@ -183,11 +183,12 @@ def model_to_yaml(
         ]
     lines.append("outputs:")
     for output in model.outputs:
-        lines += [
-            f"  {_string(output.name)}:",
-            "    unit: um",
-            "    submodels:",
-        ]
+        lines += [f"  {_string(output.name)}:", "    unit: um"]
+        if output.bias_um:
+            lines.append(
+                f"    bias_um: {yaml_float(output.bias_um)}  # a constant added to the output"
+            )
+        lines.append("    submodels:")
         for sub in output.submodels:
             if sub.position is not None:
                 lines.append(

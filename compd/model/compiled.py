@@ -110,6 +110,13 @@ class CompiledModel:
     ambient_moves: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     #: Swiss-lathe paper residual models: (output index, model), added to that output's TF sum.
     residuals: tuple[tuple[int, ResidualModel], ...] = ()
+    #: Per output, a constant added to it (um): the bias probes taught (``model export --updated``).
+    output_bias_um: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def bias_of(self, n_outputs: int) -> np.ndarray | None:
+        """:attr:`output_bias_um` when one is not 0, else None (the common case adds nothing)."""
+        bias = self.output_bias_um
+        return bias if bias.shape == (n_outputs,) and np.any(bias != 0.0) else None
 
     @property
     def residual_state_size(self) -> int:
@@ -348,6 +355,7 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
             for out_i, output in enumerate(model.outputs)
             if output.residual is not None
         ),
+        output_bias_um=np.array([output.bias_um for output in model.outputs], dtype=float),
     )
 
 

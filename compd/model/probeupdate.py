@@ -55,7 +55,7 @@ import numpy as np
 from compd.errors import ModelError
 from compd.model.updateprior import BIAS, Prior
 
-__all__ = ["BIAS", "Prior", "ProbeSettings", "ProbeStep", "ProbeUpdater"]
+__all__ = ["BIAS", "PendingProbe", "Prior", "ProbeSettings", "ProbeStep", "ProbeUpdater"]
 
 #: Default probe noise, um (issue 35's feasibility study).
 DEFAULT_PROBE_NOISE_UM = 0.5
@@ -134,7 +134,9 @@ class ProbeStep:
 
 
 @dataclass
-class _Pending:
+class PendingProbe:
+    """A flagged probe held until the next one confirms or drops it (persisted with the state)."""
+
     time_s: float
     x: np.ndarray
     fixed_um: float
@@ -160,7 +162,7 @@ class ProbeUpdater:
     #: Up to when the random walk has been added to ``covariance`` (the last probe taken).
     drifted_to_s: float | None = field(init=False, default=None)
     _recent: np.ndarray | None = field(init=False, default=None, repr=False)
-    pending: _Pending | None = field(init=False, default=None)
+    pending: PendingProbe | None = field(init=False, default=None)
 
     def __post_init__(self) -> None:
         self.theta = self.prior.mean
@@ -212,7 +214,7 @@ class ProbeUpdater:
             step = self._take(time_s, x, fixed_um, measured_um, predicted, sd, "accepted")
             return [*self._dropped(pending), step]
         if pending is None or np.sign(pending.innovation_um) != np.sign(innovation):
-            self.pending = _Pending(time_s, x, fixed_um, measured_um, innovation)
+            self.pending = PendingProbe(time_s, x, fixed_um, measured_um, innovation)
             held = ProbeStep(time_s, measured_um, predicted, sd, innovation, innovation, "flagged")
             return [*self._dropped(pending), held]
         # Confirmed: the machine moved further than the random walk allows (a shift: a crash,
@@ -225,7 +227,7 @@ class ProbeUpdater:
         sd = float(np.sqrt(x @ self.covariance @ x + self._drift_variance(time_s) + r))
         return [first, self._take(time_s, x, fixed_um, measured_um, predicted, sd, "confirmed")]
 
-    def _pending_step(self, pending: _Pending) -> ProbeStep:
+    def _pending_step(self, pending: PendingProbe) -> ProbeStep:
         """A flagged probe taken once confirmed."""
         predicted = float(pending.fixed_um + pending.x @ self.theta)
         x = pending.x
@@ -241,7 +243,7 @@ class ProbeUpdater:
             "confirmed",
         )
 
-    def _dropped(self, pending: _Pending | None) -> list[ProbeStep]:
+    def _dropped(self, pending: PendingProbe | None) -> list[ProbeStep]:
         """A flagged probe the next one did not confirm: rejected for good."""
         if pending is None:
             return []

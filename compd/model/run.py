@@ -88,6 +88,7 @@ class TickRunner:
         self._residuals = compiled.residual_slices()
         #: Each residual model's term (um) at the last tick, in ``compiled.residuals`` order.
         self.residual_terms = np.zeros(len(self._residuals))
+        self._bias = compiled.bias_of(len(compiled.output_names))
 
     @property
     def state(self) -> ModelState:
@@ -153,6 +154,8 @@ class TickRunner:
             term = residual.step(self._residual[part], extended[signal_i], dt_s)
             self.residual_terms[r] = term
             outputs[out_i] += term
+        if self._bias is not None:
+            outputs += self._bias
         return outputs
 
 
@@ -219,6 +222,9 @@ def simulate(compiled: CompiledModel, signals: np.ndarray, state: ModelState) ->
             rows[signal_i], compiled.sample_time_s, state.residual[part]
         )
         outputs[:, out_i] += terms[:, r]
+    bias = compiled.bias_of(len(compiled.output_names))
+    if bias is not None:
+        outputs += bias
     final = ModelState(final_z, state.reference.copy(), final_residual)
     return SimulationResult(outputs, contributions, final, terms if slices else None)
 

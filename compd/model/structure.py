@@ -113,12 +113,14 @@ class SubModel:
 class Output:
     """One axis output (e.g. ``disp_z_um``): the sum of its sub-models, in um.
 
-    ``residual`` (Swiss-lathe paper): a forest on smoothed door features added to that sum.
+    ``residual`` (Swiss-lathe paper): a forest on smoothed door features added to that sum;
+    ``bias_um``: a constant added to it (what probes taught, ``compd model export --updated``).
     """
 
     name: str
     submodels: tuple[SubModel, ...]
     residual: ResidualModel | None = None
+    bias_um: float = 0.0
 
 
 @dataclass(frozen=True)

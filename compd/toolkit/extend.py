@@ -406,7 +406,11 @@ def _with_submodels(
     drop: tuple[str, ...] = (),
 ) -> Model:
     outputs = tuple(
-        Output(o.name, (*(s for s in o.submodels if s.name not in drop), *submodels))
+        Output(
+            o.name,
+            (*(s for s in o.submodels if s.name not in drop), *submodels),
+            bias_um=o.bias_um,
+        )
         if o.name == output
         else o
         for o in model.outputs

@@ -118,6 +118,7 @@ def with_gains(model: Model, gains: list[Gain], values: np.ndarray) -> Model:
                 dataclasses.replace(sub, gain=new.get((o, s), sub.gain))
                 for s, sub in enumerate(output.submodels)
             ),
+            bias_um=output.bias_um,
         )
         for o, output in enumerate(model.outputs)
     )

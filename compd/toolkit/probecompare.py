@@ -2,10 +2,13 @@
 
 The model is run over the record as ``compare`` runs it (its evaluation, a
 ``--from`` part included); then, in time order, each probe updates the
-output's gains and bias (:class:`compd.model.probeupdate.ProbeUpdater`, the
-core the daemon steps). Every sample is predicted with the parameters as
-updated at the last probe before it; the sample at a probe instant is
-predicted before its update. The prediction with probes and the open-loop
+output's gains and bias (:class:`compd.model.probelearner.OutputLearner`,
+what the daemon steps: the regressor interpolated at the touch instant, the
+bound held over the rows since the last probe taken; it keeps every sample
+here, the daemon one a minute). Every sample is predicted with the
+parameters as updated at the last probe before it (the file model's output
+plus the learner's adjustment, as the daemon adds it); the sample at a
+probe instant is predicted before its update. The prediction with probes and the open-loop
 one (the model as it is) are judged over the same samples.
 
 Probes come from a file (``--probes``: columns ``time_s`` and the output's
@@ -16,6 +19,7 @@ interval after it) plus seeded Gaussian noise of ``--probe-noise-um``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -23,13 +27,17 @@ import numpy as np
 
 from compd.errors import DataFileError
 from compd.files.probeprior import OutputPrior, output_prior
-from compd.model.compiled import qualified_names
 from compd.model.metrics import Comparison
-from compd.model.probeupdate import ProbeSettings, ProbeStep, ProbeUpdater
+from compd.model.probelearner import (
+    RECENT_ROWS,
+    OutputLearner,
+    RegressorWindow,
+    output_columns,
+)
+from compd.model.probeupdate import ProbeSettings, ProbeStep
 from compd.toolkit.evaluate import Evaluation
 
-#: The regressors since the last probe the departure bound is held over, at most this many.
-RECENT_ROWS = 240
+__all__ = ["RECENT_ROWS", "ProbeRun", "Probes", "read_probes", "run_probes"]
 
 
 @dataclass(frozen=True)
@@ -92,13 +100,14 @@ def run_probes(
     ``settings`` override :meth:`ProbeSettings.defaults` (``probe_noise_um``,
     ``drift_um_per_sqrt_h``, ``max_departure_um``, ``reject_sigma``).
     """
-    compiled = evaluation.compiled
-    out = compiled.output_names.index(output)
-    owned = np.flatnonzero(compiled.output_matrix[out])
-    qualified = qualified_names(compiled)
-    names = tuple(qualified[int(s)].partition("/")[2] for s in owned)
+    owned, names = output_columns(evaluation.compiled, output)
     prior = output_prior(evaluation.model_file, output, names)
-    updater = ProbeUpdater(prior.prior, ProbeSettings.defaults(prior.prior, **settings))
+    # The daemon's learner, keeping every sample of the record (the daemon keeps one a minute).
+    learner = OutputLearner(
+        prior.prior,
+        ProbeSettings.defaults(prior.prior, **settings),
+        RegressorWindow(row_every_s=0.0, keep_s=math.inf),
+    )
     time_s = evaluation.data.time_s
     contributions = evaluation.result.contributions[:, owned]
     x = np.column_stack([contributions, np.ones(len(time_s))])
@@ -114,28 +123,27 @@ def run_probes(
     predicted = np.empty_like(open_loop)
     steps: list[ProbeStep] = []
     done = 0  # samples predicted so far
-    since = 0  # the sample after the last probe taken (a flagged one changes nothing)
+    fed = 0  # samples the learner has observed
     for t, z in zip(probes.time_s[inside], probes.measured_um[inside], strict=True):
         # Up to and including the probe instant: the parameters before this probe.
         upto = int(np.searchsorted(time_s, t, side="right"))
-        predicted[done:upto] = updater.predict(x[done:upto], fixed[done:upto])
+        predicted[done:upto] = open_loop[done:upto] + learner.adjustments_um(x[done:upto])
         done = upto
-        # The time since the last probe taken, as the daemon keeps it: at most RECENT_ROWS rows.
-        recent = x[since:upto][:: max(1, (upto - since) // RECENT_ROWS)]
-        at = np.array([np.interp(t, time_s, column) for column in x.T])
-        fixed_at = float(np.interp(t, time_s, fixed))
-        taken = updater.probe(float(t), at, float(z), fixed_at, recent=recent)
-        if any(step.result in ("accepted", "confirmed") for step in taken):
-            since = upto
-        steps += taken
-    predicted[done:] = updater.predict(x[done:], fixed[done:])
+        # The ticks up to the touch, and the one after it when it fell between two samples
+        # (the daemon has ticked on by the time a probe arrives).
+        through = upto if time_s[upto - 1] == t else upto + 1
+        if through > fed:
+            learner.observe_many(time_s[fed:through], x[fed:through], fixed[fed:through])
+            fed = through
+        steps += learner.probe(float(t), float(z))
+    predicted[done:] = open_loop[done:] + learner.adjustments_um(x[done:])
     y = evaluation.data.column(measured)
     return ProbeRun(
         output,
         predicted,
         tuple(steps),
         prior,
-        updater.settings,
+        learner.settings,
         Comparison.of(output, y, open_loop),
         Comparison.of(output, y, predicted),
     )
