@@ -169,6 +169,7 @@ class Service:
                 seen = SeenRequests(config.state_dir / SEEN_FILE)  # replays refused across restarts
                 remote = RemoteLoads(self.load_model, self.telemetry.reply, sink, seen=seen)
                 self.telemetry.listen(COMMAND, remote.handle, max_bytes=MAX_PAYLOAD_BYTES)
+                self.telemetry.take_desired(remote.take_desired)  # a machine back catches up
         #: Metrics and the status page (config ``http``); None without one: nothing measured then.
         self.http: StatusServer | None = (
             doc.http.server(self) if doc.http is not None and doc.http.enabled else None
