@@ -195,3 +195,31 @@ def test_a_user_the_broker_will_not_let_write_the_marker_is_told_so(
         broker.stop()
     err = capsys.readouterr().err
     assert "did not hand over its retained messages" in err and "compd/+/desired" in err, err
+
+
+def test_a_broker_that_drops_part_of_its_queue_is_an_error_not_a_smaller_fleet(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """max_queued_messages below the retained count: the marker is dropped with the rest; told so."""
+    folder = tmp_path / "small-queue"
+    folder.mkdir()
+    broker = Mosquitto(folder, extra=["max_queued_messages 50"]).start()
+    try:
+        client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="writer")
+        client.connect("127.0.0.1", broker.port)
+        client.loop_start()
+        for k in range(200):
+            birth = {"kind": "birth", "session": 1, "machine_id": name(k)}
+            topic = f"compd/{name(k)}/birth"
+            client.publish(topic, json.dumps(birth), qos=1, retain=True).wait_for_publish(WAIT_S)
+        client.disconnect()
+        client.loop_stop()
+        path = tmp_path / "broker.yaml"
+        path.write_text(yaml.safe_dump({"host": "127.0.0.1", "port": broker.port}))
+        settings = ["--broker-config", str(path), "--timeout-s", "5"]
+        assert main(["fleet", "list", *settings, "--json"]) == EXIT_INPUT_ERROR
+    finally:
+        broker.stop()
+    captured = capsys.readouterr()
+    assert not captured.out, "no list at all rather than a short one"
+    assert "max_queued_messages" in captured.err, captured.err
