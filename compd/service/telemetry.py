@@ -45,6 +45,7 @@ commands (``accept_models: true``, answered on ``reply/<request_id>`` by
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import threading
 import time
@@ -462,14 +463,14 @@ class Telemetry:
         data, self._desired_due = self._desired_due, None
         if data is None or self._desired_handler is None or self._loop is None:
             return
-        if not self._loop.is_closed():
+        with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
             self._loop.call_soon_threadsafe(self._take_desired, data)
 
     def _take_desired(self, data: bytes) -> None:
         """On the loop: hand the record over if it names another model than the running one."""
-        desired = self.payloads.desired or {}
+        sha256 = json.loads(data).get("sha256")  # parsed before, in _heard_desired
         running = (self.payloads.identity().get("model") or {}).get("sha256")
-        if self._desired_handler is None or desired.get("sha256") in (None, running):
+        if self._desired_handler is None or sha256 in (None, running):
             return
         task = asyncio.ensure_future(self._desired_handler(data))
         self._taking.add(task)  # a reference until done: the loop keeps only weak ones
