@@ -139,13 +139,20 @@ def connected(
             raise CompdError(f"the broker {broker.host}:{broker.port} refused the login ({why})")
         marker = json.dumps({"schema": MARKER_SCHEMA, "kind": "marker"})
         listener.marker_mid = client.publish(listener.marker_topic, marker, qos=1).mid
-        if not listener.complete.wait(timeout_s) or listener.marker_refused:
-            why = listener.marker_refused or f"it did not come back in {timeout_s:g} s"
+        if not listener.complete.wait(timeout_s):
             raise CompdError(
-                f"the broker {broker.host}:{broker.port} did not hand over its retained messages: "
-                f"the marker published to {listener.marker_topic} after them failed ({why}). "
-                f"Let this user write {section.topic_prefix}/+/{DESIRED} (as the roll-out user "
-                "does); with many machines raise mosquitto's max_queued_messages (default 1000)"
+                f"the broker {broker.host}:{broker.port} did not hand over its retained messages "
+                f"in {timeout_s:g} s: the marker published to {listener.marker_topic} after them "
+                "did not come back (a queue that drops messages: raise mosquitto's "
+                "max_queued_messages, default 1000, above three per machine; or a slow broker: "
+                "a longer --timeout-s)"
+            )
+        if listener.marker_refused:
+            raise CompdError(
+                f"the broker {broker.host}:{broker.port} refused this user's message to "
+                f"{listener.marker_topic} ({listener.marker_refused}): reading the fleet's "
+                f"retained state and rolling out need write on {section.topic_prefix}/+/{DESIRED}, "
+                "as the roll-out user has (README 'Many machines', the ACL)"
             )
         yield client
     finally:

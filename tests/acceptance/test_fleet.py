@@ -269,7 +269,8 @@ def test_only_the_roll_out_user_can_send_a_model_over_tls(
             assert code == EXIT_INPUT_ERROR
             assert "refused the login" in capsys.readouterr().err
             # A machine's own user cannot command it either (a retained command left by it
-            # would be loaded again at every restart): only the roll-out user writes cmd/.
+            # would be loaded again at every restart): only the roll-out user writes cmd/. Nor
+            # may it write desired records: refused there, before any command is sent.
             for user, target in (
                 ("viewer", "mill-a,mill-b"),
                 ("mill-b", "mill-a"),
@@ -277,9 +278,9 @@ def test_only_the_roll_out_user_can_send_a_model_over_tls(
             ):
                 rollout = ["model", "rollout", str(new), *as_user(user), "--timeout-s", "3"]
                 code = main([*rollout, "--machines", target])
-                table = capsys.readouterr().out
-                assert code == 1, table
-                assert all(_row(table, m)[:2] == ["no", "answer"] for m in target.split(",")), table
+                err = capsys.readouterr().err
+                assert code == EXIT_INPUT_ERROR, err
+                assert "refused this user's message" in err and "compd/+/desired" in err, err
             assert not [m for m in sub.messages if "/cmd/" in m.topic], (
                 "the broker passed nothing on"
             )

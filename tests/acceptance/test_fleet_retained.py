@@ -200,7 +200,7 @@ def test_a_user_the_broker_will_not_let_write_the_marker_is_told_so(
     finally:
         broker.stop()
     err = capsys.readouterr().err
-    assert "did not hand over its retained messages" in err and "compd/+/desired" in err, err
+    assert "refused this user's message" in err and "compd/+/desired" in err, err
 
 
 def test_a_broker_that_drops_part_of_its_queue_is_an_error_not_a_smaller_fleet(
