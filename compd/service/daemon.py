@@ -47,7 +47,7 @@ from compd.service.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
 from compd.service.safety import HEARTBEAT_MODULO
 from compd.service.seenrequests import FILE as SEEN_FILE
 from compd.service.seenrequests import SeenRequests
-from compd.service.state import SavedState, resumable_state, save_state
+from compd.service.state import MODELS_DIR, SavedState, resumable_state, save_state
 from compd.service.statusview import status_snapshot
 from compd.service.ticks import TickTiming, run_periodic
 
@@ -167,7 +167,14 @@ class Service:
             self._recorder_fault.sink = self._save_fault.sink = sink
             if doc.telemetry is not None and doc.telemetry.accept_models:
                 seen = SeenRequests(config.state_dir / SEEN_FILE)  # replays refused across restarts
-                remote = RemoteLoads(self.load_model, self.telemetry.reply, sink, seen=seen)
+                models = config.state_dir / MODELS_DIR
+                remote = RemoteLoads(
+                    self.load_model,
+                    self.telemetry.reply,
+                    sink,
+                    seen=seen,
+                    installed=lambda sha256: (models / f"{sha256}.yaml").is_file(),
+                )
                 self.telemetry.listen(COMMAND, remote.handle, max_bytes=MAX_PAYLOAD_BYTES)
                 self.telemetry.take_desired(remote.take_desired)  # a machine back catches up
         #: Metrics and the status page (config ``http``); None without one: nothing measured then.

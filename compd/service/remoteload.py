@@ -95,6 +95,7 @@ class RemoteLoads:
         *,
         seen: SeenRequests | None = None,
         now: Callable[[], float] = time.time,
+        installed: Callable[[str], bool] = lambda sha256: False,
     ) -> None:
         self.load = load
         self.reply = reply
@@ -103,6 +104,8 @@ class RemoteLoads:
         self.seen = seen or SeenRequests(None)
         #: The machine's real clock (the sender's ``sent_unix_s`` is real time, also in a simulation).
         self.now = now
+        #: Whether a model of this sha256 was installed here before (the state directory's models).
+        self.installed = installed
         self._saving = asyncio.Lock()
         #: The sha256 of desired records refused (not tried again at each reconnection).
         self._refused_desired: set[str] = set()
@@ -146,7 +149,10 @@ class RemoteLoads:
         else is: its sha256, then the daemon's own checks, blend or refusal
         (a ``model_refused`` event; a record refused once is not tried again
         by this process). Called only when it names another model than the
-        running one.
+        running one. A model installed here before that no longer runs was
+        replaced here, by a failure that unloaded it or by a person's
+        ``compd model load``: it is not taken again (``--pending`` sends it,
+        as a command, if that is wanted).
         """
         try:
             record = json.loads(
@@ -170,6 +176,12 @@ class RemoteLoads:
             raw, name = request_bytes(record)
             if hashlib.sha256(raw).hexdigest() != sha256:
                 raise CompdError("the model's sha256 is not the record's: altered or truncated")
+            if self.installed(sha256):
+                raise CompdError(
+                    "it ran here before and was replaced here (a failure unloaded it, or "
+                    "compd model load put another in): not taken again by itself; "
+                    "compd model rollout --pending sends it"
+                )
             log.info("desired model taken", name=name, **details)
             await self.load(load_request(raw, name))
         except CompdError as exc:

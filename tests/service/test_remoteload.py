@@ -263,10 +263,16 @@ def desired(**changes: Any) -> bytes:
     return json.dumps({k: v for k, v in record.items() if k != "request_id"}).encode()
 
 
-def take(daemon: Daemon, *payloads: bytes) -> None:
-    """``payloads`` through one RemoteLoads's take_desired, in turn (one process: one memory)."""
+def take(daemon: Daemon, *payloads: bytes, installed: bool = False) -> None:
+    """``payloads`` through one RemoteLoads's take_desired, in turn (one process: one memory).
+
+    ``installed``: the state directory holds the model (it ran here before).
+    """
     remote = RemoteLoads(
-        daemon.load, lambda i, r: daemon.replies.append((i, r)), daemon.events.append
+        daemon.load,
+        lambda i, r: daemon.replies.append((i, r)),
+        daemon.events.append,
+        installed=lambda sha256: installed,
     )
 
     async def each() -> None:
@@ -312,3 +318,12 @@ def test_a_desired_model_the_daemon_refuses_is_told_and_the_running_one_stays():
     take(daemon, desired(), desired())
     assert len(daemon.loads) == 1, "refused once, not at every reconnection"
     assert [e.details["reason"] for e in daemon.events] == ["the model is not stable"]
+
+
+def test_a_desired_model_that_ran_here_and_was_replaced_here_is_not_taken_again():
+    """Unloaded by a failure, or a person loaded another since: the machine's own choice stands."""
+    daemon = Daemon(ACCEPTED)
+    take(daemon, desired(), installed=True)
+    assert not daemon.loads
+    (event,) = daemon.events
+    assert "replaced here" in event.details["reason"] and "--pending" in event.details["reason"]
