@@ -10,6 +10,7 @@ offsets are those of a run without telemetry, and the counters show the drops.
 from __future__ import annotations
 
 import asyncio
+import base64
 import hashlib
 import json
 import re
@@ -26,6 +27,7 @@ import yaml
 
 from compd.cli import main
 from compd.cli.args import EXIT_INPUT_ERROR
+from compd.cli.rollout import desired_record
 from compd.service.compensator import TickRecord
 from compd.service.config import Config
 from compd.service.daemon import Service
@@ -511,6 +513,42 @@ def test_a_machine_away_is_not_waited_for_and_takes_the_desired_model_when_back(
         report = json.loads(capsys.readouterr().out)
         assert code == 0, report
         assert [row["result"] for row in report["machines"]] == ["up_to_date"] * 3
+
+
+def test_pending_sends_an_online_machine_the_desired_model_it_does_not_run(
+    fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """A desired record written while the machine is online (no command followed): --pending sends it."""
+    new = _variant(tmp_path, "rolled-out.yaml")
+    raw = new.read_bytes()
+    sha256 = hashlib.sha256(raw).hexdigest()
+    settings = _broker_settings(tmp_path, broker.port)
+    machine = fleet[1]
+    with Subscriber(broker.port, "compd/#") as sub:
+        _start_and_wait_for_births([machine], sub)
+        request = {"name": "rolled-out.yaml", "model_base64": base64.b64encode(raw).decode()}
+        request |= {"sha256": sha256, "requested_by": "test", "sent_unix_s": time.time()}
+        writer = Subscriber(broker.port, "nothing/#")
+        with writer:
+            topic = f"compd/{machine.machine_id}/desired"
+            writer.client.publish(
+                topic, desired_record(request), qos=1, retain=True
+            ).wait_for_publish(WAIT_S)
+        sub.wait_for(
+            lambda s: (
+                (s.of("birth", machine.machine_id)[-1].get("desired_model") or {}).get("sha256")
+                == sha256
+            ),
+            "the machine naming its desired model",
+        )
+        assert _running(sub, machine.machine_id) != sha256, "a live record is not taken by itself"
+
+        code = main(["model", "rollout", "--pending", *settings, "--wait-blend", "--json"])
+        report = json.loads(capsys.readouterr().out)
+        assert code == 0, report
+        (row,) = report["machines"]
+        assert row["result"] == "accepted" and row["blended_in"] is True, row
+        sub.wait_for(lambda s: _running(s, machine.machine_id) == sha256, "running it")
 
 
 def test_a_machine_back_refuses_a_bad_desired_model_and_runs_on(
