@@ -37,6 +37,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "compd.cli.model",
         "model files: check one, load one into the running daemon, roll one out",
     ),
+    "fleet": (
+        "compd.cli.fleet",
+        "the machines on the fleet's MQTT broker: model, online or offline, last seen",
+    ),
     "simulate": ("compd.cli.evaluate", "model output and each sub-model's contribution per sample"),
     "compare": ("compd.cli.evaluate", "model against measurement: fit %%, residue, reduction"),
     "fit": (

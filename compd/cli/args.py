@@ -66,3 +66,16 @@ def clock_options(parser: argparse.ArgumentParser) -> None:
         help="the least severe log records shown (default info); the protocol libraries' "
         "own logs stay capped at WARNING",
     )
+
+
+def broker_option(parser: argparse.ArgumentParser) -> None:
+    """``--broker-config``: the fleet's MQTT broker (``compd model rollout``, ``compd fleet list``)."""
+    parser.add_argument(
+        "--broker-config",
+        "--telemetry-config",
+        type=Path,
+        required=True,
+        metavar="FILE.yaml",
+        help="the broker: a compd config's 'telemetry:' section, or such a section alone "
+        "(host, port, tls, username, password_file, topic_prefix)",
+    )

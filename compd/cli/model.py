@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from compd.cli.args import daemon_options
+from compd.cli.args import broker_option, daemon_options
 from compd.cli.modelupdates import register as register_updates
 
 
@@ -49,18 +49,12 @@ def register(commands: Any) -> None:
         help="check a model file, send it to many machines through the fleet's MQTT broker",
         description="Check MODEL.yaml, then send it to each machine's "
         "<prefix>/<machine_id>/cmd/model_load (machines with telemetry.accept_models: true); "
-        "print each machine's answer. Exit status 1 if any refused or did not answer.",
+        "print each machine's answer. A machine the broker reports offline is not waited for: "
+        "it is pending, and takes the model when it is back (its retained desired record). "
+        "Exit status 1 if any refused, did not answer or is pending.",
     )
     rollout.add_argument("model", type=Path, metavar="MODEL.yaml", nargs="?")
-    rollout.add_argument(
-        "--broker-config",
-        "--telemetry-config",
-        type=Path,
-        required=True,
-        metavar="FILE.yaml",
-        help="the broker: a compd config's 'telemetry:' section, or such a section alone "
-        "(host, port, tls, username, password_file, topic_prefix)",
-    )
+    broker_option(rollout)
     rollout.add_argument(
         "--machines",
         metavar="M1,M2,... | @FILE",

@@ -1,47 +1,42 @@
 """``compd model rollout``: one model file to many machines through the fleet's MQTT broker.
 
-The model is checked here first (as ``compd model check`` does), then sent to
-each machine's ``<prefix>/<machine_id>/cmd/model_load``
-(:mod:`compd.service.fleet.remoteload`: the daemon's own checks, install, blend and
-refusal follow). Before that, each machine's retained ``desired`` record
-names the model (:func:`desired_record`; ``--pending`` sends it later to a
-machine away now). The answers come back on ``reply/<request_id>``; with
-``--wait-blend`` the ``model_blended`` event says each machine's blend is
-over. A machine that does not answer in time is shown with what its
-retained birth and death say: online, offline since its death, or never
-seen on this broker. The command itself: :mod:`compd.cli.rolloutcommand`.
+The model is checked here first (as ``compd model check`` does). The broker's
+retained births and deaths are read in full (:mod:`compd.cli.fleetstate`);
+each machine's retained ``desired`` record then names the model
+(:func:`desired_record`), and each machine not known to be offline is sent it
+on ``<prefix>/<machine_id>/cmd/model_load`` (:mod:`compd.service.fleet.remoteload`:
+the daemon's own checks, install, blend and refusal follow). The answers come
+back on ``reply/<request_id>``; with ``--wait-blend`` the ``model_blended``
+event says each machine's blend is over. A machine whose retained death says
+it is offline is not waited for: it is ``pending`` at once, and takes the
+desired record itself when it is back (a daemon with ``accept_models``), or is
+sent it if it comes back during the roll-out. One that does not answer in
+time is shown with what its retained birth and death say: online, offline
+since its death, or never seen on this broker. The command itself:
+:mod:`compd.cli.rolloutcommand`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import getpass
 import hashlib
 import json
 import socket
-import threading
 import time
 import uuid
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import paho.mqtt.client as mqtt
 from pydantic import ValidationError
 
-from compd.errors import CompdError, ConfigFileError
+from compd.cli.fleetstate import Listener, connected, presence
+from compd.errors import ConfigFileError
 from compd.files.yamlplace import parse_yaml, read_limited
 from compd.service.config.fleetdoc import TelemetryDoc
 from compd.service.config.loading import validation_error
 from compd.service.control.modelload import load_request
-from compd.service.fleet.mqttlink import broker as broker_of
-from compd.service.fleet.mqttlink import mqtt_client
-from compd.service.fleet.remoteload import COMMAND, SCHEMA
-
-#: ``<prefix>/<machine_id>/desired`` (retained): the model a roll-out left for the machine.
-DESIRED = "desired"
-DESIRED_SCHEMA = "compd.desired_model/1"
+from compd.service.fleet.remoteload import COMMAND, DESIRED, DESIRED_SCHEMA, SCHEMA
 
 #: What each outcome means for the exit status: these are a success.
 SUCCEEDED = ("accepted", "already_running", "already_loading", "up_to_date")
@@ -52,7 +47,8 @@ class Outcome:
     """One machine's part of a roll-out."""
 
     machine_id: str
-    #: ``accepted``, ``already_running``, ``already_loading``, ``refused`` or ``no answer``.
+    #: ``accepted``, ``already_running``, ``already_loading``, ``refused``, ``no answer``,
+    #: ``pending`` (offline: see the reason), ``up_to_date`` (``--pending``) or ``not_sent``.
     result: str = "no answer"
     reason: str = ""
     blend_s: float | None = None
@@ -88,51 +84,6 @@ def broker_section(path: Path) -> tuple[TelemetryDoc, Path]:
     return section, path.parent
 
 
-class Listener:
-    """What the broker says about the machines: retained birth and death, replies, events."""
-
-    def __init__(self, prefix: str, machines: list[str]) -> None:
-        self.prefix = prefix
-        self.machines = machines
-        self.lock = threading.Lock()
-        self.heard: dict[tuple[str, str], list[dict[str, Any]]] = {}
-        self.subscribed = threading.Event()
-        self.refused = ""
-
-    def topics(self) -> list[tuple[str, int]]:
-        kinds = ("birth", "death", "event", "reply/#", "desired")
-        return [(f"{self.prefix}/{m}/{kind}", 1) for m in self.machines for kind in kinds]
-
-    def on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
-        if reason.is_failure:  # a wrong password, an unknown user: say so at once
-            self.refused = str(reason)
-            self.subscribed.set()
-        else:
-            client.subscribe(self.topics())
-
-    def on_subscribe(self, *args: Any) -> None:
-        self.subscribed.set()
-
-    def on_message(self, client: Any, userdata: Any, message: Any) -> None:
-        parts = message.topic.removeprefix(f"{self.prefix}/").split("/")
-        try:
-            payload = json.loads(message.payload)
-        except (ValueError, RecursionError):  # not a reply compd sent: nesting too deep to parse
-            return
-        kind = "reply" if parts[1:2] == ["reply"] else parts[1]
-        with self.lock:
-            self.heard.setdefault((parts[0], kind), []).append(payload)
-
-    def of(self, machine: str, kind: str) -> list[dict[str, Any]]:
-        with self.lock:
-            return list(self.heard.get((machine, kind), []))
-
-    def machines_heard(self, kind: str) -> list[str]:
-        """The machines a message of ``kind`` was heard from."""
-        with self.lock:
-            return [m for m, k in self.heard if k == kind]
-
-
 def rollout(
     section: TelemetryDoc,
     base_dir: Path,
@@ -143,7 +94,12 @@ def rollout(
     timeout_s: float,
     wait_blend: bool,
 ) -> list[Outcome]:
-    """Send ``raw`` to every machine; their outcomes once all answered (and switched) or ``timeout_s``."""
+    """Send ``raw`` to every machine; their outcomes once all answered (and switched) or ``timeout_s``.
+
+    Machines the broker reports offline are ``pending`` at once (not waited
+    for), unless they come back before the others have answered: then they
+    are sent it too.
+    """
     sha256 = hashlib.sha256(raw).hexdigest()
     listener = Listener(section.topic_prefix, machines)
     with connected(section, base_dir, listener, timeout_s) as client:
@@ -153,46 +109,49 @@ def rollout(
         request["sent_unix_s"] = time.time()  # the machines take it within seenrequests.WINDOW_S
         ids = {m: uuid.uuid4().hex for m in machines}
         desired = desired_record(request)
-        for machine in machines:  # first: a machine away now is sent it by --pending later
+        for machine in machines:  # first: a machine away now takes it when back
             topic = f"{section.topic_prefix}/{machine}/{DESIRED}"
             client.publish(topic, desired, qos=1, retain=True).wait_for_publish(timeout_s)
-        for machine in machines:
-            payload = json.dumps(request | {"request_id": ids[machine]}).encode()
-            topic = f"{section.topic_prefix}/{machine}/cmd/{COMMAND}"
-            client.publish(topic, payload, qos=1).wait_for_publish(timeout_s)
+        away = {m for m in machines if presence(listener, m).startswith("offline")}
+        sent: set[str] = set()
         deadline = time.monotonic() + timeout_s
         while True:
-            outcomes = [_outcome(listener, m, ids[m], sha256, wait_blend) for m in machines]
+            # A machine back meanwhile may have subscribed before its desired record came: send it.
+            for machine in [m for m in machines if m not in sent and m not in away]:
+                request["sent_unix_s"] = time.time()
+                payload = json.dumps(request | {"request_id": ids[machine]}).encode()
+                topic = f"{section.topic_prefix}/{machine}/cmd/{COMMAND}"
+                client.publish(topic, payload, qos=1).wait_for_publish(timeout_s)
+                sent.add(machine)
+            outcomes = [
+                _outcome(listener, m, ids[m], sha256, wait_blend)
+                if m in sent
+                else _away(listener, m)
+                for m in machines
+            ]
             if all(_settled(o) for o in outcomes) or time.monotonic() > deadline:
                 return outcomes
             time.sleep(0.05)
+            away = {m for m in away if presence(listener, m) != "online"}
 
 
-@contextlib.contextmanager
-def connected(
-    section: TelemetryDoc, base_dir: Path, listener: Listener, timeout_s: float
-) -> Iterator[mqtt.Client]:
-    """A client of the broker, logged in, ``listener`` subscribed; disconnected afterwards."""
-    broker = broker_of(section, base_dir, f"compd-rollout-{uuid.uuid4().hex[:12]}")
-    client = mqtt_client(broker)
-    client.on_connect = listener.on_connect
-    client.on_subscribe = listener.on_subscribe
-    client.on_message = listener.on_message
-    try:
-        client.connect(broker.host, broker.port, broker.keepalive_s)
-    except (OSError, ValueError) as exc:
-        raise CompdError(
-            f"cannot connect to the broker {broker.host}:{broker.port} ({exc})"
-        ) from exc
-    client.loop_start()
-    try:
-        if not listener.subscribed.wait(timeout_s) or listener.refused:
-            why = listener.refused or f"no answer in {timeout_s:g} s"
-            raise CompdError(f"the broker {broker.host}:{broker.port} refused the login ({why})")
-        yield client
-    finally:
-        client.disconnect()
-        client.loop_stop()
+def when_back(listener: Listener, machine: str) -> str:
+    """How a machine away gets its desired model, from what its last birth says it takes."""
+    births = listener.of(machine, "birth")
+    commands = births[-1].get("commands") if births else None
+    if isinstance(commands, list) and COMMAND in commands:
+        return "away: takes the desired model itself when it is back (accept_models)"
+    if isinstance(commands, list):
+        return (
+            "away, and takes no models from the network (accept_models: false): "
+            "load it there (compd model load)"
+        )
+    return "away: sent when it is back (run --pending again; an older compd)"
+
+
+def _away(listener: Listener, machine: str) -> Outcome:
+    where = presence(listener, machine)
+    return Outcome(machine, "pending", reason=when_back(listener, machine), presence=where)
 
 
 def _outcome(listener: Listener, machine: str, request_id: str, sha256: str, wait: bool) -> Outcome:
@@ -217,10 +176,12 @@ def _outcome(listener: Listener, machine: str, request_id: str, sha256: str, wai
 def desired_record(request: dict[str, Any]) -> bytes:
     """The retained record of what a roll-out asked: the model itself, never a command.
 
-    Machines read it only to say in their birth whether they run it; the
-    model travels in it so that ``--pending`` can send it later. Kept on
-    ``desired``, which no daemon acts on (a retained ``cmd`` would be loaded
-    again at every connection, and is refused: :mod:`compd.service.fleet.remoteload`).
+    A daemon with ``accept_models`` takes it when it hears it at connecting
+    (a machine that was away, :meth:`compd.service.fleet.remoteload.RemoteLoads.take_desired`:
+    the same checks as a command), and names it in its birth; ``--pending``
+    sends it to older daemons. It is kept on ``desired``, not ``cmd``: a
+    retained command is refused (:mod:`compd.service.fleet.remoteload`), and a
+    record is overwritten by the next roll-out, never rolled back to.
     """
     keys = ("name", "model_base64", "sha256", "requested_by", "sent_unix_s")
     record = {"schema": DESIRED_SCHEMA, "rollout_id": uuid.uuid4().hex}
@@ -229,22 +190,3 @@ def desired_record(request: dict[str, Any]) -> bytes:
 
 def _settled(outcome: Outcome) -> bool:
     return outcome.result != "no answer" and outcome.blended_in is not False
-
-
-def presence(listener: Listener, machine: str) -> str:
-    """Sparkplug's rule: online while the newest birth's session is newer than the newest death's.
-
-    A death counts only for the birth of the same instance (a daemon standing
-    by, compd.service.fleet.claim, leaves its will on the same topic).
-    """
-    births, deaths = listener.of(machine, "birth"), listener.of(machine, "death")
-    if not births:
-        return "never seen"
-    birth = births[-1]
-    for death in reversed(deaths):
-        ids = {(p.get("instance") or {}).get("id") for p in (birth, death)}
-        if len(ids) == 1 or None in ids:
-            if death.get("session", 0) >= birth.get("session", 0):
-                return f"offline ({death.get('reason', '?')})"
-            break
-    return "online"

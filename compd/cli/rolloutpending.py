@@ -2,11 +2,13 @@
 
 Every roll-out leaves, per machine, a retained record on
 ``<prefix>/<machine_id>/desired`` (:func:`compd.cli.rollout.desired_record`:
-the model and its sha256; no daemon acts on it). This reads those records
-with the machines' retained births and deaths, and sends each online
-machine whose birth names another model the one its record asks for (the
-same request and checks as a roll-out). Machines still away stay pending;
-run it again (from cron, or after a machine comes back).
+the model and its sha256). This reads those records with the machines'
+retained births and deaths, all of them (:mod:`compd.cli.fleetstate`), and
+sends each online machine whose birth names another model the one its
+record asks for (the same request and checks as a roll-out). Machines still
+away stay pending: a daemon with ``accept_models`` takes its record itself
+when it is back; for an older one run this again (from cron, or after a
+machine comes back).
 """
 
 from __future__ import annotations
@@ -15,31 +17,17 @@ import base64
 import hashlib
 from pathlib import Path
 
-from paho.mqtt.subscribeoptions import SubscribeOptions
-
-from compd.cli.rollout import (
-    DESIRED,
-    DESIRED_SCHEMA,
-    Listener,
-    Outcome,
-    connected,
-    presence,
-    rollout,
-)
-from compd.errors import CompdError
+from compd.cli.fleetstate import Listener, connected, presence
+from compd.cli.rollout import Outcome, rollout, when_back
 from compd.service.config.fleetdoc import TelemetryDoc
+from compd.service.fleet.remoteload import DESIRED, DESIRED_SCHEMA
 
 
 def retained(section: TelemetryDoc, base_dir: Path, timeout_s: float) -> Listener:
-    """What the broker retains for every machine: births, deaths, desired records."""
-    listener = Listener(section.topic_prefix, ["+"])
-    with connected(section, base_dir, listener, timeout_s) as client:
-        # The retained messages come after the first SUBACK, before this one's (in order).
-        listener.subscribed.clear()
-        quiet = SubscribeOptions(qos=1, retainHandling=2)
-        client.subscribe(f"{section.topic_prefix}/+/{DESIRED}", options=quiet)
-        if not listener.subscribed.wait(timeout_s):
-            raise CompdError(f"the broker did not answer a subscription in {timeout_s:g} s")
+    """What the broker retains for every machine: births, deaths, desired records, all of them."""
+    listener = Listener(section.topic_prefix, ["+"], ("birth", "death", DESIRED))
+    with connected(section, base_dir, listener, timeout_s):
+        pass  # connected() returns once the marker is back: every retained message heard
     return listener
 
 
@@ -73,7 +61,7 @@ def pending(
         if running == record.get("sha256"):
             outcomes.append(Outcome(machine, "up_to_date", presence=where))
         elif where != "online":
-            reason = "away: sent when it is back (run --pending again)"
+            reason = when_back(listener, machine)
             outcomes.append(Outcome(machine, "pending", reason=reason, presence=where))
         else:
             to_send.setdefault(str(record.get("sha256")), []).append(machine)

@@ -14,7 +14,7 @@ the new one, never half of one.
 
 Here, below the service, so that the file formats of the state directory
 (:mod:`compd.files.probestate`) use them too; the service's copies
-(:mod:`compd.service.unreadable`, ``compd.service.state.write_atomic``) are
+(:mod:`compd.service.store.unreadable`, ``compd.service.store.state.write_atomic``) are
 to import these.
 """
 

@@ -75,7 +75,7 @@ def probed_thermal_error_um(residue_um: float, offset_um: float, sign: float) ->
     The machine applies the offset compd writes to the tool centre point
     (:mod:`compd.sim.plc.machine`)::
 
-        residue_um = e_um + offset_um,    offset_um = sign * y_um   (compd.service.compensator)
+        residue_um = e_um + offset_um,    offset_um = sign * y_um   (compd.service.loop.compensator)
 
     where ``e_um`` is the axis's thermal error and ``y_um`` the model's
     output: compensation is perfect when ``e_um = -sign * y_um``. So the

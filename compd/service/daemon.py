@@ -53,7 +53,7 @@ from compd.service.loop.ticks import TickTiming, run_periodic
 from compd.service.notify import SystemdNotifier
 from compd.service.recording.ticks import RecordingTicks
 from compd.service.reload import Reloader
-from compd.service.store.state import SavedState, resumable_state
+from compd.service.store.state import MODELS_DIR, SavedState, resumable_state
 
 if TYPE_CHECKING:
     from compd.service.fleet.telemetry import Telemetry
@@ -178,8 +178,16 @@ class Service:
                 self.recording.fault.sink = sink
             if doc.telemetry is not None and doc.telemetry.accept_models:
                 seen = SeenRequests(config.state_dir / SEEN_FILE)  # replays refused across restarts
-                remote = RemoteLoads(self.load_model, self.telemetry.reply, sink, seen=seen)
+                models = config.state_dir / MODELS_DIR
+                remote = RemoteLoads(
+                    self.load_model,
+                    self.telemetry.reply,
+                    sink,
+                    seen=seen,
+                    installed=lambda sha256: (models / f"{sha256}.yaml").is_file(),
+                )
                 self.telemetry.listen(COMMAND, remote.handle, max_bytes=MAX_PAYLOAD_BYTES)
+                self.telemetry.take_desired(remote.take_desired)  # a machine back catches up
         self.subscribers = Subscribers(
             doc.period_s, sink=None if self.telemetry is None else self.telemetry.event
         )

@@ -10,6 +10,7 @@ offsets are those of a run without telemetry, and the counters show the drops.
 from __future__ import annotations
 
 import asyncio
+import base64
 import hashlib
 import json
 import re
@@ -26,8 +27,10 @@ import yaml
 
 from compd.cli import main
 from compd.cli.args import EXIT_INPUT_ERROR
+from compd.cli.rollout import desired_record
 from compd.service.config.loading import Config
 from compd.service.daemon import Service
+from compd.service.fleet.remoteload import DESIRED_SCHEMA
 from compd.service.loop.compensator import TickRecord
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
@@ -189,7 +192,9 @@ def test_a_bad_model_is_refused_by_every_machine_and_a_machine_away_does_not_ans
         code = main(["model", "rollout", str(new), *settings, *ALL, "--timeout-s", "5"])
         table = capsys.readouterr().out
         assert code == 1, table
-        assert _row(table, away.machine_id) == ["no", "answer", "-", "-", "offline", "(stopped)"]
+        row = _row(table, away.machine_id)
+        assert row[0] == "pending" and row[-2:] == ["offline", "(stopped)"], table
+        assert "takes the desired model itself when it is back" in table
         for machine in fleet[:2]:
             assert _row(table, machine.machine_id)[0] == "accepted", table
 
@@ -266,7 +271,8 @@ def test_only_the_roll_out_user_can_send_a_model_over_tls(
             assert code == EXIT_INPUT_ERROR
             assert "refused the login" in capsys.readouterr().err
             # A machine's own user cannot command it either (a retained command left by it
-            # would be loaded again at every restart): only the roll-out user writes cmd/.
+            # would be loaded again at every restart): only the roll-out user writes cmd/. Nor
+            # may it write desired records: refused there, before any command is sent.
             for user, target in (
                 ("viewer", "mill-a,mill-b"),
                 ("mill-b", "mill-a"),
@@ -274,9 +280,9 @@ def test_only_the_roll_out_user_can_send_a_model_over_tls(
             ):
                 rollout = ["model", "rollout", str(new), *as_user(user), "--timeout-s", "3"]
                 code = main([*rollout, "--machines", target])
-                table = capsys.readouterr().out
-                assert code == 1, table
-                assert all(_row(table, m)[:2] == ["no", "answer"] for m in target.split(",")), table
+                err = capsys.readouterr().err
+                assert code == EXIT_INPUT_ERROR, err
+                assert "refused this user's message" in err and "compd/+/desired" in err, err
             assert not [m for m in sub.messages if "/cmd/" in m.topic], (
                 "the broker passed nothing on"
             )
@@ -457,10 +463,10 @@ def _wait(condition: Any) -> None:
         time.sleep(0.005)
 
 
-def test_a_machine_away_during_a_roll_out_is_sent_the_model_by_pending_when_back(
+def test_a_machine_away_is_not_waited_for_and_takes_the_desired_model_when_back(
     fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ):
-    """The roll-out leaves a desired record; the machine back says it runs an older model; --pending sends it."""
+    """Offline at the roll-out: pending at once, not after --timeout-s; back, it loads its desired record."""
     new = _variant(tmp_path, "rolled-out.yaml")
     sha256 = hashlib.sha256(new.read_bytes()).hexdigest()
     settings = _broker_settings(tmp_path, broker.port)
@@ -474,12 +480,19 @@ def test_a_machine_away_during_a_roll_out_is_sent_the_model_by_pending_when_back
         assert away.process.wait(timeout=WAIT_S) == 0
         sub.wait_for(lambda s: s.of("death", away.machine_id), "the stopped machine's death")
 
+        timeout_s = 10 * WAIT_S  # waited for all of it, the test would take 15 minutes
         rollout = ["model", "rollout", str(new), *settings, "--machines", f"@{listed}"]
-        code = main([*rollout, "--wait-blend", "--json", "--timeout-s", "10"])
+        began = time.monotonic()
+        code = main([*rollout, "--wait-blend", "--json", "--timeout-s", str(timeout_s)])
+        took_s = time.monotonic() - began
         report = json.loads(capsys.readouterr().out)
         assert code == 1, report
+        assert took_s < timeout_s, "the machine the broker says is offline was not waited for"
         rows = {row["machine_id"]: row for row in report["machines"]}
-        assert rows["mill-c"]["result"] == "no answer"
+        assert rows["mill-c"]["result"] == "pending", rows["mill-c"]
+        assert rows["mill-c"]["presence"] == "offline (stopped)"
+        assert "takes the desired model itself when it is back" in rows["mill-c"]["reason"]
+        assert not [m for m in sub.messages if m.topic == "compd/mill-c/cmd/model_load"]
         for machine in fleet[:2]:
             row = rows[machine.machine_id]
             assert row["result"] == "accepted" and row["blended_in"] is True, row
@@ -491,21 +504,82 @@ def test_a_machine_away_during_a_roll_out_is_sent_the_model_by_pending_when_back
             assert blended, "blended in: yes only once its blend ended"
 
         start(away, "--time-scale", "60", "--duration-s", "36000")
-        sub.wait_for(lambda s: len(s.of("birth", away.machine_id)) == 2, "the machine back")
-        birth = sub.of("birth", away.machine_id)[-1]
-        assert birth["desired_model"]["sha256"] == sha256 and not birth["desired_model"]["runs_it"]
+        sub.wait_for(lambda s: _running(s, away.machine_id) == sha256, "mill-c back, running it")
+        events = [e["event"] for e in sub.of("event", away.machine_id)]
+        assert "model_loaded" in events and "model_switched" in events, events
+        assert sub.of("birth", away.machine_id)[-1]["desired_model"]["runs_it"] is True
+
+        code = main(["model", "rollout", "--pending", *settings, "--json"])
+        report = json.loads(capsys.readouterr().out)
+        assert code == 0, report
+        assert [row["result"] for row in report["machines"]] == ["up_to_date"] * 3
+
+
+def test_pending_sends_an_online_machine_the_desired_model_it_does_not_run(
+    fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """A desired record written while the machine is online (no command followed): --pending sends it."""
+    new = _variant(tmp_path, "rolled-out.yaml")
+    raw = new.read_bytes()
+    sha256 = hashlib.sha256(raw).hexdigest()
+    settings = _broker_settings(tmp_path, broker.port)
+    machine = fleet[1]
+    with Subscriber(broker.port, "compd/#") as sub:
+        _start_and_wait_for_births([machine], sub)
+        request = {"name": "rolled-out.yaml", "model_base64": base64.b64encode(raw).decode()}
+        request |= {"sha256": sha256, "requested_by": "test", "sent_unix_s": time.time()}
+        writer = Subscriber(broker.port, "nothing/#")
+        with writer:
+            topic = f"compd/{machine.machine_id}/desired"
+            writer.client.publish(
+                topic, desired_record(request), qos=1, retain=True
+            ).wait_for_publish(WAIT_S)
         sub.wait_for(
-            lambda s: any(e["event"] == "model_outdated" for e in s.of("event", away.machine_id)),
-            "the machine back telling it runs an older model",
+            lambda s: (
+                (s.of("birth", machine.machine_id)[-1].get("desired_model") or {}).get("sha256")
+                == sha256
+            ),
+            "the machine naming its desired model",
         )
+        assert _running(sub, machine.machine_id) != sha256, "a live record is not taken by itself"
 
         code = main(["model", "rollout", "--pending", *settings, "--wait-blend", "--json"])
         report = json.loads(capsys.readouterr().out)
         assert code == 0, report
-        rows = {row["machine_id"]: row for row in report["machines"]}
-        assert rows["mill-c"]["result"] == "accepted" and rows["mill-c"]["blended_in"] is True
-        assert rows["mill-a"]["result"] == rows["mill-b"]["result"] == "up_to_date"
-        sub.wait_for(lambda s: _running(s, away.machine_id) == sha256, "mill-c running it")
+        (row,) = report["machines"]
+        assert row["result"] == "accepted" and row["blended_in"] is True, row
+        sub.wait_for(lambda s: _running(s, machine.machine_id) == sha256, "running it")
+
+
+def test_a_machine_back_refuses_a_bad_desired_model_and_runs_on(
+    fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """An unstable model left as desired for a machine away: back, it refuses it once, keeps its model."""
+    bad = _variant(tmp_path, "unstable.yaml", unstable=True)
+    settings = _broker_settings(tmp_path, broker.port)
+    with Subscriber(broker.port, "compd/#") as sub:
+        away = fleet[0]
+        _start_and_wait_for_births([away], sub)
+        running = _running(sub, away.machine_id)
+        assert away.process is not None
+        away.process.terminate()
+        assert away.process.wait(timeout=WAIT_S) == 0
+        sub.wait_for(lambda s: s.of("death", away.machine_id), "the stopped machine's death")
+        rollout = ["model", "rollout", str(bad), *settings, "--machines", away.machine_id]
+        code = main([*rollout, "--no-local-check", "--json"])
+        report = json.loads(capsys.readouterr().out)
+        assert code == 1 and report["machines"][0]["result"] == "pending", report
+
+        start(away, "--time-scale", "60", "--duration-s", "36000")
+        sub.wait_for(
+            lambda s: any(e["event"] == "model_refused" for e in s.of("event", away.machine_id)),
+            "the machine back refusing its desired model",
+        )
+        refused = [e for e in sub.of("event", away.machine_id) if e["event"] == "model_refused"]
+        assert refused[0]["message"] == "desired model refused"
+        assert "stable" in refused[0]["details"]["reason"], refused[0]
+        assert _running(sub, away.machine_id) == running, "the running model untouched"
+        assert not [e for e in sub.of("event", away.machine_id) if e["event"] == "model_loaded"]
 
 
 def test_a_canary_that_refuses_stops_the_roll_out_to_every_machine_online(
@@ -529,7 +603,11 @@ def test_a_canary_that_refuses_stops_the_roll_out_to_every_machine_online(
             assert "canary mill-a refused" in rows[name]["reason"]
         sent = {m.topic.split("/")[1] for m in sub.messages if "/cmd/" in m.topic}
         assert sent == {"mill-a"}, "the rest never sent it"
-        desired = {m.topic.split("/")[1] for m in sub.messages if m.topic.endswith("/desired")}
+        desired = {
+            m.topic.split("/")[1]
+            for m in sub.messages
+            if m.topic.endswith("/desired") and m.payload.get("schema") == DESIRED_SCHEMA
+        }
         assert desired == {"mill-a"}, "nor left a desired record for --pending to send later"
 
         code = main(["model", "rollout", str(good), *settings, *waves, "--wait-blend"])

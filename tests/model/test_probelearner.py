@@ -194,7 +194,7 @@ def test_a_damaged_state_is_refused_naming_what_is_wrong(change, message) -> Non
 
 def _machine_truth(sign: float) -> tuple[float, float, float]:
     """On the simulated machine half an hour in: write ``sign * 3 um`` as compd does; the truth after."""
-    from compd.service.offsets import AxisPoint
+    from compd.service.loop.offsets import AxisPoint
     from compd.sim.plc.machine import ServedAxis, SimulatedMachine
     from compd.sim.plc.settings import SimulationDoc
 

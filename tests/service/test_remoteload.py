@@ -25,7 +25,7 @@ from compd.files.yamlplace import MAX_YAML_BYTES
 from compd.service.control.socket import TOO_DEEP
 from compd.service.daemon import Service
 from compd.service.fleet.mqttlink import Broker, Topics
-from compd.service.fleet.remoteload import MAX_PAYLOAD_BYTES, SCHEMA, RemoteLoads
+from compd.service.fleet.remoteload import DESIRED_SCHEMA, MAX_PAYLOAD_BYTES, SCHEMA, RemoteLoads
 from compd.service.fleet.telemetry import Telemetry
 from compd.service.loop.clock import VirtualClock
 from tests.mosquitto import MODEL, WAIT_S, Mosquitto, Subscriber, machine_config, mosquitto_binary
@@ -254,3 +254,76 @@ def test_a_model_file_at_its_size_limit_fits_the_payload_bound():
     body = json.loads(request())
     body |= {"model_base64": base64.b64encode(raw).decode(), "requested_by": "x" * 200}
     assert len(json.dumps(body).encode()) <= MAX_PAYLOAD_BYTES
+
+
+def desired(**changes: Any) -> bytes:
+    """A roll-out's retained desired record of RAW (``compd.cli.rollout.desired_record``'s shape)."""
+    record = json.loads(request(**changes))
+    record |= {"schema": changes.get("schema", DESIRED_SCHEMA), "rollout_id": "o1"}
+    return json.dumps({k: v for k, v in record.items() if k != "request_id"}).encode()
+
+
+def take(daemon: Daemon, *payloads: bytes, installed: bool = False) -> None:
+    """``payloads`` through one RemoteLoads's take_desired, in turn (one process: one memory).
+
+    ``installed``: the state directory holds the model (it ran here before).
+    """
+    remote = RemoteLoads(
+        daemon.load,
+        lambda i, r: daemon.replies.append((i, r)),
+        daemon.events.append,
+        installed=lambda sha256: installed,
+    )
+
+    async def each() -> None:
+        for payload in payloads:
+            await remote.take_desired(payload)
+
+    asyncio.run(each())
+
+
+def test_a_desired_record_is_loaded_as_a_command_is_however_old():
+    """A machine back days later: its desired record goes to load_model; no reply (no request)."""
+    daemon = Daemon(ACCEPTED)
+    take(daemon, desired(sent_unix_s=time.time() - 30 * 86400))
+    assert [base64.b64decode(m["model_base64"]) for m in daemon.loads] == [RAW]
+    assert not daemon.replies and not daemon.events
+
+
+@pytest.mark.parametrize(
+    ("changes", "reason"),
+    [
+        ({"sha256": "0" * 64}, "altered or truncated"),
+        ({"schema": "compd.model_load/1"}, "schema"),
+        ({"model_base64": "not base64!"}, "not base64"),
+        ({"sent_unix_s": 1e400}, "does not read"),
+    ],
+)
+def test_a_desired_record_that_does_not_hold_together_is_refused_once(
+    changes: dict[str, Any], reason: str
+):
+    """Refused unloaded, with a model_refused event naming the roll-out; heard again, not retried."""
+    daemon = Daemon(ACCEPTED)
+    payload = desired(**changes).replace(b"Infinity", b"1e400")
+    take(daemon, payload, payload)
+    assert not daemon.loads
+    (event,) = daemon.events
+    assert event.kind == "model_refused" and event.message == "desired model refused"
+    assert reason in event.details["reason"] and event.details["rollout_id"] == "o1"
+
+
+def test_a_desired_model_the_daemon_refuses_is_told_and_the_running_one_stays():
+    """load_model's CompdError (unstable, another config's signals) is the event's reason."""
+    daemon = Daemon(CompdError("the model is not stable"))
+    take(daemon, desired(), desired())
+    assert len(daemon.loads) == 1, "refused once, not at every reconnection"
+    assert [e.details["reason"] for e in daemon.events] == ["the model is not stable"]
+
+
+def test_a_desired_model_that_ran_here_and_was_replaced_here_is_not_taken_again():
+    """Unloaded by a failure, or a person loaded another since: the machine's own choice stands."""
+    daemon = Daemon(ACCEPTED)
+    take(daemon, desired(), installed=True)
+    assert not daemon.loads
+    (event,) = daemon.events
+    assert "replaced here" in event.details["reason"] and "--pending" in event.details["reason"]

@@ -53,7 +53,8 @@ class TelemetryDoc(Strict):
     username: str | None = None
     password_file: str | None = None
     tls: TelemetryTlsDoc | None = None
-    #: Load models sent to ``<prefix>/<machine_id>/cmd/model_load`` (``compd model rollout``).
+    #: Load models sent to ``<prefix>/<machine_id>/cmd/model_load`` (``compd model rollout``),
+    #: and the roll-out's retained ``desired`` record heard at connecting (a machine back).
     #: Off unless asked: a machine takes no model from the network unless configured to.
     accept_models: bool = False
 

@@ -35,6 +35,12 @@ integer of more than :data:`MAX_DIGITS` digits), wherever it stands; any other
 failure while checking it is answered ``refused`` as well, never left unanswered.
 The broker itself drops a payload larger than the daemon's MQTT maximum packet
 size (:meth:`compd.service.fleet.telemetry.Telemetry.listen`) before it is sent.
+
+A machine away during a roll-out misses its command; the roll-out's retained
+record on ``<prefix>/<machine_id>/desired`` (the same model and sha256) is
+taken instead, when the daemon hears it at connecting and runs another model
+(:meth:`RemoteLoads.take_desired`): checked as a command is, but for its age
+and id, since the record is the fleet's current word, not a message in flight.
 """
 
 from __future__ import annotations
@@ -62,6 +68,10 @@ log = structlog.get_logger("compd.service.fleet.remoteload")
 SCHEMA = "compd.model_load/1"
 #: The command's topic level: ``<prefix>/<machine_id>/cmd/model_load``.
 COMMAND = "model_load"
+#: ``<prefix>/<machine_id>/desired`` (retained, written by the roll-out user only): the model a
+#: roll-out left for the machine, taken by :meth:`RemoteLoads.take_desired` when heard at connecting.
+DESIRED = "desired"
+DESIRED_SCHEMA = "compd.desired_model/1"
 #: The largest payload read: a model file at its size limit, base64-encoded, and the rest.
 MAX_PAYLOAD_BYTES = 4 * (MAX_YAML_BYTES // 3 + 1) + 4096
 #: The most digits of an integer in a request (its times have ten): more is corrupt, or an attack
@@ -85,6 +95,7 @@ class RemoteLoads:
         *,
         seen: SeenRequests | None = None,
         now: Callable[[], float] = time.time,
+        installed: Callable[[str], bool] = lambda sha256: False,
     ) -> None:
         self.load = load
         self.reply = reply
@@ -93,7 +104,11 @@ class RemoteLoads:
         self.seen = seen or SeenRequests(None)
         #: The machine's real clock (the sender's ``sent_unix_s`` is real time, also in a simulation).
         self.now = now
+        #: Whether a model of this sha256 was installed here before (the state directory's models).
+        self.installed = installed
         self._saving = asyncio.Lock()
+        #: The sha256 of desired records refused (not tried again at each reconnection).
+        self._refused_desired: set[str] = set()
 
     async def handle(self, payload: bytes, *, retained: bool = False) -> None:
         """Parse, check and load one request; answer it (a request without a usable id: log only).
@@ -124,6 +139,64 @@ class RemoteLoads:
             log.exception("remote model load failed", request_id=request_id)
             self._refuse(answer, f"the daemon failed to check it ({type(exc).__name__})", by)
         self.reply(request_id, answer)
+
+    async def take_desired(self, payload: bytes) -> None:
+        """Load the roll-out's desired record, heard at connecting: a machine that was away catches up.
+
+        The record is the fleet's current word (each roll-out overwrites it,
+        and only the roll-out user may write it: README "Many machines"), so
+        neither its age nor its id is checked as a command's are; everything
+        else is: its sha256, then the daemon's own checks, blend or refusal
+        (a ``model_refused`` event; a record refused once is not tried again
+        by this process). Called only when it names another model than the
+        running one. A model installed here before that no longer runs was
+        replaced here, by a failure that unloaded it or by a person's
+        ``compd model load``: it is not taken again (``--pending`` sends it,
+        as a command, if that is wanted).
+        """
+        try:
+            record = json.loads(
+                payload, parse_int=_int, parse_float=_float, parse_constant=_constant
+            )
+        except (UnicodeDecodeError, ValueError, RecursionError):
+            record = None
+        if not isinstance(record, dict):
+            log.error("desired model record ignored: not a JSON object")
+            return
+        sha256 = record.get("sha256")
+        if not isinstance(sha256, str) or sha256 in self._refused_desired:
+            return
+        by = shorten(str(record.get("requested_by", "?")), 200)
+        details = {"sha256": sha256, "requested_by": by, "rollout_id": record.get("rollout_id")}
+        try:
+            if record.get("schema") != DESIRED_SCHEMA:
+                raise CompdError(f"the record's schema is not {DESIRED_SCHEMA!r}")
+            if (unread := _unread_number(record)) is not None:
+                raise CompdError(f"the record holds a number compd does not read: {unread}")
+            raw, name = request_bytes(record)
+            if hashlib.sha256(raw).hexdigest() != sha256:
+                raise CompdError("the model's sha256 is not the record's: altered or truncated")
+            if self.installed(sha256):
+                raise CompdError(
+                    "it ran here before and was replaced here (a failure unloaded it, or "
+                    "compd model load put another in): not taken again by itself; "
+                    "compd model rollout --pending sends it"
+                )
+            log.info("desired model taken", name=name, **details)
+            await self.load(load_request(raw, name))
+        except CompdError as exc:
+            self._refused_desired.add(sha256)
+            log.error("desired model refused", reason=str(exc), **details)
+            self.events(
+                Event("model_refused", "desired model refused", details | {"reason": str(exc)})
+            )
+        except Exception as exc:  # a bug must not end the daemon: the running model stays
+            self._refused_desired.add(sha256)
+            log.exception("desired model failed to load", **details)
+            reason = f"the daemon failed to check it ({type(exc).__name__})"
+            self.events(
+                Event("model_refused", "desired model refused", details | {"reason": reason})
+            )
 
     def _refuse(self, answer: dict[str, Any], reason: str, by: str) -> None:
         answer |= {"result": "refused", "reason": reason}

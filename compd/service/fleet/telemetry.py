@@ -45,11 +45,12 @@ commands (``accept_models: true``, answered on ``reply/<request_id>`` by
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -146,6 +147,11 @@ class Telemetry:
         self._loop_thread = 0
         self._task: asyncio.Task[None] | None = None
         self.commands = Commands(topics, self.event)
+        #: Takes the roll-out's desired record heard at connecting (``accept_models``), if set.
+        self._desired_handler: Callable[[bytes], Awaitable[None]] | None = None
+        #: The retained desired record heard at this connection, until this daemon publishes.
+        self._desired_due: bytes | None = None
+        self._taking: set[asyncio.Task[None]] = set()
 
     @property
     def publishing(self) -> bool:
@@ -235,7 +241,8 @@ class Telemetry:
                     break  # _on_publish wakes this task again
                 if self._birth_due:
                     self._birth_due = False
-                    self._publish("birth", self.payloads.birth(self.event), retain=True)
+                    birth = self.payloads.birth(self.event) | {"commands": list(self.listening)}
+                    self._publish("birth", birth, retain=True)
                 elif self._events:
                     at_s, event = self._events.popleft()
                     self._publish("event", self.payloads.event(at_s, event))
@@ -293,6 +300,16 @@ class Telemetry:
     def listen(self, kind: str, handler: Handler, *, max_bytes: int) -> None:
         """Act on ``cmd/<kind>`` while publishing (before :meth:`start`; :mod:`~compd.service.fleet.commands`)."""
         self.commands.listen(kind, handler, max_bytes=max_bytes)
+
+    def take_desired(self, handler: Callable[[bytes], Awaitable[None]]) -> None:
+        """Hand the retained ``desired`` record heard at connecting to ``handler`` (on the loop).
+
+        Only while publishing, and only if it names another model than the
+        running one: a machine that was away takes what the roll-out left
+        (:meth:`compd.service.fleet.remoteload.RemoteLoads.take_desired`). A record
+        that arrives live is not handed over: the roll-out's command follows it.
+        """
+        self._desired_handler = handler
 
     @property
     def max_packet_bytes(self) -> int:
@@ -359,6 +376,7 @@ class Telemetry:
             self._active = True
             self._birth_due = True
             self.commands.subscribe(client)
+            self._hand_desired()
             if self.rival is not None:
                 self.rival = None
                 self._duplicate.cleared("telemetry publishes: the other daemon is gone")
@@ -427,12 +445,15 @@ class Telemetry:
                 self._heard_own(client, own, message)
                 return
         if message.topic == self.topics.of("desired"):
-            self._heard_desired(bytes(message.payload))
+            self._heard_desired(bytes(message.payload), retained=bool(message.retain))
             return
         self.commands.dispatch(message)
 
-    def _heard_desired(self, data: bytes) -> None:
-        """The roll-out's record of the model this machine should run: said in the next birth."""
+    def _heard_desired(self, data: bytes, *, retained: bool) -> None:
+        """The roll-out's record of the model this machine should run: said in the next birth.
+
+        Heard from the retained store (at connecting), it is also taken (:meth:`take_desired`).
+        """
         try:
             record = json.loads(data) if data else None
         except (ValueError, RecursionError):
@@ -440,9 +461,29 @@ class Telemetry:
         if record is not None and not isinstance(record, dict):
             return
         self.payloads.desired = None if record is None else {k: record.get(k) for k in DESIRED_KEYS}
+        self._desired_due = data if retained and record is not None else None
         if self._active:
+            self._hand_desired()
             self._birth_due = True
             self._notify()
+
+    def _hand_desired(self) -> None:
+        """The desired record heard at connecting, to the loop's :meth:`_take_desired` (once)."""
+        data, self._desired_due = self._desired_due, None
+        if data is None or self._desired_handler is None or self._loop is None:
+            return
+        with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
+            self._loop.call_soon_threadsafe(self._take_desired, data)
+
+    def _take_desired(self, data: bytes) -> None:
+        """On the loop: hand the record over if it names another model than the running one."""
+        sha256 = json.loads(data).get("sha256")  # parsed before, in _heard_desired
+        running = (self.payloads.identity().get("model") or {}).get("sha256")
+        if self._desired_handler is None or sha256 in (None, running):
+            return
+        task = asyncio.ensure_future(self._desired_handler(data))
+        self._taking.add(task)  # a reference until done: the loop keeps only weak ones
+        task.add_done_callback(self._taking.discard)
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
         self.counters.acknowledged += 1
