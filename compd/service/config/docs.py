@@ -368,6 +368,63 @@ class LoadAccessDoc(Strict):
         return Access(*self.ids())
 
 
+class ProbeAxisDoc(Strict):
+    """One axis's probe interface on the PLC: what its probe cycle writes, what compd answers.
+
+    The PLC's probe cycle writes the measured value (``value_address``, um as
+    ``raw * value_scale``), then increments ``counter_address``; compd takes
+    each new count once, and writes the last count it took to ``echo_address``
+    (a value is never used twice or missed, across restarts too). Where the
+    PLC stamps the touch (``touched_at_address``, unix s), the value refers
+    to that instant; without, to the tick that saw the count change.
+    ``status_address`` (optional) gets bit 0 "probe due", bit 1 "the model
+    no longer describes the machine" (two probes in a row rejected).
+    """
+
+    driver: str
+    value_address: str = Field(min_length=1)
+    value_scale: FiniteFloat = 1.0
+    counter_address: str = Field(min_length=1)
+    echo_address: str = Field(min_length=1)
+    touched_at_address: str | None = Field(default=None, min_length=1)
+    status_address: str | None = Field(default=None, min_length=1)
+
+
+class ProbesDoc(Strict):
+    """``probes:``: probe measurements update the running model in service (:mod:`compd.service.loop.probing`).
+
+    ``measures``: with compensation active a probe sees the residue (what is
+    left after the offset in force when it touched); ``thermal_error`` for a
+    probe that reports the uncompensated drift. The update's settings default
+    to the model file's ``probe_prior`` (or a documented conservative default):
+    ``probe_noise_um`` 0.5 um; ``drift_um_per_sqrt_h`` 0.3 calibration sigma per
+    sqrt(hour); ``reject_sigma`` 4 (a probe further than that from the
+    prediction is flagged, taken only when the next confirms it).
+    """
+
+    enabled: bool = True
+    measures: Literal["residue", "thermal_error"] = "residue"
+    #: A probe is due this long after the last one taken (h): the PLC probes at its next tool change.
+    every_h: Annotated[float, Field(gt=0, le=24 * 365, allow_inf_nan=False)] = 2.0
+    probe_noise_um: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] | None = None
+    drift_um_per_sqrt_h: Annotated[float, Field(ge=0, le=1000, allow_inf_nan=False)] | None = None
+    max_departure_um: Annotated[float, Field(gt=0, le=10000, allow_inf_nan=False)] | None = None
+    reject_sigma: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] | None = None
+    #: Per axis (a name under ``outputs``), where the PLC's probe cycle meets compd; an axis
+    #: may also be probed through ``compd model probe`` and MQTT alone (``{}``: no registers).
+    axes: dict[str, ProbeAxisDoc | None] = Field(default_factory=dict)
+
+    def overrides(self) -> dict[str, float]:
+        """The settings given, as :meth:`compd.model.probeupdate.ProbeSettings.defaults` takes them."""
+        given = {
+            "probe_noise_um": self.probe_noise_um,
+            "drift_um_per_sqrt_h": self.drift_um_per_sqrt_h,
+            "max_departure_um": self.max_departure_um,
+            "reject_sigma": self.reject_sigma,
+        }
+        return {k: v for k, v in given.items() if v is not None}
+
+
 class ConfigDoc(Strict):
     schema_: Literal["compd.config/1"] = Field(alias="schema")
     #: This machine's name across a fleet: in every recording's metadata (and telemetry's topics).
@@ -396,6 +453,8 @@ class ConfigDoc(Strict):
     telemetry: TelemetryDoc | None = None
     #: Prometheus metrics and the read-only status page (:mod:`compd.service.http.server`).
     http: HttpDoc | None = None
+    #: Probe measurements that update the model in service; none without.
+    probes: ProbesDoc | None = None
     #: The simulated machine this config runs against (:mod:`compd.sim.plc.settings`).
     simulation: dict[str, Any] | None = None
 

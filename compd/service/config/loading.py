@@ -54,6 +54,8 @@ from compd.service.config.writepoints import (
     HookCall,
     check_written,
     output_readback,
+    probe_axes,
+    read_points,
     status_mismatch_bit,
     status_model_fault_bit,
     whole_counts,
@@ -182,6 +184,7 @@ def parse_config(text: str, path: Path) -> Config:
     _check_driver_names(doc, at.error)
     _check_effect_signals(doc, at.error)
     _check_gain_schedule(doc, at.error)
+    _check_probe_axes(doc, at.error)
     _check_addresses(doc, types, settings, at.error)
     check_overlaps(doc, types, settings, at.error, at.place)
     check_written(doc, types, settings, at.error)
@@ -300,6 +303,7 @@ def _check_driver_names(doc: ConfigDoc, error: ErrorAt) -> None:
     references += [(("outputs", n, "driver"), o.driver) for n, o in doc.outputs.items()]
     if doc.status is not None:
         references.append((("status", "driver"), doc.status.driver))
+    references += [(("probes", "axes", a, "driver"), p.driver) for a, p in probe_axes(doc)]
     for location, driver_name in references:
         if driver_name not in doc.drivers:
             raise error(
@@ -319,6 +323,19 @@ def _check_effect_signals(doc: ConfigDoc, error: ErrorAt) -> None:
                     f"signal {signal!r} is not defined under 'signals'",
                     f"Define it or use one of {sorted(doc.signals)}",
                 )
+
+
+def _check_probe_axes(doc: ConfigDoc, error: ErrorAt) -> None:
+    """Each probed axis is an output (a probe measures what an axis's offset compensates)."""
+    if doc.probes is None:
+        return
+    for axis in doc.probes.axes:
+        if axis not in doc.outputs:
+            raise error(
+                ("probes", "axes", axis),
+                f"axis {axis!r} is not an output: a probe measures an axis compd compensates",
+                f"Use one of {sorted(doc.outputs)}",
+            )
 
 
 def _check_gain_schedule(doc: ConfigDoc, error: ErrorAt) -> None:
@@ -351,8 +368,7 @@ def _check_addresses(
     error: ErrorAt,
 ) -> None:
     """Each address read or written is one its driver type accepts (:func:`compd.drivers.base.check_address`)."""
-    read = [(("signals", n, "address"), s.driver, s.address) for n, s in doc.signals.items()]
-    for locations, writable in ((read, False), (written_points(doc), True)):
+    for locations, writable in ((read_points(doc), False), (written_points(doc), True)):
         for location, driver_name, address in locations:
             kind = types[doc.drivers[driver_name].type]
             at = HookCall(location, driver_name, doc.drivers[driver_name].type, error)

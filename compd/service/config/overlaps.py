@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING
 
 from pydantic import BaseModel
 
-from compd.service.config.writepoints import ErrorAt, HookCall, written_points
+from compd.service.config.writepoints import ErrorAt, HookCall, read_points, written_points
 
 if TYPE_CHECKING:
     from compd.drivers.base import DriverType
@@ -85,10 +85,7 @@ def check_overlaps(
 
     _check_exclusive_lines(doc, kind, settings, error, place)
 
-    uses = [
-        _Use(("signals", name, "address"), signal.driver, signal.address, False)
-        for name, signal in doc.signals.items()
-    ]
+    uses = [_Use(location, d, address, False) for location, d, address in read_points(doc)]
     uses += [_Use(location, d, address, True) for location, d, address in written_points(doc)]
     writers = dict.fromkeys(use.driver for use in uses if use.written)
     uses += [_Use(("drivers", d), d, None, True) for d in writers]

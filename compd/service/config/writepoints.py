@@ -34,7 +34,7 @@ from compd.service.loop.safety import HEARTBEAT_MODULO, SIGNAL_BIT0, mismatch_bi
 
 if TYPE_CHECKING:
     from compd.drivers.base import DriverType
-    from compd.service.config.docs import ConfigDoc
+    from compd.service.config.docs import ConfigDoc, ProbeAxisDoc
 
 #: Builds the config error for a place: ``error(location, message, fix)``.
 ErrorAt = Callable[[tuple[str | int, ...], str, str], ConfigFileError]
@@ -88,7 +88,32 @@ def written_points(doc: ConfigDoc) -> list[tuple[tuple[str | int, ...], str, str
             (("status", "status_address"), doc.status.driver, doc.status.status_address),
             (("status", "heartbeat_address"), doc.status.driver, doc.status.heartbeat_address),
         ]
+    for axis, probe in probe_axes(doc):
+        written.append((("probes", "axes", axis, "echo_address"), probe.driver, probe.echo_address))
+        if probe.status_address is not None:
+            where = ("probes", "axes", axis, "status_address")
+            written.append((where, probe.driver, probe.status_address))
     return written
+
+
+def probe_axes(doc: ConfigDoc) -> list[tuple[str, ProbeAxisDoc]]:
+    """The axes whose probes the PLC reports through registers (``probes.axes``), when probes are on."""
+    if doc.probes is None or not doc.probes.enabled:
+        return []
+    return [(axis, probe) for axis, probe in doc.probes.axes.items() if probe is not None]
+
+
+def read_points(doc: ConfigDoc) -> list[tuple[tuple[str | int, ...], str, str]]:
+    """``(location, driver, address)`` of every value compd reads: the signals, the probes' registers."""
+    read: list[tuple[tuple[str | int, ...], str, str]] = [
+        (("signals", n, "address"), s.driver, s.address) for n, s in doc.signals.items()
+    ]
+    for axis, probe in probe_axes(doc):
+        for field in ("value_address", "counter_address", "touched_at_address"):
+            address = getattr(probe, field)
+            if address is not None:
+                read.append((("probes", "axes", axis, field), probe.driver, address))
+    return read
 
 
 def check_written(
