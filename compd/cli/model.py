@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from compd.cli.args import broker_option, daemon_options
+from compd.cli.modelprobe import register as register_probe
 from compd.cli.modelupdates import register as register_updates
 
 
@@ -97,6 +98,7 @@ def register(commands: Any) -> None:
     )
     rollout.set_defaults(handler=_rollout)
     register_updates(model)
+    register_probe(model)
 
 
 def _check(args: argparse.Namespace) -> int:

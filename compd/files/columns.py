@@ -19,7 +19,7 @@ RUN_GAP_S = "run_gap_s"
 UNIT_PREFIX = "unit."
 
 #: Columns compd's recorder adds beside the signals: what it did, not what the machine measured.
-RECORDED_PREFIXES = ("health.", "read.", "model.", "offset.", "readback.", "gain.")
+RECORDED_PREFIXES = ("health.", "read.", "model.", "offset.", "readback.", "gain.", "probe.")
 RECORDED_NAMES = ("status", "heartbeat", "t_s")
 
 

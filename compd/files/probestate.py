@@ -188,12 +188,21 @@ def save_learned(
     state_dir: Path, sha256: str, learners: Mapping[str, OutputLearner], now_s: float
 ) -> Path:
     """Write the learners' states of the model with ``sha256`` atomically; the file written."""
+    states = {name: learner.state() for name, learner in learners.items()}
+    return write_learned(state_dir, sha256, states, now_s)
+
+
+def write_learned(
+    state_dir: Path, sha256: str, states: Mapping[str, Mapping[str, Any]], now_s: float
+) -> Path:
+    """:func:`save_learned` of states already taken (:meth:`OutputLearner.state`: the daemon takes
+    them in the tick and writes them from a worker thread)."""
     path = learned_path(state_dir, sha256)
     data = {
         "format": STATE_FORMAT,
         "model_sha256": sha256,
         "saved_s": now_s,
-        "outputs": {name: learner.state() for name, learner in learners.items()},
+        "outputs": dict(states),
     }
     write_atomic(path, json.dumps(data, allow_nan=False, indent=1).encode())
     return path

@@ -18,13 +18,17 @@ from typing import TYPE_CHECKING, Any
 from compd.service.config.docs import RecorderDoc
 from compd.service.config.fleetdoc import HttpDoc, TelemetryDoc
 from compd.service.config.loading import Config
+from compd.service.config.writepoints import probe_axes
 from compd.service.identity import column_units, recording_metadata
+from compd.service.loop.points import SignalPoint
+from compd.service.loop.probing import ProbeLearning, ProbeRegisters, ProbeSetup
 from compd.service.loop.subscribers import Subscriber
 from compd.service.notify import SystemdNotifier, SystemdTicks
 from compd.service.recording.marks import Units
 from compd.service.recording.parquet import DEFAULT_FLUSH_EVERY_ROWS, ParquetRecorder
 from compd.service.recording.recorder import Recorder
 from compd.service.recording.ticks import RecordingTicks
+from compd.service.store.probes import ProbeKeeper
 from compd.service.store.saver import StateSaver
 from compd.service.store.state import SavedState
 
@@ -104,6 +108,55 @@ def http_server(doc: HttpDoc, service: ServiceView) -> StatusServer:
     )
 
 
+def probe_keeper(config: Config, *, background: bool) -> ProbeKeeper | None:
+    """The probe log and learned parameters' keeper, where the config has probes."""
+    doc = config.doc
+    if doc.probes is None or not doc.probes.enabled or not doc.outputs:
+        return None
+    return ProbeKeeper(config.state_dir, background=background)
+
+
+def probe_learning(config: Config, keeper: ProbeKeeper | None) -> ProbeLearning | None:
+    """The probe updates the config's ``probes`` section asks for (None: off, or a data logger)."""
+    doc = config.doc
+    probes = doc.probes
+    if probes is None or not probes.enabled or not doc.outputs:
+        return None
+    setup = ProbeSetup(
+        measures=probes.measures,
+        every_h=probes.every_h,
+        overrides=probes.overrides(),
+        axes=tuple(probes.axes),
+    )
+    registers = [
+        ProbeRegisters(
+            axis=axis,
+            driver=reg.driver,
+            value=SignalPoint(
+                f"probe.{axis}.value_um", reg.driver, reg.value_address, reg.value_scale
+            ),
+            counter=SignalPoint(f"probe.{axis}.count", reg.driver, reg.counter_address, kind="int"),
+            echo_address=reg.echo_address,
+            echo=SignalPoint(f"probe.{axis}.echo", reg.driver, reg.echo_address, kind="int"),
+            touched_at=(
+                None
+                if reg.touched_at_address is None
+                else SignalPoint(
+                    f"probe.{axis}.touched_at_unix_s", reg.driver, reg.touched_at_address
+                )
+            ),
+            status_address=reg.status_address,
+        )
+        for axis, reg in probe_axes(doc)
+    ]
+    return ProbeLearning(
+        setup,
+        config.axis_points(),
+        registers,
+        restore=None if keeper is None else keeper.restore,
+    )
+
+
 @dataclass
 class Subscribed:
     """The loop's subscribers built for one service; the daemon keeps handles for their lifecycles."""
@@ -113,12 +166,20 @@ class Subscribed:
     saver: StateSaver
     telemetry: Telemetry | None
     http: StatusServer | None
+    probes: ProbeKeeper | None = None
 
     def in_order(self) -> list[Subscriber]:
         """The order each tick is told in: systemd's watchdog first, the page last."""
         return [
             s
-            for s in (self.systemd, self.recording, self.saver, self.telemetry, self.http)
+            for s in (
+                self.systemd,
+                self.recording,
+                self.saver,
+                self.probes,
+                self.telemetry,
+                self.http,
+            )
             if s is not None
         ]
 
@@ -132,6 +193,7 @@ def tick_subscribers(
     background_saves: bool,
     identity: Callable[[], dict[str, Any]],
     wall: Callable[[], float],
+    probe_keeper: ProbeKeeper | None = None,
 ) -> Subscribed:
     """Everything that follows the loop, as ``config`` asks for it."""
     doc = config.doc
@@ -159,4 +221,5 @@ def tick_subscribers(
             else None
         ),
         http=http_server(doc.http, view) if doc.http is not None and doc.http.enabled else None,
+        probes=probe_keeper,
     )

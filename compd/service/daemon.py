@@ -32,8 +32,9 @@ from typing import TYPE_CHECKING, Any
 import structlog
 
 from compd.drivers.base import Driver
-from compd.errors import RecorderError
+from compd.errors import CompdError, RecorderError
 from compd.faultlog import Event, FaultLog
+from compd.files.probestate import reset_learned
 from compd.service import build
 from compd.service.config.loading import Config
 from compd.service.control.modelload import ModelLoader, request_bytes, startup_slots
@@ -45,6 +46,7 @@ from compd.service.fleet.seenrequests import SeenRequests
 from compd.service.identity import identity
 from compd.service.loop.clock import Clock
 from compd.service.loop.compensator import Compensator, TickRecord
+from compd.service.loop.probing import probe_request
 from compd.service.loop.safety import HEARTBEAT_MODULO
 from compd.service.loop.snapshot import ModelId, TickSnapshot
 from compd.service.loop.statusview import status_snapshot
@@ -101,6 +103,9 @@ class Service:
             name: d.link(name, self.drivers[name], clock) for name, d in doc.drivers.items()
         }
         self.loader = ModelLoader(config, clock.wall)
+        #: Probe measurements (config ``probes``): the log and learned parameters, the learning.
+        self.probe_keeper = build.probe_keeper(config, background=background_saves)
+        self.probing = build.probe_learning(config, self.probe_keeper)
         self.compensator = Compensator(
             signals=[s.point(name) for name, s in doc.signals.items()],
             monitors={name: s.monitor(name) for name, s in doc.signals.items()},
@@ -122,6 +127,7 @@ class Service:
             period_s=doc.period_s,
             plausibility=doc.plausibility.settings(),
             units={name: s.unit for name, s in doc.signals.items()},
+            probing=self.probing,
         )
         if self.compensator.models is not None:
             self.compensator.models.fallback = fallback
@@ -136,8 +142,9 @@ class Service:
         self._control = (
             ControlServer(
                 config.control_socket,
-                {"status": self._status, "load": self.load_model},
-                access={"load": doc.load_access.access()},
+                {"status": self._status, "load": self.load_model, "probe": self.take_probe},
+                # A probe changes what the model compensates: whoever may load a model may probe.
+                access={"load": doc.load_access.access(), "probe": doc.load_access.access()},
                 budget=self.fd_budget,
             )
             if control
@@ -156,6 +163,7 @@ class Service:
             background_saves=background_saves,
             identity=self._describe,
             wall=clock.wall,
+            probe_keeper=self.probe_keeper,
         )
         self.recording = subscribed.recording
         self.recorder = None if self.recording is None else self.recording.recorder
@@ -359,6 +367,42 @@ class Service:
             "blend_s": self.config.doc.blend_s,
         }
 
+    async def take_probe(self, message: dict[str, Any]) -> dict[str, Any]:
+        """The control socket's ``probe``: an axis's measured value (a gauge, a CMM), or a reset.
+
+        ``{"axis": "Z", "measured_um": 3.2, "touched_at_unix_s": ..., "measures": "residue"}``
+        is taken at the next tick (the touch time defaults to now); the reply
+        says what the update did with it. ``{"reset": true}`` returns every
+        output to the calibration's parameters and forgets what was learned.
+        """
+        probing = self.probing
+        if probing is None:
+            raise CompdError(
+                f"{self.config.path}: probes are off: add a 'probes' section naming the axes "
+                "probed (config/README.md, Probes)"
+            )
+        now_unix_s = self.clock.wall()
+        if message.get("reset") is True:
+            probing.reset()
+            if probing.sha256 is not None:
+                reset_learned(self.config.state_dir, probing.sha256)
+            log.warning("probe updates reset: the calibration's parameters again", by="socket")
+            return {"reset": True, "model_sha256": probing.sha256}
+        request = probe_request(message, now_unix_s, probing.setup.measures)
+        probing.offer(request)
+        period_s = self.config.doc.period_s
+        for _ in range(40):  # a few ticks: the answer says what the update did
+            await asyncio.sleep(period_s / 10)
+            last = probing.last.get(request.axis)
+            if last is not None and last.request is request:
+                axis: dict[str, Any] = probing.status(now_unix_s)["axes"][request.axis]
+                return {"taken": True} | axis
+        return {"taken": False, "queued": True, "axis": request.axis}
+
+    def clock_wall(self) -> float:
+        """The loop clock's wall time now (unix s): on virtual time, the machine's."""
+        return self.clock.wall()
+
     async def _status(self, message: dict[str, Any]) -> dict[str, Any]:
         return self.status()
 
@@ -374,7 +418,7 @@ class Service:
             started_unix_s=self.started_unix_s,
             counters=self.counters() if self.last is None else self.last.counters,
             telemetry=None if self.telemetry is None else self.telemetry.status_counters(),
-        )
+        ) | {"probes": None if self.probing is None else self.probing.status(self.clock.wall())}
 
     def _describe(self) -> dict[str, Any]:
         return identity(self.config, self.compensator.running, self.started_unix_s)

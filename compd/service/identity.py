@@ -53,7 +53,7 @@ _PREFIX_UNITS = {
     "model": "um",
     "offset": "um",
 }
-_PREFIX_UNITS |= {"readback": "um", "gain": "1"}
+_PREFIX_UNITS |= {"readback": "um", "gain": "1", "probe": "um"}
 
 
 def column_units(config: Config) -> Callable[[str], str | None]:

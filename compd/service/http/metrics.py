@@ -249,6 +249,7 @@ class LiveCollector(Collector):
         yield info
         yield from _model_metrics(service)
         yield from _link_metrics(service)
+        yield from _probe_metrics(service)
 
 
 def _model_metrics(service: ServiceView) -> Iterator[Metric]:
@@ -289,6 +290,56 @@ def _model_metrics(service: ServiceView) -> Iterator[Metric]:
         "1 while a newly loaded model is blended in.",
         float(comp.previous is not None),
     )
+
+
+def _probe_metrics(service: ServiceView) -> Iterator[Metric]:
+    """Probes (config ``probes``): how well compensation holds on the parts, the shop's evidence."""
+    probing = service.probing
+    if probing is None:
+        return
+    status = probing.status(service.clock_wall())["axes"]
+    residue = GaugeMetricFamily(
+        "compd_probe_residue_meters",
+        "The last probe's innovation per axis: what it measured minus what the model predicted, "
+        "before the update (m).",
+        labels=["axis"],
+    )
+    taken = CounterMetricFamily(
+        "compd_probes",
+        "Probes per axis and result (accepted, flagged, confirmed, refused).",
+        labels=["axis", "result"],
+    )
+    age = GaugeMetricFamily(
+        "compd_probe_age_seconds",
+        "Time since the last probe the update took, per axis (s; absent before the first).",
+        labels=["axis"],
+    )
+    due = GaugeMetricFamily(
+        "compd_probe_due", "1 while a probe is due on the axis.", labels=["axis"]
+    )
+    disagrees = GaugeMetricFamily(
+        "compd_probe_disagrees",
+        "1 after two probes in a row the update would not take: the model no longer "
+        "describes the machine.",
+        labels=["axis"],
+    )
+    adjustment = GaugeMetricFamily(
+        "compd_probe_adjustment_meters",
+        "What the probes taught, added to the model's output per axis (m).",
+        labels=["axis"],
+    )
+    for axis, s in status.items():
+        last = s["last"]
+        if last is not None and last["innovation_um"] is not None:
+            residue.add_metric([axis], last["innovation_um"] * M_PER_UM)
+        for result, count in s["results"].items():
+            taken.add_metric([axis, result], count)
+        if s["last_taken_age_s"] is not None:
+            age.add_metric([axis], s["last_taken_age_s"])
+        due.add_metric([axis], float(s["due"]))
+        disagrees.add_metric([axis], float(s["disagrees"]))
+        adjustment.add_metric([axis], s["adjustment_um"] * M_PER_UM)
+    yield from (residue, taken, age, due, disagrees, adjustment)
 
 
 def _link_metrics(service: ServiceView) -> Iterator[Metric]:

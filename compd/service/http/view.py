@@ -14,6 +14,7 @@ from compd.faultlog import FaultLog
 from compd.service.config.loading import Config
 from compd.service.loop.compensator import Compensator
 from compd.service.loop.links import DriverLink
+from compd.service.loop.probing import ProbeLearning
 from compd.service.loop.snapshot import TickSnapshot
 from compd.service.loop.ticks import TickTiming
 
@@ -64,6 +65,13 @@ class ServiceView(Protocol):
     @property
     def last(self) -> TickSnapshot | None:
         """The last tick's snapshot; None before the first."""
+
+    @property
+    def probing(self) -> ProbeLearning | None:
+        """Probe updates (config ``probes``); None: off."""
+
+    def clock_wall(self) -> float:
+        """The loop clock's wall time now (unix s)."""
 
     def status(self) -> dict[str, Any]:
         """``compd status``'s answer."""

@@ -23,6 +23,7 @@ from compd.service.loop.links import DriverLink
 from compd.service.loop.offsets import AxisPoint, HeldOffsets
 from compd.service.loop.plausibility import DEFAULT_SETTINGS, Plausibility, PlausibilitySettings
 from compd.service.loop.points import DriverBatches, SignalPoint, StatusPoint
+from compd.service.loop.probing import ProbeLearning, ProbeTaken
 from compd.service.loop.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
 from compd.service.loop.schedule import GainScheduler
 from compd.service.loop.signals import Health, Reading, SignalMonitor
@@ -60,6 +61,12 @@ class TickRecord:
     readback_um: dict[str, float] = field(default_factory=dict)
     #: What each input read this tick, scaled (NaN: no new value); ``values`` is what was used.
     read: dict[str, float] = field(default_factory=dict)
+    #: The probes taken this tick (:mod:`compd.service.loop.probing`), and per output what the
+    #: probes so far add to the model's output (um).
+    probes: tuple[ProbeTaken, ...] = ()
+    probe_adjustments_um: dict[str, float] = field(default_factory=dict)
+    #: Per probed axis, the innovation of a probe taken this tick (um; NaN: none this tick).
+    probe_innovations_um: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -124,6 +131,7 @@ class Compensator:
         period_s: float = 1.0,
         plausibility: PlausibilitySettings | None = DEFAULT_SETTINGS,
         units: Mapping[str, str] | None = None,
+        probing: ProbeLearning | None = None,
     ) -> None:
         self.signals = list(signals)
         self.monitors = dict(monitors)
@@ -155,7 +163,10 @@ class Compensator:
             else None
         )
         #: The signals, offsets and status word, batched per driver (:mod:`compd.service.loop.points`).
-        self.points = DriverBatches(self.signals, self.axes, status, self.links)
+        #: Probe measurements updating the running model (:mod:`compd.service.loop.probing`); None: off.
+        self.probing = probing if model is not None else None
+        also_read = [] if self.probing is None else self.probing.reads()
+        self.points = DriverBatches(self.signals, self.axes, status, self.links, also_read)
         if initial_state is not None and model is not None:
             model.start(initial_state, "resumed from the saved state")
         #: What each offset point holds, as far as compd knows (:mod:`compd.service.loop.offsets`).
@@ -267,6 +278,10 @@ class Compensator:
 
     async def tick(self, t_s: float) -> TickRecord:
         values, held = await self.points.read()
+        now_unix_s = self.wall_at(t_s)
+        probing = self.probing
+        if probing is not None:
+            probing.read_registers(values, now_unix_s)
         mismatches = self.held.read_back(held)
         self.counters.offset_mismatches += mismatches
         out_of_clamp = self.held.out_of_clamp
@@ -306,6 +321,10 @@ class Compensator:
         if models is not None:
             models.step(t_s, checked)
             weight = models.blend_weight(t_s)
+            if probing is not None:
+                probing.observe(now_unix_s, models.active)
+                for taken in probing.taken():
+                    self._tell("probe", f"probe {taken.result}", **taken.event_details())
         targets: dict[str, float] = {}
         offsets: dict[str, float] = {}
         flags: set[Flag] = set()
@@ -313,6 +332,8 @@ class Compensator:
         for axis in self.axes:
             assert models is not None  # axes need a model (checked in __init__)
             output = models.output(axis.model_output, weight)
+            if probing is not None:  # what the probes taught; clamp and slew still apply
+                output += probing.adjustment(axis.model_output)
             if weight is not None:
                 flags.add(Flag.BLENDING)
             depends = self.active.depends[axis.model_output]
@@ -352,13 +373,16 @@ class Compensator:
             and status.model_fault_bit,
         )
         self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
-        ok, acknowledged = await self._write(offsets, word)
+        also = None if probing is None else probing.writes(now_unix_s)
+        ok, acknowledged = await self._write(offsets, word, also)
+        if probing is not None:
+            probing.record_offsets(now_unix_s, self.held.known_um())
         written = ok and len(acknowledged) == len(self.axes)
         self.counters.ticks += 1
         outputs, contributions = _model_outputs(None if models is None else models.active)
         self.last = TickRecord(
             t_s=t_s,
-            wall_unix_s=self.wall_at(t_s),
+            wall_unix_s=now_unix_s,
             values=checked,
             health={name: r.health for name, r in readings.items()},
             reasons={name: r.reason for name, r in readings.items() if r.reason},
@@ -373,6 +397,9 @@ class Compensator:
             acknowledged_um={a.name: acknowledged.get(a.name, math.nan) for a in self.axes},
             readback_um={a.name: _um(a, held.get(a.name)) for a in self.axes if a.readback},
             read={p.name: _finite(values.get(p.name)) for p in self.signals},
+            probes=() if probing is None else probing.taken(),
+            probe_adjustments_um={} if probing is None else dict(probing.adjustments_um),
+            probe_innovations_um={} if probing is None else probing.innovations_um(),
         )
         return self.last
 
@@ -388,11 +415,14 @@ class Compensator:
         return await self.points.write_status(word, self.heartbeat)
 
     async def _write(
-        self, offsets: Mapping[str, float], word: int
+        self,
+        offsets: Mapping[str, float],
+        word: int,
+        also: Mapping[str, Mapping[str, float]] | None = None,
     ) -> tuple[bool, dict[str, float]]:
         """Write what is safe to write; whether every write succeeded, and the offsets (um) acknowledged."""
         raws = self.held.to_write(offsets)
-        ok = await self.points.write(raws, word, self.heartbeat)
+        ok = await self.points.write(raws, word, self.heartbeat, also)
         if not all(ok.values()):
             self.counters.write_failures += 1
         return all(ok.values()), self.held.written(raws, ok)

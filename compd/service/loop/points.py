@@ -83,12 +83,14 @@ class DriverBatches:
         axes: Sequence[AxisPoint],
         status: StatusPoint | None,
         links: Mapping[str, DriverLink],
+        also_read: Sequence[SignalPoint] = (),
     ) -> None:
+        """``also_read``: points read with the signals but not checked as signals (a probe's registers)."""
         self.axes = list(axes)
         self.status = status
         self.links = links
         self._reads: dict[str, list[SignalPoint]] = {}
-        for point in signals:
+        for point in (*signals, *also_read):
             self._reads.setdefault(point.driver, []).append(point)
         self._readbacks: dict[str, list[AxisPoint]] = {}
         for axis in self.axes:
@@ -123,9 +125,18 @@ class DriverBatches:
                     held[axis.name] = raw[axis.address]
         return values, held
 
-    async def write(self, raws: Mapping[str, float], word: int, heartbeat: int) -> dict[str, bool]:
-        """Write the raw offsets (by axis), the status word and the heartbeat; success per driver."""
-        batches: dict[str, dict[str, float]] = {}
+    async def write(
+        self,
+        raws: Mapping[str, float],
+        word: int,
+        heartbeat: int,
+        also: Mapping[str, Mapping[str, float]] | None = None,
+    ) -> dict[str, bool]:
+        """Write the raw offsets (by axis), the status word and the heartbeat; success per driver.
+
+        ``also``: more raw values per driver and address, in the same batch (a probe's echo).
+        """
+        batches: dict[str, dict[str, float]] = {d: dict(b) for d, b in (also or {}).items()}
         for axis in self.axes:
             if axis.name in raws:
                 batches.setdefault(axis.driver, {})[axis.address] = raws[axis.name]

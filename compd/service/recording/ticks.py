@@ -27,6 +27,9 @@ def tick_row(snapshot: TickSnapshot) -> dict[str, float | int | str]:
     row |= {f"offset.{k}_um": v for k, v in record.acknowledged_um.items()}
     row |= {f"readback.{k}_um": v for k, v in record.readback_um.items()}
     row |= {f"gain.{k}": v for k, v in record.gains.items()}
+    # What the probes taught (added to each output), and a probe's innovation on its tick.
+    row |= {f"probe.{k}.adjustment_um": v for k, v in record.probe_adjustments_um.items()}
+    row |= {f"probe.{k}.innovation_um": v for k, v in record.probe_innovations_um.items()}
     row |= {"status": record.status, "heartbeat": record.heartbeat}
     return row
 

@@ -1,0 +1,469 @@
+"""Probe measurements in the loop: the running model's parameters updated as probes come in.
+
+A probe arrives from the PLC's probe cycle (a value register and a counter,
+:class:`ProbeRegisters`), the control socket (``compd model probe``) or MQTT,
+as a :class:`ProbeRequest`: per axis, what was measured and when the probe
+touched. Each tick, after the model has stepped, :class:`ProbeLearning`
+
+1. keeps the regressors of every probed output
+   (:class:`~compd.model.probelearner.OutputLearner`: the contributions of its
+   sub-models, then 1) and the offset in force per axis;
+2. takes the probes that arrived: what a probe measures with compensation on
+   is the residue, so the thermal error the model should have predicted is the
+   residue plus the offset in force at the touch instant
+   (:func:`~compd.model.probelearner.probed_thermal_error_um`, the one place
+   the sign is decided); the update, its guard rails and its flagging of a
+   probe far from the prediction are :mod:`compd.model.probeupdate`'s;
+3. gives each output's learned adjustment, which the compensator adds to the
+   model's output before the safety stage: clamp and slew still apply, so an
+   update never steps the offset.
+
+A model switched in starts from its own prior, or from what the probes taught
+it before (``restore``, from the state directory by the model's sha256); the
+learned parameters of the previous model are kept on disk under its own sha.
+The probe status per axis: *due* after ``every_h`` hours without a probe
+taken; *disagrees* after two probes in a row the update would not take (the
+model no longer describes the machine).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import structlog
+
+from compd.errors import CompdError, ModelError
+from compd.files.probeprior import output_prior
+from compd.model.probelearner import OutputLearner, output_columns, probed_thermal_error_um
+from compd.model.probeupdate import ProbeSettings, ProbeStep
+from compd.model.updateprior import Prior
+from compd.service.loop.offsets import AxisPoint
+from compd.service.loop.points import SignalPoint
+from compd.service.loop.slots import ModelSlot
+
+log = structlog.get_logger("compd.service.loop.probing")
+
+Measures = Literal["residue", "thermal_error"]
+#: The offset in force is kept per tick over this long (s): a gauge result typed in hours late.
+OFFSET_HISTORY_S = 12 * 3600.0
+#: Probe status bits (the probe status register, and ``compd status``).
+DUE_BIT, DISAGREES_BIT = 1 << 0, 1 << 1
+
+
+@dataclass(frozen=True)
+class ProbeRequest:
+    """One measurement of an axis: ``measured_um`` at ``touched_at_unix_s``, from ``source``."""
+
+    axis: str
+    measured_um: float
+    touched_at_unix_s: float
+    source: str
+    measures: Measures = "residue"
+    #: The PLC's counter value for a probe read from registers.
+    count: int | None = None
+
+
+def probe_request(
+    message: Mapping[str, Any], now_unix_s: float, measures: Measures, source: str = "socket"
+) -> ProbeRequest:
+    """A :class:`ProbeRequest` from a control-socket or MQTT message; CompdError says what is wrong."""
+    axis = message.get("axis")
+    measured = message.get("measured_um")
+    touched = message.get("touched_at_unix_s", now_unix_s)
+    said = message.get("measures", measures)
+    if not isinstance(axis, str):
+        raise CompdError('a probe names its axis: {"axis": "Z", "measured_um": 3.2}')
+    for name, value in (("measured_um", measured), ("touched_at_unix_s", touched)):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isfinite(value)
+        ):
+            raise CompdError(
+                f"a probe's {name} must be a finite number (um, unix s), not {value!r}"
+            )
+    if said not in ("residue", "thermal_error"):
+        raise CompdError(f"a probe measures 'residue' or 'thermal_error', not {said!r}")
+    if touched > now_unix_s + 60.0:
+        raise CompdError(f"the probe's touch time is {touched - now_unix_s:.0f} s in the future")
+    source = message.get("source", source)
+    assert isinstance(measured, int | float) and isinstance(touched, int | float)
+    return ProbeRequest(axis, float(measured), float(touched), str(source)[:64], said)
+
+
+@dataclass(frozen=True)
+class ProbeTaken:
+    """A probe as the loop took it: the update's steps, or why it was refused."""
+
+    request: ProbeRequest
+    model_sha256: str
+    output: str
+    #: The offset in force at the touch instant (um) and the thermal error it gives (um).
+    offset_um: float
+    thermal_error_um: float
+    steps: tuple[ProbeStep, ...] = ()
+    refused: str | None = None
+    #: The learners' states after the probe (JSON-able), for the state directory.
+    learned: Mapping[str, dict[str, Any]] = field(default_factory=dict)
+
+    @property
+    def result(self) -> str:
+        """``refused``, else the last step's result (``accepted``, ``flagged``, ``confirmed``)."""
+        return "refused" if self.refused is not None else self.steps[-1].result
+
+    def event_details(self) -> dict[str, Any]:
+        """What a telemetry event and the status say of it (um, unix s)."""
+        step = self.steps[-1] if self.steps else None
+        return {
+            "axis": self.request.axis,
+            "source": self.request.source,
+            "result": self.result,
+            "touched_at_unix_s": self.request.touched_at_unix_s,
+            "measured_um": self.request.measured_um,
+            "innovation_um": None if step is None else round(step.innovation_before_um, 4),
+            "innovation_after_um": None if step is None else round(step.innovation_after_um, 4),
+            "reason": self.refused,
+        }
+
+
+@dataclass(frozen=True)
+class ProbeSetup:
+    """What the config says of probes: what they measure, when one is due, the update's settings."""
+
+    measures: Measures = "residue"
+    every_h: float = 2.0
+    overrides: Mapping[str, float] = field(default_factory=dict)
+    #: Axes probed (names under ``outputs``).
+    axes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class ProbeRegisters:
+    """One axis's probe interface on its PLC: read value and counter (and the stamp), write echo and status."""
+
+    axis: str
+    driver: str
+    value: SignalPoint
+    counter: SignalPoint
+    echo_address: str
+    echo: SignalPoint
+    touched_at: SignalPoint | None = None
+    status_address: str | None = None
+
+    def reads(self) -> list[SignalPoint]:
+        """The points read each tick (the echo too: what compd last took, as the PLC holds it)."""
+        return [p for p in (self.value, self.counter, self.echo, self.touched_at) if p is not None]
+
+
+class _OffsetHistory:
+    """The offset in force per tick (um) over :data:`OFFSET_HISTORY_S`, for a probe's touch instant."""
+
+    def __init__(self) -> None:
+        self.t_s: deque[float] = deque()
+        self.offset_um: deque[float] = deque()
+
+    def append(self, t_s: float, offset_um: float) -> None:
+        self.t_s.append(t_s)
+        self.offset_um.append(offset_um)
+        while self.t_s and self.t_s[0] < t_s - OFFSET_HISTORY_S:
+            self.t_s.popleft()
+            self.offset_um.popleft()
+
+    def at(self, t_s: float) -> float:
+        if not self.t_s:
+            raise ModelError("no offset is known yet: the probe came before the first tick")
+        if t_s < self.t_s[0]:
+            raise ModelError(
+                f"the touch is older than the offsets kept ({OFFSET_HISTORY_S / 3600:g} h): probe again"
+            )
+        return float(
+            np.interp(t_s, np.fromiter(self.t_s, float), np.fromiter(self.offset_um, float))
+        )
+
+
+class ProbeLearning:
+    """The probed outputs' learners of the running model, fed each tick; probes taken as they arrive.
+
+    ``restore(slot, setups)`` gives the learners the state directory keeps for
+    ``slot``'s model (empty: start from the priors), and a problem to log.
+    """
+
+    def __init__(
+        self,
+        setup: ProbeSetup,
+        axes: Sequence[AxisPoint],
+        registers: Sequence[ProbeRegisters] = (),
+        *,
+        restore: Callable[
+            [ModelSlot, Mapping[str, tuple[Prior, ProbeSettings]]], dict[str, OutputLearner]
+        ]
+        | None = None,
+    ) -> None:
+        self.setup = setup
+        self.axes = {a.name: a for a in axes if a.name in setup.axes}
+        self.registers = {r.axis: r for r in registers}
+        self.restore = restore
+        #: The model whose learners run (sha256), its learners per output, their columns.
+        self.sha256: str | None = None
+        self.learners: dict[str, OutputLearner] = {}
+        self._columns: dict[str, np.ndarray] = {}
+        self._output_index: dict[str, int] = {}
+        self.notes: dict[str, str] = {}
+        self._queue: deque[ProbeRequest] = deque()
+        self._offsets = {axis: _OffsetHistory() for axis in self.axes}
+        #: Per axis, the last count compd took from the PLC (None until read: the echo register says).
+        self.taken_count: dict[str, int | None] = dict.fromkeys(self.registers)
+        self.started_s: float | None = None
+        #: Per axis: probes by result, the last probe taken, the last innovation (um).
+        self.results: dict[str, dict[str, int]] = {axis: {} for axis in self.axes}
+        self.last: dict[str, ProbeTaken] = {}
+        self.adjustments_um: dict[str, float] = {}
+        self._taken_now: tuple[ProbeTaken, ...] = ()
+
+    def reads(self) -> list[SignalPoint]:
+        """The probe registers read each tick with the signals."""
+        return [point for reg in self.registers.values() for point in reg.reads()]
+
+    # -- intake ----------------------------------------------------------------------------------
+
+    def offer(self, request: ProbeRequest) -> None:
+        """Queue a probe (taken at the next tick); an axis not probed or a value not finite is refused."""
+        if request.axis not in self.axes:
+            raise ModelError(
+                f"axis {request.axis!r} is not probed: name it under probes.axes "
+                f"(probed: {sorted(self.axes) or 'none'})"
+            )
+        if not (math.isfinite(request.measured_um) and math.isfinite(request.touched_at_unix_s)):
+            raise ModelError("a probe's value and touch time must be finite numbers")
+        self._queue.append(request)
+
+    def read_registers(self, values: Mapping[str, float], now_unix_s: float) -> None:
+        """Queue each axis's new PLC probe: a count not yet taken (the echo says what compd took last)."""
+        for axis, reg in self.registers.items():
+            count = values.get(reg.counter.name)
+            if count is None or not math.isfinite(count):
+                continue
+            taken = self.taken_count[axis]
+            if taken is None:  # the first read: what compd took before, as the PLC holds it
+                echo = values.get(reg.echo.name)
+                if echo is None or not math.isfinite(echo):
+                    continue
+                taken = self.taken_count[axis] = int(echo)
+            if int(count) == taken:
+                continue
+            self.taken_count[axis] = int(count)
+            value = values.get(reg.value.name)
+            stamp = values.get(reg.touched_at.name) if reg.touched_at is not None else None
+            touched = (
+                stamp if stamp is not None and math.isfinite(stamp) and stamp > 0 else now_unix_s
+            )
+            if value is None or not math.isfinite(value):
+                log.error("probe value unreadable: count taken, value not", axis=axis, count=count)
+                continue
+            missed = int(count) - taken - 1
+            if missed > 0:
+                log.warning(
+                    "probes missed: only the PLC's latest value is there", axis=axis, missed=missed
+                )
+            self._queue.append(
+                ProbeRequest(axis, value, touched, "plc", self.setup.measures, int(count))
+            )
+
+    def writes(self, now_unix_s: float) -> dict[str, dict[str, float]]:
+        """Per driver, the echo (the last count taken) and the probe status word of each axis."""
+        batches: dict[str, dict[str, float]] = {}
+        for axis, reg in self.registers.items():
+            batch = batches.setdefault(reg.driver, {})
+            if (count := self.taken_count[axis]) is not None:
+                batch[reg.echo_address] = float(count)
+            if reg.status_address is not None:
+                batch[reg.status_address] = float(self.status_bits(axis, now_unix_s))
+        return {d: b for d, b in batches.items() if b}
+
+    # -- each tick -------------------------------------------------------------------------------
+
+    def follow(self, slot: ModelSlot) -> None:
+        """Run ``slot``'s learners: its own prior, or what the state directory kept for it."""
+        if slot.sha256 == self.sha256:
+            return
+        self.sha256 = slot.sha256
+        compiled = slot.compiled
+        setups: dict[str, tuple[Prior, ProbeSettings]] = {}
+        self._columns, self.notes = {}, {}
+        for axis in self.axes.values():
+            output = axis.model_output
+            if output in setups:
+                continue
+            columns, names = output_columns(compiled, output)
+            prior = output_prior(slot.model_file, output, names)
+            settings = ProbeSettings.defaults(prior.prior, **dict(self.setup.overrides))
+            setups[output] = (prior.prior, settings)
+            self._columns[output] = columns
+            if prior.note:
+                self.notes[output] = prior.note
+                log.warning("probe update without the calibration's prior", note=prior.note)
+        self._output_index = {name: i for i, name in enumerate(compiled.output_names)}
+        learners = self.restore(slot, setups) if self.restore is not None else {}
+        self.learners = {
+            output: learners.get(output) or OutputLearner(prior, settings)
+            for output, (prior, settings) in setups.items()
+        }
+
+    def observe(self, t_unix_s: float, slot: ModelSlot) -> None:
+        """Keep this tick's regressors, take the probes that arrived, and work out the adjustments."""
+        if self.started_s is None:
+            self.started_s = t_unix_s
+        self.follow(slot)
+        runner = slot.runner
+        self.adjustments_um = dict.fromkeys(self.learners, 0.0)
+        self._taken_now = ()
+        if runner is None:  # not started: no contributions yet
+            return
+        contributions = runner.contributions
+        outputs = slot.outputs
+        regressors = {}
+        for output, learner in self.learners.items():
+            x = np.append(contributions[self._columns[output]], 1.0)
+            fixed = float(outputs[self._output_index[output]]) - float(x[:-1].sum())
+            if not (np.all(np.isfinite(x)) and math.isfinite(fixed)):
+                continue
+            learner.observe(t_unix_s, x, fixed)
+            regressors[output] = x
+        self._taken_now = self._take(t_unix_s)
+        for output, x in regressors.items():
+            self.adjustments_um[output] = self.learners[output].adjustment_um(x)
+
+    def record_offsets(self, t_unix_s: float, offsets_um: Mapping[str, float]) -> None:
+        """The offset in force per axis after this tick's write (um)."""
+        for axis, history in self._offsets.items():
+            offset = offsets_um.get(axis)
+            if offset is not None and math.isfinite(offset):
+                history.append(t_unix_s, offset)
+
+    def taken(self) -> tuple[ProbeTaken, ...]:
+        """The probes taken this tick (after :meth:`observe`)."""
+        return self._taken_now
+
+    def innovations_um(self) -> dict[str, float]:
+        """Per probed axis, this tick's probe innovation (measured minus predicted, um); NaN: none."""
+        out = dict.fromkeys(self.axes, math.nan)
+        for taken in self._taken_now:
+            if taken.steps:
+                out[taken.request.axis] = taken.steps[-1].innovation_before_um
+        return out
+
+    def _take(self, now_unix_s: float) -> tuple[ProbeTaken, ...]:
+        done: list[ProbeTaken] = []
+        while self._queue:
+            request = self._queue.popleft()
+            taken = self._take_one(request)
+            self.last[request.axis] = taken
+            counts = self.results[request.axis]
+            for step in taken.steps or ():
+                counts[step.result] = counts.get(step.result, 0) + 1
+            if taken.refused is not None:
+                counts["refused"] = counts.get("refused", 0) + 1
+            done.append(taken)
+        return tuple(done)
+
+    def _take_one(self, request: ProbeRequest) -> ProbeTaken:
+        axis = self.axes[request.axis]
+        output = axis.model_output
+        learner = self.learners.get(output)
+        assert self.sha256 is not None
+        offset = math.nan
+        try:
+            if learner is None:
+                raise ModelError("the model has not started: no regressors yet")
+            offset = self._offsets[request.axis].at(request.touched_at_unix_s)
+            error = (
+                probed_thermal_error_um(request.measured_um, offset, axis.sign)
+                if request.measures == "residue"
+                else float(request.measured_um)
+            )
+            steps = learner.probe(request.touched_at_unix_s, error)
+        except ModelError as exc:
+            log.error(
+                "probe refused",
+                axis=request.axis,
+                source=request.source,
+                measured_um=request.measured_um,
+                reason=str(exc),
+            )
+            return ProbeTaken(request, self.sha256, output, offset, math.nan, refused=str(exc))
+        taken = ProbeTaken(
+            request,
+            self.sha256,
+            output,
+            offset,
+            error,
+            tuple(steps),
+            learned={name: ln.state() for name, ln in self.learners.items()},
+        )
+        last = steps[-1]
+        say = log.warning if last.result == "flagged" else log.info
+        say(
+            f"probe {last.result}",
+            axis=request.axis,
+            source=request.source,
+            measured_um=round(request.measured_um, 3),
+            thermal_error_um=round(error, 3),
+            predicted_um=round(last.predicted_um, 3),
+            innovation_um=round(last.innovation_before_um, 3),
+        )
+        return taken
+
+    # -- status ----------------------------------------------------------------------------------
+
+    def adjustment(self, output: str) -> float:
+        """What the probes add to ``output`` this tick (um); 0 before any probe taken."""
+        return self.adjustments_um.get(output, 0.0)
+
+    def last_taken_s(self, axis: str) -> float | None:
+        learner = self.learners.get(self.axes[axis].model_output)
+        return None if learner is None else learner.last_taken_s
+
+    def due(self, axis: str, now_unix_s: float) -> bool:
+        """A probe is due: ``every_h`` since the last probe taken (or since the start, without one)."""
+        since = self.last_taken_s(axis)
+        if since is None:
+            since = self.started_s if self.started_s is not None else now_unix_s
+        return now_unix_s - since >= self.setup.every_h * 3600.0
+
+    def disagrees(self, axis: str) -> bool:
+        """Two probes in a row the update would not take: the model no longer describes the machine."""
+        learner = self.learners.get(self.axes[axis].model_output)
+        return learner is not None and learner.untaken_in_a_row >= 2
+
+    def status_bits(self, axis: str, now_unix_s: float) -> int:
+        return (DUE_BIT if self.due(axis, now_unix_s) else 0) | (
+            DISAGREES_BIT if self.disagrees(axis) else 0
+        )
+
+    def reset(self) -> None:
+        """Back to the calibration's parameters (every output's prior)."""
+        for learner in self.learners.values():
+            learner.reset()
+        self.adjustments_um = dict.fromkeys(self.learners, 0.0)
+
+    def status(self, now_unix_s: float) -> dict[str, Any]:
+        """Per axis: due, disagrees, the last probe, counts by result, the adjustment now."""
+        axes = {}
+        for name, axis in self.axes.items():
+            last = self.last.get(name)
+            taken_s = self.last_taken_s(name)
+            axes[name] = {
+                "output": axis.model_output,
+                "due": self.due(name, now_unix_s),
+                "disagrees": self.disagrees(name),
+                "adjustment_um": round(self.adjustment(axis.model_output), 4),
+                "last_taken_age_s": None if taken_s is None else round(now_unix_s - taken_s, 1),
+                "last": None if last is None else last.event_details(),
+                "results": dict(self.results[name]),
+            }
+        return {"model_sha256": self.sha256, "every_h": self.setup.every_h, "axes": axes}

@@ -1,0 +1,168 @@
+"""Probes in the running daemon: each probe updates the model, a mis-probe changes nothing, the socket takes them."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from compd.files.yamlplace import resolve_path
+from compd.service.control.socket import request
+from compd.service.daemon import Service
+from compd.service.loop.compensator import TickRecord
+from compd.service.loop.probing import ProbeRequest
+from compd.sim.plc.machine import SimulatedMachine
+from compd.sim.plc.run import run_simulation
+from tests.acceptance.conftest import machine_doc, write_config
+
+BUNDLED_MODEL = resolve_path("bundled:simulated_model.yaml", Path("."))
+
+HOURS = 8.0
+PERIOD_S = 10.0  # the bundled model's own sample time: a shift in a few thousand ticks
+EVERY_TICKS = round(2 * 3600 / PERIOD_S)
+MISPROBE_TICK = round(3 * 3600 / PERIOD_S)
+
+
+@dataclass
+class ProbedRun:
+    records: list[TickRecord]
+    machine: SimulatedMachine
+    service: Service
+    #: The learned parameters after each tick.
+    thetas: list[np.ndarray]
+
+
+def probed_run(tmp_path: Path, probes_at: dict[int, float]) -> ProbedRun:
+    """The simulated machine for ``HOURS`` with the bundled model; at each tick of ``probes_at`` a probe
+    of the true residue plus the given error (um) is offered, touched at that tick."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    doc = machine_doc(
+        tmp_path,
+        BUNDLED_MODEL,
+        simulation={
+            "scenario": "production",
+            "hours": HOURS,
+            "seed": 3,
+            "sample_time_s": PERIOD_S,
+            "stop_at_end": True,
+        },
+        probes={"axes": {"Z": None}},
+        period_s=PERIOD_S,
+    )
+    doc["recorder"] = {"enabled": False}
+    config = write_config(tmp_path, doc)
+    records: list[TickRecord] = []
+    thetas: list[np.ndarray] = []
+    services: list[Service] = []
+
+    def on_tick(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
+        records.append(record)
+        if not services:
+            services.append(service)
+        assert service.probing is not None
+        thetas.append(service.probing.learners["disp_z_um"].theta.copy())
+        error = probes_at.get(len(records))
+        if error is not None:
+            _, _, residue = machine.truth_now()["Z"]
+            request = ProbeRequest("Z", residue + error, record.wall_unix_s, "test", "residue")
+            service.probing.offer(request)
+
+    result = asyncio.run(run_simulation(config, on_tick=on_tick))
+    return ProbedRun(records, result.machine, services[0], thetas)
+
+
+def compensated_rms_um(machine: SimulatedMachine, from_k: int) -> float:
+    """The Z axis's compensated error RMS from sample ``from_k`` on (um)."""
+    error = (machine.true_um + machine.offset_um)[from_k : machine.k + 1, 2]
+    return float(np.sqrt(np.mean(error**2)))
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[ProbedRun, ProbedRun]:
+    """The same shift open loop, and with a probe every 2 h plus a 50 um mis-probe at 3 h."""
+    tmp = tmp_path_factory.mktemp("probing")
+    at = {k: 0.0 for k in range(EVERY_TICKS, round(HOURS * 3600 / PERIOD_S), EVERY_TICKS)}
+    at[MISPROBE_TICK] = 50.0
+    return probed_run(tmp / "open", {}), probed_run(tmp / "probed", at)
+
+
+def test_each_probe_of_the_residue_is_taken_at_its_touch_and_moves_the_output(
+    runs: tuple[ProbedRun, ProbedRun],
+) -> None:
+    """Every 2 h a probe of what is left on the part: taken, the model's output moved by what it taught."""
+    _, probed = runs
+    taken = [p for r in probed.records for p in r.probes if p.request.measured_um < 40]
+    assert [p.result for p in taken] == ["accepted"] * 3
+    adjustments = np.array([r.probe_adjustments_um["disp_z_um"] for r in probed.records])
+    assert np.all(adjustments[:EVERY_TICKS] == 0.0)  # nothing learned before the first probe
+    assert np.any(adjustments[EVERY_TICKS + 1 :] != 0.0)
+    for p in taken:  # the thermal error: the residue plus the offset in force (sign -1)
+        assert math.isclose(p.thermal_error_um, p.request.measured_um - p.offset_um)
+        assert math.isclose(p.steps[-1].measured_um, p.thermal_error_um)
+
+
+def test_a_misprobe_of_50_um_is_flagged_and_changes_nothing(
+    runs: tuple[ProbedRun, ProbedRun],
+) -> None:
+    """A chip on the datum ball: 50 um off the prediction, flagged, the parameters as before it."""
+    _, probed = runs
+    flagged = probed.records[MISPROBE_TICK].probes
+    assert [p.result for p in flagged] == ["flagged"]
+    assert flagged[0].steps[0].innovation_before_um > 40
+    np.testing.assert_array_equal(probed.thetas[MISPROBE_TICK], probed.thetas[MISPROBE_TICK - 1])
+    results = probed.service.status()["probes"]["axes"]["Z"]["results"]
+    # ... and rejected when the next probe (4 h) does not confirm it.
+    assert results == {"accepted": 3, "flagged": 1, "rejected": 1}
+
+
+def test_probes_leave_less_error_on_the_parts_than_open_loop(
+    runs: tuple[ProbedRun, ProbedRun],
+) -> None:
+    open_loop, probed = runs
+    after = EVERY_TICKS + 1
+    probed_rms, open_rms = (compensated_rms_um(r.machine, after) for r in (probed, open_loop))
+    assert probed_rms <= open_rms, (probed_rms, open_rms)
+
+
+def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> None:
+    """compd model probe's request: the reply says what the update did; a reset forgets it."""
+    doc = machine_doc(
+        tmp_path,
+        BUNDLED_MODEL,
+        simulation={"scenario": "production", "hours": 2, "seed": 3},
+        probes={"axes": {"Z": None}},
+    )
+    doc["recorder"] = {"enabled": False}
+    config = write_config(tmp_path, doc)
+    answers: dict[str, Any] = {}
+
+    async def main() -> None:
+        ran = asyncio.create_task(run_simulation(config, time_scale=20.0, duration_s=3600))
+        while not config.control_socket.exists():
+            await asyncio.sleep(0.05)
+        await asyncio.sleep(1.0)  # a few ticks: the model has started
+        answers["bad"] = await request(
+            config.control_socket, {"cmd": "probe", "axis": "X", "measured_um": 1.0}
+        )
+        answers["probe"] = await request(
+            config.control_socket, {"cmd": "probe", "axis": "Z", "measured_um": 2.0}
+        )
+        answers["reset"] = await request(config.control_socket, {"cmd": "probe", "reset": True})
+        answers["status"] = await request(config.control_socket, {"cmd": "status"})
+        ran.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await ran
+
+    asyncio.run(main())
+    assert answers["bad"]["ok"] is False and "'X' is not probed" in answers["bad"]["error"]
+    probe = answers["probe"]
+    assert probe["ok"] and probe["taken"] and probe["last"]["source"] == "socket"
+    assert probe["last"]["result"] in ("accepted", "flagged")
+    assert answers["reset"]["ok"] and answers["reset"]["reset"] is True
+    axes = answers["status"]["probes"]["axes"]
+    assert axes["Z"]["adjustment_um"] == 0.0
