@@ -103,7 +103,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.handler(args) or 0)
     except CompdError as exc:
         print(f"compd: error: {exc}", file=sys.stderr)
-        return EXIT_INPUT_ERROR
+        return int(getattr(exc, "exit_status", EXIT_INPUT_ERROR))
     except BrokenPipeError:
         return _reader_went_away()
 
