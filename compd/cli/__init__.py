@@ -23,6 +23,7 @@ from collections.abc import Sequence
 
 from compd import __version__
 from compd.cli.args import EXIT_INPUT_ERROR
+from compd.cli.journal import journal_stream
 from compd.errors import CompdError
 from compd.schemas import CONFIG_SCHEMA, MODEL_SCHEMA
 
@@ -102,7 +103,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.handler(args) or 0)
     except CompdError as exc:
-        print(f"compd: error: {exc}", file=sys.stderr)
+        # Under systemd, filed at "err" (journalctl -p err), as the log lines before it.
+        prefix = "<3>" if journal_stream(sys.stderr, os.environ) else ""
+        lines = f"compd: error: {exc}".split("\n")
+        print("\n".join(prefix + line for line in lines), file=sys.stderr)
         return int(getattr(exc, "exit_status", EXIT_INPUT_ERROR))
     except BrokenPipeError:
         return _reader_went_away()

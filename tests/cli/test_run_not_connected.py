@@ -6,11 +6,8 @@ from __future__ import annotations
 
 import json
 import os
-import re
-import shutil
 import signal
 import subprocess
-import sys
 import time
 import urllib.error
 import urllib.request
@@ -19,44 +16,19 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
 
 from compd.cli.args import EXIT_NOT_CONNECTED
-from compd.files.yamlplace import resolve_path
+from tests.cli.closedport import RUN, WAIT_S, closed_port_config
 from tests.clirun import compd
 from tests.mosquitto import free_port
 from tests.report_screenshot import chromium, chromium_missing
-
-GUIDE = Path(__file__).parents[2] / "deploy" / "README.md"
-#: Guards against a hang on a busy machine, never a timing the test relies on (s).
-WAIT_S = 120.0
-
-
-def closed_port_config(directory: Path, *, http_port: int | None = None) -> Path:
-    """The guide's Modbus TCP config (TwinCAT/CODESYS), its PLC on a port of 127.0.0.1 nobody listens on."""
-    blocks = re.findall(r"```yaml\n(.*?)```", GUIDE.read_text(), re.S)
-    (block,) = [b for b in blocks if "type: modbus" in b]
-    doc: dict[str, Any] = yaml.safe_load(block)
-    directory.mkdir(parents=True, exist_ok=True)
-    model = directory / "machine.yaml"
-    shutil.copy(resolve_path("bundled:example_gated_arx.yaml", Path(".")), model)
-    doc["model"] = str(model)
-    doc["state"] = {"directory": str(directory / "state")}
-    doc["control_socket"] = str(directory / "control.sock")
-    doc["drivers"]["plc"]["settings"].update(host="127.0.0.1", port=free_port())
-    if http_port is not None:
-        doc["http"] = {"listen": "127.0.0.1", "port": http_port}
-    path = directory / "compd.yaml"
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return path
 
 
 def test_a_bounded_run_that_never_connected_says_so_and_exits_3(tmp_path: Path) -> None:
     """Every live line says the offset was NOT WRITTEN and plc is not connected; exit 3, naming compd read."""
     config = closed_port_config(tmp_path)
     done = subprocess.run(
-        [sys.executable, "-m", "compd.cli", "run", "--config", str(config)]
-        + ["--duration-s", "2", "--live-every", "1", "--log-format", "json"],
+        [*RUN, str(config), "--duration-s", "2", "--live-every", "1", "--log-format", "json"],
         capture_output=True,
         text=True,
         timeout=WAIT_S,
@@ -88,7 +60,7 @@ def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, str
     config = closed_port_config(folder, http_port=port)
     log = folder / "compd.log"
     process = subprocess.Popen(
-        [sys.executable, "-m", "compd.cli", "run", "--config", str(config)],
+        [*RUN, str(config)],
         stdout=log.open("wb"),
         stderr=subprocess.STDOUT,
     )
@@ -120,7 +92,9 @@ def test_status_status_json_and_healthz_say_not_connected(daemon: tuple[Path, st
     assert (status, snapshot["drivers"]) == (200, {"plc": "not connected"})
     status, health = get(url + "healthz")
     assert status == 503 and not health["healthy"], health
-    assert health["problems"][0].startswith("driver plc not connected (DriverDisconnectedError"), health
+    assert health["problems"][0].startswith("driver plc not connected (DriverDisconnectedError"), (
+        health
+    )
 
 
 @pytest.mark.skipif(chromium_missing() is not None, reason=str(chromium_missing()))

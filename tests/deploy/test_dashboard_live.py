@@ -70,7 +70,9 @@ def mapped(panel: dict[str, Any], value: float) -> tuple[str, str | None]:
 def displayed(panel: dict[str, Any], prometheus: str) -> list[tuple[str, str | None]]:
     """Each value the stat panel shows: every target's range query, each series' last non-null value, mapped."""
     # Grafana's default for a stat panel that names none: the last non-null value of each series.
-    reduce = panel.get("options", {}).get("reduceOptions", {"calcs": ["lastNotNull"], "values": False})
+    reduce = panel.get("options", {}).get(
+        "reduceOptions", {"calcs": ["lastNotNull"], "values": False}
+    )
     assert reduce["calcs"] == ["lastNotNull"] and not reduce["values"], reduce
     shown = []
     end_s = time.time()
