@@ -37,7 +37,7 @@ def test_a_bounded_run_that_never_connected_says_so_and_exits_3(tmp_path: Path) 
     lines = done.stdout.splitlines()
     assert len(lines) >= 2, done.stdout
     for line in lines:
-        assert "Z offset NOT WRITTEN" in line and line.endswith("plc not connected"), line
+        assert "Y offset NOT WRITTEN" in line and line.endswith("plc not connected"), line
         assert "offset written" not in line, line
     error = done.stderr.splitlines()[-1]
     assert error.startswith("compd: error: driver plc not connected in the 2 s run"), error
