@@ -23,7 +23,6 @@ from collections.abc import Sequence
 
 from compd import __version__
 from compd.cli.args import EXIT_INPUT_ERROR
-from compd.cli.journal import journal_stream
 from compd.errors import CompdError
 from compd.schemas import CONFIG_SCHEMA, MODEL_SCHEMA
 
@@ -104,6 +103,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.handler(args) or 0)
     except CompdError as exc:
         # Under systemd, filed at "err" (journalctl -p err), as the log lines before it.
+        from compd.cli.journal import journal_stream  # only on the way out: --help stays light
+
         prefix = "<3>" if journal_stream(sys.stderr, os.environ) else ""
         lines = f"compd: error: {exc}".split("\n")
         print("\n".join(prefix + line for line in lines), file=sys.stderr)
