@@ -108,3 +108,16 @@ def test_the_status_page_header_says_not_connected(daemon: tuple[Path, str]) -> 
         level = page.locator("#level")
         assert level.inner_text().endswith(": plc not connected"), level.inner_text()
         assert "not connected" in page.locator("#drivers").inner_text()
+
+
+def test_the_live_view_on_a_terminal_says_not_connected_and_not_written(tmp_path: Path) -> None:
+    """On a 120-column terminal: the header ends "plc not connected"; the axis row "not written"."""
+    from tests.cli.terminal import run_in_terminal
+
+    config = closed_port_config(tmp_path)
+    screen = run_in_terminal(["run", "--config", str(config), "--duration-s", "2"])
+    text = "\n".join(screen.lines)
+    assert screen.returncode == EXIT_NOT_CONNECTED, text
+    assert any(line.rstrip().endswith("plc not connected") for line in screen.lines), text
+    (axis,) = [line for line in screen.lines if line.lstrip().startswith("Y ")]
+    assert "not written (+0.00)" in axis, text
