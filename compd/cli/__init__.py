@@ -106,8 +106,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.handler(args) or 0)
     except CompdError as exc:
-        print(f"compd: error: {exc}", file=sys.stderr)
-        return EXIT_INPUT_ERROR
+        # Under systemd, filed at "err" (journalctl -p err), as the log lines before it.
+        from compd.cli.journal import journal_stream  # only on the way out: --help stays light
+
+        prefix = "<3>" if journal_stream(sys.stderr, os.environ) else ""
+        lines = f"compd: error: {exc}".split("\n")
+        print("\n".join(prefix + line for line in lines), file=sys.stderr)
+        return int(getattr(exc, "exit_status", EXIT_INPUT_ERROR))
     except BrokenPipeError:
         return _reader_went_away()
 

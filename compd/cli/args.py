@@ -11,6 +11,8 @@ from pathlib import Path
 
 #: Exit status of a command that refused its input (a bad file, option or config).
 EXIT_INPUT_ERROR = 2
+#: ``compd run --duration-s`` ended without its drivers answering once (a PLC off, a wrong address).
+EXIT_NOT_CONNECTED = 3
 
 #: The daemon's config when ``--config`` is not given.
 DEFAULT_CONFIG = Path("/etc/compd/compd.yaml")

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from compd.cli.args import EXIT_NOT_CONNECTED
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import Text, console
 from compd.drivers.base import address_note
@@ -175,10 +176,45 @@ async def _serve(
         if screen is not None:
             service.subscribe(_live_view(service, screen, duration_s))
         elif live_every:
-            service.subscribe(_live_printer(live_every, config))
+            service.subscribe(_live_printer(live_every, service))
         install_signal_handlers(service)
         await service.run(duration_s=duration_s)
+    if duration_s is not None:
+        never_connected(service, duration_s)
     return 0
+
+
+class NeverConnectedError(CompdError):
+    """``compd run --duration-s`` ended without any driver answering once (exit status 3)."""
+
+    exit_status = EXIT_NOT_CONNECTED
+
+
+def never_connected(service: Service, duration_s: float) -> None:
+    """A bounded run (a commissioning test) whose drivers never answered did not compensate: an error.
+
+    A daemon without ``--duration-s`` runs on and reconnects (a PLC off at night);
+    a run that was asked to show the compensation for a while and never reached
+    the machine must not end as if it had.
+    """
+    silent = not_connected(service)
+    if not silent:
+        return
+    links = service.links
+    why = "; ".join(f"{name}: {links[name].last_error or 'no answer'}" for name in silent)
+    config = service.config.path
+    raise NeverConnectedError(
+        f"driver {', '.join(silent)} not connected in the {duration_s:g} s run ({why}): "
+        f"nothing was read or written through {'it' if len(silent) == 1 else 'them'}. Check "
+        f"the address and that the controller is on and reachable; 'compd read --config "
+        f"{config}' reads the configured points once, 'compd probe TYPE --set host=... "
+        "ADDRESS' one address"
+    )
+
+
+def not_connected(service: Service) -> list[str]:
+    """The drivers that have not answered once since start (:attr:`DriverLink.answered`)."""
+    return [name for name, link in service.links.items() if not link.answered]
 
 
 def _live_view(service: Service, screen: LiveScreen, duration_s: float | None) -> Any:
@@ -210,6 +246,8 @@ def _live_view(service: Service, screen: LiveScreen, duration_s: float | None) -
             f"model {comp.active.compiled.name}  {progress(run_s, duration_s)}  status ",
             level_text(record),
         )
+        if silent := not_connected(service):
+            head.append(f"  {', '.join(silent)} not connected", "bold red")
         counters = {
             "ticks": comp.counters.ticks,
             "signal_faults": comp.counters.signal_faults,
@@ -223,8 +261,8 @@ def _live_view(service: Service, screen: LiveScreen, duration_s: float | None) -
     return show
 
 
-def _live_printer(every: int, config: Config) -> Any:
-    signs = {axis: output.sign for axis, output in config.doc.outputs.items()}
+def _live_printer(every: int, service: Service) -> Any:
+    signs = {axis: output.sign for axis, output in service.config.doc.outputs.items()}
     count = 0
 
     def show(record: TickRecord) -> None:
@@ -233,18 +271,27 @@ def _live_printer(every: int, config: Config) -> Any:
         if count % every:
             return
         offsets = "  ".join(
-            f"{axis} offset written {v:+8.3f} um (sign {signs.get(axis, 1):+g} x drift)"
+            _offset_words(axis, v, record.acknowledged_um.get(axis), signs.get(axis, 1))
             for axis, v in record.offsets_um.items()
         )
         bad = [n for n, h in record.health.items() if h is not Health.OK]
         level = Level(record.status & 0b11).name.lower()
+        silent = not_connected(service)
         print(
             f"t {record.t_s / 3600:7.3f} h  {offsets}  status {level}"
-            + (f" ({', '.join(bad)})" if bad else ""),
+            + (f" ({', '.join(bad)})" if bad else "")
+            + (f"  {', '.join(silent)} not connected" if silent else ""),
             flush=True,
         )
 
     return show
+
+
+def _offset_words(axis: str, offset_um: float, acknowledged_um: float | None, sign: float) -> str:
+    """``Z offset written +1.234 um (...)``, or ``not written`` where the device acknowledged nothing."""
+    if acknowledged_um is None or math.isnan(acknowledged_um):
+        return f"{axis} offset NOT WRITTEN (would be {offset_um:+.3f} um)"
+    return f"{axis} offset written {offset_um:+8.3f} um (sign {sign:+g} x drift)"
 
 
 def model_load_command(args: argparse.Namespace) -> int:

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import logging
+import os
 import sys
 from pathlib import Path
 from typing import Any
 
 import structlog
 
+from compd.cli.journal import JournalPriority, journal_stream
 from compd.drivers.library_logs import quiet_library
 from compd.files.yamlplace import resolve_path
 from compd.service.config.loading import Config, load_config
@@ -21,6 +23,9 @@ def config_from_arg(text: str) -> Config:
 
 def configure_logging(*, json_lines: bool | None = None, level: str = "INFO") -> None:
     """structlog on stderr: JSON lines (journald) by default, human-readable on a terminal.
+
+    Under systemd (stderr is the journal's stream) each line starts with its
+    syslog priority (:class:`JournalPriority`), so the journal filters by level.
 
     stderr, never stdout: stdout carries what a command prints (the live view,
     the summary tables), which a log line would break up or corrupt when piped.
@@ -49,7 +54,9 @@ def configure_logging(*, json_lines: bool | None = None, level: str = "INFO") ->
         processors=[structlog.stdlib.ProcessorFormatter.remove_processors_meta, renderer],
     )
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(formatter)
+    handler.setFormatter(
+        JournalPriority(formatter) if journal_stream(sys.stderr, os.environ) else formatter
+    )
     root = logging.getLogger()
     root.handlers = [handler]
     root.setLevel(level)

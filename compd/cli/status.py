@@ -67,6 +67,11 @@ def status_command(args: argparse.Namespace) -> int:
         f"last tick {_tick_age(reply)}  status word {reply['status_word']}  "
         f"heartbeat {reply['heartbeat']}"
     )
+    for name, state in reply["drivers"].items():
+        if state == "not connected":  # never answered since start: a PLC off, a wrong address
+            out.print(
+                Text(f"driver {name} not connected: nothing read or written through it", "bold red")
+            )
     scale = reply.get("clock", {}).get("time_scale", 1)
     if scale != 1:
         virtual = scale == "max"

@@ -9,6 +9,7 @@ the safety stage's clamp and slew limit.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 from rich.console import Console, Group, RenderableType
@@ -91,11 +92,18 @@ def tick_view(
             axis,
             f"{drift_um:+.2f}",
             f"{sign:+g}",
-            f"{offset_um:+.2f}",
+            _written(offset_um, record.acknowledged_um.get(axis)),
             *(column.get(axis, "") for column in extra.values()),
         )
     shown = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counters.items())
     return Group(head, inputs, axes, Text(shown, "dim"))
+
+
+def _written(offset_um: float, acknowledged_um: float | None) -> Text:
+    """The offset, or "not written" in red where the device acknowledged nothing this tick."""
+    if acknowledged_um is None or not math.isnan(acknowledged_um):
+        return Text(f"{offset_um:+.2f}")
+    return Text(f"not written ({offset_um:+.2f})", "bold red")
 
 
 def _two_lines(title: str) -> str:

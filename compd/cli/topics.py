@@ -19,7 +19,7 @@ from pydantic import BaseModel
 
 from compd import __version__
 from compd.cli import COMMANDS, VERSION, build_parser
-from compd.cli.args import EXIT_INPUT_ERROR
+from compd.cli.args import EXIT_INPUT_ERROR, EXIT_NOT_CONNECTED
 from compd.cli.references import references_page
 from compd.cli.topicnames import TOPICS
 from compd.errors import CompdError
@@ -248,7 +248,10 @@ def exit_codes_page() -> str:
             "  0  done (for `compd run`: stopped on request, or --duration-s elapsed)",
             f"  {EXIT_INPUT_ERROR}  refused: a bad option, file, config or model (the message "
             "names the file, the place and the fix), or no daemon for `compd status`",
-            "  1  an unexpected failure (a traceback follows: please report it)",
+            "  1  an unexpected failure (a traceback follows: please report it); for `compd read`",
+            "     and `compd probe`: a point could not be read or failed its checks",
+            f"  {EXIT_NOT_CONNECTED}  `compd run --duration-s` ended with a driver that never answered "
+            "(nothing was read from or written to the machine)",
             "",
             "Any error in a config or model aborts before the first write to a machine.",
         ]

@@ -304,28 +304,16 @@ def test_only_the_roll_out_user_can_send_a_model_over_tls(
         broker.stop()
 
 
-#: The broker's ACL for a fleet (README "Many machines"): each machine, logged in as its
-#: machine_id, reads its own commands and writes its own topics but not commands; only the roll-out user
-#: writes commands, and reads the answers, events, births and deaths.
-ACL = """\
-pattern read compd/%u/cmd/#
-pattern read compd/%u/birth
-pattern read compd/%u/death
-pattern read compd/%u/desired
-pattern write compd/%u/birth
-pattern write compd/%u/status
-pattern write compd/%u/event
-pattern write compd/%u/death
-pattern write compd/%u/reply/#
-
-user rollout
-topic write compd/+/cmd/#
-topic readwrite compd/+/desired
-topic read compd/+/reply/#
-topic read compd/+/event
-topic read compd/+/birth
-topic read compd/+/death
-"""
+#: The broker's ACL for a fleet, as deploy/README.md ("The MQTT broker") gives it: each machine,
+#: logged in as its machine_id, reads its own commands and writes its own topics but not commands;
+#: only the roll-out user writes commands, and reads the answers, events, births and deaths.
+GUIDE_ACL = re.search(
+    r"```text\n(# /etc/mosquitto/compd\.acl\n.*?)```",
+    (Path(__file__).parents[2] / "deploy" / "README.md").read_text(),
+    re.S,
+)
+assert GUIDE_ACL is not None, "deploy/README.md has no /etc/mosquitto/compd.acl block"
+ACL = GUIDE_ACL[1]
 ALL = ["--machines", ",".join(machine_id for machine_id, _, _ in FLEET)]
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import structlog.testing
 
 from compd.errors import ConfigFileError
 from compd.service.config.loading import Config
@@ -75,7 +76,7 @@ def test_birth_status_events_and_death_reach_a_subscriber(broker: Mosquitto, tmp
         if ticks == 250:  # the same model again: a switch, blended
             service.compensator.load(load_slot(config, config.model_path, record.wall_unix_s))
 
-    with Subscriber(broker.port, "compd/#") as sub:
+    with Subscriber(broker.port, "compd/#") as sub, structlog.testing.capture_logs() as logs:
         result = simulate(config, 300, on_tick=reload)
         sub.wait_for(lambda s: s.of("death", "mill-1"), "the death")
 
@@ -107,6 +108,11 @@ def test_birth_status_events_and_death_reach_a_subscriber(broker: Mosquitto, tmp
     assert ("fault", "driver read failed") in kinds or ("fault", "driver write failed") in kinds
     assert ("reconnected", "driver reconnected") in kinds
     assert ("model_switched", "model switched in") in kinds
+    # Each event is in the local log too (the journal), a fault at WARNING or above.
+    logged = {(line["event"], line["log_level"]) for line in logs}
+    for kind, message in kinds:
+        levels = {"warning", "error", "critical"} | (set() if kind == "fault" else {"info"})
+        assert any((message, level) in logged for level in levels), (kind, message)
     seqs = [m.payload["seq"] for m in sub.messages]
     assert seqs == sorted(seqs), "one session's messages arrive in order"
     assert result.status["telemetry"]["published"] == len(sub.messages)

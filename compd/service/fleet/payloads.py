@@ -13,6 +13,8 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+import structlog
+
 from compd.faultlog import Event, EventSink
 from compd.service.fleet.claim import Instance
 from compd.service.fleet.jsonwire import SCHEMA, compd_version, finite, finites
@@ -20,6 +22,8 @@ from compd.service.fleet.mqttlink import Topics
 
 if TYPE_CHECKING:
     from compd.service.loop.compensator import TickRecord
+
+log = structlog.get_logger("compd.service.fleet.telemetry")
 
 #: The fields of a roll-out's desired record a birth repeats.
 DESIRED_KEYS = ("sha256", "name", "rollout_id", "requested_by", "sent_unix_s")
@@ -73,6 +77,7 @@ class Payloads:
                 self._told_outdated = str(desired["sha256"])
                 details = {"running": running, "desired": desired["sha256"]}
                 message = "runs another model than the fleet's desired one"
+                log.warning(message, **details)  # the journal hears it too, not only MQTT
                 events(Event("model_outdated", message, details))
         return birth
 

@@ -201,6 +201,7 @@ class RemoteLoads:
     def _refuse(self, answer: dict[str, Any], reason: str, by: str) -> None:
         answer |= {"result": "refused", "reason": reason}
         details = {"reason": reason, "sha256": answer["sha256"], "requested_by": by}
+        log.error("remote model load refused", **details)  # the journal hears it too
         self.events(Event("model_refused", "remote model load refused", details))
 
     async def _admit(self, request: dict[str, Any], retained: bool) -> None:

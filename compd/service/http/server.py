@@ -10,7 +10,10 @@ lock and no thread:
   what the two JSON documents below hold (no CDN: a shop floor is offline);
 - ``GET /status.json``: the snapshot ``compd status --json`` prints
   (:mod:`compd.service.loop.statusview`);
-- ``GET /history.json?points=N``: the last hour of ticks (:mod:`compd.service.http.history`).
+- ``GET /history.json?points=N``: the last hour of ticks (:mod:`compd.service.http.history`);
+- ``GET /healthz``: for load balancers and probes, ``200`` while ticks are on time and the
+  outputs healthy, else ``503``; both with ``{"healthy": ..., "problems": [...]}``
+  (:func:`compd.service.loop.statusview.health_problems`).
 
 Nothing can be changed through it: only GET and HEAD are answered, any other
 method is ``405 Method Not Allowed``, and the page carries a content
@@ -51,6 +54,7 @@ from compd.service.http.metrics import ServiceMetrics
 from compd.service.http.view import ServiceView
 from compd.service.loop.safety import Flag, Level
 from compd.service.loop.snapshot import TickSnapshot
+from compd.service.loop.statusview import health_problems
 
 if TYPE_CHECKING:
     from compd.service.loop.slots import ModelSlot
@@ -130,6 +134,7 @@ class StatusServer:
         self.app.router.add_get("/status.json", self._status)
         self.app.router.add_get("/history.json", self._history)
         self.app.router.add_get("/page.json", self._page_json)
+        self.app.router.add_get("/healthz", self._healthz)
         self._runner: web.AppRunner | None = None
         self._listener: Listener | None = None
 
@@ -248,6 +253,21 @@ class StatusServer:
 
     async def _status(self, request: web.Request) -> web.Response:
         return _json(self.service.status())
+
+    async def _healthz(self, request: web.Request) -> web.Response:
+        service = self.service
+        problems = health_problems(
+            service.compensator,
+            service.links,
+            service.timing,
+            clock=service.clock,
+            period_s=service.config.doc.period_s,
+        )
+        last = service.compensator.last
+        level = None if last is None else Level(last.status & 0b11).name.lower()
+        answer = _json({"healthy": not problems, "level": level, "problems": problems})
+        answer.set_status(503 if problems else 200)
+        return answer
 
     async def _history(self, request: web.Request) -> web.Response:
         text = request.query.get("points", "720")

@@ -12,6 +12,7 @@ from typing import Any, Protocol
 
 from compd.faultlog import FaultLog
 from compd.service.config.loading import Config
+from compd.service.loop.clock import Clock
 from compd.service.loop.compensator import Compensator
 from compd.service.loop.links import DriverLink
 from compd.service.loop.probing import ProbeLearning
@@ -54,6 +55,8 @@ class ServiceView(Protocol):
     def links(self) -> Mapping[str, DriverLink]: ...
     @property
     def timing(self) -> TickTiming: ...
+    @property
+    def clock(self) -> Clock: ...
     @property
     def started_unix_s(self) -> float: ...
     @property

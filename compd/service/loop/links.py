@@ -70,6 +70,11 @@ class DriverLink:
         self.next_attempt_s = -math.inf
         self._connecting: asyncio.Task[None] | None = None
         self._ever_up = False
+        #: A read or write has succeeded since start: until then the peer is "not connected"
+        #: wherever a person looks (a closed port, or a peer that accepts and never answers).
+        self.answered = False
+        #: The last failure's message ("" before any): what a run that never connected says.
+        self.last_error = ""
         self._unexpected: set[type[BaseException]] = set()  # exception types logged once
         #: Told ``(operation, seconds)`` after each read or write, failed ones too (:mod:`compd.service.http.metrics`).
         self.observe: Callable[[str, float], None] | None = None
@@ -82,6 +87,13 @@ class DriverLink:
     def report_to(self, sink: EventSink) -> None:
         """Tell ``sink`` of each fault episode's start and end (:class:`compd.faultlog.Event`)."""
         self._fault.sink = sink
+
+    @property
+    def state(self) -> str:
+        """``up``, ``down`` (it answered before), or ``not connected`` (never answered since start)."""
+        if self.up and self.answered:
+            return "up"
+        return "down" if self.answered else "not connected"
 
     @property
     def connecting(self) -> bool:
@@ -165,6 +177,7 @@ class DriverLink:
         self.up = False
 
     def _succeeded(self) -> None:
+        self.answered = True
         if self._fault.active:
             event = "driver reconnected" if self._ever_up else "driver connected"
             also = "reconnected" if self._ever_up else None
@@ -176,6 +189,7 @@ class DriverLink:
             self.unexpected += 1
             self._log_unexpected(action, exc)
         self._fault.failed(f"driver {action} failed", error=_text(exc))
+        self.last_error = _text(exc)
         self.up = False
         self.failures += 1
         backoff_s = min(self.backoff_max_s, self.backoff_min_s * 2 ** (self.failures - 1))

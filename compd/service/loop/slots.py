@@ -178,10 +178,9 @@ class ModelSlots:
         weight = min(1.0, (t_s - self.blend_start_s) / self.blend_s) if self.blend_s else 1.0
         if weight >= 1.0 and self.previous is not None:
             self.previous = None
-            self._tell(
-                "model_blended", "model blended in", model=self.active.compiled.name,
-                sha256=self.active.sha256, blend_s=self.blend_s,
-            )  # fmt: skip
+            blended = {"model": self.active.compiled.name, "sha256": self.active.sha256}
+            log.info("model blended in", **blended, blend_s=self.blend_s)  # the journal too
+            self._tell("model_blended", "model blended in", **blended, blend_s=self.blend_s)
         return None if self.previous is None else weight
 
     def output(self, name: str, weight: float | None) -> float:
@@ -207,10 +206,10 @@ class ModelSlots:
                     self.previous, self.blend_start_s = self.active, t_s
                 self.fallback, self.active = self.active, pending
                 self.counters.model_loads += 1
-                self._tell(
-                    "model_switched", "model switched in", model=pending.compiled.name,
-                    sha256=pending.sha256, blending=self.previous is not None,
-                )  # fmt: skip
+                switched = {"model": pending.compiled.name, "sha256": pending.sha256}
+                blending = self.previous is not None
+                log.info("model switched in", **switched, blending=blending)  # the journal too
+                self._tell("model_switched", "model switched in", **switched, blending=blending)
         for slot in (self.active, self.previous):
             if slot is None:
                 continue

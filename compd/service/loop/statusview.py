@@ -25,7 +25,12 @@ from typing import Any
 from compd.service.loop.clock import Clock
 from compd.service.loop.compensator import Compensator
 from compd.service.loop.links import DriverLink
+from compd.service.loop.safety import Level
+from compd.service.loop.signals import Health
 from compd.service.loop.ticks import TickTiming
+
+#: ``/healthz``: a last tick older than this many periods means the loop is stuck.
+LATE_PERIODS = 3.0
 
 
 def status_snapshot(
@@ -83,7 +88,8 @@ def status_snapshot(
             }
             for name, m in comp.monitors.items()
         },
-        "drivers": {name: ("up" if link.up else "down") for name, link in links.items()},
+        # "not connected": it has not answered once since start (a PLC off, a wrong address).
+        "drivers": {name: link.state for name, link in links.items()},
         # MQTT telemetry: connected, messages published, acknowledged, dropped; None when off.
         "telemetry": None if telemetry is None else dict(telemetry),
         # The last tick's counters, as telemetry and the metrics give them.
@@ -94,6 +100,46 @@ def status_snapshot(
             **{k: v for k, v in counters.items() if k not in ("ticks", "overruns")},
         },
     }
+
+
+def health_problems(
+    comp: Compensator,
+    links: Mapping[str, DriverLink],
+    timing: TickTiming,
+    *,
+    clock: Clock,
+    period_s: float,
+) -> list[str]:
+    """Why a load balancer or probe should not trust this daemon now; empty while healthy (``/healthz``).
+
+    Healthy: the last tick ran within :data:`LATE_PERIODS` periods and started on time, every
+    driver answers, the outputs were written, the status level is not faulted and the model
+    runs. Degraded (an input held or estimated) still compensates, so it is healthy.
+    """
+    last = comp.last
+    if last is None:
+        return ["no tick yet: starting"]
+    problems = []
+    age_s = clock.wall() - last.wall_unix_s  # the loop's clock, as period_s is
+    if age_s > LATE_PERIODS * period_s:
+        problems.append(f"no tick for {age_s:.1f} s (period {period_s:g} s): the loop is stuck")
+    elif timing.last_lateness_s > period_s:
+        problems.append(
+            f"the last tick started {timing.last_lateness_s:.2f} s late (period {period_s:g} s)"
+        )
+    problems += [
+        f"driver {name} {link.state}" + (f" ({link.last_error})" if link.last_error else "")
+        for name, link in links.items()
+        if link.state != "up"
+    ]
+    if comp.axes and not last.written:
+        problems.append("the last tick's offsets were not written")
+    if Level(last.status & 0b11) is Level.FAULTED:
+        faulted = [n for n, h in last.health.items() if h is Health.FAULTED]
+        problems.append("status faulted" + (f": {', '.join(faulted)}" if faulted else ""))
+    if comp.model_fault:
+        problems.append(f"model fault: {comp.model_fault}")
+    return problems
 
 
 def _model(comp: Compensator, when: Callable[[float], str]) -> dict[str, Any]:

@@ -46,7 +46,7 @@ function fillList(id, pairs) {
 }
 
 // What the header says: alive (the status level), stale (answers, no ticks) or dead (no answer).
-const health = { answeredMs: performance.now(), failing: false, tickAgeS: null, periodS: 1, level: null, machine: null };
+const health = { answeredMs: performance.now(), failing: false, tickAgeS: null, periodS: 1, level: null, machine: null, notConnected: [] };
 
 function showHealth() {
   const level = document.getElementById("level");
@@ -61,6 +61,8 @@ function showHealth() {
   } else {
     state = "alive";
     text = health.level || "starting";
+    // A driver that never answered since start: nothing reaches the machine, whatever the level says.
+    if (health.notConnected.length) text += `: ${health.notConnected.join(", ")} not connected`;
   }
   level.textContent = text;
   level.className = `level ${state === "alive" ? health.level || "" : state}`;
@@ -76,6 +78,7 @@ function showStatus(status, page) {
   document.getElementById("model-name").textContent = status.model ? status.model.name : "recording (a data logger, no model)";
   document.getElementById("last-tick").textContent = status.last_tick || "not yet";
   health.level = page.status.level;
+  health.notConnected = Object.keys(status.drivers).filter((name) => status.drivers[name] === "not connected");
   health.machine = page.machine_id;
   health.periodS = page.period_s;
   health.tickAgeS = status.last_tick_age_s;

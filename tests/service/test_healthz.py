@@ -1,0 +1,62 @@
+"""``/healthz`` of the real HTTP server on the simulated machine: 200 while ticks are on time and the
+outputs healthy, 503 with the reason while the PLC is off the network or the loop stands still;
+``/status.json`` answers as before either way."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from tests.service.httprun import RunningCompd, http_config, running_compd
+
+#: Ticks (simulated s) before the faults of :data:`tests.service.httprun.FAULTS`, during the PLC's
+#: drop (100-110 s) and after it.
+BEFORE, DROPPED, AFTER = 20, 105, 150
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningCompd]:
+    with running_compd(http_config(tmp_path_factory.mktemp("healthz")), hold_at=BEFORE) as running:
+        yield running
+
+
+def healthz(run: RunningCompd) -> tuple[int, dict[str, Any]]:
+    status, headers, body = run.get("/healthz")
+    assert headers["Content-Type"].startswith("application/json")
+    return status, json.loads(body)
+
+
+def test_healthy_then_503_naming_the_dropped_plc_then_healthy_again(run: RunningCompd) -> None:
+    """Before the faults 200 and no problems; the PLC off the network 503 "driver plc down"; back, 200."""
+    assert healthz(run) == (200, {"healthy": True, "level": "ok", "problems": []})
+
+    run.hold_at(DROPPED)
+    status, answer = healthz(run)
+    assert status == 503 and not answer["healthy"]
+    assert any(p.startswith("driver plc down") for p in answer["problems"]), answer
+    assert "the last tick's offsets were not written" in answer["problems"]
+    # /status.json is not a health check: it answers 200 with its usual document.
+    assert set(run.json("/status.json")["drivers"].items()) == {("plc", "down")}
+    assert run.get("/healthz", method="HEAD")[0] == 503
+
+    run.hold_at(AFTER)
+    status, answer = healthz(run)
+    assert (status, answer["problems"]) == (200, []), answer
+
+
+def test_a_loop_that_stands_still_is_503(run: RunningCompd) -> None:
+    """Held before a tick while its clock runs on 10 s (a stuck tick): 503 "no tick for 10.0 s"."""
+    assert run.clock is not None
+    run.hold_at(AFTER + 1)
+    inner_wall = run.clock.inner.wall
+    run.clock.inner.wall = lambda: inner_wall() + 10.0  # the loop's time goes on, no tick runs
+    try:
+        status, answer = healthz(run)
+    finally:
+        run.clock.inner.wall = inner_wall
+    assert status == 503, answer
+    assert answer["problems"][0].startswith("no tick for 1"), answer
+    assert healthz(run)[0] == 200
