@@ -101,6 +101,20 @@ def short_dir() -> Iterator[Path]:
     shutil.rmtree(directory, ignore_errors=True)
 
 
+def wait_listening(port: int, process: subprocess.Popen[bytes], bound_s: float = 120.0) -> None:
+    """Until something accepts connections on 127.0.0.1:``port`` (the process still running)."""
+    import socket
+    import time
+
+    deadline = time.monotonic() + bound_s
+    while time.monotonic() < deadline and process.poll() is None:
+        with socket.socket() as probe:
+            if probe.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.1)
+    pytest.fail(f"nothing listens on port {port} (exit status {process.poll()})")
+
+
 def test_run_for_a_real_machine_loads_no_toolkit_twin_or_plotting(short_dir: Path) -> None:
     """The daemon against a controller elsewhere (here the twin's own process) imports no modelling stack.
 
@@ -121,6 +135,8 @@ def test_run_for_a_real_machine_loads_no_toolkit_twin_or_plotting(short_dir: Pat
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
     try:
+        # The twin's process listens before the daemon starts: a run that never connects fails.
+        wait_listening(doc["drivers"]["plc"]["settings"]["port"], machine)
         status, modules, out = imported_by(
             "run", "--config", real_config, "--duration-s", 5, "--log-format", "json"
         )
