@@ -105,6 +105,17 @@ def check_config_command(args: argparse.Namespace) -> int:
             f"  axis {axis}: {o.sign:+d} x {o.model_output} -> {o.driver}:{o.address}, "
             f"|offset| <= {o.max_offset_um:g} um, <= {o.max_rate_um_per_s:g} um/s"
         )
+    if (probes := doc.probes) is not None and probes.enabled:
+        for axis, reg in probes.axes.items():
+            where = (
+                "compd model probe and the control socket only"
+                if reg is None
+                else f"{reg.driver}: value {reg.value_address} (x {reg.value_scale:g} um), "
+                f"count {reg.counter_address}, echo {reg.echo_address}"
+            )
+            out.print(
+                f"  probes {axis}: {probes.measures}, due every {probes.every_h:g} h; {where}"
+            )
     if config.simulation is not None:
         from compd.sim.plc.build import build_machine  # the twin only where a config has one
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -152,6 +153,13 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
         answers["probe"] = await request(
             config.control_socket, {"cmd": "probe", "axis": "Z", "measured_um": 2.0}
         )
+        cli = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "compd.cli", "model", "probe", "--config", str(config.path),
+            "Z", "1.5", "--at", "2000-01-01T00:00:00",
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+        )  # fmt: skip
+        out, _ = await cli.communicate()
+        answers["cli"] = (cli.returncode, out.decode())
         answers["reset"] = await request(config.control_socket, {"cmd": "probe", "reset": True})
         answers["status"] = await request(config.control_socket, {"cmd": "status"})
         ran.cancel()
@@ -163,6 +171,9 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
     probe = answers["probe"]
     assert probe["ok"] and probe["taken"] and probe["last"]["source"] == "socket"
     assert probe["last"]["result"] in ("accepted", "flagged")
+    # A touch older than what the daemon keeps is refused, and says so (exit status 1).
+    status, out = answers["cli"]
+    assert status == 1 and "Z: refused" in out and "older than" in out, out
     assert answers["reset"]["ok"] and answers["reset"]["reset"] is True
     axes = answers["status"]["probes"]["axes"]
     assert axes["Z"]["adjustment_um"] == 0.0
