@@ -41,6 +41,9 @@ from compd.service.control.modelload import ModelLoader, request_bytes, startup_
 from compd.service.control.peers import FdBudget
 from compd.service.control.socket import ControlServer
 from compd.service.fleet.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
+from compd.service.fleet.remoteprobe import COMMAND as PROBE_COMMAND
+from compd.service.fleet.remoteprobe import MAX_PAYLOAD_BYTES as PROBE_MAX_BYTES
+from compd.service.fleet.remoteprobe import RemoteProbes
 from compd.service.fleet.seenrequests import FILE as SEEN_FILE
 from compd.service.fleet.seenrequests import SeenRequests
 from compd.service.identity import identity
@@ -196,6 +199,9 @@ class Service:
                 )
                 self.telemetry.listen(COMMAND, remote.handle, max_bytes=MAX_PAYLOAD_BYTES)
                 self.telemetry.take_desired(remote.take_desired)  # a machine back catches up
+            if self.probing is not None:  # a CMM station's or a gauge PC's results
+                probes = RemoteProbes(self.take_probe, self.telemetry.reply, sink)
+                self.telemetry.listen(PROBE_COMMAND, probes.handle, max_bytes=PROBE_MAX_BYTES)
         self.subscribers = Subscribers(
             doc.period_s, sink=None if self.telemetry is None else self.telemetry.event
         )

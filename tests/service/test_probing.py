@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import sys
 from dataclasses import dataclass
@@ -10,9 +11,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import paho.mqtt.publish as publish
 import pytest
+import yaml
 
 from compd.files.yamlplace import resolve_path
+from compd.service.config.loading import load_config
 from compd.service.control.socket import request
 from compd.service.daemon import Service
 from compd.service.loop.compensator import TickRecord
@@ -20,6 +24,7 @@ from compd.service.loop.probing import ProbeRequest
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from tests.acceptance.conftest import machine_doc, write_config
+from tests.mosquitto import Mosquitto, Subscriber, machine_config, mosquitto_binary
 
 BUNDLED_MODEL = resolve_path("bundled:simulated_model.yaml", Path("."))
 
@@ -177,3 +182,54 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
     assert answers["reset"]["ok"] and answers["reset"]["reset"] is True
     axes = answers["status"]["probes"]["axes"]
     assert axes["Z"]["adjustment_um"] == 0.0
+
+
+@pytest.mark.skipif(
+    mosquitto_binary() is None, reason="mosquitto is not installed: run .ci/install-system-packages"
+)
+def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
+    broker: Mosquitto, tmp_path: Path
+) -> None:
+    """cmd/probe on the fleet's broker: taken as the socket's probe, answered on reply/<id>; a retained one refused."""
+    config = machine_config(
+        tmp_path,
+        telemetry={"host": "127.0.0.1", "port": broker.port, "machine_id": "mill-1"},
+        simulation={"scenario": "production", "hours": 2, "seed": 3},
+    )
+    doc = yaml.safe_load(config.path.read_text())
+    doc["probes"] = {"axes": {"Z": None}}
+    config.path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    config = load_config(config.path)
+    ask = json.dumps(
+        {"request_id": "cmm-1", "axis": "Z", "measured_um": 1.0, "requested_by": "cmm-2"}
+    )
+    retained = json.dumps({"request_id": "cmm-0", "axis": "Z", "measured_um": 1.0})
+
+    async def main(listener: Subscriber) -> None:
+        # Left on the broker before the daemon subscribes: handed to it from the retained store.
+        publish.single("compd/mill-1/cmd/probe", retained, qos=1, retain=True, port=broker.port)
+        ran = asyncio.create_task(run_simulation(config, time_scale=20.0, duration_s=3600))
+        for _ in range(1200):  # the machine is up and listening (its birth)
+            if listener.of("birth", "mill-1"):
+                break
+            await asyncio.sleep(0.05)
+        publish.single("compd/mill-1/cmd/probe", ask, qos=1, port=broker.port)
+        for _ in range(600):
+            if len(replies(listener)) == 2:
+                break
+            await asyncio.sleep(0.05)
+        ran.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await ran
+
+    def replies(listener: Subscriber) -> dict[str, dict[str, Any]]:
+        with listener._lock:
+            heard = [m.payload for m in listener.messages if "/reply/" in m.topic]
+        return {p["request_id"]: p for p in heard}
+
+    with Subscriber(broker.port, "compd/mill-1/#") as listener:
+        asyncio.run(main(listener))
+        answers = replies(listener)
+    assert answers["cmm-1"]["ok"] is True and answers["cmm-1"]["taken"] is True
+    assert answers["cmm-1"]["last"]["source"] == "mqtt:cmm-2"
+    assert answers["cmm-0"]["ok"] is False and "retained" in answers["cmm-0"]["error"]

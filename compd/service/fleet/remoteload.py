@@ -116,7 +116,7 @@ class RemoteLoads:
         ``retained``: the broker's retain flag (a message from its retained store), refused.
         """
         try:
-            request = _parse(payload)
+            request = parse_request(payload)
         except CompdError as exc:
             log.error("remote model load ignored", error=str(exc))
             self.events(Event("model_refused", "remote model load ignored", {"reason": str(exc)}))
@@ -129,7 +129,7 @@ class RemoteLoads:
             "sha256": sha256 if isinstance(sha256, str) else None,
         }
         try:
-            if (unread := _unread_number(request)) is not None:
+            if (unread := unread_number(request)) is not None:
                 raise CompdError(f"the request holds a number compd does not read: {unread}")
             await self._admit(request, retained)
             answer |= await self._load(request, by)
@@ -171,7 +171,7 @@ class RemoteLoads:
         try:
             if record.get("schema") != DESIRED_SCHEMA:
                 raise CompdError(f"the record's schema is not {DESIRED_SCHEMA!r}")
-            if (unread := _unread_number(record)) is not None:
+            if (unread := unread_number(record)) is not None:
                 raise CompdError(f"the record holds a number compd does not read: {unread}")
             raw, name = request_bytes(record)
             if hashlib.sha256(raw).hexdigest() != sha256:
@@ -278,7 +278,7 @@ def _constant(text: str) -> _Unread:
     return _Unread(f"{text} (not a finite number)")
 
 
-def _unread_number(request: dict[str, Any]) -> str | None:
+def unread_number(request: dict[str, Any]) -> str | None:
     """``key: why`` of the first number in ``request`` that compd does not read, else None."""
     stack: list[tuple[str, Any]] = list(request.items())
     while stack:
@@ -292,7 +292,7 @@ def _unread_number(request: dict[str, Any]) -> str | None:
     return None
 
 
-def _parse(payload: bytes) -> dict[str, Any]:
+def parse_request(payload: bytes) -> dict[str, Any]:
     """The request as a dict with a usable ``request_id``; raises CompdError saying what is wrong.
 
     Numbers compd does not read (NaN, Infinity, 1e400, integers of more than
