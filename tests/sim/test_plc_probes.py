@@ -21,7 +21,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from compd.errors import ConfigFileError
 from compd.files.yamlplace import resolve_path
 from compd.service.config.loading import load_config
-from compd.sim.plc.build import build_machine
+from compd.sim.plc.build import build_machine, served_addresses
 from compd.sim.plc.machine import SimulatedMachine
 from tests.ports import free_port
 
@@ -264,3 +264,10 @@ def test_simulation_probes_settings_are_strict(tmp_path: Path) -> None:
     for probes in ({"every_hours": 1}, {"noise_um": -1}):
         with pytest.raises(ConfigFileError, match="simulation"):
             build_machine(load_config(probed_config(tmp_path, probes)))
+
+
+def test_the_plc_serves_the_probe_registers_beside_the_signals_and_outputs(tmp_path: Path) -> None:
+    """compd reads value, counter and touch stamp; it writes echo and probe status (the soak's PLC too)."""
+    inputs, outputs = served_addresses(load_config(probed_config(tmp_path, {})).doc, "plc")
+    assert inputs[-3:] == ["holding:120:int32", "holding:122", "holding:125:uint32"]
+    assert outputs[-2:] == ["holding:123", "holding:124"]

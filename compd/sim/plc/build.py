@@ -133,15 +133,7 @@ def build_machine(config: Config) -> SimulatedMachine:
         sim, signals=signals, axes=axes, servers=servers, status=status, probes=probes
     )
     for name, d in doc.drivers.items():
-        inputs = [s.address for s in doc.signals.values() if s.driver == name]
-        outputs = [o.address for o in doc.outputs.values() if o.driver == name]
-        if doc.status is not None and doc.status.driver == name:
-            outputs += [doc.status.status_address, doc.status.heartbeat_address]
-        for p in probes:
-            if p.driver == name:
-                inputs += [p.value_address, p.counter_address]
-                inputs += [p.touched_at_address] if p.touched_at_address else []
-                outputs += [p.echo_address] + ([p.status_address] if p.status_address else [])
+        inputs, outputs = served_addresses(doc, name)
         make = server_type(d.type)
         servers[name] = make(
             config.driver_settings[name],
@@ -152,6 +144,25 @@ def build_machine(config: Config) -> SimulatedMachine:
         )
     machine.servers.update(servers)
     return machine
+
+
+def served_addresses(doc: ConfigDoc, driver: str) -> tuple[list[str], list[str]]:
+    """What ``driver``'s simulated controller serves: (addresses compd reads, addresses it writes).
+
+    Read: the signals and the probe registers the PLC writes (value, counter,
+    touched-at); written: the offsets, the status word and heartbeat, each
+    probe's echo and probe status word.
+    """
+    inputs = [s.address for s in doc.signals.values() if s.driver == driver]
+    outputs = [o.address for o in doc.outputs.values() if o.driver == driver]
+    if doc.status is not None and doc.status.driver == driver:
+        outputs += [doc.status.status_address, doc.status.heartbeat_address]
+    for _, p in probe_axes(doc):
+        if p.driver == driver:
+            inputs += [p.value_address, p.counter_address]
+            inputs += [p.touched_at_address] if p.touched_at_address else []
+            outputs += [p.echo_address] + ([p.status_address] if p.status_address else [])
+    return inputs, outputs
 
 
 def _probes(
