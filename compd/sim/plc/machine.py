@@ -257,7 +257,7 @@ class SimulatedMachine:
             cycle = station.step(self.now_s, true_um, self.applied_um[twin_axis], self.wall0_unix_s)
             if cycle is not None:
                 self.probe_cycles.append(cycle)
-                log.debug(
+                log.info(
                     "simulated probe cycle",
                     axis=cycle.axis,
                     count=cycle.count,

@@ -81,7 +81,8 @@ class SimProbesDoc(_Strict):
     the touch's unix time, then increments the counter. At most one cycle per
     axis is under way. Cycles start
 
-    - on a timer, every ``every_h`` hours of machine time (null: no timer);
+    - on a timer, at ``every_h``, 2 ``every_h``, ... hours of machine time (null: no
+      timer; one due while a cycle is under way starts when that one ends);
     - with ``when_due``, when compd's probe status word (``probes.axes.<axis>.status_address``)
       has bit 0 "probe due" set, and no cycle touched within ``min_gap_h``.
 
