@@ -76,7 +76,7 @@ from compd.service.daemon import Service
 from compd.service.loop.clock import VirtualClock
 from compd.service.loop.compensator import TickRecord
 from compd.service.store.state import STATE_FILE
-from compd.sim.plc.build import build_machine
+from compd.sim.plc.build import build_machine, served_addresses
 from compd.sim.plc.machine import MachineClock, SimulatedMachine
 from compd.sim.plc.modbus import ModbusPlcServer
 from compd.sim.plc.run import settle, start_machine
@@ -111,6 +111,7 @@ class SoakClock(MachineClock):
         self, machine: SimulatedMachine, strike: Callable[[float], Awaitable[None]]
     ) -> None:
         super().__init__(VirtualClock(wall0_unix_s=time.time()), machine)
+        machine.wall0_unix_s = self.base.wall_at(0.0) - machine.doc.join_at_s  # touch stamps
         self.strike = strike
 
     async def sleep_until(self, t: float) -> None:
@@ -161,15 +162,13 @@ class Soak:
 
     def _replace_server(self) -> None:
         """The PLC's Modbus server again, its write sink passing through the witness."""
-        doc, name = self.config.doc, self.driver
-        outputs = [o.address for o in doc.outputs.values() if o.driver == name]
-        if doc.status is not None and doc.status.driver == name:
-            outputs += [doc.status.status_address, doc.status.heartbeat_address]
+        name = self.driver
+        inputs, outputs = served_addresses(self.config.doc, name)
         settings = self.config.driver_settings[name]
         assert isinstance(settings, ModbusSettings)  # the soak's machine is a Modbus PLC
         self.server = ModbusPlcServer(
             settings,
-            inputs=[s.address for s in doc.signals.values() if s.driver == name],
+            inputs=inputs,
             outputs=outputs,
             on_write=self.witness.sink(self.machine.on_write(name)),
             base_dir=self.config.base_dir,

@@ -2,19 +2,26 @@
 
 Each driver instance of the config gets the simulated controller its type
 connects to, built from the very settings the driver uses, serving exactly
-the addresses the config reads and writes through it.
+the addresses the config reads and writes through it: the signals, the
+offsets, the status word and heartbeat, and the probe registers of
+``probes.axes`` (value, counter and touched-at served, echo and probe status
+taken), the machine's probe cycles writing the former (:mod:`compd.sim.plc.probing`).
 """
 
 from __future__ import annotations
 
 import importlib
 import re
+from collections.abc import Callable
 
 from compd.errors import ConfigFileError
+from compd.service.config.docs import ConfigDoc
 from compd.service.config.loading import Config
+from compd.service.config.writepoints import probe_axes
 from compd.sim.plc.machine import ServedAxis, ServedSignal, SimulatedMachine
+from compd.sim.plc.probing import ServedProbe
 from compd.sim.plc.server import PlcServer, PlcServerType
-from compd.sim.plc.settings import simulation_of
+from compd.sim.plc.settings import SimulationDoc, simulation_of
 from compd.sim.scenarios import SCENARIOS
 from compd.sim.sensors import COLUMNS
 from compd.sim.variants import VARIANTS
@@ -26,6 +33,9 @@ SERVERS: dict[str, str] = {
     "serial_sensor": "compd.sim.plc.serial:SerialPlcServer",
     "profibus_gateway": "compd.sim.plc.gateway:GatewayServer",
 }
+#: Driver types whose simulated controller runs probe cycles: it serves registers compd
+#: reads beside those it writes (a serial scanner only answers with temperatures).
+PROBE_SERVERS = frozenset({"modbus", "opcua", "profibus_gateway"})
 #: What the machine's PLC can serve: every logged quantity of the twin. The
 #: displacements are those of a test set-up (capacitive probes on a mandrel,
 #: ISO 230-3) and are the thermal drift alone: the PLC takes off the offset it applied.
@@ -117,19 +127,102 @@ def build_machine(config: Config) -> SimulatedMachine:
         if doc.status
         else None
     )
+    probes = _probes(doc, sim, {a.name: a.twin_axis for a in axes}, error)
     servers: dict[str, PlcServer] = {}
-    machine = SimulatedMachine(sim, signals=signals, axes=axes, servers=servers, status=status)
+    machine = SimulatedMachine(
+        sim, signals=signals, axes=axes, servers=servers, status=status, probes=probes
+    )
     for name, d in doc.drivers.items():
-        outputs = [o.address for o in doc.outputs.values() if o.driver == name]
-        if doc.status is not None and doc.status.driver == name:
-            outputs += [doc.status.status_address, doc.status.heartbeat_address]
+        inputs, outputs = served_addresses(doc, name)
         make = server_type(d.type)
         servers[name] = make(
             config.driver_settings[name],
-            inputs=[s.address for s in doc.signals.values() if s.driver == name],
+            inputs=inputs,
             outputs=outputs,
             on_write=machine.on_write(name),
             base_dir=config.base_dir,
         )
     machine.servers.update(servers)
     return machine
+
+
+def served_addresses(doc: ConfigDoc, driver: str) -> tuple[list[str], list[str]]:
+    """What ``driver``'s simulated controller serves: (addresses compd reads, addresses it writes).
+
+    Read: the signals and the probe registers the PLC writes (value, counter,
+    touched-at); written: the offsets, the status word and heartbeat, each
+    probe's echo and probe status word.
+    """
+    inputs = [s.address for s in doc.signals.values() if s.driver == driver]
+    outputs = [o.address for o in doc.outputs.values() if o.driver == driver]
+    if doc.status is not None and doc.status.driver == driver:
+        outputs += [doc.status.status_address, doc.status.heartbeat_address]
+    for _, p in probe_axes(doc):
+        if p.driver == driver:
+            inputs += [p.value_address, p.counter_address]
+            inputs += [p.touched_at_address] if p.touched_at_address else []
+            outputs += [p.echo_address] + ([p.status_address] if p.status_address else [])
+    return inputs, outputs
+
+
+def _probes(
+    doc: ConfigDoc,
+    sim: SimulationDoc,
+    twin_axes: dict[str, str],
+    error: Callable[[str, str, str], ConfigFileError],
+) -> list[ServedProbe]:
+    """The probe registers the PLC serves (``probes.axes``), checked against ``simulation.probes``."""
+    probed = probe_axes(doc)
+    if sim.probes.runs and not probed:
+        raise error(
+            "simulation.probes",
+            "the simulated PLC is to run probe cycles, but the config has no probe registers "
+            + ("(probes.enabled is false)" if doc.probes is not None else "(no 'probes' section)"),
+            "Add 'probes.axes.<axis>' with the registers (see config/simulated.yaml), or remove "
+            "'simulation.probes'",
+        )
+    for i, misprobe in enumerate(sim.probes.misprobes):
+        if misprobe.axis is not None and misprobe.axis not in dict(probed):
+            raise error(
+                f"simulation.probes.misprobes.{i}.axis",
+                f"axis {misprobe.axis!r} has no probe registers",
+                f"Use one of {sorted(dict(probed))}, or leave 'axis' out (every probed axis)",
+            )
+    probes = []
+    for axis, p in probed:
+        kind = doc.drivers[p.driver].type
+        if kind not in PROBE_SERVERS:
+            raise error(
+                f"probes.axes.{axis}.driver",
+                f"driver {p.driver!r} (type {kind}) has no simulated controller that runs probe "
+                "cycles",
+                f"Put the probe registers on a driver of type {sorted(PROBE_SERVERS)}",
+            )
+        if p.value_scale == 0:
+            raise error(
+                f"probes.axes.{axis}.value_scale",
+                "a value_scale of 0 makes every probe read 0 um",
+                "Give the register's unit in um, e.g. 0.1 for tenths of a micrometre",
+            )
+        if sim.probes.when_due and p.status_address is None:
+            raise error(
+                f"probes.axes.{axis}.status_address",
+                "simulation.probes.when_due runs a cycle when compd's probe status word asks, "
+                f"but axis {axis!r} has no status_address",
+                "Add a status_address for the axis, or set 'simulation.probes.every_h' instead",
+            )
+        probes.append(
+            ServedProbe(
+                axis=axis,
+                twin_axis=twin_axes[axis],
+                driver=p.driver,
+                value_address=p.value_address,
+                counter_address=p.counter_address,
+                echo_address=p.echo_address,
+                value_scale=p.value_scale,
+                touched_at_address=p.touched_at_address,
+                status_address=p.status_address,
+                measures=doc.probes.measures if doc.probes is not None else "residue",
+            )
+        )
+    return probes

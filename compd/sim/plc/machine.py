@@ -14,6 +14,11 @@ exactly what the compensation achieved::
 the ``simulation`` section are applied on the same clock: a sensor stuck, NaN
 or out of range; a controller unreachable for a while or restarted.
 
+Where the config has probe registers (``probes.axes``), the PLC runs probe
+cycles on the same clock (:mod:`compd.sim.plc.probing`, on a timer or when
+compd's probe-due bit asks, per ``simulation.probes``); every finished cycle
+is kept in :attr:`SimulatedMachine.probe_cycles`, with the truth it saw.
+
 The machine is advanced by the clock (:class:`MachineClock`), not by a task
 of its own, so a replay on a virtual clock is deterministic: the machine is
 always exactly at the time of compd's tick.
@@ -24,13 +29,15 @@ from __future__ import annotations
 import asyncio
 import bisect
 import math
-from collections.abc import Awaitable, Callable, Mapping
+import time
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import structlog
 
 from compd.service.loop.clock import Clock
+from compd.sim.plc.probing import ProbeCycle, ProbeStation, ServedProbe
 from compd.sim.plc.server import PlcServer
 from compd.sim.plc.settings import SimFaultDoc, SimulationDoc
 from compd.sim.scenarios import scenario_inputs
@@ -115,6 +122,7 @@ class SimulatedMachine:
         axes: list[ServedAxis],
         servers: Mapping[str, PlcServer],
         status: tuple[str, str, str] | None = None,
+        probes: Sequence[ServedProbe] = (),
     ) -> None:
         self.doc = doc
         self.signals = signals
@@ -148,6 +156,18 @@ class SimulatedMachine:
         self._by_driver: dict[str, list[ServedSignal]] = {}
         for s in signals:
             self._by_driver.setdefault(s.driver, []).append(s)
+        #: Config axis -> its probe cycle on the PLC (``probes.axes``, ``simulation.probes``).
+        self.probe_stations = {
+            p.axis: ProbeStation(
+                p, doc.probes, np.random.default_rng([doc.seed, 2, i]), doc.probes.misprobes
+            )
+            for i, p in enumerate(probes)
+        }
+        #: Every finished probe cycle, all axes, in the order they wrote their registers.
+        self.probe_cycles: list[ProbeCycle] = []
+        #: Unix time (s) of machine time 0: the touch stamps' origin. The run sets it
+        #: from the clock compd runs on (``run_simulation``, ``serve_machine``).
+        self.wall0_unix_s = time.time() - doc.join_at_s
 
     # -- life cycle -------------------------------------------------------
 
@@ -176,11 +196,14 @@ class SimulatedMachine:
             axis = self.axes.get((driver, address))
             if axis is not None:
                 self.applied_um[axis.twin_axis] = raw / axis.scale
-            elif self.status is not None and driver == self.status[0]:
-                if address == self.status[1]:
-                    self.plc.status_word = int(raw)
-                elif address == self.status[2]:
-                    self._heartbeat(int(raw))
+            elif self.status is not None and (driver, address) == self.status[:2]:
+                self.plc.status_word = int(raw)
+            elif self.status is not None and (driver, address) == (self.status[0], self.status[2]):
+                self._heartbeat(int(raw))
+            else:  # a probe's echo or status word
+                for station in self.probe_stations.values():
+                    if station.probe.driver == driver and station.written(address, raw):
+                        break
 
         return written
 
@@ -213,6 +236,7 @@ class SimulatedMachine:
             self.true_um[self.k] = state.displacement_um
             self.row = self.sensors.read(state, u)
             self._supervise()
+            self._probe()
         self._record_offsets(self.k)
         await self._faults_at(self.now_s)
         self._publish()
@@ -226,11 +250,31 @@ class SimulatedMachine:
             self.plc.heartbeat_timeouts += 1
         self._heartbeat_lost = silent
 
+    def _probe(self) -> None:
+        for station in self.probe_stations.values():
+            twin_axis = station.probe.twin_axis
+            true_um = float(self.true_um[self.k, AXES.index(twin_axis)])
+            cycle = station.step(self.now_s, true_um, self.applied_um[twin_axis], self.wall0_unix_s)
+            if cycle is not None:
+                self.probe_cycles.append(cycle)
+                log.info(
+                    "simulated probe cycle",
+                    axis=cycle.axis,
+                    count=cycle.count,
+                    touched_s=cycle.touched_s,
+                    value_um=round(cycle.value_um, 3),
+                )
+
     def _publish(self) -> None:
-        for driver, signals in self._by_driver.items():
+        for driver, server in self.servers.items():
             if driver in self._down:
                 continue
-            self.servers[driver].publish({s.address: s.raw(self._value(s)) for s in signals})
+            values = {s.address: s.raw(self._value(s)) for s in self._by_driver.get(driver, ())}
+            for station in self.probe_stations.values():
+                if station.probe.driver == driver:
+                    values.update(station.registers())
+            if values:
+                server.publish(values)
 
     def _value(self, s: ServedSignal) -> float:
         value = self.row[s.column]
@@ -364,6 +408,7 @@ __all__ = [
     "AxisSummary",
     "MachineClock",
     "PlcLog",
+    "ProbeCycle",
     "ServedAxis",
     "ServedSignal",
     "SimulatedMachine",

@@ -81,6 +81,8 @@ async def run_simulation(
     started = time.perf_counter()
     try:
         base = base_clock(time_scale)
+        # Touch stamps in compd's time: clock time 0 is machine time join_s.
+        machine.wall0_unix_s = base.wall_at(0.0) - join_s
         clock = MachineClock(base, machine)
 
         def tick(record: TickRecord) -> None:
@@ -137,6 +139,7 @@ async def serve_machine(
     """The machine alone on the real clock (``time_scale`` faster), until ``stop`` or the scenario ends."""
     machine = build_machine(config)
     clock = RealClock(time_scale)
+    machine.wall0_unix_s = clock.wall_at(0.0)
     stop = stop or asyncio.Event()
 
     async def step(t_s: float) -> None:

@@ -58,6 +58,51 @@ class SimFaultDoc(_Strict):
         return self
 
 
+class SimMisprobeDoc(_Strict):
+    """A mis-probe (a chip on the datum ball): the first cycle touching at or after ``at_s`` is ``error_um`` off.
+
+    ``axis`` (an output under ``probes.axes``) limits it to that axis's probe;
+    without, the next cycle of every probed axis is spoilt.
+    """
+
+    at_s: Seconds
+    error_um: Annotated[float, Field(allow_inf_nan=False)]
+    axis: str | None = None
+
+
+class SimProbesDoc(_Strict):
+    """``simulation.probes``: when the simulated PLC runs its probe cycles, and what they read.
+
+    A cycle probes one axis through its registers under ``probes.axes``: it
+    touches at its start, and ``cycle_s`` later writes the value (the axis's
+    compensated error at the touch, ``true thermal error + applied offset``
+    um, or the true thermal error alone where ``probes.measures`` is
+    ``thermal_error``, plus Gaussian noise of ``noise_um`` and any mis-probe),
+    the touch's unix time, then increments the counter. At most one cycle per
+    axis is under way. Cycles start
+
+    - on a timer, at ``every_h``, 2 ``every_h``, ... hours of machine time (null: no
+      timer; one due while a cycle is under way starts when that one ends);
+    - with ``when_due``, when compd's probe status word (``probes.axes.<axis>.status_address``)
+      has bit 0 "probe due" set, and no cycle touched within ``min_gap_h``.
+
+    Neither set (the default): the PLC never probes. The noise is drawn from
+    ``simulation.seed``, so a run on virtual time is repeatable.
+    """
+
+    every_h: Annotated[float, Field(gt=0, le=24 * 14, allow_inf_nan=False)] | None = None
+    when_due: bool = False
+    min_gap_h: Annotated[float, Field(ge=0, le=24 * 14, allow_inf_nan=False)] = 0.25
+    cycle_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 60.0
+    noise_um: Annotated[float, Field(ge=0, le=1000, allow_inf_nan=False)] = 0.5
+    misprobes: tuple[SimMisprobeDoc, ...] = ()
+
+    @property
+    def runs(self) -> bool:
+        """Whether any cycle can start: a timer, or answers to compd's probe-due bit."""
+        return self.every_h is not None or self.when_due
+
+
 class SimulationDoc(_Strict):
     """The simulated machine: which run of the twin, and how the config's names map onto it."""
 
@@ -73,6 +118,8 @@ class SimulationDoc(_Strict):
     #: The PLC's supervision: no new heartbeat for this long counts a heartbeat timeout.
     heartbeat_timeout_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 5.0
     faults: tuple[SimFaultDoc, ...] = ()
+    #: The PLC's probe cycles through the registers of ``probes.axes`` (default: none run).
+    probes: SimProbesDoc = SimProbesDoc()
     #: ``compd run`` stops at the end of the scenario (unless --duration-s says otherwise).
     stop_at_end: bool = True
     #: ``compd run`` joins the machine this far into the scenario (simulated s): until then
