@@ -20,7 +20,8 @@ interval after it) plus seeded Gaussian noise of ``--probe-noise-um``.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,10 @@ from compd.toolkit.evaluate import Evaluation
 
 __all__ = ["RECENT_ROWS", "ProbeRun", "Probes", "read_probes", "run_probes"]
 
+#: After a flagged probe the next comes this soon (s): the daemon's probe-due bit stays set, and
+#: a PLC probes at its next tool change (the simulated PLC's ``min_gap_h``: 0.25 h).
+REPROBE_AFTER_S = 900.0
+
 
 @dataclass(frozen=True)
 class Probes:
@@ -46,6 +51,10 @@ class Probes:
 
     time_s: np.ndarray
     measured_um: np.ndarray
+    #: A probe drawn at any instant (um): a flagged probe is followed by another
+    #: :data:`REPROBE_AFTER_S` later, as the daemon's probe-due bit asks the PLC for one.
+    #: None (probes read from a file): only the probes given.
+    draw: Callable[[float], float] | None = None
 
     @classmethod
     def every(
@@ -64,7 +73,13 @@ class Probes:
         index = np.searchsorted(time_s, instants - 1e-9)
         index = index[index < len(time_s)]
         noise = np.random.default_rng(seed).normal(0.0, noise_um, index.size)
-        return cls(np.asarray(time_s)[index], np.asarray(measured_um)[index] + noise)
+        again = np.random.default_rng([seed, 1])
+        t_all, y_all = np.asarray(time_s, dtype=float), np.asarray(measured_um, dtype=float)
+
+        def draw(t_s: float) -> float:
+            return float(np.interp(t_s, t_all, y_all) + again.normal(0.0, noise_um))
+
+        return cls(t_all[index], y_all[index] + noise, draw)
 
 
 @dataclass(frozen=True)
@@ -124,7 +139,9 @@ def run_probes(
     steps: list[ProbeStep] = []
     done = 0  # samples predicted so far
     fed = 0  # samples the learner has observed
-    for t, z in zip(probes.time_s[inside], probes.measured_um[inside], strict=True):
+    queue = deque(zip(probes.time_s[inside], probes.measured_um[inside], strict=True))
+    while queue:
+        t, z = queue.popleft()
         # Up to and including the probe instant: the parameters before this probe.
         upto = int(np.searchsorted(time_s, t, side="right"))
         predicted[done:upto] = open_loop[done:upto] + learner.adjustments_um(x[done:upto])
@@ -135,7 +152,17 @@ def run_probes(
         if through > fed:
             learner.observe_many(time_s[fed:through], x[fed:through], fixed[fed:through])
             fed = through
-        steps += learner.probe(float(t), float(z))
+        taken = learner.probe(float(t), float(z))
+        steps += taken
+        # Flagged: still due, so the PLC probes again at its next chance (the daemon's bit).
+        again_s = float(t) + REPROBE_AFTER_S
+        if (
+            probes.draw is not None
+            and taken[-1].result == "flagged"
+            and again_s <= time_s[-1]
+            and (not queue or again_s < queue[0][0])
+        ):
+            queue.appendleft((again_s, probes.draw(again_s)))
     predicted[done:] = open_loop[done:] + learner.adjustments_um(x[done:])
     y = evaluation.data.column(measured)
     return ProbeRun(

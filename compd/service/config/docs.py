@@ -410,6 +410,9 @@ class ProbesDoc(Strict):
     drift_um_per_sqrt_h: Annotated[float, Field(ge=0, le=1000, allow_inf_nan=False)] | None = None
     max_departure_um: Annotated[float, Field(gt=0, le=10000, allow_inf_nan=False)] | None = None
     reject_sigma: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] | None = None
+    #: A probe is flagged only beyond this too (um; default a quarter of the model's largest
+    #: output: a model off by its error on a new programme is not a mis-probe).
+    reject_floor_um: Annotated[float, Field(ge=0, le=10000, allow_inf_nan=False)] | None = None
     #: Per axis (a name under ``outputs``), where the PLC's probe cycle meets compd; an axis
     #: may also be probed through ``compd model probe`` and MQTT alone (``{}``: no registers).
     axes: dict[str, ProbeAxisDoc | None] = Field(default_factory=dict)
@@ -421,6 +424,7 @@ class ProbesDoc(Strict):
             "drift_um_per_sqrt_h": self.drift_um_per_sqrt_h,
             "max_departure_um": self.max_departure_um,
             "reject_sigma": self.reject_sigma,
+            "reject_floor_um": self.reject_floor_um,
         }
         return {k: v for k, v in given.items() if v is not None}
 

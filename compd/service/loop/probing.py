@@ -221,6 +221,9 @@ class ProbeLearning:
         self.started_s: float | None = None
         #: Per axis: probes by result, the last probe taken, the last innovation (um).
         self.results: dict[str, dict[str, int]] = {axis: {} for axis in self.axes}
+        #: Per axis, the probes that reached the loop (a flagged one that a later probe
+        #: confirms is counted once here, under both results in ``results``).
+        self.probes: dict[str, int] = dict.fromkeys(self.axes, 0)
         self.last: dict[str, ProbeTaken] = {}
         self.adjustments_um: dict[str, float] = {}
         self._taken_now: tuple[ProbeTaken, ...] = ()
@@ -363,6 +366,7 @@ class ProbeLearning:
             request = self._queue.popleft()
             taken = self._take_one(request)
             self.last[request.axis] = taken
+            self.probes[request.axis] = self.probes.get(request.axis, 0) + 1
             counts = self.results[request.axis]
             for step in taken.steps or ():
                 counts[step.result] = counts.get(step.result, 0) + 1
@@ -464,6 +468,7 @@ class ProbeLearning:
                 "adjustment_um": round(self.adjustment(axis.model_output), 4),
                 "last_taken_age_s": None if taken_s is None else round(now_unix_s - taken_s, 1),
                 "last": None if last is None else last.event_details(),
+                "probes": self.probes[name],
                 "results": dict(self.results[name]),
             }
         return {"model_sha256": self.sha256, "every_h": self.setup.every_h, "axes": axes}
