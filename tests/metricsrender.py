@@ -20,6 +20,7 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from compd.service.daemon import Service
 from compd.service.loop.compensator import TickRecord
+from compd.service.loop.probing import ProbeRequest
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from tests.mosquitto import WAIT_S, Mosquitto, machine_config
@@ -57,6 +58,7 @@ def render_metrics(directory: Path, broker_port: int) -> Render:
     doc["machine_id"] = MACHINE_ID
     doc["http"] = {"port": 0}
     doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
+    doc["probes"] = {"axes": {"Z": None}}  # a probe taken below: its series are in the render
     config.path.write_text(yaml.safe_dump(doc, sort_keys=False))
     from compd.service.config.loading import load_config
 
@@ -70,6 +72,8 @@ def render_metrics(directory: Path, broker_port: int) -> Render:
             while not (service.telemetry is not None and service.telemetry.counters.connected):
                 assert time.monotonic() < deadline, "compd never connected to the broker"
                 time.sleep(0.005)
+        if ticks == RENDER_AT - 2 and service.probing is not None:
+            service.probing.offer(ProbeRequest("Z", 0.4, record.wall_unix_s, "test", "residue"))
         if ticks == RENDER_AT and service.http is not None:
             seen["text"] = service.http.metrics.render()[0].decode()
             seen["status"] = service.status()
