@@ -27,6 +27,8 @@ from tests.acceptance.conftest import machine_doc, write_config
 from tests.mosquitto import Mosquitto, Subscriber, machine_config, mosquitto_binary
 
 BUNDLED_MODEL = resolve_path("bundled:simulated_model.yaml", Path("."))
+#: The calibration's parameters: every gain 1, bias 0 (four sub-models and the bias).
+PRIOR_MEAN = np.array([1.0, 1.0, 1.0, 1.0, 0.0])
 
 HOURS = 8.0
 PERIOD_S = 10.0  # the bundled model's own sample time: a shift in a few thousand ticks
@@ -233,3 +235,42 @@ def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
     assert answers["cmm-1"]["ok"] is True and answers["cmm-1"]["taken"] is True
     assert answers["cmm-1"]["last"]["source"] == "mqtt:cmm-2"
     assert answers["cmm-0"]["ok"] is False and "retained" in answers["cmm-0"]["error"]
+
+
+def test_what_the_probes_taught_survives_a_restart_and_another_model_starts_from_its_prior(
+    tmp_path: Path,
+) -> None:
+    """Learned parameters are kept per model sha256 in the state directory: back after a restart;
+    a model loaded instead starts from its own prior, and the first model's file stays."""
+
+    def run(model: Path, hours: float, probe_at: int | None) -> list[np.ndarray]:
+        doc = machine_doc(
+            tmp_path,
+            model,
+            simulation={"scenario": "production", "hours": hours, "seed": 3,
+                        "sample_time_s": PERIOD_S, "stop_at_end": True},
+            probes={"axes": {"Z": None}},
+            period_s=PERIOD_S,
+        )  # fmt: skip
+        doc["recorder"] = {"enabled": False}
+        config = write_config(tmp_path, doc)
+        thetas: list[np.ndarray] = []
+
+        def on_tick(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
+            assert service.probing is not None
+            thetas.append(service.probing.learners["disp_z_um"].theta.copy())
+            if len(thetas) == probe_at:
+                _, _, residue = machine.truth_now()["Z"]
+                request = ProbeRequest("Z", residue + 3.0, record.wall_unix_s, "test", "residue")
+                service.probing.offer(request)
+
+        asyncio.run(run_simulation(config, on_tick=on_tick))
+        return thetas
+
+    taught = run(BUNDLED_MODEL, 1.0, probe_at=200)[-1]
+    assert not np.allclose(taught, PRIOR_MEAN)
+    assert run(BUNDLED_MODEL, 0.1, probe_at=None)[0].tolist() == taught.tolist()
+    other = tmp_path / "other.yaml"
+    other.write_text(BUNDLED_MODEL.read_text().replace('name: "twin-z"', 'name: "twin-z-b"'))
+    np.testing.assert_array_equal(run(other, 0.1, probe_at=None)[0], PRIOR_MEAN)
+    assert len(list((tmp_path / "state" / "probes").glob("*.json"))) == 1  # only what was taught
