@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 from compd.cli.terminal import Text, console
 from compd.errors import CompdError, ConfigFileError, NotRunningError
@@ -115,7 +116,31 @@ def status_command(args: argparse.Namespace) -> int:
         if telemetry.get("stands_by_for"):
             other = telemetry["stands_by_for"]
             out.print(Text(f"  telemetry stands by: {other} publishes as this machine_id", "red"))
+    probes = reply.get("probes")
+    for axis, p in ((probes or {}).get("axes") or {}).items():
+        out.print(_probe_line(axis, p))
     return 0
+
+
+def _probe_line(axis: str, probe: dict[str, Any]) -> Text:
+    """One probed axis: the last probe and its innovation, what was learned, due or disagreeing."""
+    last = probe.get("last")
+    age = probe.get("last_taken_age_s")
+    said = "no probe yet" if last is None else f"last probe {last['result']}"
+    if last is not None and last.get("innovation_um") is not None:
+        said += f", innovation {last['innovation_um']:+.3f} um"
+    if age is not None:
+        said += f", {age / 3600:.1f} h ago"
+    counts = ", ".join(f"{k} {v}" for k, v in sorted(probe.get("results", {}).items()))
+    line = Text(
+        f"  probes {axis}: {said}; learned {probe['adjustment_um']:+.3f} um"
+        + (f"; {counts}" if counts else "")
+    )
+    if probe.get("due"):
+        line.append("; probe due", "yellow")
+    if probe.get("disagrees"):
+        line.append("; two probes not taken: the model no longer describes the machine", "red")
+    return line
 
 
 def _tick_age(reply: dict[str, object]) -> str:

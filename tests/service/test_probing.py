@@ -167,6 +167,12 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
         )  # fmt: skip
         out, _ = await cli.communicate()
         answers["cli"] = (cli.returncode, out.decode())
+        status = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "compd.cli", "status", "--config", str(config.path),
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+        )  # fmt: skip
+        out, _ = await status.communicate()
+        answers["status_text"] = out.decode()
         answers["reset"] = await request(config.control_socket, {"cmd": "probe", "reset": True})
         answers["status"] = await request(config.control_socket, {"cmd": "status"})
         ran.cancel()
@@ -181,6 +187,7 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
     # A touch older than what the daemon keeps is refused, and says so (exit status 1).
     status, out = answers["cli"]
     assert status == 1 and "Z: refused" in out and "older than" in out, out
+    assert "probes Z: last probe refused" in answers["status_text"], answers["status_text"]
     assert answers["reset"]["ok"] and answers["reset"]["reset"] is True
     axes = answers["status"]["probes"]["axes"]
     assert axes["Z"]["adjustment_um"] == 0.0
