@@ -13,9 +13,7 @@ stops a start while it stays there for a post-mortem: nothing is deleted.
 the new one, never half of one.
 
 Here, below the service, so that the file formats of the state directory
-(:mod:`compd.files.probestate`) use them too; the service's copies
-(:mod:`compd.service.store.unreadable`, ``compd.service.store.state.write_atomic``) are
-to import these.
+(:mod:`compd.files.probestate`) use them as the daemon's store does.
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import structlog
 
-from compd.service.store.state import write_atomic
+from compd.files.unreadable import write_atomic
 
 log = structlog.get_logger("compd.service.fleet.seenrequests")
 

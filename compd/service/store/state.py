@@ -25,8 +25,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
-import tempfile
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -37,6 +35,7 @@ import numpy as np
 import structlog
 
 from compd.errors import CompdError, ModelError
+from compd.files.unreadable import write_atomic
 from compd.files.yamlplace import shorten
 from compd.model.compiled import CompiledModel, ModelState
 from compd.model.reach import check_reachable
@@ -132,26 +131,6 @@ class Resume:
 
     resume: bool
     reason: str
-
-
-def write_atomic(path: Path, content: bytes) -> None:
-    """Replace ``path`` with ``content``: temp file in the same directory, fsync, rename, fsync dir."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(content)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    directory = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(directory)
-    finally:
-        os.close(directory)
 
 
 def save_state(state_dir: Path, saved: SavedState) -> Path:

@@ -1,77 +1,9 @@
-"""Files the daemon cannot read: their numbers checked as they are read, and the files set aside.
-
-The daemon's own files (the saved state, the installed models, the roll-out
-ids) are written by the daemon, so a number that is not finite, out of its
-range or thousands of digits long means a corrupt file (a bad card, a hand
-edit, a disk that lied), never a value to run with. :func:`json_int` keeps
-``json`` from building such an integer (Python's ``int()`` refuses more than
-4,300 digits with a ValueError, and takes quadratic time below that);
-:func:`finite` and :func:`whole` check a value as it is read, naming the key.
-:func:`set_aside` renames a file that cannot be read, so that it no longer
-stops a start while it stays there for a post-mortem: nothing is deleted.
-"""
+"""The daemon's files it cannot read: the checks of :mod:`compd.files.unreadable`, as the store names them."""
 
 from __future__ import annotations
 
-import math
-import os
-import time
-from pathlib import Path
+# The checks live with the files they read (compd.files.unreadable: the probe state is read
+# there too); the daemon's store names them here.
+from compd.files.unreadable import MAX_DIGITS, finite, json_int, set_aside, whole
 
-from compd.files.yamlplace import shorten
-
-#: The most digits of an integer read from the daemon's files (a tick counter has a few).
-MAX_DIGITS = 30
-
-
-class _Huge(float):
-    """An integer of more than :data:`MAX_DIGITS` digits: infinite to arithmetic, and says what it was."""
-
-    why = ""
-
-
-def json_int(text: str) -> int | float:
-    """``json.loads``'s ``parse_int``: an integer of more than :data:`MAX_DIGITS` digits is infinite."""
-    digits = len(text.lstrip("-"))
-    if digits <= MAX_DIGITS:
-        return int(text)
-    huge = _Huge("-inf" if text.startswith("-") else "inf")
-    huge.why = f"an integer of {digits} digits"
-    return huge
-
-
-def finite(value: object, key: str, low: float = -math.inf, high: float = math.inf) -> float:
-    """``value`` as a finite float in ``[low, high]``; ValueError naming ``key`` and what is wrong."""
-    if isinstance(value, _Huge):
-        raise ValueError(f"{key} is {value.why}")
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{key} is {shorten(value)}, not a number")
-    try:
-        number = float(value)
-    except OverflowError:  # an int beyond any float (json_int keeps them from a file)
-        raise ValueError(f"{key} is an integer beyond any float") from None
-    if not math.isfinite(number):
-        raise ValueError(f"{key} is {number}, not a finite number")
-    if not low <= number <= high:
-        raise ValueError(f"{key} = {number:g} is beyond [{low:g}, {high:g}]")
-    return number
-
-
-def whole(value: object, key: str, low: int, high: int) -> int:
-    """:func:`finite`, and a whole number."""
-    number = finite(value, key, low, high)
-    if number != int(number):
-        raise ValueError(f"{key} = {number:g} is not a whole number")
-    return int(number)
-
-
-def set_aside(path: Path, now_unix_s: float | None = None) -> Path:
-    """Rename ``path`` to ``<name>.corrupt-<UTC time>`` beside it (numbered if taken); raises OSError."""
-    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(now_unix_s))
-    target = path.with_name(f"{path.name}.corrupt-{stamp}")
-    number = 1
-    while target.exists():
-        number += 1
-        target = path.with_name(f"{path.name}.corrupt-{stamp}-{number}")
-    os.replace(path, target)
-    return target
+__all__ = ["MAX_DIGITS", "finite", "json_int", "set_aside", "whole"]
