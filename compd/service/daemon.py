@@ -321,6 +321,8 @@ class Service:
             return
         self.notifier.stopping("saving state")
         await self.saver.finish()
+        if self.probe_keeper is not None:
+            await self.probe_keeper.finish()  # the last probe's log line and learned parameters
         self.save_state()
         await self.compensator.write_stopped()
         await asyncio.gather(*(link.close() for link in self.links.values()))

@@ -281,3 +281,37 @@ def test_what_the_probes_taught_survives_a_restart_and_another_model_starts_from
     other.write_text(BUNDLED_MODEL.read_text().replace('name: "twin-z"', 'name: "twin-z-b"'))
     np.testing.assert_array_equal(run(other, 0.1, probe_at=None)[0], PRIOR_MEAN)
     assert len(list((tmp_path / "state" / "probes").glob("*.json"))) == 1  # only what was taught
+
+
+def test_a_failure_of_the_learning_turns_probes_off_and_the_loop_goes_on(tmp_path: Path) -> None:
+    """A bug in the learner at tick 50: one ERROR, the learned adjustment dropped, every tick still run."""
+    doc = machine_doc(
+        tmp_path,
+        BUNDLED_MODEL,
+        simulation={"scenario": "production", "hours": 1, "seed": 3, "sample_time_s": PERIOD_S,
+                    "stop_at_end": True},
+        probes={"axes": {"Z": None}},
+        period_s=PERIOD_S,
+    )  # fmt: skip
+    doc["recorder"] = {"enabled": False}
+    config = write_config(tmp_path, doc)
+    records: list[TickRecord] = []
+
+    def broken(*args: object) -> None:
+        raise RuntimeError("a bug in the learner")
+
+    def on_tick(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
+        records.append(record)
+        assert service.probing is not None
+        if len(records) == 30:
+            _, _, residue = machine.truth_now()["Z"]
+            request = ProbeRequest("Z", residue + 5.0, record.wall_unix_s, "test", "residue")
+            service.probing.offer(request)
+        if len(records) == 50:
+            service.probing.learners["disp_z_um"].observe = broken  # type: ignore[method-assign]
+
+    result = asyncio.run(run_simulation(config, on_tick=on_tick))
+    assert len(records) == round(3600 / PERIOD_S) + 1  # every tick of the hour
+    adjustments = [r.probe_adjustments_um["disp_z_um"] for r in records]
+    assert adjustments[40] != 0.0 and all(a == 0.0 for a in adjustments[50:])
+    assert "a bug in the learner" in result.status["probes"]["off"]

@@ -227,6 +227,8 @@ class ProbeLearning:
         self.last: dict[str, ProbeTaken] = {}
         self.adjustments_um: dict[str, float] = {}
         self._taken_now: tuple[ProbeTaken, ...] = ()
+        #: Why probing was turned off (a failure of the learning itself); None while it runs.
+        self.off: str | None = None
 
     def reads(self) -> list[SignalPoint]:
         """The probe registers read each tick with the signals."""
@@ -236,6 +238,8 @@ class ProbeLearning:
 
     def offer(self, request: ProbeRequest) -> None:
         """Queue a probe (taken at the next tick); an axis not probed or a value not finite is refused."""
+        if self.off is not None:
+            raise ModelError(f"probes are off until the daemon restarts: {self.off}")
         if request.axis not in self.axes:
             raise ModelError(
                 f"axis {request.axis!r} is not probed: name it under probes.axes "
@@ -317,8 +321,18 @@ class ProbeLearning:
             for output, (prior, settings) in setups.items()
         }
 
+    def turn_off(self, why: str) -> None:
+        """After a failure of the learning itself: nothing learned is applied, no probe taken, until restart."""
+        self.off = why
+        self.adjustments_um = dict.fromkeys(self.adjustments_um, 0.0)
+        self._taken_now = ()
+        self._queue.clear()
+
     def observe(self, t_unix_s: float, slot: ModelSlot) -> None:
         """Keep this tick's regressors, take the probes that arrived, and work out the adjustments."""
+        if self.off is not None:
+            self._taken_now = ()
+            return
         if self.started_s is None:
             self.started_s = t_unix_s
         self.follow(slot)
@@ -471,4 +485,9 @@ class ProbeLearning:
                 "probes": self.probes[name],
                 "results": dict(self.results[name]),
             }
-        return {"model_sha256": self.sha256, "every_h": self.setup.every_h, "axes": axes}
+        return {
+            "model_sha256": self.sha256,
+            "every_h": self.setup.every_h,
+            "off": self.off,
+            "axes": axes,
+        }
