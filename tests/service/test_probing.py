@@ -15,12 +15,13 @@ import paho.mqtt.publish as publish
 import pytest
 import yaml
 
+from compd.errors import ModelError
 from compd.files.yamlplace import resolve_path
 from compd.service.config.loading import load_config
 from compd.service.control.socket import request
 from compd.service.daemon import Service
 from compd.service.loop.compensator import TickRecord
-from compd.service.loop.probing import ProbeRequest
+from compd.service.loop.probing import OFFSET_HISTORY_S, ProbeRequest, _OffsetHistory
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from tests.acceptance.conftest import machine_doc, write_config
@@ -315,3 +316,15 @@ def test_a_failure_of_the_learning_turns_probes_off_and_the_loop_goes_on(tmp_pat
     adjustments = [r.probe_adjustments_um["disp_z_um"] for r in records]
     assert adjustments[40] != 0.0 and all(a == 0.0 for a in adjustments[50:])
     assert "a bug in the learner" in result.status["probes"]["off"]
+
+
+def test_the_offset_in_force_is_known_at_any_touch_of_the_last_12_h() -> None:
+    """Interpolated between ticks; a touch older than what is kept is refused, naming why."""
+    history = _OffsetHistory(capacity=4)
+    for k in range(100_000):  # 28 h of 1 s ticks, the offset rising 0.5 um/s
+        history.append(float(k), 0.5 * k)
+    assert history.at(99_998.5) == pytest.approx(49_999.25)
+    assert history.at(60_000.25) == pytest.approx(30_000.125)
+    with pytest.raises(ModelError, match="older than the offsets kept"):
+        history.at(99_999 - OFFSET_HISTORY_S - 10)
+    assert len(history.t_s) <= 3 * OFFSET_HISTORY_S
