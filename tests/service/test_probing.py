@@ -327,4 +327,4 @@ def test_the_offset_in_force_is_known_at_any_touch_of_the_last_12_h() -> None:
     assert history.at(60_000.25) == pytest.approx(30_000.125)
     with pytest.raises(ModelError, match="older than the offsets kept"):
         history.at(99_999 - OFFSET_HISTORY_S - 10)
-    assert len(history.t_s) <= 3 * OFFSET_HISTORY_S
+    assert len(history.t_s) <= 4 * OFFSET_HISTORY_S

@@ -163,7 +163,7 @@ class ProbeRegisters:
 class _OffsetHistory:
     """The offset in force per tick (um) over :data:`OFFSET_HISTORY_S`, for a probe's touch instant.
 
-    Two float arrays (16 bytes a tick, at most 3 times the rows kept: 2 MB for 12 h at
+    Two float arrays (16 bytes a tick, at most 4 times the rows kept: 2 MB for 12 h at
     1 Hz), the oldest rows dropped when the arrays fill, so appending is amortised O(1).
     """
 
