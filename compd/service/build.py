@@ -169,7 +169,8 @@ class Subscribed:
     probes: ProbeKeeper | None = None
 
     def in_order(self) -> list[Subscriber]:
-        """The order each tick is told in: systemd's watchdog first, the page last."""
+        """The order each tick is told in, each begins and ends: systemd's watchdog first; the state
+        saved before telemetry's last message; the page listening before the broker is called."""
         return [
             s
             for s in (
@@ -177,8 +178,8 @@ class Subscribed:
                 self.recording,
                 self.saver,
                 self.probes,
-                self.telemetry,
                 self.http,
+                self.telemetry,
             )
             if s is not None
         ]

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 import structlog
 
 from compd.drivers.base import Driver
-from compd.errors import CompdError, RecorderError
+from compd.errors import CompdError
 from compd.faultlog import Event, FaultLog
 from compd.files.probestate import reset_learned
 from compd.service import build
@@ -217,15 +217,12 @@ class Service:
         if self._control is not None:
             self.config.control_socket.parent.mkdir(parents=True, exist_ok=True)
             await self._control.start()
-        if self.http is not None:
-            try:
-                await self.http.start()
-            except BaseException:
-                if self._control is not None:
-                    await self._control.close()
-                raise
-        if self.telemetry is not None:
-            self.telemetry.start()  # connects in the background: a broker away delays nothing
+        try:
+            await self.subscribers.begin()  # a page that cannot listen stops the start here
+        except BaseException:
+            if self._control is not None:
+                await self._control.close()
+            raise
         await asyncio.gather(*(link.open() for link in self.links.values()))
         # Everything allocated so far (numpy, scipy, pandas, the model) lives as
         # long as the process: moved out of the collector's reach, a full
@@ -312,32 +309,19 @@ class Service:
 
     async def _shutdown(self) -> None:
         await self.reloader.close()
-        if self._killed:  # the OS closes the sockets; the socket file stays (stale)
-            await asyncio.gather(*(link.close() for link in self.links.values()))
-            if self._control is not None:
-                await self._control.close()
-            if self.http is not None:
-                await self.http.close()
-            return
-        self.notifier.stopping("saving state")
-        await self.saver.finish()
-        if self.probe_keeper is not None:
-            await self.probe_keeper.finish()  # the last probe's log line and learned parameters
-        self.save_state()
-        await self.compensator.write_stopped()
+        killed = self._killed  # the OS closes the sockets; the socket file stays (stale)
+        if not killed:
+            self.notifier.stopping("saving state")
+        await self.subscribers.end(killed=killed)
+        if not killed:
+            await self.compensator.write_stopped()
         await asyncio.gather(*(link.close() for link in self.links.values()))
         if self._control is not None:
             await self._control.close()
-        if self.http is not None:
-            await self.http.close()
-        if self.recorder is not None:
-            try:
-                self.recorder.close()
-            except RecorderError as exc:
-                log.error("recorder close failed", error=str(exc))
-        if self.telemetry is not None:
-            await self.telemetry.stop(ticks=self.compensator.counters.ticks)
-        log.info("stopped", ticks=self.compensator.counters.ticks, overruns=self.timing.overruns)
+        if not killed:
+            log.info(
+                "stopped", ticks=self.compensator.counters.ticks, overruns=self.timing.overruns
+            )
 
     async def load_model(self, message: dict[str, Any]) -> dict[str, Any]:
         """Check, install and switch to the model in ``message`` (the control socket's ``load``).

@@ -106,7 +106,7 @@ def test_restart_resumes_the_door_features(setup, tmp_path) -> None:
     change = int(np.flatnonzero(np.diff(door) != 0)[0]) + 1  # the door's first change
     config = config_for(tmp_path, model, data)
     first = Service(config, clock=VirtualClock(), control=False, background_saves=False)
-    first.save_state = lambda: None  # killed: only the periodic saves
+    first.leave_as_killed()  # only the periodic saves
     run(first.config, change + 300.0, service=first)  # killed 5 min into the transition
     saved = load_state(tmp_path / "state")
     assert saved is not None and saved.ticks > change  # saved mid-transition

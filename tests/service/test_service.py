@@ -101,7 +101,7 @@ def test_killed_daemon_resumes_without_a_jump(tmp_path):
     }
     config = write_config(tmp_path, changes)
     first = Service(config, clock=VirtualClock(), control=False, background_saves=False)
-    first.save_state = lambda: None  # killed: no save at shutdown, only the periodic ones
+    first.leave_as_killed()  # no save at shutdown, only the periodic ones
     _, before = run(config, 3604.0, service=first)
     saved = load_state(config.state_dir)
     assert saved is not None and saved.ticks == 3600  # the last periodic save

@@ -193,9 +193,20 @@ class Telemetry:
         self._task = self._loop.create_task(self._publish_queued(), name="compd-telemetry")
 
     name = "telemetry"
+    _ticks = 0  # the last tick's count: the death message says it
+
+    async def begin(self) -> None:
+        """Connect in the background: a broker away delays nothing."""
+        self.start()
+
+    async def end(self, *, killed: bool) -> None:
+        """The death message and a clean disconnect (not when killed: the broker sends the will)."""
+        if not killed:
+            await self.stop(ticks=self._ticks)
 
     def on_tick(self, snapshot: TickSnapshot) -> None:
         """The loop's subscriber: every ``every_ticks`` ticks, a status message queued."""
+        self._ticks = snapshot.ticks
         if snapshot.ticks % self.every_ticks == 0:
             model = None if snapshot.model is None else snapshot.model.name
             self.tick(snapshot.record, dict(snapshot.counters), model)

@@ -140,6 +140,13 @@ class StatusServer:
 
     name = "http"
 
+    async def begin(self) -> None:
+        await self.start()
+
+    async def end(self, *, killed: bool) -> None:
+        """Stop listening (killed too: the OS closes the port)."""
+        await self.close()
+
     def on_tick(self, snapshot: TickSnapshot) -> None:
         """What each tick leaves here: its lateness and CPU (s), a row of history; answers held for it go on."""
         self.metrics.observe_tick(snapshot.lateness_s, snapshot.cpu_s)

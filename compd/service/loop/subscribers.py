@@ -34,7 +34,12 @@ SLOW_SHARE = 0.25
 
 
 class Subscriber(Protocol):
-    """One consumer of the loop's snapshots; ``name`` is what its fault episodes say."""
+    """One consumer of the loop's snapshots; ``name`` is what its fault episodes say.
+
+    Optionally ``async begin()`` (started before the first tick: a server, a connection)
+    and ``async end(*, killed)`` (at shutdown: files closed, the last state saved; with
+    ``killed``, only what the OS would close).
+    """
 
     name: str
 
@@ -71,6 +76,27 @@ class Subscribers:
         """Give ``snapshot`` to each subscriber; a failure or an overrun is logged, never raised."""
         for entry in self._entries:
             entry.call(snapshot, self.budget_s)
+
+    async def begin(self) -> None:
+        """Start, in registration order, the subscribers with something to start (``begin``: a server
+        to listen, a broker to connect to); one that cannot start ends those started and raises."""
+        started: list[Subscriber] = []
+        try:
+            for subscriber in self:
+                begin = getattr(subscriber, "begin", None)
+                if begin is not None:
+                    await begin()
+                    started.append(subscriber)
+        except BaseException:
+            await _end_each(started, killed=False)
+            raise
+
+    async def end(self, *, killed: bool = False) -> None:
+        """End every subscriber (``end``), in registration order; one that fails is logged, the rest end.
+
+        ``killed``: as SIGKILL would leave them (sockets closed, nothing saved or sent).
+        """
+        await _end_each(list(self), killed=killed)
 
     def faults(self) -> dict[str, int]:
         """Fault episodes so far (failing or slow) per subscriber name, for the status and metrics."""
@@ -110,3 +136,14 @@ class TickCallback:
 
     def on_tick(self, snapshot: TickSnapshot) -> None:
         self.function(snapshot.record)
+
+
+async def _end_each(subscribers: list[Subscriber], *, killed: bool) -> None:
+    for subscriber in subscribers:
+        end = getattr(subscriber, "end", None)
+        if end is None:
+            continue
+        try:
+            await end(killed=killed)
+        except Exception as exc:
+            log.error("tick subscriber failed to end", subscriber=subscriber.name, error=str(exc))

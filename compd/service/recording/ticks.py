@@ -56,3 +56,12 @@ class RecordingTicks:
             if self.fault.active:  # once, at the end of the episode
                 lost = self.recorder.take_lost_rows()
                 self.fault.cleared("recorder works again", lost_rows=lost)
+
+    async def end(self, *, killed: bool) -> None:
+        """Close the open file (not when killed: SIGKILL leaves it as it is)."""
+        if killed:
+            return
+        try:
+            self.recorder.close()
+        except RecorderError as exc:
+            log.error("recorder close failed", error=str(exc))

@@ -76,6 +76,11 @@ class ProbeKeeper:
         if self._writing is not None:
             await self._writing
 
+    async def end(self, *, killed: bool) -> None:
+        """The last probe's log line and learned parameters on disk (not when killed)."""
+        if not killed:
+            await self.finish()
+
     def write(self, probes: tuple[ProbeTaken, ...], now_unix_s: float) -> None:
         try:
             for taken in probes:

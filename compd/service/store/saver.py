@@ -64,6 +64,12 @@ class StateSaver:
         if self._saving is not None:
             await self._saving
 
+    async def end(self, *, killed: bool) -> None:
+        """The save under way, then the last one (not when killed)."""
+        if not killed:
+            await self.finish()
+            self.save_now()
+
     def save_now(self) -> None:
         """Save in the calling thread (at shutdown)."""
         saved = self.taken()
