@@ -131,3 +131,31 @@ def test_the_builder_registers_what_the_config_asks_for_in_order(tmp_path: Path)
     )
     full = Service(config, clock=VirtualClock(), control=False)
     assert [s.name for s in full.subscribers] == ["systemd", "recorder", "state", "http"]
+
+
+def test_subscribers_begin_in_order_and_one_that_cannot_ends_those_begun() -> None:
+    """A page that cannot listen stops the start: the broker connection begun before it is ended."""
+    said: list[str] = []
+
+    class Lives(Keeps):
+        def __init__(self, name: str, fails: bool = False) -> None:
+            super().__init__(name)
+            self.fails = fails
+
+        async def begin(self) -> None:
+            said.append(f"begin {self.name}")
+            if self.fails:
+                raise OSError("port in use")
+
+        async def end(self, *, killed: bool) -> None:
+            said.append(f"end {self.name}{' killed' if killed else ''}")
+
+    subscribers = Subscribers(period_s=1.0)
+    for subscriber in (Lives("broker"), Keeps("recorder"), Lives("page", fails=True)):
+        subscribers.add(subscriber)
+    with pytest.raises(OSError, match="port in use"):
+        asyncio.run(subscribers.begin())
+    assert said == ["begin broker", "begin page", "end broker"]
+    said.clear()
+    asyncio.run(subscribers.end(killed=True))
+    assert said == ["end broker killed", "end page killed"]
