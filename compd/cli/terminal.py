@@ -8,16 +8,29 @@ not ``holding💯int32``) and no markup (a path or name holding ``[bold]`` or
 
 from __future__ import annotations
 
+import os
 import sys
 
 from rich.console import Console
 from rich.text import Text
 
-__all__ = ["Text", "console"]
+__all__ = ["Text", "console", "console_at"]
+
+#: Piped output's width when ``COLUMNS`` does not say: a file or a CI log is read by
+#: people and grep alike, so not rich's 80 columns.
+PIPED_WIDTH = 200
 
 
 def console() -> Console:
-    """A console that does not wrap piped output at rich's 80-column default, and shows text as written."""
-    # Piped output (a file, a CI log) is read by people and grep alike.
-    width = None if sys.stdout.isatty() else 200
-    return Console(highlight=False, emoji=False, markup=False, width=width)
+    """A console that does not wrap piped output at rich's 80-column default, and shows text as written.
+
+    An exported ``COLUMNS`` is the width asked for, piped or not (``COLUMNS=120
+    compd diagnose ... | less``); rich reads it itself when ``width`` is ``None``.
+    """
+    piped = not sys.stdout.isatty() and not os.environ.get("COLUMNS", "").isdigit()
+    return Console(highlight=False, emoji=False, markup=False, width=PIPED_WIDTH if piped else None)
+
+
+def console_at(out: Console, width: int) -> Console:
+    """A console writing where ``out`` writes, ``width`` columns wide (a ``--wide`` table's own)."""
+    return Console(file=out.file, highlight=False, emoji=False, markup=False, width=width)
