@@ -37,6 +37,10 @@ def register(commands: Any) -> None:
     sim = commands.add_parser(
         "simulate-machine",
         help="serve the simulated machine of a config's 'simulation' section, for a compd elsewhere",
+        description="Serve the simulated machine of a config's 'simulation' section on the "
+        "protocols its drivers speak (as a PLC would), for a 'compd run' in another process "
+        "or on another host to read and write, with a line every 10 simulated minutes, until "
+        "Ctrl-C or SIGTERM; then the machine's summary.",
     )
     sim.add_argument("--config", required=True, metavar="FILE.yaml", help="path or bundled:NAME")
     sim.add_argument(
