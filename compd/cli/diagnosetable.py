@@ -17,6 +17,7 @@ from __future__ import annotations
 from rich.table import Table
 from rich.text import Text
 
+from compd.cli.terminal import duration_text
 from compd.toolkit.analysis import DiagnosisResult
 from compd.toolkit.summary import fmt
 
@@ -69,10 +70,10 @@ def diagnosis_table(
             fmt(c.chance_percent, 1),
             _extended_cell(result, c.signal),
             _removed_cell(result, c.signal),
-            " + ".join(_duration(t) for t in c.time_constants_s),
+            " + ".join(duration_text(t) for t in c.time_constants_s),
             f"{c.gain_um_per_unit:.4g}",
             "+" if c.sign > 0 else "-",
-            _duration(c.lag_s),
+            duration_text(c.lag_s),
             f"{abs(c.xcorr_peak):.2f} / {fmt(c.xcorr_bound)}",
             "yes" if c.significant else "no",
         )
@@ -161,11 +162,3 @@ def _removed_cell(result: DiagnosisResult, signal: str) -> str:
         return "-"
     mark = "" if held.accepted else " (refused)"
     return f"{held.error_removed_percent:.0f} ({held.folds_improved}/{held.n_folds} folds){mark}"
-
-
-def _duration(seconds: float) -> str:
-    if seconds < 120.0:
-        return f"{seconds:.0f} s"
-    if seconds < 7200.0:
-        return f"{seconds / 60:.1f} min"
-    return f"{seconds / 3600:.2f} h"

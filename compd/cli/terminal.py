@@ -14,7 +14,7 @@ import sys
 from rich.console import Console
 from rich.text import Text
 
-__all__ = ["Text", "console", "console_at"]
+__all__ = ["Text", "console", "console_at", "duration_text"]
 
 #: Piped output's width when ``COLUMNS`` does not say: a file or a CI log is read by
 #: people and grep alike, so not rich's 80 columns.
@@ -34,3 +34,12 @@ def console() -> Console:
 def console_at(out: Console, width: int) -> Console:
     """A console writing where ``out`` writes, ``width`` columns wide (a ``--wide`` table's own)."""
     return Console(file=out.file, highlight=False, emoji=False, markup=False, width=width)
+
+
+def duration_text(seconds: float) -> str:
+    """A length of time as a person reads it: ``13 s``, ``12.5 min``, ``24.00 h``."""
+    if seconds < 120.0:
+        return f"{seconds:.0f} s"
+    if seconds < 7200.0:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.2f} h"
