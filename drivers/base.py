@@ -113,12 +113,15 @@ class RawReading:
 
     ``value`` is ``None`` when the device answered without a usable value
     (a bad OPC UA quality, a scanner value outside the sensor's range);
-    ``note`` then says why.
+    ``note`` then says why. ``hint`` is what a person should check about a
+    value that came (a Modbus ``int32`` without ``word=`` whose registers read
+    otherwise in the other word order, or are all 0).
     """
 
     raw: str
     value: float | None
     note: str = ""
+    hint: str = ""
 
 
 @runtime_checkable

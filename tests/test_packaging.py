@@ -64,7 +64,7 @@ def side_clone(dest: Path) -> Path:
     listed = git("ls-files", "-z", "--cached", "--others", "--exclude-standard").split("\0")
     for name in listed:
         source = ROOT / name
-        wanted = name.split("/")[0] in ("compd", "drivers", "config") or "/" not in name
+        wanted = name.split("/")[0] in ("compd", "drivers", "config", "share") or "/" not in name
         if wanted and source.is_file() and not source.is_symlink():
             (dest / name).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(source, dest / name)
@@ -105,3 +105,18 @@ def test_a_second_clone_installed_imports_its_own_drivers_and_configs(
     else:
         assert where["drivers"].parent == where["compd"].parent / "drivers"
     assert json.loads(done.stdout)["modbus"] == "compd.drivers.modbus.driver"
+    if not editable:  # an editable install installs no data files: the clone has the page
+        _man_finds_the_page(venv, clone)
+
+
+def _man_finds_the_page(venv: Path, clone: Path) -> None:
+    """``man compd`` finds the installed page from the venv's bin/ on PATH (no MANPATH) and formats it."""
+    page = venv / "share" / "man" / "man1" / "compd.1"
+    assert page.read_text() == (clone / "share" / "man" / "man1" / "compd.1").read_text()
+    if shutil.which("man") is None:
+        return  # the page is where man looks; man-db itself is not installed here
+    env = {"PATH": f"{venv / 'bin'}:/usr/bin:/bin", "MANPAGER": "cat", "MANWIDTH": "100"}
+    found = subprocess.run(["man", "-w", "compd"], env=env, capture_output=True, text=True)
+    assert found.stdout.strip() == str(page), found.stderr
+    shown = subprocess.run(["man", "-l", str(page)], env=env, capture_output=True, text=True)
+    assert shown.returncode == 0 and "EXIT STATUS" in shown.stdout, shown.stderr

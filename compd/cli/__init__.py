@@ -152,6 +152,10 @@ def build_parser(module: str | None = None) -> argparse.ArgumentParser:
                 registered.add(owner)
         else:
             commands.add_parser(name, help=text)
+    for name, command in commands.choices.items():
+        if command.description is None:  # --help opens with what the command does, at least
+            line = COMMANDS[name][1].replace("%%", "%")
+            command.description = f"{line[0].upper()}{line[1:]}."
     return parser
 
 

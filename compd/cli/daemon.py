@@ -181,7 +181,8 @@ async def _serve(
         from compd.cli.livescreen import LiveScreen  # rich.live: only a terminal needs it
 
         screen = LiveScreen(console())
-    # The view first: what the start-up logs (a saved state ignored) goes to its panel.
+    # The view first: the start-up's logs go to the terminal above its first frame, and
+    # their warnings (a saved state ignored) to its panel too.
     with screen if screen is not None else contextlib.nullcontext():
         service = Service(config, clock=clock, notifier=SystemdNotifier())
         if screen is not None:

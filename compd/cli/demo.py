@@ -17,7 +17,12 @@ from compd.toolkit.evaluate import compare, evaluate
 
 def register(commands: Any) -> None:
     demo = commands.add_parser(
-        "demo", help="compare the bundled example models with bundled example data"
+        "demo",
+        help="compare the bundled example models with bundled example data",
+        description="Compare the bundled example models (a transfer-function model after "
+        "Horejs 2010, the controller's linear regression and a gated ARX model) with a bundled "
+        "8-hour test record: fit, residue and the reduction compensation would give. Nothing "
+        "to configure: a first look at what compd measures.",
     )
     demo.set_defaults(handler=_demo)
 

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rich.table import Table
+from rich.console import Console
 from rich.text import Text
 
 from compd.cli.common import (
@@ -18,7 +18,8 @@ from compd.cli.common import (
     refuse_with_several,
     span_from_args,
 )
-from compd.cli.terminal import console
+from compd.cli.diagnosetable import diagnosis_table, table_width
+from compd.cli.terminal import console, console_at
 from compd.files.data import DataSet
 from compd.files.effects import EffectCatalogue, load_catalogue
 from compd.files.experiments import stack
@@ -30,7 +31,7 @@ from compd.toolkit.extendbest import AUTO_CANDIDATES
 from compd.toolkit.extendjudge import RULE, HeldOut, held_out_json, judge_signals
 from compd.toolkit.selection import select_columns
 from compd.toolkit.span import evaluate_span
-from compd.toolkit.summary import fmt, json_clean, json_text
+from compd.toolkit.summary import json_clean, json_text
 
 DEFAULT_TOP = 5
 
@@ -80,6 +81,12 @@ def register(commands: Any) -> None:
     diag.add_argument(
         "--json", action="store_true", help="print one JSON object instead of a table"
     )
+    diag.add_argument(
+        "--wide",
+        action="store_true",
+        help="show every column of the table whole, however wide (default: fit the terminal, "
+        "leaving out the detail columns, named under the table)",
+    )
     data_options(
         diag,
         scored="diagnosed",
@@ -104,7 +111,7 @@ def _diagnose(args: argparse.Namespace) -> int:
     for note in (*evaluation.data.notes, *evaluation.notes, *result.notes):
         print(f"note: {note}", file=sys.stderr)
     out = console()
-    out.print(diagnosis_table(evaluation.compiled.name, evaluation.data.path, result, args.top))
+    _print_table(out, args, evaluation.compiled.name, evaluation.data.path, result)
     d = result.diagnosis
     out.print(
         f"residue {output}: RMS {d.residue_rms_um:.2f} um about its mean; autocorrelation "
@@ -160,7 +167,7 @@ def _diagnose_several(
     for evaluation, result, _ in results:
         for note in (*evaluation.data.notes, *evaluation.notes, *result.notes):
             print(f"note: {evaluation.data.path}: {note}", file=sys.stderr)
-        out.print(diagnosis_table(name, evaluation.data.path, result, args.top))
+        _print_table(out, args, name, evaluation.data.path, result)
         out.print(result.verdict, soft_wrap=True)
     agreed = ", ".join(f"{signal} in {count}" for signal, count in found.most_common()) or "none"
     out.print(
@@ -241,63 +248,16 @@ def diagnosis_json(model_name: str, result: DiagnosisResult) -> dict[str, object
     }
 
 
-def diagnosis_table(model_name: str, data_path: str, result: DiagnosisResult, top: int) -> Table:
-    d = result.diagnosis
-    table = Table(
-        "rank",
-        "signal",
-        "effect",
-        "explained %",
-        "chance %",
-        "held-out fit % with it",
-        "error removed %",
-        "time constant",
-        "gain (um/unit)",
-        "sign",
-        "xcorr lag",
-        "|xcorr| / 99 % bound",
-        "significant",
-        title=f"{model_name} vs {data_path}: what explains the residue of {result.output} "
-        f"(held-out explained share of its RMS, {d.residue_rms_um:.2f} um)",
+def _print_table(
+    out: Console, args: argparse.Namespace, name: str, data_path: str, result: DiagnosisResult
+) -> None:
+    """The candidate table at the terminal's width, or (``--wide``) at its own."""
+    table = diagnosis_table(
+        name, data_path, result, args.top, width=None if args.wide else out.width
     )
-    for rank, c in enumerate(d.candidates[:top], start=1):
-        table.add_row(
-            str(rank),
-            c.signal,
-            result.effects[c.signal],
-            fmt(c.explained_percent, 1),
-            fmt(c.chance_percent, 1),
-            _extended_cell(result, c.signal),
-            _removed_cell(result, c.signal),
-            " + ".join(_duration(t) for t in c.time_constants_s),
-            f"{c.gain_um_per_unit:.4g}",
-            "+" if c.sign > 0 else "-",
-            _duration(c.lag_s),
-            f"{abs(c.xcorr_peak):.2f} / {fmt(c.xcorr_bound)}",
-            Text("yes", style="green") if c.significant else "no",
-        )
-    return table
-
-
-def _extended_cell(result: DiagnosisResult, signal: str) -> str:
-    held = result.extended.get(signal)
-    return "-" if held is None else f"{held.before:.1f} -> {held.after:.1f}"
-
-
-def _removed_cell(result: DiagnosisResult, signal: str) -> str:
-    held = result.extended.get(signal)
-    if held is None:
-        return "-"
-    mark = "" if held.accepted else " (refused)"
-    return f"{held.error_removed_percent:.0f} ({held.folds_improved}/{held.n_folds} folds){mark}"
-
-
-def _duration(seconds: float) -> str:
-    if seconds < 120.0:
-        return f"{seconds:.0f} s"
-    if seconds < 7200.0:
-        return f"{seconds / 60:.1f} min"
-    return f"{seconds / 3600:.2f} h"
+    if args.wide:  # the table's own width, not squeezed into the terminal's
+        out = console_at(out, max(out.width, table_width(table)))
+    out.print(table)
 
 
 def _diagnose_one(

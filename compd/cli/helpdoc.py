@@ -40,8 +40,8 @@ def register(commands: Any) -> None:
     helper.add_argument(
         "--man",
         action="store_true",
-        help="print the manual page (roff) of every command; install it with "
-        "`compd help --man > /usr/local/share/man/man1/compd.1`",
+        help="print the manual page (roff) of every command; pip installs it where man looks "
+        "(PREFIX/share/man/man1/compd.1): 'man compd'",
     )
     helper.set_defaults(handler=_help)
     completion = commands.add_parser(

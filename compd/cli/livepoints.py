@@ -11,7 +11,10 @@ as one batch through the driver's ``read_raw`` hook
 driver that cannot be opened or read shows its error on each of its rows,
 never a traceback, and is opened again on the next read; a batch refused as a
 protocol error is read again address by address, so that one bad address
-does not hide the others.
+does not hide the others. What a person should check about a reading that
+came is its row's ``hint``: how the address was read if written in another
+numbering (a Modicon ``30001``, an ``input:30001`` that looks like one) and a
+word order the address leaves open (both orders' values, or all 0).
 """
 
 from __future__ import annotations
@@ -20,9 +23,10 @@ import asyncio
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import cast
 
-from compd.drivers.base import Driver, RawReading, read_raw
+from compd.drivers.base import Driver, DriverType, RawReading, address_note, read_raw
 from compd.errors import DriverError, DriverProtocolError
 from compd.service.loop.signals import Health, SignalMonitor
 
@@ -56,6 +60,7 @@ class Row:
     value: float | None = None
     health: str = "OK"
     problem: str = ""
+    hint: str = ""  # what to check about a value that came (numbering, word order)
 
     @property
     def ok(self) -> bool:
@@ -74,6 +79,7 @@ class Row:
             "unit": p.unit,
             "health": self.health,
             "problem": self.problem,
+            "hint": self.hint,
         }
 
 
@@ -153,8 +159,16 @@ class LiveReader:
         found = dict(zip(names, batches, strict=True))
         now_s = self.clock()
         self.reads += 1
-        self.last = [self._row(point, found[point.driver], now_s) for point in self.points]
+        self.last = [
+            replace(row, hint="; ".join(filter(None, (self._note(row.point), row.hint))))
+            for row in (self._row(point, found[point.driver], now_s) for point in self.points)
+        ]
         return self.last
+
+    def _note(self, point: LivePoint) -> str:
+        """How the point's driver type read its address, if in another numbering than written."""
+        kind = cast("DriverType", type(self.drivers[point.driver].driver))  # built by its type
+        return address_note(kind, point.address) or ""
 
     async def close(self) -> None:
         await asyncio.gather(*(d.close() for d in self.drivers.values()))
@@ -200,15 +214,16 @@ class LiveReader:
         value = None if device_value is None else point.decode(device_value)
         raw = "" if reading is None else reading.raw
         note = "no value (none came in time)" if reading is None else reading.note
+        hint = "" if reading is None else reading.hint
         if point.monitor is not None:
             verdict = point.monitor.update(now_s, value)
             if verdict.health is Health.OK:
-                return Row(point, raw, device_value, value)
+                return Row(point, raw, device_value, value, hint=hint)
             problem = verdict.reason if value is not None or not note else note
-            return Row(point, raw, device_value, value, verdict.health.name, problem)
+            return Row(point, raw, device_value, value, verdict.health.name, problem, hint)
         if value is None:
-            return Row(point, raw, health="NO VALUE", problem=note)
-        return Row(point, raw, device_value, value)
+            return Row(point, raw, health="NO VALUE", problem=note, hint=hint)
+        return Row(point, raw, device_value, value, hint=hint)
 
 
 def _finite(value: float | None) -> float | None:

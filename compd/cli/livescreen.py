@@ -7,7 +7,11 @@ after it leaves a stale copy of the view above: the "ghost" headers. So while
 the view is shown, the root logger's handlers that write to this terminal are
 set aside for a :class:`LogPanel` that keeps the records: WARNING and up show
 in a panel under the view, and when the view ends every record kept is
-handed to the handlers set aside, in full (stderr, journald). A view taller
+handed to the handlers set aside, in full (stderr, journald). That begins
+with the first frame, not on entering: what is logged before it (the
+start-up: model, socket, drivers connected) is on the terminal as it comes,
+above the view, not held back until the view has ended; its warnings are in
+the panel too. A view taller
 than the terminal would scroll and leave ghosts too: the panel shrinks first,
 then the view is cropped to the terminal's height.
 """
@@ -48,15 +52,19 @@ class LogPanel(logging.Handler):
         self.warnings = 0
         self.lines: deque[tuple[int, str]] = deque(maxlen=shown)
         self._lines_lock = threading.Lock()
+        #: False while the terminal's handlers still write each record (before the first
+        #: frame): the panel counts and shows warnings, and keeps nothing to hand on.
+        self.keep = True
 
     def emit(self, record: logging.LogRecord) -> None:
-        if len(self.records) == self.records.maxlen:
+        if self.keep and len(self.records) == self.records.maxlen:
             self.dropped += 1
         try:
             text = self.format(record)
         except Exception:  # a record that cannot be formatted must not end the view
             text = f"{record.levelname} {record.name}: {record.msg!r}"
-        self.records.append((record.levelno, text))
+        if self.keep:
+            self.records.append((record.levelno, text))
         if record.levelno >= logging.WARNING:
             self.warnings += 1
             line = Text.from_ansi(text.split("\n", 1)[0]).plain
@@ -98,6 +106,8 @@ class LiveScreen:
         formatter = writes_here[0].formatter if writes_here else None
         self.logs = LogPanel(formatter, shown=panel_rows)
         self._set_aside: list[logging.StreamHandler[Any]] = writes_here
+        #: Whether the first frame was drawn (the handlers set aside, the region live).
+        self.started = False
         self.live = Live(
             console=console,
             auto_refresh=False,
@@ -108,15 +118,25 @@ class LiveScreen:
         )
 
     def __enter__(self) -> Self:
+        # Until the first frame the terminal's handlers write on; the panel only counts
+        # the warnings (a saved state ignored at start-up), to show them under the view.
+        self.logs.keep = False
+        logging.getLogger().addHandler(self.logs)
+        return self
+
+    def _start(self) -> None:
+        """Set the terminal's log handlers aside for the panel and start the live region."""
         root = logging.getLogger()
         for handler in self._set_aside:
             root.removeHandler(handler)
-        root.addHandler(self.logs)
+        self.logs.keep = True
         self.live.start()
-        return self
+        self.started = True
 
     def show(self, view: RenderableType) -> None:
-        """Draw ``view`` and the log panel, fitted to the terminal's height."""
+        """Draw ``view`` and the log panel, fitted to the terminal's height (the first: the view begins)."""
+        if not self.started:
+            self._start()
         height = self.console.size.height
         used = len(self.console.render_lines(view, self.console.options, pad=False))
         rows = min(self.panel_rows, height - used - 2)
@@ -129,9 +149,12 @@ class LiveScreen:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        self.live.stop()
         root = logging.getLogger()
         root.removeHandler(self.logs)
+        if not self.started:  # no frame drawn: nothing was set aside
+            return
+        self.live.stop()
+        self.started = False
         for handler in self._set_aside:
             root.addHandler(handler)
         if not self._set_aside:

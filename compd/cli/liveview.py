@@ -371,6 +371,8 @@ def _table(rows: list[Row], title: str) -> Table:
         health = Text(row.health, style="green" if row.ok else "bold red")
         if row.problem:
             health.append(f" {row.problem}", style="" if row.ok else "red")
+        if row.hint:
+            health.append(f"\nnote: {row.hint}", style="yellow")
         # Text, not markup: addresses such as holding:100:int32 must not become emoji.
         table.add_row(*(Text(texts[i]) for texts in cells.values()), health)
     return table

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from compd.cli.daemon import install_signal_handlers
 from compd.cli.serving import config_from_arg, configure_logging
-from compd.cli.terminal import Text, console
+from compd.cli.terminal import Text, console, duration_text
 from compd.errors import CompdError
 from compd.service.config.loading import Config
 from compd.service.daemon import Service
@@ -119,22 +119,31 @@ async def _record(
     return timing.ticks
 
 
+def suggested_inputs(units: dict[str, str]) -> list[str]:
+    """The inputs the printed ``compd fit`` suggests: the temperatures (degC), else every signal.
+
+    As the README's walk-through: a first model of the drift from the
+    temperatures; a machine state (spindle speed, cutting power) is what
+    ``compd diagnose`` and ``compd extend`` then test and add as its own effect.
+    """
+    temperatures = [name for name, unit in units.items() if unit == "degC"]
+    return temperatures or list(units)
+
+
 def _print_result(config: Config, out_dir: Path, ticks: int) -> None:
     """The files written, and the ``compd fit`` that reads them."""
     out = console()
     files = recordings(out_dir)
     if not files:
         raise CompdError(f"nothing was recorded into {out_dir} ({ticks} ticks); see the log above")
-    hours = ticks * config.doc.period_s / 3600.0
-    out.print(
-        f"recorded {ticks} ticks ({hours:.2f} h at {config.doc.period_s:g} s) into {out_dir}:"
-    )
+    length = duration_text(ticks * config.doc.period_s)
+    out.print(f"recorded {ticks} ticks ({length} at {config.doc.period_s:g} s) into {out_dir}:")
     for path in files:
         out.print(f"  {path.name}  {path.stat().st_size:,} bytes")
     signals = config.doc.signals
     # A reference displacement (probe, dial gauge) is recorded in um: what a model predicts.
     outputs = [n for n, s in signals.items() if s.unit == "um"]
-    inputs = [n for n, s in signals.items() if s.unit != "um"]
+    inputs = suggested_inputs({n: s.unit for n, s in signals.items() if s.unit != "um"})
     # Several files of one run (rotated at the size limit) are one record to compd fit.
     data = files[0] if len(files) == 1 else out_dir
     if outputs:
@@ -148,6 +157,11 @@ def _print_result(config: Config, out_dir: Path, ticks: int) -> None:
                 ),
             )
         )
+        if others := [n for n in signals if n not in (*outputs, *inputs)]:
+            out.print(
+                f"  (the temperatures first; {', '.join(others)}: what compd diagnose and "
+                "compd extend test next, as in the README's walk-through)"
+            )
     else:
         out.print(
             "no signal in um was recorded: a calibration run needs the reference displacement "

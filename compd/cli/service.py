@@ -15,7 +15,13 @@ from compd.cli.args import clock_options, daemon_options
 
 def register(commands: Any) -> None:
     run = commands.add_parser(
-        "run", help="the compensation service: read, model, limit, write at 1 Hz"
+        "run",
+        help="the compensation service: read, model, limit, write at 1 Hz",
+        description="Run the compensation service of a daemon config: every period read the "
+        "signals, run the model, limit each offset (clamp, then slew) and write it to the "
+        "machine, until SIGTERM or Ctrl-C (or --duration-s), saving state to resume from. A "
+        "config with a 'simulation' section runs against its simulated machine, with a live "
+        "view on a terminal. Check a config first with 'compd check-config'.",
     )
     run.add_argument("--config", required=True, metavar="FILE.yaml", help="path or bundled:NAME")
     run.add_argument(
@@ -35,13 +41,21 @@ def register(commands: Any) -> None:
     run.set_defaults(handler=_run)
 
     check = commands.add_parser(
-        "check-config", help="validate a daemon config and its model exactly as 'compd run' does"
+        "check-config",
+        help="validate a daemon config and its model exactly as 'compd run' does",
+        description="Read a daemon config and the model it names with every check 'compd run' "
+        "makes, and print what would run (drivers, signals, axes, and how an address in "
+        "another numbering was read); nothing is connected or written. Exit status 0, or 2 "
+        "with the file, the place and the fix.",
     )
-    check.add_argument("config", metavar="FILE.yaml")
+    check.add_argument("config", metavar="FILE.yaml", help="path or bundled:NAME")
     check.set_defaults(handler=_check_config)
 
     status = commands.add_parser(
-        "status", help="the running daemon's model, inputs, offsets, counters"
+        "status",
+        help="the running daemon's model, inputs, offsets, counters",
+        description="Ask the running daemon, over the control socket its config names, for its "
+        "model, inputs, offsets, health and counters, without loading the service.",
     )
     daemon_options(status)
     status.add_argument("--json", action="store_true", help="print the daemon's JSON reply")

@@ -37,6 +37,10 @@ def register(commands: Any) -> None:
     sim = commands.add_parser(
         "simulate-machine",
         help="serve the simulated machine of a config's 'simulation' section, for a compd elsewhere",
+        description="Serve the simulated machine of a config's 'simulation' section on the "
+        "protocols its drivers speak (as a PLC would), for a 'compd run' in another process "
+        "or on another host to read and write, with a line every 10 simulated minutes, until "
+        "Ctrl-C or SIGTERM; then the machine's summary.",
     )
     sim.add_argument("--config", required=True, metavar="FILE.yaml", help="path or bundled:NAME")
     sim.add_argument(
@@ -53,6 +57,18 @@ def register(commands: Any) -> None:
 PIPED_EVERY_S = 3600.0
 
 
+def speed_up(simulated_s: float, real_s: float) -> str:
+    """How much faster than real time the simulated clock runs, ``x210``; ``starting`` before it has.
+
+    Measured from the first frame (not from the process's start, whose loading
+    is no simulation), so the first frame, with nothing simulated yet, says
+    ``starting`` rather than ``x0``.
+    """
+    if simulated_s <= 0.0 or real_s <= 0.0:
+        return "starting"
+    return f"x{simulated_s / real_s:,.0f}"
+
+
 def run_simulated(
     config: Config, time_scale: float | None, duration_s: float | None, live_every: int | None
 ) -> int:
@@ -63,7 +79,6 @@ def run_simulated(
         out.print(Text(notice, style="bold yellow"))
     units = {name: s.unit for name, s in config.doc.signals.items()}
     signs = {axis: o.sign for axis, o in config.doc.outputs.items()}
-    started = time.perf_counter()
     screen = LiveScreen(out) if out.is_terminal else None
     if screen is None and live_every is None:  # piped: a line each simulated hour, not silence
         live_every = max(1, round(PIPED_EVERY_S / config.doc.period_s))
@@ -78,6 +93,7 @@ def run_simulated(
     count = 0
 
     latest: tuple[Service, SimulatedMachine, TickRecord] | None = None
+    first: tuple[float, float] | None = None  # the first frame's simulated and real time (s)
 
     def draw(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
         assert screen is not None
@@ -85,18 +101,21 @@ def run_simulated(
         shown = {k: counters[k] for k in ("ticks", "signal_faults", "reconnects")}
         # Progress counts to where this run stops: --duration-s, else the scenario's end.
         end_s = duration_s if duration_s is not None else machine.duration_s
-        elapsed_s = max(time.perf_counter() - started, 1e-9)
+        nonlocal first
+        if first is None:
+            first = (machine.now_s, time.perf_counter())
+        rate = speed_up(machine.now_s - first[0], time.perf_counter() - first[1])
         head = Text.assemble(
             ("simulated machine ", "bold"),
             f"{machine.doc.scenario} (seed {machine.doc.seed})  {progress(machine.now_s, end_s)}  ",
-            f"x{machine.now_s / elapsed_s:,.0f} real time  status ",
+            f"{rate}{' real time' if rate.startswith('x') else ''}  status ",
             level_text(record),
         )
         if head.cell_len > out.width:  # 80 columns: the short form, still one line
             head = Text.assemble(
                 ("simulated machine ", "bold"),
                 f"{machine.doc.scenario} seed {machine.doc.seed}  {progress(machine.now_s, end_s)}  "
-                f"x{machine.now_s / elapsed_s:,.0f}  ",
+                f"{rate}  ",
                 level_text(record),
             )
         truth = machine.truth_now()

@@ -71,7 +71,7 @@ def _index() -> str:
     lines += [f"  {name:<{width}}{text.replace('%%', '%')}" for name, (_, text) in COMMANDS.items()]
     lines += ["", "Topics (compd help TOPIC):"]
     lines += [f"  {name:<{width}}{text}" for name, text in TOPICS.items()]
-    lines += ["", "The manual page: compd help --man | man -l -"]
+    lines += ["", "The manual page: man compd (installed by pip), or compd help --man | man -l -"]
     return "\n".join(lines)
 
 

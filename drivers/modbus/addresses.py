@@ -7,7 +7,8 @@ so both sides agree on every address by construction.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from functools import cache
 from typing import Literal, cast
 
@@ -37,6 +38,13 @@ class ModbusPoint:
         return 1 if self.table in BIT_TABLES else self.codec.words
 
 
+#: What each table holds, as manuals name it.
+_NAMES = {
+    "coil": "coil",
+    "discrete": "discrete input",
+    "input": "input register",
+    "holding": "holding register",
+}
 #: Modicon reference prefixes: 0xxxx coils, 1xxxx discrete inputs, 3xxxx input, 4xxxx holding registers.
 _MODICON: dict[str, Table] = {"0": "coil", "1": "discrete", "3": "input", "4": "holding"}
 
@@ -60,13 +68,64 @@ def modicon(text: str) -> tuple[str, str] | None:
 
 
 def translation_note(text: str) -> str | None:
-    """How an address in Modicon or 1-based numbering was read, for the user to confirm; None: as written."""
+    """How an address in Modicon or 1-based numbering was read, for the user to confirm; None: as written.
+
+    A table's ADDRESS that reads as a Modicon reference (``input:30001``,
+    ``input:40101``) is taken as written, on the wire, and this says what it
+    would be if it was meant as one: the hint a bare ``40101`` gets.
+    """
     if (found := modicon(text)) is not None:
         return found[1]
     parts = [p.strip() for p in text.split(":")]
     if "base=1" in parts[2:] and len(parts) >= 2 and parts[1].isdigit():
         return f"{parts[0]}:{parts[1]} with base=1 (from 1): {parts[0]}:{int(parts[1]) - 1} on the wire"
+    if len(parts) >= 2 and parts[0] in TABLES and (meant := modicon(parts[1])) is not None:
+        table, number = parts[0], parts[1]
+        rest = "".join(f":{p}" for p in parts[2:])
+        wire = meant[0] + rest
+        meant_table = wire.split(":")[0]
+        where = (
+            f"{_NAMES[meant_table]} {int(number[1:])}, not {_NAMES[table]} {number}"
+            if meant_table != table
+            else f"{_NAMES[table]} {int(number[1:])} counted from 1"
+        )
+        return (
+            f"{table}:{number} is read as {table} address {number} on the wire; {number} looks "
+            f"like Modicon numbering ({where}): if so, write {number}{rest} or {wire}"
+        )
     return None
+
+
+def word_order_given(text: str) -> bool:
+    """Whether the address names its word order (``word=big`` or ``word=little``)."""
+    return any(p.strip().startswith("word=") for p in text.split(":")[1:])
+
+
+def word_order_hint(text: str, words: Sequence[int]) -> str:
+    """What a person should check about registers read at ``text``: an open word order; "" if nothing.
+
+    A value of two or four registers at an address without ``word=`` is read
+    big-endian by word (ABCD); a PLC that stores the low word first (CDAB)
+    gives another number from the same registers. When the two orders read
+    differently, both are shown; when every register is 0, both read 0 and
+    the order cannot be told from this value at all.
+    """
+    point = parse_address(text)
+    if point.table in BIT_TABLES or point.codec.words < 2 or word_order_given(text):
+        return ""
+    other = replace(point.codec, word_order="little")
+    if not any(words):
+        return (
+            "0 in either word order: the order cannot be told from this value; read it "
+            "again when it is not 0, then set word=big (ABCD) or word=little (CDAB)"
+        )
+    mine, theirs = point.codec.decode_registers(words), other.decode_registers(words)
+    if mine == theirs:
+        return ""
+    return (
+        f"no word= given: {mine:.6g} as word=big (ABCD); word=little (CDAB) would read "
+        f"{theirs:.6g}; set word= to the PLC's order"
+    )
 
 
 @cache

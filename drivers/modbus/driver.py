@@ -62,6 +62,7 @@ from compd.drivers.modbus.addresses import (
     Table,
     parse_address,
     translation_note,
+    word_order_hint,
 )
 from compd.drivers.modbus.settings import ModbusSettings
 from compd.drivers.points import INT_RANGES
@@ -204,17 +205,25 @@ class ModbusDriver:
         return {name: _decode(point, words) for name, (point, words) in fetched.items()}
 
     async def read_raw(self, points: Sequence[str]) -> dict[str, RawReading]:
-        """The registers (hex words, wire order) or the bit behind each address, and its value."""
+        """The registers (hex words, wire order) or the bit behind each address, and its value.
+
+        A value of several registers at an address without ``word=`` carries
+        :func:`~compd.drivers.modbus.addresses.word_order_hint`: both word
+        orders' readings when they differ, or that all 0 cannot tell them apart.
+        """
         fetched = await self._fetch(points)
-        return {
-            name: RawReading(
-                str(int(bool(words[0])))
-                if point.table in BIT_TABLES
-                else " ".join(f"0x{w:04X}" for w in words),
-                _decode(point, words),
+        readings = {}
+        for name, (point, words) in fetched.items():
+            if point.table in BIT_TABLES:
+                readings[name] = RawReading(str(int(bool(words[0]))), _decode(point, words))
+                continue
+            registers = [int(w) for w in words]
+            readings[name] = RawReading(
+                " ".join(f"0x{w:04X}" for w in registers),
+                _decode(point, registers),
+                hint=word_order_hint(name, registers),
             )
-            for name, (point, words) in fetched.items()
-        }
+        return readings
 
     async def _fetch(
         self, points: Sequence[str]

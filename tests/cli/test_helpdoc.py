@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import subprocess
 import sys
+import tomllib
 import typing
 from pathlib import Path
 
@@ -162,6 +164,47 @@ def test_man_page_keeps_help_lines_that_wrap_to_start_with_a_quote(
     )  # fmt: skip
     assert shown.stderr == ""
     assert "'experiment' column" in " ".join(shown.stdout.split())
+
+
+ROOT = Path(__file__).parent.parent.parent
+#: The page pip installs where man looks (pyproject's data-files).
+INSTALLED_PAGE = ROOT / "share" / "man" / "man1" / "compd.1"
+REGENERATE = "compd help --man > share/man/man1/compd.1 (COLUMNS unset)"
+
+
+def _undated(roff: str) -> str:
+    """The page without the date in its ``.TH`` line (argparse-manpage writes the day it ran)."""
+    return re.sub(r'^(\.TH \S+ "1") "[^"]*"', r"\1", roff, flags=re.M)
+
+
+def test_the_page_pip_installs_is_the_parsers() -> None:
+    """share/man/man1/compd.1, which a wheel installs where man looks, is what ``compd help --man`` prints."""
+    env = {key: value for key, value in os.environ.items() if key != "COLUMNS"}
+    done = subprocess.run(
+        [sys.executable, "-m", "compd.cli", "help", "--man"], capture_output=True, text=True,
+        timeout=300, env=env,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert INSTALLED_PAGE.is_file(), f"no {INSTALLED_PAGE}: {REGENERATE}"
+    assert _undated(INSTALLED_PAGE.read_text()) == _undated(done.stdout), f"stale: {REGENERATE}"
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert setuptools["data-files"]["share/man/man1"] == ["share/man/man1/compd.1"]
+
+
+@pytest.mark.parametrize("command", ["run", "check-config", "demo", "status", "simulate-machine"])
+def test_the_service_commands_help_says_what_each_does(command: str) -> None:
+    """``compd COMMAND --help`` has a paragraph between the usage and the options, not the usage alone."""
+    done = run(command, "--help")
+    assert done.returncode == 0, done.stderr
+    paragraphs = done.stdout.split("\n\n")
+    assert paragraphs[1].split()[0] not in ("options:", "positional"), done.stdout
+    assert len(paragraphs[1].split()) >= 15
+
+
+def test_every_command_has_a_description() -> None:
+    """Every command's --help opens with what it does (its own paragraph, or its help line)."""
+    for name, command in _subparsers(build_parser()).items():
+        assert command.description, name
 
 
 def _bash_completions(script: Path, line: str) -> list[str]:

@@ -76,6 +76,26 @@ def test_live_view_is_drawn_once_with_the_fault_in_its_warnings_panel(short_dir:
     assert "thermal error at the tool centre point" in after and "driver reconnected" in after
 
 
+def test_start_up_logs_come_before_the_live_view_not_after_it(short_dir: Path) -> None:
+    """The quick start on a terminal: model, socket and driver lines above the view, in order, not after it."""
+    argv = ["run", "--config", str(simulated_config(short_dir)), "--time-scale", "max",
+            "--duration-s", "600"]  # fmt: skip
+    screen, head, panel = one_view(argv, HEADER)
+    text = "\n".join(screen.lines)
+    for line in ("control socket listening", "driver connected", "initial state"):
+        assert line in "\n".join(screen.lines[:head]), text
+        assert line not in "\n".join(screen.lines[panel:]), text
+    assert "x0 real time" not in text and "real time  status" in screen.lines[head]
+
+
+def test_the_first_frame_says_starting_not_x0() -> None:
+    """The rate is measured from the first frame: nothing simulated yet reads "starting", then x(sim/real)."""
+    from compd.cli.simulate import speed_up
+
+    assert speed_up(0.0, 0.0) == speed_up(0.0, 0.25) == "starting"
+    assert speed_up(600.0, 2.0) == "x300" and speed_up(36_000.0, 3.0) == "x12,000"
+
+
 def test_run_on_a_real_machine_config_shows_the_same_live_view(short_dir: Path) -> None:
     """Without a simulation (the replay driver): one header, progress to --duration-s, the warning in the panel."""
     config = write_config(short_dir, {"control_socket": str(short_dir / "c.sock")})
@@ -88,10 +108,12 @@ def test_run_on_a_real_machine_config_shows_the_same_live_view(short_dir: Path) 
     assert "t 0:02:00 / 0:02:00 (100 %)" in screen.lines[head], screen.lines[head]
     view = screen.lines[head:panel]
     assert any("model drift um  sign  offset written um (sign x drift" in line for line in view)
-    # Logged before the first frame: not over the view but in the panel, then in full after it.
+    # Logged before the first frame: on the terminal above the view, as it came, and counted
+    # in the panel; not held back and printed again after the view (issue 36, item 17).
     assert re.search(r"warnings and errors \([1-9]", screen.lines[panel]), text
-    assert not any("saved state cannot be read" in line for line in screen.lines[:head]), text
-    assert any("saved state cannot be read" in line for line in screen.lines[panel:]), text
+    assert any("saved state cannot be read" in line for line in screen.lines[:head]), text
+    panel_end = next(i for i in range(panel + 1, len(screen.lines)) if "╰" in screen.lines[i])
+    assert not any("saved state cannot be read" in line for line in screen.lines[panel_end:])
 
 
 def test_a_view_taller_than_the_terminal_is_cropped_not_scrolled(short_dir: Path) -> None:

@@ -435,3 +435,47 @@ def test_a_driver_raising_outside_its_contract_shows_as_a_rows_error_not_a_trace
     assert "read failed: KeyError: 'ch1'" in second.problem
     with pytest.raises(Exception, match="write to ch1 failed: RuntimeError: not writable"):
         asyncio.run(live.write("ch1", 1.0))
+
+
+# -- what a reading leaves open: word order, numbering ------------------------
+
+
+def test_read_says_a_word_order_the_registers_cannot_tell(tmp_path, plc):
+    """An int32 without word= on registers holding 0 reads 0 either way: compd read says so, table and JSON."""
+    doc = yaml.safe_load(machine_config(tmp_path, plc).read_text())
+    doc["signals"]["T_bed_degC"] = {"driver": "plc", "address": "holding:60:int32", "unit": "um"}
+    (tmp_path / "compd.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    code, out, _ = compd("read", "--config", tmp_path / "compd.yaml", "T_bed_degC", "--json")
+    row = points(out)["T_bed_degC"]
+    assert row["raw"] == "0x0000 0x0000" and row["value"] == 0.0 and code == 0
+    assert "0 in either word order" in row["hint"] and "word=little (CDAB)" in row["hint"]
+    _, table, _ = compd("read", "--config", tmp_path / "compd.yaml", "T_bed_degC")
+    assert "note: 0 in either word order" in " ".join(table.split())
+
+
+def test_probe_shows_both_word_orders_where_they_differ(plc):
+    """Registers 0x0001 0x0002 read 65538 as ABCD and 131073 as CDAB: both shown; word= given, no hint."""
+    assert probe(plc, "holding:64:int32:word=big", "--write", 65538, "--yes")[0] == 0
+    code, out, _ = probe(plc, "holding:64:int32", "holding:64:int32:word=big",
+                         "holding:64:uint16", "--json")  # fmt: skip
+    rows = points(out)
+    open_order = rows["holding:64:int32"]
+    assert open_order["raw"] == "0x0001 0x0002" and open_order["value"] == 65538.0
+    assert "65538 as word=big (ABCD)" in open_order["hint"]
+    assert "word=little (CDAB) would read 131073" in open_order["hint"]
+    assert (
+        rows["holding:64:int32:word=big"]["hint"] == "" and rows["holding:64:uint16"]["hint"] == ""
+    )
+    assert code == 0
+
+
+def test_probe_hints_at_modicon_numbering_in_a_table(plc):
+    """input:30001 and input:40001 are read on the wire as written, each row saying what Modicon would mean."""
+    code, out, _ = probe(plc, "input:30001:int16", "input:40001", "30001:int16", "--json")
+    rows = points(out)
+    assert "input register 1 counted from 1" in rows["input:30001:int16"]["hint"]
+    assert "write 30001:int16 or input:0:int16" in rows["input:30001:int16"]["hint"]
+    assert "holding register 1, not input register 40001" in rows["input:40001"]["hint"]
+    modicon = rows["30001:int16"]
+    assert modicon["value"] == -1234.0 and "input:0 on the wire" in modicon["hint"]
+    assert code == 1  # input 30001 and 40001 are not on the server: refused, with the hint

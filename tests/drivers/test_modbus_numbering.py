@@ -65,19 +65,24 @@ def test_probe_reads_a_modicon_reference_from_a_real_server(plc):
     assert "-1234" in out
 
 
-def test_check_config_notes_the_translation(tmp_path):
-    """check-config accepts a signal at 30011:int16 and prints how it read it: input:10 on the wire."""
+def check_config(tmp_path: Path, address: str) -> tuple[int, str, str]:
+    """compd check-config on the simulated config with T_spindle_degC on a Modbus PLC at ``address``."""
     doc = merge(
         simulated_doc(),
         {
             "state": {"directory": str(tmp_path / "state")},
             "drivers": {"plc": {"type": "modbus", "settings": {"host": "127.0.0.1"}}},
-            "signals": {"T_spindle_degC": {"driver": "plc", "address": "30011:int16"}},
+            "signals": {"T_spindle_degC": {"driver": "plc", "address": address}},
         },
     )
     path = tmp_path / "compd.yaml"
     path.write_text(yaml.safe_dump(doc))
-    code, out, err = compd("check-config", path)
+    return compd("check-config", path)
+
+
+def test_check_config_notes_the_translation(tmp_path):
+    """check-config accepts a signal at 30011:int16 and prints how it read it: input:10 on the wire."""
+    code, out, err = check_config(tmp_path, "30011:int16")
     assert code == 0, err
     assert "note: signals.T_spindle_degC.address: 30011 is Modicon numbering" in out
     assert "input:10 on the wire" in out
@@ -101,3 +106,16 @@ def test_a_misspelt_config_key_names_the_key_meant(tmp_path):
         path.write_text(yaml.safe_dump(doc))
         code, _, err = compd("check-config", path)
         assert code == 2 and meant in err, err
+
+
+def test_a_table_address_that_looks_like_modicon_gets_the_hint(tmp_path):
+    """input:30001 (or a 4xxxx in the input table) is read as written, and check-config says what Modicon would mean."""
+    assert parse_address("input:30001:int16").address == 30001
+    note = translation_note("input:40011:int16")
+    assert note is not None and "holding register 11, not input register 40011" in note
+    assert "write 40011:int16 or holding:10:int16" in note
+    code, out, err = check_config(tmp_path, "input:30011:int16")
+    assert code == 0, err
+    words = " ".join(out.split())
+    assert "input:30011 is read as input address 30011 on the wire" in words
+    assert "input register 11 counted from 1" in words and "input:10:int16" in words
