@@ -299,6 +299,6 @@ def test_a_count_beyond_any_float_is_refused_not_an_overflow(tmp_path: Path) -> 
     """A calibration of 10^400 samples is refused by its bound; it never reaches float arithmetic (OverflowError)."""
     text = (CONFIG / "simulated_model.yaml").read_text()
     assert "samples: 8641" in text
-    head, found, tail = text.rpartition("samples: 8641")  # the provenance's, after probe_prior's
+    head, _, tail = text.rpartition("samples: 8641")  # the provenance's, after probe_prior's
     message = refusal(tmp_path, head + "samples: 1" + "0" * 400 + tail)
     assert "(provenance.calibration.samples): Input should be less than or equal to" in message
