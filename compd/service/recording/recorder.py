@@ -236,10 +236,12 @@ class Recorder(RecordingFiles):
         line = (
             stamp
             + ","
-            + ",".join([
-                "%.15g" % (v + 0.0) if type(v) is float else _cell(v)  # noqa: E721 (exact type)
-                for v in values
-            ])
+            + ",".join(
+                [
+                    "%.15g" % (v + 0.0) if type(v) is float else _cell(v)  # np.float64 too: _cell
+                    for v in values
+                ]
+            )
             + "\n"
         ).encode()
         if self._fd is None or (
