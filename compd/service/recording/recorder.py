@@ -238,7 +238,11 @@ class Recorder(RecordingFiles):
             + ","
             + ",".join(
                 [
-                    "%.15g" % (v + 0.0) if type(v) is float else _cell(v)  # np.float64 too: _cell
+                    "%.15g" % (v + 0.0)
+                    if type(v) is float
+                    else str(v)
+                    if type(v) is int  # a bool is no int here: _cell writes it 1/0
+                    else _cell(v)  # numpy's scalars, bools, text
                     for v in values
                 ]
             )
