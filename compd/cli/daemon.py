@@ -19,7 +19,6 @@ from typing import TYPE_CHECKING, Any
 
 from compd.cli.args import EXIT_NOT_CONNECTED
 from compd.cli.serving import config_from_arg, configure_logging
-from compd.cli.terminal import Text, console
 from compd.drivers.base import address_note
 from compd.drivers.registry import load_driver_type
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
@@ -67,6 +66,8 @@ def plausibility_line(model_file: ModelFile, doc: ConfigDoc) -> str:
 
 
 def check_config_command(args: argparse.Namespace) -> int:
+    from compd.cli.terminal import Text, console  # rich: not in a daemon without a terminal
+
     config = config_from_arg(args.config)
     doc = config.doc
     out = console()
@@ -174,11 +175,14 @@ async def _serve(
     from compd.cli.modellist import installed_notice
 
     if (notice := installed_notice(config)) is not None:
+        from compd.cli.terminal import Text, console  # rich: only when there is a notice
+
         console().print(Text(notice, style="bold yellow"))
     # On a terminal with no --live-every: the live view; else a line every N ticks, if asked.
     screen = None
     if live_every is None and sys.stdout.isatty():
         from compd.cli.livescreen import LiveScreen  # rich.live: only a terminal needs it
+        from compd.cli.terminal import console
 
         screen = LiveScreen(console())
     # The view first: the start-up's logs go to the terminal above its first frame, and

@@ -8,6 +8,7 @@ without loading the service, numpy or the simulator.
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 from compd.cli.args import clock_options, daemon_options
@@ -63,6 +64,8 @@ def register(commands: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.log_format == "json" or (args.log_format == "auto" and not sys.stderr.isatty()):
+        structlog_without_rich()
     from compd.cli.daemon import run_command
 
     return run_command(args)
@@ -78,3 +81,23 @@ def _status(args: argparse.Namespace) -> int:
     from compd.cli.status import status_command
 
     return status_command(args)
+
+
+def structlog_without_rich() -> None:
+    """Import structlog without rich (and pygments), for a daemon that logs JSON lines.
+
+    ``import structlog`` imports ``structlog.dev``, which imports rich's console
+    and traceback (with pygments) whenever rich is installed, for the
+    ``ConsoleRenderer``'s tracebacks: 5 MB of a daemon's 60 MB that a daemon
+    logging JSON lines (journald, any stderr that is no terminal) never uses.
+    rich is hidden while structlog is first imported, then shown again: the
+    live view on a terminal and every other command still import it.
+    ``--log-format console`` and a terminal keep structlog's rich tracebacks.
+    """
+    if "structlog" in sys.modules or "rich" in sys.modules:
+        return  # imported already: nothing to save, nothing to change
+    sys.modules["rich"] = None  # type: ignore[assignment]  # import rich: ImportError
+    try:
+        import structlog  # noqa: F401  (imported for its side effect: structlog.dev without rich)
+    finally:
+        del sys.modules["rich"]
