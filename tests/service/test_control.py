@@ -238,8 +238,8 @@ def test_request_sync_talks_to_a_daemon_in_another_thread(sock_path):
     thread = threading.Thread(target=loop.run_until_complete, args=(daemon(),))
     thread.start()
     try:
-        assert started.wait(5.0)
-        assert request_sync(sock_path, {"cmd": "status"}, timeout_s=2.0)["state"] == "compensating"
+        assert started.wait(60.0)  # hang guards, not timings
+        assert request_sync(sock_path, {"cmd": "status"}, timeout_s=60.0)["state"] == "compensating"
     finally:
         loop.call_soon_threadsafe(stop[0].set)
         thread.join(5.0)
