@@ -143,9 +143,9 @@ def test_subscribers_see_published_values(plc: Plc) -> None:
     async def scenario() -> list[float]:
         subscription = await server.create_subscription(10, Handler())
         await subscription.subscribe_data_change(server.get_node(T_NUMERIC))
-        first = await asyncio.wait_for(seen.get(), 2.0)
+        first = await asyncio.wait_for(seen.get(), 60.0)  # hang guards
         plc.server.publish({T_NUMERIC: 8.5})
-        second = await asyncio.wait_for(seen.get(), 2.0)
+        second = await asyncio.wait_for(seen.get(), 60.0)
         await subscription.delete()
         return [first, second]
 
