@@ -128,6 +128,10 @@ def test_run_for_a_real_machine_loads_no_toolkit_twin_or_plotting(short_dir: Pat
     machine_config.write_text(yaml.safe_dump(doc))
     del doc["simulation"]
     doc["control_socket"] = str(short_dir / "run.sock")
+    # Hang guards, not the bundled 0.3/0.5 s: on a busy host the twin's process answers late,
+    # and a run whose reads all timed out ends "not connected" (exit 3), not what this checks.
+    doc["drivers"]["plc"]["timeout_s"] = 10.0
+    doc["drivers"]["plc"]["settings"]["request_timeout_s"] = 5.0
     real_config = short_dir / "compd.yaml"
     real_config.write_text(yaml.safe_dump(doc))
     machine = subprocess.Popen(

@@ -86,7 +86,7 @@ class ServerThread:
 
         self._thread = threading.Thread(target=run, daemon=True)
         self._thread.start()
-        assert ready.wait(5), "server did not start"
+        assert ready.wait(60), "server did not start"  # a hang guard
 
     def stop(self) -> None:
         if self._loop is not None and self._thread is not None:

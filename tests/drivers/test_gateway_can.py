@@ -47,7 +47,7 @@ async def served(settings: GatewaySettings, **options) -> tuple[GatewayServer, G
     return server, driver
 
 
-async def raised(driver: GatewayDriver, within_s: float = 3.0) -> BaseException:
+async def raised(driver: GatewayDriver, within_s: float = 30.0) -> BaseException:
     """The first exception a read raises, polling for up to ``within_s`` (a loaded machine is slow)."""
     deadline = time.monotonic() + within_s
     while time.monotonic() < deadline:
@@ -59,7 +59,7 @@ async def raised(driver: GatewayDriver, within_s: float = 3.0) -> BaseException:
     raise AssertionError(f"no error within {within_s} s")
 
 
-async def recovered(driver: GatewayDriver, within_s: float = 3.0) -> dict[str, float]:
+async def recovered(driver: GatewayDriver, within_s: float = 30.0) -> dict[str, float]:
     """The first read that succeeds, polling for up to ``within_s``."""
     deadline = time.monotonic() + within_s
     while True:
@@ -120,7 +120,7 @@ def test_pdo_ids_and_little_endian_layout():
         bus = can.Bus(interface="virtual", channel=settings.channel)
         try:
             seen: dict[int, can.Message] = {}
-            deadline = time.monotonic() + 2
+            deadline = time.monotonic() + 30  # a hang guard: the loop ends at the 4th frame
             while len(seen) < 4 and time.monotonic() < deadline:
                 msg = await asyncio.to_thread(bus.recv, 0.1)
                 if msg is not None:
@@ -288,7 +288,7 @@ def test_link_recovers_after_a_gateway_restart():
         await link.open()
         assert await link.read(["in:0:int16"]) == {"in:0:int16": -1234.0}
         await server.stop()
-        deadline = time.monotonic() + 3
+        deadline = time.monotonic() + 30  # a hang guard
         while link.up:  # stale, then timed out: the link goes down
             assert time.monotonic() < deadline
             await link.read(["in:0:int16"])

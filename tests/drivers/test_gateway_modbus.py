@@ -133,7 +133,7 @@ def test_dp_side_down_and_frozen_gateway():
             server.freeze()
             frozen = time.monotonic()
             with pytest.raises(DriverTimeoutError, match="frozen"):  # noqa: PT012 - polls
-                while time.monotonic() - frozen < 3.0:
+                while time.monotonic() - frozen < 60.0:  # a hang guard: the read raises first
                     await driver.read(["in:0:int16"])
                     await asyncio.sleep(0.05)
             assert time.monotonic() - frozen >= settings.live_timeout_s
@@ -150,7 +150,9 @@ def test_link_recovers_after_a_gateway_restart():
     settings = modbus_settings(free_port())
     server = make_server(settings)
     clock = VirtualClock()  # the backoff's clock: the retries counted, not the machine's speed
-    link = DriverLink("gw", make_driver(settings), clock, timeout_s=0.5, backoff_min_s=0.1)
+    # timeout_s ends a hung read only (a stopped gateway refuses at once): on a busy host a
+    # short one would time out a good read and count a second reconnect.
+    link = DriverLink("gw", make_driver(settings), clock, timeout_s=10.0, backoff_min_s=0.1)
 
     async def scenario() -> float:
         await server.start()

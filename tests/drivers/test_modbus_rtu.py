@@ -31,7 +31,7 @@ def pty_pair(tmp_path) -> Iterator[tuple[str, str, subprocess.Popen]]:
         ["socat", f"pty,raw,echo=0,link={ours}", f"pty,raw,echo=0,link={theirs}"],
         stderr=subprocess.DEVNULL,
     )
-    deadline = time.monotonic() + 5
+    deadline = time.monotonic() + 60  # a hang guard: socat starts slowly on a busy host
     while not (ours.exists() and theirs.exists()):
         assert time.monotonic() < deadline, "socat did not create the pty pair"
         time.sleep(0.02)

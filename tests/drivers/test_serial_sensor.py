@@ -173,12 +173,19 @@ def test_missed_replies_warn_once_until_a_reply_comes(scanner):
             for _ in range(9):
                 with contextlib.suppress(DriverTimeoutError):
                     await d.read(["1"])
-        return await d.read(["1"])
+        # On a busy host a reply can come later than the 0.1 s reply timeout: one more miss
+        # (DEBUG), not a failure; the reads go on until a reply (bounded: a hung scanner fails).
+        for _ in range(100):
+            with contextlib.suppress(DriverTimeoutError):
+                return await d.read(["1"])
+        raise AssertionError("no reply in 100 reads")
 
     with capture_logs() as events:
         after = run(checked(scanner.port, max_missed_replies=3), body)
     misses = [(e["log_level"], e["event"]) for e in events if "repl" in e["event"]]
-    assert misses == [("warning", "missed reply")] + [("debug", "missed reply again")] * 5 + [
+    again = len(misses) - 2
+    assert again >= 5, misses
+    assert misses == [("warning", "missed reply")] + [("debug", "missed reply again")] * again + [
         ("info", "replies again")
     ]
     assert after == {"1": 23.456}
@@ -238,7 +245,7 @@ def test_unplugged_and_plugged_back(tmp_path):
         scanner.unplug()
         for call in (lambda: d.read(["1"]), d.open):
             try:
-                await asyncio.wait_for(call(), 2.0)
+                await asyncio.wait_for(call(), 60.0)  # a hang guard: the DriverError comes first
             except DriverError as exc:
                 seen.append(type(exc))
         scanner.plug()

@@ -92,11 +92,12 @@ def test_a_tick_costs_microseconds() -> None:
     prior = Prior((*(f"g{i}" for i in range(80)), BIAS), np.eye(81), residue_sigma_um=1.0)
     learner = OutputLearner(prior, ProbeSettings.defaults(prior))
     x = np.append(np.linspace(0.0, 1.0, 80), 1.0)
-    start = time.perf_counter()
+    # CPU time, not wall time: what a tick costs, not how busy the host is.
+    start = time.process_time()
     for k in range(20_000):
         learner.observe(float(k), x, 0.0)
         learner.adjustment_um(x)
-    assert (time.perf_counter() - start) / 20_000 < 50e-6
+    assert (time.process_time() - start) / 20_000 < 50e-6
 
 
 def test_the_adjustment_is_zero_until_a_probe_is_taken() -> None:

@@ -17,7 +17,7 @@ from typing import Any
 from compd.cli import daemon as cli_daemon
 from compd.cli import main
 from compd.cli.starthint import start_hint
-from compd.service.control.socket import ControlServer
+from compd.service.control.socket import ControlServer, request_sync
 from compd.service.store.state import installed_model
 
 from .daemon_setup import short_socket, write_config
@@ -175,12 +175,20 @@ def start_daemon(config, time_scale: float) -> subprocess.Popen[str]:
     return daemon
 
 
+def ticked(config, ticks: int) -> None:
+    """Until the daemon has ticked ``ticks`` times (a busy host starts it slowly; 60 s hang guard)."""
+    deadline = time.monotonic() + 60
+    while request_sync(config.control_socket, {"cmd": "status"})["counters"]["ticks"] < ticks:
+        assert time.monotonic() < deadline, f"fewer than {ticks} ticks in 60 s"
+        time.sleep(0.05)
+
+
 def test_status_under_time_scale_and_loading_the_running_model(tmp_path, capsys):
     """At --time-scale 100: units, the last tick's age, no future times; loading the running model: a no-op."""
     config = write_config(tmp_path, {"control_socket": str(short_socket()), "blend_s": 5})
     daemon = start_daemon(config, time_scale=100)
     try:
-        time.sleep(1.0)  # 100 clock seconds: the scaled clock is well ahead of the wall's
+        ticked(config, 100)  # 100 clock seconds: the scaled clock is well ahead of the wall's
         assert main(["status", "--config", str(config.path), "--json"]) == 0
         reply = json.loads(capsys.readouterr().out)
         now = datetime.now(UTC) + timedelta(seconds=1)  # stamps are cut to whole seconds
@@ -213,7 +221,7 @@ def test_status_model_load_and_sigterm_on_a_running_daemon(tmp_path, capsys):
     config = write_config(tmp_path, {"control_socket": str(short_socket()), "blend_s": 5})
     daemon = start_daemon(config, time_scale=10)
     try:
-        time.sleep(0.5)  # a few ticks
+        ticked(config, 3)
         assert main(["status", "--config", str(config.path)]) == 0
         out = capsys.readouterr().out
         assert "example-gated-arx-y" in out and "T_spindle_degC" in out and "ticks" in out

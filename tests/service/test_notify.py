@@ -20,7 +20,7 @@ def path_socket(tmp_path: Path) -> Iterator[tuple[socket.socket, str]]:
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     path = str(tmp_path / "notify.sock")
     sock.bind(path)
-    sock.settimeout(2.0)
+    sock.settimeout(60.0)  # a hang guard: the datagram is sent at once
     yield sock, path
     sock.close()
 
@@ -31,7 +31,7 @@ def abstract_socket() -> Iterator[tuple[socket.socket, str]]:
     name = f"compd-test-{uuid.uuid4().hex}"
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock.bind("\0" + name)
-    sock.settimeout(2.0)
+    sock.settimeout(60.0)  # a hang guard: the datagram is sent at once
     yield sock, "@" + name
     sock.close()
 
@@ -131,7 +131,7 @@ def test_recovery_after_a_failure_is_logged(tmp_path, caplog):
         assert not notifier.watchdog()
         with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
             sock.bind(str(path))
-            sock.settimeout(2.0)
+            sock.settimeout(60.0)  # a hang guard: the datagram is sent at once
             assert notifier.watchdog()
             assert sock.recv(64) == b"WATCHDOG=1"
     assert [r.levelno for r in caplog.records] == [logging.ERROR, logging.INFO]

@@ -326,7 +326,8 @@ def test_restart_drops_the_connection_keeps_the_values_and_the_link_reconnects()
         await server.start()
         server.publish(INPUTS)
         clock = VirtualClock()  # the backoff's clock: the retries counted, not the machine's speed
-        link = DriverLink("plc", driver(port), clock, timeout_s=0.5, backoff_min_s=0.05)
+        # timeout_s only ends a hung read: a short one times out good reads on a busy host.
+        link = DriverLink("plc", driver(port), clock, timeout_s=10.0, backoff_min_s=0.05)
         await link.open()
         assert await link.read(["input:10:int16"]) == {"input:10:int16": -1234.0}
         await server.stop()

@@ -167,7 +167,8 @@ def test_unplug_and_replug_through_the_link(tmp_path: Path):
         await server.start()
         server.publish(VALUES)
         clock = VirtualClock()  # the backoff's clock: the retries counted, not the machine's speed
-        link = DriverLink("scanner", driver(s), clock, timeout_s=0.5, backoff_min_s=0.05)
+        # timeout_s only ends a hung read: a short one times out good reads on a busy host.
+        link = DriverLink("scanner", driver(s), clock, timeout_s=10.0, backoff_min_s=0.05)
         await link.open()
         assert await link.read(["1"]) == {"1": 23.456}
         await server.stop()
