@@ -25,6 +25,15 @@ def _isolated_logging() -> Iterator[None]:
     root.setLevel(level)
 
 
+@pytest.fixture(autouse=True)
+def _no_exported_width(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No ``COLUMNS``/``LINES`` unless a test exports them: pytest-xdist's workers inherit
+    ``COLUMNS=80``, which a piped compd now honours (``COLUMNS=120 compd diagnose | less``),
+    so a test would see an 80-column table under ``-n 2`` and a whole one alone."""
+    monkeypatch.delenv("COLUMNS", raising=False)
+    monkeypatch.delenv("LINES", raising=False)
+
+
 @pytest.fixture
 def broker(tmp_path: Path) -> Iterator[Mosquitto]:
     """A mosquitto of the test's own, on a free port (the telemetry, roll-out and fleet tests)."""
