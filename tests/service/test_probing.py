@@ -328,3 +328,12 @@ def test_the_offset_in_force_is_known_at_any_touch_of_the_last_12_h() -> None:
     with pytest.raises(ModelError, match="older than the offsets kept"):
         history.at(99_999 - OFFSET_HISTORY_S - 10)
     assert len(history.t_s) <= 4 * OFFSET_HISTORY_S
+
+
+def test_the_shift_s_probe_residues_are_one_figure(runs: tuple[ProbedRun, ProbedRun]) -> None:
+    """compd status gives the RMS of the shift's probe innovations: the shop's evidence on parts."""
+    _, probed = runs
+    innovations = [p.steps[-1].innovation_before_um for r in probed.records for p in r.probes]
+    expected = math.sqrt(sum(e * e for e in innovations) / len(innovations))
+    z = probed.service.status()["probes"]["axes"]["Z"]
+    assert z["shift_rms_um"] == pytest.approx(expected, abs=1e-4)

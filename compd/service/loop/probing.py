@@ -51,6 +51,8 @@ log = structlog.get_logger("compd.service.loop.probing")
 Measures = Literal["residue", "thermal_error"]
 #: The offset in force is kept per tick over this long (s): a gauge result typed in hours late.
 OFFSET_HISTORY_S = 12 * 3600.0
+#: A shift (s): each one ends with a line of the RMS of its probe residues, the shop's evidence.
+SHIFT_S = 8 * 3600.0
 #: Probe status bits (the probe status register, and ``compd status``).
 DUE_BIT, DISAGREES_BIT = 1 << 0, 1 << 1
 
@@ -238,6 +240,9 @@ class ProbeLearning:
         self.last: dict[str, ProbeTaken] = {}
         self.adjustments_um: dict[str, float] = {}
         self._taken_now: tuple[ProbeTaken, ...] = ()
+        #: Per axis, each probe's innovation (touch unix s, um) over the last shift.
+        self.residues: dict[str, deque[tuple[float, float]]] = {axis: deque() for axis in self.axes}
+        self._shift = 0
         #: Why probing was turned off (a failure of the learning itself); None while it runs.
         self.off: str | None = None
 
@@ -346,6 +351,10 @@ class ProbeLearning:
             return
         if self.started_s is None:
             self.started_s = t_unix_s
+        shift = int((t_unix_s - self.started_s) // SHIFT_S)
+        if shift > self._shift:
+            self._shift = shift
+            self._say_shift(t_unix_s)
         self.follow(slot)
         runner = slot.runner
         self.adjustments_um = dict.fromkeys(self.learners, 0.0)
@@ -391,6 +400,9 @@ class ProbeLearning:
             request = self._queue.popleft()
             taken = self._take_one(request)
             self.last[request.axis] = taken
+            if taken.steps:
+                touched = request.touched_at_unix_s
+                self.residues[request.axis].append((touched, taken.steps[-1].innovation_before_um))
             self.probes[request.axis] = self.probes.get(request.axis, 0) + 1
             counts = self.results[request.axis]
             for step in taken.steps or ():
@@ -449,6 +461,27 @@ class ProbeLearning:
 
     # -- status ----------------------------------------------------------------------------------
 
+    def shift_rms_um(self, axis: str, now_unix_s: float) -> tuple[float | None, int]:
+        """The RMS of the axis's probe residues over the last shift (um; None without one), and their count."""
+        kept = self.residues[axis]
+        while kept and kept[0][0] < now_unix_s - SHIFT_S:
+            kept.popleft()
+        if not kept:
+            return None, 0
+        return math.sqrt(sum(e * e for _, e in kept) / len(kept)), len(kept)
+
+    def _say_shift(self, now_unix_s: float) -> None:
+        """One line a shift per axis: how well compensation held on the parts, from its probes."""
+        for axis in self.axes:
+            rms, count = self.shift_rms_um(axis, now_unix_s)
+            log.info(
+                "probe residues this shift",
+                axis=axis,
+                rms_um=None if rms is None else round(rms, 3),
+                probes=count,
+                shift_h=SHIFT_S / 3600,
+            )
+
     def adjustment(self, output: str) -> float:
         """What the probes add to ``output`` this tick (um); 0 before any probe taken."""
         return self.adjustments_um.get(output, 0.0)
@@ -494,6 +527,7 @@ class ProbeLearning:
                 "last_taken_age_s": None if taken_s is None else round(now_unix_s - taken_s, 1),
                 "last": None if last is None else last.event_details(),
                 "probes": self.probes[name],
+                "shift_rms_um": _rounded(self.shift_rms_um(name, now_unix_s)[0]),
                 "results": dict(self.results[name]),
             }
         return {
@@ -502,3 +536,7 @@ class ProbeLearning:
             "off": self.off,
             "axes": axes,
         }
+
+
+def _rounded(value: float | None) -> float | None:
+    return None if value is None else round(value, 4)
