@@ -9,6 +9,7 @@ of the checkout's modules laid out at their import paths, with
 ``pyproject.toml`` beside them, so they read the same contracts and settings::
 
     python -m tests.installed lint-imports --no-cache
+    python -m tests.installed lint-imports --no-cache drivers/importlinter.ini
     python -m tests.installed mypy
 
 Copies, not links: nothing in the repository to break in a clone or on a
@@ -26,6 +27,8 @@ import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+#: import-linter's config of the driver interface's contract (the layers are pyproject.toml's).
+DRIVER_CONTRACT = "drivers/importlinter.ini"
 
 
 def package_folder(package: str, package_dir: dict[str, str]) -> Path:
@@ -48,6 +51,9 @@ def assemble(dest: Path) -> Path:
         for module in package_folder(package, package_dir).glob("*.py"):
             shutil.copy2(module, target / module.name)  # mtimes kept: mypy's cache stays valid
     shutil.copy2(ROOT / "pyproject.toml", dest / "pyproject.toml")
+    # The driver interface's contract, which a plain lint-imports in the checkout cannot run.
+    (dest / "drivers").mkdir(exist_ok=True)
+    shutil.copy2(ROOT / DRIVER_CONTRACT, dest / DRIVER_CONTRACT)
     return dest
 
 

@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from tests.acceptance.conftest import machine_doc
-from tests.installed import run_installed
+from tests.installed import DRIVER_CONTRACT, run_installed
 from tests.loop_rate import at_loop_rate
 
 ROOT = Path(__file__).parents[1]
@@ -29,6 +29,20 @@ def test_each_room_imports_only_the_rooms_below_it() -> None:
     """import-linter checks pyproject.toml's contracts: layers; what the daemon and the driver API may load."""
     lint = shutil.which("lint-imports") or pytest.fail("import-linter is in the test extras")
     done = run_installed(lint, "--no-cache")  # as a developer runs it: python -m tests.installed
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "0 broken" in done.stdout
+    # The driver interface's contract: drivers/ is compd.drivers only as installed.
+    done = run_installed(lint, "--no-cache", DRIVER_CONTRACT)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "1 kept, 0 broken" in done.stdout
+
+
+def test_a_plain_lint_imports_in_the_checkout_runs_the_layers() -> None:
+    """Without the installed layout (no compd/drivers folder) the layers still check: drivers is optional there."""
+    lint = shutil.which("lint-imports") or pytest.fail("import-linter is in the test extras")
+    done = subprocess.run(
+        [lint, "--no-cache"], cwd=ROOT, capture_output=True, text=True, timeout=600
+    )
     assert done.returncode == 0, done.stdout + done.stderr
     assert "0 broken" in done.stdout
 
