@@ -499,9 +499,17 @@ def test_a_machine_away_is_not_waited_for_and_takes_the_desired_model_when_back(
 
         start(away, "--time-scale", "60", "--duration-s", "36000")
         sub.wait_for(lambda s: _running(s, away.machine_id) == sha256, "mill-c back, running it")
+        # The switch is told after the status that names the model: wait for its event too.
+        sub.wait_for(
+            lambda s: "model_switched" in [e["event"] for e in s.of("event", away.machine_id)],
+            "mill-c's model_switched event",
+        )
         events = [e["event"] for e in sub.of("event", away.machine_id)]
         assert "model_loaded" in events and "model_switched" in events, events
-        assert sub.of("birth", away.machine_id)[-1]["desired_model"]["runs_it"] is True
+        sub.wait_for(
+            lambda s: s.of("birth", away.machine_id)[-1]["desired_model"]["runs_it"] is True,
+            "mill-c's birth saying it runs its desired model",
+        )
 
         code = main(["model", "rollout", "--pending", *settings, "--json"])
         report = json.loads(capsys.readouterr().out)
