@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import importlib
 from functools import cache
-from importlib import metadata
 
 from compd.drivers.base import DriverType
 
@@ -41,6 +40,8 @@ class DriverImportError(ImportError):
 
 def driver_names() -> list[str]:
     """Every driver type a config may name, without importing any of them."""
+    from importlib import metadata  # the installed packages' list: only when asked
+
     installed = {entry.name for entry in metadata.entry_points(group=ENTRY_POINT_GROUP)}
     return sorted(BUILTIN.keys() | installed)
 
@@ -58,6 +59,8 @@ def load_driver_type(name: str) -> DriverType:
         except ImportError as exc:
             raise DriverImportError(f"driver type {name!r} cannot be imported: {exc}") from exc
         return kind
+    from importlib import metadata  # a daemon of built-in drivers never reads it
+
     for entry in metadata.entry_points(group=ENTRY_POINT_GROUP, name=name):
         try:
             loaded: DriverType = entry.load()

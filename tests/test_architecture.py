@@ -169,5 +169,6 @@ def test_run_for_a_real_machine_loads_no_toolkit_twin_or_plotting(short_dir: Pat
     assert loaded(modules, ("asyncua", "can")) == [], "only the drivers the config names"
     # JSON logs and no terminal: structlog's rich tracebacks and the terminal's console unused.
     assert loaded(modules, ("rich", "pygments")) == [], "rich (5 MB) only for a terminal"
+    assert loaded(modules, ("colorama", "greenlet")) == [], "a Windows console, greenlet contexts"
     # A model file of discrete TFs is compiled, checked and stepped with numpy alone.
     assert loaded(modules, ("scipy",)) == [], "scipy (~100 MB) only converts continuous TFs"

@@ -24,12 +24,17 @@ from compd.model.run import simulate
 
 
 class SignalHistory:
-    """The last ``capacity`` ticks of every signal, oldest first on read (a ring buffer)."""
+    """The last ``capacity`` ticks of every signal, oldest first on read (a ring buffer).
+
+    Kept in single precision: 7 significant digits (1 mdegC at 1,000 degC, 1 rpm in
+    10 million) are far finer than any sensor, and 8 h of 6 signals at 1 s take
+    0.7 MB of the daemon's memory instead of 1.4 MB. Read back as doubles.
+    """
 
     def __init__(self, names: tuple[str, ...] | list[str], capacity: int) -> None:
         self.names = tuple(names)
         self._index = {name: i for i, name in enumerate(self.names)}
-        self._rows = np.full((max(1, capacity), len(self.names)), np.nan)
+        self._rows = np.full((max(1, capacity), len(self.names)), np.nan, dtype=np.float32)
         self._next = 0
         self._count = 0
 
@@ -48,11 +53,11 @@ class SignalHistory:
         later gaps (a faulted input) are filled with the last finite value."""
         full = self._count == len(self._rows)
         rows = np.roll(self._rows, -self._next, axis=0) if full else self._rows[: self._count]
-        columns = rows[:, [self._index[name] for name in names]]
+        columns = rows[:, [self._index[name] for name in names]].astype(float)
         complete = np.flatnonzero(np.isfinite(columns).all(axis=1))
         if complete.size == 0:
             return np.empty((0, len(names)))
-        columns = columns[complete[0] :].copy()
+        columns = columns[complete[0] :]
         for j in range(columns.shape[1]):
             column = columns[:, j]
             bad = ~np.isfinite(column)
