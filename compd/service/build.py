@@ -70,6 +70,7 @@ def telemetry(
     *,
     identity: Callable[[], dict[str, Any]],
     wall: Callable[[], float],
+    probes: Callable[[], dict[str, Any] | None] = lambda: None,
 ) -> Telemetry:
     """The publisher, not yet connected; paho is imported here, only for a config that asks."""
     from compd.service.fleet.claim import Instance
@@ -88,7 +89,14 @@ def telemetry(
         queue_size=doc.queue_size,
         identity=identity,
         wall=wall,
+        probes=probes,
     )
+
+
+def probes_now(view: ServiceView) -> dict[str, Any] | None:
+    """Per probed axis what the probes say now (None: the config probes nothing), for telemetry."""
+    probing = view.probing
+    return None if probing is None else probing.status(view.clock_wall())["axes"]
 
 
 def http_server(doc: HttpDoc, service: ServiceView) -> StatusServer:
@@ -217,7 +225,13 @@ def tick_subscribers(
             background=background_saves,
         ),
         telemetry=(
-            telemetry(doc.telemetry, config.base_dir, identity=identity, wall=wall)
+            telemetry(
+                doc.telemetry,
+                config.base_dir,
+                identity=identity,
+                wall=wall,
+                probes=lambda: probes_now(view),
+            )
             if doc.telemetry is not None
             else None
         ),

@@ -159,6 +159,7 @@ def test_page_json_lists_the_faults_and_the_models_provenance(run: RunningCompd)
     assert times == sorted(times, reverse=True)
     nan = [f for f in page["faults"] if f["source"] == "T_spindle_degC"]
     assert any("below min" in f["message"] for f in nan)
+    assert page["probes"] is None and page["probe_marks"] == []  # the config probes nothing
 
 
 @pytest.mark.parametrize("method", ["POST", "PUT", "DELETE", "PATCH"])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +21,7 @@ from compd.files.yamlplace import resolve_path
 from compd.service.config.loading import load_config
 from compd.service.control.socket import request
 from compd.service.daemon import Service
+from compd.service.http.metrics import ServiceMetrics
 from compd.service.loop.compensator import TickRecord
 from compd.service.loop.probing import OFFSET_HISTORY_S, ProbeRequest, _OffsetHistory
 from compd.sim.plc.machine import SimulatedMachine
@@ -219,13 +221,13 @@ def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
         # Left on the broker before the daemon subscribes: handed to it from the retained store.
         publish.single("compd/mill-1/cmd/probe", retained, qos=1, retain=True, port=broker.port)
         ran = asyncio.create_task(run_simulation(config, time_scale=20.0, duration_s=3600))
-        for _ in range(1200):  # the machine is up and listening (its birth)
-            if listener.of("birth", "mill-1"):
+        for _ in range(1200):  # the machine is up, listening (its birth) and has ticked
+            if listener.of("birth", "mill-1") and listener.of("status", "mill-1"):
                 break
             await asyncio.sleep(0.05)
         publish.single("compd/mill-1/cmd/probe", ask, qos=1, port=broker.port)
         for _ in range(600):
-            if len(replies(listener)) == 2:
+            if len(replies(listener)) == 2 and probed(listener):
                 break
             await asyncio.sleep(0.05)
         ran.cancel()
@@ -237,10 +239,22 @@ def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
             heard = [m.payload for m in listener.messages if "/reply/" in m.topic]
         return {p["request_id"]: p for p in heard}
 
+    def probed(listener: Subscriber) -> list[dict[str, Any]]:
+        """The statuses published after the probe: each carries what the probes say per axis."""
+        return [
+            status
+            for status in listener.of("status", "mill-1")
+            if status.get("probes", {}).get("Z", {}).get("shift_probes")
+        ]
+
     with Subscriber(broker.port, "compd/mill-1/#") as listener:
         asyncio.run(main(listener))
         answers = replies(listener)
+        statuses = probed(listener)
     assert answers["cmm-1"]["ok"] is True and answers["cmm-1"]["taken"] is True
+    z = statuses[-1]["probes"]["Z"]
+    assert z["last"]["source"] == "mqtt:cmm-2" and z["shift_probes"] == 1
+    assert z["shift_rms_um"] == pytest.approx(abs(z["last"]["innovation_um"]), abs=1e-3)
     assert answers["cmm-1"]["last"]["source"] == "mqtt:cmm-2"
     assert answers["cmm-0"]["ok"] is False and "retained" in answers["cmm-0"]["error"]
 
@@ -337,3 +351,8 @@ def test_the_shift_s_probe_residues_are_one_figure(runs: tuple[ProbedRun, Probed
     expected = math.sqrt(sum(e * e for e in innovations) / len(innovations))
     z = probed.service.status()["probes"]["axes"]["Z"]
     assert z["shift_rms_um"] == pytest.approx(expected, abs=1e-4)
+    assert z["shift_probes"] == len(innovations)
+    # The same figure for Prometheus, in metres.
+    scraped = ServiceMetrics(probed.service).render()[0].decode()
+    shift = re.search(r'^compd_probe_shift_rms_meters\{axis="Z"\} (\S+)$', scraped, re.M)
+    assert shift is not None and float(shift.group(1)) == pytest.approx(z["shift_rms_um"] * 1e-6)

@@ -7,7 +7,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 
+from compd.service.loop.probing import ProbeRequest
 from tests.report_screenshot import chromium, chromium_missing
 from tests.service.httprun import BUNDLED_MODEL, RunningCompd, http_config, running_compd
 
@@ -16,6 +18,8 @@ pytestmark = pytest.mark.skipif(chromium_missing() is not None, reason=str(chrom
 #: A model name a config or model file could carry: the page must show it as text, never run it.
 HOSTILE_NAME = 'twin-z <img src=x onerror="window.pwned=1"><script>window.pwned=2</script>'
 HOLD_AT = 300
+#: A probe of the residue offered at this tick (um): the page marks it and lists it.
+PROBE_AT, PROBE_UM = 200, 0.8
 #: How long the page may take to fetch and draw its first answers (ms); a hang guard, not a timing.
 LOAD_TIMEOUT_MS = 60_000
 
@@ -27,7 +31,16 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningCompd]:
     model = folder / "model.yaml"
     text = BUNDLED_MODEL.read_text()
     model.write_text(text.replace('name: "twin-z"', f"name: {HOSTILE_NAME!r}"))
-    with running_compd(http_config(folder, model=model), hold_at=HOLD_AT) as running:
+    config = http_config(folder, model=model)
+    doc = yaml.safe_load(config.read_text())
+    doc["probes"] = {"axes": {"Z": None}}  # probed through the socket (a gauge's result)
+    config.write_text(yaml.safe_dump(doc, sort_keys=False))
+    with running_compd(config, hold_at=PROBE_AT) as running:
+        service, loop = running.service, running.loop
+        assert service is not None and service.probing is not None and loop is not None
+        probe = ProbeRequest("Z", PROBE_UM, service.clock.wall(), "test gauge", "residue")
+        loop.call_soon_threadsafe(service.probing.offer, probe)
+        running.hold_at(HOLD_AT)
         yield running
 
 
@@ -130,3 +143,20 @@ def test_charts_mark_each_fault_start_with_its_reason(shown: Shown, run: Running
     assert listed and marks.count() == len(listed)
     tooltips = " ".join(marks.locator("title").all_text_contents())
     assert "link down" in tooltips and "T_spindle_degC" in tooltips
+
+
+def test_probes_are_listed_and_marked_on_the_chart(shown: Shown, run: RunningCompd) -> None:
+    """A probe taken is a green mark at its touch (result and innovation as the tooltip) and a row
+    per probed axis: its last result, innovation and the shift's RMS, as /page.json says."""
+    page = run.json("/page.json")
+    z = page["probes"]["Z"]
+    assert z["last"]["result"] == "accepted" and z["shift_probes"] == 1
+    assert [m["kind"] for m in page["probe_marks"]] == ["probe"]
+    marks = shown.page.locator("#chart-offsets line.mark.probe")
+    assert marks.count() == 1
+    tooltip = marks.locator("title").all_text_contents()[0]
+    assert "accepted" in tooltip and f"measured {PROBE_UM:+.2f} um" in tooltip
+    listed = shown.text("#probes tbody")
+    assert listed.startswith("Z") and "accepted" in listed
+    assert f"{z['last']['innovation_um']:.2f}" in listed and f"{z['shift_rms_um']:.2f}" in listed
+    assert shown.page.locator("#probes-section").is_visible()

@@ -95,9 +95,19 @@ class Payloads:
         return self.death("connection lost", time_is="connected")
 
     def status(
-        self, record: TickRecord, counters: dict[str, int], model: str | None, dropped: int
+        self,
+        record: TickRecord,
+        counters: dict[str, int],
+        model: str | None,
+        dropped: int,
+        *,
+        probes: dict[str, Any] | None = None,
     ) -> dict[str, Any]:
+        """One tick's status; with ``probes`` (a config that probes), per axis what they say now:
+        due, the last probe and its innovation, the shift's RMS of the residues, the adjustment."""
         payload = self.header("status") | {"time": record.wall_unix_s}
+        if probes is not None:
+            payload["probes"] = probes
         return payload | {
             "t_s": record.t_s,
             "model": model,

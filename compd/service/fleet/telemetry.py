@@ -112,12 +112,15 @@ class Telemetry:
         identity: Callable[[], dict[str, Any]] = dict,
         wall: Callable[[], float] = time.time,
         instance: Instance | None = None,
+        probes: Callable[[], dict[str, Any] | None] = lambda: None,
     ) -> None:
         self.broker = broker
         self.topics = topics
         self.qos = qos
         self.every_ticks = every_ticks
         self.wall = wall
+        #: Per probed axis, what the probes say now (``ProbeLearning.status``'s axes); None: no probes.
+        self.probes = probes
         self.counters = TelemetryCounters()
         #: This process, as its birth, death and will name it (:mod:`compd.service.fleet.claim`).
         self.instance = instance or Instance.this_process()
@@ -131,9 +134,9 @@ class Telemetry:
         self.payloads = Payloads(
             topics, self.instance, every_ticks=every_ticks, identity=identity, wall=wall
         )
-        self._statuses: deque[tuple[TickRecord, dict[str, int], str | None]] = deque(
-            maxlen=queue_size
-        )
+        self._statuses: deque[
+            tuple[TickRecord, dict[str, int], str | None, dict[str, Any] | None]
+        ] = deque(maxlen=queue_size)
         self._events: deque[tuple[float, Event]] = deque(maxlen=queue_size)
         self._birth_due = False
         self._waiting_for_acks = False
@@ -209,14 +212,20 @@ class Telemetry:
         self._ticks = snapshot.ticks
         if snapshot.ticks % self.every_ticks == 0:
             model = None if snapshot.model is None else snapshot.model.name
-            self.tick(snapshot.record, dict(snapshot.counters), model)
+            self.tick(snapshot.record, dict(snapshot.counters), model, self.probes())
 
-    def tick(self, record: TickRecord, counters: dict[str, int], model: str | None) -> None:
+    def tick(
+        self,
+        record: TickRecord,
+        counters: dict[str, int],
+        model: str | None,
+        probes: dict[str, Any] | None = None,
+    ) -> None:
         """Queue the tick's status (cheap: no serialisation here); the oldest goes when full."""
         queue = self._statuses
         if len(queue) == queue.maxlen:
             self.counters.dropped += 1
-        queue.append((record, counters, model))
+        queue.append((record, counters, model, probes))
         self.counters.queued += 1
         self._notify()
 
@@ -258,7 +267,10 @@ class Telemetry:
                     at_s, event = self._events.popleft()
                     self._publish("event", self.payloads.event(at_s, event))
                 elif self._statuses:
-                    status = self.payloads.status(*self._statuses.popleft(), self.counters.dropped)
+                    record, counters, model, probes = self._statuses.popleft()
+                    status = self.payloads.status(
+                        record, counters, model, self.counters.dropped, probes=probes
+                    )
                     self._publish("status", status)
                 else:
                     break

@@ -21,6 +21,7 @@ import numpy as np
 
 from compd.service.loop.compensator import Compensator, TickRecord
 from compd.service.loop.links import DriverLink
+from compd.service.loop.probing import ProbeTaken
 from compd.service.loop.signals import Health
 
 #: Rows kept: an hour at one row per second.
@@ -113,14 +114,16 @@ class RecentFaults:
     failed), ``model`` (the model faulted), ``readback_mismatch``,
     ``offset_out_of_clamp``. Only the
     start of an episode is listed, so a fault lasting an hour is one line.
-    Model loads (a model switched in while running) are kept apart, in
-    :attr:`loads`, for the page's charts to mark beside the faults.
+    Model loads (a model switched in while running) and probes are kept apart,
+    in :attr:`loads` and :attr:`probes`, for the page's charts to mark beside the faults.
     """
 
     def __init__(self, maxlen: int = MAX_FAULTS) -> None:
         self.events: deque[FaultEvent] = deque(maxlen=maxlen)
         #: The last model loads, newest first, as events of kind ``model_load``.
         self.loads: deque[FaultEvent] = deque(maxlen=maxlen)
+        #: The last probes, newest first, as events of kind ``probe`` at their touch.
+        self.probes: deque[FaultEvent] = deque(maxlen=maxlen)
         self._model_loads = 0
         self._health: dict[str, Health] = {}
         self._up: dict[str, bool] = {}
@@ -175,6 +178,8 @@ class RecentFaults:
                 FaultEvent(at, "model_load", comp.running.compiled.name, "model switched in")
             )
         self._model_loads = loads
+        for taken in record.probes:
+            self.probes.appendleft(_probe_event(taken))
 
     def _add(self, at_unix_s: float, kind: str, source: str, message: str) -> None:
         self.events.appendleft(FaultEvent(at_unix_s, kind, source, message))
@@ -184,3 +189,21 @@ class RecentFaults:
 
     def loads_json(self) -> list[dict[str, Any]]:
         return [asdict(event) for event in self.loads]
+
+    def probes_json(self) -> list[dict[str, Any]]:
+        return [asdict(event) for event in self.probes]
+
+
+def _probe_event(taken: ProbeTaken) -> FaultEvent:
+    """A probe as the chart marks it: its result, and what it measured against the prediction."""
+    details = taken.event_details()
+    if taken.refused is not None:
+        said = f"refused: {taken.refused}"
+    else:
+        step = taken.steps[-1]
+        said = (
+            f"{taken.result}: measured {taken.request.measured_um:+.2f} um ({taken.request.measures}),"
+            f" innovation {step.innovation_before_um:+.2f} um, after the update "
+            f"{step.innovation_after_um:+.2f} um"
+        )
+    return FaultEvent(details["touched_at_unix_s"], "probe", details["axis"], said)

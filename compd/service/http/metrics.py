@@ -323,6 +323,12 @@ def _probe_metrics(service: ServiceView) -> Iterator[Metric]:
         "describes the machine.",
         labels=["axis"],
     )
+    shift = GaugeMetricFamily(
+        "compd_probe_shift_rms_meters",
+        "The RMS of the axis's probe residues over the last 8 h, a shift (m; absent without "
+        "a probe in it): how well compensation held on the parts.",
+        labels=["axis"],
+    )
     adjustment = GaugeMetricFamily(
         "compd_probe_adjustment_meters",
         "What the probes taught, added to the model's output per axis (m).",
@@ -339,7 +345,9 @@ def _probe_metrics(service: ServiceView) -> Iterator[Metric]:
         due.add_metric([axis], float(s["due"]))
         disagrees.add_metric([axis], float(s["disagrees"]))
         adjustment.add_metric([axis], s["adjustment_um"] * M_PER_UM)
-    yield from (residue, taken, age, due, disagrees, adjustment)
+        if s["shift_rms_um"] is not None:
+            shift.add_metric([axis], s["shift_rms_um"] * M_PER_UM)
+    yield from (residue, taken, age, due, disagrees, shift, adjustment)
 
 
 def _link_metrics(service: ServiceView) -> Iterator[Metric]:

@@ -308,6 +308,11 @@ class StatusServer:
                 "units": {name: s.unit for name, s in service.config.doc.signals.items()},
                 "faults": self.faults.as_json(),
                 "model_loads": self.faults.loads_json(),
+                "probe_marks": self.faults.probes_json(),
+                # Per probed axis what the probes say now; None: the config probes nothing.
+                "probes": None
+                if (probing := service.probing) is None
+                else probing.status(service.clock_wall())["axes"],
             }
         )
 

@@ -519,6 +519,7 @@ class ProbeLearning:
         for name, axis in self.axes.items():
             last = self.last.get(name)
             taken_s = self.last_taken_s(name)
+            shift_rms, shift_probes = self.shift_rms_um(name, now_unix_s)
             axes[name] = {
                 "output": axis.model_output,
                 "due": self.due(name, now_unix_s),
@@ -527,7 +528,9 @@ class ProbeLearning:
                 "last_taken_age_s": None if taken_s is None else round(now_unix_s - taken_s, 1),
                 "last": None if last is None else last.event_details(),
                 "probes": self.probes[name],
-                "shift_rms_um": _rounded(self.shift_rms_um(name, now_unix_s)[0]),
+                #: The RMS of the probe residues of the last shift (8 h), and how many.
+                "shift_rms_um": _rounded(shift_rms),
+                "shift_probes": shift_probes,
                 "results": dict(self.results[name]),
             }
         return {

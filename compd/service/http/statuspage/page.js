@@ -145,7 +145,7 @@ function svg(tag, attrs, text) {
 }
 
 // A line per series over time: plain SVG, y range from the data, a zero line when it is in range;
-// a vertical mark at each fault's start (red) and model load (blue), its reason as a tooltip.
+// a vertical mark at each fault's start (red), model load (blue) and probe (green), its reason as a tooltip.
 function drawChart(id, legendId, t, series, marks) {
   const chart = document.getElementById(id);
   const W = 640, H = 200, L = 52, R = 8, T = 8, B = 22;
@@ -166,7 +166,8 @@ function drawChart(id, legendId, t, series, marks) {
     }
     for (const m of marks) {
       if (m.at_unix_s < t0 || m.at_unix_s > t1) continue;
-      const line = svg("line", { x1: x(m.at_unix_s), x2: x(m.at_unix_s), y1: T, y2: H - B, class: `mark ${m.kind === "model_load" ? "load" : "fault"}`, "data-kind": m.kind });
+      const cls = m.kind === "model_load" ? "load" : m.kind === "probe" ? "probe" : "fault";
+      const line = svg("line", { x1: x(m.at_unix_s), x2: x(m.at_unix_s), y1: T, y2: H - B, class: `mark ${cls}`, "data-kind": m.kind });
       line.append(svg("title", {}, `${utc(m.at_unix_s)} ${m.kind} ${m.source}: ${m.message}`));
       nodes.push(line);
     }
@@ -197,7 +198,19 @@ function drawChart(id, legendId, t, series, marks) {
   document.getElementById(legendId).replaceChildren(...legend);
 }
 
-let marks = []; // the faults and model loads page.json last listed
+let marks = []; // the faults, model loads and probes page.json last listed
+
+// Per probed axis: due, the last probe and its innovation, the shift's RMS (a config without probes: hidden).
+function showProbes(probes) {
+  document.getElementById("probes-section").hidden = !probes;
+  if (!probes) return;
+  fillTable("probes", Object.entries(probes).map(([axis, p]) => row([
+    [axis], [p.due ? "yes" : "no"], [p.last ? p.last.result : "none yet"],
+    [p.last ? num(p.last.innovation_um, 2) : "-", true],
+    [p.last_taken_age_s === null ? "-" : `${Math.round(p.last_taken_age_s / 60)} min`, true],
+    [num(p.shift_rms_um, 2), true], [p.shift_probes, true], [num(p.adjustment_um, 2), true],
+  ], p.disagrees ? "faulted" : undefined)));
+}
 
 function showHistory(history) {
   drawChart("chart-offsets", "legend-offsets", history.t_unix_s, history.offsets_um, marks);
@@ -223,7 +236,8 @@ async function refresh() {
     health.answeredMs = performance.now();
     health.failing = false;
     showStatus(status, page);
-    marks = [...page.faults, ...page.model_loads];
+    showProbes(page.probes);
+    marks = [...page.faults, ...page.model_loads, ...page.probe_marks];
     if (refreshes % HISTORY_EVERY === 0) showHistory(await getJson("history.json?points=720"));
     document.body.dataset.loaded = String(refreshes + 1);
     error.hidden = true;
