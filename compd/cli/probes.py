@@ -1,7 +1,8 @@
 """``compd compare --probe-every`` / ``--probes``: the model judged with probe updates (issue 35 item 7).
 
-The options are registered on ``compare``'s parser (:func:`probe_options`);
-the work is imported only when one is given (:func:`compare_with_probes`).
+The options are registered on ``compare``'s and ``report``'s parsers
+(:func:`probe_options`); the work is imported only when one is given
+(:func:`compare_with_probes`, :func:`probe_runs`).
 """
 
 from __future__ import annotations
@@ -9,8 +10,14 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from compd.files.data import DataSet
+    from compd.toolkit.evaluate import Evaluation
+    from compd.toolkit.probecompare import ProbeRun
 
 _INTERVAL = re.compile(r"^\s*(\d+(?:\.\d*)?|\.\d+)\s*(h|min|m|s)?\s*$")
 _UNIT_S = {"h": 3600.0, "min": 60.0, "m": 60.0, "s": 1.0, None: 1.0}
@@ -66,20 +73,10 @@ def wants_probes(args: argparse.Namespace) -> bool:
     )
 
 
-def compare_with_probes(args: argparse.Namespace) -> int:
-    """``compare`` with probe updates: each output open loop and with probes, per probe its innovation."""
-    import pandas as pd
-
-    from compd.cli.common import load_experiments_from_args, print_notes, span_from_args
-    from compd.cli.terminal import console
+def refuse_several_records(experiments: Sequence[DataSet]) -> None:
+    """Probe updates carry over one whole run: one record, or a recorded run's files joined."""
     from compd.errors import DataFileError
-    from compd.files.modelfile import load_model
-    from compd.toolkit.evaluate import measured_columns
-    from compd.toolkit.probecompare import Probes, read_probes, run_probes
-    from compd.toolkit.span import evaluate_span
-    from compd.toolkit.summary import json_text
 
-    experiments = load_experiments_from_args(args)
     if len(experiments) > 1:
         raise DataFileError(
             experiments[1].path,
@@ -87,17 +84,15 @@ def compare_with_probes(args: argparse.Namespace) -> int:
             where="--probe-every/--probes",
             fix="Give one record, or join a recorded run's files into one",
         )
-    data = experiments[0]
-    if getattr(args, "report", None) or getattr(args, "wide", False):
-        raise DataFileError(
-            data.path,
-            "--report and --wide do not take probe updates yet: the probe comparison is a table "
-            "(or --json) of its own",
-            where="--report/--wide with --probe-every/--probes",
-            fix="Run compare once with the probes and once with --report",
-        )
-    span = span_from_args(args, data)
-    evaluation = evaluate_span(load_model(args.model), data, span, init=args.init)
+
+
+def probe_runs(args: argparse.Namespace, evaluation: Evaluation) -> list[ProbeRun]:
+    """Each judged output of ``evaluation`` updated at the probes the options give, in time order."""
+    import pandas as pd
+
+    from compd.toolkit.evaluate import measured_columns
+    from compd.toolkit.probecompare import Probes, read_probes, run_probes
+
     runs = []
     for output, measured in measured_columns(evaluation, args.output).items():
         if args.probes is not None:
@@ -114,26 +109,37 @@ def compare_with_probes(args: argparse.Namespace) -> int:
         runs.append(
             run_probes(evaluation, output, measured, probes, probe_noise_um=args.probe_noise_um)
         )
+    return runs
+
+
+def compare_with_probes(args: argparse.Namespace) -> int:
+    """``compare`` with probe updates: each output open loop and with probes, per probe its innovation."""
+    from compd.cli.common import load_experiments_from_args, print_notes, span_from_args
+    from compd.cli.terminal import console
+    from compd.errors import DataFileError
+    from compd.files.modelfile import load_model
+    from compd.toolkit.span import evaluate_span
+    from compd.toolkit.summary import json_text
+
+    experiments = load_experiments_from_args(args)
+    refuse_several_records(experiments)
+    data = experiments[0]
+    if getattr(args, "report", None) or getattr(args, "wide", False):
+        raise DataFileError(
+            data.path,
+            "--report and --wide do not take probe updates: the probe comparison is a table "
+            "(or --json) of its own, and compd report draws it",
+            where="--report/--wide with --probe-every/--probes",
+            fix="Run compd report MODEL DATA --out REPORT.html with the same probe options",
+        )
+    span = span_from_args(args, data)
+    evaluation = evaluate_span(load_model(args.model), data, span, init=args.init)
+    runs = probe_runs(args, evaluation)
     notes = [run.prior.note for run in runs if run.prior.note]
     if args.json:
         summary: dict[str, Any] = {"model": evaluation.compiled.name, "outputs": {}, "notes": notes}
         for run in runs:
-            summary["outputs"][run.output] = {
-                "open_loop": run.open_loop.as_dict(),
-                "with_probes": run.with_probes.as_dict(),
-                "prior": run.prior.prior.source,
-                "probes": [
-                    {
-                        "time_s": s.time_s,
-                        "measured_um": s.measured_um,
-                        "innovation_before_um": s.innovation_before_um,
-                        "innovation_after_um": s.innovation_after_um,
-                        "result": s.result,
-                        "bounded": s.bounded,
-                    }
-                    for s in run.steps
-                ],
-            }
+            summary["outputs"][run.output] = run.as_dict()
         print(json_text(summary))
         return 0
     print_notes(evaluation)

@@ -14,6 +14,7 @@ from compd.cli.common import (
     span_from_args,
     window_options,
 )
+from compd.cli.probes import probe_options, probe_runs, refuse_several_records, wants_probes
 from compd.files.experiments import stack
 from compd.files.modelfile import load_model
 from compd.toolkit.evaluate import Evaluation, evaluate_each
@@ -44,6 +45,7 @@ def register(commands: Any) -> None:
     )
     window_options(report)
     data_options(report, scored="shown and judged")
+    probe_options(report)  # the first model's probe updates: a section per output
     report.set_defaults(handler=_report)
 
 
@@ -56,6 +58,8 @@ def _report(args: argparse.Namespace) -> int:
     refuse_with_several(
         experiments, {"--from": args.from_s is not None, "--until": args.until_s is not None}
     )
+    if wants_probes(args):
+        refuse_several_records(experiments)
     several = stack(experiments) if len(experiments) > 1 else None
     data = experiments[0] if several is None else several.data
     span = span_from_args(args, data)
@@ -68,6 +72,7 @@ def _report(args: argparse.Namespace) -> int:
 
     evaluation = run(args.model)
     other = None if args.compare is None else run(args.compare)
+    probes = probe_runs(args, evaluation) if wants_probes(args) else []
     path = write_report(
         args.out,
         evaluation,
@@ -75,6 +80,7 @@ def _report(args: argparse.Namespace) -> int:
         column=args.output,
         tolerance_um=args.tolerance_um,
         window_s=args.window_s,
+        probes=probes,
     )
     notes = [*data.notes, *evaluation.notes, *(other.notes if other is not None else ())]
     for note in dict.fromkeys(notes):

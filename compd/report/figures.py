@@ -15,6 +15,7 @@ from plotly.subplots import make_subplots
 from compd.report import analysis_view as view
 from compd.report.decimate import DEFAULT_BUCKETS, minmax_indices
 from compd.report.gather import ModelRun, ReportData, column_unit, declared_units
+from compd.toolkit.probecompare import ProbeRun
 
 #: One colour per model (primary, compared), the measurement in black.
 MODEL_COLOURS = ("#1f5fa8", "#d1495b")
@@ -125,6 +126,57 @@ def measured_vs_simulated(report: ReportData, output: str) -> go.Figure:
         y = run.evaluation.predicted(output)
         fig.add_trace(_line(x, y, _kept(y), f"simulated: {run.name}", MODEL_COLOURS[i]))
     fig = _layout(fig, f"{output}: measured vs simulated (free run)", "displacement (um)")
+    return legend_under_title(_time_axis(fig, report))
+
+
+#: The prediction with probe updates, and the probes by result.
+PROBED_COLOUR = "#2e7d32"
+PROBE_RESULT_COLOURS = {
+    "accepted": "#2e7d32",
+    "confirmed": "#1b5e20",
+    "flagged": "#f9a825",
+    "rejected": "#c62828",
+}
+
+
+def probe_updates(report: ReportData, run: ProbeRun) -> go.Figure:
+    """Measured, the model open loop and with probe updates, and each probe at its instant."""
+    x = time_h(report)
+    output = run.output
+    column = report.primary.outputs[output].measured_column
+    measured = report.data.column(column)
+    open_loop = report.primary.evaluation.predicted(output)
+    fig = go.Figure()
+    fig.add_trace(_line(x, measured, _kept(measured), f"measured ({column})", MEASURED_COLOUR))
+    fig.add_trace(_line(x, open_loop, _kept(open_loop), "open loop", MODEL_COLOURS[0]))
+    fig.add_trace(
+        _line(x, run.predicted_um, _kept(run.predicted_um), "with probe updates", PROBED_COLOUR)
+    )
+    for result, colour in PROBE_RESULT_COLOURS.items():
+        steps = [s for s in run.steps if s.result == result]
+        if not steps:
+            continue
+        fig.add_trace(
+            go.Scatter(
+                x=drawn(np.array([s.time_s for s in steps]) / 3600.0),
+                y=drawn(np.array([s.measured_um for s in steps])),
+                name=f"probe {result}",
+                mode="markers",
+                marker={"color": colour, "size": 9, "symbol": "diamond"},
+                customdata=np.array(
+                    [[s.innovation_before_um, s.innovation_after_um] for s in steps]
+                ),
+                hovertemplate=(
+                    "%{y:.2f} um, innovation %{customdata[0]:+.2f} um, after the update "
+                    "%{customdata[1]:+.2f} um"
+                ),
+            )
+        )
+    title = (
+        f"{output}: probe updates ({run.probe_count} probes), fit "
+        f"{run.open_loop.fit_percent:.1f} % open loop, {run.with_probes.fit_percent:.1f} % with them"
+    )
+    fig = _layout(fig, title, "displacement (um)")
     return legend_under_title(_time_axis(fig, report))
 
 

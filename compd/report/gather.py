@@ -9,7 +9,7 @@ evaluation, and the tables are formatted from it.
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -31,6 +31,7 @@ from compd.toolkit.analysis import (
 )
 from compd.toolkit.evaluate import Evaluation, measured_columns
 from compd.toolkit.evaluate import compare as compare_outputs
+from compd.toolkit.probecompare import ProbeRun
 from compd.toolkit.summary import compare_summary
 
 
@@ -98,6 +99,11 @@ class ReportData:
     other: ModelRun | None
     conditions: tuple[ConditionGroup, ...]
     notes: tuple[str, ...] = field(default=())
+    #: The primary model with probe updates (``--probe-every``/``--probes``), per output judged.
+    probes: tuple[ProbeRun, ...] = field(default=())
+
+    def probe_run(self, output: str) -> ProbeRun | None:
+        return next((run for run in self.probes if run.output == output), None)
 
     @property
     def data(self) -> DataSet:
@@ -115,11 +121,13 @@ def gather(
     column: str | None = None,
     tolerance_um: float | None = None,
     window_s: float = DEFAULT_WINDOW_S,
+    probes: Sequence[ProbeRun] = (),
 ) -> ReportData:
     """Compare, find failing windows and rank candidates for ``evaluation`` (and ``other``).
 
     ``other`` must run over the same data; it is compared on the outputs the
     primary model is compared on that it also has (its summary holds those).
+    ``probes``: ``evaluation``'s outputs with probe updates (:func:`compd.toolkit.probecompare.run_probes`).
     """
     if other is not None and (
         other.data.path != evaluation.data.path or len(other.data) != len(evaluation.data)
@@ -143,7 +151,10 @@ def gather(
         if missing:
             notes.append(f"{other.compiled.name} has no output {missing}: shown for one model only")
         second = _run(other, column, tolerance_um, window_s, pairs=pairs)
-    return ReportData(primary, second, condition_groups(evaluation, other), tuple(notes))
+    notes += [run.prior.note for run in probes if run.prior.note]
+    return ReportData(
+        primary, second, condition_groups(evaluation, other), tuple(notes), tuple(probes)
+    )
 
 
 def _run(

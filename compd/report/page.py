@@ -14,7 +14,7 @@ the outputs.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from html import escape
 from pathlib import Path
@@ -30,6 +30,7 @@ from compd.report.modelcard import model_card
 from compd.report.plotlyjs import plotly_js
 from compd.report.verdict import verdict
 from compd.toolkit.evaluate import Evaluation
+from compd.toolkit.probecompare import ProbeRun
 from compd.toolkit.summary import json_finite
 
 #: CSS class of every figure's wrapper ``div`` (one per plot).
@@ -186,6 +187,7 @@ def _output_section(report: ReportData, output: str) -> str:
         tables.per_file_table(report, output),
         figure_html(figures.measured_vs_simulated(report, output), f"fig-{output}-measured"),
         figure_html(figures.residue(report, output), f"fig-{output}-residue"),
+        *_probe_parts(report, output),
         "<h3>Failing windows</h3>",
         *(tables.windows_table(r, output) for _, r in runs),
         "<h3>Sub-model contributions</h3>",
@@ -208,6 +210,20 @@ def _output_section(report: ReportData, output: str) -> str:
         parts.append(tables.candidates_table(run, output))
     parts.append("</section>")
     return "\n".join(parts)
+
+
+def _probe_parts(report: ReportData, output: str) -> list[str]:
+    """With probe updates: what they changed (open loop beside them), each probe, and the drawing."""
+    run = report.probe_run(output)
+    if run is None:
+        return []
+    return [
+        f'<h3 id="probes-{escape(output)}">Probe updates: {escape(report.primary.name)}</h3>',
+        tables.probes_table(run),
+        figure_html(figures.probe_updates(report, run), f"fig-{output}-probes"),
+        tables.probe_steps_table(run),
+        json_script(f"compd-probes-{output}", run.as_dict()),
+    ]
 
 
 def _figures(
@@ -236,10 +252,19 @@ def write_report(
     column: str | None = None,
     tolerance_um: float | None = None,
     window_s: float = 900.0,
+    probes: Sequence[ProbeRun] = (),
 ) -> Path:
-    """Gather and write the report of ``evaluation`` (and ``other``, on the same data) to ``path``."""
+    """Gather and write the report of ``evaluation`` (and ``other``, on the same data) to ``path``.
+
+    ``probes``: ``evaluation``'s outputs with probe updates, each drawn in its output's section.
+    """
     report = gather(
-        evaluation, other=other, column=column, tolerance_um=tolerance_um, window_s=window_s
+        evaluation,
+        other=other,
+        column=column,
+        tolerance_um=tolerance_um,
+        window_s=window_s,
+        probes=probes,
     )
     path = Path(path)
     path.write_text(build_html(report), encoding="utf-8")

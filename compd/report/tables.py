@@ -16,6 +16,7 @@ from compd.report import analysis_view as view
 from compd.report.figures import WINDOW_GRADES, window_grade
 from compd.report.gather import ModelRun, ReportData
 from compd.toolkit.analysis import CONDITION_PATTERNS
+from compd.toolkit.probecompare import ProbeRun
 from compd.toolkit.summary import fmt
 
 #: (compare --json key, label, digits): the metrics table's rows, in order.
@@ -221,3 +222,54 @@ def candidates_table(run: ModelRun, output: str) -> str:
         parts.append(table(head, rows, cls="candidates"))
     parts += [f'<p class="muted">{escape(n)}</p>' for n in view.notes(result)]
     return "\n".join(parts)
+
+
+def probes_table(run: ProbeRun) -> str:
+    """The output open loop and with the probe updates, over the same samples (compare's figures)."""
+    counts = (
+        f"{run.probe_count} probes: {run.count('accepted')} accepted, {run.count('confirmed')} "
+        f"taken once confirmed, {run.count('rejected')} rejected, {run.count('flagged')} flagged "
+        f"on arrival; prior: {escape(run.prior.prior.source)}"
+    )
+    rows = []
+    for label, c in (("open loop", run.open_loop), ("with probe updates", run.with_probes)):
+        rows.append(
+            [
+                label,
+                fmt(c.fit_percent, 1),
+                fmt(c.residue.rms_um, 2),
+                fmt(c.residue.peak_to_peak_um, 2),
+                fmt(c.residue.max_abs_um, 2),
+            ]
+        )
+    change = [
+        "change",
+        _signed(run.with_probes.fit_percent - run.open_loop.fit_percent, 1),
+        _signed(run.with_probes.residue.rms_um - run.open_loop.residue.rms_um, 2),
+        _signed(run.with_probes.residue.peak_to_peak_um - run.open_loop.residue.peak_to_peak_um, 2),
+        _signed(run.with_probes.residue.max_abs_um - run.open_loop.residue.max_abs_um, 2),
+    ]
+    head = ["", "fit (%)", "residue RMS (um)", "peak-to-peak (um)", "max |residue| (um)"]
+    return f'<p class="muted">{counts}</p>' + table(head, [*rows, change], cls="probes")
+
+
+def probe_steps_table(run: ProbeRun) -> str:
+    """Every probe as the update took it: when, what it measured, the innovation before and after."""
+    rows = [
+        [
+            clock(s.time_s),
+            fmt(s.measured_um, 2),
+            _signed(s.innovation_before_um, 2),
+            _signed(s.innovation_after_um, 2),
+            escape(s.result + (" (bounded)" if s.bounded else "")),
+        ]
+        for s in run.steps
+    ]
+    head = ["time", "measured (um)", "innovation before (um)", "after (um)", "result"]
+    return table(head, rows, cls="probe-steps")
+
+
+def _signed(value: float, digits: int) -> str:
+    """A change with its sign (``+0.42``, ``-1.3``; no sign on zero)."""
+    text = fmt(value, digits)
+    return text if text.startswith("-") or text == "n/a" or float(text) == 0.0 else f"+{text}"

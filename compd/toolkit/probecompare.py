@@ -23,6 +23,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -101,6 +102,25 @@ class ProbeRun:
     @property
     def probe_count(self) -> int:
         return len({step.time_s for step in self.steps})
+
+    def as_dict(self) -> dict[str, Any]:
+        """What ``compare --probe-every --json`` prints of this output (and a report embeds)."""
+        return {
+            "open_loop": self.open_loop.as_dict(),
+            "with_probes": self.with_probes.as_dict(),
+            "prior": self.prior.prior.source,
+            "probes": [
+                {
+                    "time_s": s.time_s,
+                    "measured_um": s.measured_um,
+                    "innovation_before_um": s.innovation_before_um,
+                    "innovation_after_um": s.innovation_after_um,
+                    "result": s.result,
+                    "bounded": s.bounded,
+                }
+                for s in self.steps
+            ],
+        }
 
 
 def run_probes(
