@@ -158,6 +158,12 @@ def summarise_machines(results: list[dict[str, object]]) -> None:
                 f"{np.median(change[probed]):+.2f}, not below mlr updated "
                 f"{100 * np.mean(default[probed, k] >= mlr[probed, k] - TIE_POINTS):.0f} %"
             )
+        # What a gate other than "beats" would say (for the steering decision on issue 35's 95 %).
+        print(
+            f"        not below own open loop by more than 0.1 / 0.5 / 1 point: "
+            f"{100 * np.mean(change >= -0.1):.0f} / {100 * np.mean(change >= -0.5):.0f} / "
+            f"{100 * np.mean(change >= -1.0):.0f} %"
+        )
         mlr_change = mlr[:, k] - mlr[:, 0]
         print(
             f"        regression updated: beats own open loop {100 * np.mean(mlr_change > 0):.0f} %, "
