@@ -11,9 +11,11 @@ Two kinds, chosen by what each costs the 1 Hz tick:
 - everything the service already counts or holds -- ticks, faults by kind,
   reconnects by driver, offsets by axis, the status word, the inputs, the
   model and the fit % its provenance records -- is *read at scrape time* by
-  :class:`LiveCollector` from the live objects, between ticks (the server runs
-  on the service's event loop). It costs the tick nothing and can never drift
-  from ``compd status``.
+  :class:`LiveCollector`, between ticks (the server runs on the service's
+  event loop): the counters and the last tick's record from the last
+  :class:`~compd.service.loop.snapshot.TickSnapshot` (what ``compd status`` and
+  telemetry give), the links, offsets and inputs from the objects that hold
+  them. It costs the tick nothing and can never drift from ``compd status``.
 
 Each service has its own :class:`~prometheus_client.CollectorRegistry`, not
 the process-wide default, so tests and tools that run several services in
@@ -31,7 +33,7 @@ metric (``compd_info{version,machine_id}``) and no ``_created`` series.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 
 from prometheus_client import (
     CollectorRegistry,
@@ -113,7 +115,7 @@ class ServiceMetrics:
 
 
 class LiveCollector(Collector):
-    """The service's counters and state, read from the live objects at each scrape."""
+    """The service's counters (the last snapshot's) and state, read at each scrape."""
 
     def __init__(self, service: ServiceView) -> None:
         self.service = service
@@ -121,14 +123,16 @@ class LiveCollector(Collector):
     def collect(self) -> Iterator[Metric]:
         service = self.service
         comp = service.compensator
-        counters = comp.counters
+        # The last tick's snapshot: the counters compd status and telemetry give, and its record.
+        snapshot = service.last
+        counters = _counters(service)
         links = service.links
         doc = service.config.doc
-        last = comp.last
+        last = None if snapshot is None else snapshot.record
 
-        yield _counter("compd_ticks", "Ticks run since start.", counters.ticks)
+        yield _counter("compd_ticks", "Ticks run since start.", counters["ticks"])
         yield _counter(
-            "compd_overruns", "Deadlines missed because a tick overran.", service.timing.overruns
+            "compd_overruns", "Deadlines missed because a tick overran.", counters["overruns"]
         )
         faults = CounterMetricFamily(
             "compd_faults",
@@ -139,13 +143,13 @@ class LiveCollector(Collector):
             "offset_out_of_clamp (an offset read back outside its clamp or not finite).",
             labels=["kind"],
         )
-        faults.add_metric(["signal"], counters.signal_faults)
-        faults.add_metric(["signal_estimated"], counters.signal_estimates)
+        faults.add_metric(["signal"], counters["signal_faults"])
+        faults.add_metric(["signal_estimated"], counters["signal_estimates"])
         faults.add_metric(["driver"], sum(link.faults for link in links.values()))
-        faults.add_metric(["write"], counters.write_failures)
-        faults.add_metric(["model"], counters.model_failures)
-        faults.add_metric(["readback_mismatch"], counters.offset_mismatches)
-        faults.add_metric(["offset_out_of_clamp"], counters.offsets_out_of_clamp)
+        faults.add_metric(["write"], counters["write_failures"])
+        faults.add_metric(["model"], counters["model_failures"])
+        faults.add_metric(["readback_mismatch"], counters["offset_mismatches"])
+        faults.add_metric(["offset_out_of_clamp"], counters["offsets_out_of_clamp"])
         yield faults
 
         driver_faults = CounterMetricFamily(
@@ -252,6 +256,14 @@ class LiveCollector(Collector):
         yield from _probe_metrics(service)
 
 
+def _counters(service: ServiceView) -> Mapping[str, int]:
+    """The last snapshot's counters (zeros before the first tick, as the compensator's are)."""
+    snapshot = service.last
+    if snapshot is not None:
+        return snapshot.counters
+    return vars(service.compensator.counters) | {"overruns": service.timing.overruns}
+
+
 def _model_metrics(service: ServiceView) -> Iterator[Metric]:
     """The model running, its fit % as its provenance records it, loads and failures."""
     comp = service.compensator
@@ -278,7 +290,7 @@ def _model_metrics(service: ServiceView) -> Iterator[Metric]:
     yield _counter(
         "compd_model_loads",
         "Models switched in while running (compd model load).",
-        comp.counters.model_loads,
+        _counters(service)["model_loads"],
     )
     yield _gauge(
         "compd_model_fault",
