@@ -10,11 +10,12 @@ that asks for it.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
+from compd.faultlog import EventSink, FaultLog
 from compd.service.config.docs import RecorderDoc
 from compd.service.config.fleetdoc import HttpDoc, TelemetryDoc
 from compd.service.config.loading import Config
@@ -30,12 +31,18 @@ from compd.service.recording.recorder import Recorder
 from compd.service.recording.ticks import RecordingTicks
 from compd.service.store.probes import ProbeKeeper
 from compd.service.store.saver import StateSaver
-from compd.service.store.state import SavedState
+from compd.service.store.state import MODELS_DIR, SavedState
 
 if TYPE_CHECKING:
     from compd.service.fleet.telemetry import Telemetry
     from compd.service.http.server import StatusServer
     from compd.service.http.view import ServiceView
+
+
+class Reporter(Protocol):
+    """What tells an event sink of its fault episodes and events (a driver link, the compensator)."""
+
+    def report_to(self, sink: EventSink) -> None: ...
 
 
 def recorder(
@@ -97,6 +104,52 @@ def probes_now(view: ServiceView) -> dict[str, Any] | None:
     """Per probed axis what the probes say now (None: the config probes nothing), for telemetry."""
     probing = view.probing
     return None if probing is None else probing.status(view.clock_wall())["axes"]
+
+
+def fleet_wiring(
+    publisher: Telemetry,
+    config: Config,
+    *,
+    reporters: Sequence[Reporter],
+    faults: Sequence[FaultLog],
+    load_model: Callable[[dict[str, Any]], Awaitable[dict[str, Any]]],
+    take_probe: Callable[[dict[str, Any]], Awaitable[dict[str, Any]]] | None,
+) -> None:
+    """Telemetry hears every fault episode and event, and answers the fleet's commands.
+
+    ``reporters`` (links, the compensator) report to it, ``faults`` (the state
+    saver's, the recorder's) episodes go to it; with ``accept_models`` it takes
+    roll-outs (``load_model``, replays refused across restarts, a machine back
+    catching up with its desired model), with probes a CMM station's results.
+    """
+    from compd.service.fleet.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
+    from compd.service.fleet.remoteprobe import COMMAND as PROBE_COMMAND
+    from compd.service.fleet.remoteprobe import MAX_PAYLOAD_BYTES as PROBE_MAX_BYTES
+    from compd.service.fleet.remoteprobe import RemoteProbes
+    from compd.service.fleet.seenrequests import FILE as SEEN_FILE
+    from compd.service.fleet.seenrequests import SeenRequests
+
+    sink = publisher.event
+    for reporter in reporters:
+        reporter.report_to(sink)
+    for fault in faults:
+        fault.sink = sink
+    doc = config.doc.telemetry
+    if doc is not None and doc.accept_models:
+        seen = SeenRequests(config.state_dir / SEEN_FILE)  # replays refused across restarts
+        models = config.state_dir / MODELS_DIR
+        remote = RemoteLoads(
+            load_model,
+            publisher.reply,
+            sink,
+            seen=seen,
+            installed=lambda sha256: (models / f"{sha256}.yaml").is_file(),
+        )
+        publisher.listen(COMMAND, remote.handle, max_bytes=MAX_PAYLOAD_BYTES)
+        publisher.take_desired(remote.take_desired)  # a machine back catches up
+    if take_probe is not None:  # a CMM station's or a gauge PC's results
+        probes = RemoteProbes(take_probe, publisher.reply, sink)
+        publisher.listen(PROBE_COMMAND, probes.handle, max_bytes=PROBE_MAX_BYTES)
 
 
 def http_server(doc: HttpDoc, service: ServiceView) -> StatusServer:

@@ -40,12 +40,6 @@ from compd.service.config.loading import Config
 from compd.service.control.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.control.peers import FdBudget
 from compd.service.control.socket import ControlServer
-from compd.service.fleet.remoteload import COMMAND, MAX_PAYLOAD_BYTES, RemoteLoads
-from compd.service.fleet.remoteprobe import COMMAND as PROBE_COMMAND
-from compd.service.fleet.remoteprobe import MAX_PAYLOAD_BYTES as PROBE_MAX_BYTES
-from compd.service.fleet.remoteprobe import RemoteProbes
-from compd.service.fleet.seenrequests import FILE as SEEN_FILE
-from compd.service.fleet.seenrequests import SeenRequests
 from compd.service.identity import identity
 from compd.service.loop.clock import Clock
 from compd.service.loop.compensator import Compensator, TickRecord
@@ -58,7 +52,7 @@ from compd.service.loop.ticks import TickTiming, run_periodic
 from compd.service.notify import SystemdNotifier
 from compd.service.recording.ticks import RecordingTicks
 from compd.service.reload import Reloader
-from compd.service.store.state import MODELS_DIR, SavedState, resumable_state
+from compd.service.store.state import SavedState, resumable_state
 
 if TYPE_CHECKING:
     from compd.service.fleet.telemetry import Telemetry
@@ -180,28 +174,15 @@ class Service:
             config, self.recorder, self.notifier, ready=lambda: self.compensator.counters.ticks > 0
         )
         if self.telemetry is not None:
-            sink = self.telemetry.event
-            for link in self.links.values():
-                link.report_to(sink)
-            self.compensator.report_to(sink)
-            self.saver.fault.sink = sink
-            if self.recording is not None:
-                self.recording.fault.sink = sink
-            if doc.telemetry is not None and doc.telemetry.accept_models:
-                seen = SeenRequests(config.state_dir / SEEN_FILE)  # replays refused across restarts
-                models = config.state_dir / MODELS_DIR
-                remote = RemoteLoads(
-                    self.load_model,
-                    self.telemetry.reply,
-                    sink,
-                    seen=seen,
-                    installed=lambda sha256: (models / f"{sha256}.yaml").is_file(),
-                )
-                self.telemetry.listen(COMMAND, remote.handle, max_bytes=MAX_PAYLOAD_BYTES)
-                self.telemetry.take_desired(remote.take_desired)  # a machine back catches up
-            if self.probing is not None:  # a CMM station's or a gauge PC's results
-                probes = RemoteProbes(self.take_probe, self.telemetry.reply, sink)
-                self.telemetry.listen(PROBE_COMMAND, probes.handle, max_bytes=PROBE_MAX_BYTES)
+            build.fleet_wiring(
+                self.telemetry,
+                config,
+                reporters=[*self.links.values(), self.compensator],
+                faults=[self.saver.fault]
+                + ([] if self.recording is None else [self.recording.fault]),
+                load_model=self.load_model,
+                take_probe=None if self.probing is None else self.take_probe,
+            )
         self.subscribers = Subscribers(
             doc.period_s, sink=None if self.telemetry is None else self.telemetry.event
         )
