@@ -206,12 +206,13 @@ class NeverConnectedError(CompdError):
     exit_status = EXIT_NOT_CONNECTED
 
 
-def never_connected(service: Service, duration_s: float) -> None:
+def never_connected(service: Service, duration_s: float, what: str = "run") -> None:
     """A bounded run (a commissioning test) whose drivers never answered did not compensate: an error.
 
     A daemon without ``--duration-s`` runs on and reconnects (a PLC off at night);
     a run that was asked to show the compensation for a while and never reached
-    the machine must not end as if it had.
+    the machine must not end as if it had. So must a recording (``what``): its
+    rows hold no reading of the signals that driver serves.
     """
     silent = not_connected(service)
     if not silent:
@@ -220,7 +221,7 @@ def never_connected(service: Service, duration_s: float) -> None:
     why = "; ".join(f"{name}: {links[name].last_error or 'no answer'}" for name in silent)
     config = service.config.path
     raise NeverConnectedError(
-        f"driver {', '.join(silent)} not connected in the {duration_s:g} s run ({why}): "
+        f"driver {', '.join(silent)} not connected in the {duration_s:g} s {what} ({why}): "
         f"nothing was read or written through {'it' if len(silent) == 1 else 'them'}. Check "
         f"the address and that the controller is on and reachable; 'compd read --config "
         f"{config}' reads the configured points once, 'compd probe TYPE --set host=... "

@@ -16,7 +16,7 @@ import asyncio
 from collections.abc import Callable
 from pathlib import Path
 
-from compd.cli.daemon import install_signal_handlers
+from compd.cli.daemon import install_signal_handlers, never_connected
 from compd.cli.serving import config_from_arg, configure_logging
 from compd.cli.terminal import Text, console, duration_text
 from compd.errors import CompdError
@@ -79,7 +79,17 @@ def record_command(args: argparse.Namespace) -> int:
             f"{config.path} has no 'simulation' section; give a factor, or leave it out"
         )
     else:
-        ticks = asyncio.run(_record(recording, args.time_scale, duration_s, progress))
+        service = Service(
+            recording,
+            clock=RealClock(args.time_scale),
+            notifier=SystemdNotifier(),
+            on_tick=progress,
+        )
+        ticks = asyncio.run(_record(service, duration_s))
+        _print_result(recording, out_dir, ticks)
+        # A calibration whose controller never answered recorded no reading of its signals.
+        never_connected(service, ticks * recording.doc.period_s, "recording")
+        return 0
     _print_result(recording, out_dir, ticks)
     return 0
 
@@ -104,16 +114,8 @@ def _record_simulated(
     return result.timing.ticks
 
 
-async def _record(
-    config: Config,
-    time_scale: float,
-    duration_s: float | None,
-    progress: Callable[[TickRecord], None],
-) -> int:
+async def _record(service: Service, duration_s: float | None) -> int:
     """A real machine: until ``duration_s`` of clock time, or SIGTERM / Ctrl-C."""
-    service = Service(
-        config, clock=RealClock(time_scale), notifier=SystemdNotifier(), on_tick=progress
-    )
     install_signal_handlers(service)
     timing = await service.run(duration_s=duration_s)
     return timing.ticks

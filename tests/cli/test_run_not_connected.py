@@ -121,3 +121,19 @@ def test_the_live_view_on_a_terminal_says_not_connected_and_not_written(tmp_path
     assert any(line.rstrip().endswith("plc not connected") for line in screen.lines), text
     (axis,) = [line for line in screen.lines if line.lstrip().startswith("Y ")]
     assert "not written (+0.00)" in axis, text
+
+
+def test_a_recording_whose_controller_never_answered_exits_3_naming_the_fix(tmp_path: Path) -> None:
+    """compd record on a PLC that never answers keeps its files but does not end as a calibration."""
+    config = closed_port_config(tmp_path)
+    out = tmp_path / "recording"
+    done = subprocess.run(
+        [*RUN[:-2], "record", "--config", str(config), "--duration-s", "2", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=WAIT_S,
+    )
+    assert done.returncode == EXIT_NOT_CONNECTED, done.stdout + done.stderr
+    error = done.stderr.splitlines()[-1]
+    assert error.startswith("compd: error: driver plc not connected in the "), error
+    assert "s recording" in error and f"compd read --config {config}" in error, error
