@@ -71,6 +71,7 @@ def record_command(args: argparse.Namespace) -> int:
                 flush=True,
             )
 
+    service: Service | None = None  # a real machine's
     if recording.simulation is not None:
         ticks = _record_simulated(recording, args.time_scale, duration_s, progress)
     elif args.time_scale is None:
@@ -86,11 +87,10 @@ def record_command(args: argparse.Namespace) -> int:
             on_tick=progress,
         )
         ticks = asyncio.run(_record(service, duration_s))
-        _print_result(recording, out_dir, ticks)
+    _print_result(recording, out_dir, ticks)
+    if service is not None:
         # A calibration whose controller never answered recorded no reading of its signals.
         never_connected(service, ticks * recording.doc.period_s, "recording")
-        return 0
-    _print_result(recording, out_dir, ticks)
     return 0
 
 
