@@ -272,9 +272,7 @@ class Compensator:
         self._estimates_seen = 0
         return plausibility
 
-    def _learn(
-        self, probing: ProbeLearning, now_unix_s: float, slot: ModelSlot
-    ) -> ProbeLearning | None:
+    def _learn(self, probing: ProbeLearning, now_unix_s: float, slot: ModelSlot) -> None:
         """Feed the probe learning this tick; a failure in it turns probing off, never the loop."""
         try:
             probing.observe(now_unix_s, slot)
@@ -284,7 +282,6 @@ class Compensator:
             probing.turn_off(f"{type(exc).__name__}: {exc}")
         for taken in probing.taken():
             self._tell("probe", f"probe {taken.result}", **taken.event_details())
-        return probing
 
     def _tell(self, kind: str, message: str, **details: object) -> None:
         if self.events is not None:
@@ -336,7 +333,7 @@ class Compensator:
             models.step(t_s, checked)
             weight = models.blend_weight(t_s)
             if probing is not None:
-                probing = self._learn(probing, now_unix_s, models.active)
+                self._learn(probing, now_unix_s, models.active)
         targets: dict[str, float] = {}
         offsets: dict[str, float] = {}
         flags: set[Flag] = set()
