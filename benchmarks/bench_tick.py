@@ -40,7 +40,7 @@ from compd.service.config.loading import Config, load_config
 from compd.service.daemon import Service
 from compd.service.loop.clock import RealClock
 from compd.service.loop.compensator import TickRecord
-from compd.service.loop.probing import ProbeRequest
+from compd.service.loop.probemessages import ProbeRequest
 from compd.service.recording.recorder import Recorder
 
 MAX_P99_LATENESS_MS = 5.0

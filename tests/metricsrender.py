@@ -20,7 +20,7 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from compd.service.daemon import Service
 from compd.service.loop.compensator import TickRecord
-from compd.service.loop.probing import ProbeRequest
+from compd.service.loop.probemessages import ProbeRequest
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from tests.mosquitto import WAIT_S, Mosquitto, machine_config

@@ -172,3 +172,12 @@ def test_run_for_a_real_machine_loads_no_toolkit_twin_or_plotting(short_dir: Pat
     assert loaded(modules, ("colorama", "greenlet")) == [], "a Windows console, greenlet contexts"
     # A model file of discrete TFs is compiled, checked and stepped with numpy alone.
     assert loaded(modules, ("scipy",)) == [], "scipy (~100 MB) only converts continuous TFs"
+    # No 'probes' section: the probe update's numerics (about 1.4 MB resident) stay out.
+    probe_numerics = (
+        "compd.service.loop.probing",
+        "compd.model.probeupdate",
+        "compd.files.probestate",
+    )
+    assert loaded(modules, probe_numerics) == [], (
+        "the probe update only where probes are configured"
+    )

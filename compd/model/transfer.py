@@ -62,6 +62,42 @@ def _numerics(what: str) -> Iterator[None]:
         ) from exc
 
 
+def polynomial_roots(coefficients: np.ndarray) -> np.ndarray:
+    """The roots of a polynomial (descending powers) as :func:`numpy.roots` gives them.
+
+    Up to degree two, written out: the daemon's models are mostly of first and
+    second order, and ``numpy.roots`` (an eigenvalue problem) touches LAPACK's
+    eigen-solver, about 0.9 MB resident that a daemon otherwise never uses.
+    Higher degrees, and coefficients the closed form would overflow, go to
+    ``numpy.roots``.
+    """
+    c = np.trim_zeros(np.asarray(coefficients, dtype=float), "f")
+    zeros_at_origin = len(c) - len(np.trim_zeros(c, "b"))
+    c = np.trim_zeros(c, "b")
+    if len(c) > 3 or len(c) == 0 or not np.all(np.isfinite(c)):
+        return np.roots(coefficients)
+    with np.errstate(all="ignore"):
+        p = c[1:] / c[0]
+        if len(p) == 0:
+            roots = np.zeros(0)
+        elif len(p) == 1:
+            roots = np.array([-p[0]])
+        else:
+            half_b, q = p[0] / 2.0, p[1]
+            disc = half_b * half_b - q
+            if not np.isfinite(disc):
+                return np.roots(coefficients)
+            if disc >= 0.0:
+                # The larger root first without cancellation, the other from the product (Vieta).
+                big = -half_b - np.copysign(np.sqrt(disc), half_b)
+                roots = np.array([big, q / big]) if big != 0.0 else np.zeros(2)
+            else:
+                roots = np.array(
+                    [complex(-half_b, np.sqrt(-disc)), complex(-half_b, -np.sqrt(-disc))]
+                )
+    return np.concatenate([roots, np.zeros(zeros_at_origin, dtype=roots.dtype)])
+
+
 def _as_coefficients(values: object, what: str) -> np.ndarray:
     array = np.asarray(values, dtype=float)
     if array.ndim != 1 or array.size == 0:
@@ -140,7 +176,7 @@ class DiscreteTF:
         if not self.order:
             return np.zeros(0, dtype=complex)
         with _numerics("finding the poles"):
-            return np.roots(self.den)
+            return polynomial_roots(np.asarray(self.den))
 
     def static_gain(self) -> float:
         """Output per unit of constant input at steady state: ``B(1) / A(1)`` (inf if it overflows)."""
@@ -209,7 +245,7 @@ class ContinuousTF:
         if len(self.den) == 1:
             return np.zeros(0, dtype=complex)
         with _numerics("finding the poles"):
-            return np.roots(self.den[::-1])
+            return polynomial_roots(np.asarray(self.den[::-1]))
 
     def static_gain(self) -> float:
         """``N(0) / D(0)``: output per unit of constant input at steady state."""

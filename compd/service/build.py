@@ -22,14 +22,13 @@ from compd.service.config.loading import Config
 from compd.service.config.writepoints import probe_axes
 from compd.service.identity import column_units, recording_metadata
 from compd.service.loop.points import SignalPoint
-from compd.service.loop.probing import ProbeLearning, ProbeRegisters, ProbeSetup
+from compd.service.loop.probemessages import ProbeRegisters, ProbeSetup
 from compd.service.loop.subscribers import Subscriber
 from compd.service.notify import SystemdNotifier, SystemdTicks
 from compd.service.recording.marks import Units
 from compd.service.recording.parquet import DEFAULT_FLUSH_EVERY_ROWS, ParquetRecorder
 from compd.service.recording.recorder import Recorder
 from compd.service.recording.ticks import RecordingTicks
-from compd.service.store.probes import ProbeKeeper
 from compd.service.store.saver import StateSaver
 from compd.service.store.state import MODELS_DIR, SavedState
 
@@ -37,6 +36,8 @@ if TYPE_CHECKING:
     from compd.service.fleet.telemetry import Telemetry
     from compd.service.http.server import StatusServer
     from compd.service.http.view import ServiceView
+    from compd.service.loop.probing import ProbeLearning
+    from compd.service.store.probes import ProbeKeeper
 
 
 class Reporter(Protocol):
@@ -174,6 +175,8 @@ def probe_keeper(config: Config, *, background: bool) -> ProbeKeeper | None:
     doc = config.doc
     if doc.probes is None or not doc.probes.enabled or not doc.outputs:
         return None
+    from compd.service.store.probes import ProbeKeeper  # the update's numerics: only with probes
+
     return ProbeKeeper(config.state_dir, background=background)
 
 
@@ -210,6 +213,8 @@ def probe_learning(config: Config, keeper: ProbeKeeper | None) -> ProbeLearning 
         )
         for axis, reg in probe_axes(doc)
     ]
+    from compd.service.loop.probing import ProbeLearning  # the update's numerics: only with probes
+
     return ProbeLearning(
         setup,
         config.axis_points(),

@@ -34,7 +34,6 @@ import structlog
 from compd.drivers.base import Driver
 from compd.errors import CompdError
 from compd.faultlog import Event, FaultLog
-from compd.files.probestate import reset_learned
 from compd.service import build
 from compd.service.config.loading import Config
 from compd.service.control.modelload import ModelLoader, request_bytes, startup_slots
@@ -43,7 +42,7 @@ from compd.service.control.socket import ControlServer
 from compd.service.identity import identity
 from compd.service.loop.clock import Clock
 from compd.service.loop.compensator import Compensator, TickRecord
-from compd.service.loop.probing import probe_request
+from compd.service.loop.probemessages import probe_request
 from compd.service.loop.safety import HEARTBEAT_MODULO
 from compd.service.loop.snapshot import ModelId, TickSnapshot
 from compd.service.loop.statusview import status_snapshot
@@ -358,6 +357,8 @@ class Service:
         if message.get("reset") is True:
             probing.reset()
             if probing.sha256 is not None:
+                from compd.files.probestate import reset_learned  # loaded with the probes
+
                 reset_learned(self.config.state_dir, probing.sha256)
             log.warning("probe updates reset: the calibration's parameters again", by="socket")
             return {"reset": True, "model_sha256": probing.sha256}

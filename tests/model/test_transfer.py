@@ -3,10 +3,18 @@
 import numpy as np
 import pytest
 import scipy.signal
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
 from compd.errors import ModelError
-from compd.model.transfer import ContinuousTF, DiscreteTF, continuous_equivalent, resample_discrete
+from compd.model.transfer import (
+    ContinuousTF,
+    DiscreteTF,
+    continuous_equivalent,
+    polynomial_roots,
+    resample_discrete,
+)
 
 # Horejs 2010 eq. 2 and 3, coefficients in ascending powers of s as printed.
 E_Z_HEAT = ContinuousTF.from_coefficients([0.0162, 10.74, 5.368], [0.002098, 2.379, 1.0])
@@ -150,3 +158,29 @@ def test_a_static_continuous_gain_stays_static() -> None:
     """K over 1 (order 0) discretises to the same gain with no dynamics."""
     tf = ContinuousTF.from_coefficients([7.0], [1.0]).discretise(10.0)
     assert (tf.num, tf.den) == ((7.0,), (1.0,))
+
+
+coefficient = st.one_of(
+    st.just(0.0),
+    st.floats(min_value=-1e6, max_value=1e6, allow_nan=False).filter(lambda x: abs(x) > 1e-6),
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(coefficient, min_size=1, max_size=5))
+def test_the_written_out_roots_are_numpys_in_its_order(coefficients: list[float]) -> None:
+    """Up to degree two the roots are written out (no LAPACK in the daemon): numpy's, in its order and dtype."""
+    expected = np.roots(coefficients)
+    got = polynomial_roots(np.array(coefficients))
+    assert got.shape == expected.shape
+    assert np.iscomplexobj(got) == np.iscomplexobj(expected) or np.all(expected.imag == 0)
+    scale = max(1.0, float(np.abs(expected).max(initial=0.0)))
+    assert_allclose(got, expected, rtol=1e-8, atol=1e-10 * scale)
+
+
+def test_a_repeated_pole_is_real_and_the_order_is_numpys() -> None:
+    """(z - 0.9)^2: two real poles at 0.9, and a quadratic's larger root first, as numpy orders them."""
+    assert_allclose(polynomial_roots(np.array([1.0, -1.8, 0.81])), [0.9, 0.9])
+    assert_allclose(
+        polynomial_roots(np.array([1.0, -1.0528, 0.0687])), np.roots([1.0, -1.0528, 0.0687])
+    )

@@ -23,7 +23,8 @@ from compd.service.control.socket import request
 from compd.service.daemon import Service
 from compd.service.http.metrics import ServiceMetrics
 from compd.service.loop.compensator import TickRecord
-from compd.service.loop.probing import OFFSET_HISTORY_S, ProbeRequest, _OffsetHistory
+from compd.service.loop.probemessages import ProbeRequest
+from compd.service.loop.probing import OFFSET_HISTORY_S, _OffsetHistory
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from tests.acceptance.conftest import machine_doc, write_config

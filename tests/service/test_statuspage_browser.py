@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 import yaml
 
-from compd.service.loop.probing import ProbeRequest
+from compd.service.loop.probemessages import ProbeRequest
 from tests.report_screenshot import chromium, chromium_missing
 from tests.service.httprun import BUNDLED_MODEL, RunningCompd, http_config, running_compd
 

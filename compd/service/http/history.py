@@ -21,7 +21,7 @@ import numpy as np
 
 from compd.service.loop.compensator import Compensator, TickRecord
 from compd.service.loop.links import DriverLink
-from compd.service.loop.probing import ProbeTaken
+from compd.service.loop.probemessages import ProbeTaken
 from compd.service.loop.signals import Health
 
 #: Rows kept: an hour at one row per second.

@@ -8,16 +8,18 @@ nothing here imports the daemon and a test can serve a view of its own.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from compd.faultlog import FaultLog
 from compd.service.config.loading import Config
 from compd.service.loop.clock import Clock
 from compd.service.loop.compensator import Compensator
 from compd.service.loop.links import DriverLink
-from compd.service.loop.probing import ProbeLearning
 from compd.service.loop.snapshot import TickSnapshot
 from compd.service.loop.ticks import TickTiming
+
+if TYPE_CHECKING:
+    from compd.service.loop.probing import ProbeLearning
 
 
 class MqttCounters(Protocol):

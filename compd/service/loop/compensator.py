@@ -13,6 +13,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import structlog
 
@@ -23,11 +24,14 @@ from compd.service.loop.links import DriverLink
 from compd.service.loop.offsets import AxisPoint, HeldOffsets
 from compd.service.loop.plausibility import DEFAULT_SETTINGS, Plausibility, PlausibilitySettings
 from compd.service.loop.points import DriverBatches, SignalPoint, StatusPoint
-from compd.service.loop.probing import ProbeLearning, ProbeTaken
+from compd.service.loop.probemessages import ProbeTaken
 from compd.service.loop.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
 from compd.service.loop.schedule import GainScheduler
 from compd.service.loop.signals import Health, Reading, SignalMonitor
 from compd.service.loop.slots import ModelSlot, ModelSlots
+
+if TYPE_CHECKING:
+    from compd.service.loop.probing import ProbeLearning
 
 log = structlog.get_logger("compd.service.loop.compensator")
 

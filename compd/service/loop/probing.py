@@ -31,135 +31,29 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import structlog
 
-from compd.errors import CompdError, ModelError
+from compd.errors import ModelError
 from compd.files.probeprior import output_prior
 from compd.model.probelearner import OutputLearner, output_columns, probed_thermal_error_um
-from compd.model.probeupdate import ProbeSettings, ProbeStep
+from compd.model.probeupdate import ProbeSettings
 from compd.model.updateprior import Prior
 from compd.service.loop.offsets import AxisPoint
 from compd.service.loop.points import SignalPoint
+from compd.service.loop.probemessages import ProbeRegisters, ProbeRequest, ProbeSetup, ProbeTaken
 from compd.service.loop.slots import ModelSlot
 
 log = structlog.get_logger("compd.service.loop.probing")
 
-Measures = Literal["residue", "thermal_error"]
 #: The offset in force is kept per tick over this long (s): a gauge result typed in hours late.
 OFFSET_HISTORY_S = 12 * 3600.0
 #: A shift (s): each one ends with a line of the RMS of its probe residues, the shop's evidence.
 SHIFT_S = 8 * 3600.0
 #: Probe status bits (the probe status register, and ``compd status``).
 DUE_BIT, DISAGREES_BIT = 1 << 0, 1 << 1
-
-
-@dataclass(frozen=True)
-class ProbeRequest:
-    """One measurement of an axis: ``measured_um`` at ``touched_at_unix_s``, from ``source``."""
-
-    axis: str
-    measured_um: float
-    touched_at_unix_s: float
-    source: str
-    measures: Measures = "residue"
-    #: The PLC's counter value for a probe read from registers.
-    count: int | None = None
-
-
-def probe_request(
-    message: Mapping[str, Any], now_unix_s: float, measures: Measures, source: str = "socket"
-) -> ProbeRequest:
-    """A :class:`ProbeRequest` from a control-socket or MQTT message; CompdError says what is wrong."""
-    axis = message.get("axis")
-    measured = message.get("measured_um")
-    touched = message.get("touched_at_unix_s", now_unix_s)
-    said = message.get("measures", measures)
-    if not isinstance(axis, str):
-        raise CompdError('a probe names its axis: {"axis": "Z", "measured_um": 3.2}')
-    for name, value in (("measured_um", measured), ("touched_at_unix_s", touched)):
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, int | float)
-            or not math.isfinite(value)
-        ):
-            raise CompdError(
-                f"a probe's {name} must be a finite number (um, unix s), not {value!r}"
-            )
-    if said not in ("residue", "thermal_error"):
-        raise CompdError(f"a probe measures 'residue' or 'thermal_error', not {said!r}")
-    if touched > now_unix_s + 60.0:
-        raise CompdError(f"the probe's touch time is {touched - now_unix_s:.0f} s in the future")
-    source = message.get("source", source)
-    assert isinstance(measured, int | float) and isinstance(touched, int | float)
-    return ProbeRequest(axis, float(measured), float(touched), str(source)[:64], said)
-
-
-@dataclass(frozen=True)
-class ProbeTaken:
-    """A probe as the loop took it: the update's steps, or why it was refused."""
-
-    request: ProbeRequest
-    model_sha256: str
-    output: str
-    #: The offset in force at the touch instant (um) and the thermal error it gives (um).
-    offset_um: float
-    thermal_error_um: float
-    steps: tuple[ProbeStep, ...] = ()
-    refused: str | None = None
-    #: The learners' states after the probe (JSON-able), for the state directory.
-    learned: Mapping[str, dict[str, Any]] = field(default_factory=dict)
-
-    @property
-    def result(self) -> str:
-        """``refused``, else the last step's result (``accepted``, ``flagged``, ``confirmed``)."""
-        return "refused" if self.refused is not None else self.steps[-1].result
-
-    def event_details(self) -> dict[str, Any]:
-        """What a telemetry event and the status say of it (um, unix s)."""
-        step = self.steps[-1] if self.steps else None
-        return {
-            "axis": self.request.axis,
-            "source": self.request.source,
-            "result": self.result,
-            "touched_at_unix_s": self.request.touched_at_unix_s,
-            "measured_um": self.request.measured_um,
-            "innovation_um": None if step is None else round(step.innovation_before_um, 4),
-            "innovation_after_um": None if step is None else round(step.innovation_after_um, 4),
-            "reason": self.refused,
-        }
-
-
-@dataclass(frozen=True)
-class ProbeSetup:
-    """What the config says of probes: what they measure, when one is due, the update's settings."""
-
-    measures: Measures = "residue"
-    every_h: float = 2.0
-    overrides: Mapping[str, float] = field(default_factory=dict)
-    #: Axes probed (names under ``outputs``).
-    axes: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class ProbeRegisters:
-    """One axis's probe interface on its PLC: read value and counter (and the stamp), write echo and status."""
-
-    axis: str
-    driver: str
-    value: SignalPoint
-    counter: SignalPoint
-    echo_address: str
-    echo: SignalPoint
-    touched_at: SignalPoint | None = None
-    status_address: str | None = None
-
-    def reads(self) -> list[SignalPoint]:
-        """The points read each tick (the echo too: what compd last took, as the PLC holds it)."""
-        return [p for p in (self.value, self.counter, self.echo, self.touched_at) if p is not None]
 
 
 class _OffsetHistory:

@@ -1,6 +1,6 @@
 """What the probes taught, on disk: the probe log and each model's learned parameters (a subscriber).
 
-Every probe the loop took (:class:`~compd.service.loop.probing.ProbeTaken`) is
+Every probe the loop took (:class:`~compd.service.loop.probemessages.ProbeTaken`) is
 appended to the probe log (``compd model updates`` reads it), and the learned
 parameters of the running model are written atomically under its sha256, so
 they survive a restart (:mod:`compd.files.probestate`). The writes go to a
@@ -21,7 +21,7 @@ from compd.files.probestate import ProbeRecord, append_record, restore_learners,
 from compd.model.probelearner import OutputLearner
 from compd.model.probeupdate import ProbeSettings
 from compd.model.updateprior import Prior
-from compd.service.loop.probing import ProbeTaken
+from compd.service.loop.probemessages import ProbeTaken
 from compd.service.loop.slots import ModelSlot
 from compd.service.loop.snapshot import TickSnapshot
 
