@@ -64,12 +64,18 @@ def environment() -> str:
     ).stdout.strip()
 
 
-def measured(argv: list[str]) -> tuple[float, float, float]:
-    """Wall s, CPU s and peak RSS (MB) of one process."""
+def measured(argv: list[str], *, must_succeed: bool = False) -> tuple[float, float, float]:
+    """Wall s, CPU s and peak RSS (MB) of one process.
+
+    ``must_succeed``: a process that failed is an error, not a figure (a daemon that
+    could not start would otherwise show as a small, passing footprint).
+    """
     start = time.perf_counter()
     child = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    _, _, usage = os.wait4(child.pid, 0)
+    _, status, usage = os.wait4(child.pid, 0)
     wall = time.perf_counter() - start
+    if must_succeed and status != 0:
+        raise SystemExit(f"{' '.join(argv)} failed (wait status {status}): no figure")
     return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
 
 
@@ -140,14 +146,14 @@ def main() -> int:
         try:
             time.sleep(3)
             run = ["run", "--duration-s", str(DAEMON_S), "--log-format", "json", "--config"]
-            _, _, rss_numpy = measured([*compd, *run, str(at_loop_rate)])
-            _, _, rss_real = measured([*compd, *run, str(real)])
+            _, _, rss_numpy = measured([*compd, *run, str(at_loop_rate)], must_succeed=True)
+            _, _, rss_real = measured([*compd, *run, str(real)], must_succeed=True)
         finally:
             machine.terminate()
             machine.wait()
         _, _, rss_sim = measured(
             [*compd, "run", "--config", str(simulated), "--duration-s", str(DAEMON_S),
-             "--log-format", "json"]
+             "--log-format", "json"], must_succeed=True,
         )  # fmt: skip
         _, _, rss_floor = measured([sys.executable, "-c", LIBRARIES])
         _, _, rss_scipy_floor = measured([sys.executable, "-c", LIBRARIES_RESAMPLING])

@@ -67,6 +67,9 @@ def test_cutting_heat_is_diagnosed_extended_and_loaded_into_the_running_daemon(
     assert found["load"].result() == 0
     assert result.status["model"]["name"].endswith("+spindle_power_kw")
     assert result.status["counters"]["model_loads"] == 1
+    # Heat the calibration never saw moves the spindle and its neighbours together: the
+    # plausibility check must not take that for a failing sensor.
+    assert result.status["counters"]["signal_estimates"] == 0, "no healthy sensor replaced"
     before, after, second = (
         result.machine.summary(0, FOUND_AT_S)[0],
         result.machine.summary(FOUND_AT_S + 600, SHIFT_S)[0],

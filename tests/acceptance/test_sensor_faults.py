@@ -71,7 +71,9 @@ def fault_free_max_um(tmp_path_factory: pytest.TempPathFactory) -> dict[float, f
     out = {}
     for hours in (HOURS, LONG_HOURS):
         directory = Path(tmp_path_factory.mktemp("free"))
-        result, _ = run(directory, [], hours)
+        result, records = run(directory, [], hours)
+        stood_in = {n for r in records for n, h in r.health.items() if h is Health.ESTIMATED}
+        assert not stood_in, "a fault-free shift never replaces a sensor"
         out[hours] = axis(result).max_compensated_um
     return out
 
