@@ -22,10 +22,9 @@ better. With a consistency model in the model file
    episode (the prediction's own error is slow, so this keeps the model's
    output continuous);
    when the signals a prediction is made from change (one leaves the range
-   the calibration saw, or fails), each input's residue level is carried
-   over by the step the change makes in its prediction: a healthy sensor is
-   not judged by a new predictor set's different bias, and a stand-in does
-   not jump;
+   the calibration saw, or fails), each trusted input's residue level is
+   carried over by the step the change makes in its prediction: a healthy
+   sensor is not judged by a new predictor set's different bias;
 3. it is used again only after its readings passed its own checks and agreed
    with the prediction for ``confirm_ticks`` ticks in a row: a reading that
    merely stopped jumping is not yet a good one.
@@ -186,12 +185,12 @@ class Plausibility:
         return out
 
     def _carry_over(self, z: np.ndarray, ok: np.ndarray) -> None:
-        """Carry each residue level over to this tick's predictor set, where it changed.
+        """Carry each trusted input's residue level over to this tick's predictor set, where it changed.
 
         A prediction from other signals has another bias: without this, a
-        healthy reading would seem to jump by the difference (and be replaced),
-        and a stand-in would step. Both predictions are taken on this tick's
-        values, so the level moves by exactly the step the change makes.
+        healthy reading would seem to jump by the difference and be replaced.
+        Both predictions are taken on this tick's values, so the level moves by
+        exactly the step the change makes.
         """
         before = self._predicted_from
         if before is None or np.array_equal(before, ok):
@@ -202,6 +201,10 @@ class Plausibility:
         old, _ = self.check.predict_all(self.check.within(z), before)
         new, _ = self.check.predict_all(z, ok)
         for name, was, now in zip(self.check.model.checked, old, new, strict=True):
+            # A stand-in's level stays as its episode began (carried over, it drifted with each
+            # predictor flickering at its range's edge: a 4 h freeze cost up to 0.9 um more).
+            if name in self.episodes:
+                continue
             if name in self.residue and math.isfinite(was) and math.isfinite(now):
                 self.residue[name] += float(was - now)
 
