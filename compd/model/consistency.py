@@ -256,16 +256,6 @@ class ConsistencyCheck:
         """Keep ``z`` (the features of the values used this tick) as the low-passes' state."""
         self._state = z
 
-    def finite(self, z: np.ndarray) -> np.ndarray:
-        """Per signal: whether every feature of it is finite in ``z`` (it can enter a prediction)."""
-        finite: np.ndarray = np.logical_and.reduceat(np.isfinite(z), self._starts)
-        return finite
-
-    def within(self, z: np.ndarray) -> np.ndarray:
-        """``z`` with each feature clipped to the range a predictor may have (no extrapolation)."""
-        clipped: np.ndarray = np.clip(z, self._low, self._high)
-        return clipped
-
     def usable(self, z: np.ndarray, unusable: set[str]) -> np.ndarray:
         """Per signal: whether it may predict the others this tick (read, finite, within its calibration)."""
         inside = np.isfinite(z) & (z >= self._low) & (z <= self._high)

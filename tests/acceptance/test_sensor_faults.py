@@ -95,6 +95,10 @@ def test_a_failing_sensor_keeps_the_error_within_a_few_times_the_fault_free_runs
     degraded = [r.t_s for r in records if r.t_s >= AT_S and r.status & 0b11]
     assert degraded and degraded[0] <= AT_S + 60, "status degraded within 60 s"
     assert any(r.health[signal] is Health.ESTIMATED for r in records), "a virtual sensor stood in"
+    neighbours = {n for r in records for n, h in r.health.items() if h is Health.ESTIMATED} - {
+        signal
+    }
+    assert not neighbours, "the other sensors are never replaced"
 
     errors = [e for e in logs if e["log_level"] == "error" and e.get("signal") == signal]
     assert len(errors) == 2, errors

@@ -132,36 +132,3 @@ def test_a_returning_sensor_with_no_one_left_to_judge_it_is_used_as_without_a_co
     assert out["T_spindle_degC"].health is Health.OK
     assert out["T_spindle_degC"].value == pytest.approx(record["T_spindle_degC"][405])
     assert not bench.stage.episodes
-
-
-def with_motor(
-    hours: float, seed: int, extra_degc: float = 0.0, from_k: int = 0
-) -> dict[str, np.ndarray]:
-    """:func:`machine` with a logged motor temperature (not a model input), ``extra_degc`` hotter
-    from tick ``from_k`` on (a load the calibration never saw, over 10 min)."""
-    record = machine(hours, seed)
-    heat = (record["spindle_speed_rpm"] / 1000.0) ** 1.5
-    a, y, lag = np.exp(-SAMPLE_S / 600.0), heat[0], np.empty_like(heat)
-    for k, v in enumerate(heat):
-        y = a * y + (1 - a) * v
-        lag[k] = y
-    noise = np.random.default_rng(seed + 100).normal(0, 0.015, len(heat))
-    extra = np.clip((np.arange(len(heat)) - from_k) / 60.0, 0.0, 1.0) * extra_degc
-    record["T_motor_degC"] = record["T_air_degC"] + 0.8 * lag + noise + extra
-    return record
-
-
-@pytest.mark.parametrize("extra_degc", [6.0, 15.0])
-def test_a_predictor_leaving_the_calibrations_range_makes_no_healthy_sensor_look_wrong(
-    extra_degc: float,
-) -> None:
-    """The motor runs hotter than the calibration ever saw: it leaves the predictions (15 degC: beyond
-    the range) or stays in them (6 degC), and no healthy input is replaced either way."""
-    fitted = fit_consistency(with_motor(24, seed=1), CHECKED, SAMPLE_S)
-    assert fitted is not None and "T_motor_degC" in fitted.signals
-    record = with_motor(6, seed=5, extra_degc=extra_degc, from_k=720)
-    bench = Bench(fitted, record)
-    for k in range(len(record["T_air_degC"])):
-        out = bench.tick(k)
-        assert all(r.health is Health.OK for r in out.values()), (k, out)
-    assert bench.stage.count == 0

@@ -141,6 +141,14 @@ def test_probes_leave_less_error_on_the_parts_than_open_loop(
     assert probed_rms <= open_rms, (probed_rms, open_rms)
 
 
+def stop_service(services: list[Service], ran: asyncio.Task[Any]) -> None:
+    """Stop the service as SIGTERM does (its stop event), not by cancelling its task: on Python
+    3.11 a cancel that meets an expiring ``asyncio.timeout`` (a driver read) can be swallowed,
+    and the run went on to its end (seen once in CI under load)."""
+    assert services and not ran.done(), "the service runs"
+    services[0].stop()
+
+
 def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> None:
     """compd model probe's request: the reply says what the update did; a reset forgets it."""
     doc = machine_doc(
@@ -154,7 +162,10 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
     answers: dict[str, Any] = {}
 
     async def main() -> None:
-        ran = asyncio.create_task(run_simulation(config, time_scale=20.0, duration_s=3600))
+        services: list[Service] = []
+        ran = asyncio.create_task(
+            run_simulation(config, time_scale=20.0, duration_s=3600, service_hook=services.append)
+        )
         while not config.control_socket.exists():
             await asyncio.sleep(0.05)
         await asyncio.sleep(1.0)  # a few ticks: the model has started
@@ -179,9 +190,8 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
         answers["status_text"] = out.decode()
         answers["reset"] = await request(config.control_socket, {"cmd": "probe", "reset": True})
         answers["status"] = await request(config.control_socket, {"cmd": "status"})
-        ran.cancel()
-        with pytest.raises(asyncio.CancelledError):
-            await ran
+        stop_service(services, ran)
+        await ran
 
     asyncio.run(main())
     assert answers["bad"]["ok"] is False and "'X' is not probed" in answers["bad"]["error"]
@@ -221,7 +231,10 @@ def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
     async def main(listener: Subscriber) -> None:
         # Left on the broker before the daemon subscribes: handed to it from the retained store.
         publish.single("compd/mill-1/cmd/probe", retained, qos=1, retain=True, port=broker.port)
-        ran = asyncio.create_task(run_simulation(config, time_scale=20.0, duration_s=3600))
+        services: list[Service] = []
+        ran = asyncio.create_task(
+            run_simulation(config, time_scale=20.0, duration_s=3600, service_hook=services.append)
+        )
         for _ in range(1200):  # the machine is up, listening (its birth) and has ticked
             if listener.of("birth", "mill-1") and listener.of("status", "mill-1"):
                 break
@@ -231,9 +244,8 @@ def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
             if len(replies(listener)) == 2 and probed(listener):
                 break
             await asyncio.sleep(0.05)
-        ran.cancel()
-        with pytest.raises(asyncio.CancelledError):
-            await ran
+        stop_service(services, ran)
+        await ran
 
     def replies(listener: Subscriber) -> dict[str, dict[str, Any]]:
         with listener._lock:

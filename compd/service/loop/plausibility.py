@@ -21,10 +21,6 @@ better. With a consistency model in the model file
    axis keeps compensating), shifted by the residue it had before the
    episode (the prediction's own error is slow, so this keeps the model's
    output continuous);
-   when the signals a prediction is made from change (one leaves the range
-   the calibration saw, or fails), each trusted input's residue level is
-   carried over by the step the change makes in its prediction: a healthy
-   sensor is not judged by a new predictor set's different bias;
 3. it is used again only after its readings passed its own checks and agreed
    with the prediction for ``confirm_ticks`` ticks in a row: a reading that
    merely stopped jumping is not yet a good one.
@@ -98,8 +94,6 @@ class Plausibility:
         self._anchor_a = math.exp(-period_s / ANCHOR_TAU_S)
         #: Per checked input, its recent residue (reading minus prediction) while it was good.
         self.residue: dict[str, float] = {}
-        #: The signals the last tick's predictions were made from (None before the first).
-        self._predicted_from: np.ndarray | None = None
         self.episodes: dict[str, _Episode] = {}
         self.predictions: dict[str, Prediction | None] = {}
         self.faults = {name: FaultLog(log, signal=name, end_level="error") for name in self.checked}
@@ -123,7 +117,6 @@ class Plausibility:
         suspect = {n for n in self.checked if n in self.episodes}
         bad = {n for n, r in readings.items() if r.health is not Health.OK} | suspect
         ok = check.usable(z, bad)
-        self._carry_over(z, ok)
         candidates = [n for n in self.checked if n not in bad]
         predictions = self._predictions(z, ok)
         while candidates:
@@ -177,36 +170,11 @@ class Plausibility:
             reference = now if now is not None and math.isfinite(now) else out[name].value
             self.monitors[name].rebase(out[name], reference)
         self.predictions = predictions
-        self._predicted_from = ok
         if any(out[n] is not readings[n] for n in self.checked):
             # The low-passes take what was used.
             z = check.features({n: r.value for n, r in out.items()})
         check.advance(z)
         return out
-
-    def _carry_over(self, z: np.ndarray, ok: np.ndarray) -> None:
-        """Carry each trusted input's residue level over to this tick's predictor set, where it changed.
-
-        A prediction from other signals has another bias: without this, a
-        healthy reading would seem to jump by the difference and be replaced.
-        Both predictions are taken on this tick's values, so the level moves by
-        exactly the step the change makes.
-        """
-        before = self._predicted_from
-        if before is None or np.array_equal(before, ok):
-            return
-        if np.any(before & ~self.check.finite(z)):
-            return  # a signal of the old set has no value: its prediction cannot be taken
-        # Features clipped to the calibration's range: a signal leaving it leaves at its edge.
-        old, _ = self.check.predict_all(self.check.within(z), before)
-        new, _ = self.check.predict_all(z, ok)
-        for name, was, now in zip(self.check.model.checked, old, new, strict=True):
-            # A stand-in's level stays as its episode began (carried over, it drifted with each
-            # predictor flickering at its range's edge: a 4 h freeze cost up to 0.9 um more).
-            if name in self.episodes:
-                continue
-            if name in self.residue and math.isfinite(was) and math.isfinite(now):
-                self.residue[name] += float(was - now)
 
     def _predictions(self, z: np.ndarray, ok: np.ndarray) -> dict[str, Prediction | None]:
         """Every checked input's prediction from the signals ``ok`` marks (None: too little to go on)."""
