@@ -180,7 +180,9 @@ def test_the_written_out_roots_are_numpys_in_its_order(coefficients: list[float]
 
 def test_a_repeated_pole_is_real_and_the_order_is_numpys() -> None:
     """(z - 0.9)^2: two real poles at 0.9, and a quadratic's larger root first, as numpy orders them."""
-    assert_allclose(polynomial_roots(np.array([1.0, -1.8, 0.81])), [0.9, 0.9])
+    repeated = polynomial_roots(np.array([1.0, -1.8, 0.81]))
+    assert not np.iscomplexobj(repeated), repeated
+    assert_allclose(repeated, [0.9, 0.9])
     assert_allclose(
         polynomial_roots(np.array([1.0, -1.0528, 0.0687])), np.roots([1.0, -1.0528, 0.0687])
     )
