@@ -356,10 +356,8 @@ class Service:
         now_unix_s = self.clock.wall()
         if message.get("reset") is True:
             probing.reset()
-            if probing.sha256 is not None:
-                from compd.files.probestate import reset_learned  # loaded with the probes
-
-                reset_learned(self.config.state_dir, probing.sha256)
+            if probing.sha256 is not None and self.probe_keeper is not None:
+                await self.probe_keeper.forget(probing.sha256)
             log.warning("probe updates reset: the calibration's parameters again", by="socket")
             return {"reset": True, "model_sha256": probing.sha256}
         request = probe_request(message, now_unix_s, probing.setup.measures)

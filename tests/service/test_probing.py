@@ -17,6 +17,7 @@ import pytest
 import yaml
 
 from compd.errors import ModelError
+from compd.files.probestate import learned_path
 from compd.files.yamlplace import resolve_path
 from compd.service.config.loading import load_config
 from compd.service.control.socket import request
@@ -205,6 +206,8 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
     assert answers["reset"]["ok"] and answers["reset"]["reset"] is True
     axes = answers["status"]["probes"]["axes"]
     assert axes["Z"]["adjustment_um"] == 0.0
+    # ... and on disk: the learned parameters are gone (a restart starts from the prior).
+    assert not learned_path(config.state_dir, answers["reset"]["model_sha256"]).exists()
 
 
 @pytest.mark.skipif(

@@ -17,7 +17,13 @@ import structlog
 
 from compd.errors import ModelError
 from compd.faultlog import FaultLog
-from compd.files.probestate import ProbeRecord, append_record, restore_learners, write_learned
+from compd.files.probestate import (
+    ProbeRecord,
+    append_record,
+    reset_learned,
+    restore_learners,
+    write_learned,
+)
 from compd.model.probelearner import OutputLearner
 from compd.model.probeupdate import ProbeSettings
 from compd.model.updateprior import Prior
@@ -75,6 +81,12 @@ class ProbeKeeper:
         """Wait for the writes under way (at shutdown)."""
         if self._writing is not None:
             await self._writing
+
+    async def forget(self, sha256: str) -> None:
+        """Delete what the probes taught ``sha256``'s model (a reset), after the writes under way:
+        one still in flight would write the forgotten parameters back."""
+        await self.finish()
+        reset_learned(self.state_dir, sha256)
 
     async def end(self, *, killed: bool) -> None:
         """The last probe's log line and learned parameters on disk (not when killed)."""
