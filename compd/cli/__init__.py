@@ -76,6 +76,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "validate a daemon config and its model exactly as 'compd run' does",
     ),
     "status": ("compd.cli.service", "the running daemon's model, inputs, offsets, counters"),
+    "sensor": ("compd.cli.sensor", "a person vouches for a sensor the daemon stands in for"),
     "read": ("compd.cli.read", "a config's live values, raw and decoded, without the service"),
     "probe": ("compd.cli.read", "read (or, confirmed, write) addresses of a driver, no config"),
     "simulate-machine": (

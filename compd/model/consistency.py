@@ -230,6 +230,12 @@ class ConsistencyCheck:
         }
         everyone = frozenset(range(len(model.signals)))
         self._full = {i: self._solve(i, everyone - {i})[1] for i in self._variance}
+        self._checked_at = np.array([self._starts[self._checked[n]] for n in model.checked])
+
+    @property
+    def state(self) -> np.ndarray | None:
+        """The features of the values used last tick (the low-passes' state; None before the first)."""
+        return self._state
 
     @property
     def started(self) -> bool:
@@ -255,6 +261,14 @@ class ConsistencyCheck:
     def advance(self, z: np.ndarray) -> None:
         """Keep ``z`` (the features of the values used this tick) as the low-passes' state."""
         self._state = z
+
+    def shift(self, signal: str, delta: float) -> None:
+        """Move ``signal``'s low-passes by ``delta`` (its unit), as if it had always read that much
+        more: a sensor vouched for at a new offset starts without a transient."""
+        if self._state is None:
+            return
+        start = self._starts[self.model.signals.index(signal)]
+        self._state[start + 1 : start + 1 + len(self.model.taus_s)] += delta
 
     def usable(self, z: np.ndarray, unusable: set[str]) -> np.ndarray:
         """Per signal: whether it may predict the others this tick (read, finite, within its calibration)."""
@@ -290,6 +304,17 @@ class ConsistencyCheck:
         weights, offsets, sigmas = self._all[key]
         # A feature of a signal left out has weight 0, and may be NaN (a sensor that read NaN).
         return offsets + weights @ np.where(np.isfinite(z), z, 0.0), sigmas
+
+    def residues(self, z: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every checked input's residue, its own value in ``z`` minus its prediction from the
+        signals ``ok`` marks, and the prediction's sigma (NaN: no prediction).
+
+        Linear in ``z``: the residue of an average of feature vectors is the average of their
+        residues, under any set of predictors. So a level kept as averaged features (not as
+        averaged residues) carries over exactly when a predictor drops out or returns.
+        """
+        predicted, sigmas = self.predict_all(z, ok)
+        return z[self._checked_at] - predicted, sigmas
 
     def _stack(self, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         model = self.model

@@ -138,9 +138,19 @@ class Service:
         self._control = (
             ControlServer(
                 config.control_socket,
-                {"status": self._status, "load": self.load_model, "probe": self.take_probe},
-                # A probe changes what the model compensates: whoever may load a model may probe.
-                access={"load": doc.load_access.access(), "probe": doc.load_access.access()},
+                {
+                    "status": self._status,
+                    "load": self.load_model,
+                    "probe": self.take_probe,
+                    "sensor": self.trust_sensor,
+                },
+                # A probe or a trusted sensor changes what the model compensates: whoever may
+                # load a model may do them.
+                access={
+                    "load": doc.load_access.access(),
+                    "probe": doc.load_access.access(),
+                    "sensor": doc.load_access.access(),
+                },
                 budget=self.fd_budget,
             )
             if control
@@ -374,6 +384,16 @@ class Service:
     def clock_wall(self) -> float:
         """The loop clock's wall time now (unix s): on virtual time, the machine's."""
         return self.clock.wall()
+
+    async def trust_sensor(self, message: dict[str, Any]) -> dict[str, Any]:
+        """The control socket's ``sensor``: ``{"trust": NAME}``, a person vouching for a sensor
+        compd stands in for (``compd sensor trust``); logged, with who asked."""
+        name = message.get("trust")
+        if not isinstance(name, str):
+            raise CompdError('a sensor request is {"cmd": "sensor", "trust": "SIGNAL_NAME"}')
+        answer = self.compensator.trust_signal(name)
+        log.warning("sensor trust requested", signal=name, by="socket", answer=answer)
+        return {"signal": name, "answer": answer}
 
     async def _status(self, message: dict[str, Any]) -> dict[str, Any]:
         return self.status()

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import structlog
 
+from compd.errors import CompdError
 from compd.faultlog import Event, EventSink, FaultLog
 from compd.model.compiled import ModelState
 from compd.model.consistency import ConsistencyCheck
@@ -233,6 +234,15 @@ class Compensator:
             self.models.events = sink
         if self.plausibility is not None:
             self.plausibility.report_to(sink)
+
+    def trust_signal(self, name: str) -> str:
+        """A person vouches for ``name``'s sensor (``compd sensor trust``): its stand-in ends at its next good reading."""
+        if name not in self.monitors:
+            known = ", ".join(sorted(self.monitors))
+            raise CompdError(f"there is no signal {name!r}; the config's signals: {known}")
+        if self.plausibility is None:
+            return f"{name}: no consistency check runs, so nothing stands in for it"
+        return self.plausibility.trust(name)
 
     def _plausible(
         self, t_s: float, readings: dict[str, Reading], read: Mapping[str, float | None]
