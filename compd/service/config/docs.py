@@ -221,11 +221,29 @@ class PlausibilityDoc(Strict):
     min_tolerance: Positive = 3.0
     #: Ticks a returning sensor must agree with the others before it is used again.
     confirm_ticks: int = Field(default=30, ge=1, le=86_400)
+    #: A slow departure from the hour's level: the CUSUM's allowance (sigmas; drifts faster
+    #: than about this many sigmas an hour are caught)...
+    drift_k_sigma: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] = 3.0
+    #: ...and its alarm threshold (sigma-hours; lower catches sooner and errs more often).
+    drift_h_sigma_h: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] = 0.25
+    #: A stand-in ends once the residue is back within this many sigmas of its level before
+    #: the episode (grown with the episode's length)...
+    release_k_sigma: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] = 3.0
+    #: ...never closer than this (the signal's unit).
+    release_floor: Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)] = 0.1
 
     def settings(self) -> PlausibilitySettings | None:
         if not self.enabled:
             return None
-        return PlausibilitySettings(self.k_sigma, self.min_tolerance, self.confirm_ticks)
+        return PlausibilitySettings(
+            self.k_sigma,
+            self.min_tolerance,
+            self.confirm_ticks,
+            drift_k_sigma=self.drift_k_sigma,
+            drift_h_sigma_h=self.drift_h_sigma_h,
+            release_k_sigma=self.release_k_sigma,
+            release_floor=self.release_floor,
+        )
 
 
 class StateDoc(Strict):

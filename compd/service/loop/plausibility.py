@@ -26,7 +26,8 @@ sensors know better. With a consistency model in the model file
    episode (for a drift: before the departure began);
 4. it is used again only **on evidence**: its residue back within
    ``release_k_sigma`` sigmas (grown with the episode's length as the
-   prediction's own error wanders, never below ``release_floor``) of its
+   prediction's own error wanders: its square root under an hour, linearly
+   beyond; never below ``release_floor``) of its
    level before the episode for ``confirm_ticks`` ticks in a row, or a person
    saying so (``compd sensor trust NAME``, :meth:`Plausibility.trust`). A
    reading merely back inside the wide tolerance is not evidence.
@@ -158,7 +159,9 @@ class Plausibility:
     def release_tolerance(self, prediction: Prediction, lasted_s: float) -> float:
         """How near its level before the episode a returning input's residue must be (its unit)."""
         hours = max(lasted_s, RELEASE_MIN_S) / 3600.0
-        spread = self.settings.release_k_sigma * prediction.sigma * math.sqrt(hours)
+        # The prediction's own error wanders like a random walk over minutes and persists as a
+        # bias over hours (a programme the calibration did not run): sqrt, then linear.
+        spread = self.settings.release_k_sigma * prediction.sigma * max(math.sqrt(hours), hours)
         return max(spread, self.settings.release_floor)
 
     def expected(self, name: str) -> float | None:
