@@ -22,7 +22,6 @@ from paho.mqtt.enums import CallbackAPIVersion
 from compd.errors import CompdError
 from compd.faultlog import Event
 from compd.files.yamlplace import MAX_YAML_BYTES
-
 from compd.service.daemon import Service
 from compd.service.fleet.mqttlink import Broker, Topics
 from compd.service.fleet.remoteload import DESIRED_SCHEMA, MAX_PAYLOAD_BYTES, SCHEMA, RemoteLoads

@@ -11,7 +11,6 @@ import asyncio
 from pathlib import Path
 from typing import Any
 
-import pytest
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 from structlog.testing import capture_logs
@@ -27,7 +26,7 @@ OFFSET_REGISTER = 150
 
 
 def device(*, refuse_writes: bool) -> SimDevice:
-    """The machine's inputs (25.00 degC, 22.00 degC, 3000 rpm) and holding 0-159, 150-159 read-only if ``refuse_writes``."""
+    """The machine's inputs (25.00 degC, 22.00 degC, 3000 rpm); holding 150-159 read-only if ``refuse_writes``."""
     inputs = [0] * 16
     inputs[10:13] = [2500, 2200, 3000]
     return SimDevice(
@@ -88,7 +87,7 @@ def config_doc(port: int) -> dict[str, Any]:
 
 
 def test_refused_writes_are_one_episode_and_a_steady_status_that_is_not_ok(tmp_path: Path):
-    """Writes refused for 20 ticks: ERROR once, a status word steady with 'driver down', healthz failing; INFO once accepted."""
+    """Writes refused 20 ticks: ERROR once, a steady 'driver down' status word, healthz failing; INFO when accepted."""
     port = free_port()
     refusing = server(port, refuse_writes=True)
     refusing.start()
