@@ -91,6 +91,11 @@ class Unread:
         return self.why
 
 
+def _yielding_int(text: str) -> int:
+    """``int``, as a Python function: the interpreter may switch threads at each call (a C builtin would not)."""
+    return int(text)
+
+
 def _int(text: str) -> int | Unread:
     digits = len(text.lstrip("-"))
     return Unread(f"an integer of {digits} digits") if digits > MAX_DIGITS else int(text)
@@ -155,12 +160,13 @@ def record_or_none(payload: bytes, *, max_bytes: int, max_depth: int = MAX_DEPTH
     """A retained record's JSON (a birth, a death, a desired record), or None if over a bound or not JSON.
 
     For what paho's thread reads itself (no answer is owed): size and depth
-    first, then one linear ``json.loads``.
+    first, then one linear ``json.loads`` that calls Python for each number
+    (:func:`_yielding_int`), so the event loop's thread gets its turns meanwhile.
     """
     if len(payload) > max_bytes or nesting_depth(payload) > max_depth:
         return None
     try:
-        return json.loads(payload)
+        return json.loads(payload, parse_int=_yielding_int)
     except (UnicodeDecodeError, ValueError, RecursionError):
         return None
 
