@@ -102,6 +102,7 @@ def test_refused_writes_are_one_episode_and_a_steady_status_that_is_not_ok(tmp_p
         running = asyncio.ensure_future(service.run(duration_s=None))
         await ticked(service, running, 20)
         seen["state"] = link.state
+        seen["status"] = service.status()["drivers"]  # compd status's reply
         seen["problems"] = health_problems(
             service.compensator, service.links, service.timing, clock=service.clock, period_s=1.0
         )
@@ -124,7 +125,7 @@ def test_refused_writes_are_one_episode_and_a_steady_status_that_is_not_ok(tmp_p
     assert len(refused) == 1 and refused[0]["log_level"] == "error"
     assert "exception code" in refused[0]["error"]
     assert [e["log_level"] for e in logs if e["event"] == "driver write accepted again"] == ["info"]
-    assert seen["state"] == "refusing writes"
+    assert seen["state"] == "refusing writes" and seen["status"] == {"plc": "refusing writes"}
     assert any("refusing writes" in p for p in seen["problems"])
     refused_words = set(words[1:20])  # the first tick learns it
     assert len(refused_words) == 1
