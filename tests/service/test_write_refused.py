@@ -11,6 +11,7 @@ import asyncio
 from pathlib import Path
 from typing import Any
 
+import pytest
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 from structlog.testing import capture_logs
@@ -55,7 +56,7 @@ def server(port: int, *, refuse_writes: bool) -> ServerThread:
     )
 
 
-def config_doc(port: int) -> dict[str, Any]:
+def config_doc(port: int, *, readback: bool) -> dict[str, Any]:
     signal = {"driver": "plc", "unit": "degC", "scale": 0.01, "type": "int"}
     return {
         "schema": "compd.config/1",
@@ -73,7 +74,7 @@ def config_doc(port: int) -> dict[str, Any]:
                 "driver": "plc",
                 "address": f"holding:{OFFSET_REGISTER}:int16",
                 "encoding": {"type": "int", "scale": 10},
-                "readback": False,
+                "readback": readback,
                 "max_offset_um": 50,
                 "max_rate_um_per_s": 1,
             }
@@ -86,12 +87,15 @@ def config_doc(port: int) -> dict[str, Any]:
     }
 
 
-def test_refused_writes_are_one_episode_and_a_steady_status_that_is_not_ok(tmp_path: Path):
+@pytest.mark.parametrize("readback", [False, True], ids=["acknowledged", "read-back"])
+def test_refused_writes_are_one_episode_and_a_steady_status_that_is_not_ok(
+    tmp_path: Path, readback: bool
+):
     """Writes refused 20 ticks: ERROR once, a steady 'driver down' status word, healthz failing; INFO when accepted."""
     port = free_port()
     refusing = server(port, refuse_writes=True)
     refusing.start()
-    config = write_config(tmp_path, doc=config_doc(port))
+    config = write_config(tmp_path, doc=config_doc(port, readback=readback))
     service = Service(config, clock=VirtualClock(), control=False)
     words: list[int] = []
     service.subscribe(lambda record: words.append(record.status))
@@ -121,6 +125,8 @@ def test_refused_writes_are_one_episode_and_a_steady_status_that_is_not_ok(tmp_p
 
     with capture_logs() as logs:
         asyncio.run(scenario())
+    errors = [e["event"] for e in logs if e["log_level"] == "error"]
+    assert len(errors) == len(set(errors)), errors  # no ERROR line twice in one episode
     refused = [e for e in logs if e["event"] == "driver write refused"]
     assert len(refused) == 1 and refused[0]["log_level"] == "error"
     assert "exception code" in refused[0]["error"]
