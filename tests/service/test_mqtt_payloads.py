@@ -231,3 +231,29 @@ def test_the_same_bytes_again_are_a_replay_refused_before_a_parse():
     assert len(daemon.loads) == 1 and len(parsed) == 1
     assert [r["result"] for _, r in daemon.replies] == ["accepted", "refused"]
     assert "a replay" in daemon.replies[1][1]["reason"]
+
+
+def test_a_request_id_taken_before_is_refused_before_a_parse():
+    """The same request_id in other bytes (sent again later) is refused as a replay from its bytes, unparsed."""
+    from tests.service.test_remoteload import ACCEPTED, Daemon, request
+
+    daemon = Daemon(ACCEPTED)
+    remote = RemoteLoads(
+        daemon.load, lambda i, r: daemon.replies.append((i, r)), daemon.events.append
+    )
+    parsed: list[bytes] = []
+    parse = remote.parser.parse
+
+    async def counting(payload: bytes) -> Any:
+        parsed.append(payload)
+        return await parse(payload)
+
+    remote.parser.parse = counting  # type: ignore[method-assign]
+
+    async def twice() -> None:
+        await remote.handle(request(sent_unix_s=time.time()))
+        await remote.handle(request(sent_unix_s=time.time() + 1, requested_by="again"))
+
+    asyncio.run(twice())
+    assert len(daemon.loads) == 1 and len(parsed) == 1
+    assert daemon.replies[1][0] == "r1" and "a replay" in daemon.replies[1][1]["reason"]

@@ -124,12 +124,15 @@ class RemoteLoads:
 
         What can be judged from the bytes comes first, before any parse: a
         retained message (the broker's retain flag) is refused, and so are the
-        very bytes of a request taken before (a replay: its sha256). The parse
+        very bytes of a request taken before (a replay: its sha256) and a
+        request naming an id taken before (read from the bytes). The parse
         then runs in a worker thread (:class:`~compd.service.fleet.wirecheck.Parser`).
         """
         digest = hashlib.sha256(payload).digest()
-        if retained or digest in self._taken:
-            request_id = self._taken.get(digest) or cheap_request_id(payload)
+        named = cheap_request_id(payload)
+        replayed = digest in self._taken or (named is not None and self.seen.seen(named))
+        if retained or replayed:
+            request_id = self._taken.get(digest) or named
             reason = (
                 _RETAINED
                 if retained
