@@ -20,6 +20,7 @@ import pytest
 from paho.mqtt.enums import CallbackAPIVersion
 
 from compd.faultlog import Event
+from compd.service.fleet.commands import MAX_HANDLING
 from compd.service.fleet.mqttlink import Broker, Topics
 from compd.service.fleet.remoteload import DESIRED_SCHEMA, MAX_PAYLOAD_BYTES, SCHEMA, RemoteLoads
 from compd.service.fleet.remoteprobe import MAX_PAYLOAD_BYTES as MAX_PROBE_BYTES
@@ -51,6 +52,8 @@ class Machine:
         self.probes: list[dict[str, Any]] = []
         self.events: list[Event] = []
         self.timing = TickTiming()
+        #: Set: probes are taken at once; clear: each waits (a daemon busy with them).
+        self.release = asyncio.Event()
 
     async def load(self, message: dict[str, Any]) -> dict[str, Any]:
         self.loads.append(message)
@@ -58,10 +61,18 @@ class Machine:
 
     async def take(self, message: dict[str, Any]) -> dict[str, Any]:
         self.probes.append(message)
+        await self.release.wait()
         return {"axis": message.get("axis")}
 
-    async def run(self, act: Callable[[], None], done: Callable[[], bool]) -> None:
-        """Tick at 1 s; start the command side, ``act()`` once born, wait until ``done()``, tick once more."""
+    async def run(
+        self, act: Callable[[], None], done: Callable[[], bool], *, held: bool = False
+    ) -> None:
+        """Tick at 1 s; start the command side, ``act()`` once born, wait until ``done()``, tick once more.
+
+        ``held``: probes wait until ``done()`` (the daemon busy with them), else they are taken at once.
+        """
+        if not held:
+            self.release.set()
         telemetry = Telemetry(Broker("127.0.0.1", self.port, "compd-m"), Topics("compd", "m"))
 
         def event(e: Event) -> None:
@@ -85,6 +96,7 @@ class Machine:
         await until(lambda: telemetry.publishing, "publishing")
         act()
         await until(done, "answered")
+        self.release.set()
         ticks = self.timing.ticks
         await until(lambda: self.timing.ticks > ticks + 1, "ticked after it")
         stop.set()
@@ -257,3 +269,28 @@ def test_a_request_id_taken_before_is_refused_before_a_parse():
     asyncio.run(twice())
     assert len(daemon.loads) == 1 and len(parsed) == 1
     assert daemon.replies[1][0] == "r1" and "a replay" in daemon.replies[1][1]["reason"]
+
+
+def test_a_flood_of_commands_is_bounded_and_each_answered(tmp_path: Path):
+    """20 probes at once while the daemon is busy: MAX_HANDLING are handled, the rest refused, all answered."""
+    broker = Mosquitto(tmp_path).start()
+    machine = Machine(broker.port)
+    client = sender(broker.port)
+
+    def act() -> None:
+        for i in range(20):
+            probe = {"request_id": f"p{i}", "axis": "Z", "measured_um": 1.0}
+            publish(client, "cmd/probe", json.dumps(probe).encode())
+
+    try:
+        with Subscriber(broker.port, "compd/m/reply/#") as sub:
+            asyncio.run(
+                machine.run(act, lambda: len(sub.of("reply")) == 20 - MAX_HANDLING, held=True)
+            )
+            sub.wait_for(lambda s: len(s.of("reply")) == 20, "every probe answered")
+    finally:
+        client.loop_stop()
+        broker.stop()
+    refused = [a for a in sub.of("reply") if not a["ok"]]
+    assert len(machine.probes) == MAX_HANDLING and len(refused) == 20 - MAX_HANDLING
+    assert all("being handled already" in a["reason"] for a in refused)
