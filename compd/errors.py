@@ -96,5 +96,14 @@ class DriverProtocolError(DriverError):
     """The device answered, but not as expected (unknown address, bad reply, wrong type)."""
 
 
+class DriverRefusedError(DriverProtocolError):
+    """The device answered a request with a refusal (a Modbus exception response).
+
+    The connection is sound: reconnecting does not change the answer. A write
+    refused so is a fault episode of its own until a write is accepted
+    (:class:`compd.service.loop.links.DriverLink`), not a link down and up again.
+    """
+
+
 class ScenarioError(CompdError, ValueError):
     """A twin scenario that cannot be generated: unknown name, bad duration or sample time."""

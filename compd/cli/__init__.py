@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -99,6 +100,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if _command(argv) == "run":
+        # SIGHUP's default action ends a process, and logrotate or an operator may send one while
+        # the daemon starts: ignored from here, before the daemon's imports (a second or more),
+        # until the event loop takes it as a reload (compd.cli.daemon.install_signal_handlers).
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
     parser = build_parser(_chosen_module(argv))
     args = parser.parse_args(argv)
     if not hasattr(args, "handler"):
@@ -173,5 +179,10 @@ class _Version(argparse.Action):
 
 def _chosen_module(argv: Sequence[str]) -> str:
     """The module of the command ``argv`` names (its first word), or "" for none."""
-    first = next((word for word in argv if not word.startswith("-")), None)
+    first = _command(argv)
     return COMMANDS[first][0] if first in COMMANDS else ""
+
+
+def _command(argv: Sequence[str]) -> str | None:
+    """The command ``argv`` names: its first word that is not an option."""
+    return next((word for word in argv if not word.startswith("-")), None)

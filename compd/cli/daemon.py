@@ -150,8 +150,17 @@ def address_notes(config: Config) -> list[tuple[str, str]]:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    # SIGHUP's default ends the process: ignored until the loop takes it (install_signal_handlers).
+    # SIGHUP's default ends the process: ignored until the loop takes it (install_signal_handlers);
+    # compd.cli.main ignores it before this module is imported, this call is for other callers.
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        return _run(args)
+    finally:
+        # The loop's close put SIGHUP's default back: ignored again while the process ends.
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+
+def _run(args: argparse.Namespace) -> int:
     config = config_from_arg(args.config)
     json_lines = {"auto": None, "json": True, "console": False}[args.log_format]
     configure_logging(json_lines=json_lines, level=args.log_level.upper())

@@ -73,6 +73,12 @@ def status_command(args: argparse.Namespace) -> int:
             out.print(
                 Text(f"driver {name} not connected: nothing read or written through it", "bold red")
             )
+        elif state == "refusing writes":  # it answers, and refuses every write (an exception reply)
+            out.print(
+                Text(
+                    f"driver {name} refusing writes: offsets and status do not reach it", "bold red"
+                )
+            )
     scale = reply.get("clock", {}).get("time_scale", 1)
     if scale != 1:
         virtual = scale == "max"

@@ -70,6 +70,7 @@ from compd.errors import (
     DriverDisconnectedError,
     DriverError,
     DriverProtocolError,
+    DriverRefusedError,
     DriverTimeoutError,
 )
 
@@ -387,7 +388,7 @@ class ModbusDriver:
             raise
         if reply is None or reply.isError():
             code = getattr(reply, "exception_code", None)
-            raise DriverProtocolError(
+            raise DriverRefusedError(
                 f"Modbus {self._where()}: {what}: the device refused "
                 f"(exception code {code}{_EXCEPTION_NAMES.get(code or 0, '')})"
             )

@@ -30,6 +30,7 @@ FAMILIES = {
     "compd_driver_faults": "counter",
     "compd_driver_reconnects": "counter",
     "compd_driver_up": "gauge",
+    "compd_driver_writes_refused": "gauge",
     "compd_offset_meters": "gauge",
     "compd_offset_held_meters": "gauge",
     "compd_offset_target_meters": "gauge",

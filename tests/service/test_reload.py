@@ -153,3 +153,57 @@ def test_sighup_to_compd_run_keeps_it_running_and_sigterm_still_stops_it_cleanly
     assert not socket.exists(), "the control socket is removed at a clean exit"
     reasons = [load_data(path).metadata["run_reason"] for path in recordings(config)]
     assert reasons == ["start", "reopened"]
+
+
+def test_compd_run_ignores_sighup_before_it_imports_the_daemon():
+    """`compd run` ignores SIGHUP before it builds its parser, so before the daemon's modules are imported."""
+    probe = (
+        "import signal, sys\n"
+        "import compd.cli as cli\n"
+        "def parser(module):\n"
+        "    ignored = signal.getsignal(signal.SIGHUP) is signal.SIG_IGN\n"
+        "    sys.exit(0 if ignored and 'compd.service.daemon' not in sys.modules else 3)\n"
+        "cli.build_parser = parser\n"
+        "cli.main(['run', '--config', 'x.yaml'])\n"
+    )
+    assert subprocess.run([sys.executable, "-c", probe], timeout=GIVE_UP_S).returncode == 0
+
+
+def test_sighup_while_compd_run_starts_does_not_end_it(tmp_path):
+    """SIGHUP sent over and over while `compd run` starts: it comes up, ticks, and SIGTERM still exits 0."""
+    socket = short_socket()
+    config = write_config(tmp_path, {"control_socket": str(socket)})
+    command = [sys.executable, "-m", "compd.cli", "run", "--config", str(config.path)]
+    daemon = subprocess.Popen(
+        [*command, "--time-scale", "20", "--log-format", "json"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    sent = 0
+    try:
+        deadline = time.monotonic() + GIVE_UP_S
+        # From the moment it ignores SIGHUP (its first act in compd's code), until it answers.
+        while not _ignores_sighup(daemon.pid) and daemon.poll() is None:
+            assert time.monotonic() < deadline, "never ignored SIGHUP"
+            time.sleep(0.001)
+        while not socket.exists() and daemon.poll() is None and time.monotonic() < deadline:
+            daemon.send_signal(signal.SIGHUP)
+            sent += 1
+            time.sleep(0.01)
+        assert daemon.poll() is None, f"ended by SIGHUP during start-up (after {sent} sent)"
+        assert _ticks_pass(daemon, socket, 3) >= 3
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        _, stderr = daemon.communicate(timeout=GIVE_UP_S)
+    assert sent > 0 and daemon.returncode == 0, stderr
+
+
+def _ignores_sighup(pid: int) -> bool:
+    """Whether process ``pid`` ignores SIGHUP now (its SigIgn mask in /proc, bit 0 for signal 1)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    mask = next(line.split()[1] for line in status.splitlines() if line.startswith("SigIgn:"))
+    return bool(int(mask, 16) & 1 << (signal.SIGHUP - 1))

@@ -22,11 +22,11 @@ from paho.mqtt.enums import CallbackAPIVersion
 from compd.errors import CompdError
 from compd.faultlog import Event
 from compd.files.yamlplace import MAX_YAML_BYTES
-from compd.service.control.socket import TOO_DEEP
 from compd.service.daemon import Service
 from compd.service.fleet.mqttlink import Broker, Topics
 from compd.service.fleet.remoteload import DESIRED_SCHEMA, MAX_PAYLOAD_BYTES, SCHEMA, RemoteLoads
 from compd.service.fleet.telemetry import Telemetry
+from compd.service.fleet.wirecheck import TOO_DEEP
 from compd.service.loop.clock import VirtualClock
 from tests.mosquitto import MODEL, WAIT_S, Mosquitto, Subscriber, machine_config, mosquitto_binary
 from tests.service.daemon_setup import write_config

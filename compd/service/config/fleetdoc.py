@@ -46,7 +46,8 @@ class TelemetryDoc(Strict):
     every_ticks: int = Field(default=1, ge=1)
     queue_size: int = Field(default=1000, ge=1)
     qos: Literal[0, 1, 2] = 1
-    keepalive_s: int = Field(default=15, ge=5)
+    #: MQTT carries the keep-alive in 16 bits: 65535 s at most.
+    keepalive_s: int = Field(default=15, ge=5, le=65535)
     reconnect_min_s: int = Field(default=1, ge=1)
     reconnect_max_s: int = Field(default=30, ge=1)
     client_id: str | None = None

@@ -47,10 +47,9 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
-import json
 import math
-import re
 import time
+from collections import OrderedDict
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -60,10 +59,18 @@ from compd.errors import CompdError
 from compd.faultlog import Event, EventSink
 from compd.files.yamlplace import MAX_YAML_BYTES, shorten
 from compd.service.control.modelload import load_request, request_bytes
-from compd.service.control.socket import TOO_DEEP
 from compd.service.fleet.seenrequests import SeenRequests
+from compd.service.fleet.wirecheck import REQUEST_ID, Parsed, Parser, cheap_request_id
+
+__all__ = ["REQUEST_ID", "RemoteLoads", "checked_request"]
 
 log = structlog.get_logger("compd.service.fleet.remoteload")
+
+_RETAINED = (
+    "a retained command (the broker's retained store hands it out on every connection): "
+    "commands are taken only as sent. Clear it: publish an empty retained message to "
+    "its topic (mosquitto_pub -r -n -t TOPIC)"
+)
 
 SCHEMA = "compd.model_load/1"
 #: The command's topic level: ``<prefix>/<machine_id>/cmd/model_load``.
@@ -74,11 +81,9 @@ DESIRED = "desired"
 DESIRED_SCHEMA = "compd.desired_model/1"
 #: The largest payload read: a model file at its size limit, base64-encoded, and the rest.
 MAX_PAYLOAD_BYTES = 4 * (MAX_YAML_BYTES // 3 + 1) + 4096
-#: The most digits of an integer in a request (its times have ten): more is corrupt, or an attack
-#: on ``int()`` (Python converts at most 4,300 digits, and slowly).
-MAX_DIGITS = 30
-#: A request id is one topic level of the reply's topic: no wildcards, no separators.
-REQUEST_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,100}$")
+#: Digests of the payloads taken lately, kept in memory: the same bytes again are a replay,
+#: answered without parsing them (the ids in the state directory catch it after a restart).
+KEEP_DIGESTS = 1000
 
 Load = Callable[[dict[str, Any]], Awaitable[dict[str, Any]]]
 Reply = Callable[[str, dict[str, Any]], object]
@@ -109,17 +114,37 @@ class RemoteLoads:
         self._saving = asyncio.Lock()
         #: The sha256 of desired records refused (not tried again at each reconnection).
         self._refused_desired: set[str] = set()
+        #: Messages are parsed in a worker thread, one at a time.
+        self.parser = Parser()
+        #: The digest of each request's bytes taken lately -> its request id (a replay is refused unparsed).
+        self._taken: OrderedDict[bytes, str] = OrderedDict()
 
     async def handle(self, payload: bytes, *, retained: bool = False) -> None:
-        """Parse, check and load one request; answer it (a request without a usable id: log only).
+        """Check, parse and load one request; answer it (a request without a usable id: log only).
 
-        ``retained``: the broker's retain flag (a message from its retained store), refused.
+        What can be judged from the bytes comes first, before any parse: a
+        retained message (the broker's retain flag) is refused, and so are the
+        very bytes of a request taken before (a replay: its sha256) and a
+        request naming an id taken before (read from the bytes). The parse
+        then runs in a worker thread (:class:`~compd.service.fleet.wirecheck.Parser`).
         """
+        digest = hashlib.sha256(payload).digest()
+        named = cheap_request_id(payload)
+        replayed = digest in self._taken or (named is not None and self.seen.seen(named))
+        if retained or replayed:
+            request_id = self._taken.get(digest) or named
+            reason = (
+                _RETAINED
+                if retained
+                else f"request_id {request_id} was taken before: a replay, not loaded again"
+            )
+            self._refuse_early(request_id, reason)
+            return
         try:
-            request = parse_request(payload)
+            parsed = await self.parser.parse(payload)
+            request = checked_request(parsed)
         except CompdError as exc:
-            log.error("remote model load ignored", error=str(exc))
-            self.events(Event("model_refused", "remote model load ignored", {"reason": str(exc)}))
+            self._refuse_early(cheap_request_id(payload), str(exc))
             return
         request_id = request["request_id"]
         by = shorten(str(request.get("requested_by", "?")), 200)
@@ -129,9 +154,10 @@ class RemoteLoads:
             "sha256": sha256 if isinstance(sha256, str) else None,
         }
         try:
-            if (unread := unread_number(request)) is not None:
-                raise CompdError(f"the request holds a number compd does not read: {unread}")
-            await self._admit(request, retained)
+            if parsed.unread is not None:
+                raise CompdError(f"the request holds a number compd does not read: {parsed.unread}")
+            await self._admit(request)
+            self._remember(digest, request_id)
             answer |= await self._load(request, by)
         except CompdError as exc:
             self._refuse(answer, str(exc), by)
@@ -139,6 +165,27 @@ class RemoteLoads:
             log.exception("remote model load failed", request_id=request_id)
             self._refuse(answer, f"the daemon failed to check it ({type(exc).__name__})", by)
         self.reply(request_id, answer)
+
+    def _refuse_early(self, request_id: str | None, reason: str) -> None:
+        """A request refused before it was parsed or read whole: one log line, an event, an answer if it names an id."""
+        log.error("remote model load refused", reason=reason, request_id=request_id)
+        self.events(
+            Event(
+                "model_refused",
+                "remote model load refused",
+                {"reason": reason, "request_id": request_id},
+            )
+        )
+        if request_id is not None:
+            self.reply(
+                request_id,
+                {"request_id": request_id, "sha256": None, "result": "refused", "reason": reason},
+            )
+
+    def _remember(self, digest: bytes, request_id: str) -> None:
+        self._taken[digest] = request_id
+        while len(self._taken) > KEEP_DIGESTS:
+            self._taken.popitem(last=False)
 
     async def take_desired(self, payload: bytes) -> None:
         """Load the roll-out's desired record, heard at connecting: a machine that was away catches up.
@@ -152,17 +199,14 @@ class RemoteLoads:
         running one. A model installed here before that no longer runs was
         replaced here, by a failure that unloaded it or by a person's
         ``compd model load``: it is not taken again (``--pending`` sends it,
-        as a command, if that is wanted).
+        as a command, if that is wanted). Parsed in a worker thread, as a command is.
         """
         try:
-            record = json.loads(
-                payload, parse_int=_int, parse_float=_float, parse_constant=_constant
-            )
-        except (UnicodeDecodeError, ValueError, RecursionError):
-            record = None
-        if not isinstance(record, dict):
-            log.error("desired model record ignored: not a JSON object")
+            parsed = await self.parser.parse(payload)
+        except CompdError as exc:
+            log.error("desired model record ignored", reason=str(exc))
             return
+        record = parsed.value
         sha256 = record.get("sha256")
         if not isinstance(sha256, str) or sha256 in self._refused_desired:
             return
@@ -171,8 +215,8 @@ class RemoteLoads:
         try:
             if record.get("schema") != DESIRED_SCHEMA:
                 raise CompdError(f"the record's schema is not {DESIRED_SCHEMA!r}")
-            if (unread := unread_number(record)) is not None:
-                raise CompdError(f"the record holds a number compd does not read: {unread}")
+            if parsed.unread is not None:
+                raise CompdError(f"the record holds a number compd does not read: {parsed.unread}")
             raw, name = request_bytes(record)
             if hashlib.sha256(raw).hexdigest() != sha256:
                 raise CompdError("the model's sha256 is not the record's: altered or truncated")
@@ -204,15 +248,9 @@ class RemoteLoads:
         log.error("remote model load refused", **details)  # the journal hears it too
         self.events(Event("model_refused", "remote model load refused", details))
 
-    async def _admit(self, request: dict[str, Any], retained: bool) -> None:
-        """Raise CompdError for a retained, replayed or stale request; else remember its id (saved)."""
+    async def _admit(self, request: dict[str, Any]) -> None:
+        """Raise CompdError for a replayed or stale request; else remember its id (saved)."""
         request_id = request["request_id"]
-        if retained:
-            raise CompdError(
-                "a retained command (the broker's retained store hands it out on every connection): "
-                "commands are taken only as sent. Clear it: publish an empty retained message to "
-                "its topic (mosquitto_pub -r -n -t TOPIC)"
-            )
         if self.seen.seen(request_id):
             raise CompdError(
                 f"request_id {request_id} was taken before: a replay, not loaded again"
@@ -254,59 +292,9 @@ class RemoteLoads:
         return {"result": "accepted", "model": reply["model"], "blend_s": reply["blend_s"]}
 
 
-class _Unread:
-    """A number in a request that compd does not read (NaN, 1e400, 10^5000): refused once the id is known."""
-
-    def __init__(self, why: str) -> None:
-        self.why = why
-
-    def __repr__(self) -> str:
-        return self.why
-
-
-def _int(text: str) -> int | _Unread:
-    digits = len(text.lstrip("-"))
-    return _Unread(f"an integer of {digits} digits") if digits > MAX_DIGITS else int(text)
-
-
-def _float(text: str) -> float | _Unread:
-    value = float(text)
-    return value if math.isfinite(value) else _Unread(f"{text[:40]} (beyond any float)")
-
-
-def _constant(text: str) -> _Unread:
-    return _Unread(f"{text} (not a finite number)")
-
-
-def unread_number(request: dict[str, Any]) -> str | None:
-    """``key: why`` of the first number in ``request`` that compd does not read, else None."""
-    stack: list[tuple[str, Any]] = list(request.items())
-    while stack:
-        key, value = stack.pop(0)
-        if isinstance(value, _Unread):
-            return f"{key[:100]}: {value.why}"
-        if isinstance(value, dict):
-            stack.extend((f"{key}.{k}", v) for k, v in value.items())
-        elif isinstance(value, list):
-            stack.extend((f"{key}[{i}]", v) for i, v in enumerate(value))
-    return None
-
-
-def parse_request(payload: bytes) -> dict[str, Any]:
-    """The request as a dict with a usable ``request_id``; raises CompdError saying what is wrong.
-
-    Numbers compd does not read (NaN, Infinity, 1e400, integers of more than
-    :data:`MAX_DIGITS` digits) parse as :class:`_Unread`, so that the request
-    is refused with an answer to its id rather than dropped unanswered.
-    """
-    try:
-        request = json.loads(payload, parse_int=_int, parse_float=_float, parse_constant=_constant)
-    except (UnicodeDecodeError, ValueError) as exc:  # json.JSONDecodeError is a ValueError
-        raise CompdError(f"the request is not JSON ({shorten(str(exc), 200)})") from exc
-    except RecursionError as exc:  # json's parser recurses per [ or {: 1M "[" ends here
-        raise CompdError(f"the request is not JSON compd reads: {TOO_DEEP}") from exc
-    if not isinstance(request, dict):
-        raise CompdError("the request is not a JSON object")
+def checked_request(parsed: Parsed) -> dict[str, Any]:
+    """The parsed request with a usable ``request_id``; raises CompdError saying what is wrong."""
+    request = parsed.value
     request_id = request.get("request_id")
     if not isinstance(request_id, str) or not REQUEST_ID.match(request_id):
         raise CompdError("the request's request_id is not 1-100 letters, digits, _ . : -")

@@ -5,9 +5,9 @@ A request on ``<prefix>/<machine_id>/cmd/probe``::
     {"request_id": "cmm-0412", "axis": "Z", "measured_um": 3.2,
      "touched_at_unix_s": 1795858200.0, "measures": "residue", "requested_by": "cmm-2"}
 
-is checked as a ``cmd/model_load`` is (JSON, a usable id, no number compd does
-not read, never a retained one: a retained probe would be taken again at
-every reconnect), taken as the control socket's ``probe`` is
+is checked as a ``cmd/model_load`` is (never a retained one, refused before it
+is parsed: a retained probe would be taken again at every reconnect; then
+JSON parsed in a worker thread, a usable id, no number compd does not read), taken as the control socket's ``probe`` is
 (:meth:`compd.service.daemon.Service.take_probe`), and answered on
 ``reply/<request_id>`` with what the update did.
 """
@@ -21,7 +21,8 @@ import structlog
 
 from compd.errors import CompdError
 from compd.faultlog import Event, EventSink
-from compd.service.fleet.remoteload import parse_request, unread_number
+from compd.service.fleet.remoteload import checked_request
+from compd.service.fleet.wirecheck import Parser, cheap_request_id
 
 log = structlog.get_logger("compd.service.fleet.remoteprobe")
 
@@ -43,25 +44,30 @@ class RemoteProbes:
         self.take = take
         self.reply = reply
         self.events = events
+        self.parser = Parser()
 
     async def handle(self, payload: bytes, *, retained: bool = False) -> None:
         try:
-            request = parse_request(payload)
+            if retained:  # judged on the flag, before a byte is parsed
+                raise CompdError(
+                    "a retained probe is refused: it would be taken again at every reconnect"
+                )
+            parsed = await self.parser.parse(payload)
+            request = checked_request(parsed)
         except CompdError as exc:
-            log.error("remote probe ignored", error=str(exc))
-            self.events(Event("probe_refused", "remote probe ignored", {"reason": str(exc)}))
+            request_id = cheap_request_id(payload)
+            log.error("remote probe refused", request_id=request_id, reason=str(exc))
+            self.events(Event("probe_refused", "remote probe refused", {"reason": str(exc)}))
+            if request_id is not None:
+                self.reply(request_id, {"request_id": request_id, "ok": False, "error": str(exc)})
             return
         request_id = request["request_id"]
         answer: dict[str, Any] = {"request_id": request_id}
         try:
-            if retained:
-                raise CompdError(
-                    "a retained probe is refused: it would be taken again at every reconnect"
-                )
             if "reset" in request:
                 raise CompdError("a reset is made at the machine: compd model probe --reset")
-            if (unread := unread_number(request)) is not None:
-                raise CompdError(f"the request holds a number compd does not read: {unread}")
+            if parsed.unread is not None:
+                raise CompdError(f"the request holds a number compd does not read: {parsed.unread}")
             by = str(request.get("requested_by", "mqtt"))[:64]
             message = {k: v for k, v in request.items() if k not in ("request_id", "requested_by")}
             answer |= {"ok": True} | await self.take(message | {"source": f"mqtt:{by}"})

@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import threading
 import time
 from collections import deque
@@ -65,6 +64,7 @@ from compd.service.fleet.commands import Commands, Handler
 from compd.service.fleet.jsonwire import dumps
 from compd.service.fleet.mqttlink import Broker, Topics, connect_properties, mqtt_client
 from compd.service.fleet.payloads import DESIRED_KEYS, Payloads
+from compd.service.fleet.wirecheck import record_or_none
 from compd.service.loop.compensator import TickRecord
 from compd.service.loop.snapshot import TickSnapshot
 
@@ -78,6 +78,8 @@ MAX_UNACKNOWLEDGED = 100
 STOP_TIMEOUT_S = 5.0
 #: MQTT 5's reason code when the broker drops a connection for another with the same client id.
 SESSION_TAKEN_OVER = 0x8E
+#: The largest birth or death of this machine_id read (another daemon's): a few kB in practice.
+MAX_OWN_BYTES = 256 * 1024
 
 
 @dataclass
@@ -149,11 +151,11 @@ class Telemetry:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread = 0
         self._task: asyncio.Task[None] | None = None
-        self.commands = Commands(topics, self.event)
+        self.commands = Commands(topics, self.event, self.reply)
         #: Takes the roll-out's desired record heard at connecting (``accept_models``), if set.
         self._desired_handler: Callable[[bytes], Awaitable[None]] | None = None
         #: The retained desired record heard at this connection, until this daemon publishes.
-        self._desired_due: bytes | None = None
+        self._desired_due: tuple[bytes, Any] | None = None
         self._taking: set[asyncio.Task[None]] = set()
 
     @property
@@ -420,10 +422,7 @@ class Telemetry:
 
     def _heard_own(self, client: Any, kind: str, message: mqtt.MQTTMessage) -> None:
         """Another daemon's birth or death on this machine_id's topics (module mqttclaim)."""
-        try:
-            payload = json.loads(message.payload)
-        except (ValueError, RecursionError):
-            return
+        payload = record_or_none(bytes(message.payload), max_bytes=MAX_OWN_BYTES)
         if not isinstance(payload, dict) or not self._claim.heard(kind, payload):
             return
         if self._check_mid is not None or not self.counters.connected:
@@ -476,15 +475,18 @@ class Telemetry:
         """The roll-out's record of the model this machine should run: said in the next birth.
 
         Heard from the retained store (at connecting), it is also taken (:meth:`take_desired`).
+        Bounded as the model roll-out's command is (size, then depth, before
+        it is parsed), and parsed once here: the loop gets the bytes and its sha256.
         """
-        try:
-            record = json.loads(data) if data else None
-        except (ValueError, RecursionError):
-            return
-        if record is not None and not isinstance(record, dict):
+        record = record_or_none(data, max_bytes=self.commands.max_packet_bytes) if data else None
+        if data and not isinstance(record, dict):
+            log.error(
+                "desired model record ignored: too large, nested too deep or not a JSON object"
+            )
             return
         self.payloads.desired = None if record is None else {k: record.get(k) for k in DESIRED_KEYS}
-        self._desired_due = data if retained and record is not None else None
+        due = retained and record is not None
+        self._desired_due = (data, record.get("sha256")) if due and record is not None else None
         if self._active:
             self._hand_desired()
             self._birth_due = True
@@ -492,15 +494,14 @@ class Telemetry:
 
     def _hand_desired(self) -> None:
         """The desired record heard at connecting, to the loop's :meth:`_take_desired` (once)."""
-        data, self._desired_due = self._desired_due, None
-        if data is None or self._desired_handler is None or self._loop is None:
+        due, self._desired_due = self._desired_due, None
+        if due is None or self._desired_handler is None or self._loop is None:
             return
         with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
-            self._loop.call_soon_threadsafe(self._take_desired, data)
+            self._loop.call_soon_threadsafe(self._take_desired, *due)
 
-    def _take_desired(self, data: bytes) -> None:
+    def _take_desired(self, data: bytes, sha256: Any) -> None:
         """On the loop: hand the record over if it names another model than the running one."""
-        sha256 = json.loads(data).get("sha256")  # parsed before, in _heard_desired
         running = (self.payloads.identity().get("model") or {}).get("sha256")
         if self._desired_handler is None or sha256 in (None, running):
             return

@@ -163,11 +163,17 @@ class LiveCollector(Collector):
         up = GaugeMetricFamily(
             "compd_driver_up", "1 while the driver's link is up.", labels=["driver"]
         )
+        refusing = GaugeMetricFamily(
+            "compd_driver_writes_refused",
+            "1 while the driver's device answers writes with a refusal (no write accepted since).",
+            labels=["driver"],
+        )
         for name, link in links.items():
             driver_faults.add_metric([name], link.faults)
             reconnects.add_metric([name], link.reconnects)
             up.add_metric([name], float(link.up))
-        yield from (driver_faults, reconnects, up)
+            refusing.add_metric([name], float(link.refusing_writes))
+        yield from (driver_faults, reconnects, up, refusing)
 
         offsets = GaugeMetricFamily(
             "compd_offset_meters",

@@ -376,7 +376,8 @@ class Compensator:
             flags.add(Flag.STARTING)
         if self.model_fault is not None:
             any_frozen = True
-        if not all(link.up for link in self.links.values()):
+        # A link down, or a device refusing writes: the offsets are not getting through.
+        if not all(link.up and not link.refusing_writes for link in self.links.values()):
             flags.add(Flag.DRIVER_DOWN)
         bad = [r.health is not Health.OK for r in readings.values()]
         level = Level.FAULTED if any_frozen else Level.DEGRADED if any(bad) else Level.OK

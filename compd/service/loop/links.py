@@ -10,6 +10,14 @@ episode ends with the first read or write that succeeds after it, so a peer
 that accepts connections but never answers is one fault, not one per
 reconnect, and its reconnects keep backing off.
 
+A write the device refuses (:class:`~compd.errors.DriverRefusedError`: a
+Modbus exception response, say a PLC answering every write with exception 2)
+is not a link down: the connection answers, and reconnecting would not change
+the answer, only make the episode start again at every successful read. It is
+a fault episode of its own (ERROR once, DEBUG while it lasts, INFO at the
+first accepted write): the link stays up, :attr:`DriverLink.refusing_writes`
+says so, and :attr:`DriverLink.state` is ``refusing writes`` until then.
+
 Drivers raise only compd's :class:`~compd.errors.DriverError` family, and a
 read returns floats for the addresses asked. A driver that breaks that
 contract (a ``TypeError`` from a reply of the wrong shape, a string for a
@@ -32,7 +40,7 @@ from collections.abc import Callable, Mapping, Sequence
 import structlog
 
 from compd.drivers.base import Driver
-from compd.errors import DriverError, DriverProtocolError
+from compd.errors import DriverError, DriverProtocolError, DriverRefusedError
 from compd.faultlog import EventSink, FaultLog
 from compd.service.loop.clock import Clock
 
@@ -67,6 +75,8 @@ class DriverLink:
         #: Driver exceptions outside the contract (not DriverError, TimeoutError, OSError): bugs.
         self.unexpected = 0
         self._fault = FaultLog(log, driver=name)
+        #: Writes refused by a device that answers: an episode apart from the link's (module docstring).
+        self._refused = FaultLog(log, driver=name)
         self.next_attempt_s = -math.inf
         self._connecting: asyncio.Task[None] | None = None
         self._ever_up = False
@@ -81,18 +91,25 @@ class DriverLink:
 
     @property
     def faults(self) -> int:
-        """Fault episodes so far: from a first failure to the next successful read or write."""
-        return self._fault.episodes
+        """Fault episodes so far: the link's (a first failure to the next successful read or write)
+        and its refused writes' (a first refusal to the next accepted write)."""
+        return self._fault.episodes + self._refused.episodes
+
+    @property
+    def refusing_writes(self) -> bool:
+        """The device refused the last write (it answers, and refuses): no write accepted since."""
+        return self._refused.active
 
     def report_to(self, sink: EventSink) -> None:
         """Tell ``sink`` of each fault episode's start and end (:class:`compd.faultlog.Event`)."""
         self._fault.sink = sink
+        self._refused.sink = sink
 
     @property
     def state(self) -> str:
-        """``up``, ``down`` (it answered before), or ``not connected`` (never answered since start)."""
+        """``up``, ``refusing writes``, ``down`` (it answered before), or ``not connected`` (never answered)."""
         if self.up and self.answered:
-            return "up"
+            return "refusing writes" if self._refused.active else "up"
         return "down" if self.answered else "not connected"
 
     @property
@@ -157,13 +174,19 @@ class DriverLink:
         try:
             async with asyncio.timeout(self.timeout_s):
                 await self.driver.write(values)
-        except Exception as exc:  # any driver fault reconnects (module docstring)
+        except DriverRefusedError as exc:  # it answers and refuses: the link stays up
+            self.answered = True
+            self.last_error = _text(exc)
+            self._refused.failed("driver write refused", error=self.last_error)
+            return False
+        except Exception as exc:  # any other driver fault reconnects (module docstring)
             self._failed("write", exc)
             return False
         finally:
             if self.observe is not None:
                 self.observe("write", time.perf_counter() - started_s)
         self._succeeded()
+        self._refused.cleared("driver write accepted again")
         return True
 
     async def close(self) -> None:

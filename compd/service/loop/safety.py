@@ -44,7 +44,8 @@ The status word written beside the offsets lets the PLC supervise compd:
 
 - bits 0-1: ``0`` ok, ``1`` degraded (an input held), ``2`` faulted (an axis frozen or ramping);
 - bit 2 clamped, bit 3 slew-limited, bit 4 starting (no model output yet),
-  bit 5 stopped (the last word written at shutdown), bit 6 a driver link down,
+  bit 5 stopped (the last word written at shutdown), bit 6 a driver link down
+  (or its device refusing writes: :attr:`~compd.service.loop.links.DriverLink.refusing_writes`),
   bit 7 blending to a newly loaded model;
 - bits 8-31: one per configured signal, in config order, set while it is not OK;
 - the bit after the last signal's (bit ``8 + n`` for ``n`` signals, when ``n < 24``):
