@@ -88,6 +88,7 @@ def plausibility_detector(
     min_tolerance: float,
     available: Collection[str] | None = None,
     partners: Mapping[str, tuple[str, float]] | None = None,
+    without: str = "the model file has no consistency model",
 ) -> Detector:
     """Today's detector: the plausibility tolerance from the signals ``available``, or a redundant pair's.
 
@@ -98,7 +99,8 @@ def plausibility_detector(
     (:meth:`ConsistencyCheck.predict_all`); an input the others explain too
     little of (or no consistency model at all) has none. ``partners`` maps an
     input to its redundant partner and the pair's tolerance (the input's
-    unit): the smaller threshold wins.
+    unit): the smaller threshold wins. ``without``: why nothing checks the
+    inputs where ``consistency`` is None.
     """
     thresholds: dict[str, float] = {}
     if consistency is not None:
@@ -120,7 +122,7 @@ def plausibility_detector(
         if math.isfinite(own):
             return Detection(own, "the other sensors")
         if consistency is None:
-            return Detection(math.inf, "nothing: the model file has no consistency model")
+            return Detection(math.inf, f"nothing: {without}")
         if name not in consistency.checked:
             return Detection(math.inf, "nothing: the consistency model does not check it")
         return Detection(math.inf, "nothing: the signals read explain too little of it")
@@ -148,9 +150,7 @@ def static_sensitivities(
             per_input.setdefault(sub.input.signal, []).append((int(i), 1.0))
             if sub.input.minus is not None:
                 per_input.setdefault(sub.input.minus, []).append((int(i), -1.0))
-        out[output] = {
-            name: _largest(compiled, terms, sets) for name, terms in per_input.items()
-        }
+        out[output] = {name: _largest(compiled, terms, sets) for name, terms in per_input.items()}
     return out
 
 
@@ -165,7 +165,9 @@ def _largest(
             sub = compiled.submodels[i]
             gain = gains.get(sub.gain_name, compiled.gain[i]) if sub.gain_name else compiled.gain[i]
             values.append(sign * float(gain) * compiled.discrete[i].static_gain())
-        gates = sorted({g for i, _ in terms if (g := compiled.submodels[i].gate) is not None}, key=repr)
+        gates = sorted(
+            {g for i, _ in terms if (g := compiled.submodels[i].gate) is not None}, key=repr
+        )
         if len(gates) > MAX_GATE_COMBINATIONS_LOG2:
             total = sum(abs(v) for v in values)
             best = total if total > abs(best) else best
