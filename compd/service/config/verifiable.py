@@ -88,9 +88,7 @@ def config_unverifiable(
 def not_verifiable(rows: list[Unverifiable]) -> list[Unverifiable]:
     """The rows beyond their axis's tolerance, the largest first."""
     worst = [r for r in rows if r.exceeds]
-    return sorted(
-        worst, key=lambda r: -r.undetectable_um if math.isfinite(r.undetectable_um) else -math.inf
-    )
+    return sorted(worst, key=lambda r: r.undetectable_um, reverse=True)
 
 
 def model_unverifiable(model_file: ModelFile, compiled: CompiledModel) -> list[Unverifiable]:
@@ -110,3 +108,19 @@ def model_unverifiable(model_file: ModelFile, compiled: CompiledModel) -> list[U
         detect,
         {name: default_tolerance_um(rms.get(name)) for name in outputs},
     )
+
+
+class UnverifiableCache:
+    """:func:`config_unverifiable` of the running model, computed once per config and model (a few ms)."""
+
+    def __init__(self) -> None:
+        self._cached: tuple[ConfigDoc, str, list[Unverifiable]] | None = None
+
+    def rows(
+        self, doc: ConfigDoc, model_file: ModelFile, compiled: CompiledModel
+    ) -> list[Unverifiable]:
+        cached = self._cached
+        if cached is None or cached[0] is not doc or cached[1] != model_file.sha256:
+            cached = (doc, model_file.sha256, config_unverifiable(doc, model_file, compiled))
+            self._cached = cached
+        return cached[2]
