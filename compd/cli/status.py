@@ -121,11 +121,11 @@ def status_command(args: argparse.Namespace) -> int:
         out.print(_probe_line(axis, p))
     for row in reply.get("unverifiable") or []:
         if not row["verifiable"]:
-            out.print(_unverifiable_line(row))
+            out.print(unverifiable_line(row))
     return 0
 
 
-def _unverifiable_line(row: dict[str, Any]) -> Text:
+def unverifiable_line(row: dict[str, Any]) -> Text:
     """``not verifiable: T_spindle_degC 97 um on Z (add a redundant sensor / probes)``: the sensors
     cannot see a wrong reading of the input that moves the axis beyond its tolerance."""
     um = row["undetectable_um"]
