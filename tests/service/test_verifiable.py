@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -15,7 +16,11 @@ from compd.errors import ConfigFileError
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import resolve_path
 from compd.service.config.loading import Config, load_config
-from compd.service.config.verifiable import axis_tolerances_um, config_unverifiable
+from compd.service.config.verifiable import (
+    axis_tolerances_um,
+    config_unverifiable,
+    redundant_partners,
+)
 from compd.service.daemon import Service
 from compd.service.http.metrics import LiveCollector
 from compd.service.loop.clock import VirtualClock
@@ -116,3 +121,18 @@ def test_status_and_metrics_carry_what_cannot_be_verified(tmp_path: Path) -> Non
     samples = {s.labels["input"]: s.value for s in gauge.samples}
     assert samples["T_spindle_degC"] == pytest.approx(spindle["undetectable_um"] * 1e-6)
     assert set(samples) == set(rows)
+
+
+def test_a_signal_heading_a_redundant_pair_is_verified_to_the_pair_tolerance(
+    tmp_path: Path,
+) -> None:
+    """A signal section's pair (``SignalDoc.pair``: partner and tolerance) is what verifies its input."""
+    cfg = config(tmp_path)
+    assert redundant_partners(cfg.doc) == {}  # the bundled config names no pair yet
+    signals = {
+        "T_spindle_degC": SimpleNamespace(
+            pair=lambda name: SimpleNamespace(partner="T_b", tolerance=0.5)
+        ),
+        "T_ambient_degC": SimpleNamespace(pair=lambda name: None),
+    }
+    assert redundant_partners(SimpleNamespace(signals=signals)) == {"T_spindle_degC": ("T_b", 0.5)}  # type: ignore[arg-type]

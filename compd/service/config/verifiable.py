@@ -40,15 +40,16 @@ def axis_tolerances_um(doc: ConfigDoc, model_file: ModelFile) -> dict[str, float
 def redundant_partners(doc: ConfigDoc) -> dict[str, tuple[str, float]]:
     """Per input with a redundant partner sensor: the partner and the pair's tolerance (its unit).
 
-    The signal section's ``redundant`` / ``redundant_tolerance`` (issue 41,
-    item 2); read by name so that this module works before and after they exist.
+    The signal section's ``redundant`` / ``redundant_tolerance`` (issue 41, item 2),
+    through ``SignalDoc.pair(name)``; looked up by name so that this module works
+    before and after that lands (until then: no pairs).
     """
     out = {}
     for name, signal in doc.signals.items():
-        partner = getattr(signal, "redundant", None)
-        tolerance = getattr(signal, "redundant_tolerance", None)
-        if isinstance(partner, str) and isinstance(tolerance, int | float):
-            out[name] = (partner, float(tolerance))
+        pair_of = getattr(signal, "pair", None)
+        pair = pair_of(name) if callable(pair_of) else None
+        if pair is not None:
+            out[name] = (str(pair.partner), float(pair.tolerance))
     return out
 
 
