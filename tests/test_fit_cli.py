@@ -298,3 +298,15 @@ def test_oe_whose_every_start_is_unstable_points_to_the_default_not_a_longer_rec
     assert "unstable" in err and "Fit without --method" in err
     assert "longer record" not in err
     assert not (tmp_path / "m.yaml").exists()
+
+
+def test_fit_ends_with_what_the_other_signals_cannot_verify(calibration_csv, tmp_path, capsys):
+    """After the fit summary: per input, the error a wrong reading causes unseen, its remedy, the defaults said."""
+    model = tmp_path / "verify.yaml"
+    assert _fit(calibration_csv, model, "--method", "arx", "--order", "2") == 0
+    out = capsys.readouterr().out
+    assert out.index("what the sensors can verify") > out.index(f"wrote {model}")
+    rows = [line for line in out.splitlines() if line.startswith("│ T_")]
+    assert {row.split()[1] for row in rows} == {"T_spindle_degC", "T_ambient_degC"}
+    assert any("not verifiable: add a redundant sensor beside" in row for row in rows)
+    assert "a fit has no service config: the default plausibility settings" in " ".join(out.split())

@@ -38,8 +38,11 @@ from compd.service.notify import SystemdNotifier
 from compd.service.store.state import install_model_bytes, installed_model
 
 if TYPE_CHECKING:
+    from rich.console import Console
+
     from compd.cli.livescreen import LiveScreen
     from compd.files.modelfile import ModelFile
+    from compd.model.compiled import CompiledModel
     from compd.service.config.docs import ConfigDoc
 
 
@@ -91,6 +94,7 @@ def check_config_command(args: argparse.Namespace) -> int:
             + (" (installed with 'compd model load')" if installed else "")
         )
         out.print(f"  {plausibility_line(model_file, doc)}")
+        _print_verifiable(out, config, model_file, compiled)
     out.print(f"  drivers: {', '.join(f'{n} ({d.type})' for n, d in doc.drivers.items())}")
     out.print(f"  signals: {', '.join(doc.signals)}")
     unstuck = [n for n, s in doc.signals.items() if s.checks.stuck_off(s.unit)]
@@ -134,6 +138,17 @@ def check_config_command(args: argparse.Namespace) -> int:
             f"a status every {t.every_ticks} tick(s), QoS {t.qos}"
         )
     return 0
+
+
+def _print_verifiable(
+    out: Console, config: Config, model_file: ModelFile, compiled: CompiledModel
+) -> None:
+    """What this config's sensors cannot verify of the model: information, check-config still exits 0."""
+    from compd.cli.verifytable import print_verifiable
+    from compd.service.config.verifiable import config_unverifiable
+
+    units = {name: s.unit for name, s in config.doc.signals.items()}
+    print_verifiable(out, config_unverifiable(config.doc, model_file, compiled), units)
 
 
 def address_notes(config: Config) -> list[tuple[str, str]]:

@@ -225,6 +225,7 @@ def _fit(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     write_fit(result, data, args, span)
     _report(result, args)
+    _report_verifiable(args.out)
     if not span.whole:
         console().print(span.describe("fitted"))
     return 0
@@ -312,6 +313,22 @@ def _lag_bank_table(result: FitResult, args: argparse.Namespace) -> Table:
             "-" if share is None else f"{share:.0%}",
         )
     return table
+
+
+def _report_verifiable(path: Path) -> None:
+    """What the calibration's other signals cannot verify of each input of the model written."""
+    from compd.cli.verifytable import print_verifiable
+    from compd.files.modelfile import load_model
+    from compd.service.config.verifiable import model_unverifiable
+
+    model_file = load_model(path)
+    print_verifiable(
+        console(),
+        model_unverifiable(model_file, model_file.compile()),
+        model_file.signal_units() or {},
+        "a fit has no service config: the default plausibility settings, every signal the "
+        "calibration logged read, each output's default tolerance; compd check-config judges a config's",
+    )
 
 
 def _report(result: FitResult, args: argparse.Namespace) -> None:

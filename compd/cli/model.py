@@ -177,6 +177,16 @@ def _check(args: argparse.Namespace) -> int:
             + ", ".join(f"{s:.3g}" for s in consistency.sigma),
             markup=False,
         )
+    from compd.cli.verifytable import print_verifiable
+    from compd.service.config.verifiable import model_unverifiable
+
+    print_verifiable(
+        out,
+        model_unverifiable(model_file, compiled),
+        model_file.signal_units() or {},
+        "no config: the default plausibility settings, every signal the calibration logged read, "
+        "each output's default tolerance; compd check-config judges a config's",
+    )
     out.print(Text.assemble(("ok", "green"), ": compiles, causal and stable"))
     return 0
 

@@ -125,7 +125,22 @@ def status_command(args: argparse.Namespace) -> int:
     probes = reply.get("probes")
     for axis, p in ((probes or {}).get("axes") or {}).items():
         out.print(_probe_line(axis, p))
+    for row in reply.get("unverifiable") or []:
+        if not row["verifiable"]:
+            out.print(unverifiable_line(row))
     return 0
+
+
+def unverifiable_line(row: dict[str, Any]) -> Text:
+    """``not verifiable: T_spindle_degC 97 um on Z (add a redundant sensor / probes)``: the sensors
+    cannot see a wrong reading of the input that moves the axis beyond its tolerance."""
+    um = row["undetectable_um"]
+    size = "any error" if um is None else f"{um:.0f} um"
+    return Text(
+        f"  not verifiable: {row['input']} {size} on {row['axis']} "
+        f"(tolerance {row['tolerance_um']:.3g} um; {row['remedy']})",
+        "yellow",
+    )
 
 
 def _probe_line(axis: str, probe: dict[str, Any]) -> Text:

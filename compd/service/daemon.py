@@ -36,6 +36,7 @@ from compd.errors import CompdError
 from compd.faultlog import Event, FaultLog
 from compd.service import build
 from compd.service.config.loading import Config
+from compd.service.config.verifiable import UnverifiableCache
 from compd.service.control.modelload import ModelLoader, request_bytes, startup_slots
 from compd.service.control.peers import FdBudget
 from compd.service.control.socket import ControlServer
@@ -45,7 +46,7 @@ from compd.service.loop.compensator import Compensator, TickRecord
 from compd.service.loop.probemessages import probe_request
 from compd.service.loop.safety import HEARTBEAT_MODULO
 from compd.service.loop.snapshot import ModelId, TickSnapshot
-from compd.service.loop.statusview import status_snapshot
+from compd.service.loop.statusview import status_snapshot, unverifiable_status
 from compd.service.loop.subscribers import Subscribers, TickCallback
 from compd.service.loop.ticks import TickTiming, run_periodic
 from compd.service.notify import SystemdNotifier
@@ -156,6 +157,7 @@ class Service:
             if control
             else None
         )
+        self._unverifiable_rows = UnverifiableCache()
         #: The last tick's snapshot (None before the first): what ``compd status`` and the page read.
         self.last: TickSnapshot | None = None
         self.telemetry: Telemetry | None = None  # the page reads these while it is built
@@ -410,7 +412,19 @@ class Service:
             started_unix_s=self.started_unix_s,
             counters=self.counters() if self.last is None else self.last.counters,
             telemetry=None if self.telemetry is None else self.telemetry.status_counters(),
-        ) | {"probes": None if self.probing is None else self.probing.status(self.clock.wall())}
+        ) | {
+            "probes": None if self.probing is None else self.probing.status(self.clock.wall()),
+            "unverifiable": self._unverifiable(),
+        }
+
+    def _unverifiable(self) -> list[dict[str, Any]]:
+        """What the sensors cannot verify of the running model, per input and axis (none: no model)."""
+        slot = self.compensator.running
+        if slot is None:
+            return []
+        doc = self.config.doc
+        rows = self._unverifiable_rows.rows(doc, slot.model_file, slot.compiled)
+        return unverifiable_status(rows, {name: s.unit for name, s in doc.signals.items()})
 
     def _describe(self) -> dict[str, Any]:
         return identity(self.config, self.compensator.running, self.started_unix_s)

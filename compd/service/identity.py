@@ -54,6 +54,8 @@ _PREFIX_UNITS = {
     "offset": "um",
 }
 _PREFIX_UNITS |= {"readback": "um", "gain": "1", "probe": "um"}
+#: A simulated run's truth (``sim.residue.<axis>_um``, added by :mod:`compd.sim.plc.run`).
+_PREFIX_UNITS |= {"sim": "um"}
 
 
 def column_units(config: Config) -> Callable[[str], str | None]:

@@ -122,6 +122,11 @@ class OutputDoc(Strict):
     max_rate_um_per_s: Positive
     #: Read the offset back each tick and slew from what the PLC holds; default: where the driver can.
     readback: bool | None = None
+    #: The accuracy the compensation promises on this axis (um): an input a wrong reading of
+    #: which can move the axis further than this unseen is reported as not verifiable
+    #: (``compd check-config``, ``compd status``, ``/metrics``). Default: 3 x the model's
+    #: calibration RMS residue of this output, at least 1 um (5 um where the file records none).
+    tolerance_um: Annotated[float, Field(gt=0, le=10_000, allow_inf_nan=False)] | None = None
 
     def point(self, axis: str, *, integer: bool | None = None, readback: bool = False) -> AxisPoint:
         """Where the axis's offset is written; ``integer``: whole counts (default: an int encoding).

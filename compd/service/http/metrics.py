@@ -47,7 +47,9 @@ from prometheus_client.metrics_core import Metric
 from prometheus_client.registry import Collector
 
 from compd import __version__
+from compd.model.verifiable import Unverifiable
 from compd.service.config.metricunits import prometheus_unit
+from compd.service.config.verifiable import UnverifiableCache
 from compd.service.http.view import ServiceView
 from compd.service.loop.safety import Flag
 
@@ -119,6 +121,7 @@ class LiveCollector(Collector):
 
     def __init__(self, service: ServiceView) -> None:
         self.service = service
+        self._unverifiable = UnverifiableCache()
 
     def collect(self) -> Iterator[Metric]:
         service = self.service
@@ -258,8 +261,18 @@ class LiveCollector(Collector):
         info.add_metric([__version__, doc.machine_id or ""], 1.0)
         yield info
         yield from _model_metrics(service)
+        yield from self._unverifiable_metrics()
         yield from _link_metrics(service)
         yield from _probe_metrics(service)
+
+    def _unverifiable_metrics(self) -> Iterator[Metric]:
+        """What the sensors cannot verify of the running model (:mod:`compd.service.config.verifiable`)."""
+        service = self.service
+        slot = service.compensator.running
+        if slot is None:
+            return
+        rows = self._unverifiable.rows(service.config.doc, slot.model_file, slot.compiled)
+        yield _unverifiable_gauge(rows)
 
 
 def _counters(service: ServiceView) -> Mapping[str, int]:
@@ -308,6 +321,19 @@ def _model_metrics(service: ServiceView) -> Iterator[Metric]:
         "1 while a newly loaded model is blended in.",
         float(comp.previous is not None),
     )
+
+
+def _unverifiable_gauge(rows: list[Unverifiable]) -> Metric:
+    gauge = GaugeMetricFamily(
+        "compd_unverifiable_error_meters",
+        "Per model input and axis, the offset error a wrong reading of the input can cause "
+        "before any check sees it (threshold x the model's static sensitivity; +Inf: nothing "
+        "checks the input). compd check-config prints it with the axis's tolerance.",
+        labels=["input", "axis"],
+    )
+    for row in rows:
+        gauge.add_metric([row.input, row.axis], row.undetectable_um * M_PER_UM)
+    return gauge
 
 
 def _probe_metrics(service: ServiceView) -> Iterator[Metric]:

@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from datetime import UTC, datetime
 from typing import Any
 
+from compd.model.verifiable import Unverifiable
 from compd.service.loop.clock import Clock
 from compd.service.loop.compensator import Compensator
 from compd.service.loop.links import DriverLink
@@ -163,3 +164,25 @@ def _iso(unix_s: float) -> str:
 
 def _finite(value: float) -> float | None:
     return value if math.isfinite(value) else None
+
+
+def unverifiable_status(
+    rows: Sequence[Unverifiable], units: Mapping[str, str]
+) -> list[dict[str, Any]]:
+    """``compd status``'s ``unverifiable``: per input and axis, what a wrong reading can move the axis
+    by unseen (:mod:`compd.model.verifiable`); ``undetectable_um`` None where nothing checks the input."""
+    return [
+        {
+            "input": r.input,
+            "axis": r.axis,
+            "unit": units.get(r.input, ""),
+            "detected_by": r.detection.by,
+            "threshold": _finite(r.detection.threshold),
+            "um_per_unit": r.um_per_unit,
+            "undetectable_um": _finite(r.undetectable_um),
+            "tolerance_um": r.tolerance_um,
+            "verifiable": not r.exceeds,
+            "remedy": r.remedy,
+        }
+        for r in rows
+    ]

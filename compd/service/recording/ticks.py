@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
+
 import structlog
 
 from compd.errors import RecorderError
@@ -43,9 +45,15 @@ class RecordingTicks:
         self.recorder = recorder
         #: The recorder's fault episodes: ``active`` while it cannot write, ``episodes`` so far.
         self.fault = FaultLog(log)
+        #: Columns added to every row, asked for at the tick (the same names each tick): the
+        #: simulated machine's truth (``sim.residue.<axis>_um``, :mod:`compd.sim.plc.run`), which
+        #: the service itself cannot know. None: the row as the tick made it.
+        self.extra_columns: Callable[[], Mapping[str, float]] | None = None
 
     def on_tick(self, snapshot: TickSnapshot) -> None:
         row = tick_row(snapshot)
+        if self.extra_columns is not None:
+            row |= self.extra_columns()
         try:
             if snapshot.model is not None:  # a data logger names no model
                 self.recorder.set_model(snapshot.model.name, snapshot.model.sha256)

@@ -289,6 +289,8 @@ class SimulatedMachine:
                 return fault.value
             if fault.kind == "offset" and fault.value is not None:
                 return value + fault.value
+            if fault.kind == "drift" and fault.rate_per_h is not None:
+                return value + fault.rate_per_h * (self.now_s - fault.at_s) / 3600.0
         return value
 
     async def _faults_at(self, t_s: float) -> None:

@@ -94,6 +94,8 @@ async def run_simulation(
         )
         if time_scale is None:
             clock.settle = lambda: settle(service.links)
+        if service.recording is not None:
+            service.recording.extra_columns = lambda: truth_columns(machine)
         if service_hook is not None:
             service_hook(service)
         if duration_s is None and machine.doc.stop_at_end:
@@ -108,6 +110,16 @@ async def run_simulation(
         timing=timing,
         wall_s=time.perf_counter() - started,
     )
+
+
+def truth_columns(machine: SimulatedMachine) -> dict[str, float]:
+    """What a recording of a simulated run adds: per axis, what the axis is really off by (um).
+
+    ``sim.residue.<axis>_um``: the twin's true thermal error plus the offset applied
+    (the residue a perfect probe would read now), so a run's silent time (an error
+    the status did not admit) can be counted from its recording alone.
+    """
+    return {f"sim.residue.{axis}_um": c for axis, (_, _, c) in machine.truth_now().items()}
 
 
 async def start_machine(config: Config, machine: SimulatedMachine) -> None:

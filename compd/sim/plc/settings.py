@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from compd.errors import ConfigFileError
 from compd.service.config.loading import Config, validation_error
 
-FaultKind = Literal["stuck", "nan", "value", "offset", "drop", "restart"]
+FaultKind = Literal["stuck", "nan", "value", "offset", "drift", "drop", "restart"]
 TwinAxis = Literal["x", "y", "z"]
 Seconds = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
@@ -33,6 +33,9 @@ class SimFaultDoc(_Strict):
       wire-break code) / ``value`` (in the signal's unit, e.g. out of range);
     - ``offset``: the sensor behind ``signal`` reads ``value`` (its unit) off the truth: a
       plausible wrong value that follows the signal (a bad contact, a wrong linearisation);
+    - ``drift``: the sensor behind ``signal`` departs from the truth at ``rate_per_h`` (its unit
+      per hour) from ``at_s``, ``rate_per_h * (t - at_s) / 3600`` off, for ``duration_s`` (an
+      ageing sensor, a creeping contact resistance); then it reads true again;
     - ``drop``: the controller behind ``driver`` is unreachable for ``duration_s``;
     - ``restart``: the controller behind ``driver`` restarts (connections drop) at ``at_s``.
     """
@@ -43,6 +46,8 @@ class SimFaultDoc(_Strict):
     signal: str | None = None
     driver: str | None = None
     value: float | None = None
+    #: A ``drift``'s rate, in the signal's unit per hour.
+    rate_per_h: Annotated[float, Field(allow_inf_nan=False)] | None = None
 
     @model_validator(mode="after")
     def _target(self) -> SimFaultDoc:
@@ -53,6 +58,11 @@ class SimFaultDoc(_Strict):
             raise ValueError(f"a {self.kind!r} fault needs 'signal': the sensor it hits")
         if self.kind in ("value", "offset") and self.value is None:
             raise ValueError(f"a {self.kind!r} fault needs 'value', in the signal's unit")
+        if (self.kind == "drift") != (self.rate_per_h is not None):
+            raise ValueError(
+                "a 'drift' fault needs 'rate_per_h' (the signal's unit per hour), and only a "
+                f"'drift' takes it (this one is {self.kind!r})"
+            )
         if self.kind != "restart" and not self.duration_s > 0:
             raise ValueError(f"a {self.kind!r} fault needs 'duration_s' above 0")
         return self
