@@ -28,6 +28,7 @@ Pure numpy: the caller passes each tick's departures.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,22 @@ class CusumSettings:
 
     k_sigma: float = 3.0
     h_sigma_h: float = 0.25
+
+
+def smallest_step_sigma(settings: CusumSettings, reference_tau_h: float = 1.0) -> float:
+    """The smallest persistent step (sigmas) the CUSUM catches against a reference that follows
+    it with time constant ``reference_tau_h``: the departure ``a exp(-t / tau)`` sums to
+    ``tau (a - k - k ln(a / k))`` while above ``k``, which must reach ``h`` (bisection)."""
+    k, h = settings.k_sigma, settings.h_sigma_h
+
+    def summed(a: float) -> float:
+        return reference_tau_h * (a - k - k * math.log(a / k))
+
+    low, high = k, k + h / reference_tau_h + 10.0 * k
+    for _ in range(60):
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if summed(mid) < h else (low, mid)
+    return high
 
 
 class DriftCusum:

@@ -43,6 +43,7 @@ import numpy as np
 
 from compd.model.compiled import CompiledModel
 from compd.model.consistency import ConsistencyCheck, ConsistencyModel
+from compd.model.drift import CusumSettings, smallest_step_sigma
 
 #: The default tolerance of an axis is this many times the calibration's RMS residue of its
 #: output (the accuracy the fit itself promises)...
@@ -89,6 +90,7 @@ def plausibility_detector(
     available: Collection[str] | None = None,
     partners: Mapping[str, tuple[str, float]] | None = None,
     without: str = "the model file has no consistency model",
+    drift: CusumSettings | None = None,
 ) -> Detector:
     """Today's detector: the plausibility tolerance from the signals ``available``, or a redundant pair's.
 
@@ -100,8 +102,14 @@ def plausibility_detector(
     little of (or no consistency model at all) has none. ``partners`` maps an
     input to its redundant partner and the pair's tolerance (the input's
     unit): the smaller threshold wins. ``without``: why nothing checks the
-    inputs where ``consistency`` is None.
+    inputs where ``consistency`` is None. ``drift``: the daemon's drift CUSUM
+    (:mod:`compd.model.drift`), which catches a persistent step of
+    :func:`smallest_step_sigma` sigmas with no ``min_tolerance`` floor: the
+    smaller threshold wins. (A drift slower than about ``drift.k_sigma`` sigmas
+    an hour is caught only once it is that far off: the threshold is where
+    a slow drift is caught, not how fast.)
     """
+    step = math.inf if drift is None else smallest_step_sigma(drift)
     thresholds: dict[str, float] = {}
     if consistency is not None:
         read = set(consistency.signals if available is None else available)
@@ -111,7 +119,8 @@ def plausibility_detector(
         _, sigmas = check.predict_all(np.asarray(consistency.mean, dtype=float), ok)
         for name, sigma in zip(consistency.checked, sigmas, strict=True):
             if name in read and math.isfinite(float(sigma)):
-                thresholds[name] = max(k_sigma * float(sigma), min_tolerance)
+                instant = max(k_sigma * float(sigma), min_tolerance)
+                thresholds[name] = min(instant, step * float(sigma))
     pairs = dict(partners or {})
 
     def detect(name: str) -> Detection:

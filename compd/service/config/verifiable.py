@@ -11,13 +11,14 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from compd.model.drift import CusumSettings
 from compd.model.verifiable import (
     Unverifiable,
     default_tolerance_um,
     plausibility_detector,
     undetectable_error_um,
 )
-from compd.service.loop.plausibility import DEFAULT_SETTINGS
+from compd.service.loop.plausibility import DEFAULT_SETTINGS, PlausibilitySettings
 
 if TYPE_CHECKING:
     from compd.files.modelfile import ModelFile
@@ -62,6 +63,7 @@ def config_unverifiable(
         model_file.consistency() if settings is not None else None,
         k_sigma=(settings or DEFAULT_SETTINGS).k_sigma,
         min_tolerance=(settings or DEFAULT_SETTINGS).min_tolerance,
+        drift=_drift(settings or DEFAULT_SETTINGS),
         available=set(doc.signals),
         partners=redundant_partners(doc),
         without=(
@@ -101,6 +103,7 @@ def model_unverifiable(model_file: ModelFile, compiled: CompiledModel) -> list[U
         model_file.consistency(),
         k_sigma=DEFAULT_SETTINGS.k_sigma,
         min_tolerance=DEFAULT_SETTINGS.min_tolerance,
+        drift=_drift(DEFAULT_SETTINGS),
     )
     outputs = compiled.output_names
     return undetectable_error_um(
@@ -125,3 +128,8 @@ class UnverifiableCache:
             cached = (doc, model_file.sha256, config_unverifiable(doc, model_file, compiled))
             self._cached = cached
         return cached[2]
+
+
+def _drift(settings: PlausibilitySettings) -> CusumSettings:
+    """The drift CUSUM's settings of the daemon's plausibility check."""
+    return CusumSettings(settings.drift_k_sigma, settings.drift_h_sigma_h)

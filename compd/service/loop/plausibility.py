@@ -380,10 +380,10 @@ class Plausibility:
         if culprit is None:
             return None
         before = departures.get(culprit, departures.get(first, reference))
-        i = names.index(culprit)
+        row = names.index(culprit)
         p = predictions[culprit]
         assert p is not None
-        moved = float(g[i] * p.sigma) if math.isfinite(g[i]) else math.nan
+        moved = float(g[row] * p.sigma) if math.isfinite(g[row]) else math.nan
         unit = self.units.get(culprit, "")
         why = (
             f"drifts from the other sensors: its residue moved {moved:+.2f} {unit} from its level "
