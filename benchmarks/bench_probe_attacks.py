@@ -107,6 +107,7 @@ def run(directory: Path, plan: Plan, prepare: Callable[[Path], None] | None = No
     adjustments: list[float] = []
     answers: list[str] = []
     pending: list[asyncio.Task[None]] = []
+    remotes: list[RemoteProbes] = []  # one, as the daemon has
 
     def on_tick(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
         probing = service.probing
@@ -122,14 +123,19 @@ def run(directory: Path, plan: Plan, prepare: Callable[[Path], None] | None = No
                 try:
                     offer(service, message | {"axis": "Z", "source": "cli"})
                 except CompdError as exc:
-                    answers.append(f"refused at once: {exc.message}")
+                    answers.append(f"refused at once: {exc}")
                 continue
 
-            async def take(m: dict[str, Any], s: Service = service) -> dict[str, Any]:
-                offer(s, m)
-                return {}
+            if not remotes:
 
-            remote = RemoteProbes(take, lambda i, a: answers.append(f"{i}: {a}"), lambda e: None)
+                async def take(m: dict[str, Any], s: Service = service) -> dict[str, Any]:
+                    offer(s, m)
+                    return {}
+
+                remotes.append(
+                    RemoteProbes(take, lambda i, a: answers.append(f"{i}: {a}"), lambda e: None)
+                )
+            remote = remotes[0]
             payload = json.dumps(message | {"request_id": request_id, "axis": "Z"}).encode()
             pending.append(asyncio.get_running_loop().create_task(remote.handle(payload)))
 
@@ -141,6 +147,7 @@ def run(directory: Path, plan: Plan, prepare: Callable[[Path], None] | None = No
         "end_um": adjustments[-1],
         "results": z["results"],
         "off": status["off"],
+        "answers": answers,
     }
 
 
@@ -184,6 +191,8 @@ def main() -> None:
             print(
                 f"{name:8} {out['max_abs_um']:12.2f} {out['end_um']:9.2f}  {on:8}  {out['results']}"
             )
+            for answer in sorted(set(out["answers"])):
+                print(f"{'':10}answer: {answer[:160]}")
 
 
 if __name__ == "__main__":
