@@ -79,7 +79,9 @@ CASES: dict[str, Plan] = {
 
 
 def config_doc(directory: Path) -> dict[str, Any]:
-    doc: dict[str, Any] = yaml.safe_load(resolve_path("bundled:simulated.yaml", Path(".")).read_text())
+    doc: dict[str, Any] = yaml.safe_load(
+        resolve_path("bundled:simulated.yaml", Path(".")).read_text()
+    )
     doc["model"] = str(resolve_path("bundled:simulated_model.yaml", Path(".")))
     doc["drivers"]["plc"]["settings"]["port"] = free_port()
     doc["state"] = {"directory": str(directory / "state"), "save_every_ticks": 60}
@@ -97,7 +99,9 @@ def config_doc(directory: Path) -> dict[str, Any]:
     return doc
 
 
-def run(directory: Path, plan: Plan, prepare: Callable[[Path], None] | None = None) -> dict[str, Any]:
+def run(
+    directory: Path, plan: Plan, prepare: Callable[[Path], None] | None = None
+) -> dict[str, Any]:
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / "compd.yaml"
     path.write_text(yaml.safe_dump(config_doc(directory), sort_keys=False))

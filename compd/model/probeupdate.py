@@ -264,7 +264,8 @@ class ProbeUpdater:
             self.settings,
         )
         try:
-            steps = self._probe(time_s, x, measured_um, fixed_um, recent, accept_shift)
+            with np.errstate(all="ignore"):  # an overflow is refused below, not warned about
+                steps = self._probe(time_s, x, measured_um, fixed_um, recent, accept_shift)
             if not (np.all(np.isfinite(self.theta)) and np.all(np.isfinite(self.covariance))):
                 raise ModelError("the update gave parameters that are not finite numbers")
         except BaseException:

@@ -16,7 +16,7 @@ import paho.mqtt.publish as publish
 import pytest
 import yaml
 
-from compd.errors import ModelError
+from compd.errors import CompdError, ModelError
 from compd.files.probestate import learned_path
 from compd.files.yamlplace import resolve_path
 from compd.service.config.loading import load_config
@@ -24,7 +24,7 @@ from compd.service.control.socket import request
 from compd.service.daemon import Service
 from compd.service.http.metrics import ServiceMetrics
 from compd.service.loop.compensator import TickRecord
-from compd.service.loop.probemessages import ProbeRequest
+from compd.service.loop.probemessages import ProbeRequest, probe_request
 from compd.service.loop.probing import OFFSET_HISTORY_S, _OffsetHistory
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
@@ -176,6 +176,19 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
         answers["probe"] = await request(
             config.control_socket, {"cmd": "probe", "axis": "Z", "measured_um": 2.0}
         )
+        touched = answers["probe"]["last"]["touched_at_unix_s"]
+        again = {"cmd": "probe", "axis": "Z", "measured_um": 2.0, "touched_at_unix_s": touched}
+        answers["again"] = await request(config.control_socket, again)
+        answers["soon"] = await request(
+            config.control_socket, {"cmd": "probe", "axis": "Z", "measured_um": 2.5}
+        )
+        soon = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "compd.cli", "model", "probe", "--config", str(config.path),
+            "Z", "2.5", "--accept-shift",
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+        )  # fmt: skip
+        out, _ = await soon.communicate()
+        answers["soon_cli"] = (soon.returncode, out.decode())
         cli = await asyncio.create_subprocess_exec(
             sys.executable, "-m", "compd.cli", "model", "probe", "--config", str(config.path),
             "Z", "1.5", "--at", "2000-01-01T00:00:00",
@@ -199,6 +212,15 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
     probe = answers["probe"]
     assert probe["ok"] and probe["taken"] and probe["last"]["source"] == "socket"
     assert probe["last"]["result"] in ("accepted", "flagged")
+    # The same probe again (same touch, value, source): answered as it was, not taken again.
+    again = answers["again"]["last"]
+    assert again["result"] == "duplicate" and again["original_result"] == probe["last"]["result"]
+    assert again["innovation_um"] == probe["last"]["innovation_um"]
+    # Another touched a moment later: too soon after the last (the probe gap), said and refused,
+    # from the command line too (exit status 1), an accepted shift or not.
+    assert answers["soon"]["last"]["result"] == "too_soon"
+    status, out = answers["soon_cli"]
+    assert status == 1 and "Z: too_soon" in out and "probes.min_gap_s" in out, out
     # A touch older than what the daemon keeps is refused, and says so (exit status 1).
     status, out = answers["cli"]
     assert status == 1 and "Z: refused" in out and "older than" in out, out
@@ -376,3 +398,122 @@ def test_the_shift_s_probe_residues_are_one_figure(runs: tuple[ProbedRun, Probed
     scraped = ServiceMetrics(probed.service).render()[0].decode()
     shift = re.search(r'^compd_probe_shift_rms_meters\{axis="Z"\} (\S+)$', scraped, re.M)
     assert shift is not None and float(shift.group(1)) == pytest.approx(z["shift_rms_um"] * 1e-6)
+
+
+@dataclass
+class Attacked:
+    """A 3 h shift attacked through the socket's path (probe_request, offer) at the ticks of ``AT``."""
+
+    records: list[TickRecord]
+    service: Service
+    #: Per tick, the learned adjustment (um) and what the probing said of its own health.
+    adjustments_um: list[float]
+    problems: list[str | None]
+    refused_at_once: list[str]
+    thetas: list[np.ndarray]
+
+
+#: Ticks (10 s) of the attacks: a 50 um probe and its retry 10 s later; 300 probes of +30 um in
+#: 46 s; 1e308 twice; an update that fails (a bug); a probe after the gap.
+RETRY_AT, FLOOD_AT, HUGE_AT, BROKEN_AT, AFTER_AT = 360, 540, 720, 900, 1000
+
+
+@pytest.fixture(scope="module")
+def attacked(tmp_path_factory: pytest.TempPathFactory) -> Attacked:
+    tmp = tmp_path_factory.mktemp("attacked")
+    doc = machine_doc(
+        tmp,
+        BUNDLED_MODEL,
+        simulation={"scenario": "production", "hours": 3, "seed": 1, "sample_time_s": PERIOD_S,
+                    "stop_at_end": True},
+        probes={"axes": {"Z": None}},
+        period_s=PERIOD_S,
+    )  # fmt: skip
+    doc["recorder"] = {"enabled": False}
+    config = write_config(tmp, doc)
+    out = Attacked([], None, [], [], [], [])  # type: ignore[arg-type]
+
+    def offer(service: Service, measured_um: float) -> None:
+        assert service.probing is not None
+        message = {"axis": "Z", "measured_um": measured_um, "source": "cli"}
+        try:
+            service.probing.offer(probe_request(message, service.clock_wall(), "residue"))
+        except CompdError as exc:
+            out.refused_at_once.append(str(exc))
+
+    def on_tick(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
+        out.records.append(record)
+        out.service = service
+        probing = service.probing
+        assert probing is not None
+        out.adjustments_um.append(record.probe_adjustments_um["disp_z_um"])
+        out.problems.append(probing.problem())
+        out.thetas.append(probing.learners["disp_z_um"].theta.copy())
+        k = len(out.records)
+        if k in (RETRY_AT, RETRY_AT + 1):
+            offer(service, 50.0)
+        if FLOOD_AT <= k < FLOOD_AT + 5:  # 60 a tick: 300 in 46 s
+            for _ in range(60):
+                offer(service, 30.0)
+        if k in (HUGE_AT, HUGE_AT + 120):
+            offer(service, 1e308)
+        if k == BROKEN_AT:
+
+            def overflow(*args: object) -> None:
+                raise OverflowError("(34, 'Numerical result out of range')")
+
+            learner = probing.learners["disp_z_um"]
+            learner.updater._take = overflow  # type: ignore[method-assign]
+            offer(service, machine.truth_now()["Z"][2])
+        if k == BROKEN_AT + 2:
+            del probing.learners["disp_z_um"].updater._take  # the bug fixed
+        if k == AFTER_AT:
+            offer(service, machine.truth_now()["Z"][2])
+
+    asyncio.run(run_simulation(config, on_tick=on_tick))
+    return out
+
+
+def taken_between(run: Attacked, start: int, end: int) -> list[str]:
+    return [p.result for r in run.records[start - 1 : end] for p in r.probes]
+
+
+def test_a_retried_probe_is_refused_as_too_soon_and_cannot_confirm_itself(
+    attacked: Attacked,
+) -> None:
+    """compd model probe Z 50 sent twice 10 s apart: flagged, then too soon; nothing learned (was +49.6 um)."""
+    assert taken_between(attacked, RETRY_AT, RETRY_AT + 3) == ["flagged", "too_soon"]
+    assert max(abs(a) for a in attacked.adjustments_um[: FLOOD_AT - 1]) == 0.0
+
+
+def test_a_flood_of_probes_moves_the_model_by_at_most_one_probe(attacked: Attacked) -> None:
+    """300 probes of +30 um in 46 s: one given to the update, the rest answered (was 298 taken, 52 um)."""
+    results = taken_between(attacked, FLOOD_AT, FLOOD_AT + 6)
+    given = [r for r in results if r not in ("too_soon", "duplicate")]
+    assert len(given) == 1, results
+    assert len(results) + len(attacked.refused_at_once) - 2 == 300  # each one answered
+    one = attacked.records[FLOOD_AT + 1].probe_adjustments_um["disp_z_um"]
+    later = attacked.records[FLOOD_AT + 6].probe_adjustments_um["disp_z_um"]
+    assert abs(later - one) < 0.1  # what the one probe taught, nothing more
+
+
+def test_a_value_beyond_1_mm_is_refused_at_once_and_learning_stays_on(attacked: Attacked) -> None:
+    """compd model probe Z 1e308 twice: refused naming the bound, both times; probes still taken."""
+    huge = [r for r in attacked.refused_at_once if "1e+308" in r]
+    assert len(huge) == 2 and "beyond what a thermal error can be" in huge[0]
+    assert attacked.service.status()["probes"]["off"] is None
+
+
+def test_a_failing_update_refuses_its_probe_says_so_and_learning_goes_on(
+    attacked: Attacked,
+) -> None:
+    """An OverflowError in the update: the probe refused with the reason, the parameters as before,
+    /healthz's problem until an update works again; the next probe is taken."""
+    (broken,) = [p for r in attacked.records[BROKEN_AT - 1 : BROKEN_AT + 2] for p in r.probes]
+    assert broken.result == "refused" and broken.refused is not None
+    assert "OverflowError" in broken.refused and "parameters are as before" in broken.refused
+    np.testing.assert_array_equal(attacked.thetas[BROKEN_AT + 1], attacked.thetas[BROKEN_AT - 2])
+    assert "probe update failed" in (attacked.problems[BROKEN_AT + 1] or "")
+    (after,) = [p for r in attacked.records[AFTER_AT - 1 : AFTER_AT + 2] for p in r.probes]
+    assert after.result in ("accepted", "flagged")
+    assert attacked.problems[AFTER_AT + 2] is None
