@@ -42,6 +42,14 @@ import numpy as np
 
 from compd.errors import ModelError
 from compd.model.compiled import CompiledModel
+from compd.model.probebounds import (
+    RESTORE_SKEW_S,
+    SIMULATED_SKEW_S,
+    array_of,
+    check_bounds,
+    number,
+    time_or_none,
+)
 from compd.model.probeupdate import (
     PendingProbe,
     ProbeSettings,
@@ -49,6 +57,16 @@ from compd.model.probeupdate import (
     ProbeUpdater,
     max_probe_um,
 )
+
+__all__ = [
+    "RESTORE_SKEW_S",
+    "SIMULATED_SKEW_S",
+    "OutputLearner",
+    "RegressorWindow",
+    "ShiftRefused",
+    "output_columns",
+    "probed_thermal_error_um",
+]
 from compd.model.updateprior import Prior
 
 #: The regressors since the last probe the departure bound is held over, at most this many.
@@ -62,15 +80,6 @@ DEFAULT_KEEP_S = 12 * 3600.0
 AHEAD_SLACK_S = 5.0
 #: The version of :meth:`OutputLearner.state`'s layout.
 STATE_VERSION = 1
-#: A restored state's times may be this far after the reader's clock (s): a touch time may
-#: be a minute ahead of the daemon's (the PLC's clock), no more.
-RESTORE_SKEW_S = 120.0
-#: ... and this far on a simulation's clock (virtual or sped up: it runs ahead of the wall, and
-#: the next run starts from the wall again), the longest simulation.
-SIMULATED_SKEW_S = 14 * 24 * 3600.0
-#: A restored parameter's variance may be at most this many times its prior's: the random
-#: walk widens it between probes, never by a million.
-MAX_VARIANCE_GROWTH = 1e6
 
 
 class ShiftRefused(ModelError):
@@ -452,22 +461,22 @@ class OutputLearner:
             raise ModelError(
                 f"parameters are {state.get('parameters')!r}, the model's are {list(prior.names)}"
             )
-        theta = _array(state.get("theta"), (p,), "theta")
-        covariance = _array(state.get("covariance"), (p, p), "covariance")
+        theta = array_of(state.get("theta"), (p,), "theta")
+        covariance = array_of(state.get("covariance"), (p, p), "covariance")
         if not np.allclose(covariance, covariance.T, rtol=1e-9, atol=1e-12):
             raise ModelError("covariance is not symmetric")
-        accepted = _number(state.get("accepted_shift_um", 0.0), "accepted_shift_um")
+        accepted = number(state.get("accepted_shift_um", 0.0), "accepted_shift_um")
         if not 0.0 <= accepted <= max_probe_um(prior):
             raise ModelError(
                 f"accepted_shift_um is {accepted:g}, not within [0, {max_probe_um(prior):g}] um"
             )
         learner.accepted_shift_um = accepted
-        _check_bounds(prior, settings, theta, covariance, accepted)
+        check_bounds(prior, settings, theta, covariance, accepted)
         u = learner.updater
         u.theta, u.covariance = theta, covariance
-        u.last_time_s = _time(state.get("last_time_s"), "last_time_s")
-        u.drifted_to_s = _time(state.get("drifted_to_s"), "drifted_to_s")
-        since = _time(state.get("since_s"), "since_s")
+        u.last_time_s = time_or_none(state.get("last_time_s"), "last_time_s")
+        u.drifted_to_s = time_or_none(state.get("drifted_to_s"), "drifted_to_s")
+        since = time_or_none(state.get("since_s"), "since_s")
         learner.since_s = -math.inf if since is None else since
         untaken = state.get("untaken_in_a_row")
         if isinstance(untaken, bool) or not isinstance(untaken, int) or not 0 <= untaken <= 10**6:
@@ -478,11 +487,11 @@ class OutputLearner:
             if not isinstance(pending, Mapping):
                 raise ModelError("pending is not a mapping")
             u.pending = PendingProbe(
-                _number(pending.get("time_s"), "pending.time_s"),
-                _array(pending.get("x"), (p,), "pending.x"),
-                _number(pending.get("fixed_um"), "pending.fixed_um"),
-                _number(pending.get("measured_um"), "pending.measured_um"),
-                _number(pending.get("innovation_um"), "pending.innovation_um"),
+                number(pending.get("time_s"), "pending.time_s"),
+                array_of(pending.get("x"), (p,), "pending.x"),
+                number(pending.get("fixed_um"), "pending.fixed_um"),
+                number(pending.get("measured_um"), "pending.measured_um"),
+                number(pending.get("innovation_um"), "pending.innovation_um"),
             )
         if now_s is not None:
             times = {"last_time_s": u.last_time_s, "drifted_to_s": u.drifted_to_s, "since_s": since}
@@ -496,63 +505,3 @@ class OutputLearner:
                     )
         learner._delta = u.theta - prior.mean
         return learner
-
-
-def _check_bounds(
-    prior: Prior,
-    settings: ProbeSettings,
-    theta: np.ndarray,
-    covariance: np.ndarray,
-    accepted_shift_um: float,
-) -> None:
-    """The bounds a state reached by updates keeps (see :meth:`OutputLearner.restore`)."""
-    low, high = settings.gain_bounds
-    slack = 1e-9 * max(1.0, abs(high))
-    for name, gain in zip(prior.names[:-1], theta[:-1], strict=True):
-        if not low - slack <= gain <= high + slack:
-            raise ModelError(
-                f"the gain of {name} is {gain:g}, beyond its rails [{low:g}, {high:g}]"
-            )
-    # Twice the bound (or what a person accepted): a state learned under a larger
-    # probes.max_shift_um is not set aside for that alone.
-    bias_bound = 2.0 * min(max(settings.max_shift_um, accepted_shift_um), max_probe_um(prior))
-    if abs(theta[-1] - prior.mean[-1]) > bias_bound:
-        raise ModelError(
-            f"the bias is {theta[-1]:g} um, beyond {bias_bound:g} um (twice the learned "
-            "shift's bound, max_shift_um, or what a person accepted): no update reaches it"
-        )
-    widest = MAX_VARIANCE_GROWTH * np.diag(prior.covariance)
-    widest[-1] += max_probe_um(prior) ** 2
-    variances = np.diag(covariance)
-    if np.any(variances > widest):
-        i = int(np.argmax(variances / widest))
-        raise ModelError(
-            f"the variance of {prior.names[i]} is {variances[i]:g}, beyond {widest[i]:g} "
-            "(a million times its prior's): no update reaches it"
-        )
-    try:
-        np.linalg.cholesky(covariance)
-    except np.linalg.LinAlgError:
-        raise ModelError("covariance is not positive definite") from None
-
-
-def _number(value: object, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ModelError(f"{key} is {value!r}, not a finite number")
-    return float(value)
-
-
-def _time(value: object, key: str) -> float | None:
-    return None if value is None else _number(value, key)
-
-
-def _array(value: object, shape: tuple[int, ...], key: str) -> np.ndarray:
-    try:
-        array = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ModelError(f"{key} is not an array of numbers") from None
-    if array.shape != shape:
-        raise ModelError(f"{key} has shape {array.shape}, needs {shape}")
-    if not np.all(np.isfinite(array)):
-        raise ModelError(f"{key} has a value that is not a finite number")
-    return array

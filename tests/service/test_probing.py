@@ -24,8 +24,8 @@ from compd.service.control.socket import request
 from compd.service.daemon import Service
 from compd.service.http.metrics import ServiceMetrics
 from compd.service.loop.compensator import TickRecord
+from compd.service.loop.offsethistory import OFFSET_HISTORY_S, OffsetHistory
 from compd.service.loop.probemessages import ProbeRequest, probe_request
-from compd.service.loop.probing import OFFSET_HISTORY_S, _OffsetHistory
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from tests.acceptance.conftest import machine_doc, write_config
@@ -376,7 +376,7 @@ def test_a_failure_of_the_learner_drops_what_it_taught_while_it_lasts_and_learni
 
 def test_the_offset_in_force_is_known_at_any_touch_of_the_last_12_h() -> None:
     """Interpolated between ticks; a touch older than what is kept is refused, naming why."""
-    history = _OffsetHistory(capacity=4)
+    history = OffsetHistory(capacity=4)
     for k in range(100_000):  # 28 h of 1 s ticks, the offset rising 0.5 um/s
         history.append(float(k), 0.5 * k)
     assert history.at(99_998.5) == pytest.approx(49_999.25)

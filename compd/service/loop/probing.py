@@ -49,16 +49,17 @@ from compd.files.probeprior import output_prior
 from compd.model.probelearner import OutputLearner, output_columns, probed_thermal_error_um
 from compd.model.probeupdate import ProbeSettings, max_probe_um
 from compd.model.updateprior import Prior
+from compd.service.loop.offsethistory import OFFSET_HISTORY_S, OffsetHistory
 from compd.service.loop.offsets import AxisPoint
 from compd.service.loop.points import SignalPoint
 from compd.service.loop.probegate import ProbeGate
 from compd.service.loop.probemessages import ProbeRegisters, ProbeRequest, ProbeSetup, ProbeTaken
 from compd.service.loop.slots import ModelSlot
 
+__all__ = ["OFFSET_HISTORY_S", "OffsetHistory", "ProbeLearning"]
+
 log = structlog.get_logger("compd.service.loop.probing")
 
-#: The offset in force is kept per tick over this long (s): a gauge result typed in hours late.
-OFFSET_HISTORY_S = 12 * 3600.0
 #: A shift (s): each one ends with a line of the RMS of its probe residues, the shop's evidence.
 SHIFT_S = 8 * 3600.0
 #: Probe status bits (the probe status register, and ``compd status``).
@@ -67,43 +68,6 @@ DUE_BIT, DISAGREES_BIT = 1 << 0, 1 << 1
 MAX_QUEUED = 64
 #: The answers kept for the socket and MQTT to find their own (the newest).
 ANSWERS_KEPT = 512
-
-
-class _OffsetHistory:
-    """The offset in force per tick (um) over :data:`OFFSET_HISTORY_S`, for a probe's touch instant.
-
-    Two float arrays (16 bytes a tick, at most 4 times the rows kept: 2 MB for 12 h at
-    1 Hz), the oldest rows dropped when the arrays fill, so appending is amortised O(1).
-    """
-
-    def __init__(self, capacity: int = 1024) -> None:
-        self.t_s = np.empty(capacity)
-        self.offset_um = np.empty(capacity)
-        self.lo = self.hi = 0
-
-    def append(self, t_s: float, offset_um: float) -> None:
-        if self.hi == len(self.t_s):
-            self.lo += int(np.searchsorted(self.t_s[self.lo : self.hi], t_s - OFFSET_HISTORY_S))
-            live = self.hi - self.lo
-            if live > len(self.t_s) // 2:  # mostly live: grow
-                self.t_s = np.concatenate([self.t_s, np.empty(len(self.t_s))])
-                self.offset_um = np.concatenate([self.offset_um, np.empty(len(self.offset_um))])
-            self.t_s[:live] = self.t_s[self.lo : self.hi]
-            self.offset_um[:live] = self.offset_um[self.lo : self.hi]
-            self.lo, self.hi = 0, live
-        self.t_s[self.hi] = t_s
-        self.offset_um[self.hi] = offset_um
-        self.hi += 1
-
-    def at(self, t_s: float) -> float:
-        times = self.t_s[self.lo : self.hi]
-        if not times.size:
-            raise ModelError("no offset is known yet: the probe came before the first tick")
-        if t_s < max(times[0], times[-1] - OFFSET_HISTORY_S):
-            raise ModelError(
-                f"the touch is older than the offsets kept ({OFFSET_HISTORY_S / 3600:g} h): probe again"
-            )
-        return float(np.interp(t_s, times, self.offset_um[self.lo : self.hi]))
 
 
 class ProbeLearning:
@@ -136,7 +100,7 @@ class ProbeLearning:
         self._output_index: dict[str, int] = {}
         self.notes: dict[str, str] = {}
         self._queue: deque[ProbeRequest] = deque()
-        self._offsets = {axis: _OffsetHistory() for axis in self.axes}
+        self._offsets = {axis: OffsetHistory() for axis in self.axes}
         #: Per axis, the last count compd took from the PLC (None until read: the echo register says).
         self.taken_count: dict[str, int | None] = dict.fromkeys(self.registers)
         self.started_s: float | None = None
