@@ -30,6 +30,8 @@ log = structlog.get_logger("compd.service.loop.probing")
 
 #: The probe gap by default (s): one probe per axis given to the update per this much touch time.
 DEFAULT_MIN_GAP_S = 900.0
+#: A PLC that keeps the gap itself stamps its touch on its own clock: this much less is the gap.
+GAP_SLACK_S = 1.0
 #: The probes remembered to answer a resend (the newest; a few shifts of probe cycles).
 KEEP = 256
 
@@ -57,7 +59,8 @@ class ProbeGate:
             )
             return self._refuse(request, sha256, output, DUPLICATE, why, original)
         touched = request.touched_at_unix_s
-        if last_touch_s is not None and last_touch_s <= touched < last_touch_s + self.min_gap_s:
+        gap_s = self.min_gap_s - GAP_SLACK_S
+        if last_touch_s is not None and last_touch_s <= touched < last_touch_s + gap_s:
             why = (
                 f"touched {touched - last_touch_s:.0f} s after the last probe of "
                 f"{request.axis} given to the update: one is taken per {self.min_gap_s:g} s of "
