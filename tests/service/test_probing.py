@@ -238,7 +238,8 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
 def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
     broker: Mosquitto, tmp_path: Path
 ) -> None:
-    """cmd/probe on the fleet's broker: taken as the socket's probe, answered on reply/<id>; a retained one refused."""
+    """cmd/probe on the fleet's broker: taken as the socket's probe, answered on reply/<id>; a retained
+    one refused; a replay answered as the first was, not taken again."""
     config = machine_config(
         tmp_path,
         telemetry={"host": "127.0.0.1", "port": broker.port, "machine_id": "mill-1"},
@@ -269,13 +270,24 @@ def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
             if len(replies(listener)) == 2 and probed(listener):
                 break
             await asyncio.sleep(0.05)
+        publish.single("compd/mill-1/cmd/probe", ask, qos=1, port=broker.port)  # a replay
+        for _ in range(600):
+            if replies(listener)["cmm-1"].get("duplicate"):
+                break
+            await asyncio.sleep(0.05)
         stop_service(services, ran)
         await ran
 
     def replies(listener: Subscriber) -> dict[str, dict[str, Any]]:
+        """The last reply to each request id."""
         with listener._lock:
             heard = [m.payload for m in listener.messages if "/reply/" in m.topic]
         return {p["request_id"]: p for p in heard}
+
+    def first_replies(listener: Subscriber) -> dict[str, dict[str, Any]]:
+        with listener._lock:
+            heard = [m.payload for m in listener.messages if "/reply/" in m.topic]
+        return {p["request_id"]: p for p in reversed(heard)}
 
     def probed(listener: Subscriber) -> list[dict[str, Any]]:
         """The statuses published after the probe: each carries what the probes say per axis."""
@@ -287,7 +299,8 @@ def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
 
     with Subscriber(broker.port, "compd/mill-1/#") as listener:
         asyncio.run(main(listener))
-        answers = replies(listener)
+        answers = first_replies(listener)
+        replayed = replies(listener)["cmm-1"]
         statuses = probed(listener)
     assert answers["cmm-1"]["ok"] is True and answers["cmm-1"]["taken"] is True
     z = statuses[-1]["probes"]["Z"]
@@ -295,6 +308,10 @@ def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
     assert z["shift_rms_um"] == pytest.approx(abs(z["last"]["innovation_um"]), abs=1e-3)
     assert answers["cmm-1"]["last"]["source"] == "mqtt:cmm-2"
     assert answers["cmm-0"]["ok"] is False and "retained" in answers["cmm-0"]["error"]
+    # The same request again: the first answer, said to be a replay; the probe not taken again.
+    assert replayed["duplicate"] is True and "duplicate" not in answers["cmm-1"]
+    assert replayed["ok"] is True and replayed["last"] == answers["cmm-1"]["last"]
+    assert statuses[-1]["probes"]["Z"]["shift_probes"] == 1
 
 
 def test_what_the_probes_taught_survives_a_restart_and_another_model_starts_from_its_prior(
