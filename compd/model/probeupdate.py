@@ -66,6 +66,7 @@ from compd.model.updateprior import BIAS, Prior
 
 __all__ = [
     "BIAS",
+    "MAX_PROBE_UM",
     "PendingProbe",
     "Prior",
     "ProbeSettings",

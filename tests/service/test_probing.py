@@ -492,7 +492,11 @@ def attacked(tmp_path_factory: pytest.TempPathFactory) -> Attacked:
 
 
 def taken_between(run: Attacked, start: int, end: int) -> list[str]:
-    return [p.result for r in run.records[start - 1 : end] for p in r.probes]
+    """What the loop answered for the probes touched from tick ``start`` to ``end``."""
+    assert run.service.probing is not None
+    first, last = run.records[start - 1].wall_unix_s, run.records[end - 1].wall_unix_s
+    answers = run.service.probing.answers
+    return [a.result for a in answers if first <= a.request.touched_at_unix_s <= last]
 
 
 def test_a_retried_probe_is_refused_as_too_soon_and_cannot_confirm_itself(
@@ -508,6 +512,9 @@ def test_a_flood_of_probes_moves_the_model_by_at_most_one_probe(attacked: Attack
     results = taken_between(attacked, FLOOD_AT, FLOOD_AT + 6)
     given = [r for r in results if r not in ("too_soon", "duplicate")]
     assert len(given) == 1, results
+    # ... and only that one reaches the recorder and telemetry.
+    recorded = [p for r in attacked.records[FLOOD_AT - 1 : FLOOD_AT + 6] for p in r.probes]
+    assert [p.result for p in recorded] == given
     assert len(results) + len(attacked.refused_at_once) - 2 == 300  # each one answered
     one = attacked.records[FLOOD_AT + 1].probe_adjustments_um["disp_z_um"]
     later = attacked.records[FLOOD_AT + 6].probe_adjustments_um["disp_z_um"]
@@ -517,7 +524,7 @@ def test_a_flood_of_probes_moves_the_model_by_at_most_one_probe(attacked: Attack
 def test_a_value_beyond_1_mm_is_refused_at_once_and_learning_stays_on(attacked: Attacked) -> None:
     """compd model probe Z 1e308 twice: refused naming the bound, both times; probes still taken."""
     huge = [r for r in attacked.refused_at_once if "1e+308" in r]
-    assert len(huge) == 2 and "beyond what a thermal error can be" in huge[0]
+    assert len(huge) == 2 and "beyond what a thermal error of Z can be (991.975 um" in huge[0]
     assert attacked.service.status()["probes"]["off"] is None
 
 

@@ -14,7 +14,8 @@ Touches before the last one taken go on to the update, which refuses them
 for their order (a gauge result typed in late names its own touch).
 
 Each refusal is answered; the log says it once per episode (WARNING at the
-first, DEBUG after, INFO with the count when a probe is taken again).
+first, DEBUG after, INFO with the count when a probe is taken again), as it
+does for probes refused as they arrive (a value beyond physics, a full queue).
 """
 
 from __future__ import annotations
@@ -77,14 +78,26 @@ class ProbeGate:
         while len(self._seen) > self.keep:
             self._seen.popitem(last=False)
         axis = taken.request.axis
-        for kind in (DUPLICATE, TOO_SOON):
+        for kind in (DUPLICATE, TOO_SOON, "refused"):
             count = self._episodes.pop((axis, kind), 0)
             if count:
-                log.info(f"probes refused as {kind}: a probe taken again", axis=axis, refused=count)
+                log.info(f"probes refused ({kind}) until this one", axis=axis, refused=count)
+
+    def refused_at_once(self, request: ProbeRequest, why: str) -> None:
+        """A probe refused as it arrived (beyond physics, a full queue): logged once per episode."""
+        self._note(request, "refused", why)
 
     def forget(self) -> None:
         """After a reset: a probe taken before it may be given again."""
         self._seen.clear()
+
+    def _note(self, request: ProbeRequest, kind: str, why: str) -> None:
+        """WARNING at an episode's first refusal of this kind on this axis, DEBUG after."""
+        episode = (request.axis, kind)
+        count = self._episodes.get(episode, 0)
+        self._episodes[episode] = count + 1
+        say = log.debug if count else log.warning
+        say(f"probe refused ({kind})", axis=request.axis, source=request.source, reason=why)
 
     def _refuse(
         self,
@@ -95,11 +108,7 @@ class ProbeGate:
         why: str,
         original: ProbeTaken | None,
     ) -> ProbeTaken:
-        episode = (request.axis, kind)
-        count = self._episodes.get(episode, 0)
-        self._episodes[episode] = count + 1
-        say = log.debug if count else log.warning
-        say(f"probe refused as {kind}", axis=request.axis, source=request.source, reason=why)
+        self._note(request, kind, why)
         return ProbeTaken(
             request,
             sha256,

@@ -21,9 +21,6 @@ if TYPE_CHECKING:
     from compd.model.probeupdate import ProbeStep
 
 Measures = Literal["residue", "thermal_error"]
-#: No probe measures more than 1 mm (um): a larger value is a typo, a unit mistake or an attack
-#: (the learner also refuses more than 10 times the calibration's largest output).
-MAX_MEASURED_UM = 1000.0
 #: What the loop answers for a probe it did not give to the update: a resend of one it took
 #: (same source, touch and value), or one touched within ``probes.min_gap_s`` of the last.
 DUPLICATE, TOO_SOON = "duplicate", "too_soon"
@@ -71,11 +68,6 @@ def probe_request(
     if said not in ("residue", "thermal_error"):
         raise CompdError(f"a probe measures 'residue' or 'thermal_error', not {said!r}")
     assert isinstance(measured, int | float) and isinstance(touched, int | float)
-    if abs(measured) > MAX_MEASURED_UM:
-        raise CompdError(
-            f"a probe of {measured:g} um is beyond what a thermal error can be "
-            f"({MAX_MEASURED_UM:g} um = 1 mm): check the value and its unit (um); not taken"
-        )
     accept_shift = message.get("accept_shift", False)
     if not isinstance(accept_shift, bool):
         raise CompdError(f"a probe's accept_shift is true or false, not {accept_shift!r}")

@@ -47,7 +47,7 @@ from compd.errors import ModelError
 from compd.faultlog import FaultLog
 from compd.files.probeprior import output_prior
 from compd.model.probelearner import OutputLearner, output_columns, probed_thermal_error_um
-from compd.model.probeupdate import ProbeSettings, max_probe_um
+from compd.model.probeupdate import MAX_PROBE_UM, ProbeSettings, max_probe_um
 from compd.model.updateprior import Prior
 from compd.service.loop.offsethistory import OFFSET_HISTORY_S, OffsetHistory
 from compd.service.loop.offsets import AxisPoint
@@ -142,13 +142,12 @@ class ProbeLearning:
             )
         if not (math.isfinite(request.measured_um) and math.isfinite(request.touched_at_unix_s)):
             raise ModelError("a probe's value and touch time must be finite numbers")
-        if (why := self._beyond(request)) is not None:
-            log.error("probe refused", axis=request.axis, source=request.source, reason=why)
+        why = self._beyond(request)
+        if why is None and sum(1 for r in self._queue if r.axis == request.axis) >= MAX_QUEUED:
+            why = f"{MAX_QUEUED} probes of {request.axis} are waiting for the next tick: not taken"
+        if why is not None:
+            self.gate.refused_at_once(request, why)
             raise ModelError(why)
-        if sum(1 for r in self._queue if r.axis == request.axis) >= MAX_QUEUED:
-            raise ModelError(
-                f"{MAX_QUEUED} probes of {request.axis} are waiting for the next tick: not taken"
-            )
         self._queue.append(request)
 
     def answer(self, request: ProbeRequest) -> ProbeTaken | None:
@@ -158,7 +157,7 @@ class ProbeLearning:
     def _beyond(self, request: ProbeRequest) -> str | None:
         """Why the value is not a thermal error (beyond 1 mm or 10 calibration peaks); None: it may be."""
         learner = self.learners.get(self.axes[request.axis].model_output)
-        bound = 1000.0 if learner is None else max_probe_um(learner.prior)
+        bound = MAX_PROBE_UM if learner is None else max_probe_um(learner.prior)
         if abs(request.measured_um) <= bound:
             return None
         return (
@@ -291,8 +290,12 @@ class ProbeLearning:
                 history.append(t_unix_s, offset)
 
     def taken(self) -> tuple[ProbeTaken, ...]:
-        """The probes taken this tick (after :meth:`observe`)."""
-        return self._taken_now
+        """The probes taken this tick (after :meth:`observe`): given to the update, or refused by it.
+
+        A resend or a probe too soon is answered (:meth:`answer`) and counted,
+        not passed on: a flood must not flood the recorder and telemetry too.
+        """
+        return tuple(t for t in self._taken_now if t.not_given is None)
 
     def innovations_um(self) -> dict[str, float]:
         """Per probed axis, this tick's probe innovation (measured minus predicted, um); NaN: none."""
@@ -332,8 +335,8 @@ class ProbeLearning:
         output = axis.model_output
         learner = self.learners.get(output)
         assert self.sha256 is not None
-        last = None if learner is None else learner.updater.last_time_s
-        if (answered := self.gate.screen(request, self.sha256, output, last)) is not None:
+        last_touch_s = None if learner is None else learner.updater.last_time_s
+        if (answered := self.gate.screen(request, self.sha256, output, last_touch_s)) is not None:
             return answered
         offset = math.nan
         try:
