@@ -302,7 +302,7 @@ def _absurd(change: str) -> dict[str, object]:
     ("change", "problem"),
     [
         ("gain", r"the gain of a is 1e\+20, beyond its rails \[0, 3\]"),
-        ("bias", r"the bias is 1e\+06 um, beyond 30 um"),
+        ("bias", r"the bias is 1e\+06 um, beyond 60 um"),
         ("future", r"last_time_s is \d+ s in the future"),
         ("indefinite", "not positive definite"),
         ("wide", "the variance of b is 1e\\+12"),

@@ -427,7 +427,7 @@ class ProbesDoc(Strict):
     touch time (a resend is answered as it was taken; a confirmation is a
     separate touch); ``max_shift_um``: the largest learned shift (the bias,
     what no gain scales) the probes reach without a person (default
-    ``max_departure_um``, half the model's largest output; ``compd model
+    twice ``max_departure_um``: the model's largest output; ``compd model
     probe --accept-shift`` takes more).
     """
 
@@ -444,7 +444,7 @@ class ProbesDoc(Strict):
     reject_floor_um: Annotated[float, Field(ge=0, le=10000, allow_inf_nan=False)] | None = None
     #: One probe per axis per this much touch time (s; the PLC's probe gap, a tool change).
     min_gap_s: Annotated[float, Field(ge=0, le=24 * 3600, allow_inf_nan=False)] = 900.0
-    #: The learned shift's bound without a person (um, the bias; default ``max_departure_um``).
+    #: The learned shift's bound without a person (um, the bias; default the model's largest output).
     max_shift_um: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] | None = None
     #: Per axis (a name under ``outputs``), where the PLC's probe cycle meets compd; an axis
     #: may also be probed through ``compd model probe`` and MQTT alone (``{}``: no registers).
