@@ -79,7 +79,7 @@ def test_a_failing_probe_update_is_503_naming_it(tmp_path: Path) -> None:
         assert run.service is not None and run.loop is not None
         probing = run.service.probing
         assert probing is not None and healthz(run)[0] == 200
-        probing.learners["disp_z_um"].updater._take = overflow  # type: ignore[method-assign]
+        probing.learners["disp_z_um"].updater._probe = overflow  # type: ignore[method-assign]
         request = ProbeRequest("Z", 1.0, run.service.clock_wall(), "test")
         run.loop.call_soon_threadsafe(probing.offer, request)
         run.hold_at(BEFORE + 3)

@@ -430,9 +430,10 @@ class Attacked:
     thetas: list[np.ndarray]
 
 
-#: Ticks (10 s) of the attacks: a 50 um probe and its retry 10 s later; 300 probes of +30 um in
-#: 46 s; 1e308 twice; an update that fails (a bug); a probe after the gap.
-RETRY_AT, FLOOD_AT, HUGE_AT, BROKEN_AT, AFTER_AT = 360, 540, 720, 900, 1000
+#: Ticks (10 s) of the attacks: a 50 um probe and its retry 10 s later, then a separate touch of
+#: 50 um a probe gap later (a shift confirmed); 300 probes of +30 um in 46 s; 1e308 twice; an
+#: update that fails (a bug); a probe after the gap.
+RETRY_AT, CONFIRM_AT, FLOOD_AT, HUGE_AT, BROKEN_AT, AFTER_AT = 360, 451, 540, 720, 900, 1000
 
 
 @pytest.fixture(scope="module")
@@ -467,7 +468,7 @@ def attacked(tmp_path_factory: pytest.TempPathFactory) -> Attacked:
         out.problems.append(probing.problem())
         out.thetas.append(probing.learners["disp_z_um"].theta.copy())
         k = len(out.records)
-        if k in (RETRY_AT, RETRY_AT + 1):
+        if k in (RETRY_AT, RETRY_AT + 1, CONFIRM_AT):
             offer(service, 50.0)
         if FLOOD_AT <= k < FLOOD_AT + 5:  # 60 a tick: 300 in 46 s
             for _ in range(60):
@@ -480,10 +481,10 @@ def attacked(tmp_path_factory: pytest.TempPathFactory) -> Attacked:
                 raise OverflowError("(34, 'Numerical result out of range')")
 
             learner = probing.learners["disp_z_um"]
-            learner.updater._take = overflow  # type: ignore[method-assign]
+            learner.updater._probe = overflow  # type: ignore[method-assign]
             offer(service, machine.truth_now()["Z"][2])
         if k == BROKEN_AT + 2:
-            del probing.learners["disp_z_um"].updater._take  # the bug fixed
+            del probing.learners["disp_z_um"].updater._probe  # the bug fixed
         if k == AFTER_AT:
             offer(service, machine.truth_now()["Z"][2])
 
@@ -504,7 +505,13 @@ def test_a_retried_probe_is_refused_as_too_soon_and_cannot_confirm_itself(
 ) -> None:
     """compd model probe Z 50 sent twice 10 s apart: flagged, then too soon; nothing learned (was +49.6 um)."""
     assert taken_between(attacked, RETRY_AT, RETRY_AT + 3) == ["flagged", "too_soon"]
-    assert max(abs(a) for a in attacked.adjustments_um[: FLOOD_AT - 1]) == 0.0
+    assert max(abs(a) for a in attacked.adjustments_um[:CONFIRM_AT]) == 0.0
+
+
+def test_a_separate_touch_a_probe_gap_later_confirms_a_flagged_probe(attacked: Attacked) -> None:
+    """The same 50 um touched again 910 s later: confirmed, the shift learned (a crash, a re-clamp)."""
+    assert taken_between(attacked, CONFIRM_AT, CONFIRM_AT + 2) == ["confirmed"]
+    assert attacked.adjustments_um[CONFIRM_AT + 1] == pytest.approx(49.6, abs=1.0)
 
 
 def test_a_flood_of_probes_moves_the_model_by_at_most_one_probe(attacked: Attacked) -> None:
