@@ -29,6 +29,7 @@ from compd.service.loop.probemessages import ProbeRequest, probe_request
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from tests.acceptance.conftest import machine_doc, write_config
+from tests.clirun import compd_result
 from tests.mosquitto import Mosquitto, Subscriber, machine_config, mosquitto_binary
 
 BUNDLED_MODEL = resolve_path("bundled:simulated_model.yaml", Path("."))
@@ -548,3 +549,18 @@ def test_a_failing_update_refuses_its_probe_says_so_and_learning_goes_on(
     (after,) = [p for r in attacked.records[AFTER_AT - 1 : AFTER_AT + 2] for p in r.probes]
     assert after.result in ("accepted", "flagged")
     assert attacked.problems[AFTER_AT + 2] is None
+
+
+def test_check_config_says_what_the_daemon_takes_of_the_probes(tmp_path: Path) -> None:
+    """compd check-config: one per probe gap, the value's bound, the shift a person must accept."""
+    doc = machine_doc(
+        tmp_path,
+        BUNDLED_MODEL,
+        simulation={"scenario": "production", "hours": 1, "seed": 1},
+        probes={"min_gap_s": 600, "axes": {"Z": None}},
+    )
+    config = write_config(tmp_path, doc)
+    code, out, _ = compd_result("check-config", config.path)
+    assert code == 0, out
+    assert "one taken per 600 s of touch time" in out and "|value| <= 991.975 um" in out
+    assert "the learned shift within 99.2 um unless a person accepts more" in out
