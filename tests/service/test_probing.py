@@ -564,3 +564,12 @@ def test_check_config_says_what_the_daemon_takes_of_the_probes(tmp_path: Path) -
     assert code == 0, out
     assert "one taken per 600 s of touch time" in out and "|value| <= 991.975 um" in out
     assert "the learned shift within 99.2 um unless a person accepts more" in out
+
+
+def test_a_probe_request_carries_a_person_s_accepted_shift_and_refuses_anything_else() -> None:
+    """accept_shift: true or false only; it reaches the request the loop gives the update."""
+    message = {"axis": "Z", "measured_um": 60.0, "accept_shift": True}
+    assert probe_request(message, 1.8e9, "residue").accept_shift is True
+    assert probe_request({"axis": "Z", "measured_um": 6.0}, 1.8e9, "residue").accept_shift is False
+    with pytest.raises(CompdError, match="accept_shift is true or false, not 'yes'"):
+        probe_request(message | {"accept_shift": "yes"}, 1.8e9, "residue")
