@@ -332,3 +332,20 @@ def test_a_window_of_zero_length_at_the_end_is_not_judged(
     code, out, err = run(capsys, "compare", model, whole, "--tolerance-um", "0.01")
     assert code == 0, err
     assert "48 of 48 windows" in out
+
+
+def test_model_probe_accept_shift_asks_the_daemon_to_take_the_shift() -> None:
+    """--accept-shift goes in the socket request; --reset refuses it (a reset takes no probe)."""
+    import argparse
+
+    from compd.cli.modelprobe import probe_message
+    from compd.errors import CompdError
+
+    def args(**given: object) -> argparse.Namespace:
+        base = {"axis": "Z", "measured_um": 42.0, "at": None, "measures": None, "reset": False}
+        return argparse.Namespace(**(base | {"accept_shift": False} | given))
+
+    assert probe_message(args(accept_shift=True))["accept_shift"] is True
+    assert "accept_shift" not in probe_message(args())
+    with pytest.raises(CompdError, match="--reset takes no axis, value or --accept-shift"):
+        probe_message(args(axis=None, measured_um=None, reset=True, accept_shift=True))

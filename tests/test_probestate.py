@@ -164,3 +164,37 @@ def test_a_log_line_with_a_bad_number_is_named(tmp_path) -> None:
         "line 2: NaN is not a number a compd file holds",
         "line 3: result is 'guessed', not one of accepted, flagged, confirmed, rejected, refused, reset",
     ]
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "problem"),
+    [
+        ("theta", [1e20, 1.0, 0.0], r"outputs\.disp_z_um: the gain of heat is 1e\+20"),
+        ("theta", [1.0, 1.0, 1e6], r"outputs\.disp_z_um: the bias is 1e\+06 um"),
+        ("last_time_s", 9e9, r"outputs\.disp_z_um: last_time_s is \d+ s in the future"),
+    ],
+)
+def test_a_state_with_absurd_numbers_is_set_aside_and_the_model_runs_on_its_prior(
+    tmp_path, field, value, problem
+) -> None:
+    """Finite numbers no update reaches (the issue's bias 1e6, gain 1e20, a probe in 2255): set
+    aside as a damaged file is, the prior used, never "probe updates resumed" with them."""
+    path = save_learned(tmp_path, SHA, {"disp_z_um": taught()}, now_s=1.7e9 + 7200)
+    data = json.loads(path.read_text())
+    data["outputs"]["disp_z_um"][field] = value
+    path.write_text(json.dumps(data))
+    restored = restore_learners(tmp_path, SHA, SETUPS, now_s=1.7e9 + 7200)
+    assert restored.problem is not None and __import__("re").search(problem, restored.problem)
+    assert restored.restored == () and not path.exists()
+    assert restored.set_aside_as is not None and restored.set_aside_as.exists()
+    assert restored.learners["disp_z_um"].adjustment_um(regressor(5000)) == 0.0
+
+
+def test_a_state_saved_in_the_future_is_set_aside(tmp_path) -> None:
+    """saved_s beyond the clock's skew: not this machine's past (a clock wound back, a forged file)."""
+    save_learned(tmp_path, SHA, {"disp_z_um": taught()}, now_s=1.7e9 + 86400)
+    restored = restore_learners(tmp_path, SHA, SETUPS, now_s=1.7e9 + 7200)
+    assert restored.problem is not None and "saved_s is 79200 s in the future" in restored.problem
+    # A simulation's clock runs ahead of the wall: a larger skew takes it.
+    save_learned(tmp_path, SHA, {"disp_z_um": taught()}, now_s=1.7e9 + 86400)
+    assert restore_learners(tmp_path, SHA, SETUPS, now_s=1.7e9, skew_s=14 * 86400).restored

@@ -68,6 +68,26 @@ def plausibility_line(model_file: ModelFile, doc: ConfigDoc) -> str:
     return line
 
 
+def _probe_bounds(config: Any, output: str) -> str:
+    """What the daemon takes of an axis's probes: one per gap, within physics, the shift a person accepts."""
+    from compd.files.probeprior import output_prior
+    from compd.model.probelearner import output_columns
+    from compd.model.probeupdate import ProbeSettings, max_probe_um
+
+    doc = config.doc
+    probes = doc.probes
+    model_file = load_model(installed_model(config.state_dir) or config.model_path)
+    _, names = output_columns(model_file.compile(doc.period_s), output)
+    prior = output_prior(model_file, output, names).prior
+    settings = ProbeSettings.defaults(prior, **probes.overrides())
+    return (
+        f"one taken per {probes.min_gap_s:g} s of touch time (a resend answered as it was); "
+        f"|value| <= {max_probe_um(prior):g} um; the learned shift within "
+        f"{settings.max_shift_um:.1f} um unless a person accepts more "
+        "(compd model probe --accept-shift)"
+    )
+
+
 def check_config_command(args: argparse.Namespace) -> int:
     from compd.cli.terminal import Text, console  # rich: not in a daemon without a terminal
 
@@ -121,6 +141,7 @@ def check_config_command(args: argparse.Namespace) -> int:
             out.print(
                 f"  probes {axis}: {probes.measures}, due every {probes.every_h:g} h; {where}"
             )
+            out.print(f"    {_probe_bounds(config, doc.outputs[axis].model_output)}")
     if config.simulation is not None:
         from compd.sim.plc.build import build_machine  # the twin only where a config has one
 

@@ -4,6 +4,12 @@ What a person measured on a part or a datum (um) and when (default: now):
 the daemon takes it at its next tick as it takes a PLC's probe cycle
 (:mod:`compd.service.loop.probing`) and answers with what the update did.
 ``--reset`` returns the running model to the calibration's parameters.
+
+The daemon takes each probe once: the same probe sent again (a retry with
+the same ``--at``) is answered with what it did the first time, and one
+touched within ``probes.min_gap_s`` of the last is refused. An update that
+would move the learned adjustment beyond ``probes.max_shift_um`` is not
+applied; ``--accept-shift`` is a person saying the machine did move.
 """
 
 from __future__ import annotations
@@ -39,6 +45,13 @@ def register(model: Any) -> None:
         help="what the value is (default: the config's probes.measures)",
     )
     probe.add_argument(
+        "--accept-shift",
+        action="store_true",
+        help="the machine did move (a crash, a re-clamped fixture): take the probe even where it "
+        "moves the learned adjustment beyond probes.max_shift_um, without waiting for a "
+        "confirming probe",
+    )
+    probe.add_argument(
         "--reset",
         action="store_true",
         help="forget what the probes taught: the calibration's parameters again",
@@ -67,8 +80,8 @@ def touched_at(text: str) -> float:
 def probe_message(args: argparse.Namespace) -> dict[str, Any]:
     """The control socket's ``probe`` request for the command line."""
     if args.reset:
-        if args.axis is not None:
-            raise CompdError("compd model probe --reset takes no axis or value")
+        if args.axis is not None or args.accept_shift:
+            raise CompdError("compd model probe --reset takes no axis, value or --accept-shift")
         return {"cmd": "probe", "reset": True}
     if args.axis is None or args.measured_um is None:
         raise CompdError("compd model probe needs AXIS and MEASURED_UM (or --reset)")
@@ -78,6 +91,8 @@ def probe_message(args: argparse.Namespace) -> dict[str, Any]:
         message["touched_at_unix_s"] = touched_at(args.at)
     if args.measures is not None:
         message["measures"] = args.measures
+    if args.accept_shift:
+        message["accept_shift"] = True
     return message
 
 
@@ -100,6 +115,9 @@ def _probe(args: argparse.Namespace) -> int:
         return 0
     last = reply.get("last") or {}
     result = last.get("result")
+    if result == "duplicate":
+        print(f"{args.axis}: {last.get('reason')}")
+        return 0
     line = f"{args.axis}: {result}"
     if last.get("innovation_um") is not None:
         line += (
@@ -112,4 +130,4 @@ def _probe(args: argparse.Namespace) -> int:
         f"; the model's output now {reply.get('adjustment_um', 0.0):+.3f} um from the calibration's"
     )
     print(line)
-    return 0 if result != "refused" else 1
+    return 0 if result not in ("refused", "too_soon") else 1

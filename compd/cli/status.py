@@ -125,6 +125,9 @@ def status_command(args: argparse.Namespace) -> int:
     probes = reply.get("probes")
     for axis, p in ((probes or {}).get("axes") or {}).items():
         out.print(_probe_line(axis, p))
+    for why in ("off", "fault"):
+        if probes and probes.get(why):
+            out.print(Text(f"  probe learning {why}: {probes[why]}", "red"))
     for row in reply.get("unverifiable") or []:
         if not row["verifiable"]:
             out.print(unverifiable_line(row))

@@ -12,7 +12,9 @@ Under ``<state dir>/probes/``:
   model updates`` lists.
 
 Reading checks every number (finite, JSON's ``NaN`` refused), the sha256
-the file names, and each learner's shapes (:meth:`OutputLearner.restore`).
+the file names, each learner's shapes and bounds (:meth:`OutputLearner.restore`:
+gains on their rails, the bias within the learned adjustment's bound, a
+positive-definite covariance, no time in the future).
 A learned-state file that fails is set aside (renamed
 ``<name>.corrupt-<UTC time>``, nothing deleted) and the outputs start from
 their prior; the caller is told why, to log it once. A log line that fails
@@ -32,7 +34,7 @@ from typing import Any
 
 from compd.errors import ModelError
 from compd.files.unreadable import finite, json_int, set_aside, write_atomic
-from compd.model.probelearner import OutputLearner, RegressorWindow
+from compd.model.probelearner import RESTORE_SKEW_S, OutputLearner, RegressorWindow
 from compd.model.probeupdate import ProbeSettings, ProbeStep
 from compd.model.updateprior import Prior
 
@@ -241,6 +243,8 @@ def restore_learners(
     window: RegressorWindow | None = None,
     *,
     set_aside_unreadable: bool = True,
+    now_s: float | None = None,
+    skew_s: float = RESTORE_SKEW_S,
 ) -> RestoredLearners:
     """One learner per output of ``setups`` (its prior and settings), resumed from the file where it has one.
 
@@ -248,6 +252,8 @@ def restore_learners(
     its prior (a wrong state must never stop the daemon, nor steer it);
     a reader that is not the daemon passes ``set_aside_unreadable=False``.
     Outputs the file holds but ``setups`` does not name are left out.
+    ``now_s`` (unix s): no time in the file may be later than it (by more
+    than ``skew_s``).
     """
     fresh = {
         name: OutputLearner(prior, settings, window) for name, (prior, settings) in setups.items()
@@ -260,7 +266,7 @@ def restore_learners(
     except OSError as exc:
         return RestoredLearners(fresh, problem=f"{path}: cannot be read ({exc})")
     try:
-        learners, restored = _restored(raw, sha256, setups, window)
+        learners, restored = _restored(raw, sha256, setups, window, now_s, skew_s)
     except ValueError as exc:
         problem = f"{path}: {exc}"
         if not set_aside_unreadable:
@@ -278,6 +284,8 @@ def _restored(
     sha256: str,
     setups: Mapping[str, tuple[Prior, ProbeSettings]],
     window: RegressorWindow | None,
+    now_s: float | None,
+    skew_s: float,
 ) -> tuple[dict[str, OutputLearner], tuple[str, ...]]:
     data = _loads(raw.decode("utf-8", errors="replace"))
     if not isinstance(data, Mapping) or data.get("format") != STATE_FORMAT:
@@ -286,7 +294,9 @@ def _restored(
         raise ValueError(
             f"it holds the state of model {str(data.get('model_sha256'))[:12]}, not {sha256[:12]}"
         )
-    finite(data.get("saved_s"), "saved_s")
+    saved_s = finite(data.get("saved_s"), "saved_s")
+    if now_s is not None and saved_s > now_s + skew_s:
+        raise ValueError(f"saved_s is {saved_s - now_s:.0f} s in the future")
     outputs = data.get("outputs")
     if not isinstance(outputs, Mapping):
         raise ValueError("outputs is not a mapping")
@@ -296,7 +306,9 @@ def _restored(
             continue
         prior, settings = setups[name]
         try:
-            learners[name] = OutputLearner.restore(prior, settings, state, window)
+            learners[name] = OutputLearner.restore(
+                prior, settings, state, window, now_s=now_s, skew_s=skew_s
+            )
         except ModelError as exc:
             raise ValueError(f"outputs.{name}: {exc.message}") from exc
     return learners, tuple(learners)

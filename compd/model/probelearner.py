@@ -13,11 +13,14 @@ gain scales. :class:`OutputLearner` wraps the update for the loop:
   instant, the departure bound held over the rows since the last probe
   taken (at most :data:`RECENT_ROWS` of them, evenly spaced);
 - :meth:`OutputLearner.adjustment_um` every tick: ``x' (theta - theta0)``,
-  what the loop adds to the file model's output;
+  what the loop adds to the file model's output: the gains' part on their
+  rails, and the bias, which an update may not take beyond ``max_shift_um``
+  (:class:`ShiftRefused`) unless a person accepts the shift;
 - :meth:`OutputLearner.state` / :meth:`OutputLearner.restore`: the
   parameters, covariance and times as plain JSON values, checked on the way
-  back. The kept regressors are not part of the state: after a restart a
-  touch from before it is refused (its regressor is not known).
+  back, bounds included (a state is input like any other). The kept
+  regressors are not part of the state: after a restart a touch from before
+  it is refused (its regressor is not known).
 
 Times are seconds on one axis that survives a restart and only increases
 within a run (in the daemon: unix seconds, the loop's time mapped to the
@@ -39,7 +42,31 @@ import numpy as np
 
 from compd.errors import ModelError
 from compd.model.compiled import CompiledModel
-from compd.model.probeupdate import PendingProbe, ProbeSettings, ProbeStep, ProbeUpdater
+from compd.model.probebounds import (
+    RESTORE_SKEW_S,
+    SIMULATED_SKEW_S,
+    array_of,
+    check_bounds,
+    number,
+    time_or_none,
+)
+from compd.model.probeupdate import (
+    PendingProbe,
+    ProbeSettings,
+    ProbeStep,
+    ProbeUpdater,
+    max_probe_um,
+)
+
+__all__ = [
+    "RESTORE_SKEW_S",
+    "SIMULATED_SKEW_S",
+    "OutputLearner",
+    "RegressorWindow",
+    "ShiftRefused",
+    "output_columns",
+    "probed_thermal_error_um",
+]
 from compd.model.updateprior import Prior
 
 #: The regressors since the last probe the departure bound is held over, at most this many.
@@ -53,6 +80,10 @@ DEFAULT_KEEP_S = 12 * 3600.0
 AHEAD_SLACK_S = 5.0
 #: The version of :meth:`OutputLearner.state`'s layout.
 STATE_VERSION = 1
+
+
+class ShiftRefused(ModelError):
+    """An update that would take the learned bias beyond ``max_shift_um``: not applied."""
 
 
 def output_columns(compiled: CompiledModel, output: str) -> tuple[np.ndarray, tuple[str, ...]]:
@@ -188,6 +219,9 @@ class OutputLearner:
         #: Probes in a row the update did not take (flagged, then not confirmed): at 2 the
         #: model no longer describes the machine (issue 35 item 3's status bit).
         self.untaken_in_a_row = 0
+        #: The largest |learned bias| a person accepted (um; ``accept_shift``): held as the
+        #: bound instead of ``max_shift_um`` where larger, until a reset.
+        self.accepted_shift_um = 0.0
         self._delta = np.zeros(p)
 
     @property
@@ -259,7 +293,9 @@ class OutputLearner:
             self._bin = float(bins[-1])
         self._latest = (float(t_s[-1]), x[-1].copy(), float(fixed_um[-1]))
 
-    def probe(self, touched_at_s: float, thermal_error_um: float) -> list[ProbeStep]:
+    def probe(
+        self, touched_at_s: float, thermal_error_um: float, *, accept_shift: bool = False
+    ) -> list[ProbeStep]:
         """Take a probe: the thermal error (um, :func:`probed_thermal_error_um`) when it touched.
 
         The regressor at ``touched_at_s`` is interpolated between the kept
@@ -267,12 +303,37 @@ class OutputLearner:
         :data:`AHEAD_SLACK_S` after the last tick) is refused with a
         :class:`ModelError`. Returns the update's steps (one, or two when it
         confirms a flagged probe), as :meth:`ProbeUpdater.probe` does.
+
+        The learned adjustment ``x' (theta - theta0)`` is the gains' part,
+        which their rails hold to a share of each contribution (a machine
+        that drifts 1.7 times what it was calibrated for is learned through
+        them), and the bias, a shift in um that nothing scales: the bias is
+        held within ``settings.max_shift_um`` (or, where it was beyond
+        already, may not grow). An update that breaks it is taken back and
+        :class:`ShiftRefused` raised, unless ``accept_shift`` (a person says
+        the machine moved). Any exception leaves the learner as it was.
         """
         x, fixed_um = self.regressor_at(touched_at_s)
         times, rows, _ = self._rows.view()
         recent = rows[(times > self.since_s) & (times <= touched_at_s)]
         recent = recent[:: max(1, len(recent) // RECENT_ROWS)]
-        steps = self.updater.probe(touched_at_s, x, thermal_error_um, fixed_um, recent=recent)
+        u = self.updater
+        before = (u.theta.copy(), u.covariance.copy(), u.last_time_s, u.drifted_to_s, u.pending)
+        steps = u.probe(
+            touched_at_s, x, thermal_error_um, fixed_um, recent=recent, accept_shift=accept_shift
+        )
+        shift = abs(float(u.theta[-1] - self.prior.mean[-1]))
+        held = max(self.settings.max_shift_um, self.accepted_shift_um, abs(float(self._delta[-1])))
+        if accept_shift:
+            self.accepted_shift_um = max(self.accepted_shift_um, shift)
+        elif shift > held * (1 + 1e-9):
+            u.theta, u.covariance, u.last_time_s, u.drifted_to_s, u.pending = before
+            raise ShiftRefused(
+                f"the update would move the learned shift (the bias) to {shift:.1f} um, beyond "
+                f"the {held:.1f} um the probes may reach alone (probes.max_shift_um): not applied. "
+                "If the machine did move (a crash, a re-clamped fixture), a person accepts it: "
+                "compd model probe --accept-shift AXIS VALUE"
+            )
         if any(step.result in ("accepted", "confirmed") for step in steps):
             self.since_s = touched_at_s
             self.untaken_in_a_row = 0
@@ -339,6 +400,7 @@ class OutputLearner:
         self.updater = ProbeUpdater(self.prior, self.settings)
         self.since_s = -math.inf
         self.untaken_in_a_row = 0
+        self.accepted_shift_um = 0.0
         self._delta = np.zeros_like(self._delta)
 
     def state(self) -> dict[str, Any]:
@@ -356,6 +418,7 @@ class OutputLearner:
             "drifted_to_s": u.drifted_to_s,
             "since_s": self.last_taken_s,
             "untaken_in_a_row": self.untaken_in_a_row,
+            "accepted_shift_um": self.accepted_shift_um,
             "pending": None
             if pending is None
             else {
@@ -374,8 +437,20 @@ class OutputLearner:
         settings: ProbeSettings,
         state: Mapping[str, Any],
         window: RegressorWindow | None = None,
+        *,
+        now_s: float | None = None,
+        skew_s: float = RESTORE_SKEW_S,
     ) -> OutputLearner:
-        """A learner at ``state`` (from :meth:`state`); a :class:`ModelError` names what is wrong."""
+        """A learner at ``state`` (from :meth:`state`); a :class:`ModelError` names what is wrong.
+
+        Beyond shapes and finite numbers, the bounds an update keeps: gains
+        within ``settings.gain_bounds``, the bias within twice the larger of
+        ``max_shift_um`` and the shift a person accepted (itself within the
+        probe bound, :func:`max_probe_um`), a symmetric positive-definite covariance
+        no wider than :data:`MAX_VARIANCE_GROWTH` times the prior's (the bias:
+        the probe bound squared more), and, given ``now_s``, no time more than
+        ``skew_s`` after it (a simulation's clock runs ahead of the wall: a larger one).
+        """
         learner = cls(prior, settings, window)
         p = len(prior.names)
         if not isinstance(state, Mapping):
@@ -386,15 +461,22 @@ class OutputLearner:
             raise ModelError(
                 f"parameters are {state.get('parameters')!r}, the model's are {list(prior.names)}"
             )
-        theta = _array(state.get("theta"), (p,), "theta")
-        covariance = _array(state.get("covariance"), (p, p), "covariance")
+        theta = array_of(state.get("theta"), (p,), "theta")
+        covariance = array_of(state.get("covariance"), (p, p), "covariance")
         if not np.allclose(covariance, covariance.T, rtol=1e-9, atol=1e-12):
             raise ModelError("covariance is not symmetric")
+        accepted = number(state.get("accepted_shift_um", 0.0), "accepted_shift_um")
+        if not 0.0 <= accepted <= max_probe_um(prior):
+            raise ModelError(
+                f"accepted_shift_um is {accepted:g}, not within [0, {max_probe_um(prior):g}] um"
+            )
+        learner.accepted_shift_um = accepted
+        check_bounds(prior, settings, theta, covariance, accepted)
         u = learner.updater
         u.theta, u.covariance = theta, covariance
-        u.last_time_s = _time(state.get("last_time_s"), "last_time_s")
-        u.drifted_to_s = _time(state.get("drifted_to_s"), "drifted_to_s")
-        since = _time(state.get("since_s"), "since_s")
+        u.last_time_s = time_or_none(state.get("last_time_s"), "last_time_s")
+        u.drifted_to_s = time_or_none(state.get("drifted_to_s"), "drifted_to_s")
+        since = time_or_none(state.get("since_s"), "since_s")
         learner.since_s = -math.inf if since is None else since
         untaken = state.get("untaken_in_a_row")
         if isinstance(untaken, bool) or not isinstance(untaken, int) or not 0 <= untaken <= 10**6:
@@ -405,33 +487,21 @@ class OutputLearner:
             if not isinstance(pending, Mapping):
                 raise ModelError("pending is not a mapping")
             u.pending = PendingProbe(
-                _number(pending.get("time_s"), "pending.time_s"),
-                _array(pending.get("x"), (p,), "pending.x"),
-                _number(pending.get("fixed_um"), "pending.fixed_um"),
-                _number(pending.get("measured_um"), "pending.measured_um"),
-                _number(pending.get("innovation_um"), "pending.innovation_um"),
+                number(pending.get("time_s"), "pending.time_s"),
+                array_of(pending.get("x"), (p,), "pending.x"),
+                number(pending.get("fixed_um"), "pending.fixed_um"),
+                number(pending.get("measured_um"), "pending.measured_um"),
+                number(pending.get("innovation_um"), "pending.innovation_um"),
             )
+        if now_s is not None:
+            times = {"last_time_s": u.last_time_s, "drifted_to_s": u.drifted_to_s, "since_s": since}
+            if u.pending is not None:
+                times["pending.time_s"] = u.pending.time_s
+            for key, t_s in times.items():
+                if t_s is not None and t_s > now_s + skew_s:
+                    raise ModelError(
+                        f"{key} is {t_s - now_s:.0f} s in the future (at most "
+                        f"{skew_s:g} s): the state is not this machine's past"
+                    )
         learner._delta = u.theta - prior.mean
         return learner
-
-
-def _number(value: object, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ModelError(f"{key} is {value!r}, not a finite number")
-    return float(value)
-
-
-def _time(value: object, key: str) -> float | None:
-    return None if value is None else _number(value, key)
-
-
-def _array(value: object, shape: tuple[int, ...], key: str) -> np.ndarray:
-    try:
-        array = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ModelError(f"{key} is not an array of numbers") from None
-    if array.shape != shape:
-        raise ModelError(f"{key} has shape {array.shape}, needs {shape}")
-    if not np.all(np.isfinite(array)):
-        raise ModelError(f"{key} has a value that is not a finite number")
-    return array

@@ -32,6 +32,14 @@ Guard rails (issue 35 item 3):
   may not be further than ``max_departure_um`` from the calibration model's
   (``x' theta0``): the bias, the one parameter with no guard rail, takes up
   the excess;
+- a measured value beyond :func:`max_probe_um` (1 mm, or 10 times the
+  calibration's largest output) is not a thermal error: refused with a
+  :class:`ModelError` before anything moves;
+- a person may take a shift the rails would not (``accept_shift``): the
+  probe is taken at once as a confirmed one, the departure rail widened to
+  its innovation;
+- an update whose parameters or covariance are not finite is taken back
+  and refused with a :class:`ModelError` (the state before it is kept);
 - given the regressors of the time since the last probe (``recent``), the
   update's step is shortened so that the departure bound holds over them
   too and no prediction there moves by more than :data:`REACH` times the
@@ -47,7 +55,8 @@ numpy only: no files, no logging; the daemon steps it as ``compd compare
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -55,7 +64,16 @@ import numpy as np
 from compd.errors import ModelError
 from compd.model.updateprior import BIAS, Prior
 
-__all__ = ["BIAS", "PendingProbe", "Prior", "ProbeSettings", "ProbeStep", "ProbeUpdater"]
+__all__ = [
+    "BIAS",
+    "MAX_PROBE_UM",
+    "PendingProbe",
+    "Prior",
+    "ProbeSettings",
+    "ProbeStep",
+    "ProbeUpdater",
+    "max_probe_um",
+]
 
 #: Default probe noise, um (issue 35's feasibility study).
 DEFAULT_PROBE_NOISE_UM = 0.5
@@ -87,7 +105,19 @@ UNKNOWN_REJECT_FLOOR_UM = 10.0
 #: An update may move a prediction since the last probe by at most this many times the
 #: probe's innovation (chosen on the random machines: the worst machine at 2 h -62.7 -> -8.7 points).
 REACH = 2.0
+#: A probe measures a thermal error or what is left of one: beyond 1 mm it is a typo, a unit
+#: mistake (mm for um) or an attack, never a machine tool's thermal drift ...
+MAX_PROBE_UM = 1000.0
+#: ... nor beyond this many times the largest output the calibration model gave.
+MAX_PROBE_PEAKS = 10.0
 ProbeResult = Literal["accepted", "flagged", "confirmed", "rejected"]
+
+
+def max_probe_um(prior: Prior) -> float:
+    """The largest |measured value| a probe may have (um): :data:`MAX_PROBE_UM`, or
+    :data:`MAX_PROBE_PEAKS` times the calibration's largest output where that is smaller."""
+    peak = prior.output_peak_um
+    return min(MAX_PROBE_UM, MAX_PROBE_PEAKS * peak) if peak > 0 else MAX_PROBE_UM
 
 
 @dataclass(frozen=True)
@@ -100,6 +130,10 @@ class ProbeSettings:
     reject_floor_um: float = 0.0
     reject_sigma: float = DEFAULT_REJECT_SIGMA
     gain_bounds: tuple[float, float] = DEFAULT_GAIN_BOUNDS
+    #: The largest learned shift (the bias, um) the probes may reach without a person
+    #: (:class:`~compd.model.probelearner.OutputLearner` holds it; the gains have their
+    #: rails); inf: unbounded. :meth:`defaults` makes it twice ``max_departure_um``.
+    max_shift_um: float = math.inf
 
     @classmethod
     def defaults(cls, prior: Prior, **overrides: float) -> ProbeSettings:
@@ -120,6 +154,12 @@ class ProbeSettings:
             ),
         }
         values.update(overrides)
+        # A learned shift (the bias) as large as everything the calibration model compensates
+        # (twice the departure rail: its largest output) is a new calibration or a crash for a
+        # person to judge, not a drift for a filter to follow. Half of it (the rail itself)
+        # refused 2 of 250 probes on 20 random machines (benchmarks/bench_probes.py, seeds
+        # 4-23) and cost the 2 h median 1.2 points; this refused none.
+        values.setdefault("max_shift_um", 2.0 * values["max_departure_um"])
         return cls(**values)  # type: ignore[arg-type]
 
 
@@ -184,6 +224,8 @@ class ProbeUpdater:
         measured_um: float,
         fixed_um: float = 0.0,
         recent: np.ndarray | None = None,
+        *,
+        accept_shift: bool = False,
     ) -> list[ProbeStep]:
         """Take one probe at ``time_s`` (s, not before the last); the steps taken, in time order.
 
@@ -192,17 +234,66 @@ class ProbeUpdater:
         time since the last probe; the departure bound holds over them too
         (an update that fits the probe by moving gains the calibration could
         not tell apart would swing the prediction elsewhere).
+        ``accept_shift``: a person says the machine moved: a probe beyond the
+        rejection threshold is taken at once, as a confirmed one, and the
+        departure rail gives way to its innovation.
+
+        A :class:`ModelError` (a value beyond :func:`max_probe_um`, a touch
+        out of order, an update that is not finite) leaves the state as it was.
         """
-        self._recent = None if recent is None else np.asarray(recent, dtype=float)
         x = np.asarray(x, dtype=float)
         if x.shape != self.theta.shape:
             raise ModelError(f"a probe's regressor needs {self.theta.size} values, has {x.shape}")
         if not (np.all(np.isfinite(x)) and np.isfinite(measured_um)):
             raise ModelError("a probe's regressor and measured value must be finite")
+        bound = max_probe_um(self.prior)
+        if abs(measured_um) > bound:
+            raise ModelError(
+                f"a probe of {measured_um:g} um is beyond what a thermal error can be "
+                f"({bound:g} um: 1 mm, or 10 times the calibration's largest output): "
+                "check the value and its unit (um)"
+            )
         if self.last_time_s is not None and time_s < self.last_time_s:
             raise ModelError(
                 f"probes must come in time order: {time_s} s after {self.last_time_s} s"
             )
+        before = (
+            self.theta.copy(),
+            self.covariance.copy(),
+            self.last_time_s,
+            self.drifted_to_s,
+            self.pending,
+            self.settings,
+        )
+        try:
+            with np.errstate(all="ignore"):  # an overflow is refused below, not warned about
+                steps = self._probe(time_s, x, measured_um, fixed_um, recent, accept_shift)
+            if not (np.all(np.isfinite(self.theta)) and np.all(np.isfinite(self.covariance))):
+                raise ModelError("the update gave parameters that are not finite numbers")
+        except BaseException:
+            (
+                self.theta,
+                self.covariance,
+                self.last_time_s,
+                self.drifted_to_s,
+                self.pending,
+                self.settings,
+            ) = before
+            raise
+        finally:
+            self.settings = before[-1]
+        return steps
+
+    def _probe(
+        self,
+        time_s: float,
+        x: np.ndarray,
+        measured_um: float,
+        fixed_um: float,
+        recent: np.ndarray | None,
+        accept_shift: bool,
+    ) -> list[ProbeStep]:
+        self._recent = None if recent is None else np.asarray(recent, dtype=float)
         self.last_time_s = time_s
         predicted = float(fixed_um + x @ self.theta)
         # x' Q(dt) x is the drift over dt by Q's construction; P itself drifts only when a
@@ -214,6 +305,14 @@ class ProbeUpdater:
             self.settings.reject_sigma * sd, self.settings.reject_floor_um
         )
         pending, self.pending = self.pending, None
+        if beyond and accept_shift:  # a person vouches for it: confirmed at once, rail widened
+            departure = abs(innovation) + self.settings.max_departure_um
+            self.settings = replace(self.settings, max_departure_um=departure)
+            r = self.settings.probe_noise_um**2
+            self.covariance[-1, -1] += max(0.0, innovation * innovation - r - variance)
+            sd = float(np.sqrt(x @ self.covariance @ x + self._drift_variance(time_s) + r))
+            step = self._take(time_s, x, fixed_um, measured_um, predicted, sd, "confirmed")
+            return [*self._dropped(pending), step]
         if not beyond:
             step = self._take(time_s, x, fixed_um, measured_um, predicted, sd, "accepted")
             return [*self._dropped(pending), step]
@@ -225,7 +324,7 @@ class ProbeUpdater:
         # a re-clamped part). The bias's variance is widened so this innovation is one sigma,
         # then both probes are taken in time order.
         r = self.settings.probe_noise_um**2
-        self.covariance[-1, -1] += max(0.0, innovation**2 - r - variance)
+        self.covariance[-1, -1] += max(0.0, innovation * innovation - r - variance)
         first = self._pending_step(pending)
         predicted = float(fixed_um + x @ self.theta)
         sd = float(np.sqrt(x @ self.covariance @ x + self._drift_variance(time_s) + r))

@@ -149,7 +149,11 @@ def fleet_wiring(
         publisher.listen(COMMAND, remote.handle, max_bytes=MAX_PAYLOAD_BYTES)
         publisher.take_desired(remote.take_desired)  # a machine back catches up
     if take_probe is not None:  # a CMM station's or a gauge PC's results
-        probes = RemoteProbes(take_probe, publisher.reply, sink)
+        from compd.service.fleet.remoteprobe import FILE as PROBE_IDS
+        from compd.service.fleet.remoteprobe import KEEP_S as PROBE_IDS_KEPT_S
+
+        seen_probes = SeenRequests(config.state_dir / PROBE_IDS, window_s=PROBE_IDS_KEPT_S)
+        probes = RemoteProbes(take_probe, publisher.reply, sink, seen=seen_probes)
         publisher.listen(PROBE_COMMAND, probes.handle, max_bytes=PROBE_MAX_BYTES)
 
 
@@ -170,14 +174,14 @@ def http_server(doc: HttpDoc, service: ServiceView) -> StatusServer:
     )
 
 
-def probe_keeper(config: Config, *, background: bool) -> ProbeKeeper | None:
+def probe_keeper(config: Config, *, background: bool, real_time: bool = True) -> ProbeKeeper | None:
     """The probe log and learned parameters' keeper, where the config has probes."""
     doc = config.doc
     if doc.probes is None or not doc.probes.enabled or not doc.outputs:
         return None
     from compd.service.store.probes import ProbeKeeper  # the update's numerics: only with probes
 
-    return ProbeKeeper(config.state_dir, background=background)
+    return ProbeKeeper(config.state_dir, background=background, real_time=real_time)
 
 
 def probe_learning(config: Config, keeper: ProbeKeeper | None) -> ProbeLearning | None:
@@ -191,6 +195,7 @@ def probe_learning(config: Config, keeper: ProbeKeeper | None) -> ProbeLearning 
         every_h=probes.every_h,
         overrides=probes.overrides(),
         axes=tuple(probes.axes),
+        min_gap_s=probes.min_gap_s,
     )
     registers = [
         ProbeRegisters(

@@ -101,7 +101,12 @@ class Service:
         }
         self.loader = ModelLoader(config, clock.wall)
         #: Probe measurements (config ``probes``): the log and learned parameters, the learning.
-        self.probe_keeper = build.probe_keeper(config, background=background_saves)
+        self.probe_keeper = build.probe_keeper(
+            config,
+            background=background_saves,
+            # a simulation's clock (virtual, sped up) runs ahead of the wall: its times do too
+            real_time=getattr(clock, "time_scale", None) == 1.0,
+        )
         self.probing = build.probe_learning(config, self.probe_keeper)
         self.compensator = Compensator(
             signals=[s.point(name) for name, s in doc.signals.items()],
@@ -377,10 +382,9 @@ class Service:
         period_s = self.config.doc.period_s
         for _ in range(40):  # a few ticks: the answer says what the update did
             await asyncio.sleep(period_s / 10)
-            last = probing.last.get(request.axis)
-            if last is not None and last.request is request:
+            if (answer := probing.answer(request)) is not None:
                 axis: dict[str, Any] = probing.status(now_unix_s)["axes"][request.axis]
-                return {"taken": True} | axis
+                return {"taken": True} | axis | {"last": answer.event_details()}
         return {"taken": False, "queued": True, "axis": request.axis}
 
     def clock_wall(self) -> float:

@@ -34,6 +34,7 @@ from compd.model.probelearner import (
     RECENT_ROWS,
     OutputLearner,
     RegressorWindow,
+    ShiftRefused,
     output_columns,
 )
 from compd.model.probeupdate import ProbeSettings, ProbeStep
@@ -172,7 +173,10 @@ def run_probes(
         if through > fed:
             learner.observe_many(time_s[fed:through], x[fed:through], fixed[fed:through])
             fed = through
-        taken = learner.probe(float(t), float(z))
+        try:
+            taken = learner.probe(float(t), float(z))
+        except ShiftRefused:  # as the daemon: not applied without a person accepting the shift
+            continue
         steps += taken
         # Flagged: still due, so the PLC probes again at its next chance (the daemon's bit).
         again_s = float(t) + REPROBE_AFTER_S

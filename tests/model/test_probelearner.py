@@ -15,6 +15,7 @@ from compd.model.probelearner import (
     RECENT_ROWS,
     OutputLearner,
     RegressorWindow,
+    ShiftRefused,
     probed_thermal_error_um,
 )
 from compd.model.probeupdate import ProbeSettings, ProbeUpdater
@@ -233,3 +234,86 @@ def test_the_probed_thermal_error_is_the_output_that_cancels_the_residue_on_the_
     assert thermal == pytest.approx(-sign * true)
     with pytest.raises(ModelError, match="an axis sign is"):
         probed_thermal_error_um(1.0, 2.0, 0.5)
+
+
+def test_an_update_beyond_the_learned_shift_bound_is_not_applied_unless_a_person_accepts_it() -> (
+    None
+):
+    """A confirmed 40 um shift with max_shift_um 15: ShiftRefused, the learner as before; with
+    accept_shift the same probe is taken, and that shift is the bound from then on."""
+    settings = ProbeSettings.defaults(PRIOR, max_departure_um=100.0, max_shift_um=15.0)
+    learner = OutputLearner(PRIOR, settings)
+    for k in range(0, 7200):
+        learner.observe(float(k), regressor(float(k)), 0.5)
+    shifted = lambda t: 0.5 + float(regressor(t) @ PRIOR.mean) + 40.0  # noqa: E731
+    assert learner.probe(3600.0, shifted(3600.0))[0].result == "flagged"
+    before = learner.state()
+    with pytest.raises(ShiftRefused, match=r"beyond the 15\.0 um .*--accept-shift"):
+        learner.probe(4500.0, shifted(4500.0))
+    assert learner.state() == before and learner.adjustment_um(regressor(5000.0)) == 0.0
+    steps = learner.probe(4500.0, shifted(4500.0), accept_shift=True)
+    assert steps[-1].result == "confirmed"
+    assert learner.adjustment_um(regressor(4500.0)) == pytest.approx(40.0, abs=1.0)
+    assert learner.accepted_shift_um == pytest.approx(abs(learner.theta[-1]))
+    assert OutputLearner.restore(PRIOR, settings, learner.state()).accepted_shift_um > 15.0
+
+
+def test_any_exception_in_the_update_leaves_the_learner_as_it_was() -> None:
+    """A bug deep in the update (here an OverflowError): raised to the caller, nothing moved."""
+    learner = ticked(4000)
+    learner.probe(1800.0, float(regressor(1800.0) @ PRIOR.mean) + 2.0)
+    before = learner.state()
+
+    def overflow(*args: object) -> None:
+        raise OverflowError("(34, 'Numerical result out of range')")
+
+    learner.updater._take = overflow  # type: ignore[method-assign]
+    with pytest.raises(OverflowError):
+        learner.probe(3600.0, float(regressor(3600.0) @ PRIOR.mean) + 2.0)
+    assert learner.state() == before
+
+
+def _saved() -> dict[str, object]:
+    learner = ticked(4000, start_s=1.7e9)
+    learner.probe(1.7e9 + 1800.0, 0.5 + float(regressor(1.7e9 + 1800.0) @ PRIOR.mean) + 2.0)
+    return json.loads(json.dumps(learner.state()))
+
+
+def _absurd(change: str) -> dict[str, object]:
+    state = _saved()
+    theta, covariance = state["theta"], state["covariance"]
+    assert isinstance(theta, list) and isinstance(covariance, list)
+    if change == "gain":
+        theta[0] = 1e20
+    elif change == "bias":
+        theta[-1] = 1e6
+    elif change == "future":
+        state["last_time_s"] = 9e9
+    elif change == "indefinite":
+        covariance[0][0] = -1.0
+    elif change == "wide":
+        covariance[1][1] = 1e12
+    elif change == "accepted":
+        state["accepted_shift_um"] = 1e9
+    return state
+
+
+@pytest.mark.parametrize(
+    ("change", "problem"),
+    [
+        ("gain", r"the gain of a is 1e\+20, beyond its rails \[0, 3\]"),
+        ("bias", r"the bias is 1e\+06 um, beyond 60 um"),
+        ("future", r"last_time_s is \d+ s in the future"),
+        ("indefinite", "not positive definite"),
+        ("wide", "the variance of b is 1e\\+12"),
+        ("accepted", r"accepted_shift_um is 1e\+09"),
+    ],
+)
+def test_a_restored_state_with_numbers_no_update_reaches_is_refused(
+    change: str, problem: str
+) -> None:
+    """Finite but absurd (a gain of 1e20, a bias of 1 m, a probe in 2255, a covariance not positive
+    definite or a million times its prior): a ModelError naming it, never a learner to run."""
+    assert OutputLearner.restore(PRIOR, SETTINGS, _saved(), now_s=1.7e9 + 4000)  # as saved: fine
+    with pytest.raises(ModelError, match=problem):
+        OutputLearner.restore(PRIOR, SETTINGS, _absurd(change), now_s=1.7e9 + 4000)

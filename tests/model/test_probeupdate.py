@@ -194,3 +194,55 @@ def test_an_update_moves_no_recent_prediction_by_more_than_twice_the_innovation(
         )
         moved = np.abs(recent @ (updater.theta - before))
         assert np.max(moved) <= REACH * abs(step.innovation_before_um) + 1e-9
+
+
+def _state(updater: ProbeUpdater) -> tuple[object, ...]:
+    return (
+        updater.theta.tolist(),
+        updater.covariance.tolist(),
+        updater.last_time_s,
+        updater.drifted_to_s,
+        updater.pending,
+    )
+
+
+@pytest.mark.parametrize("measured_um", [1e308, -2000.0, 1001.0])
+def test_a_value_beyond_what_a_thermal_error_can_be_is_refused_and_changes_nothing(
+    measured_um: float,
+) -> None:
+    """Beyond 1 mm (a typo, mm for um, an attack): a ModelError naming the bound, the state as before."""
+    updater = _updater()
+    x = np.array([10.0, 2.0, 1.0])
+    updater.probe(0.0, x, 13.0)
+    before = _state(updater)
+    with pytest.raises(ModelError, match="beyond what a thermal error can be"):
+        updater.probe(3600.0, x, measured_um)
+    assert _state(updater) == before
+
+
+def test_the_probe_bound_is_ten_calibration_peaks_where_that_is_below_1_mm() -> None:
+    """A model whose largest output was 30 um: a probe of 301 um is refused, 299 um is not."""
+    prior = Prior(NAMES, np.diag([0.25, 0.25, 4.0]), residue_sigma_um=1.0, output_peak_um=30.0)
+    updater = ProbeUpdater(prior, ProbeSettings.defaults(prior))
+    with pytest.raises(ModelError, match=r"\(300 um: 1 mm, or 10 times"):
+        updater.probe(0.0, np.array([10.0, 2.0, 1.0]), 301.0)
+    assert updater.probe(0.0, np.array([10.0, 2.0, 1.0]), 299.0)[0].result == "flagged"
+
+
+def test_an_update_that_is_not_finite_is_taken_back_and_refused() -> None:
+    """A regressor whose variance overflows (1e200 um): a ModelError, the parameters as before, never NaN."""
+    updater = _updater()
+    before = _state(updater)
+    with pytest.raises(ModelError, match="not finite"):
+        updater.probe(0.0, np.array([1e200, 2.0, 1.0]), 13.0)
+    assert _state(updater) == before
+
+
+def test_a_person_accepting_a_shift_has_it_taken_at_once_as_confirmed() -> None:
+    """A 40 um shift a person vouches for: no flagged probe to wait on; the prediction moves to it."""
+    updater = _updater(max_departure_um=10.0)
+    x = np.array([10.0, 2.0, 1.0])
+    (step,) = updater.probe(0.0, x, 12.0 + 40.0, accept_shift=True)
+    assert step.result == "confirmed" and updater.pending is None
+    assert abs(step.innovation_after_um) < 1.0  # the departure rail (10 um) gave way
+    assert updater.settings.max_departure_um == 10.0  # ... for that probe only

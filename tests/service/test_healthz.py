@@ -6,10 +6,13 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 
+from compd.service.loop.probemessages import ProbeRequest
 from tests.service.httprun import RunningCompd, http_config, running_compd
 
 #: Ticks (simulated s) before the faults of :data:`tests.service.httprun.FAULTS`, during the PLC's
@@ -60,3 +63,29 @@ def test_a_loop_that_stands_still_is_503(run: RunningCompd) -> None:
     assert status == 503, answer
     assert answer["problems"][0].startswith("no tick for 1"), answer
     assert healthz(run)[0] == 200
+
+
+def test_a_failing_probe_update_is_503_naming_it(tmp_path: Path) -> None:
+    """An update that overflows (a bug): the probe refused, learning on, and /healthz 503 saying so."""
+    path = http_config(tmp_path)
+    doc = yaml.safe_load(path.read_text())
+    doc["probes"] = {"axes": {"Z": None}}
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+
+    def overflow(*args: object) -> None:
+        raise OverflowError("(34, 'Numerical result out of range')")
+
+    with running_compd(path, hold_at=BEFORE) as run:
+        assert run.service is not None and run.loop is not None
+        probing = run.service.probing
+        assert probing is not None and healthz(run)[0] == 200
+        probing.learners["disp_z_um"].updater._probe = overflow  # type: ignore[method-assign]
+        request = ProbeRequest("Z", 1.0, run.service.clock_wall(), "test")
+        run.loop.call_soon_threadsafe(probing.offer, request)
+        run.hold_at(BEFORE + 3)
+        status, answer = healthz(run)
+    assert status == 503, answer
+    assert any(
+        p.startswith("probe learning fails: probe update failed") for p in answer["problems"]
+    )
+    assert probing.off is None

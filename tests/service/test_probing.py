@@ -16,7 +16,7 @@ import paho.mqtt.publish as publish
 import pytest
 import yaml
 
-from compd.errors import ModelError
+from compd.errors import CompdError, ModelError
 from compd.files.probestate import learned_path
 from compd.files.yamlplace import resolve_path
 from compd.service.config.loading import load_config
@@ -24,11 +24,12 @@ from compd.service.control.socket import request
 from compd.service.daemon import Service
 from compd.service.http.metrics import ServiceMetrics
 from compd.service.loop.compensator import TickRecord
-from compd.service.loop.probemessages import ProbeRequest
-from compd.service.loop.probing import OFFSET_HISTORY_S, _OffsetHistory
+from compd.service.loop.offsethistory import OFFSET_HISTORY_S, OffsetHistory
+from compd.service.loop.probemessages import ProbeRequest, probe_request
 from compd.sim.plc.machine import SimulatedMachine
 from compd.sim.plc.run import run_simulation
 from tests.acceptance.conftest import machine_doc, write_config
+from tests.clirun import compd_result
 from tests.mosquitto import Mosquitto, Subscriber, machine_config, mosquitto_binary
 
 BUNDLED_MODEL = resolve_path("bundled:simulated_model.yaml", Path("."))
@@ -176,6 +177,19 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
         answers["probe"] = await request(
             config.control_socket, {"cmd": "probe", "axis": "Z", "measured_um": 2.0}
         )
+        touched = answers["probe"]["last"]["touched_at_unix_s"]
+        again = {"cmd": "probe", "axis": "Z", "measured_um": 2.0, "touched_at_unix_s": touched}
+        answers["again"] = await request(config.control_socket, again)
+        answers["soon"] = await request(
+            config.control_socket, {"cmd": "probe", "axis": "Z", "measured_um": 2.5}
+        )
+        soon = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "compd.cli", "model", "probe", "--config", str(config.path),
+            "Z", "2.5", "--accept-shift",
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+        )  # fmt: skip
+        out, _ = await soon.communicate()
+        answers["soon_cli"] = (soon.returncode, out.decode())
         cli = await asyncio.create_subprocess_exec(
             sys.executable, "-m", "compd.cli", "model", "probe", "--config", str(config.path),
             "Z", "1.5", "--at", "2000-01-01T00:00:00",
@@ -199,6 +213,15 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
     probe = answers["probe"]
     assert probe["ok"] and probe["taken"] and probe["last"]["source"] == "socket"
     assert probe["last"]["result"] in ("accepted", "flagged")
+    # The same probe again (same touch, value, source): answered as it was, not taken again.
+    again = answers["again"]["last"]
+    assert again["result"] == "duplicate" and again["original_result"] == probe["last"]["result"]
+    assert again["innovation_um"] == probe["last"]["innovation_um"]
+    # Another touched a moment later: too soon after the last (the probe gap), said and refused,
+    # from the command line too (exit status 1), an accepted shift or not.
+    assert answers["soon"]["last"]["result"] == "too_soon"
+    status, out = answers["soon_cli"]
+    assert status == 1 and "Z: too_soon" in out and "probes.min_gap_s" in out, out
     # A touch older than what the daemon keeps is refused, and says so (exit status 1).
     status, out = answers["cli"]
     assert status == 1 and "Z: refused" in out and "older than" in out, out
@@ -216,7 +239,8 @@ def test_the_control_socket_takes_a_gauge_result_and_a_reset(tmp_path: Path) -> 
 def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
     broker: Mosquitto, tmp_path: Path
 ) -> None:
-    """cmd/probe on the fleet's broker: taken as the socket's probe, answered on reply/<id>; a retained one refused."""
+    """cmd/probe on the fleet's broker: taken as the socket's probe, answered on reply/<id>; a retained
+    one refused; a replay answered as the first was, not taken again."""
     config = machine_config(
         tmp_path,
         telemetry={"host": "127.0.0.1", "port": broker.port, "machine_id": "mill-1"},
@@ -247,13 +271,24 @@ def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
             if len(replies(listener)) == 2 and probed(listener):
                 break
             await asyncio.sleep(0.05)
+        publish.single("compd/mill-1/cmd/probe", ask, qos=1, port=broker.port)  # a replay
+        for _ in range(600):
+            if replies(listener)["cmm-1"].get("duplicate"):
+                break
+            await asyncio.sleep(0.05)
         stop_service(services, ran)
         await ran
 
     def replies(listener: Subscriber) -> dict[str, dict[str, Any]]:
+        """The last reply to each request id."""
         with listener._lock:
             heard = [m.payload for m in listener.messages if "/reply/" in m.topic]
         return {p["request_id"]: p for p in heard}
+
+    def first_replies(listener: Subscriber) -> dict[str, dict[str, Any]]:
+        with listener._lock:
+            heard = [m.payload for m in listener.messages if "/reply/" in m.topic]
+        return {p["request_id"]: p for p in reversed(heard)}
 
     def probed(listener: Subscriber) -> list[dict[str, Any]]:
         """The statuses published after the probe: each carries what the probes say per axis."""
@@ -265,7 +300,8 @@ def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
 
     with Subscriber(broker.port, "compd/mill-1/#") as listener:
         asyncio.run(main(listener))
-        answers = replies(listener)
+        answers = first_replies(listener)
+        replayed = replies(listener)["cmm-1"]
         statuses = probed(listener)
     assert answers["cmm-1"]["ok"] is True and answers["cmm-1"]["taken"] is True
     z = statuses[-1]["probes"]["Z"]
@@ -273,6 +309,10 @@ def test_a_cmm_station_sends_a_probe_over_mqtt_and_hears_what_the_update_did(
     assert z["shift_rms_um"] == pytest.approx(abs(z["last"]["innovation_um"]), abs=1e-3)
     assert answers["cmm-1"]["last"]["source"] == "mqtt:cmm-2"
     assert answers["cmm-0"]["ok"] is False and "retained" in answers["cmm-0"]["error"]
+    # The same request again: the first answer, said to be a replay; the probe not taken again.
+    assert replayed["duplicate"] is True and "duplicate" not in answers["cmm-1"]
+    assert replayed["ok"] is True and replayed["last"] == answers["cmm-1"]["last"]
+    assert statuses[-1]["probes"]["Z"]["shift_probes"] == 1
 
 
 def test_what_the_probes_taught_survives_a_restart_and_another_model_starts_from_its_prior(
@@ -314,8 +354,11 @@ def test_what_the_probes_taught_survives_a_restart_and_another_model_starts_from
     assert len(list((tmp_path / "state" / "probes").glob("*.json"))) == 1  # only what was taught
 
 
-def test_a_failure_of_the_learning_turns_probes_off_and_the_loop_goes_on(tmp_path: Path) -> None:
-    """A bug in the learner at tick 50: one ERROR, the learned adjustment dropped, every tick still run."""
+def test_a_failure_of_the_learner_drops_what_it_taught_while_it_lasts_and_learning_stays_on(
+    tmp_path: Path,
+) -> None:
+    """A bug in the learner from tick 50: one ERROR, nothing learned applied while it fails, every
+    tick still run; the status names the fault, and learning goes on (never switched off)."""
     doc = machine_doc(
         tmp_path,
         BUNDLED_MODEL,
@@ -345,12 +388,13 @@ def test_a_failure_of_the_learning_turns_probes_off_and_the_loop_goes_on(tmp_pat
     assert len(records) == round(3600 / PERIOD_S) + 1  # every tick of the hour
     adjustments = [r.probe_adjustments_um["disp_z_um"] for r in records]
     assert adjustments[40] != 0.0 and all(a == 0.0 for a in adjustments[50:])
-    assert "a bug in the learner" in result.status["probes"]["off"]
+    probes = result.status["probes"]
+    assert probes["off"] is None and "a bug in the learner" in probes["fault"]
 
 
 def test_the_offset_in_force_is_known_at_any_touch_of_the_last_12_h() -> None:
     """Interpolated between ticks; a touch older than what is kept is refused, naming why."""
-    history = _OffsetHistory(capacity=4)
+    history = OffsetHistory(capacity=4)
     for k in range(100_000):  # 28 h of 1 s ticks, the offset rising 0.5 um/s
         history.append(float(k), 0.5 * k)
     assert history.at(99_998.5) == pytest.approx(49_999.25)
@@ -372,3 +416,160 @@ def test_the_shift_s_probe_residues_are_one_figure(runs: tuple[ProbedRun, Probed
     scraped = ServiceMetrics(probed.service).render()[0].decode()
     shift = re.search(r'^compd_probe_shift_rms_meters\{axis="Z"\} (\S+)$', scraped, re.M)
     assert shift is not None and float(shift.group(1)) == pytest.approx(z["shift_rms_um"] * 1e-6)
+
+
+@dataclass
+class Attacked:
+    """A 3 h shift attacked through the socket's path (probe_request, offer) at the ticks of ``AT``."""
+
+    records: list[TickRecord]
+    service: Service
+    #: Per tick, the learned adjustment (um) and what the probing said of its own health.
+    adjustments_um: list[float]
+    problems: list[str | None]
+    refused_at_once: list[str]
+    thetas: list[np.ndarray]
+
+
+#: Ticks (10 s) of the attacks: a 50 um probe and its retry 10 s later, then a separate touch of
+#: 50 um a probe gap later (a shift confirmed); 300 probes of +30 um in 46 s; 1e308 twice; an
+#: update that fails (a bug); a probe after the gap.
+RETRY_AT, CONFIRM_AT, FLOOD_AT, HUGE_AT, BROKEN_AT, AFTER_AT = 360, 451, 540, 720, 900, 1000
+
+
+@pytest.fixture(scope="module")
+def attacked(tmp_path_factory: pytest.TempPathFactory) -> Attacked:
+    tmp = tmp_path_factory.mktemp("attacked")
+    doc = machine_doc(
+        tmp,
+        BUNDLED_MODEL,
+        simulation={"scenario": "production", "hours": 3, "seed": 1, "sample_time_s": PERIOD_S,
+                    "stop_at_end": True},
+        probes={"axes": {"Z": None}},
+        period_s=PERIOD_S,
+    )  # fmt: skip
+    doc["recorder"] = {"enabled": False}
+    config = write_config(tmp, doc)
+    out = Attacked([], None, [], [], [], [])  # type: ignore[arg-type]
+
+    def offer(service: Service, measured_um: float) -> None:
+        assert service.probing is not None
+        message = {"axis": "Z", "measured_um": measured_um, "source": "cli"}
+        try:
+            service.probing.offer(probe_request(message, service.clock_wall(), "residue"))
+        except CompdError as exc:
+            out.refused_at_once.append(str(exc))
+
+    def on_tick(service: Service, machine: SimulatedMachine, record: TickRecord) -> None:
+        out.records.append(record)
+        out.service = service
+        probing = service.probing
+        assert probing is not None
+        out.adjustments_um.append(record.probe_adjustments_um["disp_z_um"])
+        out.problems.append(probing.problem())
+        out.thetas.append(probing.learners["disp_z_um"].theta.copy())
+        k = len(out.records)
+        if k in (RETRY_AT, RETRY_AT + 1, CONFIRM_AT):
+            offer(service, 50.0)
+        if FLOOD_AT <= k < FLOOD_AT + 5:  # 60 a tick: 300 in 46 s
+            for _ in range(60):
+                offer(service, 30.0)
+        if k in (HUGE_AT, HUGE_AT + 120):
+            offer(service, 1e308)
+        if k == BROKEN_AT:
+
+            def overflow(*args: object) -> None:
+                raise OverflowError("(34, 'Numerical result out of range')")
+
+            learner = probing.learners["disp_z_um"]
+            learner.updater._probe = overflow  # type: ignore[method-assign]
+            offer(service, machine.truth_now()["Z"][2])
+        if k == BROKEN_AT + 2:
+            del probing.learners["disp_z_um"].updater._probe  # the bug fixed
+        if k == AFTER_AT:
+            offer(service, machine.truth_now()["Z"][2])
+
+    asyncio.run(run_simulation(config, on_tick=on_tick))
+    return out
+
+
+def taken_between(run: Attacked, start: int, end: int) -> list[str]:
+    """What the loop answered for the probes touched from tick ``start`` to ``end``."""
+    assert run.service.probing is not None
+    first, last = run.records[start - 1].wall_unix_s, run.records[end - 1].wall_unix_s
+    answers = run.service.probing.answers
+    return [a.result for a in answers if first <= a.request.touched_at_unix_s <= last]
+
+
+def test_a_retried_probe_is_refused_as_too_soon_and_cannot_confirm_itself(
+    attacked: Attacked,
+) -> None:
+    """compd model probe Z 50 sent twice 10 s apart: flagged, then too soon; nothing learned (was +49.6 um)."""
+    assert taken_between(attacked, RETRY_AT, RETRY_AT + 3) == ["flagged", "too_soon"]
+    assert max(abs(a) for a in attacked.adjustments_um[:CONFIRM_AT]) == 0.0
+
+
+def test_a_separate_touch_a_probe_gap_later_confirms_a_flagged_probe(attacked: Attacked) -> None:
+    """The same 50 um touched again 910 s later: confirmed, the shift learned (a crash, a re-clamp)."""
+    assert taken_between(attacked, CONFIRM_AT, CONFIRM_AT + 2) == ["confirmed"]
+    assert attacked.adjustments_um[CONFIRM_AT + 1] == pytest.approx(49.6, abs=1.0)
+
+
+def test_a_flood_of_probes_moves_the_model_by_at_most_one_probe(attacked: Attacked) -> None:
+    """300 probes of +30 um in 46 s: one given to the update, the rest answered (was 298 taken, 52 um)."""
+    results = taken_between(attacked, FLOOD_AT, FLOOD_AT + 6)
+    given = [r for r in results if r not in ("too_soon", "duplicate")]
+    assert len(given) == 1, results
+    # ... and only that one reaches the recorder and telemetry.
+    recorded = [p for r in attacked.records[FLOOD_AT - 1 : FLOOD_AT + 6] for p in r.probes]
+    assert [p.result for p in recorded] == given
+    assert len(results) + len(attacked.refused_at_once) - 2 == 300  # each one answered
+    one = attacked.records[FLOOD_AT + 1].probe_adjustments_um["disp_z_um"]
+    later = attacked.records[FLOOD_AT + 6].probe_adjustments_um["disp_z_um"]
+    assert abs(later - one) < 0.1  # what the one probe taught, nothing more
+
+
+def test_a_value_beyond_1_mm_is_refused_at_once_and_learning_stays_on(attacked: Attacked) -> None:
+    """compd model probe Z 1e308 twice: refused naming the bound, both times; probes still taken."""
+    huge = [r for r in attacked.refused_at_once if "1e+308" in r]
+    assert len(huge) == 2 and "beyond what a thermal error of Z can be (991.975 um" in huge[0]
+    assert attacked.service.status()["probes"]["off"] is None
+
+
+def test_a_failing_update_refuses_its_probe_says_so_and_learning_goes_on(
+    attacked: Attacked,
+) -> None:
+    """An OverflowError in the update: the probe refused with the reason, the parameters as before,
+    /healthz's problem until an update works again; the next probe is taken."""
+    (broken,) = [p for r in attacked.records[BROKEN_AT - 1 : BROKEN_AT + 2] for p in r.probes]
+    assert broken.result == "refused" and broken.refused is not None
+    assert "OverflowError" in broken.refused and "parameters are as before" in broken.refused
+    np.testing.assert_array_equal(attacked.thetas[BROKEN_AT + 1], attacked.thetas[BROKEN_AT - 2])
+    assert "probe update failed" in (attacked.problems[BROKEN_AT + 1] or "")
+    (after,) = [p for r in attacked.records[AFTER_AT - 1 : AFTER_AT + 2] for p in r.probes]
+    assert after.result in ("accepted", "flagged")
+    assert attacked.problems[AFTER_AT + 2] is None
+
+
+def test_check_config_says_what_the_daemon_takes_of_the_probes(tmp_path: Path) -> None:
+    """compd check-config: one per probe gap, the value's bound, the shift a person must accept."""
+    doc = machine_doc(
+        tmp_path,
+        BUNDLED_MODEL,
+        simulation={"scenario": "production", "hours": 1, "seed": 1},
+        probes={"min_gap_s": 600, "axes": {"Z": None}},
+    )
+    config = write_config(tmp_path, doc)
+    code, out, _ = compd_result("check-config", config.path)
+    assert code == 0, out
+    assert "one taken per 600 s of touch time" in out and "|value| <= 991.975 um" in out
+    assert "the learned shift within 99.2 um unless a person accepts more" in out
+
+
+def test_a_probe_request_carries_a_person_s_accepted_shift_and_refuses_anything_else() -> None:
+    """accept_shift: true or false only; it reaches the request the loop gives the update."""
+    message = {"axis": "Z", "measured_um": 60.0, "accept_shift": True}
+    assert probe_request(message, 1.8e9, "residue").accept_shift is True
+    assert probe_request({"axis": "Z", "measured_um": 6.0}, 1.8e9, "residue").accept_shift is False
+    with pytest.raises(CompdError, match="accept_shift is true or false, not 'yes'"):
+        probe_request(message | {"accept_shift": "yes"}, 1.8e9, "residue")

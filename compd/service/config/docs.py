@@ -423,6 +423,12 @@ class ProbesDoc(Strict):
     ``probe_noise_um`` 0.5 um; ``drift_um_per_sqrt_h`` 0.3 calibration sigma per
     sqrt(hour); ``reject_sigma`` 4 (a probe further than that from the
     prediction is flagged, taken only when the next confirms it).
+    ``min_gap_s``: one probe per axis is given to the update per this much
+    touch time (a resend is answered as it was taken; a confirmation is a
+    separate touch); ``max_shift_um``: the largest learned shift (the bias,
+    what no gain scales) the probes reach without a person (default
+    twice ``max_departure_um``: the model's largest output; ``compd model
+    probe --accept-shift`` takes more).
     """
 
     enabled: bool = True
@@ -436,6 +442,10 @@ class ProbesDoc(Strict):
     #: A probe is flagged only beyond this too (um; default a quarter of the model's largest
     #: output: a model off by its error on a new programme is not a mis-probe).
     reject_floor_um: Annotated[float, Field(ge=0, le=10000, allow_inf_nan=False)] | None = None
+    #: One probe per axis per this much touch time (s; the PLC's probe gap, a tool change).
+    min_gap_s: Annotated[float, Field(ge=0, le=24 * 3600, allow_inf_nan=False)] = 900.0
+    #: The learned shift's bound without a person (um, the bias; default the model's largest output).
+    max_shift_um: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] | None = None
     #: Per axis (a name under ``outputs``), where the PLC's probe cycle meets compd; an axis
     #: may also be probed through ``compd model probe`` and MQTT alone (``{}``: no registers).
     axes: dict[str, ProbeAxisDoc | None] = Field(default_factory=dict)
@@ -448,6 +458,7 @@ class ProbesDoc(Strict):
             "max_departure_um": self.max_departure_um,
             "reject_sigma": self.reject_sigma,
             "reject_floor_um": self.reject_floor_um,
+            "max_shift_um": self.max_shift_um,
         }
         return {k: v for k, v in given.items() if v is not None}
 

@@ -350,7 +350,8 @@ def _probe_metrics(service: ServiceView) -> Iterator[Metric]:
     )
     taken = CounterMetricFamily(
         "compd_probes",
-        "Probes per axis and result (accepted, flagged, confirmed, refused).",
+        "Probes per axis and result (accepted, flagged, confirmed, rejected, refused; "
+        "duplicate and too_soon: answered, not given to the update).",
         labels=["axis", "result"],
     )
     age = GaugeMetricFamily(
@@ -392,6 +393,12 @@ def _probe_metrics(service: ServiceView) -> Iterator[Metric]:
         if s["shift_rms_um"] is not None:
             shift.add_metric([axis], s["shift_rms_um"] * M_PER_UM)
     yield from (residue, taken, age, due, disagrees, shift, adjustment)
+    yield _gauge(
+        "compd_probe_learning_fault",
+        "1 while the probe learning fails or is off (/healthz names why): nothing it taught "
+        "is applied where it fails.",
+        float(probing.problem() is not None),
+    )
 
 
 def _link_metrics(service: ServiceView) -> Iterator[Metric]:

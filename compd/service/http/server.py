@@ -270,6 +270,8 @@ class StatusServer:
             clock=service.clock,
             period_s=service.config.doc.period_s,
         )
+        if (probing := service.probing) is not None and (problem := probing.problem()):
+            problems.append(problem)  # what the probes taught is not applied while it fails
         last = service.compensator.last
         level = None if last is None else Level(last.status & 0b11).name.lower()
         answer = _json({"healthy": not problems, "level": level, "problems": problems})

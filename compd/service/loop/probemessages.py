@@ -21,6 +21,9 @@ if TYPE_CHECKING:
     from compd.model.probeupdate import ProbeStep
 
 Measures = Literal["residue", "thermal_error"]
+#: What the loop answers for a probe it did not give to the update: a resend of one it took
+#: (same source, touch and value), or one touched within ``probes.min_gap_s`` of the last.
+DUPLICATE, TOO_SOON = "duplicate", "too_soon"
 
 
 @dataclass(frozen=True)
@@ -34,6 +37,13 @@ class ProbeRequest:
     measures: Measures = "residue"
     #: The PLC's counter value for a probe read from registers.
     count: int | None = None
+    #: A person says the machine moved (``compd model probe --accept-shift``): the learned
+    #: adjustment may go beyond ``probes.max_shift_um``.
+    accept_shift: bool = False
+
+    def key(self) -> tuple[str, str, float, float, str]:
+        """What makes two requests the same probe: axis, source, touch time, value, what it measures."""
+        return (self.axis, self.source, self.touched_at_unix_s, self.measured_um, self.measures)
 
 
 def probe_request(
@@ -57,11 +67,16 @@ def probe_request(
             )
     if said not in ("residue", "thermal_error"):
         raise CompdError(f"a probe measures 'residue' or 'thermal_error', not {said!r}")
+    assert isinstance(measured, int | float) and isinstance(touched, int | float)
+    accept_shift = message.get("accept_shift", False)
+    if not isinstance(accept_shift, bool):
+        raise CompdError(f"a probe's accept_shift is true or false, not {accept_shift!r}")
     if touched > now_unix_s + 60.0:
         raise CompdError(f"the probe's touch time is {touched - now_unix_s:.0f} s in the future")
     source = message.get("source", source)
-    assert isinstance(measured, int | float) and isinstance(touched, int | float)
-    return ProbeRequest(axis, float(measured), float(touched), str(source)[:64], said)
+    return ProbeRequest(
+        axis, float(measured), float(touched), str(source)[:64], said, accept_shift=accept_shift
+    )
 
 
 @dataclass(frozen=True)
@@ -78,14 +93,27 @@ class ProbeTaken:
     refused: str | None = None
     #: The learners' states after the probe (JSON-able), for the state directory.
     learned: Mapping[str, dict[str, Any]] = field(default_factory=dict)
+    #: :data:`DUPLICATE` or :data:`TOO_SOON`: not given to the update (``refused`` says why).
+    not_given: str | None = None
+    #: For a duplicate: the probe as it was taken the first time.
+    original: ProbeTaken | None = None
 
     @property
     def result(self) -> str:
-        """``refused``, else the last step's result (``accepted``, ``flagged``, ``confirmed``)."""
+        """``duplicate``, ``too_soon`` or ``refused``, else the last step's result
+        (``accepted``, ``flagged``, ``confirmed``)."""
+        if self.not_given is not None:
+            return self.not_given
         return "refused" if self.refused is not None else self.steps[-1].result
 
     def event_details(self) -> dict[str, Any]:
         """What a telemetry event and the status say of it (um, unix s)."""
+        if self.original is not None:  # the answer the first time, said to be a resend's
+            return self.original.event_details() | {
+                "result": self.result,
+                "original_result": self.original.result,
+                "reason": self.refused,
+            }
         step = self.steps[-1] if self.steps else None
         return {
             "axis": self.request.axis,
@@ -108,6 +136,9 @@ class ProbeSetup:
     overrides: Mapping[str, float] = field(default_factory=dict)
     #: Axes probed (names under ``outputs``).
     axes: tuple[str, ...] = ()
+    #: One probe per axis is given to the update per this much touch time (s):
+    #: :mod:`compd.service.loop.probegate`.
+    min_gap_s: float = 900.0
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,13 @@ learned parameters of the previous model are kept on disk under its own sha.
 The probe status per axis: *due* after ``every_h`` hours without a probe
 taken; *disagrees* after two probes in a row the update would not take (the
 model no longer describes the machine).
+
+Each probe is taken once and within bounds: a resend or one touched within
+``min_gap_s`` of the last is answered and not given to the update
+(:mod:`compd.service.loop.probegate`); a value beyond what a thermal error
+can be is refused; an update that fails (any exception, a number that
+overflows) is refused with its reason and taken back, learning stays on, and
+the fault shows in the status and ``/healthz`` until an update succeeds.
 """
 
 from __future__ import annotations
@@ -37,67 +44,37 @@ import numpy as np
 import structlog
 
 from compd.errors import ModelError
+from compd.faultlog import FaultLog
 from compd.files.probeprior import output_prior
 from compd.model.probelearner import OutputLearner, output_columns, probed_thermal_error_um
-from compd.model.probeupdate import ProbeSettings
+from compd.model.probeupdate import MAX_PROBE_UM, ProbeSettings, max_probe_um
 from compd.model.updateprior import Prior
+from compd.service.loop.offsethistory import OFFSET_HISTORY_S, OffsetHistory
 from compd.service.loop.offsets import AxisPoint
 from compd.service.loop.points import SignalPoint
+from compd.service.loop.probegate import ProbeGate
 from compd.service.loop.probemessages import ProbeRegisters, ProbeRequest, ProbeSetup, ProbeTaken
 from compd.service.loop.slots import ModelSlot
 
+__all__ = ["OFFSET_HISTORY_S", "OffsetHistory", "ProbeLearning"]
+
 log = structlog.get_logger("compd.service.loop.probing")
 
-#: The offset in force is kept per tick over this long (s): a gauge result typed in hours late.
-OFFSET_HISTORY_S = 12 * 3600.0
 #: A shift (s): each one ends with a line of the RMS of its probe residues, the shop's evidence.
 SHIFT_S = 8 * 3600.0
 #: Probe status bits (the probe status register, and ``compd status``).
 DUE_BIT, DISAGREES_BIT = 1 << 0, 1 << 1
-
-
-class _OffsetHistory:
-    """The offset in force per tick (um) over :data:`OFFSET_HISTORY_S`, for a probe's touch instant.
-
-    Two float arrays (16 bytes a tick, at most 4 times the rows kept: 2 MB for 12 h at
-    1 Hz), the oldest rows dropped when the arrays fill, so appending is amortised O(1).
-    """
-
-    def __init__(self, capacity: int = 1024) -> None:
-        self.t_s = np.empty(capacity)
-        self.offset_um = np.empty(capacity)
-        self.lo = self.hi = 0
-
-    def append(self, t_s: float, offset_um: float) -> None:
-        if self.hi == len(self.t_s):
-            self.lo += int(np.searchsorted(self.t_s[self.lo : self.hi], t_s - OFFSET_HISTORY_S))
-            live = self.hi - self.lo
-            if live > len(self.t_s) // 2:  # mostly live: grow
-                self.t_s = np.concatenate([self.t_s, np.empty(len(self.t_s))])
-                self.offset_um = np.concatenate([self.offset_um, np.empty(len(self.offset_um))])
-            self.t_s[:live] = self.t_s[self.lo : self.hi]
-            self.offset_um[:live] = self.offset_um[self.lo : self.hi]
-            self.lo, self.hi = 0, live
-        self.t_s[self.hi] = t_s
-        self.offset_um[self.hi] = offset_um
-        self.hi += 1
-
-    def at(self, t_s: float) -> float:
-        times = self.t_s[self.lo : self.hi]
-        if not times.size:
-            raise ModelError("no offset is known yet: the probe came before the first tick")
-        if t_s < max(times[0], times[-1] - OFFSET_HISTORY_S):
-            raise ModelError(
-                f"the touch is older than the offsets kept ({OFFSET_HISTORY_S / 3600:g} h): probe again"
-            )
-        return float(np.interp(t_s, times, self.offset_um[self.lo : self.hi]))
+#: Probes waiting for the next tick, per axis at most (a flood is refused at the door).
+MAX_QUEUED = 64
+#: The answers kept for the socket and MQTT to find their own (the newest).
+ANSWERS_KEPT = 512
 
 
 class ProbeLearning:
     """The probed outputs' learners of the running model, fed each tick; probes taken as they arrive.
 
-    ``restore(slot, setups)`` gives the learners the state directory keeps for
-    ``slot``'s model (empty: start from the priors), and a problem to log.
+    ``restore(slot, setups, now_unix_s)`` gives the learners the state
+    directory keeps for ``slot``'s model (empty: start from the priors).
     """
 
     def __init__(
@@ -107,7 +84,8 @@ class ProbeLearning:
         registers: Sequence[ProbeRegisters] = (),
         *,
         restore: Callable[
-            [ModelSlot, Mapping[str, tuple[Prior, ProbeSettings]]], dict[str, OutputLearner]
+            [ModelSlot, Mapping[str, tuple[Prior, ProbeSettings]], float],
+            dict[str, OutputLearner],
         ]
         | None = None,
     ) -> None:
@@ -122,7 +100,7 @@ class ProbeLearning:
         self._output_index: dict[str, int] = {}
         self.notes: dict[str, str] = {}
         self._queue: deque[ProbeRequest] = deque()
-        self._offsets = {axis: _OffsetHistory() for axis in self.axes}
+        self._offsets = {axis: OffsetHistory() for axis in self.axes}
         #: Per axis, the last count compd took from the PLC (None until read: the echo register says).
         self.taken_count: dict[str, int | None] = dict.fromkeys(self.registers)
         self.started_s: float | None = None
@@ -139,6 +117,13 @@ class ProbeLearning:
         self._shift = 0
         #: Why probing was turned off (a failure of the learning itself); None while it runs.
         self.off: str | None = None
+        self.gate = ProbeGate(setup.min_gap_s)
+        #: The last answers (the socket's and MQTT's requests find theirs by identity).
+        self.answers: deque[ProbeTaken] = deque(maxlen=ANSWERS_KEPT)
+        #: A failure of the update, of a tick's regressors: ERROR once per episode each, and
+        #: what failed while the episode lasts (the status and /healthz say it).
+        self.failures = {"update": FaultLog(log), "tick": FaultLog(log)}
+        self.failing: dict[str, str] = {}
 
     def reads(self) -> list[SignalPoint]:
         """The probe registers read each tick with the signals."""
@@ -157,7 +142,29 @@ class ProbeLearning:
             )
         if not (math.isfinite(request.measured_um) and math.isfinite(request.touched_at_unix_s)):
             raise ModelError("a probe's value and touch time must be finite numbers")
+        why = self._beyond(request)
+        if why is None and sum(1 for r in self._queue if r.axis == request.axis) >= MAX_QUEUED:
+            why = f"{MAX_QUEUED} probes of {request.axis} are waiting for the next tick: not taken"
+        if why is not None:
+            self.gate.refused_at_once(request, why)
+            raise ModelError(why)
         self._queue.append(request)
+
+    def answer(self, request: ProbeRequest) -> ProbeTaken | None:
+        """What the loop did with ``request`` (this very object); None: not yet."""
+        return next((a for a in reversed(self.answers) if a.request is request), None)
+
+    def _beyond(self, request: ProbeRequest) -> str | None:
+        """Why the value is not a thermal error (beyond 1 mm or 10 calibration peaks); None: it may be."""
+        learner = self.learners.get(self.axes[request.axis].model_output)
+        bound = MAX_PROBE_UM if learner is None else max_probe_um(learner.prior)
+        if abs(request.measured_um) <= bound:
+            return None
+        return (
+            f"a probe of {request.measured_um:g} um is beyond what a thermal error of "
+            f"{request.axis} can be ({bound:g} um: 1 mm, or 10 times the calibration's largest "
+            "output): check the value and its unit (um); not taken"
+        )
 
     def read_registers(self, values: Mapping[str, float], now_unix_s: float) -> None:
         """Queue each axis's new PLC probe: a count not yet taken (the echo says what compd took last)."""
@@ -204,7 +211,7 @@ class ProbeLearning:
 
     # -- each tick -------------------------------------------------------------------------------
 
-    def follow(self, slot: ModelSlot) -> None:
+    def follow(self, slot: ModelSlot, now_unix_s: float = math.nan) -> None:
         """Run ``slot``'s learners: its own prior, or what the state directory kept for it."""
         if slot.sha256 == self.sha256:
             return
@@ -225,7 +232,7 @@ class ProbeLearning:
                 self.notes[output] = prior.note
                 log.warning("probe update without the calibration's prior", note=prior.note)
         self._output_index = {name: i for i, name in enumerate(compiled.output_names)}
-        learners = self.restore(slot, setups) if self.restore is not None else {}
+        learners = self.restore(slot, setups, now_unix_s) if self.restore is not None else {}
         self.learners = {
             output: learners.get(output) or OutputLearner(prior, settings)
             for output, (prior, settings) in setups.items()
@@ -249,7 +256,7 @@ class ProbeLearning:
         if shift > self._shift:
             self._shift = shift
             self._say_shift(t_unix_s)
-        self.follow(slot)
+        self.follow(slot, t_unix_s)
         runner = slot.runner
         self.adjustments_um = dict.fromkeys(self.learners, 0.0)
         self._taken_now = ()
@@ -263,8 +270,14 @@ class ProbeLearning:
             fixed = float(outputs[self._output_index[output]]) - float(x[:-1].sum())
             if not (np.all(np.isfinite(x)) and math.isfinite(fixed)):
                 continue
-            learner.observe(t_unix_s, x, fixed)
+            try:
+                learner.observe(t_unix_s, x, fixed)
+            except Exception as exc:  # nothing learned is applied while it fails; learning stays on
+                self._failed("tick", "the probe learner cannot keep the ticks", output, exc)
+                continue
             regressors[output] = x
+        if len(regressors) == len(self.learners):
+            self._works("tick", "the probe learner keeps the ticks again")
         self._taken_now = self._take(t_unix_s)
         for output, x in regressors.items():
             self.adjustments_um[output] = self.learners[output].adjustment_um(x)
@@ -277,8 +290,12 @@ class ProbeLearning:
                 history.append(t_unix_s, offset)
 
     def taken(self) -> tuple[ProbeTaken, ...]:
-        """The probes taken this tick (after :meth:`observe`)."""
-        return self._taken_now
+        """The probes taken this tick (after :meth:`observe`): given to the update, or refused by it.
+
+        A resend or a probe too soon is answered (:meth:`answer`) and counted,
+        not passed on: a flood must not flood the recorder and telemetry too.
+        """
+        return tuple(t for t in self._taken_now if t.not_given is None)
 
     def innovations_um(self) -> dict[str, float]:
         """Per probed axis, this tick's probe innovation (measured minus predicted, um); NaN: none."""
@@ -293,6 +310,13 @@ class ProbeLearning:
         while self._queue:
             request = self._queue.popleft()
             taken = self._take_one(request)
+            self.answers.append(taken)
+            if taken.not_given is not None:  # answered, not a probe of the machine
+                counts = self.results[request.axis]
+                counts[taken.result] = counts.get(taken.result, 0) + 1
+                done.append(taken)
+                continue
+            self.gate.remember(taken)
             self.last[request.axis] = taken
             if taken.steps:
                 touched = request.touched_at_unix_s
@@ -311,17 +335,24 @@ class ProbeLearning:
         output = axis.model_output
         learner = self.learners.get(output)
         assert self.sha256 is not None
+        last_touch_s = None if learner is None else learner.updater.last_time_s
+        if (answered := self.gate.screen(request, self.sha256, output, last_touch_s)) is not None:
+            return answered
         offset = math.nan
         try:
             if learner is None:
                 raise ModelError("the model has not started: no regressors yet")
+            if (why := self._beyond(request)) is not None:  # the PLC's registers come here only
+                raise ModelError(why)
             offset = self._offsets[request.axis].at(request.touched_at_unix_s)
             error = (
                 probed_thermal_error_um(request.measured_um, offset, axis.sign)
                 if request.measures == "residue"
                 else float(request.measured_um)
             )
-            steps = learner.probe(request.touched_at_unix_s, error)
+            steps = learner.probe(
+                request.touched_at_unix_s, error, accept_shift=request.accept_shift
+            )
         except ModelError as exc:
             log.error(
                 "probe refused",
@@ -331,6 +362,13 @@ class ProbeLearning:
                 reason=str(exc),
             )
             return ProbeTaken(request, self.sha256, output, offset, math.nan, refused=str(exc))
+        except Exception as exc:  # a bug or a number that overflows: this probe only, taken back
+            self._failed(
+                "update", "probe update failed: probe refused, parameters as before", output, exc
+            )
+            why = f"the update failed ({type(exc).__name__}: {exc}): the parameters are as before"
+            return ProbeTaken(request, self.sha256, output, offset, math.nan, refused=why)
+        self._works("update", "probe updates work again")
         taken = ProbeTaken(
             request,
             self.sha256,
@@ -353,7 +391,29 @@ class ProbeLearning:
         )
         return taken
 
+    def _failed(self, kind: str, event: str, output: str, exc: Exception) -> None:
+        error = f"{type(exc).__name__}: {exc}"
+        self.failing[kind] = f"{event} ({output}: {error})"
+        self.failures[kind].failed(event, output=output, error=error)
+
+    def _works(self, kind: str, event: str) -> None:
+        self.failing.pop(kind, None)
+        self.failures[kind].cleared(event)
+
+    @property
+    def fault(self) -> str | None:
+        """What fails in the probe learning now (None: nothing)."""
+        return "; ".join(self.failing.values()) or None
+
     # -- status ----------------------------------------------------------------------------------
+
+    def problem(self) -> str | None:
+        """What /healthz says of the probe learning: off, or failing now; None: it works."""
+        if self.off is not None:
+            return f"probe learning is off until the daemon restarts: {self.off}"
+        if (fault := self.fault) is not None:
+            return f"probe learning fails: {fault}"
+        return None
 
     def shift_rms_um(self, axis: str, now_unix_s: float) -> tuple[float | None, int]:
         """The RMS of the axis's probe residues over the last shift (um; None without one), and their count."""
@@ -406,6 +466,7 @@ class ProbeLearning:
         for learner in self.learners.values():
             learner.reset()
         self.adjustments_um = dict.fromkeys(self.learners, 0.0)
+        self.gate.forget()
 
     def status(self, now_unix_s: float) -> dict[str, Any]:
         """Per axis: due, disagrees, the last probe, counts by result, the adjustment now."""
@@ -430,7 +491,9 @@ class ProbeLearning:
         return {
             "model_sha256": self.sha256,
             "every_h": self.setup.every_h,
+            "min_gap_s": self.setup.min_gap_s,
             "off": self.off,
+            "fault": self.fault,
             "axes": axes,
         }
 

@@ -10,6 +10,7 @@ worker thread, in order: a probe never delays a tick.
 from __future__ import annotations
 
 import asyncio
+import math
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from compd.files.probestate import (
     restore_learners,
     write_learned,
 )
-from compd.model.probelearner import OutputLearner
+from compd.model.probelearner import RESTORE_SKEW_S, SIMULATED_SKEW_S, OutputLearner
 from compd.model.probeupdate import ProbeSettings
 from compd.model.updateprior import Prior
 from compd.service.loop.probemessages import ProbeTaken
@@ -39,17 +40,26 @@ class ProbeKeeper:
 
     name = "probes"
 
-    def __init__(self, state_dir: Path, *, background: bool = True) -> None:
+    def __init__(self, state_dir: Path, *, background: bool = True, real_time: bool = True) -> None:
         self.state_dir = state_dir
         self.background = background
+        #: A restored time may be this far ahead of the loop's wall clock (s).
+        self.skew_s = RESTORE_SKEW_S if real_time else SIMULATED_SKEW_S
         self.fault = FaultLog(log)
         self._writing: asyncio.Future[None] | None = None
 
     def restore(
-        self, slot: ModelSlot, setups: Mapping[str, tuple[Prior, ProbeSettings]]
+        self,
+        slot: ModelSlot,
+        setups: Mapping[str, tuple[Prior, ProbeSettings]],
+        now_unix_s: float = math.nan,
     ) -> dict[str, OutputLearner]:
-        """What the probes taught ``slot``'s model before (empty: its priors); a bad file set aside."""
-        restored = restore_learners(self.state_dir, slot.sha256, setups)
+        """What the probes taught ``slot``'s model before (empty: its priors); a file that cannot
+        be read, or holds numbers no update reaches, is set aside (``now_unix_s``: no time after it)."""
+        now = now_unix_s if math.isfinite(now_unix_s) else None
+        restored = restore_learners(
+            self.state_dir, slot.sha256, setups, now_s=now, skew_s=self.skew_s
+        )
         if restored.problem is not None:
             log.error(
                 "learned probe parameters unreadable: starting from the model's prior",
@@ -118,6 +128,8 @@ def records(taken: ProbeTaken, now_unix_s: float) -> list[ProbeRecord]:
         "offset_um": taken.offset_um if taken.offset_um == taken.offset_um else None,
         "logged_s": now_unix_s,
     }
+    if taken.not_given is not None:  # a resend or a probe too soon: answered, not logged here
+        return []
     if taken.refused is not None:
         return [
             ProbeRecord(
