@@ -200,5 +200,5 @@ def _duration(seconds: float) -> str:
     if seconds < 120:
         return f"{seconds:.0f} s"
     if seconds < 7200:
-        return f"{seconds / 60:.0f} min"
+        return f"{seconds // 60:.0f} min"  # whole minutes passed: 299 s is 4 min, not yet 5
     return f"{seconds / 3600:.1f} h"

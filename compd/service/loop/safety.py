@@ -155,7 +155,14 @@ class AxisSafety:
         self.offset_um = 0.0
         self.fault_since: float | None = None
         #: How long the target has been outside its envelope (the clamp until :meth:`calibrate`).
-        self.watch = EnvelopeWatch(envelope or EnvelopeSettings(), Envelope(limits.max_offset_um))
+        consequence = (
+            f"the offset ramps to 0 after {fault_ramp_after_s:g} s (safety.on_fault: ramp)"
+            if self.on_fault is FaultMode.RAMP
+            else "the offset is held (safety.on_fault: freeze)"
+        )
+        self.watch = EnvelopeWatch(
+            envelope or EnvelopeSettings(), Envelope(limits.max_offset_um), consequence
+        )
         self.load(offset_um)
 
     def calibrate(self, sign: float, output_range_um: tuple[float, float] | None) -> None:
