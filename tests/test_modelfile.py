@@ -309,7 +309,9 @@ def test_the_output_range_is_the_calibration_s_else_the_probe_prior_s_peak_else_
     """The envelope's source: ``calibration.ranges`` of the output, else ``±output_peak_um``, else None (old files)."""
     bundled = load_model(CONFIG / "simulated_model.yaml")
     assert bundled.output_range("disp_z_um") == (-98.381, 7.064)
-    assert parse_model(VALID).output_range("disp_z_um") is None  # no calibration record: the clamp only
+    assert (
+        parse_model(VALID).output_range("disp_z_um") is None
+    )  # no calibration record: the clamp only
     doc = bundled.doc
     without_ranges = doc.model_copy(
         update={

@@ -26,14 +26,22 @@ AT_S = 7200.0
 AFTER_S = 300.0
 FAULTS = [
     {"kind": "offset", "signal": "T_spindle_degC", "value": 15, "at_s": AT_S, "duration_s": 3600},
-    {"kind": "offset", "signal": "T_headstock_degC", "value": -25, "at_s": AT_S, "duration_s": 3600},
+    {
+        "kind": "offset",
+        "signal": "T_headstock_degC",
+        "value": -25,
+        "at_s": AT_S,
+        "duration_s": 3600,
+    },
 ]
 
 
 def test_two_sensors_failing_together_fault_the_status_within_minutes_of_the_clamp(short_dir):
-    """Once the target has sat at the clamp (or beyond the calibration) for 300 s the status is faulted, with one ERROR."""
+    """Once the target has sat at the clamp (or beyond the calibration) 300 s the status is faulted, one ERROR."""
     doc = machine_doc(
-        short_dir, MODEL, simulation={"scenario": "production", "hours": 2.75, "seed": 1, "faults": FAULTS}
+        short_dir,
+        MODEL,
+        simulation={"scenario": "production", "hours": 2.75, "seed": 1, "faults": FAULTS},
     )
     doc["recorder"] = {"enabled": False}
     config = write_config(short_dir, doc)
@@ -54,7 +62,9 @@ def test_two_sensors_failing_together_fault_the_status_within_minutes_of_the_cla
         said: Any = record.outside_envelope.get("Z", "")
         if "faulted" in said:
             assert record.status & 0b11 == Level.FAULTED
-    assert not any(r.offsets_um["Z"] >= 150.0 for r in records if r.t_s > faulted[0].t_s + 60.0 + 150.0)
+    assert not any(
+        r.offsets_um["Z"] >= 150.0 for r in records if r.t_s > faulted[0].t_s + 60.0 + 150.0
+    )
     started = [e for e in logs if e["event"].startswith("offset outside its envelope")]
     assert len(started) == 1 and started[0]["axis"] == "Z"
     assert result.status["counters"]["envelope_faults"] == 1

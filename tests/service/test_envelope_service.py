@@ -30,7 +30,7 @@ def calibrated_model(directory: Path) -> Path:
 
 
 def test_a_target_beyond_the_calibration_faults_the_status_once_and_says_so_everywhere(tmp_path):
-    """Outside its band 120 s on end: level faulted, the model-fault bit, one ERROR then one INFO, the counter, status."""
+    """Outside its band 120 s on end: level faulted, the model-fault bit, an ERROR then an INFO, counter, status."""
     config = write_config(
         tmp_path,
         {
@@ -72,7 +72,10 @@ def test_a_target_beyond_the_calibration_faults_the_status_once_and_says_so_ever
     assert said.endswith("faulted, the offset ramps to 0 after 60 s (safety.on_fault: ramp)")
     episode = [e for e in logs if e.get("axis") == "Y" and "envelope" in e["event"]]
     assert [(e["log_level"], e["event"]) for e in episode] == [
-        ("error", "offset outside its envelope: the model is not trusted, the axis follows on_fault"),
+        (
+            "error",
+            "offset outside its envelope: the model is not trusted, the axis follows on_fault",
+        ),
         ("info", "offset back inside its envelope"),
     ]
     assert service.status()["counters"]["envelope_faults"] == 1

@@ -192,15 +192,22 @@ class LiveCollector(Collector):
             "(s; 0 inside); a fault from safety.envelope_after_s.",
             labels=["axis"],
         )
+        envelope_fault = GaugeMetricFamily(
+            "compd_offset_envelope_fault",
+            "1 while an axis is in an envelope fault: its target at the clamp or beyond its "
+            "model's calibration for safety.envelope_after_s.",
+            labels=["axis"],
+        )
         known = comp.held.known_um()
         for axis, stage in comp.safety.items():
             outside.add_metric([axis], stage.watch.outside_s)
+            envelope_fault.add_metric([axis], float(stage.watch.faulted))
             offsets.add_metric([axis], stage.offset_um * M_PER_UM)
             if axis in known:
                 held.add_metric([axis], known[axis] * M_PER_UM)
             if last is not None and axis in last.targets_um:
                 targets.add_metric([axis], last.targets_um[axis] * M_PER_UM)
-        yield from (offsets, held, targets, outside)
+        yield from (offsets, held, targets, outside, envelope_fault)
 
         # One metric per physical quantity, in its base unit: a query never adds degC to kW.
         values: dict[str, GaugeMetricFamily] = {}
