@@ -9,6 +9,7 @@ from structlog.testing import capture_logs
 
 from compd.files.yamlplace import resolve_path
 from compd.service.daemon import Service
+from compd.service.http.history import RecentFaults
 from compd.service.loop.clock import VirtualClock
 from compd.service.loop.compensator import TickRecord
 from compd.service.loop.safety import Level, model_fault_bit
@@ -43,9 +44,11 @@ def test_a_target_beyond_the_calibration_faults_the_status_once_and_says_so_ever
     records: list[TickRecord] = []
     problems: list[list[str]] = []
     statuses: list[dict] = []
+    page = RecentFaults()
 
     def keep(record: TickRecord) -> None:
         records.append(record)
+        page.update(record, service.compensator, service.links)
         if "faulted" in record.outside_envelope.get("Y", "") and not statuses:
             comp = service.compensator
             statuses.append(service.status())
@@ -83,3 +86,5 @@ def test_a_target_beyond_the_calibration_faults_the_status_once_and_says_so_ever
     assert envelope["faulted"] and envelope["outside"] == said
     assert envelope["envelope"] == "clamp ±50 um, calibrated -0.2..+0.3 um"
     assert any(p.startswith("envelope: Y asks beyond its calibration") for p in problems[0])
+    listed = [e for e in page.events if e.kind == "envelope"]
+    assert [(e.source, e.message) for e in listed] == [("Y", said)]  # the page's last faults
