@@ -7,6 +7,7 @@ from pathlib import Path
 
 from structlog.testing import capture_logs
 
+from compd.faultlog import Event
 from compd.files.yamlplace import resolve_path
 from compd.service.daemon import Service
 from compd.service.http.history import RecentFaults
@@ -59,6 +60,8 @@ def test_a_target_beyond_the_calibration_faults_the_status_once_and_says_so_ever
             )
 
     service.subscribe(keep)
+    events: list[Event] = []
+    service.compensator.report_to(events.append)  # as the telemetry is told
     with capture_logs() as logs:
         asyncio.run(service.run(duration_s=1400))
     outside = [r for r in records if "Y" in r.outside_envelope]
@@ -81,6 +84,8 @@ def test_a_target_beyond_the_calibration_faults_the_status_once_and_says_so_ever
         ),
         ("info", "offset back inside its envelope"),
     ]
+    told = [(e.kind, e.details["axis"]) for e in events if "envelope" in e.message]
+    assert told == [("fault", "Y"), ("cleared", "Y")]
     assert service.status()["counters"]["envelope_faults"] == 1
     envelope = statuses[0]["envelope"]["Y"]
     assert envelope["faulted"] and envelope["outside"] == said
