@@ -2,6 +2,7 @@
 
 import hashlib
 import textwrap
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -302,3 +303,22 @@ def test_a_count_beyond_any_float_is_refused_not_an_overflow(tmp_path: Path) -> 
     head, _, tail = text.rpartition("samples: 8641")  # the provenance's, after probe_prior's
     message = refusal(tmp_path, head + "samples: 1" + "0" * 400 + tail)
     assert "(provenance.calibration.samples): Input should be less than or equal to" in message
+
+
+def test_the_output_range_is_the_calibration_s_else_the_probe_prior_s_peak_else_unknown():
+    """The envelope's source: ``calibration.ranges`` of the output, else ``±output_peak_um``, else None (old files)."""
+    bundled = load_model(CONFIG / "simulated_model.yaml")
+    assert bundled.output_range("disp_z_um") == (-98.381, 7.064)
+    assert (
+        parse_model(VALID).output_range("disp_z_um") is None
+    )  # no calibration record: the clamp only
+    doc = bundled.doc
+    without_ranges = doc.model_copy(
+        update={
+            "provenance": doc.provenance.model_copy(
+                update={"calibration": doc.provenance.calibration.model_copy(update={"ranges": {}})}
+            )
+        }
+    )
+    peak_um = doc.probe_prior["disp_z_um"].output_peak_um
+    assert replace(bundled, doc=without_ranges).output_range("disp_z_um") == (-peak_um, peak_um)

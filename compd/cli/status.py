@@ -101,6 +101,11 @@ def status_command(args: argparse.Namespace) -> int:
             else f"target {target:+.3f} um = sign {sign:+g} x model drift {target * sign:+.3f} um"
         )
         out.print(f"  offset {axis}: {value:+.3f} um ({why})")
+        envelope = reply.get("envelope", {}).get(axis)
+        if envelope is not None and envelope["outside"]:
+            out.print(
+                Text(f"    {envelope['outside']}", "red" if envelope["faulted"] else "yellow")
+            )
     for name, info in reply["inputs"].items():
         unit = f" {info['unit']}" if info.get("unit") else ""
         value = "n/a" if info["value"] is None else f"{info['value']:.3f}{unit}"

@@ -108,6 +108,26 @@ class ModelFile:
             max_rate_per_s=tuple(doc.max_rate_per_s[c] for c in doc.checked),
         )
 
+    def output_range(self, output: str) -> tuple[float, float] | None:
+        """``(low, high)`` (um) of ``output`` over the calibration; None where the file does not say.
+
+        The measured output's ``[min, max]`` in ``provenance.calibration.ranges``
+        (every ``compd fit`` writes the ranges of all its data's columns, the
+        output's included; ``compd extend`` widens them), else
+        ``±probe_prior.output_peak_um`` (the model's largest ``|output|`` over
+        its calibration). A file with neither (written by hand, or before
+        either existed) has no calibrated envelope: the daemon then watches the
+        clamp only (:mod:`compd.service.loop.envelope`).
+        """
+        calibration = self.doc.provenance.calibration
+        if calibration is not None and output in calibration.ranges:
+            low, high = calibration.ranges[output]
+            return (min(low, high), max(low, high))
+        prior = (self.doc.probe_prior or {}).get(output)
+        if prior is not None and prior.output_peak_um > 0:
+            return (-prior.output_peak_um, prior.output_peak_um)
+        return None
+
     def compile(self, sample_time_s: float | None = None) -> CompiledModel:
         """Compile for running; a refusal names this file and the sub-model."""
         try:

@@ -244,3 +244,31 @@ def test_status_model_load_and_sigterm_on_a_running_daemon(tmp_path, capsys):
     assert daemon.returncode == 0, stderr
     assert json.loads(stderr.splitlines()[-1])["event"] == "stopped"
     assert (config.state_dir / "state.json").is_file()
+
+
+def test_status_says_how_long_an_axis_has_asked_for_the_clamp(tmp_path, capsys):
+    """An offset at its clamp shows under its axis at once, with how long and when it becomes a fault."""
+    changes = {
+        "control_socket": str(short_socket()),
+        "drivers": {"machine": {"settings": {"start_s": 7200}}},
+        "outputs": {"Y": {"max_offset_um": 0.05}},
+    }
+    config = write_config(tmp_path, changes)
+    daemon = start_daemon(config, time_scale=100)
+    try:
+        deadline = time.monotonic() + 60
+        while not request_sync(config.control_socket, {"cmd": "status"})["envelope"]["Y"][
+            "outside"
+        ]:
+            assert time.monotonic() < deadline, "the target never reached the 0.05 um clamp"
+            time.sleep(0.05)
+        assert main(["status", "--config", str(config.path)]) == 0
+        out = capsys.readouterr().out
+        assert re.search(
+            r"Y asks for the clamp: target \+0\.\d um, clamp ±0\.05 um, for \d+ s; a fault after 5 min",
+            out,
+        ), out
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        _, stderr = daemon.communicate(timeout=30)
+    assert daemon.returncode == 0, stderr

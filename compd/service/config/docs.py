@@ -28,6 +28,7 @@ from compd.service.config.admission import Access
 from compd.service.config.docbase import FiniteFloat, Positive, Strict
 from compd.service.config.fleetdoc import HttpDoc, TelemetryDoc
 from compd.service.loop.clock import Clock
+from compd.service.loop.envelope import EnvelopeSettings
 from compd.service.loop.links import DriverLink
 from compd.service.loop.offsets import AxisPoint
 from compd.service.loop.plausibility import PlausibilitySettings
@@ -155,6 +156,7 @@ class OutputDoc(Strict):
             fault_ramp_after_s=safety.fault_ramp_after_s,
             offset_um=offset_um,
             on_out_of_clamp=OutOfClamp(safety.on_offset_out_of_clamp),
+            envelope=safety.envelope(),
         )
 
 
@@ -209,6 +211,16 @@ class SafetyDoc(Strict):
     #: ``edge`` the nearest clamp edge (then slewing on), ``refuse`` nothing until the PLC
     #: holds a value within the clamp (:class:`compd.service.loop.safety.OutOfClamp`).
     on_offset_out_of_clamp: Literal["hold", "edge", "refuse"] = "hold"
+    #: An axis's target at the clamp, or beyond the running model's calibrated output range
+    #: by this fraction of the range's span (null: the clamp only), for ``envelope_after_s``
+    #: on end is a fault: ``on_fault`` applies, status faulted with the model-fault bit
+    #: (:mod:`compd.service.loop.envelope`).
+    envelope_margin: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] | None = 0.25
+    envelope_after_s: Annotated[float, Field(gt=0, le=86_400, allow_inf_nan=False)] = 300.0
+
+    def envelope(self) -> EnvelopeSettings:
+        """The envelope's settings for every axis's stage."""
+        return EnvelopeSettings(self.envelope_margin, self.envelope_after_s)
 
 
 class PlausibilityDoc(Strict):

@@ -112,7 +112,8 @@ class RecentFaults:
     Kinds as in ``compd_faults_total``: ``signal`` (an input turned held or
     faulted), ``driver`` (a link went down), ``write`` (a tick's writes
     failed), ``model`` (the model faulted), ``readback_mismatch``,
-    ``offset_out_of_clamp``. Only the
+    ``offset_out_of_clamp``, ``envelope`` (an axis's target at the clamp or beyond
+    its calibration for ``envelope_after_s``). Only the
     start of an episode is listed, so a fault lasting an hour is one line.
     Model loads (a model switched in while running) and probes are kept apart,
     in :attr:`loads` and :attr:`probes`, for the page's charts to mark beside the faults.
@@ -131,6 +132,7 @@ class RecentFaults:
         self._written = True
         self._mismatches = 0
         self._out_of_clamp = 0
+        self._envelope_faulted: set[str] = set()
 
     def update(
         self, record: TickRecord, comp: Compensator, links: Mapping[str, DriverLink]
@@ -172,6 +174,12 @@ class RecentFaults:
                 "an offset read back outside its clamp or not finite was replaced, not followed",
             )
         self._out_of_clamp = out_of_clamp
+        faulted = {axis for axis, stage in comp.safety.items() if stage.watch.faulted}
+        for axis in sorted(faulted - self._envelope_faulted):
+            self._add(
+                at, "envelope", axis, record.outside_envelope.get(axis, "outside its envelope")
+            )
+        self._envelope_faulted = faulted
         loads = comp.counters.model_loads
         if loads > self._model_loads and comp.running is not None:
             self.loads.appendleft(

@@ -143,7 +143,8 @@ class LiveCollector(Collector):
             "by its prediction from the other sensors), driver (a link failed), "
             "write (a tick's writes failed), model (a model failed and was unloaded), "
             "readback_mismatch (an offset read back was not what compd wrote), "
-            "offset_out_of_clamp (an offset read back outside its clamp or not finite).",
+            "offset_out_of_clamp (an offset read back outside its clamp or not finite), "
+            "envelope (an axis's target at the clamp or beyond its calibration for envelope_after_s).",
             labels=["kind"],
         )
         faults.add_metric(["signal"], counters["signal_faults"])
@@ -153,6 +154,7 @@ class LiveCollector(Collector):
         faults.add_metric(["model"], counters["model_failures"])
         faults.add_metric(["readback_mismatch"], counters["offset_mismatches"])
         faults.add_metric(["offset_out_of_clamp"], counters["offsets_out_of_clamp"])
+        faults.add_metric(["envelope"], counters["envelope_faults"])
         yield faults
 
         driver_faults = CounterMetricFamily(
@@ -193,14 +195,28 @@ class LiveCollector(Collector):
             "The model's target offset per axis before clamp and slew (m).",
             labels=["axis"],
         )
+        outside = GaugeMetricFamily(
+            "compd_offset_outside_envelope_seconds",
+            "How long each axis's target has been at the clamp or beyond its model's calibration "
+            "(s; 0 inside); a fault from safety.envelope_after_s.",
+            labels=["axis"],
+        )
+        envelope_fault = GaugeMetricFamily(
+            "compd_offset_envelope_fault",
+            "1 while an axis is in an envelope fault: its target at the clamp or beyond its "
+            "model's calibration for safety.envelope_after_s.",
+            labels=["axis"],
+        )
         known = comp.held.known_um()
         for axis, stage in comp.safety.items():
+            outside.add_metric([axis], stage.watch.outside_s)
+            envelope_fault.add_metric([axis], float(stage.watch.faulted))
             offsets.add_metric([axis], stage.offset_um * M_PER_UM)
             if axis in known:
                 held.add_metric([axis], known[axis] * M_PER_UM)
             if last is not None and axis in last.targets_um:
                 targets.add_metric([axis], last.targets_um[axis] * M_PER_UM)
-        yield from (offsets, held, targets)
+        yield from (offsets, held, targets, outside, envelope_fault)
 
         # One metric per physical quantity, in its base unit: a query never adds degC to kW.
         values: dict[str, GaugeMetricFamily] = {}

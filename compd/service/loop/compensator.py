@@ -21,6 +21,7 @@ from compd.errors import CompdError
 from compd.faultlog import Event, EventSink, FaultLog
 from compd.model.compiled import ModelState
 from compd.model.consistency import ConsistencyCheck
+from compd.service.loop.envelope import EnvelopeFaults
 from compd.service.loop.links import DriverLink
 from compd.service.loop.offsets import AxisPoint, HeldOffsets
 from compd.service.loop.plausibility import DEFAULT_SETTINGS, Plausibility, PlausibilitySettings
@@ -72,6 +73,9 @@ class TickRecord:
     probe_adjustments_um: dict[str, float] = field(default_factory=dict)
     #: Per probed axis, the innovation of a probe taken this tick (um; NaN: none this tick).
     probe_innovations_um: dict[str, float] = field(default_factory=dict)
+    #: Per axis whose target is outside its envelope, what and for how long
+    #: (``Z at the clamp +150 um (target +163.2 um) for 4 min``; :mod:`compd.service.loop.envelope`).
+    outside_envelope: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass
@@ -88,6 +92,8 @@ class Counters:
     offsets_out_of_clamp: int = 0
     #: Episodes of an input replaced by its prediction from the other sensors.
     signal_estimates: int = 0
+    #: Episodes of an axis's target outside its envelope for ``envelope_after_s``.
+    envelope_faults: int = 0
 
 
 class Compensator:
@@ -105,7 +111,9 @@ class Compensator:
     4. per axis ``target = sign * output``, through the safety stage, frozen while an
        input the axis depends on is faulted; an axis whose offset read back outside its
        clamp (or not finite) writes its stage's recovery value instead (level faulted
-       and the mismatch bit, :mod:`compd.service.loop.safety`);
+       and the mismatch bit, :mod:`compd.service.loop.safety`); an axis whose target has
+       been at the clamp or beyond its model's calibration for minutes is faulted too
+       (:mod:`compd.service.loop.envelope`: level faulted, the model-fault bit);
     5. write offsets, status word and heartbeat, all drivers concurrently.
 
     Without a model (``model=None``: a data logger, no axes) steps 3 and 4 are
@@ -192,6 +200,9 @@ class Compensator:
         self._plausibility_of: str | None = None
         self._estimates_seen = 0
         self._configured_jumps = {name: m.checks.max_jump for name, m in self.monitors.items()}
+        #: Each axis's envelope-fault episodes, and the model whose envelopes the stages hold.
+        self.envelope_faults = EnvelopeFaults(a.name for a in self.axes)
+        self._envelope_of: str | None = None
 
     # The model slots as the status and the tests see them (:class:`ModelSlots`).
     @property
@@ -234,6 +245,7 @@ class Compensator:
             self.models.events = sink
         if self.plausibility is not None:
             self.plausibility.report_to(sink)
+        self.envelope_faults.report_to(sink)
 
     def trust_signal(self, name: str) -> str:
         """A person vouches for ``name``'s sensor (``compd sensor trust``): its stand-in ends at its next good reading."""
@@ -285,6 +297,15 @@ class Compensator:
             plausibility.report_to(self.events)
         self._estimates_seen = 0
         return plausibility
+
+    def _calibrate(self, slot: ModelSlot) -> None:
+        """Each axis's envelope from ``slot``'s calibrated output range, when the running model changes."""
+        if self._envelope_of == slot.sha256:
+            return
+        self._envelope_of = slot.sha256
+        for axis in self.axes:
+            output_range = slot.model_file.output_range(axis.model_output)
+            self.safety[axis.name].calibrate(axis.sign, output_range)
 
     def _learn(self, probing: ProbeLearning, now_unix_s: float, slot: ModelSlot) -> None:
         """Feed the probe learning this tick; a failure in it turns probing off, never the loop."""
@@ -351,7 +372,10 @@ class Compensator:
         targets: dict[str, float] = {}
         offsets: dict[str, float] = {}
         flags: set[Flag] = set()
-        any_frozen = False
+        any_frozen = outside = False
+        outside_envelope: dict[str, str] = {}
+        if models is not None and self.axes:
+            self._calibrate(models.active)
         for axis in self.axes:
             assert models is not None  # axes need a model (checked in __init__)
             output = models.output(axis.model_output, weight)
@@ -367,7 +391,11 @@ class Compensator:
             clamp_fault = axis.name in out_of_clamp
             result = stage.hold() if clamp_fault else stage.step(target, t_s, faulted=faulted)
             offsets[axis.name] = result.offset_um
-            any_frozen |= faulted or clamp_fault
+            any_frozen |= faulted or clamp_fault or stage.watch.faulted
+            outside |= stage.watch.faulted
+            self.envelope_faults.update(axis.name, stage.watch)
+            if (said := stage.watch.sentence(axis.name)) is not None:
+                outside_envelope[axis.name] = said
             if result.clamped:
                 flags.add(Flag.CLAMPED)
             if result.slewed:
@@ -392,7 +420,7 @@ class Compensator:
             mismatch=bool(mismatches or out_of_clamp)
             and status is not None
             and status.mismatch_bit,
-            model_fault=self.model_fault is not None
+            model_fault=(self.model_fault is not None or outside)
             and status is not None
             and status.model_fault_bit,
         )
@@ -403,6 +431,7 @@ class Compensator:
             probing.record_offsets(now_unix_s, self.held.known_um())
         written = ok and len(acknowledged) == len(self.axes)
         self.counters.ticks += 1
+        self.counters.envelope_faults = self.envelope_faults.episodes
         outputs, contributions = _model_outputs(None if models is None else models.active)
         self.last = TickRecord(
             t_s=t_s,
@@ -424,6 +453,7 @@ class Compensator:
             probes=() if probing is None else probing.taken(),
             probe_adjustments_um={} if probing is None else dict(probing.adjustments_um),
             probe_innovations_um={} if probing is None else probing.innovations_um(),
+            outside_envelope=outside_envelope,
         )
         return self.last
 

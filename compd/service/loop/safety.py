@@ -5,7 +5,8 @@ with a ``load`` to re-seed), SINUMERIK's rate limit on temperature
 compensation and Heidenhain's 1 um/s follow-up. Each tick, for an axis with
 limits ``M = max_offset_um`` and ``R = max_rate_um_per_s`` at period ``T``::
 
-    target  = last                   if the target is NaN/inf, or an input is faulted
+    target  = last                   if the target is NaN/inf, an input is faulted, or the
+                                     target has been outside its envelope for envelope_after_s
                                      (for fault_ramp_after_s, then 0 when on_fault = ramp)
     clamped = clip(target, -M, +M)
     offset  = last + clip(clamped - last, -R*T, +R*T)
@@ -15,6 +16,11 @@ differ by more than ``R*T`` -- at start, at a model change, on recovery,
 always. ``last`` is what the machine holds: :meth:`AxisSafety.load` re-seeds
 it at start and whenever the offset point reads back something else (the
 service, :mod:`compd.service.loop.offsets`).
+
+The envelope (:mod:`compd.service.loop.envelope`): a target at the clamp, or
+beyond the running model's calibrated output range by ``envelope_margin`` of
+its span, for ``envelope_after_s`` on end is a fault like a faulted input's,
+until the target is back inside.
 
 The stage never starts outside the clamp: ``last`` is always finite and
 within ``±M`` (:meth:`AxisSafety.load` clips a value beyond, NaN gives 0). An
@@ -56,7 +62,9 @@ The status word written beside the offsets lets the PLC supervise compd:
   16-bit status register has it for up to 7 signals; where the register has
   no bit left, the mismatch is only logged and counted;
 - the bit after that (``8 + n + 1``): model fault -- the model's output is not
-  finite, or a model failed and was unloaded (see :class:`~compd.service.loop.compensator.Compensator`).
+  finite, or a model failed and was unloaded (see :class:`~compd.service.loop.compensator.Compensator`),
+  or an axis's target has been outside its envelope (at the clamp, or beyond
+  the calibration) for ``envelope_after_s``: the model's output is not to be trusted.
   Where the register has no bit left for it, the fault shows as level 2 (faulted),
   in the log and in the counters.
 
@@ -70,6 +78,8 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum, StrEnum
+
+from compd.service.loop.envelope import Envelope, EnvelopeSettings, EnvelopeWatch
 
 HEARTBEAT_MODULO = 32_768
 SIGNAL_BIT0 = 8
@@ -120,10 +130,12 @@ class AxisOutput:
     clamped: bool = False
     slewed: bool = False
     frozen: bool = False
+    #: The target has been outside its envelope for ``envelope_after_s``: frozen or ramping as on a fault.
+    outside: bool = False
 
 
 class AxisSafety:
-    """Clamp, slew limit, NaN guard and fault freeze/ramp for one axis (see the module docstring)."""
+    """Clamp, slew limit, NaN guard, fault freeze/ramp and the envelope for one axis (see the module docstring)."""
 
     def __init__(
         self,
@@ -134,6 +146,7 @@ class AxisSafety:
         fault_ramp_after_s: float = 60.0,
         offset_um: float = 0.0,
         on_out_of_clamp: OutOfClamp = OutOfClamp.HOLD,
+        envelope: EnvelopeSettings | None = None,
     ) -> None:
         self.limits = limits
         self.max_step_um = limits.max_rate_um_per_s * period_s
@@ -142,7 +155,27 @@ class AxisSafety:
         self.fault_ramp_after_s = fault_ramp_after_s
         self.offset_um = 0.0
         self.fault_since: float | None = None
+        #: How long the target has been outside its envelope (the clamp until :meth:`calibrate`).
+        consequence = (
+            f"the offset ramps to 0 after {fault_ramp_after_s:g} s (safety.on_fault: ramp)"
+            if self.on_fault is FaultMode.RAMP
+            else "the offset is held (safety.on_fault: freeze)"
+        )
+        self.watch = EnvelopeWatch(
+            envelope or EnvelopeSettings(), Envelope(limits.max_offset_um), consequence
+        )
         self.load(offset_um)
+
+    def calibrate(self, sign: float, output_range_um: tuple[float, float] | None) -> None:
+        """Judge targets against the running model's calibrated output range (None: the clamp only).
+
+        A new model's envelope applies from the next :meth:`step`; a spell
+        outside goes on (its time counts on) if the target stays outside the new one.
+        """
+        settings = self.watch.settings
+        self.watch.envelope = Envelope.of(
+            self.limits.max_offset_um, sign, output_range_um, settings.margin
+        )
 
     def load(self, offset_um: float) -> None:
         """Re-seed the last output (the offset the machine already holds), e.g. on resume.
@@ -178,6 +211,8 @@ class AxisSafety:
     def step(self, target_um: float, now_s: float, *, faulted: bool = False) -> AxisOutput:
         """The offset to write for model target ``target_um`` at time ``now_s`` (s)."""
         last = self.offset_um
+        outside = self.watch.judge(now_s, target_um)
+        faulted = faulted or outside
         frozen = faulted or not math.isfinite(target_um)
         if faulted:
             if self.fault_since is None:
@@ -198,7 +233,7 @@ class AxisSafety:
         # Within the slew limit the clamped target is written exactly (not last + step,
         # which rounds): an unlimited offset is the model's value to the last bit.
         self.offset_um = last + math.copysign(self.max_step_um, step) if slewed else clamped
-        return AxisOutput(self.offset_um, clamped != target_um, slewed, frozen)
+        return AxisOutput(self.offset_um, clamped != target_um, slewed, frozen, outside)
 
 
 def status_word(

@@ -80,6 +80,18 @@ def status_snapshot(
         # The offset each axis aims at: sign x the model's output (its predicted drift).
         "targets_um": {} if last is None else last.targets_um,
         "signs": {axis.name: axis.sign for axis in comp.axes},
+        # Per axis: its envelope, how long its target has been outside it and why
+        # (:mod:`compd.service.loop.envelope`); ``faulted`` once that lasted envelope_after_s.
+        "envelope": {
+            name: {
+                "envelope": stage.watch.envelope.describe(),
+                "band_um": stage.watch.envelope.band_um,
+                "outside": stage.watch.sentence(name),
+                "outside_s": round(stage.watch.outside_s, 1),
+                "faulted": stage.watch.faulted,
+            }
+            for name, stage in comp.safety.items()
+        },
         "inputs": {
             name: {
                 "value": _finite(m.reading.value),
@@ -140,6 +152,11 @@ def health_problems(
         problems.append("status faulted" + (f": {', '.join(faulted)}" if faulted else ""))
     if comp.model_fault:
         problems.append(f"model fault: {comp.model_fault}")
+    problems += [
+        f"envelope: {said}"
+        for name, stage in comp.safety.items()
+        if stage.watch.faulted and (said := stage.watch.sentence(name)) is not None
+    ]
     return problems
 
 
