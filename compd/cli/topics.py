@@ -229,8 +229,9 @@ def status_word_page() -> str:
         "(bit 8 the first), set while it is not OK",
         f"  bit {SIGNAL_BIT0}+n    offset readback mismatch (n signals): an offset point did not "
         "hold what compd wrote",
-        f"  bit {SIGNAL_BIT0}+n+1  model fault: the model's output is not finite, or a model "
-        "failed and was unloaded",
+        f"  bit {SIGNAL_BIT0}+n+1  model fault: the model's output is not finite, a model "
+        "failed and was unloaded, or an axis's target sat at the clamp or beyond its "
+        "calibration for safety.envelope_after_s",
         "",
         "Where the status register has no bit left (a 16-bit register, many signals), the "
         "mismatch and model-fault bits are only logged and counted.",
