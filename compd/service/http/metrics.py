@@ -140,7 +140,8 @@ class LiveCollector(Collector):
             "by its prediction from the other sensors), driver (a link failed), "
             "write (a tick's writes failed), model (a model failed and was unloaded), "
             "readback_mismatch (an offset read back was not what compd wrote), "
-            "offset_out_of_clamp (an offset read back outside its clamp or not finite).",
+            "offset_out_of_clamp (an offset read back outside its clamp or not finite), "
+            "redundant_pair (a model input and its second sensor disagreed, or one failed).",
             labels=["kind"],
         )
         faults.add_metric(["signal"], counters["signal_faults"])
@@ -150,6 +151,7 @@ class LiveCollector(Collector):
         faults.add_metric(["model"], counters["model_failures"])
         faults.add_metric(["readback_mismatch"], counters["offset_mismatches"])
         faults.add_metric(["offset_out_of_clamp"], counters["offsets_out_of_clamp"])
+        faults.add_metric(["redundant_pair"], counters["redundancy_faults"])
         yield faults
 
         driver_faults = CounterMetricFamily(

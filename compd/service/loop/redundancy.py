@@ -1,0 +1,388 @@
+"""Two sensors at one point: a second reading as the check and the stand-in of a critical one.
+
+A model input may name a partner (``redundant:`` in its signal section), a
+second sensor beside it (a second Pt100 at the spindle bearings). The other
+sensors of a machine cannot verify its spindle or its air to the fraction of
+a degree the offset needs (the spindle's tolerance against its prediction is
+degrees, ~8 um/degC); its partner can. Each tick, after both signals passed
+their own checks (:mod:`compd.service.loop.signals`) and before the inputs
+are checked against each other (:mod:`compd.service.loop.plausibility`):
+
+- one of the pair failed its own checks, the other did not: the other's
+  reading is used (the partner's shifted by the pair's usual offset), health
+  OK (this is what a second sensor is for); one ERROR line, an event and a
+  count tell of the episode;
+- both read: their difference ``d = primary - partner`` less its usual
+  offset ``b`` (the mean over the first :data:`BASELINE_S` both read, then
+  followed over :data:`BASELINE_TAU_S` while the pair agrees within the
+  CUSUM's allowance) is the excess ``e = d - b``. ``|e| > tolerance`` is a
+  fault at once; a slow departure is caught by a two-sided CUSUM (Page 1954)::
+
+      S+ = max(0, S+ + (e - k) Ts),  S- = max(0, S- - (e + k) Ts),  fault if S+ or S- > h
+
+  with allowance ``k = ALLOWANCE * tolerance`` and decision interval
+  ``h = DECISION_S * tolerance`` (signal unit x s). A drift of ``r`` (unit/s)
+  is flagged after ``k / r + sqrt(2 h / r)``: for a 0.5 degC tolerance,
+  20 min at 0.5 degC/h, 9 min at 2 degC/h (within 0.25 degC of excess);
+- during a disagreement the reading used is the one the other sensors
+  support: whose change since the pair last agreed (tick ``0``) is nearer
+  the change of its prediction from the other sensors (``plausibility``'s
+  prediction of the primary, ``p``)::
+
+      primary wrong  <=>  |(x1 - x1_0) - (p - p_0)| > |(x2 - x2_0) - (p - p_0)|
+
+  (the prediction's own bias cancels; it may be wrong only where the pair
+  differs by less than twice the prediction's drift since ``0``, which
+  bounds the error of a wrong choice by twice a stand-in's), with a
+  hysteresis of half the tolerance before the choice changes. Without a
+  prediction the primary is held at the last value the pair agreed on and
+  faulted (the axes freeze, as for any faulted input). The status is
+  degraded: the sensor set aside has its status bit (the primary: health
+  ``ESTIMATED``, its value the partner's; the partner: ``HELD`` at its last
+  agreed value);
+- the episode ends only after the pair agreed within half the tolerance for
+  :data:`CONFIRM_S` seconds in a row (one ERROR line at each end, an event,
+  and :attr:`Redundancy.count`).
+
+The pair's usual offset is learned afresh at each start: a pair that already
+disagrees by more than the tolerance when learnt is taken to have none (two
+sensors at one point should agree), so the disagreement is flagged.
+
+Pure: the caller passes the time and the prediction, nothing here reads a clock.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import structlog
+
+from compd.faultlog import EventSink, FaultLog
+from compd.service.loop.signals import Health, Reading, SignalMonitor
+
+log = structlog.get_logger("compd.service.loop.redundancy")
+
+#: The pair's usual offset is the mean difference over its first this many seconds of readings (s).
+BASELINE_S = 600.0
+#: Then it follows the difference this slowly (s), and only while the pair agrees within ``k``.
+BASELINE_TAU_S = 8 * 3600.0
+#: The CUSUM's allowance ``k``, as a fraction of the tolerance: a smaller excess is never summed.
+ALLOWANCE = 0.15
+#: The CUSUM's decision interval ``h`` over the tolerance (s): the excess summed beyond ``k``.
+DECISION_S = 60.0
+#: A disagreement ends after the pair agreed within half the tolerance this long (s).
+CONFIRM_S = 120.0
+#: The member used in a disagreement changes once the other is nearer by this (x tolerance).
+HYSTERESIS = 0.5
+#: The pair's temperature rate is smoothed over this long (s) to take off the difference of lags.
+RATE_TAU_S = 30.0
+#: The difference of the two sensors' lags is learnt over this long (s), while they agree...
+LAG_TAU_S = 3600.0
+#: ...and never beyond this (s): a Pt100's lag is tens of seconds.
+MAX_LAG_DIFFERENCE_S = 120.0
+#: How well the difference of lags is known (s): this before a transient taught it, and
+#: never better than the floor (a lag is first-order only roughly); the allowance and the
+#: tolerance widen by it times the rate.
+LAG_PRIOR_S = 40.0
+LAG_FLOOR_S = 5.0
+#: The pair's difference around its lag model, for the uncertainty of the lag (unit).
+LAG_NOISE = 0.03
+
+
+@dataclass(frozen=True)
+class Pair:
+    """A model input (``primary``) and a second sensor of the same point (``partner``).
+
+    ``tolerance``: how far (the signal's ``unit``) their difference may leave its usual value.
+    """
+
+    primary: str
+    partner: str
+    tolerance: float
+    unit: str = ""
+
+
+@dataclass
+class _Episode:
+    started_s: float
+    reason: str
+    #: Which member the primary's value comes from: ``primary``, ``partner`` or ``held``.
+    using: str = "partner"
+    agreeing_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class _Reference:
+    """The pair's readings and the primary's prediction at the last tick they agreed."""
+
+    primary: float
+    partner: float
+    predicted: float | None
+
+
+class PairCheck:
+    """One pair, tick by tick; :meth:`update` returns the readings of the two to use."""
+
+    def __init__(self, pair: Pair, monitors: Mapping[str, SignalMonitor], period_s: float) -> None:
+        self.pair = pair
+        self.monitors = monitors
+        self.period_s = period_s
+        self.offset: float | None = None  # the pair's usual difference b, once learnt
+        #: The pair's last difference from its usual, lags taken off (unit; NaN: not yet known).
+        self.excess = math.nan
+        self.cusum_high = 0.0
+        self.cusum_low = 0.0
+        self.episode: _Episode | None = None
+        self._reference: _Reference | None = None
+        #: The pair's mean temperature rate (unit/s, smoothed) and the difference of the two
+        #: sensors' lags (s, learnt): ``d`` moves by ``lag_s * rate`` in a transient.
+        self.rate = 0.0
+        self.lag_s = 0.0
+        self._last_mean: float | None = None
+        #: Sums weighted over :data:`LAG_TAU_S` of 1, r, r^2, d, r d (r: the rate, d: the difference).
+        self._n = self._r = self._rr = self._d = self._rd = 0.0
+        self._learnt_s = 0.0
+        self._agreed = math.nan  # the primary's value the last time the pair agreed
+        self._partner_agreed = math.nan
+        #: Set aside this tick (the status shows it): "primary", "partner" or None.
+        self.set_aside: str | None = None
+        self.fault = FaultLog(log, signal=pair.primary, partner=pair.partner, end_level="error")
+
+    @property
+    def _k(self) -> float:
+        return ALLOWANCE * self.pair.tolerance
+
+    @property
+    def usual(self) -> float:
+        """The pair's usual difference (primary - partner), 0 until learnt."""
+        return 0.0 if self.offset is None else self.offset
+
+    def update(
+        self, t_s: float, primary: Reading, partner: Reading, predicted: float | None
+    ) -> tuple[Reading, Reading]:
+        """This tick's readings of the primary and the partner (``predicted``: the primary's
+        prediction from the other sensors, None where there is none)."""
+        self.set_aside = None
+        ok1, ok2 = primary.health is Health.OK, partner.health is Health.OK
+        if ok1 and ok2:
+            return self._both(t_s, primary, partner, predicted)
+        if ok2:  # the primary failed its own checks: its partner stands in
+            if self.episode is None:
+                self._begin(t_s, f"{self.pair.primary} fails its own checks: {primary.reason}")
+            assert self.episode is not None
+            self.episode.using, self.episode.agreeing_s = "partner", 0.0
+            value = partner.value + self.usual
+            why = f"its partner {self.pair.partner} stands in: {primary.reason}"
+            return Reading(value, Health.OK, why), partner
+        # The partner failed (its own status bit shows it) or both did: the primary as it is,
+        # judged by the other sensors alone.
+        if self.episode is not None and ok1:
+            self._end(
+                t_s, primary.value, partner.value, f"{self.pair.partner} fails its own checks"
+            )
+        return primary, partner
+
+    def _both(
+        self, t_s: float, primary: Reading, partner: Reading, predicted: float | None
+    ) -> tuple[Reading, Reading]:
+        x1, x2, tol, dt = primary.value, partner.value, self.pair.tolerance, self.period_s
+        d = x1 - x2
+        self._follow_rate(x1, x2)
+        if self.offset is None:
+            self._sum(d)
+            self._learnt_s += dt
+            if self._learnt_s >= BASELINE_S:
+                offset, self.lag_s = self._fit()
+                # Two sensors at one point agree within the tolerance: a pair further apart
+                # from the start has no usual offset to learn, and is a fault now.
+                self.offset = offset if abs(offset) <= tol else 0.0
+            self._agreed, self._partner_agreed = x1, x2
+            self._reference = _Reference(x1, x2, predicted)
+            return primary, partner
+        e = d - self.offset - self.lag_s * self.rate
+        self.excess = e
+        unsure = self.lag_uncertainty_s * abs(self.rate)
+        k = self._k + unsure
+        self.cusum_high = max(0.0, self.cusum_high + (e - k) * dt)
+        self.cusum_low = max(0.0, self.cusum_low - (e + k) * dt)
+        alarm = abs(e) > tol + unsure or max(self.cusum_high, self.cusum_low) > DECISION_S * tol
+        episode = self.episode
+        if episode is None:
+            self._learn_lag(d)
+        if episode is None and not alarm:
+            if abs(e) <= self._k:
+                a = math.exp(-dt / BASELINE_TAU_S)
+                self.offset = a * self.offset + (1.0 - a) * d
+                self._reference = _Reference(x1, x2, predicted)
+            self._agreed, self._partner_agreed = x1, x2
+            return primary, partner
+        if episode is None:
+            how = "at once" if abs(e) > tol else "drifting apart"
+            episode = self._begin(
+                t_s,
+                f"{self.pair.primary} and {self.pair.partner} disagree ({how}): "
+                f"{x1:.2f} and {x2:.2f}, {e:+.2f} from their usual {self.offset:+.2f}",
+                read=round(x1, 3),
+                partner_read=round(x2, 3),
+                excess=round(e, 3),
+                tolerance=tol,
+            )
+        if abs(e) <= tol / 2:
+            episode.agreeing_s += dt
+            if episode.agreeing_s >= CONFIRM_S:
+                self._end(t_s, x1, x2, "the pair agrees again")
+                self.cusum_high = self.cusum_low = 0.0
+                self._reference = _Reference(x1, x2, predicted)
+                self._agreed, self._partner_agreed = x1, x2
+                return primary, partner
+        else:
+            episode.agreeing_s = 0.0
+        return self._choose(episode, primary, partner, predicted, e)
+
+    def _follow_rate(self, x1: float, x2: float) -> None:
+        """Smooth the pair's mean rate (unit/s) over :data:`RATE_TAU_S`."""
+        mean = (x1 + x2) / 2
+        if self._last_mean is not None:
+            a = math.exp(-self.period_s / RATE_TAU_S)
+            self.rate = a * self.rate + (1 - a) * (mean - self._last_mean) / self.period_s
+        self._last_mean = mean
+
+    @property
+    def lag_uncertainty_s(self) -> float:
+        """How well :attr:`lag_s` is known (s), from the rates it was learnt on."""
+        if self._rr <= 0:
+            return LAG_PRIOR_S
+        return max(LAG_FLOOR_S, min(LAG_PRIOR_S, 3 * LAG_NOISE / math.sqrt(self._rr)))
+
+    def _sum(self, d: float) -> None:
+        a, r = math.exp(-self.period_s / LAG_TAU_S), self.rate
+        self._n = a * self._n + 1.0
+        self._r = a * self._r + r
+        self._rr = a * self._rr + r * r
+        self._d = a * self._d + d
+        self._rd = a * self._rd + r * d
+
+    def _fit(self) -> tuple[float, float]:
+        """The offset and the lag difference of ``d ~ offset + lag_s * rate``, least squares.
+
+        Sensors of different lags read a transient differently: the slower
+        one lags by its lag times the rate. That is no fault; what is left
+        after it is. Without a transient to learn from, the lag is 0 (and
+        :attr:`lag_uncertainty_s` says how little is known).
+        """
+        det = self._n * self._rr - self._r * self._r
+        if det <= 1e-9 * max(self._n * self._rr, 1e-12):
+            return self._d / self._n, 0.0
+        offset = (self._rr * self._d - self._r * self._rd) / det
+        lag = (self._n * self._rd - self._r * self._d) / det
+        return offset, max(-MAX_LAG_DIFFERENCE_S, min(MAX_LAG_DIFFERENCE_S, lag))
+
+    def _learn_lag(self, d: float) -> None:
+        """Follow the lag difference with the offset as it is (the offset moves only while the
+        pair agrees closely: a drift must not become the usual)."""
+        self._sum(d)
+        assert self.offset is not None
+        if self._rr > 0:
+            lag = (self._rd - self.offset * self._r) / self._rr
+            self.lag_s = max(-MAX_LAG_DIFFERENCE_S, min(MAX_LAG_DIFFERENCE_S, lag))
+
+    def _choose(
+        self,
+        episode: _Episode,
+        primary: Reading,
+        partner: Reading,
+        predicted: float | None,
+        excess: float,
+    ) -> tuple[Reading, Reading]:
+        """The readings in a disagreement: the member the other sensors support is used."""
+        x1, x2, tol = primary.value, partner.value, self.pair.tolerance
+        ref = self._reference
+        if predicted is None or ref is None or ref.predicted is None:
+            episode.using = "held"
+            self.set_aside = "primary"
+            why = f"no prediction to judge the pair by: {episode.reason}"
+            held = Reading(self._agreed, Health.FAULTED, why)
+            self.monitors[self.pair.primary].rebase(held, x1)
+            return held, partner
+        moved = predicted - ref.predicted
+        off1 = abs(x1 - ref.primary - moved)
+        off2 = abs(x2 - ref.partner - moved)
+        if episode.using != "primary" and off1 + HYSTERESIS * tol < off2:
+            episode.using = "primary"
+        elif episode.using != "partner" and off2 + HYSTERESIS * tol < off1:
+            episode.using = "partner"
+        elif episode.using == "held":
+            episode.using = "partner" if off2 < off1 else "primary"
+        if abs(excess) <= tol / 2:  # agreeing again, not yet long enough: nothing set aside
+            return primary, partner
+        if episode.using == "primary":
+            self.set_aside = "partner"
+            why = f"set aside, {self.pair.primary} used (the other sensors support it): {episode.reason}"
+            return primary, Reading(self._partner_agreed, Health.HELD, why)
+        self.set_aside = "primary"
+        why = f"{self.pair.partner} used (the other sensors support it): {episode.reason}"
+        return Reading(x2 + self.usual, Health.OK, why), partner
+
+    def _begin(self, t_s: float, reason: str, **details: object) -> _Episode:
+        self.episode = _Episode(t_s, reason)
+        self.fault.failed("redundant pair: " + reason, unit=self.pair.unit, **details)
+        return self.episode
+
+    def _end(self, t_s: float, x1: float, x2: float, why: str) -> None:
+        episode = self.episode
+        assert episode is not None
+        self.episode = None
+        self.fault.cleared(
+            f"redundant pair: {why}: {self.pair.primary} used again",
+            read=round(x1, 3),
+            partner_read=round(x2, 3) if math.isfinite(x2) else str(x2),
+            lasted_s=round(t_s - episode.started_s, 1),
+        )
+
+
+class Redundancy:
+    """Every pair of a config; :meth:`apply` before the plausibility check, :meth:`mark` after."""
+
+    def __init__(
+        self, pairs: list[Pair], monitors: Mapping[str, SignalMonitor], period_s: float
+    ) -> None:
+        self.checks = [PairCheck(p, monitors, period_s) for p in pairs]
+
+    @property
+    def count(self) -> int:
+        """Episodes begun since start (a pair disagreed, or one of it failed its own checks)."""
+        return sum(c.fault.episodes for c in self.checks)
+
+    def report_to(self, sink: EventSink) -> None:
+        for check in self.checks:
+            check.fault.sink = sink
+
+    def apply(
+        self, t_s: float, readings: Mapping[str, Reading], predicted: Mapping[str, float | None]
+    ) -> dict[str, Reading]:
+        """The readings with each pair's primary as its pair says (``predicted``: each primary's
+        prediction from the other sensors, where there is one)."""
+        out = dict(readings)
+        for check in self.checks:
+            p = check.pair
+            out[p.primary], out[p.partner] = check.update(
+                t_s, readings[p.primary], readings[p.partner], predicted.get(p.primary)
+            )
+        return out
+
+    def mark(self, readings: Mapping[str, Reading]) -> dict[str, Reading]:
+        """After the plausibility check: a primary set aside for its partner shows as ``ESTIMATED``.
+
+        Its value went to the plausibility check as an OK reading (it is a
+        measurement of the point, judged as one); where that check left it
+        OK, its health now says a stand-in is used, for the status.
+        """
+        out = dict(readings)
+        for check in self.checks:
+            name = check.pair.primary
+            reading = out[name]
+            if check.set_aside == "primary" and reading.health is Health.OK:
+                out[name] = Reading(reading.value, Health.ESTIMATED, reading.reason)
+        return out
