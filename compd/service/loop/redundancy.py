@@ -40,7 +40,7 @@ are checked against each other (:mod:`compd.service.loop.plausibility`):
   degraded: the sensor set aside has its status bit (the primary: health
   ``ESTIMATED``, its value the partner's; the partner: ``HELD`` at its last
   agreed value);
-- the episode ends only after the pair agreed within half the tolerance for
+- the episode ends only after the pair agreed within the allowance ``k`` for
   :data:`CONFIRM_S` seconds in a row (one ERROR line at each end, an event,
   and :attr:`Redundancy.count`).
 
@@ -66,19 +66,23 @@ log = structlog.get_logger("compd.service.loop.redundancy")
 
 #: The pair's usual offset is the mean difference over its first this many seconds of readings (s).
 BASELINE_S = 600.0
-#: Then it follows the difference this slowly (s), and only while the pair agrees within ``k``.
-BASELINE_TAU_S = 8 * 3600.0
 #: The CUSUM's allowance ``k``, as a fraction of the tolerance: a smaller excess is never summed.
 ALLOWANCE = 0.15
 #: The CUSUM's decision interval ``h`` over the tolerance (s): the excess summed beyond ``k``.
 DECISION_S = 60.0
-#: A disagreement ends after the pair agreed within half the tolerance this long (s).
+#: A disagreement ends after the pair agreed within the allowance ``k`` this long (s).
 CONFIRM_S = 120.0
 #: The member used in a disagreement changes once the other is nearer by this (x tolerance).
 HYSTERESIS = 0.5
+#: Two sensors of one point moving apart by more than this (x tolerance) in one tick: a step.
+STEP = 0.3
+#: A reference reading is smoothed over this long (s).
+REFERENCE_TAU_S = 20.0
 #: The pair's temperature rate is smoothed over this long (s) to take off the difference of lags.
 RATE_TAU_S = 30.0
-#: The difference of the two sensors' lags is learnt over this long (s), while they agree...
+#: Then it follows the difference this slowly (s), and only while the pair agrees within ``k``.
+BASELINE_TAU_S = 8 * 3600.0
+#: The difference of the two sensors' lags is learnt over this long (s), while the pair agrees...
 LAG_TAU_S = 3600.0
 #: ...and never beyond this (s): a Pt100's lag is tens of seconds.
 MAX_LAG_DIFFERENCE_S = 120.0
@@ -89,6 +93,7 @@ LAG_PRIOR_S = 40.0
 LAG_FLOOR_S = 5.0
 #: The pair's difference around its lag model, for the uncertainty of the lag (unit).
 LAG_NOISE = 0.03
+_RIDGE = (LAG_NOISE / LAG_PRIOR_S) ** 2
 
 
 @dataclass(frozen=True)
@@ -135,12 +140,17 @@ class PairCheck:
         self.cusum_high = 0.0
         self.cusum_low = 0.0
         self.episode: _Episode | None = None
+        #: The pair as it read (smoothed) the last tick each CUSUM was at 0: the estimate of
+        #: when a departure upwards / downwards began, the reference a disagreement is judged from.
+        self._since_high: _Reference | None = None
+        self._since_low: _Reference | None = None
         self._reference: _Reference | None = None
+        self._smooth: tuple[float, float] | None = None
         #: The pair's mean temperature rate (unit/s, smoothed) and the difference of the two
         #: sensors' lags (s, learnt): ``d`` moves by ``lag_s * rate`` in a transient.
         self.rate = 0.0
         self.lag_s = 0.0
-        self._last_mean: float | None = None
+        self._last: tuple[float, float] | None = None
         #: Sums weighted over :data:`LAG_TAU_S` of 1, r, r^2, d, r d (r: the rate, d: the difference).
         self._n = self._r = self._rr = self._d = self._rd = 0.0
         self._learnt_s = 0.0
@@ -190,16 +200,11 @@ class PairCheck:
         x1, x2, tol, dt = primary.value, partner.value, self.pair.tolerance, self.period_s
         d = x1 - x2
         self._follow_rate(x1, x2)
+        self._follow_readings(x1, x2)
         if self.offset is None:
-            self._sum(d)
-            self._learnt_s += dt
-            if self._learnt_s >= BASELINE_S:
-                offset, self.lag_s = self._fit()
-                # Two sensors at one point agree within the tolerance: a pair further apart
-                # from the start has no usual offset to learn, and is a fault now.
-                self.offset = offset if abs(offset) <= tol else 0.0
+            self._learn(d)
             self._agreed, self._partner_agreed = x1, x2
-            self._reference = _Reference(x1, x2, predicted)
+            self._since_high = self._since_low = self._now(predicted)
             return primary, partner
         e = d - self.offset - self.lag_s * self.rate
         self.excess = e
@@ -209,16 +214,25 @@ class PairCheck:
         self.cusum_low = max(0.0, self.cusum_low - (e + k) * dt)
         alarm = abs(e) > tol + unsure or max(self.cusum_high, self.cusum_low) > DECISION_S * tol
         episode = self.episode
-        if episode is None:
-            self._learn_lag(d)
         if episode is None and not alarm:
-            if abs(e) <= self._k:
+            self._learn(d)
+            if abs(e) <= k:
                 a = math.exp(-dt / BASELINE_TAU_S)
                 self.offset = a * self.offset + (1.0 - a) * d
-                self._reference = _Reference(x1, x2, predicted)
+        if episode is None:
+            if self.cusum_high == 0.0:
+                self._since_high = self._now(predicted)
+            if self.cusum_low == 0.0:
+                self._since_low = self._now(predicted)
+        if episode is None and not alarm:
             self._agreed, self._partner_agreed = x1, x2
             return primary, partner
         if episode is None:
+            # Where the departure began: the last tick its CUSUM was at 0 (Page's change point).
+            self._reference = self._since_high if e > 0 else self._since_low
+            if self._reference is not None:
+                self._agreed = self._reference.primary
+                self._partner_agreed = self._reference.partner
             how = "at once" if abs(e) > tol else "drifting apart"
             episode = self._begin(
                 t_s,
@@ -229,64 +243,93 @@ class PairCheck:
                 excess=round(e, 3),
                 tolerance=tol,
             )
-        if abs(e) <= tol / 2:
+            episode.using = ""
+        agreeing = abs(e) <= k
+        if agreeing:
             episode.agreeing_s += dt
             if episode.agreeing_s >= CONFIRM_S:
                 self._end(t_s, x1, x2, "the pair agrees again")
                 self.cusum_high = self.cusum_low = 0.0
-                self._reference = _Reference(x1, x2, predicted)
+                self._since_high = self._since_low = self._now(predicted)
                 self._agreed, self._partner_agreed = x1, x2
                 return primary, partner
         else:
             episode.agreeing_s = 0.0
-        return self._choose(episode, primary, partner, predicted, e)
+        return self._choose(episode, primary, partner, predicted, agreeing)
+
+    def _follow_readings(self, x1: float, x2: float) -> None:
+        """Smooth the two readings over :data:`REFERENCE_TAU_S` (a reference is no single noisy sample)."""
+        if self._smooth is None or self.episode is not None:
+            self._smooth = (x1, x2)
+            return
+        a = math.exp(-self.period_s / REFERENCE_TAU_S)
+        s1, s2 = self._smooth
+        self._smooth = (a * s1 + (1 - a) * x1, a * s2 + (1 - a) * x2)
+
+    def _now(self, predicted: float | None) -> _Reference:
+        assert self._smooth is not None
+        return _Reference(*self._smooth, predicted)
 
     def _follow_rate(self, x1: float, x2: float) -> None:
-        """Smooth the pair's mean rate (unit/s) over :data:`RATE_TAU_S`."""
-        mean = (x1 + x2) / 2
-        if self._last_mean is not None:
+        """Smooth the pair's rate (unit/s) over :data:`RATE_TAU_S`: per tick, the mean of the two
+        sensors' moves, or the smaller where they differ by more than :data:`STEP` x the
+        tolerance (a step of one of them is no move of the point)."""
+        if self._last is not None:
+            d1, d2 = x1 - self._last[0], x2 - self._last[1]
+            if abs(d1 - d2) > STEP * self.pair.tolerance:
+                move = d1 if abs(d1) < abs(d2) else d2
+            else:
+                move = (d1 + d2) / 2
             a = math.exp(-self.period_s / RATE_TAU_S)
-            self.rate = a * self.rate + (1 - a) * (mean - self._last_mean) / self.period_s
-        self._last_mean = mean
+            self.rate = a * self.rate + (1 - a) * move / self.period_s
+        self._last = (x1, x2)
 
     @property
     def lag_uncertainty_s(self) -> float:
-        """How well :attr:`lag_s` is known (s), from the rates it was learnt on."""
-        if self._rr <= 0:
+        """How well :attr:`lag_s` is known (s), from how much the rate varied while it was learnt."""
+        spread = self._n * (self._rate_variance() + _RIDGE)
+        if spread <= 0:
             return LAG_PRIOR_S
-        return max(LAG_FLOOR_S, min(LAG_PRIOR_S, 3 * LAG_NOISE / math.sqrt(self._rr)))
+        return max(LAG_FLOOR_S, min(LAG_PRIOR_S, 3 * LAG_NOISE / math.sqrt(spread)))
 
-    def _sum(self, d: float) -> None:
+    def _rate_variance(self) -> float:
+        if self._n <= 0:
+            return 0.0
+        mean = self._r / self._n
+        return max(0.0, self._rr / self._n - mean * mean)
+
+    def _learn(self, d: float) -> None:
+        """Add ``d`` to the sums, weighted over :data:`LAG_TAU_S`, and fit the offset and the lag.
+
+        ``d ~ offset + lag_s * rate`` by least squares, the lag shrunk to 0
+        where the rate hardly varied (ridge: a steady ramp cannot tell an
+        offset from a lag). Sensors of different lags read a transient
+        differently, the slower one behind by its lag times the rate: that
+        is no fault; what is left after it is.
+        """
         a, r = math.exp(-self.period_s / LAG_TAU_S), self.rate
         self._n = a * self._n + 1.0
         self._r = a * self._r + r
         self._rr = a * self._rr + r * r
         self._d = a * self._d + d
         self._rd = a * self._rd + r * d
-
-    def _fit(self) -> tuple[float, float]:
-        """The offset and the lag difference of ``d ~ offset + lag_s * rate``, least squares.
-
-        Sensors of different lags read a transient differently: the slower
-        one lags by its lag times the rate. That is no fault; what is left
-        after it is. Without a transient to learn from, the lag is 0 (and
-        :attr:`lag_uncertainty_s` says how little is known).
-        """
-        det = self._n * self._rr - self._r * self._r
-        if det <= 1e-9 * max(self._n * self._rr, 1e-12):
-            return self._d / self._n, 0.0
-        offset = (self._rr * self._d - self._r * self._rd) / det
-        lag = (self._n * self._rd - self._r * self._d) / det
-        return offset, max(-MAX_LAG_DIFFERENCE_S, min(MAX_LAG_DIFFERENCE_S, lag))
-
-    def _learn_lag(self, d: float) -> None:
-        """Follow the lag difference with the offset as it is (the offset moves only while the
-        pair agrees closely: a drift must not become the usual)."""
-        self._sum(d)
-        assert self.offset is not None
-        if self._rr > 0:
-            lag = (self._rd - self.offset * self._r) / self._rr
+        if self.offset is not None:
+            # The lag with the offset as it is: the offset moves only while the pair agrees
+            # closely (below), so a drift never becomes the usual.
+            lag = (self._rd - self.offset * self._r) / (self._rr + self._n * _RIDGE)
             self.lag_s = max(-MAX_LAG_DIFFERENCE_S, min(MAX_LAG_DIFFERENCE_S, lag))
+            return
+        self._learnt_s += self.period_s
+        if self._learnt_s < BASELINE_S:
+            return
+        mean_r, mean_d = self._r / self._n, self._d / self._n
+        covariance = self._rd / self._n - mean_r * mean_d
+        lag = covariance / (self._rate_variance() + _RIDGE)
+        self.lag_s = max(-MAX_LAG_DIFFERENCE_S, min(MAX_LAG_DIFFERENCE_S, lag))
+        offset = mean_d - self.lag_s * mean_r
+        # Two sensors at one point agree within the tolerance: a pair further apart from the
+        # start has no usual offset to learn, and is a fault now.
+        self.offset = offset if abs(offset) <= self.pair.tolerance else 0.0
 
     def _choose(
         self,
@@ -294,7 +337,7 @@ class PairCheck:
         primary: Reading,
         partner: Reading,
         predicted: float | None,
-        excess: float,
+        agreeing: bool,
     ) -> tuple[Reading, Reading]:
         """The readings in a disagreement: the member the other sensors support is used."""
         x1, x2, tol = primary.value, partner.value, self.pair.tolerance
@@ -309,13 +352,13 @@ class PairCheck:
         moved = predicted - ref.predicted
         off1 = abs(x1 - ref.primary - moved)
         off2 = abs(x2 - ref.partner - moved)
-        if episode.using != "primary" and off1 + HYSTERESIS * tol < off2:
-            episode.using = "primary"
-        elif episode.using != "partner" and off2 + HYSTERESIS * tol < off1:
-            episode.using = "partner"
-        elif episode.using == "held":
+        if episode.using not in ("primary", "partner"):
             episode.using = "partner" if off2 < off1 else "primary"
-        if abs(excess) <= tol / 2:  # agreeing again, not yet long enough: nothing set aside
+        elif episode.using == "partner" and off1 + HYSTERESIS * tol < off2:
+            episode.using = "primary"
+        elif episode.using == "primary" and off2 + HYSTERESIS * tol < off1:
+            episode.using = "partner"
+        if agreeing:  # agreeing again, not yet long enough: nothing set aside
             return primary, partner
         if episode.using == "primary":
             self.set_aside = "partner"
