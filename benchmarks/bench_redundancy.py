@@ -71,9 +71,7 @@ CASES: dict[str, list[dict[str, Any]]] = {
     "air offset +3": [
         {"kind": "offset", "signal": "T_ambient_degC", "at_s": 7200, "duration_s": 3600, "value": 3}
     ],
-    "partner drift -2/h": [
-        f | {"value": -f["value"]} for f in drift("T_spindle_b_degC", 2.0)
-    ],
+    "partner drift -2/h": [f | {"value": -f["value"]} for f in drift("T_spindle_b_degC", 2.0)],
 }
 
 

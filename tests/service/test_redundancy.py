@@ -39,7 +39,7 @@ class Bench:
         *,
         primary_error: float = 0.0,
         partner_error: float = 0.0,
-        predicted: float | None | str = "true",
+        predicted: float | str | None = "true",
         primary_health: Health = Health.OK,
     ) -> tuple[Reading, Reading]:
         e1, e2 = self.rng.normal(0.0, NOISE_DEGC, 2)
@@ -74,7 +74,7 @@ def test_agreeing_pair_passes_the_primary_through_and_learns_the_usual_differenc
 def test_an_offset_on_the_primary_is_caught_at_once_and_its_partner_used():
     """A primary 8 degC off: flagged the same tick, the partner's reading (plus the usual) used, status degraded."""
     bench = learnt()
-    primary, partner = bench.step(30.0, primary_error=8.0)
+    primary, _ = bench.step(30.0, primary_error=8.0)
     assert bench.check.episode is not None and bench.check.fault.episodes == 1
     assert primary.value == pytest.approx(30.2, abs=0.08)
     assert bench.check.set_aside == "primary"
@@ -161,7 +161,7 @@ def test_the_other_sensors_pick_the_member_that_moved_with_them():
         warm = lambda t: 30.0 + 0.002 * (t - BASELINE_S - 60)  # noqa: E731
         errors = {f"{wrong}_error": -3.0}
         outs = bench.run(300, temperature=warm, **errors)
-        primary, partner = outs[-1]
+        primary, _ = outs[-1]
         true = warm(bench.t - 1)
         assert primary.value == pytest.approx(true + 0.2, abs=0.1), wrong
         assert bench.check.set_aside == wrong

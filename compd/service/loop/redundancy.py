@@ -276,10 +276,9 @@ class PairCheck:
         tolerance (a step of one of them is no move of the point)."""
         if self._last is not None:
             d1, d2 = x1 - self._last[0], x2 - self._last[1]
-            if abs(d1 - d2) > STEP * self.pair.tolerance:
-                move = d1 if abs(d1) < abs(d2) else d2
-            else:
-                move = (d1 + d2) / 2
+            step = abs(d1 - d2) > STEP * self.pair.tolerance
+            smaller = d1 if abs(d1) < abs(d2) else d2
+            move = smaller if step else (d1 + d2) / 2
             a = math.exp(-self.period_s / RATE_TAU_S)
             self.rate = a * self.rate + (1 - a) * move / self.period_s
         self._last = (x1, x2)
