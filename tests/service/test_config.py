@@ -257,8 +257,8 @@ def test_values_that_cannot_fit_their_registers_are_refused(tmp_path):
     assert "±150000" in message
     message = machine_config_error(tmp_path, {"status": {"status_address": "coil:110"}})
     assert (
-        "(status.status_address): 'coil:110' holds 0..1, but it must carry bits 0..13 "
-        "(up to 16383) for 6 signals" in message
+        "(status.status_address): 'coil:110' holds 0..1, but it must carry bits 0..15 "
+        "(up to 65535) for 8 signals" in message
     )
 
 
