@@ -125,11 +125,12 @@ def test_a_transient_read_with_different_lags_is_no_fault():
     assert check.fault.episodes == 0
 
 
-def test_a_primary_failing_its_own_checks_is_replaced_by_its_partner_with_health_ok():
-    """A primary that fails its own checks: the partner's reading is used, health OK, one episode."""
+def test_a_primary_failing_its_own_checks_is_replaced_by_its_partner():
+    """A primary that fails its own checks: the partner's reading is used and judged, set aside, one episode."""
     bench = learnt()
     outs = bench.run(100, primary_health=Health.HELD)
-    assert all(p.health is Health.OK for p, _ in outs)
+    assert all(p.health is Health.OK for p, _ in outs)  # the plausibility check judges it
+    assert bench.check.set_aside == "primary"
     assert outs[-1][0].value == pytest.approx(30.2, abs=0.08)
     assert "stands in" in outs[-1][0].reason
     assert bench.check.fault.episodes == 1

@@ -9,25 +9,40 @@ their own checks (:mod:`compd.service.loop.signals`) and before the inputs
 are checked against each other (:mod:`compd.service.loop.plausibility`):
 
 - one of the pair failed its own checks, the other did not: the other's
-  reading is used (the partner's shifted by the pair's usual offset), health
-  OK (this is what a second sensor is for); one ERROR line, an event and a
-  count tell of the episode;
+  reading is used (the partner's shifted by the pair's usual offset). The
+  axes keep compensating on a measurement (this is what a second sensor is
+  for), and the status says a sensor needs attention: the primary stands
+  ``ESTIMATED`` (level degraded, its status bit; the plausibility check
+  judges the partner's reading as the primary's, :meth:`Redundancy.mark`
+  marks it after), a partner that failed shows its own health;
 - both read: their difference ``d = primary - partner`` less its usual
-  offset ``b`` (the mean over the first :data:`BASELINE_S` both read, then
-  followed over :data:`BASELINE_TAU_S` while the pair agrees within the
-  CUSUM's allowance) is the excess ``e = d - b``. ``|e| > tolerance`` is a
-  fault at once; a slow departure is caught by a two-sided CUSUM (Page 1954)::
+  value is the excess::
+
+      e = d - b - c * rate
+
+  with ``b`` the pair's usual offset (their class-A offsets) and ``c`` the
+  difference of their lags (s): in a transient the slower sensor reads
+  behind by its lag times the rate (``rate``: the pair's smoothed rate,
+  a step of one member excluded). ``b`` and ``c`` are fitted by least
+  squares (``c`` shrunk to 0 where the rate hardly varied) over the first
+  :data:`BASELINE_S` both read; then ``c`` is followed over
+  :data:`LAG_TAU_S`, ``b`` over :data:`BASELINE_TAU_S` only while the pair
+  agrees within ``k`` (a drift never becomes the usual). ``|e| >
+  tolerance`` (widened by the lag's uncertainty times the rate) is a fault
+  at once; a slow departure is caught by a two-sided CUSUM (Page 1954)::
 
       S+ = max(0, S+ + (e - k) Ts),  S- = max(0, S- - (e + k) Ts),  fault if S+ or S- > h
 
   with allowance ``k = ALLOWANCE * tolerance`` and decision interval
   ``h = DECISION_S * tolerance`` (signal unit x s). A drift of ``r`` (unit/s)
-  is flagged after ``k / r + sqrt(2 h / r)``: for a 0.5 degC tolerance,
-  20 min at 0.5 degC/h, 9 min at 2 degC/h (within 0.25 degC of excess);
+  is flagged after about ``k / r + sqrt(2 h / r)``: for the default 0.5 degC
+  tolerance 20 min at 0.5 degC/h (0.17 degC apart), 12 min at 1 degC/h,
+  8 min at 2 degC/h (0.26 degC apart);
 - during a disagreement the reading used is the one the other sensors
-  support: whose change since the pair last agreed (tick ``0``) is nearer
-  the change of its prediction from the other sensors (``plausibility``'s
-  prediction of the primary, ``p``)::
+  support: whose change since the departure began (tick ``0``: the last
+  tick its CUSUM was 0, Page's change point; readings smoothed over
+  :data:`REFERENCE_TAU_S`) is nearer the change of its prediction from the
+  other sensors (``plausibility``'s prediction of the primary, ``p``)::
 
       primary wrong  <=>  |(x1 - x1_0) - (p - p_0)| > |(x2 - x2_0) - (p - p_0)|
 
@@ -44,7 +59,7 @@ are checked against each other (:mod:`compd.service.loop.plausibility`):
   :data:`CONFIRM_S` seconds in a row (one ERROR line at each end, an event,
   and :attr:`Redundancy.count`).
 
-The pair's usual offset is learned afresh at each start: a pair that already
+The pair's usual offset is learnt afresh at each start: a pair that already
 disagrees by more than the tolerance when learnt is taken to have none (two
 sensors at one point should agree), so the disagreement is flagged.
 
@@ -183,6 +198,7 @@ class PairCheck:
                 self._begin(t_s, f"{self.pair.primary} fails its own checks: {primary.reason}")
             assert self.episode is not None
             self.episode.using, self.episode.agreeing_s = "partner", 0.0
+            self.set_aside = "primary"
             value = partner.value + self.usual
             why = f"its partner {self.pair.partner} stands in: {primary.reason}"
             return Reading(value, Health.OK, why), partner
