@@ -75,6 +75,8 @@ def fault_free_max_um(tmp_path_factory: pytest.TempPathFactory) -> float:
     result, records = run(Path(tmp_path_factory.mktemp("free")), [], HOURS)
     assert result.status["counters"]["redundancy_faults"] == 0
     assert all(r.status & 0b11 == 0 for r in records[60:]), "status OK throughout"
+    pair = result.status["redundant"]["T_spindle_degC"]  # as compd status shows it
+    assert pair["fault"] is None and abs(pair["usual"]) < 0.5
     return axis(result).max_compensated_um
 
 

@@ -273,6 +273,20 @@ class PairCheck:
             episode.agreeing_s = 0.0
         return self._choose(episode, primary, partner, predicted, agreeing)
 
+    def status(self) -> dict[str, object]:
+        """What ``compd status`` shows of the pair: its usual difference, the excess, the episode."""
+        episode = self.episode
+        return {
+            "partner": self.pair.partner,
+            "tolerance": self.pair.tolerance,
+            "unit": self.pair.unit,
+            "usual": None if self.offset is None else round(self.offset, 3),
+            "excess": None if math.isnan(self.excess) else round(self.excess, 3),
+            "lag_difference_s": round(self.lag_s, 1),
+            "fault": None if episode is None else episode.reason,
+            "using": None if episode is None else episode.using or None,
+        }
+
     def _follow_readings(self, x1: float, x2: float) -> None:
         """Smooth the two readings over :data:`REFERENCE_TAU_S` (a reference is no single noisy sample)."""
         if self._smooth is None or self.episode is not None:
