@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from compd.model.pairdifference import BASELINE_S
 from compd.service.loop.redundancy import (
-    BASELINE_S,
     CONFIRM_S,
     Pair,
     PairCheck,
@@ -123,6 +123,7 @@ def test_a_transient_read_with_different_lags_is_no_fault():
         x1, x2 = y1 + 0.1 + rng.normal(0, NOISE_DEGC), y2 + rng.normal(0, NOISE_DEGC)
         check.update(float(t), Reading(x1, Health.OK), Reading(x2, Health.OK), true)
     assert check.fault.episodes == 0
+    assert check.difference.lag_s > 0  # the primary is the faster
 
 
 def test_a_primary_failing_its_own_checks_is_replaced_by_its_partner():

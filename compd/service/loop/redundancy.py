@@ -22,13 +22,11 @@ are checked against each other (:mod:`compd.service.loop.plausibility`):
 
   with ``b`` the pair's usual offset (their class-A offsets) and ``c`` the
   difference of their lags (s): in a transient the slower sensor reads
-  behind by its lag times the rate (``rate``: the pair's smoothed rate,
-  a step of one member excluded). ``b`` and ``c`` are fitted by least
-  squares (``c`` shrunk to 0 where the rate hardly varied) over the first
-  :data:`BASELINE_S` both read; then ``c`` is followed over
-  :data:`LAG_TAU_S`, ``b`` over :data:`BASELINE_TAU_S` only while the pair
-  agrees within ``k`` (a drift never becomes the usual). ``|e| >
-  tolerance`` (widened by the lag's uncertainty times the rate) is a fault
+  behind by its lag times the rate. Both are learnt as the pair reads
+  (:mod:`compd.model.pairdifference`: fitted over the first 10 minutes,
+  then the lag followed, the offset only while the pair agrees within
+  ``k``, so that a drift never becomes the usual). ``|e| > tolerance``
+  (widened by the lag's uncertainty times the rate) is a fault
   at once; a slow departure is caught by a two-sided CUSUM (Page 1954)::
 
       S+ = max(0, S+ + (e - k) Ts),  S- = max(0, S- - (e + k) Ts),  fault if S+ or S- > h
@@ -75,12 +73,11 @@ from dataclasses import dataclass
 import structlog
 
 from compd.faultlog import EventSink, FaultLog
+from compd.model.pairdifference import PairDifference
 from compd.service.loop.signals import Health, Reading, SignalMonitor
 
 log = structlog.get_logger("compd.service.loop.redundancy")
 
-#: The pair's usual offset is the mean difference over its first this many seconds of readings (s).
-BASELINE_S = 600.0
 #: The CUSUM's allowance ``k``, as a fraction of the tolerance: a smaller excess is never summed.
 ALLOWANCE = 0.15
 #: The CUSUM's decision interval ``h`` over the tolerance (s): the excess summed beyond ``k``.
@@ -89,26 +86,8 @@ DECISION_S = 60.0
 CONFIRM_S = 120.0
 #: The member used in a disagreement changes once the other is nearer by this (x tolerance).
 HYSTERESIS = 0.5
-#: Two sensors of one point moving apart by more than this (x tolerance) in one tick: a step.
-STEP = 0.3
 #: A reference reading is smoothed over this long (s).
 REFERENCE_TAU_S = 20.0
-#: The pair's temperature rate is smoothed over this long (s) to take off the difference of lags.
-RATE_TAU_S = 30.0
-#: Then it follows the difference this slowly (s), and only while the pair agrees within ``k``.
-BASELINE_TAU_S = 8 * 3600.0
-#: The difference of the two sensors' lags is learnt over this long (s), while the pair agrees...
-LAG_TAU_S = 3600.0
-#: ...and never beyond this (s): a Pt100's lag is tens of seconds.
-MAX_LAG_DIFFERENCE_S = 120.0
-#: How well the difference of lags is known (s): this before a transient taught it, and
-#: never better than the floor (a lag is first-order only roughly); the allowance and the
-#: tolerance widen by it times the rate.
-LAG_PRIOR_S = 40.0
-LAG_FLOOR_S = 5.0
-#: The pair's difference around its lag model, for the uncertainty of the lag (unit).
-LAG_NOISE = 0.03
-_RIDGE = (LAG_NOISE / LAG_PRIOR_S) ** 2
 
 
 @dataclass(frozen=True)
@@ -149,7 +128,8 @@ class PairCheck:
         self.pair = pair
         self.monitors = monitors
         self.period_s = period_s
-        self.offset: float | None = None  # the pair's usual difference b, once learnt
+        #: The pair's usual difference, lags and rate (:mod:`compd.model.pairdifference`).
+        self.difference = PairDifference(period_s, pair.tolerance)
         #: The pair's last difference from its usual, lags taken off (unit; NaN: not yet known).
         self.excess = math.nan
         self.cusum_high = 0.0
@@ -161,14 +141,6 @@ class PairCheck:
         self._since_low: _Reference | None = None
         self._reference: _Reference | None = None
         self._smooth: tuple[float, float] | None = None
-        #: The pair's mean temperature rate (unit/s, smoothed) and the difference of the two
-        #: sensors' lags (s, learnt): ``d`` moves by ``lag_s * rate`` in a transient.
-        self.rate = 0.0
-        self.lag_s = 0.0
-        self._last: tuple[float, float] | None = None
-        #: Sums weighted over :data:`LAG_TAU_S` of 1, r, r^2, d, r d (r: the rate, d: the difference).
-        self._n = self._r = self._rr = self._d = self._rd = 0.0
-        self._learnt_s = 0.0
         self._agreed = math.nan  # the primary's value the last time the pair agreed
         self._partner_agreed = math.nan
         #: Set aside this tick (the status shows it): "primary", "partner" or None.
@@ -182,7 +154,8 @@ class PairCheck:
     @property
     def usual(self) -> float:
         """The pair's usual difference (primary - partner), 0 until learnt."""
-        return 0.0 if self.offset is None else self.offset
+        offset = self.difference.offset
+        return 0.0 if offset is None else offset
 
     def update(
         self, t_s: float, primary: Reading, partner: Reading, predicted: float | None
@@ -215,26 +188,25 @@ class PairCheck:
     ) -> tuple[Reading, Reading]:
         x1, x2, tol, dt = primary.value, partner.value, self.pair.tolerance, self.period_s
         d = x1 - x2
-        self._follow_rate(x1, x2)
+        diff = self.difference
+        diff.follow(x1, x2)
         self._follow_readings(x1, x2)
-        if self.offset is None:
-            self._learn(d)
+        if diff.offset is None:
+            diff.learn(d)
             self._agreed, self._partner_agreed = x1, x2
             self._since_high = self._since_low = self._now(predicted)
             return primary, partner
-        e = d - self.offset - self.lag_s * self.rate
-        self.excess = e
-        unsure = self.lag_uncertainty_s * abs(self.rate)
+        self.excess = e = diff.excess(d)
+        unsure = diff.lag_uncertainty_s * abs(diff.rate)
         k = self._k + unsure
         self.cusum_high = max(0.0, self.cusum_high + (e - k) * dt)
         self.cusum_low = max(0.0, self.cusum_low - (e + k) * dt)
         alarm = abs(e) > tol + unsure or max(self.cusum_high, self.cusum_low) > DECISION_S * tol
         episode = self.episode
         if episode is None and not alarm:
-            self._learn(d)
-            if abs(e) <= k:
-                a = math.exp(-dt / BASELINE_TAU_S)
-                self.offset = a * self.offset + (1.0 - a) * d
+            diff.learn(d)
+            if abs(e) <= k:  # a drift never becomes the usual
+                diff.settle(d)
         if episode is None:
             if self.cusum_high == 0.0:
                 self._since_high = self._now(predicted)
@@ -253,7 +225,7 @@ class PairCheck:
             episode = self._begin(
                 t_s,
                 f"{self.pair.primary} and {self.pair.partner} disagree ({how}): "
-                f"{x1:.2f} and {x2:.2f}, {e:+.2f} from their usual {self.offset:+.2f}",
+                f"{x1:.2f} and {x2:.2f}, {e:+.2f} from their usual {self.usual:+.2f}",
                 read=round(x1, 3),
                 partner_read=round(x2, 3),
                 excess=round(e, 3),
@@ -280,9 +252,9 @@ class PairCheck:
             "partner": self.pair.partner,
             "tolerance": self.pair.tolerance,
             "unit": self.pair.unit,
-            "usual": None if self.offset is None else round(self.offset, 3),
+            "usual": None if self.difference.offset is None else round(self.usual, 3),
             "excess": None if math.isnan(self.excess) else round(self.excess, 3),
-            "lag_difference_s": round(self.lag_s, 1),
+            "lag_difference_s": round(self.difference.lag_s, 1),
             "fault": None if episode is None else episode.reason,
             "using": None if episode is None else episode.using or None,
         }
@@ -299,66 +271,6 @@ class PairCheck:
     def _now(self, predicted: float | None) -> _Reference:
         assert self._smooth is not None
         return _Reference(*self._smooth, predicted)
-
-    def _follow_rate(self, x1: float, x2: float) -> None:
-        """Smooth the pair's rate (unit/s) over :data:`RATE_TAU_S`: per tick, the mean of the two
-        sensors' moves, or the smaller where they differ by more than :data:`STEP` x the
-        tolerance (a step of one of them is no move of the point)."""
-        if self._last is not None:
-            d1, d2 = x1 - self._last[0], x2 - self._last[1]
-            step = abs(d1 - d2) > STEP * self.pair.tolerance
-            smaller = d1 if abs(d1) < abs(d2) else d2
-            move = smaller if step else (d1 + d2) / 2
-            a = math.exp(-self.period_s / RATE_TAU_S)
-            self.rate = a * self.rate + (1 - a) * move / self.period_s
-        self._last = (x1, x2)
-
-    @property
-    def lag_uncertainty_s(self) -> float:
-        """How well :attr:`lag_s` is known (s), from how much the rate varied while it was learnt."""
-        spread = self._n * (self._rate_variance() + _RIDGE)
-        if spread <= 0:
-            return LAG_PRIOR_S
-        return max(LAG_FLOOR_S, min(LAG_PRIOR_S, 3 * LAG_NOISE / math.sqrt(spread)))
-
-    def _rate_variance(self) -> float:
-        if self._n <= 0:
-            return 0.0
-        mean = self._r / self._n
-        return max(0.0, self._rr / self._n - mean * mean)
-
-    def _learn(self, d: float) -> None:
-        """Add ``d`` to the sums, weighted over :data:`LAG_TAU_S`, and fit the offset and the lag.
-
-        ``d ~ offset + lag_s * rate`` by least squares, the lag shrunk to 0
-        where the rate hardly varied (ridge: a steady ramp cannot tell an
-        offset from a lag). Sensors of different lags read a transient
-        differently, the slower one behind by its lag times the rate: that
-        is no fault; what is left after it is.
-        """
-        a, r = math.exp(-self.period_s / LAG_TAU_S), self.rate
-        self._n = a * self._n + 1.0
-        self._r = a * self._r + r
-        self._rr = a * self._rr + r * r
-        self._d = a * self._d + d
-        self._rd = a * self._rd + r * d
-        if self.offset is not None:
-            # The lag with the offset as it is: the offset moves only while the pair agrees
-            # closely (below), so a drift never becomes the usual.
-            lag = (self._rd - self.offset * self._r) / (self._rr + self._n * _RIDGE)
-            self.lag_s = max(-MAX_LAG_DIFFERENCE_S, min(MAX_LAG_DIFFERENCE_S, lag))
-            return
-        self._learnt_s += self.period_s
-        if self._learnt_s < BASELINE_S:
-            return
-        mean_r, mean_d = self._r / self._n, self._d / self._n
-        covariance = self._rd / self._n - mean_r * mean_d
-        lag = covariance / (self._rate_variance() + _RIDGE)
-        self.lag_s = max(-MAX_LAG_DIFFERENCE_S, min(MAX_LAG_DIFFERENCE_S, lag))
-        offset = mean_d - self.lag_s * mean_r
-        # Two sensors at one point agree within the tolerance: a pair further apart from the
-        # start has no usual offset to learn, and is a fault now.
-        self.offset = offset if abs(offset) <= self.pair.tolerance else 0.0
 
     def _choose(
         self,
