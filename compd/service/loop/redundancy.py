@@ -46,8 +46,10 @@ are checked against each other (:mod:`compd.service.loop.plausibility`):
 
   (the prediction's own bias cancels; it may be wrong only where the pair
   differs by less than twice the prediction's drift since ``0``, which
-  bounds the error of a wrong choice by twice a stand-in's), with a
-  hysteresis of half the tolerance before the choice changes. Without a
+  bounds the error of a wrong choice by twice a stand-in's); that
+  difference is averaged over :data:`EVIDENCE_TAU_S` (a transient the
+  prediction follows late does not flip the choice), and the choice changes
+  once the average favours the other by :data:`HYSTERESIS` x the tolerance. Without a
   prediction the primary is held at the last value the pair agreed on and
   faulted (the axes freeze, as for any faulted input). The status is
   degraded: the sensor set aside has its status bit (the primary: health
@@ -84,8 +86,10 @@ ALLOWANCE = 0.15
 DECISION_S = 60.0
 #: A disagreement ends after the pair agreed within the allowance ``k`` this long (s).
 CONFIRM_S = 120.0
-#: The member used in a disagreement changes once the other is nearer by this (x tolerance).
-HYSTERESIS = 0.5
+#: The evidence of which member the others support is averaged over this long (s)...
+EVIDENCE_TAU_S = 600.0
+#: ...and the member used changes once the other is nearer by this on average (x tolerance).
+HYSTERESIS = 0.2
 #: A reference reading is smoothed over this long (s).
 REFERENCE_TAU_S = 20.0
 
@@ -110,6 +114,8 @@ class _Episode:
     #: Which member the primary's value comes from: ``primary``, ``partner`` or ``held``.
     using: str = "partner"
     agreeing_s: float = 0.0
+    #: How much further the primary moved from what the others say than the partner (averaged).
+    evidence: float | None = None
 
 
 @dataclass(frozen=True)
@@ -169,6 +175,7 @@ class PairCheck:
         if ok2:  # the primary failed its own checks: its partner stands in
             if self.episode is None:
                 self._begin(t_s, f"{self.pair.primary} fails its own checks: {primary.reason}")
+                self._reference = self._since_high  # the pair as it last agreed
             assert self.episode is not None
             self.episode.using, self.episode.agreeing_s = "partner", 0.0
             self.set_aside = "primary"
@@ -291,13 +298,19 @@ class PairCheck:
             self.monitors[self.pair.primary].rebase(held, x1)
             return held, partner
         moved = predicted - ref.predicted
-        off1 = abs(x1 - ref.primary - moved)
-        off2 = abs(x2 - ref.partner - moved)
+        # > 0: the primary moved away from what the others say more than the partner did.
+        gap = abs(x1 - ref.primary - moved) - abs(x2 - ref.partner - moved)
+        if episode.evidence is None:
+            episode.evidence = gap
+        else:  # a transient the prediction follows late does not flip the choice
+            a = math.exp(-self.period_s / EVIDENCE_TAU_S)
+            episode.evidence = a * episode.evidence + (1 - a) * gap
+        evidence = episode.evidence
         if episode.using not in ("primary", "partner"):
-            episode.using = "partner" if off2 < off1 else "primary"
-        elif episode.using == "partner" and off1 + HYSTERESIS * tol < off2:
+            episode.using = "partner" if evidence > 0 else "primary"
+        elif episode.using == "partner" and evidence < -HYSTERESIS * tol:
             episode.using = "primary"
-        elif episode.using == "primary" and off2 + HYSTERESIS * tol < off1:
+        elif episode.using == "primary" and evidence > HYSTERESIS * tol:
             episode.using = "partner"
         if agreeing:  # agreeing again, not yet long enough: nothing set aside
             return primary, partner
