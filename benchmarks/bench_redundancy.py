@@ -176,6 +176,9 @@ def main() -> None:
         "--single", default=None, help="cases also run without the pair (default: all)"
     )
     parser.add_argument(
+        "--later-s", type=float, default=0.0, help="every fault this much later (s): another start"
+    )
+    parser.add_argument(
         "--replay",
         action="store_true",
         help="the pair check alone over 12 fault-free 8 h shifts (6 scenarios, seeds 1 and 2)",
@@ -202,7 +205,7 @@ def main() -> None:
         f"{'case':22s} {'paired':>8s} {'single':>8s} {'silent>3x':>10s} {'flagged':>9s} {'episodes':>9s}"
     )
     for name in args.cases.split(","):
-        faults = CASES[name]
+        faults = [f | {"at_s": f["at_s"] + args.later_s} for f in CASES[name]]
         ours = run(faults, paired=True, **shift)
         singles = args.cases if args.single is None else args.single
         single = run(faults, paired=False, **shift) if name in singles.split(",") else None
