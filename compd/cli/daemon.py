@@ -117,6 +117,12 @@ def check_config_command(args: argparse.Namespace) -> int:
         _print_verifiable(out, config, model_file, compiled)
     out.print(f"  drivers: {', '.join(f'{n} ({d.type})' for n, d in doc.drivers.items())}")
     out.print(f"  signals: {', '.join(doc.signals)}")
+    for pair in doc.pairs():
+        out.print(
+            f"  redundant: {pair.primary} and {pair.partner} read one point; beyond "
+            f"{pair.tolerance:g} {pair.unit} from their usual difference (or drifting apart) "
+            "the pair is a fault and the reading the other sensors support is used"
+        )
     unstuck = [n for n, s in doc.signals.items() if s.checks.stuck_off(s.unit)]
     if unstuck:
         out.print(

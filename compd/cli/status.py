@@ -111,6 +111,8 @@ def status_command(args: argparse.Namespace) -> int:
         value = "n/a" if info["value"] is None else f"{info['value']:.3f}{unit}"
         reason = f"  {info['reason']}" if info["reason"] else ""
         out.print(f"  {name}: {value}  {info['health']}{reason}")
+    for name, pair in reply.get("redundant", {}).items():
+        out.print(f"  {_pair_line(name, pair)}")
     out.print(
         "  "
         + ", ".join(f"{k} {v}" for k, v in counters.items())
@@ -178,3 +180,17 @@ def _tick_age(reply: dict[str, object]) -> str:
     if reply.get("last_tick") is None or not isinstance(age_s, int | float):
         return "none yet"
     return f"{age_s:.1f} s ago ({reply['last_tick']})"
+
+
+def _pair_line(name: str, pair: dict[str, Any]) -> str:
+    """A redundant pair as ``compd status`` prints it: learning, agreeing, or its fault."""
+    head = f"pair {name} / {pair['partner']}"
+    if pair["usual"] is None:
+        return f"{head}: learning their usual difference"
+    unit = pair["unit"]
+    now = "" if pair["excess"] is None else f", {pair['excess']:+.3f} {unit} from it now"
+    state = "agree" if pair["fault"] is None else f"FAULT ({pair['using']} used): {pair['fault']}"
+    return (
+        f"{head}: usual difference {pair['usual']:+.3f} {unit}{now} "
+        f"(tolerance {pair['tolerance']:g}); {state}"
+    )

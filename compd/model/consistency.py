@@ -274,8 +274,10 @@ class ConsistencyCheck:
         """Per signal: whether it may predict the others this tick (read, finite, within its calibration)."""
         inside = np.isfinite(z) & (z >= self._low) & (z <= self._high)
         ok: np.ndarray = np.logical_and.reduceat(inside, self._starts) & ~self._missing
+        signals = self.model.signals
         for name in unusable:
-            ok[self.model.signals.index(name)] = False
+            if name in signals:  # a signal the consistency model does not read predicts nothing
+                ok[signals.index(name)] = False
         return ok
 
     def predict(self, z: np.ndarray, name: str, ok: np.ndarray) -> Prediction | None:

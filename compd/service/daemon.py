@@ -130,6 +130,7 @@ class Service:
             plausibility=doc.plausibility.settings(),
             units={name: s.unit for name, s in doc.signals.items()},
             probing=self.probing,
+            pairs=doc.pairs(),
         )
         if self.compensator.models is not None:
             self.compensator.models.fallback = fallback

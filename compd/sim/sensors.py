@@ -16,6 +16,7 @@ The lag per sample is exact for an input held over the sample::
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,10 +78,18 @@ class SensorSet:
     offset_degc: dict[str, float]
 
     @classmethod
-    def draw(cls, rng: np.random.Generator, nominal_degc: float = 20.0) -> SensorSet:
-        """Lags uniform in :data:`LAG_RANGE_S`, offsets uniform within the class-A tolerance."""
+    def draw(
+        cls,
+        rng: np.random.Generator,
+        nominal_degc: float = 20.0,
+        sites: Mapping[str, str] = TEMPERATURE_SENSORS,
+    ) -> SensorSet:
+        """Lags uniform in :data:`LAG_RANGE_S`, offsets uniform within the class-A tolerance.
+
+        ``sites``: the sensors drawn (column -> node), by default the logged ones.
+        """
         tol = class_a_tolerance_degc(nominal_degc)
-        names = list(TEMPERATURE_SENSORS)
+        names = list(sites)
         lags = rng.uniform(*LAG_RANGE_S, size=len(names))
         offsets = rng.uniform(-tol, tol, size=len(names))
         return cls(

@@ -45,6 +45,7 @@ def test_faults_during_a_shift_degrade_safely_and_recover(
         simulation={"scenario": "production", "hours": 3, "seed": 6, "faults": FAULTS},
     )
     doc["signals"]["T_spindle_degC"]["checks"].update(stuck_s=300, stuck_tolerance=0.0)
+    doc["signals"]["T_spindle_degC"].pop("redundant")  # one sensor, nothing to stand in
     doc["safety"] = {"on_fault": "ramp", "fault_ramp_after_s": 60}
     # The fallback where no other sensor can stand in (a model file without a consistency
     # model, or too few healthy sensors): freeze, then ramp. The stand-in is

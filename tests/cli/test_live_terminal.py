@@ -137,9 +137,8 @@ def test_at_80_columns_the_header_is_one_line_and_no_title_is_cut(short_dir: Pat
     head = next(i for i, line in enumerate(screen.lines) if "(100 %)" in line)
     assert screen.lines[head].rstrip().endswith("ok"), text  # the status, not wrapped below
     assert screen.lines[head + 1].startswith("input"), text
-    last_input = max(
-        i for i, line in enumerate(screen.lines) if line.startswith("spindle_power_kw")
-    )
+    signals = tuple(yaml.safe_load(config.read_text())["signals"])
+    last_input = max(i for i, line in enumerate(screen.lines) if line.startswith(signals))
     axis_titles = next(
         i for i in range(last_input, len(screen.lines)) if screen.lines[i][:1] == "Z"
     )

@@ -155,3 +155,11 @@ def test_its_lags_are_the_default_lag_banks() -> None:
     from compd.model.lagbank import DEFAULT_TIME_CONSTANTS_S
 
     assert tuple(t for t in DEFAULT_TIME_CONSTANTS_S if t > 0) == TAUS_S
+
+
+def test_a_signal_the_model_does_not_read_may_be_unusable(model: ConsistencyModel) -> None:
+    """Naming a signal outside the consistency model as unusable (a second sensor held) changes nothing."""
+    record = machine(1.0, 5)
+    check = ConsistencyCheck(model, SAMPLE_S, frozenset(record))
+    z = check.features({name: float(values[0]) for name, values in record.items()})
+    assert (check.usable(z, {"T_spindle_b_degC"}) == check.usable(z, set())).all()

@@ -257,8 +257,8 @@ def test_values_that_cannot_fit_their_registers_are_refused(tmp_path):
     assert "±150000" in message
     message = machine_config_error(tmp_path, {"status": {"status_address": "coil:110"}})
     assert (
-        "(status.status_address): 'coil:110' holds 0..1, but it must carry bits 0..13 "
-        "(up to 16383) for 6 signals" in message
+        "(status.status_address): 'coil:110' holds 0..1, but it must carry bits 0..15 "
+        "(up to 65535) for 8 signals" in message
     )
 
 
@@ -279,6 +279,11 @@ def test_readback_is_on_where_the_driver_can_read_back(tmp_path):
 def test_the_mismatch_bit_is_used_only_where_the_status_register_holds_it(tmp_path):
     """Six signals leave bit 14 of a uint16 status word for the mismatch; eight leave none; nine do not fit."""
     doc = yaml.safe_load(SIMULATED_MACHINE.read_text())
+    assert write_config(tmp_path, doc=doc).mismatch_bit == 16  # eight signals, a uint32 word
+    doc["status"]["status_address"] = "holding:110"
+    for name in ("T_spindle_degC", "T_ambient_degC"):
+        doc["signals"][doc["signals"][name].pop("redundant")] = None
+    doc["signals"] = {name: s for name, s in doc["signals"].items() if s is not None}
     assert write_config(tmp_path, doc=doc).mismatch_bit == 14
     extra = {"driver": "plc", "unit": "degC", "scale": 0.01}
     doc["signals"] |= {f"T_{i}_degC": {**extra, "address": f"input:{i}:int16"} for i in (6, 7)}

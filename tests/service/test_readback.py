@@ -39,8 +39,8 @@ from compd.sim.plc.modbus import ModbusPlcServer
 from tests.ports import free_port
 
 OFFSET = "holding:100:int32"  # 0.1 um counts (encoding scale 10)
-STATUS = "holding:110"
-HEARTBEAT = "holding:111"
+STATUS = "holding:110:uint32"
+HEARTBEAT = "holding:112"
 STEP_COUNTS = 10  # max_rate_um_per_s 1.0 x period_s 1.0, in 0.1 um
 #: Constant inputs (raw counts, 0.01 degC / rpm / 0.01 kW) the PLC serves.
 INPUTS = {
@@ -50,8 +50,10 @@ INPUTS = {
     "input:3:int16": 2000,
     "input:4:uint16": 0,
     "input:5:uint16": 0,
+    "input:6:int16": 3000,  # the spindle's second sensor
+    "input:7:int16": 2000,  # the air's
 }
-MISMATCH_BIT = 1 << (SIGNAL_BIT0 + len(INPUTS))  # six signals: bit 14
+MISMATCH_BIT = 1 << (SIGNAL_BIT0 + len(INPUTS))  # eight signals: bit 16 of a uint32 word
 
 
 def plc_config(directory: Path, **output: Any) -> Config:

@@ -55,7 +55,8 @@ def test_birth_status_events_and_death_reach_a_subscriber(broker: Mosquitto, tmp
         "every_ticks": 10,
     }
     faults = [
-        {"kind": "nan", "signal": "T_spindle_degC", "at_s": 60, "duration_s": 60},
+        # On a model input with no second sensor: its prediction from the others stands in.
+        {"kind": "nan", "signal": "T_headstock_degC", "at_s": 60, "duration_s": 60},
         {"kind": "drop", "driver": "plc", "at_s": 200, "duration_s": 10},
     ]
     config = machine_config(

@@ -55,7 +55,8 @@ def test_every_cleared_follows_its_fault_and_a_driver_episode_ends_with_cleared(
 ):
     """No ``cleared`` at start; each ends an episode its ``fault`` began; a driver's is cleared, then reconnected."""
     faults = [
-        {"kind": "nan", "signal": "T_spindle_degC", "at_s": 60, "duration_s": 60},
+        # On a model input with no second sensor: its prediction from the others stands in.
+        {"kind": "nan", "signal": "T_headstock_degC", "at_s": 60, "duration_s": 60},
         {"kind": "drop", "driver": "plc", "at_s": 200, "duration_s": 10},
     ]
     sub = _run(broker, tmp_path, faults)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -62,7 +61,7 @@ def test_an_axis_tolerance_defaults_to_three_calibration_rms_and_may_be_given(
     outputs["Z"]["tolerance_um"] = 120.0
     given = config(tmp_path, outputs=outputs)
     assert axis_tolerances_um(given.doc, model_file) == {"Z": 120.0}
-    assert not rows_of(given)["T_spindle_degC"].exceeds  # 97 um unseen, within 120
+    assert not rows_of(given)["T_ambient_degC"].exceeds  # within 120
 
 
 @pytest.mark.parametrize("bad", [0, -1, ".inf", "1e308"])
@@ -80,19 +79,42 @@ def test_a_tolerance_that_is_not_a_sensible_length_is_a_config_error_naming_the_
 
 
 def test_with_plausibility_off_no_input_is_verified(tmp_path: Path) -> None:
-    """``plausibility.enabled: false``: nothing judges an input against the others, every weight is unseen."""
-    rows = rows_of(config(tmp_path, plausibility={"enabled": False}))
+    """``plausibility.enabled: false`` and one sensor each: nothing judges an input, every weight is unseen."""
+    rows = rows_of(config(tmp_path, plausibility={"enabled": False}, signals=one_sensor_each()))
     assert all(math.isinf(r.undetectable_um) and r.exceeds for r in rows.values())
     assert "plausibility is off" in rows["T_spindle_degC"].detection.by
 
 
-def test_check_config_prints_what_cannot_be_verified_and_still_exits_0(capsys: Any) -> None:
-    """The bundled config: the table names the spindle's ~97 um on Z and the remedy; exit status 0."""
+def one_sensor_each() -> dict[str, Any]:
+    """The bundled config's signals without the second spindle and air sensors."""
+    signals = yaml.safe_load(SIMULATED.read_text())["signals"]
+    for name in ("T_spindle_b_degC", "T_ambient_b_degC"):
+        signals.pop(name)
+    for signal in signals.values():
+        signal.pop("redundant", None)
+    return signals
+
+
+def test_check_config_prints_what_can_be_verified_and_still_exits_0(capsys: Any) -> None:
+    """The bundled config: its spindle and air are verified by their second sensors; exit status 0."""
     assert main(["check-config", "bundled:simulated.yaml"]) == 0
     out = capsys.readouterr().out
     assert "what the sensors can verify" in out
     spindle = next(line for line in out.splitlines() if line.startswith("│ T_spindle_degC"))
-    assert "12.5" in spindle and "97.2" in spindle and "redundant sensor" in spindle
+    assert "its redundant partner T_spindle_b_degC" in spindle and "ok" in spindle
+    assert "every input is verified to its axis's tolerance" in out
+
+
+def test_check_config_names_the_remedy_where_an_input_cannot_be_verified(
+    tmp_path: Path, capsys: Any
+) -> None:
+    """One sensor each: the spindle is checked by the others only to 4.4 sigma (the drift CUSUM's
+    smallest lasting step), 6.9 degC or about 53 um on Z: a redundant sensor or probes."""
+    cfg = config(tmp_path, signals=one_sensor_each())
+    assert main(["check-config", str(cfg.path)]) == 0
+    out = capsys.readouterr().out
+    spindle = next(line for line in out.splitlines() if line.startswith("│ T_spindle_degC"))
+    assert "6.88" in spindle and "53.4" in spindle and "redundant sensor" in spindle
     assert "cannot be verified to the axis's tolerance" in out
 
 
@@ -105,14 +127,15 @@ def test_model_check_prints_it_with_defaults_and_says_so(capsys: Any) -> None:
 
 def test_status_and_metrics_carry_what_cannot_be_verified(tmp_path: Path) -> None:
     """``compd status``'s JSON and line, and ``compd_unverifiable_error_meters``, give the same figures."""
-    service = Service(config(tmp_path), clock=VirtualClock(), control=False)
+    cfg = config(tmp_path, signals=one_sensor_each())
+    service = Service(cfg, clock=VirtualClock(), control=False)
     rows = {r["input"]: r for r in service.status()["unverifiable"]}
     spindle = rows["T_spindle_degC"]
     assert spindle["axis"] == "Z" and spindle["unit"] == "degC" and not spindle["verifiable"]
-    assert spindle["undetectable_um"] == pytest.approx(97.2, abs=0.5)
+    assert spindle["undetectable_um"] == pytest.approx(53.4, abs=0.5)
     assert rows["T_headstock_degC"]["verifiable"]
     line = unverifiable_line(spindle).plain
-    assert line.startswith("  not verifiable: T_spindle_degC 97 um on Z")
+    assert line.startswith("  not verifiable: T_spindle_degC 53 um on Z")
     assert "redundant sensor" in line and "probes on Z" in line
 
     (gauge,) = [
@@ -123,16 +146,18 @@ def test_status_and_metrics_carry_what_cannot_be_verified(tmp_path: Path) -> Non
     assert set(samples) == set(rows)
 
 
-def test_a_signal_heading_a_redundant_pair_is_verified_to_the_pair_tolerance(
+def test_an_input_with_a_second_sensor_is_verified_to_the_step_its_pair_catches(
     tmp_path: Path,
 ) -> None:
-    """A signal section's pair (``SignalDoc.pair``: partner and tolerance) is what verifies its input."""
+    """The bundled pairs (tolerance 0.5 degC): a lasting step of twice the pair's allowance
+    (0.15 x 0.5 = 0.075 degC) is caught within 400 s, so that is the spindle's threshold."""
     cfg = config(tmp_path)
-    assert redundant_partners(cfg.doc) == {}  # the bundled config names no pair yet
-    signals = {
-        "T_spindle_degC": SimpleNamespace(
-            pair=lambda name: SimpleNamespace(partner="T_b", tolerance=0.5)
-        ),
-        "T_ambient_degC": SimpleNamespace(pair=lambda name: None),
+    assert redundant_partners(cfg.doc) == {
+        "T_spindle_degC": ("T_spindle_b_degC", pytest.approx(0.15)),
+        "T_ambient_degC": ("T_ambient_b_degC", pytest.approx(0.15)),
     }
-    assert redundant_partners(SimpleNamespace(signals=signals)) == {"T_spindle_degC": ("T_b", 0.5)}  # type: ignore[arg-type]
+    rows = rows_of(cfg)
+    assert rows["T_spindle_degC"].detection.threshold == pytest.approx(0.15)
+    assert rows["T_spindle_degC"].undetectable_um == pytest.approx(0.15 * 7.766, abs=0.01)
+    assert not rows["T_spindle_degC"].exceeds
+    assert config(tmp_path, signals=one_sensor_each()).doc.pairs() == []

@@ -33,6 +33,7 @@ from compd.service.loop.links import DriverLink
 from compd.service.loop.offsets import AxisPoint
 from compd.service.loop.plausibility import PlausibilitySettings
 from compd.service.loop.points import SignalPoint, StatusPoint
+from compd.service.loop.redundancy import Pair
 from compd.service.loop.safety import AxisLimits, AxisSafety, FaultMode, OutOfClamp
 from compd.service.loop.schedule import GainRow, GainScheduler, GainTable
 from compd.service.loop.signals import Checks, SignalMonitor
@@ -94,6 +95,13 @@ class SignalDoc(Strict):
     unit: str
     description: str = ""
     checks: ChecksDoc = ChecksDoc()
+    #: A second reading of the same point (another signal's name, e.g. a second Pt100 beside
+    #: this one): the pair's disagreement is a fault, and the reading the other sensors
+    #: support is used (:mod:`compd.service.loop.redundancy`).
+    redundant: str | None = Field(default=None, min_length=1)
+    #: How far the pair may disagree beyond their usual offset, in the signal's unit; default
+    #: for a temperature :data:`DEFAULT_REDUNDANT_TOLERANCE` (converted to the unit).
+    redundant_tolerance: Positive | None = None
 
     def point(self, name: str) -> SignalPoint:
         """Where the signal ``name`` is read, and how its raw value is scaled."""
@@ -102,6 +110,30 @@ class SignalDoc(Strict):
     def monitor(self, name: str) -> SignalMonitor:
         """The plausibility checks of the signal ``name``, with no reading yet."""
         return SignalMonitor(name, self.checks.checks(self.unit))
+
+    def pair(self, name: str) -> Pair | None:
+        """The redundant pair this signal heads (None: it names no partner); needs a tolerance."""
+        if self.redundant is None:
+            return None
+        tolerance = self.redundant_tolerance
+        if tolerance is None:
+            tolerance = default_redundant_tolerance(self.unit)
+        assert tolerance is not None, "checked by the config's cross-checks"
+        return Pair(name, self.redundant, tolerance, self.unit)
+
+
+#: Two class-A Pt100s at one point differ by up to about 0.3 degC (their offsets, IEC 60751),
+#: which the pair's learned offset takes off; what is left is noise and the difference of
+#: their lags in a transient (up to 0.12 degC on the simulated machine's spindle over 8 h
+#: shifts, ``benchmarks/bench_redundancy.py``). A difference from the usual beyond this (degC)
+#: is a fault at once; a smaller one that persists is caught by the pair's drift check.
+DEFAULT_REDUNDANT_TOLERANCE = 0.5
+
+
+def default_redundant_tolerance(unit: str) -> float | None:
+    """The pair tolerance a signal in ``unit`` gets when its config names none (None: none known)."""
+    per_kelvin = {"degC": 1.0, "K": 1.0, "degF": 1.8}.get(unit)
+    return None if per_kelvin is None else DEFAULT_REDUNDANT_TOLERANCE * per_kelvin
 
 
 class EncodingDoc(Strict):
@@ -507,6 +539,10 @@ class ConfigDoc(Strict):
     probes: ProbesDoc | None = None
     #: The simulated machine this config runs against (:mod:`compd.sim.plc.settings`).
     simulation: dict[str, Any] | None = None
+
+    def pairs(self) -> list[Pair]:
+        """The redundant pairs: each signal naming a partner (``redundant:``), in config order."""
+        return [p for name, s in self.signals.items() if (p := s.pair(name)) is not None]
 
     @model_validator(mode="before")
     @classmethod

@@ -47,7 +47,7 @@ from compd.files.yamlplace import (
     where,
 )
 from compd.service.config import paths
-from compd.service.config.docs import SCHEMA, ConfigDoc
+from compd.service.config.docs import SCHEMA, ConfigDoc, default_redundant_tolerance
 from compd.service.config.overlaps import check_overlaps
 from compd.service.config.writepoints import (
     ErrorAt,
@@ -183,6 +183,7 @@ def parse_config(text: str, path: Path) -> Config:
     _check_model_named(doc, at.error)
     _check_driver_names(doc, at.error)
     _check_effect_signals(doc, at.error)
+    _check_redundant_pairs(doc, at.error)
     _check_gain_schedule(doc, at.error)
     _check_probe_axes(doc, at.error)
     _check_addresses(doc, types, settings, at.error)
@@ -323,6 +324,65 @@ def _check_effect_signals(doc: ConfigDoc, error: ErrorAt) -> None:
                     f"signal {signal!r} is not defined under 'signals'",
                     f"Define it or use one of {sorted(doc.signals)}",
                 )
+
+
+def _check_redundant_pairs(doc: ConfigDoc, error: ErrorAt) -> None:
+    """Each partner (``redundant:``) is another signal of the same unit, partner of one signal
+    only and naming none itself; a pair has a tolerance (a temperature's default, else given)."""
+    partners: dict[str, str] = {}
+    for name, signal in doc.signals.items():
+        partner = signal.redundant
+        if partner is None:
+            if signal.redundant_tolerance is not None:
+                raise error(
+                    ("signals", name, "redundant_tolerance"),
+                    "a tolerance for a redundant pair, and the signal names no partner",
+                    "Name its second sensor ('redundant: <signal>'), or remove "
+                    "'redundant_tolerance'",
+                )
+            continue
+        where = ("signals", name, "redundant")
+        if partner == name:
+            raise error(
+                where,
+                f"signal {name!r} names itself as its partner",
+                "Name the second sensor of the same point, another signal",
+            )
+        other = doc.signals.get(partner)
+        if other is None:
+            raise error(
+                where,
+                f"partner {partner!r} is not defined under 'signals'",
+                f"Define the second sensor as a signal of its own, or use one of "
+                f"{sorted(set(doc.signals) - {name})}",
+            )
+        if other.unit != signal.unit:
+            raise error(
+                where,
+                f"partner {partner!r} is in {other.unit!r}, signal {name!r} in {signal.unit!r}: "
+                "a pair reads one point in one unit",
+                f"Give both the same unit (scale the partner's raw value to {signal.unit!r})",
+            )
+        if other.redundant is not None:
+            raise error(
+                where,
+                f"partner {partner!r} names a partner of its own ({other.redundant!r})",
+                "A pair is a model input and its second sensor: name the partner on the input only",
+            )
+        if partner in partners:
+            raise error(
+                where,
+                f"{partner!r} is already the partner of {partners[partner]!r}",
+                "Give each input a second sensor of its own",
+            )
+        partners[partner] = name
+        if signal.redundant_tolerance is None and default_redundant_tolerance(signal.unit) is None:
+            raise error(
+                ("signals", name, "redundant"),
+                f"a pair in {signal.unit!r} has no default tolerance (temperatures have one)",
+                "Add 'redundant_tolerance:' in the signal's unit: how far the two may disagree "
+                "beyond their usual difference",
+            )
 
 
 def _check_probe_axes(doc: ConfigDoc, error: ErrorAt) -> None:

@@ -30,6 +30,16 @@ def check_model(config: Config, model_file: ModelFile, compiled: CompiledModel) 
             where="signals",
             fix=f"Add them under 'signals' (defined: {sorted(config.doc.signals)})",
         )
+    for name, signal in config.doc.signals.items():
+        if signal.redundant is not None and signal.redundant in compiled.signals:
+            raise ConfigFileError(
+                config.path,
+                f"partner {signal.redundant!r} of signal {name!r} is an input of model "
+                f"{model_file.path}: a second sensor stands in for its input, it is not one",
+                where=where(config.root, ("signals", name, "redundant")),
+                fix=f"Name a signal the model does not read as the partner, or refit the model "
+                f"without {signal.redundant!r}",
+            )
     units = model_file.signal_units() or {}
     for name in compiled.signals:
         declared = units.get(name)

@@ -19,6 +19,7 @@ from compd.model.verifiable import (
     undetectable_error_um,
 )
 from compd.service.loop.plausibility import DEFAULT_SETTINGS, PlausibilitySettings
+from compd.service.loop.redundancy import ALLOWANCE
 
 if TYPE_CHECKING:
     from compd.files.modelfile import ModelFile
@@ -39,19 +40,15 @@ def axis_tolerances_um(doc: ConfigDoc, model_file: ModelFile) -> dict[str, float
 
 
 def redundant_partners(doc: ConfigDoc) -> dict[str, tuple[str, float]]:
-    """Per input with a redundant partner sensor: the partner and the pair's tolerance (its unit).
+    """Per input with a redundant partner sensor: the partner and the smallest lasting
+    disagreement the pair catches (its unit).
 
-    The signal section's ``redundant`` / ``redundant_tolerance`` (issue 41, item 2),
-    through ``SignalDoc.pair(name)``; looked up by name so that this module works
-    before and after that lands (until then: no pairs).
+    The pair's CUSUM (:mod:`compd.service.loop.redundancy`) sums the excess beyond
+    ``ALLOWANCE x tolerance``: a lasting step of twice that is caught within
+    ``DECISION_S / ALLOWANCE`` s (400 s), a larger one sooner, a step of the whole
+    tolerance at once.
     """
-    out = {}
-    for name, signal in doc.signals.items():
-        pair_of = getattr(signal, "pair", None)
-        pair = pair_of(name) if callable(pair_of) else None
-        if pair is not None:
-            out[name] = (str(pair.partner), float(pair.tolerance))
-    return out
+    return {pair.primary: (pair.partner, 2.0 * ALLOWANCE * pair.tolerance) for pair in doc.pairs()}
 
 
 def config_unverifiable(

@@ -144,7 +144,8 @@ class LiveCollector(Collector):
             "write (a tick's writes failed), model (a model failed and was unloaded), "
             "readback_mismatch (an offset read back was not what compd wrote), "
             "offset_out_of_clamp (an offset read back outside its clamp or not finite), "
-            "envelope (an axis's target at the clamp or beyond its calibration for envelope_after_s).",
+            "envelope (an axis's target at the clamp or beyond its calibration for envelope_after_s), "
+            "redundant_pair (a model input and its second sensor disagreed, or one failed).",
             labels=["kind"],
         )
         faults.add_metric(["signal"], counters["signal_faults"])
@@ -155,6 +156,7 @@ class LiveCollector(Collector):
         faults.add_metric(["readback_mismatch"], counters["offset_mismatches"])
         faults.add_metric(["offset_out_of_clamp"], counters["offsets_out_of_clamp"])
         faults.add_metric(["envelope"], counters["envelope_faults"])
+        faults.add_metric(["redundant_pair"], counters["redundancy_faults"])
         yield faults
 
         driver_faults = CounterMetricFamily(

@@ -27,6 +27,7 @@ from compd.service.loop.offsets import AxisPoint, HeldOffsets
 from compd.service.loop.plausibility import DEFAULT_SETTINGS, Plausibility, PlausibilitySettings
 from compd.service.loop.points import DriverBatches, SignalPoint, StatusPoint
 from compd.service.loop.probemessages import ProbeTaken
+from compd.service.loop.redundancy import Pair, Redundancy
 from compd.service.loop.safety import HEARTBEAT_MODULO, AxisSafety, Flag, Level, status_word
 from compd.service.loop.schedule import GainScheduler
 from compd.service.loop.signals import Health, Reading, SignalMonitor
@@ -94,6 +95,8 @@ class Counters:
     signal_estimates: int = 0
     #: Episodes of an axis's target outside its envelope for ``envelope_after_s``.
     envelope_faults: int = 0
+    #: Episodes of a redundant pair: the two disagreed, or one failed its own checks.
+    redundancy_faults: int = 0
 
 
 class Compensator:
@@ -145,6 +148,7 @@ class Compensator:
         plausibility: PlausibilitySettings | None = DEFAULT_SETTINGS,
         units: Mapping[str, str] | None = None,
         probing: ProbeLearning | None = None,
+        pairs: Sequence[Pair] = (),
     ) -> None:
         self.signals = list(signals)
         self.monitors = dict(monitors)
@@ -203,6 +207,8 @@ class Compensator:
         #: Each axis's envelope-fault episodes, and the model whose envelopes the stages hold.
         self.envelope_faults = EnvelopeFaults(a.name for a in self.axes)
         self._envelope_of: str | None = None
+        #: Model inputs with a second sensor of the same point (:mod:`compd.service.loop.redundancy`).
+        self.redundancy = Redundancy(list(pairs), self.monitors, period_s) if pairs else None
 
     # The model slots as the status and the tests see them (:class:`ModelSlots`).
     @property
@@ -246,15 +252,34 @@ class Compensator:
         if self.plausibility is not None:
             self.plausibility.report_to(sink)
         self.envelope_faults.report_to(sink)
+        if self.redundancy is not None:
+            self.redundancy.report_to(sink)
 
     def trust_signal(self, name: str) -> str:
-        """A person vouches for ``name``'s sensor (``compd sensor trust``): its stand-in ends at its next good reading."""
+        """A person vouches for ``name``'s sensor (``compd sensor trust``): its stand-in ends at
+        its next good reading."""
         if name not in self.monitors:
             known = ", ".join(sorted(self.monitors))
             raise CompdError(f"there is no signal {name!r}; the config's signals: {known}")
         if self.plausibility is None:
             return f"{name}: no consistency check runs, so nothing stands in for it"
         return self.plausibility.trust(name)
+
+    def _redundant(self, t_s: float, readings: dict[str, Reading]) -> dict[str, Reading]:
+        """Each redundant pair's primary as the pair says (before the inputs are checked against
+        each other); its prediction from the other sensors is the last tick's."""
+        redundancy = self.redundancy
+        if redundancy is None:
+            return readings
+        judged = self.plausibility
+        predicted: dict[str, float | None] = {}
+        if judged is not None:
+            for check in redundancy.checks:
+                p = judged.predictions.get(check.pair.primary)
+                predicted[check.pair.primary] = None if p is None else p.value
+        out = redundancy.apply(t_s, readings, predicted)
+        self.counters.redundancy_faults = redundancy.count
+        return out
 
     def _plausible(
         self, t_s: float, readings: dict[str, Reading], read: Mapping[str, float | None]
@@ -268,7 +293,8 @@ class Compensator:
             self.plausibility = self._plausibility_for(slot)
         if self.plausibility is None:
             return readings
-        out = self.plausibility.judge(t_s, readings, read)
+        vouched = set() if self.redundancy is None else self.redundancy.vouched()
+        out = self.plausibility.judge(t_s, readings, read, verified=vouched)
         self.counters.signal_estimates += self.plausibility.count - self._estimates_seen
         self._estimates_seen = self.plausibility.count
         return out
@@ -336,7 +362,10 @@ class Compensator:
         was = {point.name: self.monitors[point.name].reading.health for point in self.signals}
         for point in self.signals:
             readings[point.name] = self.monitors[point.name].update(t_s, values.get(point.name))
+        readings = self._redundant(t_s, readings)
         readings = self._plausible(t_s, readings, values)
+        if self.redundancy is not None:
+            readings = self.redundancy.mark(readings)
         for point in self.signals:
             reading = readings[point.name]
             if reading.health is Health.FAULTED and was[point.name] is not Health.FAULTED:

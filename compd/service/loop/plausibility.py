@@ -196,7 +196,7 @@ class Plausibility:
         """The readings to use this tick, wrong inputs replaced by their predictions.
 
         ``read``: what each read; ``verified``: inputs a redundant partner vouches
-        for this tick, never blamed for the others' departures.
+        for this tick, never blamed for a jump or for the others' departures.
         """
         check = self.check
         values = {name: r.value for name, r in readings.items()}
@@ -212,7 +212,7 @@ class Plausibility:
             scores = {
                 name: self._score(name, values[name], p, ok)
                 for name in candidates
-                if (p := predictions[name]) is not None
+                if (p := predictions[name]) is not None and name not in verified
             }
             worst = max(scores, key=scores.__getitem__, default=None)
             if worst is None or scores[worst] <= 1.0:

@@ -68,6 +68,10 @@ def status_snapshot(
         # None: a data logger (no outputs, no model), recording its signals.
         "model": None if comp.models is None else _model(comp, when),
         "gain_schedule": comp.schedule.status() if comp.schedule is not None else None,
+        # Each model input with a second sensor (:mod:`compd.service.loop.redundancy`).
+        "redundant": {}
+        if comp.redundancy is None
+        else {c.pair.primary: c.status() for c in comp.redundancy.checks},
         "resumed": resumed,
         "started": when(started_unix_s),
         "last_tick": None if last is None else when(last.wall_unix_s),

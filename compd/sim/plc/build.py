@@ -18,6 +18,7 @@ from compd.errors import ConfigFileError
 from compd.service.config.docs import ConfigDoc
 from compd.service.config.loading import Config
 from compd.service.config.writepoints import probe_axes
+from compd.sim.partners import PARTNER_SENSORS
 from compd.sim.plc.machine import ServedAxis, ServedSignal, SimulatedMachine
 from compd.sim.plc.probing import ServedProbe
 from compd.sim.plc.server import PlcServer, PlcServerType
@@ -39,7 +40,8 @@ PROBE_SERVERS = frozenset({"modbus", "opcua", "profibus_gateway"})
 #: What the machine's PLC can serve: every logged quantity of the twin. The
 #: displacements are those of a test set-up (capacitive probes on a mandrel,
 #: ISO 230-3) and are the thermal drift alone: the PLC takes off the offset it applied.
-SERVED_COLUMNS = tuple(c for c in COLUMNS if c != "time_s")
+#: Beside them, the second sensors at the spindle bearings and in the air (:mod:`compd.sim.partners`).
+SERVED_COLUMNS = tuple(c for c in COLUMNS if c != "time_s") + tuple(PARTNER_SENSORS)
 
 
 def server_type(driver_type: str) -> PlcServerType:

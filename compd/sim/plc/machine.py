@@ -37,12 +37,13 @@ import numpy as np
 import structlog
 
 from compd.service.loop.clock import Clock
+from compd.sim.partners import PartnerBank
 from compd.sim.plc.probing import ProbeCycle, ProbeStation, ServedProbe
 from compd.sim.plc.server import PlcServer
 from compd.sim.plc.settings import SimFaultDoc, SimulationDoc
 from compd.sim.scenarios import scenario_inputs
 from compd.sim.sensors import SensorBank, SensorSet
-from compd.sim.thermal import MachineInputs, MachineTwin
+from compd.sim.thermal import MachineInputs, MachineTwin, TwinState
 from compd.sim.variants import machine_variant
 
 log = structlog.get_logger("compd.sim.plc")
@@ -140,6 +141,8 @@ class SimulatedMachine:
         self.twin = MachineTwin(first, sample_time_s=doc.sample_time_s, params=params)
         rng = np.random.default_rng([doc.seed, 1])
         self.sensors = SensorBank(SensorSet.draw(rng), doc.sample_time_s, rng, params)
+        #: The second sensors beside critical ones, on a stream of their own (the others unchanged).
+        self.partners = PartnerBank(doc.sample_time_s, np.random.default_rng([doc.seed, 3]))
         self.k = 0  # samples stepped
         n = self.steps + 1
         self.time_s = np.arange(n) * doc.sample_time_s
@@ -181,7 +184,7 @@ class SimulatedMachine:
 
     async def start(self) -> None:
         """Start every server, serving the machine at rest (time 0)."""
-        self.row = self.sensors.read(self.twin.state, self.inputs.at(0))
+        self.row = self._read(self.twin.state, self.inputs.at(0))
         self._publish()
         await asyncio.gather(*(server.start() for server in self.servers.values()))
 
@@ -234,12 +237,16 @@ class SimulatedMachine:
             state = self.twin.step(u)
             self.k += 1
             self.true_um[self.k] = state.displacement_um
-            self.row = self.sensors.read(state, u)
+            self.row = self._read(state, u)
             self._supervise()
             self._probe()
         self._record_offsets(self.k)
         await self._faults_at(self.now_s)
         self._publish()
+
+    def _read(self, state: TwinState, u: MachineInputs) -> dict[str, float]:
+        """Every quantity the PLC can serve now: the logged columns and the partner sensors."""
+        return {**self.sensors.read(state, u), **self.partners.read(state, u)}
 
     def _record_offsets(self, k: int) -> None:
         self.offset_um[k] = [self.applied_um[a] for a in AXES]
