@@ -118,3 +118,12 @@ def test_the_safety_section_documents_defaults_and_refuses_absurd_values():
     for bad in ({"envelope_margin": 1e308}, {"envelope_margin": -0.1}, {"envelope_after_s": 0}):
         with pytest.raises(ValidationError, match=next(iter(bad))):
             SafetyDoc(**bad)
+
+
+def test_the_part_of_a_target_probes_measured_does_not_leave_the_calibration() -> None:
+    """A long-nose machine drifts 1.7x the model: the probes' learned part is the machine's word,
+    so only the model's own part is held to the calibrated range (the clamp to the whole)."""
+    envelope = Envelope.of(150.0, 1.0, (-40.0, 0.0), 0.25)
+    assert envelope.outside(-60.0) == "beyond the calibration"
+    assert envelope.outside(-60.0, measured_um=-20.0) is None
+    assert envelope.outside(-150.0, measured_um=-110.0) == "at the clamp"

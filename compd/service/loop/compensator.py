@@ -408,8 +408,10 @@ class Compensator:
         for axis in self.axes:
             assert models is not None  # axes need a model (checked in __init__)
             output = models.output(axis.model_output, weight)
+            learned = 0.0
             if probing is not None:  # what the probes taught; clamp and slew still apply
-                output += probing.adjustment(axis.model_output)
+                learned = probing.adjustment(axis.model_output)
+                output += learned
             if weight is not None:
                 flags.add(Flag.BLENDING)
             depends = self.active.depends[axis.model_output]
@@ -418,7 +420,11 @@ class Compensator:
             stage = self.safety[axis.name]
             # An offset read back outside the clamp: this tick writes the policy's value as is.
             clamp_fault = axis.name in out_of_clamp
-            result = stage.hold() if clamp_fault else stage.step(target, t_s, faulted=faulted)
+            result = (
+                stage.hold()
+                if clamp_fault
+                else stage.step(target, t_s, faulted=faulted, measured_um=axis.sign * learned)
+            )
             offsets[axis.name] = result.offset_um
             any_frozen |= faulted or clamp_fault or stage.watch.faulted
             outside |= stage.watch.faulted

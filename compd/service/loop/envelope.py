@@ -79,16 +79,19 @@ class Envelope:
         ends = sorted((sign * (low - widen), sign * (high + widen)))
         return cls(max_offset_um, (ends[0], ends[1]))
 
-    def outside(self, target_um: float) -> str | None:
+    def outside(self, target_um: float, measured_um: float = 0.0) -> str | None:
         """Why ``target_um`` is outside the envelope (``at the clamp``, ``beyond the calibration``); None: inside.
 
-        A target that is not finite is not judged (None).
+        ``measured_um``: the part of the target probes measured on the machine (their learned
+        adjustment, in offset coordinates): the calibration's range bounds the model's own
+        part only. A target that is not finite is not judged (None).
         """
         if not math.isfinite(target_um):
             return None
         if abs(target_um) >= self.max_offset_um:
             return "at the clamp"
-        if self.band_um is not None and not self.band_um[0] <= target_um <= self.band_um[1]:
+        own = target_um - (measured_um if math.isfinite(measured_um) else 0.0)
+        if self.band_um is not None and not self.band_um[0] <= own <= self.band_um[1]:
             return "beyond the calibration"
         return None
 
@@ -125,10 +128,11 @@ class EnvelopeWatch:
         #: The spell has lasted ``after_s``: an envelope fault, until the target is back inside.
         self.faulted = False
 
-    def judge(self, t_s: float, target_um: float) -> bool:
-        """Take this tick's target; whether the axis is in an envelope fault now."""
+    def judge(self, t_s: float, target_um: float, measured_um: float = 0.0) -> bool:
+        """Take this tick's target (``measured_um`` of it the probes'); whether the axis is in an
+        envelope fault now."""
         self.target_um = target_um
-        self.why = self.envelope.outside(target_um)
+        self.why = self.envelope.outside(target_um, measured_um)
         if self.why is None:
             self.since_s, self.outside_s, self.faulted = None, 0.0, False
             return False

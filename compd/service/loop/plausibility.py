@@ -16,7 +16,8 @@ sensors know better. With a consistency model in the model file
    neighbours along;
 2. a slow departure is caught by a CUSUM (:mod:`compd.model.drift`) of each
    residue against its level over the last hour, in the calibration's own
-   sigma, not by that wide tolerance; the input to blame is the one whose
+   sigma, not by that wide tolerance (from an hour after the check starts:
+   its low-passes start at rest, and the hour's level must form first); the input to blame is the one whose
    removal from the predictions brings the others back (a drifting spindle
    moves the headstock's prediction too), never an input a redundant partner
    vouches for;
@@ -135,6 +136,9 @@ class Plausibility:
             period_s,
             CusumSettings(settings.drift_k_sigma, settings.drift_h_sigma_h),
         )
+        #: When the check began (s): its low-passes start at rest, its hour's reference forms
+        #: over the first :data:`REFERENCE_TAU_S`; no drift is judged before.
+        self._started_s: float | None = None
         #: Per input, the reference when its CUSUM last left zero (where a departure began).
         self._departed: dict[str, np.ndarray] = {}
         self._groups = model.groups()
@@ -209,8 +213,9 @@ class Plausibility:
         candidates = [n for n in self.checked if n not in bad]
         predictions = self._predictions(z, ok)
         while candidates:
+            levels = self._levels(self._short, ok)
             scores = {
-                name: self._score(name, values[name], p, ok)
+                name: abs(values[name] - p.value - levels[name]) / self.tolerance(p)
                 for name in candidates
                 if (p := predictions[name]) is not None and name not in verified
             }
@@ -229,7 +234,10 @@ class Plausibility:
             candidates.remove(worst)
             ok[check.model.signals.index(worst)] = False
             predictions = self._predictions(z, ok)
-        drifting = self._drift(z, ok, candidates, predictions, verified)
+        if self._started_s is None:
+            self._started_s = t_s
+        settled = t_s - self._started_s >= REFERENCE_TAU_S
+        drifting = self._drift(z, ok, candidates, predictions, verified) if settled else None
         if drifting is not None:
             name, before, why = drifting
             self._begin(t_s, name, read.get(name), predictions, ok, before, why)
@@ -337,18 +345,20 @@ class Plausibility:
             out[name] = Prediction(float(value), float(sigma))
         return out
 
-    def _level(self, averaged: np.ndarray | None, ok: np.ndarray, name: str) -> float:
-        """``name``'s residue of the averaged features ``averaged`` under the predictors ``ok`` marks."""
+    def _levels(self, averaged: np.ndarray | None, ok: np.ndarray) -> dict[str, float]:
+        """Every checked input's residue of the averaged features ``averaged`` under the predictors
+        ``ok`` marks (0 where there is none): its level, against which a jump is judged."""
         if averaged is None:
-            return 0.0
+            return dict.fromkeys(self.check.model.checked, 0.0)
         residues, _ = self.check.residues(averaged, ok)
-        level = float(residues[self.check.model.checked.index(name)])
-        return level if math.isfinite(level) else 0.0
+        return {
+            name: float(r) if math.isfinite(r) else 0.0
+            for name, r in zip(self.check.model.checked, residues, strict=True)
+        }
 
-    def _score(self, name: str, value: float, p: Prediction, ok: np.ndarray) -> float:
-        """How far ``value``'s residue jumped from its recent level, in tolerances (above 1: wrong)."""
-        residue = value - p.value
-        return abs(residue - self._level(self._short, ok, name)) / self.tolerance(p)
+    def _level(self, averaged: np.ndarray | None, ok: np.ndarray, name: str) -> float:
+        """``name``'s level under the predictors ``ok`` marks (:meth:`_levels`)."""
+        return self._levels(averaged, ok)[name]
 
     def _drift(
         self,

@@ -208,10 +208,14 @@ class AxisSafety:
         """This tick's output without a model step: the last offset, as :meth:`recover` left it."""
         return AxisOutput(self.offset_um, frozen=True)
 
-    def step(self, target_um: float, now_s: float, *, faulted: bool = False) -> AxisOutput:
-        """The offset to write for model target ``target_um`` at time ``now_s`` (s)."""
+    def step(
+        self, target_um: float, now_s: float, *, faulted: bool = False, measured_um: float = 0.0
+    ) -> AxisOutput:
+        """The offset to write for model target ``target_um`` at time ``now_s`` (s);
+        ``measured_um``: the part of it probes measured on the machine (beyond the calibration
+        on their evidence, not the model's)."""
         last = self.offset_um
-        outside = self.watch.judge(now_s, target_um)
+        outside = self.watch.judge(now_s, target_um, measured_um)
         faulted = faulted or outside
         frozen = faulted or not math.isfinite(target_um)
         if faulted:
