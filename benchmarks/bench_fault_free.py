@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -30,11 +29,11 @@ import yaml
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
+from simconfig import bundled_doc  # noqa: E402
+
 from compd.cli.serving import configure_logging  # noqa: E402
-from compd.files.yamlplace import resolve_path  # noqa: E402
 from compd.service.config.loading import load_config  # noqa: E402
 from compd.sim.plc.run import run_simulation  # noqa: E402
-from tests.ports import free_port  # noqa: E402
 
 SCENARIOS = ("production", "cutting", "door", "coolant", "feed", "shift")
 #: The first minute is the start (the model warming, the slew from zero): not judged.
@@ -43,13 +42,7 @@ LEVEL_BITS = 0b11
 
 
 def run(scenario: str, seed: int, hours: float) -> dict[str, Any]:
-    directory = Path(tempfile.mkdtemp(prefix="bench-ff-", dir="/tmp"))
-    doc = yaml.safe_load(resolve_path("bundled:simulated.yaml", Path(".")).read_text())
-    doc["model"] = str(resolve_path("bundled:simulated_model.yaml", Path(".")))
-    doc["drivers"]["plc"]["settings"]["port"] = free_port()
-    doc["state"] = {"directory": str(directory / "state"), "save_every_ticks": 600}
-    doc["recorder"] = {"enabled": False}
-    doc["control_socket"] = str(directory / "c.sock")
+    directory, doc = bundled_doc("bench-ff-")
     doc["simulation"] = {"scenario": scenario, "hours": hours, "seed": seed}
     (directory / "c.yaml").write_text(yaml.safe_dump(doc))
     not_ok = [0]

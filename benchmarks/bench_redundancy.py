@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -37,11 +36,11 @@ import yaml
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
+from simconfig import bundled_doc  # noqa: E402
+
 from compd.cli.serving import configure_logging  # noqa: E402
-from compd.files.yamlplace import resolve_path  # noqa: E402
 from compd.service.config.loading import load_config  # noqa: E402
 from compd.sim.plc.run import run_simulation  # noqa: E402
-from tests.ports import free_port  # noqa: E402
 
 PAIRED = ("T_spindle_degC", "T_ambient_degC")
 
@@ -83,13 +82,7 @@ def run(
     faults: list[dict[str, Any]], *, paired: bool, scenario: str, hours: float, seed: int
 ) -> dict[str, Any]:
     """One shift: max compensated error (um), records, counters."""
-    directory = Path(tempfile.mkdtemp(prefix="bench-red-", dir="/tmp"))
-    doc = yaml.safe_load(resolve_path("bundled:simulated.yaml", Path(".")).read_text())
-    doc["model"] = str(resolve_path("bundled:simulated_model.yaml", Path(".")))
-    doc["drivers"]["plc"]["settings"]["port"] = free_port()
-    doc["state"] = {"directory": str(directory / "state"), "save_every_ticks": 600}
-    doc["recorder"] = {"enabled": False}
-    doc["control_socket"] = str(directory / "c.sock")
+    directory, doc = bundled_doc("bench-red-")
     doc["simulation"] = {"scenario": scenario, "hours": hours, "seed": seed, "faults": faults}
     if not paired:
         for name in PAIRED:

@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,12 +40,12 @@ import yaml
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
+from simconfig import bundled_doc  # noqa: E402
+
 from compd.cli.serving import configure_logging  # noqa: E402
-from compd.files.yamlplace import resolve_path  # noqa: E402
 from compd.service.config.loading import load_config  # noqa: E402
 from compd.service.loop.signals import Health  # noqa: E402
 from compd.sim.plc.run import run_simulation  # noqa: E402
-from tests.ports import free_port  # noqa: E402
 
 AXIS = "Z"
 #: The issue's "Done when": the status may be OK for at most this long while the error is beyond the bound.
@@ -122,13 +121,7 @@ def run(
     faults: Sequence[dict[str, Any]], *, seed: int, hours: float, baseline: bool = False
 ) -> Run:
     """The bundled machine under ``faults``; the truth and the status at every tick."""
-    directory = Path(tempfile.mkdtemp(prefix="bench-sf-", dir="/tmp"))
-    doc = yaml.safe_load(resolve_path("bundled:simulated.yaml", Path(".")).read_text())
-    doc["model"] = str(resolve_path("bundled:simulated_model.yaml", Path(".")))
-    doc["drivers"]["plc"]["settings"]["port"] = free_port()
-    doc["state"] = {"directory": str(directory / "state"), "save_every_ticks": 600}
-    doc["recorder"] = {"enabled": False}
-    doc["control_socket"] = str(directory / "c.sock")
+    directory, doc = bundled_doc("bench-sf-")
     doc["simulation"] = {
         "scenario": "production",
         "hours": hours,

@@ -7,7 +7,7 @@ Faults the other sensors cannot see (the spindle drifting 2 degC/h, an air
 sensor drifting 1 degC/h, a spindle 8 degC off: 62, 19 and 64 um with one
 sensor each, issue 41) cost no more than three times the fault-free run's
 error with the partner; the pair flags them; a fault-free shift never flags
-the pair.
+the pair (here 3 h; `benchmarks/bench_fault_free.py` runs twelve 8 h shifts).
 """
 
 from __future__ import annotations
@@ -96,10 +96,3 @@ def test_a_fault_the_other_sensors_cannot_see_is_caught_by_the_partner(
     errors = [e for e in logs if e["log_level"] == "error" and e.get("signal") == signal]
     assert errors and errors[0]["event"].startswith("redundant pair: ")
     assert result.status["counters"]["redundancy_faults"] >= 1
-
-
-def test_a_fault_free_eight_hour_shift_never_flags_the_pair(short_dir: Path) -> None:
-    """Eight hours of production on another seed: the pair never disagrees, the status stays OK."""
-    result, records = run(short_dir, [], 8, seed=2)
-    assert result.status["counters"]["redundancy_faults"] == 0
-    assert all(r.status & 0b11 == 0 for r in records[60:])
