@@ -146,8 +146,6 @@ class Plausibility:
         self._used: dict[str, float] = {}
         self.episodes: dict[str, _Episode] = {}
         self.predictions: dict[str, Prediction | None] = {}
-        #: The signals that predicted the others last tick.
-        self._ok = np.ones(len(model.signals), dtype=bool)
         self.faults = {name: FaultLog(log, signal=name, end_level="error") for name in self.checked}
         #: Episodes begun since start (a virtual sensor stood in), and how many of them were drifts.
         self.count = 0
@@ -167,16 +165,6 @@ class Plausibility:
         # bias over hours (a programme the calibration did not run): sqrt, then linear.
         spread = self.settings.release_k_sigma * prediction.sigma * max(math.sqrt(hours), hours)
         return max(spread, self.settings.release_floor)
-
-    def expected(self, name: str) -> float | None:
-        """What ``name`` should read this tick by the others (its prediction and level), or None."""
-        p = self.predictions.get(name)
-        if p is None:
-            return None
-        episode = self.episodes.get(name)
-        if episode is not None:
-            return p.value + self._level(episode.before, self._ok, name)
-        return p.value + self._level(self._short, self._ok, name)
 
     def trust(self, name: str) -> str:
         """A person vouches for ``name``'s sensor: its next good reading ends its stand-in."""
@@ -245,7 +233,6 @@ class Plausibility:
             candidates.remove(name)
             ok[check.model.signals.index(name)] = False
             predictions = self._predictions(z, ok)
-        self._ok = ok
         vouched = {n for n, e in self.episodes.items() if e.trusted}
         out = dict(readings)
         for name in self.checked:
