@@ -23,8 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from compd.sim.sensors import PT100_NOISE_DEGC, SensorSet
-from compd.sim.thermal import MachineInputs, TwinState
+from compd.sim.sensors import LivePt100s, SensorSet
 
 #: Partner column -> the node (or boundary) it sits on, as :data:`compd.sim.sensors.TEMPERATURE_SENSORS`.
 PARTNER_SENSORS: dict[str, str] = {
@@ -38,34 +37,14 @@ PARTNER_OF: dict[str, str] = {
 }
 
 
-class PartnerBank:
+class PartnerBank(LivePt100s):
     """The partner sensors read live, one sample at a time, beside a :class:`~compd.sim.sensors.SensorBank`.
 
     ``rng`` draws their lags and offsets once, then their noise each sample;
-    give it a stream of its own. The first :meth:`read` starts every lag in
-    equilibrium with the temperature it reads.
+    give it a stream of its own.
     """
 
     def __init__(self, sample_time_s: float, rng: np.random.Generator) -> None:
-        self.sensors = SensorSet.draw(rng, sites=PARTNER_SENSORS)
-        self.rng = rng
-        self._a = {n: float(np.exp(-sample_time_s / t)) for n, t in self.sensors.lag_s.items()}
-        self._lagged: dict[str, float] | None = None
-
-    def read(self, state: TwinState, u: MachineInputs) -> dict[str, float]:
-        """Each partner's reading (degC) at the twin's ``state`` under inputs ``u``."""
-        true = {
-            name: u.T_ambient_degC if site == "ambient" else state.temperature(site)
-            for name, site in PARTNER_SENSORS.items()
-        }
-        if self._lagged is None:
-            self._lagged = dict(true)
-        else:
-            for name, x in true.items():
-                a = self._a[name]
-                self._lagged[name] = a * self._lagged[name] + (1.0 - a) * x
-        noise = self.rng.normal(0.0, PT100_NOISE_DEGC, size=len(true))
-        return {
-            name: self._lagged[name] + self.sensors.offset_degc[name] + float(e)
-            for name, e in zip(true, noise, strict=True)
-        }
+        super().__init__(
+            SensorSet.draw(rng, sites=PARTNER_SENSORS), PARTNER_SENSORS, sample_time_s, rng
+        )

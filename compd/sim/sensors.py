@@ -140,6 +140,49 @@ def reported_power_kw(
     return np.where(speed != 0, np.maximum(power + noise, 0.0), 0.0)
 
 
+class LivePt100s:
+    """Pt100s on the twin's ``sites`` (column -> node or boundary) read one sample at a time:
+    each the true temperature through its lag, plus its offset and white noise from ``rng``.
+
+    The first :meth:`read` starts every lag in equilibrium with the temperature it reads.
+    """
+
+    def __init__(
+        self,
+        sensors: SensorSet,
+        sites: Mapping[str, str],
+        sample_time_s: float,
+        rng: np.random.Generator,
+    ) -> None:
+        self.sensors = sensors
+        self.sites = dict(sites)
+        self.rng = rng
+        self._a = {name: float(np.exp(-sample_time_s / t)) for name, t in sensors.lag_s.items()}
+        self._lagged: dict[str, float] | None = None
+
+    def read(self, state: TwinState, u: MachineInputs) -> dict[str, float]:
+        """Each sensor's reading (degC) at the twin's ``state`` under inputs ``u``."""
+        true = {
+            name: u.T_coolant_degC
+            if site == "coolant"
+            else u.T_ambient_degC
+            if site == "ambient"
+            else state.temperature(site)
+            for name, site in self.sites.items()
+        }
+        if self._lagged is None:
+            self._lagged = dict(true)
+        else:
+            for name, x in true.items():
+                a = self._a[name]
+                self._lagged[name] = a * self._lagged[name] + (1.0 - a) * x
+        noise = self.rng.normal(0.0, PT100_NOISE_DEGC, size=len(true))
+        return {
+            name: self._lagged[name] + self.sensors.offset_degc[name] + float(e)
+            for name, e in zip(true, noise, strict=True)
+        }
+
+
 class SensorBank:
     """The same sensors read live, one sample at a time, for closed-loop use with :class:`MachineTwin`.
 
@@ -158,29 +201,10 @@ class SensorBank:
         self.sensors = sensors
         self.params = params or MachineParameters()
         self.rng = rng
-        self._a = {name: float(np.exp(-sample_time_s / t)) for name, t in sensors.lag_s.items()}
-        self._lagged: dict[str, float] | None = None
+        self._temperatures = LivePt100s(sensors, TEMPERATURE_SENSORS, sample_time_s, rng)
 
     def read(self, state: TwinState, u: MachineInputs) -> dict[str, float]:
-        true = {
-            name: u.T_coolant_degC
-            if site == "coolant"
-            else u.T_ambient_degC
-            if site == "ambient"
-            else state.temperature(site)
-            for name, site in TEMPERATURE_SENSORS.items()
-        }
-        if self._lagged is None:
-            self._lagged = dict(true)
-        else:
-            for name, x in true.items():
-                a = self._a[name]
-                self._lagged[name] = a * self._lagged[name] + (1.0 - a) * x
-        noise = self.rng.normal(0.0, PT100_NOISE_DEGC, size=len(true))
-        temps = {
-            name: self._lagged[name] + self.sensors.offset_degc[name] + float(e)
-            for name, e in zip(true, noise, strict=True)
-        }
+        temps = self._temperatures.read(state, u)
         disp = state.displacement_um + self.rng.normal(0.0, DISPLACEMENT_NOISE_UM, size=3)
         power = reported_power_kw(
             self.params, np.array([u.spindle_speed_rpm]), np.array([u.cutting_power_kw]), self.rng
