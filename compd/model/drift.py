@@ -87,11 +87,7 @@ class DriftCusum:
         """The larger of the two sums per departure (sigma-hours)."""
         return np.maximum(self.high, self.low)
 
-    def reset(self, which: np.ndarray | None = None) -> None:
-        """Back to zero (all, or where ``which`` is true): after an alarm is acted on."""
-        if which is None:
-            self.high[:] = 0.0
-            self.low[:] = 0.0
-        else:
-            self.high[which] = 0.0
-            self.low[which] = 0.0
+    def reset(self) -> None:
+        """Back to zero: after an alarm is acted on (its departures were one fault's)."""
+        self.high[:] = 0.0
+        self.low[:] = 0.0

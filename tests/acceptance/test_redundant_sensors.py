@@ -31,17 +31,15 @@ AT_S = 3600.0
 
 
 def drift(signal: str, degc_per_h: float, hours: float) -> list[dict[str, Any]]:
-    """A drift from AT_S as chained ``offset`` faults, 0.1 degC more each step."""
-    step_s = 360.0 / degc_per_h
+    """A drift from AT_S (the simulated machine's ``drift`` fault kind)."""
     return [
         {
-            "kind": "offset",
+            "kind": "drift",
             "signal": signal,
-            "at_s": AT_S + i * step_s,
-            "duration_s": step_s,
-            "value": round(0.1 * (i + 1), 6),
+            "rate_per_h": degc_per_h,
+            "at_s": AT_S,
+            "duration_s": hours * 3600,
         }
-        for i in range(round(hours * 3600 / step_s))
     ]
 
 
