@@ -44,6 +44,7 @@ if TYPE_CHECKING:
     from compd.files.modelfile import ModelFile
     from compd.model.compiled import CompiledModel
     from compd.service.config.docs import ConfigDoc
+    from compd.sim.plc.machine import SimulatedMachine
 
 
 def plausibility_line(model_file: ModelFile, doc: ConfigDoc) -> str:
@@ -94,6 +95,10 @@ def check_config_command(args: argparse.Namespace) -> int:
     config = config_from_arg(args.config)
     doc = config.doc
     out = console()
+    # Every check that can refuse the config runs before the first line is printed:
+    # a config is "ok" or an error, never both.
+    sim = _simulated_machine(config)
+    probe_lines = _probe_lines(config)
     if config.model_path is None:
         out.print(Text.assemble(("ok", "green"), f": {config.path}"))
         out.print(
@@ -136,22 +141,9 @@ def check_config_command(args: argparse.Namespace) -> int:
             f"  axis {axis}: {o.sign:+d} x {o.model_output} -> {o.driver}:{o.address}, "
             f"|offset| <= {o.max_offset_um:g} um, <= {o.max_rate_um_per_s:g} um/s"
         )
-    if (probes := doc.probes) is not None and probes.enabled:
-        for axis, reg in probes.axes.items():
-            where = (
-                "compd model probe and the control socket only"
-                if reg is None
-                else f"{reg.driver}: value {reg.value_address} (x {reg.value_scale:g} um), "
-                f"count {reg.counter_address}, echo {reg.echo_address}"
-            )
-            out.print(
-                f"  probes {axis}: {probes.measures}, due every {probes.every_h:g} h; {where}"
-            )
-            out.print(f"    {_probe_bounds(config, doc.outputs[axis].model_output)}")
-    if config.simulation is not None:
-        from compd.sim.plc.build import build_machine  # the twin only where a config has one
-
-        sim = build_machine(config)  # checks the mapping; starts nothing
+    for line in probe_lines:
+        out.print(line)
+    if sim is not None:
         out.print(
             f"  simulated machine: {sim.doc.scenario}, {sim.doc.hours:g} h, seed {sim.doc.seed}; "
             f"controllers {', '.join(f'{n} ({doc.drivers[n].type})' for n in sim.servers)}"
@@ -165,6 +157,34 @@ def check_config_command(args: argparse.Namespace) -> int:
             f"a status every {t.every_ticks} tick(s), QoS {t.qos}"
         )
     return 0
+
+
+def _simulated_machine(config: Config) -> SimulatedMachine | None:
+    """The simulated machine of a config with a ``simulation`` section (checked, not started)."""
+    if config.simulation is None:
+        return None
+    from compd.sim.plc.build import build_machine  # the twin only where a config has one
+
+    return build_machine(config)  # checks the mapping; starts nothing
+
+
+def _probe_lines(config: Config) -> list[str]:
+    """Per probed axis: where its probes come from and what the daemon takes of them."""
+    doc = config.doc
+    probes = doc.probes
+    if probes is None or not probes.enabled:
+        return []
+    lines = []
+    for axis, reg in probes.axes.items():
+        where = (
+            "compd model probe and the control socket only"
+            if reg is None
+            else f"{reg.driver}: value {reg.value_address} (x {reg.value_scale:g} um), "
+            f"count {reg.counter_address}, echo {reg.echo_address}"
+        )
+        lines.append(f"  probes {axis}: {probes.measures}, due every {probes.every_h:g} h; {where}")
+        lines.append(f"    {_probe_bounds(config, doc.outputs[axis].model_output)}")
+    return lines
 
 
 def _print_verifiable(

@@ -14,6 +14,8 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from compd.cli import daemon as cli_daemon
 from compd.cli import main
 from compd.cli.starthint import start_hint
@@ -39,6 +41,34 @@ def test_check_config_error_exits_2_naming_the_place(tmp_path, capsys):
     assert main(["check-config", str(bad)]) == 2
     err = capsys.readouterr().err
     assert f"{bad}: line 3 (period_s): Input should be a valid number" in err
+
+
+@pytest.mark.parametrize(
+    ("written", "typo", "place"),
+    [
+        ("  seed: 1\n", "  seed: 1\n  variant: longnose\n", "simulation.variant"),
+        (
+            "  heartbeat_timeout_s: 5     # the PLC counts a heartbeat not renewed this long\n",
+            "  heartbeat_timeout_s: 5\n  faults:\n"
+            "    - {kind: nan, signal: T_spindl_degC, at_s: 7200, duration_s: 120}\n",
+            "simulation.faults.0.signal",
+        ),
+    ],
+)
+def test_check_config_error_in_simulation_is_an_error_not_ok(
+    tmp_path, capsys, written, typo, place
+):
+    """An error in the simulation section prints no 'ok', only the error (file, place, fix), exit 2."""
+    bundled = Path(cli_daemon.__file__).parents[2] / "config"
+    text = (bundled / "simulated.yaml").read_text()
+    assert written in text
+    bad = tmp_path / "simulated.yaml"
+    bad.write_text(text.replace(written, typo))
+    (tmp_path / "simulated_model.yaml").write_bytes((bundled / "simulated_model.yaml").read_bytes())
+    assert main(["check-config", str(bad)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert f"{bad}: {place}: unknown" in captured.err and "Use one of" in captured.err
 
 
 def test_run_stops_after_duration_and_saves_state(tmp_path):
