@@ -166,12 +166,21 @@ def _probe_line(axis: str, probe: dict[str, Any]) -> Text:
     line = Text(
         f"  probes {axis}: {said}; learned {probe['adjustment_um']:+.3f} um"
         + (f"; {counts}" if counts else "")
+        + f"; {_shift_rms(probe)}"
     )
     if probe.get("due"):
         line.append("; probe due", "yellow")
     if probe.get("disagrees"):
         line.append("; two probes not taken: the model no longer describes the machine", "red")
     return line
+
+
+def _shift_rms(probe: dict[str, Any]) -> str:
+    """``probe RMS this shift 0.412 um (3 probes)``: how well compensation held on the parts."""
+    rms, count = probe.get("shift_rms_um"), probe.get("shift_probes", 0)
+    if rms is None:
+        return "probe RMS this shift: no probe yet"
+    return f"probe RMS this shift {rms:.3f} um ({count} probe{'s' if count != 1 else ''})"
 
 
 def _tick_age(reply: dict[str, object]) -> str:
