@@ -176,7 +176,7 @@ def print_summary(result: SimulationResult, notice: str | None = None) -> None:
     out = console()
     table = summary_table(result.summary)
     out.print(summary_table(result.summary, narrow=True) if too_wide(out, table) else table)
-    out.print(fault_table(result.status, result.machine))
+    out.print(fault_table(result.status, result.machine, result.signals))
     model = result.status["model"]
     ran = f"model {model['name']}" if model is not None else "recorded only, nothing written"
     out.print(

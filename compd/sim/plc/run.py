@@ -29,6 +29,7 @@ from compd.service.loop.ticks import TickTiming, run_periodic
 from compd.service.store.state import STATE_FILE
 from compd.sim.plc.build import build_machine
 from compd.sim.plc.machine import AxisSummary, MachineClock, SimulatedMachine
+from compd.sim.plc.tally import SignalTally
 
 #: Longest a virtual clock waits (real time) for a reconnect before time moves on.
 SETTLE_MAX_S = 2.0
@@ -43,6 +44,8 @@ class SimulationResult:
     machine: SimulatedMachine
     timing: TickTiming
     wall_s: float
+    #: What the inputs went through, tick by tick (episodes, stand-in time, drift flags).
+    signals: SignalTally | None = None
 
     @property
     def simulated_s(self) -> float:
@@ -85,7 +88,10 @@ async def run_simulation(
         machine.wall0_unix_s = base.wall_at(0.0) - join_s
         clock = MachineClock(base, machine)
 
+        tally = SignalTally(config.doc.period_s)
+
         def tick(record: TickRecord) -> None:
+            tally.observe(record, service.compensator.plausibility)
             if on_tick is not None:
                 on_tick(service, machine, record)
 
@@ -109,6 +115,7 @@ async def run_simulation(
         machine=machine,
         timing=timing,
         wall_s=time.perf_counter() - started,
+        signals=tally,
     )
 
 

@@ -8,6 +8,7 @@ from typing import Any
 from rich.table import Table
 
 from compd.sim.plc.machine import AxisSummary, SimulatedMachine
+from compd.sim.plc.tally import SignalTally
 from compd.toolkit.summary import fmt
 
 
@@ -37,8 +38,17 @@ def summary_table(rows: list[AxisSummary], *, narrow: bool = False) -> Table:
     return table
 
 
-def fault_table(status: Mapping[str, Any], machine: SimulatedMachine) -> Table:
-    """What went wrong during the run and how compd and the PLC saw it."""
+def fault_table(
+    status: Mapping[str, Any], machine: SimulatedMachine, signals: SignalTally | None = None
+) -> Table:
+    """What went wrong during the run and how compd and the PLC saw it.
+
+    With ``signals`` (every tick's health, :mod:`compd.sim.plc.tally`): the signal
+    fault episodes of every input (held through a link outage, faulted, on a
+    stand-in), per input how long, the drift flags and the stand-in time per input;
+    without, the daemon's count of inputs gone faulted. Per probed axis the probes
+    taken, flagged and refused.
+    """
     counters = status["counters"]
     table = Table(title="faults", header_style="bold", show_header=False)
     table.add_column("what")
@@ -46,8 +56,45 @@ def fault_table(status: Mapping[str, Any], machine: SimulatedMachine) -> Table:
     table.add_row("faults injected", str(len(machine.plc.faults_injected)))
     for fault in machine.plc.faults_injected:
         table.add_row(f"  {fault}", "")
-    for key in ("signal_faults", "driver_faults", "reconnects", "write_failures", "overruns"):
+    if signals is None:
+        table.add_row("signal faults", str(counters["signal_faults"]))
+    else:
+        _signal_rows(table, signals)
+    for key in ("driver_faults", "reconnects", "write_failures", "overruns"):
         table.add_row(key.replace("_", " "), str(counters[key]))
+    for axis, probes in ((status.get("probes") or {}).get("axes") or {}).items():
+        table.add_row(f"probes {axis}: taken / flagged / refused", _probe_counts(probes["results"]))
     table.add_row("PLC: heartbeat timeouts", str(machine.plc.heartbeat_timeouts))
     table.add_row("PLC: values written", str(machine.plc.writes))
     return table
+
+
+def _signal_rows(table: Table, signals: SignalTally) -> None:
+    """The episodes (all inputs, then each with how long in which state), drift flags, stand-in time."""
+    table.add_row("signal fault episodes (held, faulted or on a stand-in)", str(signals.episodes))
+    for name, t in signals.inputs.items():
+        if not t.episodes:
+            continue
+        spent = [
+            f"{what} {seconds:.0f} s"
+            for what, seconds in (
+                ("held", t.held_s),
+                ("faulted", t.faulted_s),
+                ("stand-in", t.stand_in_s),
+            )
+            if seconds > 0
+        ]
+        table.add_row(f"  {name}: {', '.join(spent)}", str(t.episodes))
+    table.add_row("drift flags", str(signals.drift_flags))
+    stand_ins = {name: t for name, t in signals.inputs.items() if t.stand_in_episodes}
+    table.add_row("stand-ins used", str(sum(t.stand_in_episodes for t in stand_ins.values())))
+    for name, t in stand_ins.items():
+        table.add_row(f"  stand-in time {name}", f"{t.stand_in_s:.0f} s")
+
+
+def _probe_counts(results: Mapping[str, int]) -> str:
+    """``4 / 1 / 2``: taken (accepted or confirmed), flagged, refused (refused, rejected, too soon, resent)."""
+    taken = results.get("accepted", 0) + results.get("confirmed", 0)
+    flagged = results.get("flagged", 0)
+    refused = sum(results.values()) - taken - flagged
+    return f"{taken} / {flagged} / {refused}"
