@@ -33,8 +33,25 @@ VERIFIED = "fit on new data"
 HELD_OUT = "held-out fit"
 
 
-def fit_headline(cross_validation: CrossValidationDoc, model: str) -> HeadlineDoc | None:
-    """``compd fit``'s headline: the expected fit on new data of the kept candidate (None: not judged)."""
+def fit_headline(
+    cross_validation: CrossValidationDoc, model: str, method: str | None = None
+) -> HeadlineDoc | None:
+    """``compd fit``'s headline: the expected fit on new data of ``method``'s model (None: not judged).
+
+    ``method``: the method that identified the model the file holds
+    (``provenance.method``). Cross-validation keeps the candidate that held best
+    (``kept``), and a fit with ``--method oe`` (or the default with a gate)
+    writes another: then the figure is this model's only where the folds judged
+    ``method`` too, and None where they did not (:func:`judged_other` says
+    whose figure the folds have). Without ``method`` (files that do not record
+    it): the kept candidate's.
+    """
+    credited = cross_validation.kept if method is None else method
+    if credited != cross_validation.kept:
+        if not _judged(cross_validation, credited):
+            return None
+        # The same figures and words, for the method the file's model was identified by.
+        cross_validation = cross_validation.model_copy(update={"kept": credited})
     expected = cross_validation.expected_percent()
     if expected is None:
         return None
@@ -57,6 +74,45 @@ def fit_headline(cross_validation: CrossValidationDoc, model: str) -> HeadlineDo
         description=f"{kept}, {how}{cross_validation.expected_how()}, {cross_validation.folds}",
         source=f"cross_validation.{source}.{kept}",
     )
+
+
+def _judged(cross_validation: CrossValidationDoc, method: str) -> bool:
+    """Whether the folds scored ``method`` (a held-out figure for it is recorded)."""
+    return any(
+        method in figures
+        for figures in (
+            cross_validation.fold_median_percent,
+            cross_validation.nested_fit_percent,
+            cross_validation.fit_percent,
+        )
+    )
+
+
+def judged_other(prov: ProvenanceDoc, model: str) -> HeadlineDoc | None:
+    """The cross-validated headline of the candidate the folds kept, where it is not this file's model.
+
+    ``compd fit --method oe`` writes an OE model; its folds may have kept
+    ``mlr``, and mlr's expected fit on new data is no figure of the OE model.
+    None: the figure is this model's (or there is none).
+    """
+    cv = prov.cross_validation
+    if cv is None or prov.method is None or prov.method == cv.kept or _judged(cv, prov.method):
+        return None
+    return fit_headline(cv, model)
+
+
+def _credited(headline: HeadlineDoc | None, prov: ProvenanceDoc) -> HeadlineDoc | None:
+    """A recorded headline, unless it repeats another method's cross-validated figure.
+
+    Files written before ``fit_headline`` took the method recorded the kept
+    candidate's figure as the headline of whatever model they held.
+    """
+    if headline is None or prov.method is None or not headline.source:
+        return headline
+    source = headline.source
+    if source.startswith("cross_validation.") and source.rsplit(".", 1)[-1] != prov.method:
+        return None
+    return headline
 
 
 def extension_headline(extension: ExtensionDoc, index: int, model: str) -> HeadlineDoc | None:
@@ -120,11 +176,11 @@ def derived_provenance(
             sha256=parent_sha256,
             data=provenance.data,
             fit_percent=dict(provenance.fit_percent),
-            headline=provenance.headline
+            headline=_credited(provenance.headline, provenance)
             or (
                 None
                 if provenance.cross_validation is None
-                else fit_headline(provenance.cross_validation, parent_name)
+                else fit_headline(provenance.cross_validation, parent_name, provenance.method)
             ),
             cross_validation=provenance.cross_validation,
             notes=provenance.notes,
@@ -164,6 +220,23 @@ class Figures:
     base_label: str
     #: Updates (``compd update``) after which none of the figures were measured again.
     updates: int = 0
+    #: The cross-validated headline of the candidate the folds kept, where that is not the
+    #: model this file holds (``--method oe``, the folds keeping mlr): never this model's.
+    other: HeadlineDoc | None = None
+    #: The method that identified this file's model (``provenance.method``; None: not recorded).
+    method: str | None = None
+
+    def not_judged(self) -> str | None:
+        """``no expected fit on new data for this oe model: ...``; None unless :attr:`other`."""
+        other = self.other
+        if other is None:
+            return None
+        kept = other.source.rsplit(".", 1)[-1] if other.source else "another candidate"
+        return (
+            f"no {EXPECTED} for this {self.method} model: its cross-validation kept {kept} "
+            f"({other.name} {percent_text(other.percent)}), a figure of {kept}'s model, "
+            f"not of the {self.method} model this file holds"
+        )
 
 
 def model_figures(doc: ModelDoc) -> Figures:
@@ -177,11 +250,13 @@ def model_figures(doc: ModelDoc) -> Figures:
     """
     prov = doc.provenance
     extensions = prov.extensions
+    other = None
     if prov.base_model is not None or not extensions:
         base = prov.base_model
-        headline = prov.headline
+        headline = _credited(prov.headline, prov) if base is None else prov.headline
         if headline is None and base is None and prov.cross_validation is not None:
-            headline = fit_headline(prov.cross_validation, doc.name)
+            headline = fit_headline(prov.cross_validation, doc.name, prov.method)
+            other = judged_other(prov, doc.name)
         fit, fit_data = dict(prov.fit_percent), prov.fit_data or prov.data
     else:  # an extended file of an older compd: the top-level figures are the fitted model's
         parent = extensions[0].parent_sha256
@@ -191,7 +266,7 @@ def model_figures(doc: ModelDoc) -> Figures:
             fit_percent=dict(prov.fit_percent),
             headline=None
             if prov.cross_validation is None
-            else fit_headline(prov.cross_validation, ""),
+            else fit_headline(prov.cross_validation, "", prov.method),
             cross_validation=prov.cross_validation,
             notes=prov.notes,
         )
@@ -206,7 +281,16 @@ def model_figures(doc: ModelDoc) -> Figures:
             f"{name} (sha256 {base.sha256[:12]}, before its "
             f"{'extension' if steps == 1 else f'{steps} extensions'})"
         )
-    return Figures(headline, fit, fit_data, base, label, updates=_updates_since(prov))
+    return Figures(
+        headline,
+        fit,
+        fit_data,
+        base,
+        label,
+        updates=_updates_since(prov),
+        other=other,
+        method=prov.method,
+    )
 
 
 def _updates_since(prov: ProvenanceDoc) -> int:
@@ -229,6 +313,8 @@ def figure_lines(figures: Figures) -> list[tuple[str, str]]:
     if figures.headline is not None:
         h = figures.headline
         lines.append((f"{h.name}: {percent_text(h.percent)}", f" ({headline_how(h)}){fitted}"))
+    elif (said := figures.not_judged()) is not None:
+        lines.append((said, fitted))
     elif fitted:
         lines.append(("", fitted.removeprefix("; ")))
     base = figures.base

@@ -70,7 +70,8 @@ def _headline(index: int, run: ModelRun) -> str:
     swatch = f'<span class="swatch m{index}"></span>{escape(run.name)}'
     h = figures.headline
     if h is None:
-        return f"<li>{swatch}: no headline figure recorded in its file</li>"
+        said = figures.not_judged() or "no headline figure recorded in its file"
+        return f"<li>{swatch}: {escape(said)}</li>"
     values = escape(percent_text(h.percent))
     return f"<li>{swatch}: {escape(h.name)} {values} ({escape(headline_how(h))})</li>"
 

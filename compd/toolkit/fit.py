@@ -323,7 +323,10 @@ def fit_data(
     )
     held_out = cross_validation_doc(output, selection)
     provenance = provenance.model_copy(
-        update={"cross_validation": held_out, "headline": fit_headline(held_out, model.name)}
+        update={
+            "cross_validation": held_out,
+            "headline": fit_headline(held_out, model.name, provenance.method),
+        }
     )
     if len(starts) > 1:
         notes = (

@@ -47,6 +47,7 @@ import structlog
 from aiohttp import web
 
 from compd.errors import CompdError
+from compd.files.modelfigures import model_figures
 from compd.service.control.peers import FdBudget, Listener, Served
 from compd.service.control.socket import jsonable
 from compd.service.http.history import RecentFaults, TickHistory
@@ -323,7 +324,14 @@ def _model_json(slot: ModelSlot) -> dict[str, object]:
     """The running model and its provenance, as the page shows them."""
     model_doc = slot.model_file.doc
     provenance = model_doc.provenance
-    held_out = provenance.cross_validation
+    # This model's own figure on new data, as compd model check and the report lead with it.
+    figures = model_figures(model_doc)
+    headline = figures.headline
+    expected = (
+        None
+        if headline is None or len(headline.percent) != 1
+        else next(iter(headline.percent.values()))
+    )
     return {
         "name": slot.compiled.name,
         "sha256": slot.sha256,
@@ -335,7 +343,9 @@ def _model_json(slot: ModelSlot) -> dict[str, object]:
         "command": provenance.command,
         "compd_version": provenance.compd_version,
         "fit_percent": provenance.fit_percent,
-        "held_out_fit_percent": (None if held_out is None else held_out.expected_percent()),
+        "held_out_fit_percent": expected,
+        # Why there is none: the folds judged another method than this model's (None: not that).
+        "held_out_note": figures.not_judged(),
         "updates": len(provenance.updates),
         "extensions": len(provenance.extensions),
     }

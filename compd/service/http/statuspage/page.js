@@ -123,7 +123,7 @@ function showStatus(status, page) {
     ["description", m.description || null],
     ["loaded", status.model.loaded],
     ["fit (calibration)", fits || null],
-    ["expected on new data", m.held_out_fit_percent === null ? null : `${num(m.held_out_fit_percent, 1)} %`],
+    ["expected on new data", m.held_out_fit_percent === null ? m.held_out_note || null : `${num(m.held_out_fit_percent, 1)} %`],
     ["method", m.method],
     ["created", m.created],
     ["data", m.data],
