@@ -95,9 +95,22 @@ def test_table_shows_rank_effect_and_verdict(case, capsys) -> None:
     assert "explained" in out and "cutting process heat" in out  # (headers wrap between words)
     ranks = [line.split("│")[1].strip() for line in out.splitlines() if line.startswith("│")]
     assert [r for r in ranks if r] == ["1", "2", "3"]  # (a long cell may wrap onto a second line)
-    assert (
-        out.strip().splitlines()[-1].startswith("most likely missing effect: cutting process heat")
-    )
+    verdict = out[out.index("most likely missing effect") :]
+    assert " ".join(verdict.split()).startswith("most likely missing effect: cutting process heat")
+
+
+@pytest.mark.parametrize("columns", [100, 60])
+def test_every_line_fits_the_terminal_and_no_word_is_cut(
+    case, capsys, monkeypatch, columns
+) -> None:
+    """At COLUMNS=N the tables and the verdict fit N columns, wrapped between words, nothing cut (…)."""
+    monkeypatch.setenv("COLUMNS", str(columns))
+    code, out, err = run(capsys, "diagnose", *case)
+    assert code == 0, err
+    assert "…" not in out
+    assert max(len(line) for line in out.splitlines()) <= columns
+    verdict = " ".join(out[out.index("most likely missing effect") :].split())
+    assert "cutting process heat" in verdict and "explains" in verdict
 
 
 def test_user_catalogue_renames_the_effect(case, tmp_path: Path, capsys) -> None:

@@ -19,6 +19,7 @@ from compd.cli.common import (
     span_from_args,
 )
 from compd.cli.diagnosetable import diagnosis_table, table_width
+from compd.cli.tablefit import fit_table
 from compd.cli.terminal import console, console_at
 from compd.files.data import DataSet
 from compd.files.effects import EffectCatalogue, load_catalogue
@@ -119,8 +120,8 @@ def _diagnose(args: argparse.Namespace) -> int:
         f"(up to {d.whiteness_allowed} by chance): {'white' if d.residue_white else 'not white'}"
     )
     colour = "green" if d.missing_effect is not None else "yellow"
-    # One line however long (a terminal wraps it; a script reads it whole).
-    out.print(Text(result.verdict, style=f"bold {colour}"), soft_wrap=True)
+    # Wrapped between words at the terminal's width (a script reads --json's "verdict").
+    out.print(Text(result.verdict, style=f"bold {colour}"))
     if not span.whole:
         out.print(span.describe("diagnosed"))
     return 0
@@ -168,7 +169,7 @@ def _diagnose_several(
         for note in (*evaluation.data.notes, *evaluation.notes, *result.notes):
             print(f"note: {evaluation.data.path}: {note}", file=sys.stderr)
         _print_table(out, args, name, evaluation.data.path, result)
-        out.print(result.verdict, soft_wrap=True)
+        out.print(result.verdict)
     agreed = ", ".join(f"{signal} in {count}" for signal, count in found.most_common()) or "none"
     out.print(
         f"pooled over {len(results)} files: residue RMS {pooled_rms_um:.2f} um about its mean; "
@@ -178,8 +179,7 @@ def _diagnose_several(
         verdict = "passes the rule" if held.accepted else "refused by the rule"
         out.print(
             f"over all {len(results)} files, as compd extend on them would judge it: a sub-model "
-            f"on {signal} {held.describe()}: {verdict}",
-            soft_wrap=True,
+            f"on {signal} {held.describe()}: {verdict}"
         )
     return 0
 
@@ -257,7 +257,9 @@ def _print_table(
     )
     if args.wide:  # the table's own width, not squeezed into the terminal's
         out = console_at(out, max(out.width, table_width(table)))
-    out.print(table)
+        out.print(table)
+    else:
+        out.print(fit_table(table, out))
 
 
 def _diagnose_one(

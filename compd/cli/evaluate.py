@@ -35,6 +35,7 @@ from compd.cli.common import (
     window_options,
 )
 from compd.cli.probes import compare_with_probes, probe_options, wants_probes
+from compd.cli.tablefit import fit_table
 from compd.cli.terminal import console
 from compd.files.data import DataSet
 from compd.files.modelfile import load_model
@@ -174,7 +175,7 @@ def _compare(args: argparse.Namespace) -> int:
     for note in (*(n for w in windows for n in w.notes), *([transient] if transient else [])):
         print(f"note: {note}", file=sys.stderr)
     out = console()
-    out.print(comparison_table(evaluation, comparisons))
+    out.print(fit_table(comparison_table(evaluation, comparisons), out))
     for result in windows:
         out.print(windows_summary(result))
         if result.windows:
@@ -184,7 +185,7 @@ def _compare(args: argparse.Namespace) -> int:
                 wide = Console(file=out.file, emoji=False, markup=False, width=width)
                 wide.print(table, crop=False)
             else:
-                out.print(table)
+                out.print(fit_table(table, out))
     if not span.whole:
         out.print(span.describe("judged"))
     return 0
@@ -231,12 +232,12 @@ def _compare_several(args: argparse.Namespace, experiments: list[DataSet]) -> in
         transient = mid_transient_note(evaluation, args.output) if args.init == "steady" else None
         if transient:
             print(f"note: {evaluation.data.path}: {transient}", file=sys.stderr)
-        out.print(comparison_table(evaluation, comparisons))
+        out.print(fit_table(comparison_table(evaluation, comparisons), out))
         for result in windows:
             out.print(windows_summary(result))
             if result.windows:
-                out.print(windows_table(result))
-    out.print(pooled_table(evaluations, pooled))
+                out.print(fit_table(windows_table(result, width=out.width), out))
+    out.print(fit_table(pooled_table(evaluations, pooled), out))
     return 0
 
 
