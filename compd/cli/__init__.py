@@ -42,6 +42,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "compd.cli.fleet",
         "the machines on the fleet's MQTT broker: model, online or offline, last seen",
     ),
+    "rollout": (
+        "compd.cli.model",
+        "check a model file, send it to many machines through the fleet's MQTT broker",
+    ),
     "simulate": ("compd.cli.evaluate", "model output and each sub-model's contribution per sample"),
     "compare": ("compd.cli.evaluate", "model against measurement: fit %%, residue, reduction"),
     "fit": (

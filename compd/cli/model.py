@@ -45,9 +45,21 @@ def register(commands: Any) -> None:
     )
     daemon_options(listing)
     listing.set_defaults(handler=_list)
-    rollout = model.add_parser(
+    add_rollout(model)
+    add_rollout(commands)  # also `compd rollout`, beside `compd fleet`
+    register_updates(model)
+    register_probe(model)
+
+
+#: ``compd rollout`` and ``compd model rollout``: one command under two names.
+ROLLOUT_HELP = "check a model file, send it to many machines through the fleet's MQTT broker"
+
+
+def add_rollout(parsers: Any) -> None:
+    """The roll-out's parser, under ``parsers`` (the top level's and ``compd model``'s alike)."""
+    rollout = parsers.add_parser(
         "rollout",
-        help="check a model file, send it to many machines through the fleet's MQTT broker",
+        help=ROLLOUT_HELP,
         description="Check MODEL.yaml, then send it to each machine's "
         "<prefix>/<machine_id>/cmd/model_load (machines with telemetry.accept_models: true); "
         "print each machine's answer. A machine the broker reports offline is not waited for: "
@@ -97,8 +109,6 @@ def register(commands: Any) -> None:
         help="send without checking here first (the machines still check it)",
     )
     rollout.set_defaults(handler=_rollout)
-    register_updates(model)
-    register_probe(model)
 
 
 def _check(args: argparse.Namespace) -> int:

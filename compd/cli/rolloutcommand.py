@@ -64,7 +64,7 @@ def machine_list(text: str | None) -> list[str]:
 
 
 def rollout_command(args: Any) -> int:
-    """The handler of ``compd model rollout``: check, send, wait, print the table (or JSON)."""
+    """The handler of ``compd rollout`` (and ``compd model rollout``): check, send, wait, print the table (or JSON)."""
     from rich.table import Table
     from rich.text import Text
 
@@ -99,6 +99,13 @@ def rollout_command(args: Any) -> int:
         rows = [vars(o) | {"ok": o.ok} for o in outcomes]
         print(json.dumps({"title": title, "machines": rows}, indent=1))
         return 0 if all(o.ok for o in outcomes) else 1
+    if not outcomes:  # --pending: the broker holds no desired record (of these machines)
+        which = f" for {', '.join(machines)}" if machines else ""
+        console().print(
+            f"no desired models pending{which}: the broker holds no roll-out's desired record "
+            "(compd rollout MODEL.yaml --machines ... leaves one per machine)"
+        )
+        return 0
     table = Table("machine", "result", "reason", "blend (s)", "blended in", "broker says")
     for o in outcomes:
         blended = {None: "-", True: "yes", False: "not yet"}[o.blended_in]
