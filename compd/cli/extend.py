@@ -20,6 +20,7 @@ from compd.cli.common import (
     span_from_args,
 )
 from compd.cli.progress import progress_reporter
+from compd.cli.tablefit import fit_table
 from compd.cli.terminal import console
 from compd.files.effects import load_catalogue
 from compd.files.experiments import as_stacked
@@ -210,7 +211,7 @@ def _extend(args: argparse.Namespace) -> int:
         return 0
     out = console()
     if choice is not None:
-        out.print(_tried_table(choice))
+        out.print(fit_table(_tried_table(choice), out))
     names = ", ".join(str(d["name"]) for d in described)
     out.print(
         Text.assemble("added ", (names, "bold"), f" to {extension.output}: {effect} ")
@@ -239,7 +240,7 @@ def _extend(args: argparse.Namespace) -> int:
         rows.append((f"{args.verify} (not used for fitting)", *verified))
     for name, before, after in rows:
         table.add_row(name, fmt(before, 1), fmt(after, 1), fmt(after - before, 1))
-    out.print(table)
+    out.print(fit_table(table, out))
     if len(experiments) > 1:
         out.print(
             f"over {len(experiments)} experiments: the regularised lag bank of the held-out check "

@@ -20,6 +20,7 @@ from compd.cli.common import (
 )
 from compd.cli.progress import progress_reporter
 from compd.cli.residual_options import add_residual_options, write_fit
+from compd.cli.tablefit import fit_table
 from compd.cli.terminal import console
 from compd.errors import DataFileError
 from compd.files.modelschema import median_fold_how
@@ -369,7 +370,7 @@ def _report(result: FitResult, args: argparse.Namespace) -> None:
 def _report_tail(result: FitResult, args: argparse.Namespace, table: Table) -> None:
     identification = result.identification
     out = console()
-    out.print(table)
+    out.print(fit_table(table, out))
     lead = expectation_line(result)
     if lead is not None:
         out.print(Text(lead, style="bold"))
@@ -385,7 +386,7 @@ def _report_tail(result: FitResult, args: argparse.Namespace, table: Table) -> N
         )
     out.print(line)
     if result.selection is not None:
-        out.print(_candidates_table(result))
+        out.print(fit_table(_candidates_table(result), out))
     if result.selection_steps:
         path = " -> ".join(
             f"+{s.input} {fmt(s.cv_fit_percent, 1)} %" for s in result.selection_steps

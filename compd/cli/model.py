@@ -116,6 +116,7 @@ def _check(args: argparse.Namespace) -> int:
     from rich.text import Text
 
     from compd import __version__
+    from compd.cli.tablefit import fit_table
     from compd.cli.terminal import console
     from compd.files.modelfigures import figure_lines, model_figures
     from compd.files.modelfile import load_model
@@ -162,7 +163,7 @@ def _check(args: argparse.Namespace) -> int:
             f"{sub.gain:g}",
             sub.describe_factors(),
         )
-    out.print(table)
+    out.print(fit_table(table, out))
     for finding in warnings:
         print(finding.describe(), file=sys.stderr)
     unread = unread_provenance_keys(model_file.doc.provenance)

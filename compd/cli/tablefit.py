@@ -43,7 +43,9 @@ def stacked(table: Table) -> RenderableType:
     if table.title:
         parts.append(Text(str(table.title), style="bold"))
     headers = [_one_line(column.header) for column in table.columns]
-    for row in zip(*(column.cells for column in table.columns), strict=True):
+    for k, row in enumerate(zip(*(column.cells for column in table.columns), strict=True)):
+        if k:
+            parts.append(Text(""))  # a blank line between rows
         pairs = Table.grid(padding=(0, 1))
         pairs.add_column(style="bold", overflow="fold")
         pairs.add_column(overflow="fold")

@@ -16,6 +16,7 @@ from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
+from compd.cli.tablefit import fit_table
 from compd.model.verifiable import Unverifiable
 
 
@@ -64,7 +65,7 @@ def print_verifiable(
     """Print the table and one line saying what it means (``note``: on what it assumed)."""
     if not rows:
         return
-    out.print(verifiable_table(rows, units))
+    out.print(fit_table(verifiable_table(rows, units), out))
     beyond = [r for r in rows if r.exceeds]
     summary = (
         f"{len(beyond)} of {len(rows)} input(s) x axes cannot be verified to the axis's tolerance: "

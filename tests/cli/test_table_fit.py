@@ -61,3 +61,19 @@ def test_compare_at_100_columns_cuts_nothing(tmp_path, capsys, monkeypatch) -> N
     out = capsys.readouterr().out
     assert "…" not in out and max(len(line) for line in out.splitlines()) <= 100
     assert "reduction" in out and "|residue|" in out
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["model", "check", "bundled:simulated_model.yaml"],
+        ["check-config", "bundled:simulated.yaml"],
+    ],
+)
+@pytest.mark.parametrize("columns", [100, 80])
+def test_model_check_and_check_config_cut_nothing(capsys, monkeypatch, argv, columns) -> None:
+    """The sub-model table and what the sensors cannot verify fit COLUMNS, no word cut (…)."""
+    monkeypatch.setenv("COLUMNS", str(columns))
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "…" not in out and max(len(line) for line in out.splitlines()) <= columns
