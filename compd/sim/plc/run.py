@@ -130,7 +130,8 @@ async def start_machine(config: Config, machine: SimulatedMachine) -> None:
         await machine.stop()
         raise CompdError(
             f"{config.path}: the simulated machine cannot start its controllers: {exc}. "
-            "Free the port or give the driver another one (drivers.<name>.settings)"
+            "Free the port, or give the driver another one: in the file (drivers.<name>.settings) "
+            f"or for this run, e.g. --set drivers.{next(iter(config.doc.drivers))}.settings.port=N"
         ) from exc
 
 
