@@ -44,6 +44,10 @@ def test_a_wrong_override_is_refused_naming_the_key(override: str, said: str) ->
     with pytest.raises(ConfigFileError) as raised:
         load_config(BUNDLED, [override])
     assert said in str(raised.value)
+    if not raised.value.message.startswith(
+        "--set"
+    ):  # a file's line is named: say it may be --set's
+        assert f"(this run also has --set {override})" in str(raised.value)
 
 
 def _run_on_port(port: int, state: Path) -> subprocess.CompletedProcess[str]:

@@ -179,7 +179,15 @@ def load_config(path: str | Path, overrides: Sequence[str] = ()) -> Config:
     """
     path = Path(path)
     text = read_limited(path, ConfigFileError).decode("utf-8", errors="replace")
-    return parse_config(text, path, overrides)
+    try:
+        return parse_config(text, path, overrides)
+    except ConfigFileError as error:
+        if not overrides or error.message.startswith("--set"):
+            raise
+        # The key may be one set on the command line, not the file's line named.
+        said = ", ".join(f"--set {o}" for o in overrides)
+        fix = f"{error.fix} (this run also has {said})".lstrip()
+        raise ConfigFileError(path, error.message, where=error.where, fix=fix) from error
 
 
 def parse_config(text: str, path: Path, overrides: Sequence[str] = ()) -> Config:
