@@ -70,6 +70,20 @@ def clock_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def set_option(parser: argparse.ArgumentParser) -> None:
+    """``--set KEY=VALUE`` (repeatable): a config key changed for this run, the file left as it is."""
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        dest="overrides",
+        metavar="KEY=VALUE",
+        help="set a config key for this run (a dotted key, a YAML value; repeatable), e.g. "
+        "--set drivers.plc.settings.port=15021: the quick start's PLC on another port (the "
+        "simulated machine serves where the driver connects)",
+    )
+
+
 def broker_option(parser: argparse.ArgumentParser) -> None:
     """``--broker-config``: the fleet's MQTT broker (``compd model rollout``, ``compd fleet list``)."""
     parser.add_argument(

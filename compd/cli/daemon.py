@@ -92,7 +92,7 @@ def _probe_bounds(config: Any, output: str) -> str:
 def check_config_command(args: argparse.Namespace) -> int:
     from compd.cli.terminal import Text, console  # rich: not in a daemon without a terminal
 
-    config = config_from_arg(args.config)
+    config = config_from_arg(args.config, args.overrides)
     doc = config.doc
     out = console()
     # Every check that can refuse the config runs before the first line is printed:
@@ -223,7 +223,7 @@ def run_command(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    config = config_from_arg(args.config)
+    config = config_from_arg(args.config, args.overrides)
     json_lines = {"auto": None, "json": True, "console": False}[args.log_format]
     configure_logging(json_lines=json_lines, level=args.log_level.upper())
     live_every = args.live_every

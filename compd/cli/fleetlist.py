@@ -96,15 +96,27 @@ def _when(unix_s: float | None) -> str:
     return datetime.datetime.fromtimestamp(unix_s, datetime.UTC).strftime("%Y-%m-%d %H:%M:%SZ")
 
 
-def last_seen(row: Machine) -> str:
-    """The table's ``last seen``: now, a time, or after the birth of the lost connection."""
+#: A stamp this far ahead of the clock reading it was not taken on a real clock.
+AHEAD_S = 300.0
+
+
+def last_seen(row: Machine, now_unix_s: float | None = None) -> str:
+    """The table's ``last seen``: now, a time, or after the birth of the lost connection.
+
+    A time ahead of ``now_unix_s`` (by :data:`AHEAD_S`) came from a daemon's
+    simulated clock (``--time-scale``: daemons that stamped births and deaths
+    with it, before they took the real clock's time): marked so, not shown as
+    a time to trust.
+    """
     if row.state == "online":
         return "now"
-    if row.last_seen_unix_s is not None:
-        return _when(row.last_seen_unix_s)
-    if row.since_unix_s is not None:
-        return f"after {_when(row.since_unix_s)}"
-    return "-"
+    stamp = row.last_seen_unix_s if row.last_seen_unix_s is not None else row.since_unix_s
+    if stamp is None:
+        return "-"
+    said = _when(stamp) if row.last_seen_unix_s is not None else f"after {_when(stamp)}"
+    if now_unix_s is not None and stamp > now_unix_s + AHEAD_S:
+        said += " (a simulated clock's, ahead of this one)"
+    return said
 
 
 def list_command(args: Any) -> int:
@@ -118,7 +130,8 @@ def list_command(args: Any) -> int:
 
     section, base_dir = broker_section(args.broker_config)
     listener = retained(section, base_dir, args.timeout_s)
-    rows = machines(listener, time.time())
+    now_unix_s = time.time()
+    rows = machines(listener, now_unix_s)
     if args.json:
         print(json.dumps({"machines": [asdict(row) for row in rows]}, indent=1))
         return 0
@@ -134,7 +147,7 @@ def list_command(args: Any) -> int:
             (row.sha256 or "-")[:12],
             desired[row.runs_desired],
             Text(state, style=styles.get(row.state, "")),
-            last_seen(row),
+            last_seen(row, now_unix_s),
         )
     online = sum(row.state == "online" for row in rows)
     out = console()

@@ -11,7 +11,7 @@ import argparse
 import sys
 from typing import Any
 
-from compd.cli.args import clock_options, daemon_options
+from compd.cli.args import clock_options, daemon_options, set_option
 
 
 def register(commands: Any) -> None:
@@ -38,6 +38,7 @@ def register(commands: Any) -> None:
         help="print a line every N ticks instead of the live view (default: the live view on "
         "a terminal, nothing otherwise)",
     )
+    set_option(run)
     clock_options(run)
     run.set_defaults(handler=_run)
 
@@ -50,6 +51,7 @@ def register(commands: Any) -> None:
         "with the file, the place and the fix.",
     )
     check.add_argument("config", metavar="FILE.yaml", help="path or bundled:NAME")
+    set_option(check)
     check.set_defaults(handler=_check_config)
 
     status = commands.add_parser(

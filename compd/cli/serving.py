@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -16,9 +17,9 @@ from compd.files.yamlplace import resolve_path
 from compd.service.config.loading import Config, load_config
 
 
-def config_from_arg(text: str) -> Config:
-    """The config ``--config`` names (a path, or ``bundled:NAME``), validated."""
-    return load_config(resolve_path(text, Path.cwd()))
+def config_from_arg(text: str, overrides: Sequence[str] = ()) -> Config:
+    """The config ``--config`` names (a path, or ``bundled:NAME``), with ``--set``'s keys, validated."""
+    return load_config(resolve_path(text, Path.cwd()), overrides)
 
 
 def configure_logging(*, json_lines: bool | None = None, level: str = "INFO") -> None:

@@ -18,7 +18,7 @@ from typing import Any
 
 from rich.text import Text
 
-from compd.cli.args import positive_float
+from compd.cli.args import positive_float, set_option
 from compd.cli.livescreen import FRAME_S, LiveScreen
 from compd.cli.modellist import installed_notice
 from compd.cli.serving import config_from_arg, configure_logging
@@ -50,6 +50,7 @@ def register(commands: Any) -> None:
         metavar="X",
         help="run the machine X times faster than real time (default 1); give compd the same",
     )
+    set_option(sim)
     sim.set_defaults(handler=_simulate_machine)
 
 
@@ -188,7 +189,7 @@ def print_summary(result: SimulationResult, notice: str | None = None) -> None:
 
 
 def _simulate_machine(args: argparse.Namespace) -> int:
-    config = config_from_arg(args.config)
+    config = config_from_arg(args.config, args.overrides)
     configure_logging()
     stop = asyncio.Event()
     every = 600  # steps: a line every 10 simulated minutes at 1 s

@@ -91,16 +91,8 @@ def status_command(args: argparse.Namespace) -> int:
             f"clock x{scale if virtual else format(scale, 'g')}: "
             f"machine time {reply['clock']['machine_time']} ({note})"
         )
-    signs = reply.get("signs", {})
-    for axis, value in reply["offsets_um"].items():
-        target = reply["targets_um"].get(axis)
-        sign = signs.get(axis, 1)
-        why = (
-            "model not started"
-            if target is None
-            else f"target {target:+.3f} um = sign {sign:+g} x model drift {target * sign:+.3f} um"
-        )
-        out.print(f"  offset {axis}: {value:+.3f} um ({why})")
+    for axis in reply["offsets_um"]:
+        out.print(offset_line(axis, reply))
         envelope = reply.get("envelope", {}).get(axis)
         if envelope is not None and envelope["outside"]:
             out.print(
@@ -139,6 +131,23 @@ def status_command(args: argparse.Namespace) -> int:
         if not row["verifiable"]:
             out.print(unverifiable_line(row))
     return 0
+
+
+def offset_line(axis: str, reply: dict[str, Any]) -> str:
+    """``offset Z: +0.158 um (target ...)``; ``(not written: plc link down; ...)`` while the
+    last tick did not write it: the PLC then holds another offset (``offsets_held_um``)."""
+    value = reply["offsets_um"][axis]
+    target = reply["targets_um"].get(axis)
+    sign = reply.get("signs", {}).get(axis, 1)
+    why = (
+        "model not started"
+        if target is None
+        else f"target {target:+.3f} um = sign {sign:+g} x model drift {target * sign:+.3f} um"
+    )
+    not_written = reply.get("offsets_not_written", {}).get(axis)
+    if not_written is not None:
+        why = f"not written: {not_written}; {why}"
+    return f"  offset {axis}: {value:+.3f} um ({why})"
 
 
 def unverifiable_line(row: dict[str, Any]) -> Text:

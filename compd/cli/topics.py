@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import re
+import textwrap
 import types
 import typing
 from pathlib import Path
@@ -114,27 +115,50 @@ def model_file_page() -> str:
 
 
 def schema_tree(doc: type[BaseModel], indent: int = 0) -> list[str]:
-    """One line per key of ``doc`` (a pydantic model): ``key: type (= default)``, sections nested."""
+    """One line per key of ``doc`` (a pydantic model): ``key: type (= default)``, sections nested.
+
+    A field's ``description`` follows as a comment (what it is, in which
+    unit); ``json_schema_extra={"default_is": TEXT}`` shows a key the
+    document fills in from another (so it is not shown as required).
+    """
     lines: list[str] = []
     hints = typing.get_type_hints(doc, include_extras=True)
     for name, field in doc.model_fields.items():
         key = field.alias or name
         annotation = hints.get(name, field.annotation)
         text = f"{'  ' * (indent + 1)}{key}: {_type_name(annotation)}"
-        if not field.is_required():
+        extra = field.json_schema_extra if isinstance(field.json_schema_extra, dict) else {}
+        if "default_is" in extra:  # filled in by the document from another key
+            text += f" (= {extra['default_is']})"
+        elif not field.is_required():
             default = field.get_default(call_default_factory=True)
             if isinstance(default, BaseModel):
                 text += " (= {...})"
-            elif default not in ({}, [], None):
+            elif default not in ({}, [], (), None):
                 text += f" (= {default!r})"
         text += _bounds(field.metadata)
-        lines.append(text)
+        lines += _described(text, field.description, indent + 2)
         for section in _sections(annotation):
             if section.__doc__ and section.__doc__ != BaseModel.__doc__:
                 summary = plain(section.__doc__.strip().splitlines()[0])
                 lines.append(f"{'  ' * (indent + 2)}# {summary}")
             lines += schema_tree(section, indent + 1)
     return lines
+
+
+#: The widest line a key and its description share; a longer description is wrapped beneath.
+_WIDTH = 100
+
+
+def _described(text: str, description: str | None, indent: int) -> list[str]:
+    """``text`` with ``description`` as a comment: on its line where it fits, else wrapped beneath."""
+    if not description:
+        return [text]
+    comment = plain(description)
+    if len(text) + len(comment) + 4 <= _WIDTH:
+        return [f"{text}  # {comment}"]
+    pad = "  " * indent + "# "
+    return [text, *textwrap.wrap(comment, _WIDTH, initial_indent=pad, subsequent_indent=pad)]
 
 
 #: reStructuredText roles (``:mod:`x```, ``:class:`~a.B```) and literals (````x````), for :func:`plain`.

@@ -310,9 +310,11 @@ def contributions(report: ReportData, run: ModelRun, output: str) -> go.Figure:
     parts = run.contributions(output)
     measured = report.data.column(run.outputs[output].measured_column)
     total = run.evaluation.predicted(output)
-    # Stacked areas must share one x: the union of every part's extremes,
-    # with fewer buckets per part so the union stays as light as one line.
-    index = minmax_indices(list(parts.values()), max(100, DEFAULT_BUCKETS // max(1, len(parts))))
+    # Stacked areas must share one x: the union of every part's extremes, with
+    # fewer buckets per part so the union is half a line's points: a stack of
+    # bands reads as shares over time, and it draws two traces per part.
+    per_part = max(50, DEFAULT_BUCKETS // (2 * max(1, len(parts))))
+    index = minmax_indices(list(parts.values()), per_part)
     fig = go.Figure()
     palette = ("#7fb3d5", "#f1948a", "#82e0aa", "#f8c471", "#bb8fce", "#85c1e9", "#f0b27a")
     # Mixed signs do not stack readably in one pile: positive parts pile up

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
+from functools import cache
 from html import escape
 from pathlib import Path
 from string import Template
@@ -69,6 +70,7 @@ nav a { margin-right: 1rem; }
 code { font-size: 0.88em; }
 </style>
 <script type="text/javascript">$plotlyjs</script>
+<script type="text/javascript">function compdTemplate() { return $template; }</script>
 </head>
 <body>
 <header>
@@ -95,17 +97,44 @@ $summaries
 """)
 
 
+#: The template the figures are drawn with: in the page head once, as ``compdTemplate()`` (a
+#: fresh object per figure), not in each figure's layout (7 KB each, a tenth of a long record's lines).
+TEMPLATE = "plotly_white"
+
+
+@cache
+def _template() -> dict[str, object]:
+    """:data:`TEMPLATE` as a figure's layout carries it (plotly's JSON of it)."""
+    blank = json.loads(pio.to_json(go.Figure(layout={"template": TEMPLATE}), validate=False))
+    template: dict[str, object] = blank["layout"]["template"]
+    return template
+
+
 def figure_html(fig: go.Figure, div_id: str) -> str:
-    """One figure as a ``div`` plus its drawing script (plotly.js is in the page head)."""
-    html = pio.to_html(
-        fig,
-        full_html=False,
-        include_plotlyjs=False,
-        div_id=div_id,
-        config=_PLOT_CONFIG,
-        default_height=f"{fig.layout.height}px" if fig.layout.height else "100%",
+    """One figure as a ``div`` plus its drawing script (plotly.js and the template in the page head).
+
+    ``Plotly.newPlot(id, data, layout, config)`` as plotly's own ``to_html``
+    writes it (numpy arrays as typed arrays), the layout's template, where it
+    is :data:`TEMPLATE`, taken from the page's ``compdTemplate()``.
+    """
+    spec = json.loads(pio.to_json(fig, validate=False))
+    layout = spec["layout"]
+    shared = layout.get("template") == _template()
+    if shared:
+        del layout["template"]
+    data_js, layout_js = (
+        json.dumps(part, separators=(",", ":")).replace("</", "<\\/")
+        for part in (spec["data"], layout)
     )
-    return f'<div class="{FIGURE_CLASS}">{html}</div>'
+    if shared:
+        layout_js = f"Object.assign({layout_js},{{template:compdTemplate()}})"
+    height = f"{fig.layout.height}px" if fig.layout.height else "100%"
+    return (
+        f'<div class="{FIGURE_CLASS}"><div id="{div_id}" class="plotly-graph-div" '
+        f'style="height:{height}; width:100%;"></div><script type="text/javascript">'
+        f'Plotly.newPlot("{div_id}",{data_js},{layout_js},{json.dumps(_PLOT_CONFIG)});'
+        "</script></div>"
+    )
 
 
 def json_script(element_id: str, value: object) -> str:
@@ -153,6 +182,7 @@ def build_html(report: ReportData) -> str:
         version=escape(__version__),
         title=title,
         plotlyjs=plotly_js(),
+        template=json.dumps(_template(), separators=(",", ":")).replace("</", "<\\/"),
         meta=meta,
         nav="".join(nav),
         plural="s" if len(report.runs) > 1 else "",

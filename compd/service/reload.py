@@ -77,7 +77,9 @@ class Reloader:
         if ready:
             self.notifier.reloading(f"reloading {self.config.path}")
         try:
-            config = self._config_outcome(await asyncio.to_thread(load_config, self.config.path))
+            config = self._config_outcome(
+                await asyncio.to_thread(load_config, self.config.path, self.config.overrides)
+            )
         except Exception as exc:  # a config that cannot be read; never the daemon's end
             log.error(
                 "reload: the config is refused; running on with the config it started with",

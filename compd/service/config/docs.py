@@ -27,6 +27,7 @@ from compd.schemas import CONFIG_SCHEMA
 from compd.service.config.admission import Access
 from compd.service.config.docbase import FiniteFloat, Positive, Strict
 from compd.service.config.fleetdoc import HttpDoc, TelemetryDoc
+from compd.service.config.simdoc import SimulationDoc
 from compd.service.loop.clock import Clock
 from compd.service.loop.envelope import EnvelopeSettings
 from compd.service.loop.links import DriverLink
@@ -537,8 +538,8 @@ class ConfigDoc(Strict):
     http: HttpDoc | None = None
     #: Probe measurements that update the model in service; none without.
     probes: ProbesDoc | None = None
-    #: The simulated machine this config runs against (:mod:`compd.sim.plc.settings`).
-    simulation: dict[str, Any] | None = None
+    #: The simulated machine this config runs against (:mod:`compd.service.config.simdoc`).
+    simulation: SimulationDoc | None = None
 
     def pairs(self) -> list[Pair]:
         """The redundant pairs: each signal naming a partner (``redundant:``), in config order."""

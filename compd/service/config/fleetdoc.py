@@ -37,7 +37,8 @@ TopicLevel = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.:-]+$", max_length=100)
 class TelemetryDoc(Strict):
     """MQTT telemetry (:mod:`compd.service.fleet.telemetry`): where, as whom, how often, how much to queue."""
 
-    machine_id: TopicLevel
+    #: Required here only without the top-level ``machine_id``: ``ConfigDoc`` fills it in from that.
+    machine_id: TopicLevel = Field(json_schema_extra={"default_is": "the top-level machine_id"})
     host: str = Field(default="localhost", min_length=1)
     port: int | None = Field(
         default=None, ge=1, le=65535, description="default: 1883, 8883 with tls"

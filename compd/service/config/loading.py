@@ -19,11 +19,11 @@ from one to another, an address a driver type must accept), run in the order
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import yaml
 from pydantic import BaseModel, ValidationError
@@ -49,6 +49,8 @@ from compd.files.yamlplace import (
 from compd.service.config import paths
 from compd.service.config.docs import SCHEMA, ConfigDoc, default_redundant_tolerance
 from compd.service.config.overlaps import check_overlaps
+from compd.service.config.overrides import apply_overrides
+from compd.service.config.simdoc import SimulationDoc
 from compd.service.config.writepoints import (
     ErrorAt,
     HookCall,
@@ -81,9 +83,9 @@ class Config:
     recorder_dir: Path | None
     control_socket: Path
     driver_settings: dict[str, BaseModel]
-    #: The ``simulation:`` section as written: the service never reads it; the
-    #: command line and :mod:`compd.sim.plc.settings` validate it and start the twin.
-    simulation: Mapping[str, Any] | None = None
+    #: The ``simulation:`` section (:mod:`compd.service.config.simdoc`): the service never
+    #: reads it; the command line starts the twin from it (:mod:`compd.sim.plc.build`).
+    simulation: SimulationDoc | None = None
     #: Per axis: the offset is read back each tick (:mod:`compd.service.config.writepoints`).
     readback: dict[str, bool] = field(default_factory=dict)
     #: Per axis: its point holds whole counts (an int encoding, or an integer register).
@@ -92,6 +94,8 @@ class Config:
     mismatch_bit: int | None = None
     #: The status word's model-fault bit, where its point holds it (None: logged and counted only).
     model_fault_bit: int | None = None
+    #: ``KEY=VALUE`` set on the command line (``--set``); a reload applies them again.
+    overrides: tuple[str, ...] = ()
     #: The YAML node tree, for the line numbers of errors found later (:func:`check_model`).
     root: yaml.Node | None = field(default=None, repr=False, compare=False)
 
@@ -168,16 +172,27 @@ class Config:
         }
 
 
-def load_config(path: str | Path) -> Config:
-    """Read and validate a config file (schema and references; see :func:`check_model`)."""
+def load_config(path: str | Path, overrides: Sequence[str] = ()) -> Config:
+    """Read and validate a config file (schema and references; see :func:`check_model`).
+
+    ``overrides``: ``KEY=VALUE`` keys set on the command line (:mod:`compd.service.config.overrides`).
+    """
     path = Path(path)
     text = read_limited(path, ConfigFileError).decode("utf-8", errors="replace")
-    return parse_config(text, path)
+    try:
+        return parse_config(text, path, overrides)
+    except ConfigFileError as error:
+        if not overrides or error.message.startswith("--set"):
+            raise
+        # The key may be one set on the command line, not the file's line named.
+        said = ", ".join(f"--set {o}" for o in overrides)
+        fix = f"{error.fix} (this run also has {said})".lstrip()
+        raise ConfigFileError(path, error.message, where=error.where, fix=fix) from error
 
 
-def parse_config(text: str, path: Path) -> Config:
+def parse_config(text: str, path: Path, overrides: Sequence[str] = ()) -> Config:
     """Validate ``text`` as the config at ``path``: the first problem found is the error raised."""
-    doc, root = _read_doc(text, path)
+    doc, root = _read_doc(text, path, overrides)
     at = _Places(path, root)
     types, settings = _driver_types(doc, at)
     _check_model_named(doc, at.error)
@@ -211,6 +226,7 @@ def parse_config(text: str, path: Path) -> Config:
         mismatch_bit=status_mismatch_bit(doc, types, settings),
         model_fault_bit=status_model_fault_bit(doc, types, settings),
         root=root,
+        overrides=tuple(overrides),
     )
 
 
@@ -237,9 +253,13 @@ class _Places:
         return validation_error(exc, self.path, self.root, prefix, model)
 
 
-def _read_doc(text: str, path: Path) -> tuple[ConfigDoc, yaml.Node | None]:
-    """The YAML, of the supported schema, validated section by section."""
+def _read_doc(
+    text: str, path: Path, overrides: Sequence[str] = ()
+) -> tuple[ConfigDoc, yaml.Node | None]:
+    """The YAML, of the supported schema, with ``overrides`` set, validated section by section."""
     data, root = parse_yaml(text, path, ConfigFileError)
+    if overrides:
+        data = apply_overrides(data, overrides, path)
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         shown = data.get("schema") if isinstance(data, dict) else None
         raise ConfigFileError(

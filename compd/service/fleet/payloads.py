@@ -54,15 +54,20 @@ class Payloads:
         self._told_outdated = ""
 
     def header(self, kind: str) -> dict[str, Any]:
+        """The fields every payload starts with; ``machine_time`` where the service's clock is not
+        the real one (``--time-scale``, a simulation on virtual time)."""
         self.seq += 1
+        now_unix_s, machine_s = time.time(), self.wall()
         return {
             "schema": SCHEMA,
             "kind": kind,
             "machine_id": self.topics.machine_id,
             "session": self.session,
             "seq": self.seq,
-            "time": self.wall(),
-        }
+            # When it was sent, on the real clock: what a fleet reads of a birth or a death;
+            # a status or an event carries its tick's time instead (the service's clock).
+            "time": now_unix_s,
+        } | ({} if abs(machine_s - now_unix_s) < 1.0 else {"machine_time": machine_s})
 
     def birth(self, events: EventSink) -> dict[str, Any]:
         """Who publishes; ``events`` hears ``model_outdated`` once per desired model not run."""

@@ -81,6 +81,9 @@ def status_snapshot(
         "offsets_um": {a: s.offset_um for a, s in comp.safety.items()},
         # What the PLC holds as far as compd knows (read back, else acknowledged).
         "offsets_held_um": comp.held.known_um(),
+        # Per axis whose offset the last tick did not write (the device did not acknowledge
+        # it), why: its driver's link, e.g. "plc link down"; absent while it is written.
+        "offsets_not_written": _not_written(comp, links),
         # The offset each axis aims at: sign x the model's output (its predicted drift).
         "targets_um": {} if last is None else last.targets_um,
         "signs": {axis.name: axis.sign for axis in comp.axes},
@@ -162,6 +165,24 @@ def health_problems(
         if stage.watch.faulted and (said := stage.watch.sentence(name)) is not None
     ]
     return problems
+
+
+def _not_written(comp: Compensator, links: Mapping[str, DriverLink]) -> dict[str, str]:
+    """Per axis the last tick wrote no offset to, why, in a few words (``plc link down``)."""
+    last = comp.last
+    if last is None:
+        return {}
+    why = {}
+    for axis in comp.axes:
+        if math.isnan(last.acknowledged_um.get(axis.name, math.nan)):
+            link = links.get(axis.driver)
+            state = "unknown" if link is None else link.state
+            why[axis.name] = (
+                f"{axis.driver} not acknowledged"
+                if state == "up"
+                else f"{axis.driver} link {state}"
+            )
+    return why
 
 
 def _model(comp: Compensator, when: Callable[[float], str]) -> dict[str, Any]:

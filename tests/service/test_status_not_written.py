@@ -1,0 +1,48 @@
+"""``compd status`` marks an offset the last tick did not write, and says why (the PLC's link down)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from compd.cli.status import offset_line
+
+from .daemon_setup import run, write_config
+
+
+def _with_outage(tmp_path: Path, duration_s: float):
+    """The bundled simulated config with its output on a second PLC that drops from 150 s to 180 s."""
+    drop = {"kind": "drop", "start_s": 150, "duration_s": 30}
+    plc = {
+        "type": "simulated",
+        "settings": {"data": "bundled:example_spectrum.csv", "faults": [drop]},
+    }
+    config = write_config(
+        tmp_path,
+        {
+            "drivers": {"machine": {"settings": {"start_s": 7200}}, "plc": plc},
+            "outputs": {"Y": {"driver": "plc"}},
+            "status": {"driver": "plc"},
+        },
+    )
+    return run(config, duration_s)
+
+
+def test_during_a_plc_outage_the_offset_is_marked_not_written(tmp_path: Path) -> None:
+    """Inside the drop the status answer names the axis and its link; the line says "not written: plc link down"."""
+    service, records = _with_outage(tmp_path, 165.0)
+    assert not records[-1].written
+    reply = service.status()
+    assert reply["offsets_not_written"] == {"Y": "plc link down"}
+    line = offset_line("Y", reply)
+    assert line.startswith(
+        f"  offset Y: {reply['offsets_um']['Y']:+.3f} um (not written: plc link down; target"
+    )
+
+
+def test_once_the_link_is_back_the_mark_is_gone(tmp_path: Path) -> None:
+    """After the drop the offset is written again: no mark, the usual line."""
+    service, records = _with_outage(tmp_path, 240.0)
+    assert records[-1].written
+    reply = service.status()
+    assert reply["offsets_not_written"] == {}
+    assert "not written" not in offset_line("Y", reply) and "target" in offset_line("Y", reply)
