@@ -17,7 +17,11 @@ and reports:
   cost, and what compd adds is the difference. Each thread's share (Linux:
   ``/proc/self/task/*/schedstat``) says whether anything but the loop's
   thread wakes each tick. The bare loop runs half its ticks before the
-  service and half after, so a change in the machine's load shows.
+  service and half after, so a change in the machine's load shows. Beside
+  them, the same ticks on the virtual clock, back to back (the tick's own
+  Python work, caches warm) and with 20 ms of real sleep between two (the
+  same work after other processes ran: what a tick costs on the real clock,
+  less the wake-up).
 
 Also, on its own: the recorder's CPU cost of one 20-column row (written
 each row), best of 3 runs of 1000 rows, process CPU time.
@@ -51,7 +55,7 @@ from common import build_model, environment, verdict, week_signals
 
 from compd.service.config.loading import Config, load_config
 from compd.service.daemon import Service
-from compd.service.loop.clock import RealClock
+from compd.service.loop.clock import RealClock, VirtualClock
 from compd.service.loop.compensator import TickRecord
 from compd.service.loop.probemessages import ProbeRequest
 from compd.service.loop.ticks import run_periodic
@@ -61,6 +65,8 @@ MAX_P99_LATENESS_MS = 5.0
 #: What compd may add to the bare asyncio loop's CPU per tick (its Python work is 0.24-0.34 ms).
 MAX_ADDED_CPU_MS_PER_TICK = 0.3
 MAX_RECORDER_ROW_US = 50.0
+#: The real sleep between two ticks on the virtual clock that shows the cost of cold caches (s).
+PAUSE_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -272,6 +278,33 @@ class Measured:
     cpu: CpuPerTick
 
 
+def work_cpu(n_ticks: int, pause_s: float) -> CpuPerTick:
+    """CPU per tick of the same service on the virtual clock, ``pause_s`` real seconds between ticks.
+
+    Back to back (0 s) the caches stay warm: the tick's own Python work. With
+    a pause, other processes run between two ticks, as they do between two
+    wake-ups of ``compd run``: the same work then costs what the real clock
+    measures, less the wake-up itself.
+    """
+    with tempfile.TemporaryDirectory(prefix="compd-bench-", dir="/tmp") as tmp:
+        config = load_config(write_config(Path(tmp), n_ticks))
+        readings: list[CpuReading] = []
+        ticks = 0
+
+        def on_tick(record: TickRecord) -> None:
+            nonlocal ticks
+            ticks += 1
+            if ticks in (1, n_ticks):
+                readings.append(CpuReading.now())
+            if pause_s:
+                time.sleep(pause_s)
+
+        service = Service(config, clock=VirtualClock(), control=False)
+        service.subscribe(on_tick)
+        asyncio.run(service.run(duration_s=float(n_ticks - 1)))
+    return CpuPerTick.between(readings[0], readings[-1], n_ticks - 1)
+
+
 def measure(n_ticks: int, period_s: float, *, probe_every_ticks: int | None = None) -> Measured:
     """Run the service for ``n_ticks``; returns per-tick lateness (ms) and CPU per tick.
 
@@ -359,6 +392,11 @@ def main() -> int:
         f"target <= {MAX_ADDED_CPU_MS_PER_TICK:g} ms  {verdict(ok_cpu)}"
     )
     print(f"  per thread, ms/tick: compd {cpu.per_thread()}; bare {bare_after.per_thread()}")
+    hot, paused = work_cpu(args.ticks, 0.0), work_cpu(min(args.ticks, 300), PAUSE_S)
+    print(
+        f"  the same ticks on the virtual clock: {hot.total_ms:.3f} ms back to back (the work), "
+        f"{paused.total_ms:.3f} ms with {PAUSE_S * 1e3:g} ms of sleep between two (cold caches)"
+    )
     # Probes on every axis, one every 60 ticks: the same loop beside the figures above.
     probed = measure(args.ticks, args.period_s, probe_every_ticks=60)
     ordered_p = sorted(probed.lateness_ms)
