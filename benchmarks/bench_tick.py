@@ -39,19 +39,17 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
-import os
-import resource
 import statistics
 import sys
 import tempfile
-import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import yaml
 from common import build_model, environment, verdict, week_signals
+from cputime import CpuPerTick, CpuReading
 
 from compd.service.config.loading import Config, load_config
 from compd.service.daemon import Service
@@ -67,75 +65,6 @@ MAX_ADDED_CPU_MS_PER_TICK = 0.3
 MAX_RECORDER_ROW_US = 50.0
 #: The real sleep between two ticks on the virtual clock that shows the cost of cold caches (s).
 PAUSE_S = 0.02
-
-
-@dataclass(frozen=True)
-class CpuReading:
-    """The process's user and sys CPU time (s) and each live thread's CPU time (s) by thread id."""
-
-    user_s: float
-    sys_s: float
-    #: Thread id -> (name, CPU s); empty where ``/proc`` has no per-thread figures.
-    threads: dict[int, tuple[str, float]]
-
-    @classmethod
-    def now(cls) -> CpuReading:
-        usage = resource.getrusage(resource.RUSAGE_SELF)  # us resolution (os.times: 10 ms)
-        return cls(usage.ru_utime, usage.ru_stime, _thread_cpu_s())
-
-
-@dataclass(frozen=True)
-class CpuPerTick:
-    """CPU ms per tick between two readings: user, sys, and each thread's (name -> ms)."""
-
-    user_ms: float
-    sys_ms: float
-    threads_ms: dict[str, float] = field(default_factory=dict)
-
-    @property
-    def total_ms(self) -> float:
-        return self.user_ms + self.sys_ms
-
-    @classmethod
-    def between(cls, start: CpuReading, end: CpuReading, ticks: int) -> CpuPerTick:
-        """Per tick over ``ticks``; a thread started after ``start`` counts from zero."""
-        threads: dict[str, float] = {}
-        for tid, (name, cpu_s) in end.threads.items():
-            before_s = start.threads.get(tid, (name, 0.0))[1]
-            key = name if name not in threads else f"{name} ({tid})"
-            threads[key] = (cpu_s - before_s) * 1e3 / ticks
-        return cls(
-            (end.user_s - start.user_s) * 1e3 / ticks,
-            (end.sys_s - start.sys_s) * 1e3 / ticks,
-            threads,
-        )
-
-    def __str__(self) -> str:
-        return f"{self.total_ms:.3f} ms (user {self.user_ms:.3f} + sys {self.sys_ms:.3f})"
-
-    def per_thread(self) -> str:
-        """``MainThread 0.812, compd-recorder 0.001`` (ms per tick); threads idle throughout left out."""
-        busy = [(ms, name) for name, ms in self.threads_ms.items() if ms >= 0.0005]
-        return ", ".join(f"{name} {ms:.3f}" for ms, name in sorted(busy, reverse=True)) or "n/a"
-
-
-def _thread_cpu_s() -> dict[int, tuple[str, float]]:
-    """Each thread's CPU time so far (s, ns resolution from ``schedstat``), named as Python names it."""
-    names = {t.native_id: t.name for t in threading.enumerate()}
-    threads = {}
-    try:
-        tids = os.listdir("/proc/self/task")
-    except OSError:  # not Linux: process figures only
-        return {}
-    for tid_text in tids:
-        tid = int(tid_text)
-        try:
-            with open(f"/proc/self/task/{tid}/schedstat") as f:
-                on_cpu_ns = int(f.read().split()[0])
-        except (OSError, ValueError, IndexError):  # the thread ended meanwhile
-            continue
-        threads[tid] = (names.get(tid, f"thread {tid}"), on_cpu_ns / 1e9)
-    return threads
 
 
 def bare_loop(n_ticks: int, period_s: float) -> CpuPerTick:
