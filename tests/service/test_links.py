@@ -226,3 +226,75 @@ def test_the_daemon_runs_on_through_a_driver_that_raises_anything(tmp_path):
         "RecursionError",
         "TypeError",
     ]
+
+
+class Waiting:
+    """A driver that does its first step at once and then waits ``wait_s`` (real s) for its device."""
+
+    def __init__(self, wait_s: float) -> None:
+        self.wait_s = wait_s
+        self.steps: list[str] = []
+
+    async def open(self) -> None:
+        return None
+
+    async def read(self, points: Sequence[str]) -> dict[str, float]:
+        self.steps.append("asked")
+        await asyncio.sleep(0)  # the request goes out
+        await asyncio.sleep(self.wait_s)  # the answer comes back
+        self.steps.append("answered")
+        return {p: 2.0 for p in points}
+
+    async def write(self, values: Mapping[str, float]) -> None:
+        self.steps.append("asked")
+        await asyncio.sleep(self.wait_s)
+        self.steps.append("answered")
+
+    async def close(self) -> None:
+        return None
+
+
+def test_a_driver_that_waits_for_its_device_is_read_and_written_through_its_waits():
+    """A read or write that waits (on the event loop) is resumed until it answers, its value returned."""
+    driver = Waiting(0.001)
+    link = DriverLink("plc", driver, VirtualClock(), timeout_s=5.0)
+
+    async def scenario() -> tuple[dict[str, float], bool]:
+        await link.open()
+        return await link.read(["a", "b"]), await link.write({"c": 1.0})
+
+    assert asyncio.run(scenario()) == ({"a": 2.0, "b": 2.0}, True)
+    assert driver.steps == ["asked", "answered", "asked", "answered"] and link.state == "up"
+
+
+@pytest.mark.parametrize("action", ["read", "write"])
+def test_a_driver_that_waits_past_the_timeout_is_a_timed_out_fault(action):
+    """A call that started at once but waits longer than ``timeout_s`` is cut there: down, 'timed out'."""
+    driver = Waiting(3600.0)
+    link = DriverLink("plc", driver, VirtualClock(), timeout_s=0.02)
+
+    async def scenario() -> object:
+        await link.open()
+        return await (link.read(["a"]) if action == "read" else link.write({"a": 1.0}))
+
+    assert asyncio.run(scenario()) in ({}, False)
+    assert driver.steps == ["asked"]  # cancelled in its wait, never answered
+    assert link.state == "not connected" and link.last_error == "timed out"
+
+
+def test_cancelling_the_loop_cancels_a_driver_call_that_waits():
+    """Cancelling the task cancels the driver's wait inside the call; the CancelledError passes through."""
+    driver = Waiting(3600.0)
+    link = DriverLink("plc", driver, VirtualClock(), timeout_s=3600.0)
+
+    async def scenario() -> None:
+        await link.open()
+        task = asyncio.ensure_future(link.read(["a"]))
+        await asyncio.sleep(0.01)
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        assert link.state == "not connected" and link.failures == 0  # not a fault
+
+    asyncio.run(scenario())
+    assert driver.steps == ["asked"]

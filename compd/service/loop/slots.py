@@ -227,7 +227,7 @@ class ModelSlots:
                 slot.outputs[:] = np.nan
                 fault = self._unload(slot, f"failed: {exc!r}")
                 continue
-            if not np.all(np.isfinite(slot.outputs)):
+            if not np.isfinite(slot.outputs).all():  # the method: no np.all wrapper each tick
                 fault = f"model {slot.compiled.name!r} gave a non-finite output"
                 state = slot.runner.state
                 if not all(np.all(np.isfinite(v)) for v in (state.z, state.residual)):
