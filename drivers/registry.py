@@ -15,6 +15,7 @@ import importlib
 from functools import cache
 
 from compd.drivers.base import DriverType
+from compd.extras import TOOLKIT_INSTALL, missing_toolkit_module
 
 #: Entry-point group for third-party drivers.
 ENTRY_POINT_GROUP = "compd.drivers"
@@ -57,7 +58,9 @@ def load_driver_type(name: str) -> DriverType:
         try:
             kind: DriverType = getattr(importlib.import_module(module), attribute)
         except ImportError as exc:
-            raise DriverImportError(f"driver type {name!r} cannot be imported: {exc}") from exc
+            raise DriverImportError(
+                f"driver type {name!r} cannot be imported: {exc}{_toolkit_note(exc)}"
+            ) from exc
         return kind
     from importlib import metadata  # a daemon of built-in drivers never reads it
 
@@ -67,6 +70,16 @@ def load_driver_type(name: str) -> DriverType:
         except ImportError as exc:
             raise DriverImportError(
                 f"driver type {name!r} ({entry.value}) cannot be imported: {exc}"
+                f"{_toolkit_note(exc)}"
             ) from exc
         return loaded
     raise UnknownDriverError(name)
+
+
+def _toolkit_note(exc: ImportError) -> str:
+    """Where the missing library is the modelling toolkit's (the ``simulated`` driver's pandas): how to get it."""
+    return (
+        ""
+        if missing_toolkit_module(exc) is None
+        else f" (the modelling toolkit's: {TOOLKIT_INSTALL})"
+    )
