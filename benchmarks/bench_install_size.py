@@ -134,7 +134,7 @@ def distributions_mb(venv: Venv) -> dict[str, float]:
             file = site / line.split(",")[0]
             if file.is_file():
                 total += file.stat().st_size
-        name = record.parent.name.rsplit("-", 1)[0]
+        name = record.parent.name.removesuffix(".dist-info").rsplit("-", 1)[0]
         sizes[name] = total / 2**20
     return sizes
 

@@ -15,7 +15,7 @@ import importlib
 from functools import cache
 
 from compd.drivers.base import DriverType
-from compd.extras import TOOLKIT_INSTALL, missing_toolkit_module
+from compd.extras import missing_extra
 
 #: Entry-point group for third-party drivers.
 ENTRY_POINT_GROUP = "compd.drivers"
@@ -59,7 +59,7 @@ def load_driver_type(name: str) -> DriverType:
             kind: DriverType = getattr(importlib.import_module(module), attribute)
         except ImportError as exc:
             raise DriverImportError(
-                f"driver type {name!r} cannot be imported: {exc}{_toolkit_note(exc)}"
+                f"driver type {name!r} cannot be imported: {exc}{_extra_note(exc)}"
             ) from exc
         return kind
     from importlib import metadata  # a daemon of built-in drivers never reads it
@@ -69,17 +69,13 @@ def load_driver_type(name: str) -> DriverType:
             loaded: DriverType = entry.load()
         except ImportError as exc:
             raise DriverImportError(
-                f"driver type {name!r} ({entry.value}) cannot be imported: {exc}"
-                f"{_toolkit_note(exc)}"
+                f"driver type {name!r} ({entry.value}) cannot be imported: {exc}{_extra_note(exc)}"
             ) from exc
         return loaded
     raise UnknownDriverError(name)
 
 
-def _toolkit_note(exc: ImportError) -> str:
-    """Where the missing library is the modelling toolkit's (the ``simulated`` driver's pandas): how to get it."""
-    return (
-        ""
-        if missing_toolkit_module(exc) is None
-        else f" (the modelling toolkit's: {TOOLKIT_INSTALL})"
-    )
+def _extra_note(exc: ImportError) -> str:
+    """Where the missing library is an extra's (asyncua, the ``simulated`` driver's pandas): its install line."""
+    missing = missing_extra(exc)
+    return "" if missing is None else f" (install it: {missing.install})"

@@ -1,8 +1,8 @@
 """A daemon-only install (``pip install compd``): the operations run, the toolkit's commands say how to get it.
 
-The toolkit's libraries are made unimportable in a child interpreter (a meta
-path finder ahead of every other, as if they were not installed), and compd
-runs there as a user would type it.
+The extras' libraries (the toolkit's, asyncua) are made unimportable in a
+child interpreter (a meta path finder ahead of every other, as if they were
+not installed), and compd runs there as a user would type it.
 """
 
 from __future__ import annotations
@@ -25,17 +25,19 @@ import yaml
 from packaging.requirements import Requirement
 
 from compd.cli import COMMANDS
-from compd.extras import TOOLKIT_INSTALL, TOOLKIT_MODULES, missing_toolkit_module, toolkit_hint
+from compd.extras import EXTRAS, Missing, hint, missing_extra
 from compd.model.transfer import DiscreteTF, resample_discrete
 from tests.ports import free_port
 
 ROOT = Path(__file__).parent.parent
 PROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
 
-#: ``compd ARGV`` in an interpreter where the toolkit's modules cannot be imported.
-WITHOUT_TOOLKIT = (
+#: Every module an extra brings.
+EXTRA_MODULES = sorted(set().union(*(extra.modules for extra in EXTRAS.values())))
+#: ``compd ARGV`` in an interpreter where no extra's module can be imported.
+WITHOUT_EXTRAS = (
     "import runpy, sys\n"
-    f"BLOCKED = {sorted(TOOLKIT_MODULES)!r}\n"
+    f"BLOCKED = {EXTRA_MODULES!r}\n"
     "class NotInstalled:\n"
     "    def find_spec(self, name, path=None, target=None):\n"
     "        if name.partition('.')[0] in BLOCKED:\n"
@@ -61,14 +63,16 @@ TOOLKIT_COMMANDS: dict[str, list[str]] = {
 }
 #: The simulated machine runs in ``compd run``'s process: the README's first command needs the toolkit.
 SIMULATED_RUN = ["run", "--config", "bundled:simulated.yaml", "--time-scale", "max"]
+#: A toolkit command's full help needs its parser, which needs the toolkit.
+HELP_FIT = ["help", "fit"]
 
 
-def without_toolkit(
+def without_extras(
     *argv: object, home: Path, timeout_s: float = 120
 ) -> subprocess.CompletedProcess[str]:
     """``compd ARGV`` where the toolkit is not installed; ``home`` its HOME (state dirs of ``~``)."""
     return subprocess.run(
-        [sys.executable, "-c", WITHOUT_TOOLKIT, *map(str, argv)],
+        [sys.executable, "-c", WITHOUT_EXTRAS, *map(str, argv)],
         capture_output=True, text=True, timeout=timeout_s, cwd=home,
         env={**_env(), "HOME": str(home)},
     )  # fmt: skip
@@ -82,41 +86,49 @@ def _env() -> dict[str, str]:
 # --- what the extras are -------------------------------------------------------
 
 
-def test_the_toolkit_modules_are_the_import_names_of_the_toolkit_extra() -> None:
-    """TOOLKIT_MODULES are the public top-level modules of the distributions the toolkit extra lists."""
-    by_module = metadata.packages_distributions()
-    toolkit = {
-        Requirement(text).name.lower() for text in PROJECT["optional-dependencies"]["toolkit"]
-    }
+def names(texts: list[str]) -> set[str]:
+    """The distributions ``texts`` require, compd's own extras left out."""
+    required = {Requirement(text.split("#")[0]).name.lower() for text in texts}
+    return required - {PROJECT["name"]}
+
+
+@pytest.mark.parametrize("extra", EXTRAS)
+def test_each_extras_modules_are_the_import_names_of_its_distributions(extra: str) -> None:
+    """EXTRAS names the public top-level modules of the distributions pyproject's extra lists."""
+    distributions = names(PROJECT["optional-dependencies"][extra])
     provided = {
         module
-        for module, distributions in by_module.items()
-        if not module.startswith("_") and {d.lower() for d in distributions} & toolkit
+        for module, owners in metadata.packages_distributions().items()
+        if not module.startswith("_") and {d.lower() for d in owners} & distributions
     }
-    assert provided == TOOLKIT_MODULES
+    assert provided == EXTRAS[extra].modules
 
 
-def test_the_base_install_holds_none_of_the_toolkit_and_the_tests_all_of_it() -> None:
-    """``pip install compd`` brings no toolkit library; ``[test]`` brings the toolkit (the suite runs every command)."""
-    base = {Requirement(text).name.lower() for text in PROJECT["dependencies"]}
+def test_the_base_install_holds_no_extra_and_the_tests_all_of_them() -> None:
+    """``pip install compd`` brings no extra's library; ``[toolkit]`` has OPC UA, ``[test]`` the toolkit."""
     extras = PROJECT["optional-dependencies"]
-    toolkit = {Requirement(text).name.lower() for text in extras["toolkit"]}
-    assert base.isdisjoint(toolkit)
+    base = names(PROJECT["dependencies"])
+    for extra in EXTRAS:
+        assert base.isdisjoint(names(extras[extra])), extra
+    assert "compd[opcua]" in extras["toolkit"]
     assert "compd[toolkit]" in extras["test"]
 
 
-def test_a_missing_toolkit_module_is_found_through_what_wrapped_it() -> None:
+def test_a_missing_extras_module_is_found_through_what_wrapped_it() -> None:
     """The module is named from the error itself, what it was raised from, or an exception group's member."""
     missing = ModuleNotFoundError("No module named 'scipy.signal'", name="scipy.signal")
     wrapped = ImportError("driver type 'simulated' cannot be imported")
     wrapped.__cause__ = missing  # raise wrapped from missing
-    assert missing_toolkit_module(missing) == "scipy"
-    assert missing_toolkit_module(wrapped) == "scipy"
-    assert missing_toolkit_module(ExceptionGroup("tasks", [ValueError(), missing])) == "scipy"
-    assert missing_toolkit_module(ModuleNotFoundError("x", name="pymodbus")) is None
-    assert missing_toolkit_module(ValueError("pandas")) is None
-    assert toolkit_hint("compd fit", "pandas") == (
-        f"compd fit needs the modelling toolkit: {TOOLKIT_INSTALL} (pandas is not installed)"
+    assert missing_extra(missing) == Missing("toolkit", "scipy")
+    assert missing_extra(wrapped) == Missing("toolkit", "scipy")
+    assert missing_extra(ExceptionGroup("tasks", [ValueError(), missing])) == Missing(
+        "toolkit", "scipy"
+    )
+    assert missing_extra(ModuleNotFoundError("x", name="asyncua.ua")) == Missing("opcua", "asyncua")
+    assert missing_extra(ModuleNotFoundError("x", name="pymodbus")) is None
+    assert missing_extra(ValueError("pandas")) is None
+    assert hint("compd fit", Missing("toolkit", "pandas")) == (
+        "compd fit needs the modelling toolkit: pip install 'compd[toolkit]' (pandas is not installed)"
     )
 
 
@@ -138,17 +150,18 @@ def test_every_command_is_either_an_operation_or_the_toolkits() -> None:
 
 
 @pytest.mark.parametrize(
-    "argv", [*TOOLKIT_COMMANDS.values(), SIMULATED_RUN], ids=lambda a: " ".join(a[:1])
+    "argv", [*TOOLKIT_COMMANDS.values(), SIMULATED_RUN, HELP_FIT], ids=lambda a: " ".join(a[:1])
 )
 def test_a_toolkit_command_without_the_toolkit_says_how_to_get_it(
     argv: list[str], home: Path
 ) -> None:
     """One line naming the command and ``pip install 'compd[toolkit]'``, exit status 2, no traceback."""
-    done = without_toolkit(*argv, home=home)
+    done = without_extras(*argv, home=home)
     assert done.returncode == 2, done.stderr
     assert "Traceback" not in done.stderr
+    command = " ".join(argv[:2] if argv == HELP_FIT else argv[:1])
     line = (
-        f"compd: error: compd {argv[0]} needs the modelling toolkit: pip install 'compd[toolkit]' ("
+        f"compd: error: compd {command} needs the modelling toolkit: pip install 'compd[toolkit]' ("
     )
     assert line in done.stderr, done.stderr
     assert done.stderr.rstrip().splitlines()[-1].endswith(" is not installed)"), done.stderr
@@ -173,18 +186,32 @@ OPERATIONS = {
 @pytest.mark.parametrize("argv", OPERATIONS.values(), ids=" ".join)
 def test_the_operations_commands_are_there_without_the_toolkit(argv: list[str], home: Path) -> None:
     """The daemon's commands parse and answer in a daemon-only install."""
-    done = without_toolkit(*argv, home=home)
+    done = without_extras(*argv, home=home)
     assert done.returncode == 0, done.stderr
     assert done.stdout
 
 
 def test_the_manual_page_names_the_toolkits_commands_and_what_they_need(home: Path) -> None:
     """``compd help --man`` without the toolkit: every command, the toolkit's marked as needing it."""
-    done = without_toolkit("help", "--man", home=home)
+    done = without_extras("help", "--man", home=home)
     assert done.returncode == 0, done.stderr
     for name in COMMANDS:
         assert name.replace("-", "\\-") in done.stdout  # roff escapes the hyphen
     assert "needs compd[toolkit]" in done.stdout
+
+
+def test_an_opcua_config_without_asyncua_names_the_extra(home: Path) -> None:
+    """A config whose controller speaks OPC UA, in an install without it: the error names ``compd[opcua]``."""
+    doc = yaml.safe_load((ROOT / "config" / "simulated.yaml").read_text())
+    del doc["simulation"]
+    doc["drivers"]["plc"] = {"type": "opcua", "settings": {"url": "opc.tcp://127.0.0.1:4840"}}
+    config = home / "compd.yaml"
+    config.write_text(yaml.safe_dump(doc))
+    done = without_extras("check-config", config, home=home)
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr
+    assert "driver type 'opcua' cannot be imported" in done.stderr
+    assert "(install it: pip install 'compd[opcua]')" in done.stderr
 
 
 # --- the daemon without the toolkit, for real ------------------------------------
@@ -236,7 +263,7 @@ def test_the_daemon_runs_checks_and_answers_without_the_toolkit(home: Path) -> N
     config = home / "compd.yaml"
     config.write_text(yaml.safe_dump(doc))
 
-    checked = without_toolkit("check-config", config, home=home)
+    checked = without_extras("check-config", config, home=home)
     assert checked.returncode == 0, checked.stderr
     machine = subprocess.Popen(  # the twin, with the toolkit, as a PLC elsewhere
         [sys.executable, "-m", "compd.cli", "simulate-machine", "--config", str(machine_config)],
@@ -245,7 +272,7 @@ def test_the_daemon_runs_checks_and_answers_without_the_toolkit(home: Path) -> N
     try:
         wait_listening(port, machine)
         daemon = subprocess.Popen(
-            [sys.executable, "-c", WITHOUT_TOOLKIT, "run", "--config", str(config),
+            [sys.executable, "-c", WITHOUT_EXTRAS, "run", "--config", str(config),
              "--duration-s", "300", "--log-format", "json"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=home,
             env={**_env(), "HOME": str(home)},
@@ -266,7 +293,7 @@ def _status_once_running(config: Path, home: Path, daemon: subprocess.Popen[str]
     """``compd status``'s answer, asked until the daemon's socket answers (or the daemon ended)."""
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and daemon.poll() is None:
-        done = without_toolkit("status", "--config", config, home=home)
+        done = without_extras("status", "--config", config, home=home)
         if done.returncode == 0:
             return done.stdout
         time.sleep(0.5)

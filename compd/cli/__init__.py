@@ -121,13 +121,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _reader_went_away()
     except Exception as exc:
         # A daemon-only install (pip install compd) has no modelling toolkit: a command that
-        # needs it says how to get it, in one line, instead of a traceback.
-        from compd.extras import missing_toolkit_module, toolkit_hint  # only on the way out
+        # needs it (or another extra) says how to get it, in one line, instead of a traceback.
+        from compd.extras import hint, missing_extra  # only on the way out
 
-        module = missing_toolkit_module(exc)
-        if module is None:
+        missing = missing_extra(exc)
+        if missing is None:
             raise
-        _print_error(toolkit_hint(_command_words(parser, argv), module))
+        _print_error(hint(_command_words(parser, argv), missing))
         return EXIT_INPUT_ERROR
 
 
@@ -150,6 +150,8 @@ def _command_words(parser: argparse.ArgumentParser | None, argv: Sequence[str]) 
             break
         parser = sub[0].choices[words[0]]
         named.append(words.pop(0))
+    if named == ["help"] and words[:1] and words[0] in COMMANDS:
+        named.append(words[0])  # compd help fit: fit's parser needs the toolkit
     return " ".join(["compd", *(named or words[:1])])
 
 
@@ -215,9 +217,9 @@ def _registered(owner: str, commands: Any, *, chosen: bool) -> bool:
     try:
         importlib.import_module(owner).register(commands)
     except ModuleNotFoundError as exc:
-        from compd.extras import missing_toolkit_module  # only without the toolkit
+        from compd.extras import missing_extra  # only without the toolkit
 
-        if chosen or missing_toolkit_module(exc) is None:
+        if chosen or missing_extra(exc) is None:
             raise
         return False
     return True
