@@ -11,7 +11,9 @@ from typing import Any
 
 # The --json text of every command, here since the toolkit's commands led; the operations
 # commands (compd model updates) import it from compd.files, without the toolkit's libraries.
-from compd.files.jsontext import json_clean, json_finite, json_text  # noqa: F401
+from compd.files.jsontext import json_clean as json_clean
+from compd.files.jsontext import json_finite as json_finite
+from compd.files.jsontext import json_text as json_text
 from compd.model.metrics import Comparison
 from compd.toolkit.analysis import DEFAULT_WINDOW_S, WindowsResult
 from compd.toolkit.evaluate import Evaluation
