@@ -6,9 +6,11 @@ tracked files copied first, so no build/ lands in the checkout):
 
 - daemon only: ``.`` (``pip install compd``: the daemon, its drivers, the
   operations commands), what an edge PC gets;
+- with OPC UA: ``'.[opcua]'`` (asyncua and cryptography), an edge PC whose
+  controller speaks OPC UA;
 - with the toolkit: ``'.[toolkit]'`` (scipy, pandas, plotly, scikit-learn,
-  EMD-signal), which is what every install was before the split (issue 43:
-  571 MB);
+  EMD-signal, and OPC UA), which is what every install was before the split
+  (issue 43: 571 MB);
 - with ``--before REF``: ``.`` at that git revision (e.g. the commit before
   the split), the literal before.
 
@@ -24,7 +26,7 @@ answer to it and to ``compd fit`` (exit status 2 and one line naming
 ``compd[toolkit]``).
 
 This process imports neither numpy nor compd (a child's ``ru_maxrss`` counts
-its parent's pages up to ``exec``). Three installs: several minutes; a
+its parent's pages up to ``exec``). Three or four installs: several minutes; a
 benchmark, not a test. Target: the daemon-only venv <= 571 / 3 = 190 MB.
 Run: ``python benchmarks/bench_install_size.py [--before REF] [--run-s 20]``.
 """
@@ -221,6 +223,7 @@ def measure(work: Path, before: str | None, run_s: float) -> int:
     venvs = [
         install("daemon only (pip install compd)", work / "daemon", source, ""),
         install("with the toolkit (compd[toolkit])", work / "full", source, "[toolkit]"),
+        install("with OPC UA (compd[opcua])", work / "opcua", source, "[opcua]"),
     ]
     if before is not None:
         old = copy_tree(work / "before-src", before)
