@@ -183,22 +183,22 @@ def build_parser(module: str | None = None) -> argparse.ArgumentParser:
     )
     commands = parser.add_subparsers(title="commands", metavar="COMMAND")
     registered: set[str] = set()
-    unavailable: set[str] = set()  # modules of commands that need the toolkit, not installed
+    unavailable: dict[str, str] = {}  # a command module -> the extra it needs, not installed
     for name, (owner, text) in COMMANDS.items():
         if module is None or owner == module:
-            if owner not in registered | unavailable:
-                if _registered(owner, commands, chosen=module is not None):
+            if owner not in registered and owner not in unavailable:
+                if (extra := _register(owner, commands, chosen=module is not None)) is None:
                     registered.add(owner)
                 else:
-                    unavailable.add(owner)
+                    unavailable[owner] = extra
             if owner in registered:
                 continue
         if owner in unavailable:
             # `compd help --man` and `compd completion` in a daemon-only install: named, and why.
+            install = f"pip install 'compd[{unavailable[owner]}]'"
             commands.add_parser(
-                name, help=f"{text} (needs compd[toolkit])",
-                description=f"{text[0].upper()}{text[1:]}. Needs the modelling toolkit: "
-                "pip install 'compd[toolkit]'.".replace("%%", "%"),
+                name, help=f"{text} (needs compd[{unavailable[owner]}])",
+                description=f"{text[0].upper()}{text[1:]}. Needs {install}.".replace("%%", "%"),
             )  # fmt: skip
         else:
             commands.add_parser(name, help=text)
@@ -209,20 +209,21 @@ def build_parser(module: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-def _registered(owner: str, commands: Any, *, chosen: bool) -> bool:
-    """Register ``owner``'s commands; False where the toolkit they import is not installed.
+def _register(owner: str, commands: Any, *, chosen: bool) -> str | None:
+    """Register ``owner``'s commands; the extra they import, where it is not installed.
 
-    ``chosen``: the command to run; without the toolkit, :func:`main` says what to install.
+    ``chosen``: the command to run; without the extra, :func:`main` says what to install.
     """
     try:
         importlib.import_module(owner).register(commands)
     except ModuleNotFoundError as exc:
-        from compd.extras import missing_extra  # only without the toolkit
+        from compd.extras import missing_extra  # only without an extra
 
-        if chosen or missing_extra(exc) is None:
+        missing = missing_extra(exc)
+        if chosen or missing is None:
             raise
-        return False
-    return True
+        return missing.extra
+    return None
 
 
 class _Version(argparse.Action):
