@@ -15,6 +15,7 @@ import importlib
 from functools import cache
 
 from compd.drivers.base import DriverType
+from compd.extras import missing_extra
 
 #: Entry-point group for third-party drivers.
 ENTRY_POINT_GROUP = "compd.drivers"
@@ -57,7 +58,9 @@ def load_driver_type(name: str) -> DriverType:
         try:
             kind: DriverType = getattr(importlib.import_module(module), attribute)
         except ImportError as exc:
-            raise DriverImportError(f"driver type {name!r} cannot be imported: {exc}") from exc
+            raise DriverImportError(
+                f"driver type {name!r} cannot be imported: {exc}{_extra_note(exc)}"
+            ) from exc
         return kind
     from importlib import metadata  # a daemon of built-in drivers never reads it
 
@@ -66,7 +69,13 @@ def load_driver_type(name: str) -> DriverType:
             loaded: DriverType = entry.load()
         except ImportError as exc:
             raise DriverImportError(
-                f"driver type {name!r} ({entry.value}) cannot be imported: {exc}"
+                f"driver type {name!r} ({entry.value}) cannot be imported: {exc}{_extra_note(exc)}"
             ) from exc
         return loaded
     raise UnknownDriverError(name)
+
+
+def _extra_note(exc: ImportError) -> str:
+    """Where the missing library is an extra's (asyncua, the ``simulated`` driver's pandas): its install line."""
+    missing = missing_extra(exc)
+    return "" if missing is None else f" (install it: {missing.install})"

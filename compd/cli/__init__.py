@@ -21,6 +21,7 @@ import os
 import signal
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from compd import __version__
 from compd.cli.args import EXIT_INPUT_ERROR
@@ -109,23 +110,53 @@ def main(argv: Sequence[str] | None = None) -> int:
         # the daemon starts: ignored from here, before the daemon's imports (a second or more),
         # until the event loop takes it as a reload (compd.cli.daemon.install_signal_handlers).
         signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    parser = build_parser(_chosen_module(argv))
-    args = parser.parse_args(argv)
-    if not hasattr(args, "handler"):
-        parser.print_help()
-        return EXIT_INPUT_ERROR
+    parser: argparse.ArgumentParser | None = None
     try:
+        parser = build_parser(_chosen_module(argv))
+        args = parser.parse_args(argv)
+        if not hasattr(args, "handler"):
+            parser.print_help()
+            return EXIT_INPUT_ERROR
         return int(args.handler(args) or 0)
     except CompdError as exc:
-        # Under systemd, filed at "err" (journalctl -p err), as the log lines before it.
-        from compd.cli.journal import journal_stream  # only on the way out: --help stays light
-
-        prefix = "<3>" if journal_stream(sys.stderr, os.environ) else ""
-        lines = f"compd: error: {exc}".split("\n")
-        print("\n".join(prefix + line for line in lines), file=sys.stderr)
+        _print_error(str(exc))
         return int(getattr(exc, "exit_status", EXIT_INPUT_ERROR))
     except BrokenPipeError:
         return _reader_went_away()
+    except Exception as exc:
+        # A daemon-only install (pip install compd) has no modelling toolkit: a command that
+        # needs it (or another extra) says how to get it, in one line, instead of a traceback.
+        from compd.extras import hint, missing_extra  # only on the way out
+
+        missing = missing_extra(exc)
+        if missing is None:
+            raise
+        _print_error(hint(_command_words(parser, argv), missing))
+        return EXIT_INPUT_ERROR
+
+
+def _print_error(text: str) -> None:
+    """``compd: error: TEXT`` on stderr; under systemd, filed at "err" (journalctl -p err)."""
+    from compd.cli.journal import journal_stream  # only on the way out: --help stays light
+
+    prefix = "<3>" if journal_stream(sys.stderr, os.environ) else ""
+    lines = f"compd: error: {text}".split("\n")
+    print("\n".join(prefix + line for line in lines), file=sys.stderr)
+
+
+def _command_words(parser: argparse.ArgumentParser | None, argv: Sequence[str]) -> str:
+    """``compd fit``, ``compd model check``: the command ``argv`` names, as far as ``parser`` knows it."""
+    words = [word for word in argv if not word.startswith("-")]
+    named: list[str] = []
+    while parser is not None and words:
+        sub = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if not sub or words[0] not in sub[0].choices:
+            break
+        parser = sub[0].choices[words[0]]
+        named.append(words.pop(0))
+    if named == ["help"] and words[:1] and words[0] in COMMANDS:
+        named.append(words[0])  # compd help fit: fit's parser needs the toolkit
+    return " ".join(["compd", *(named or words[:1])])
 
 
 #: A shell's exit status for a command ended by SIGPIPE (128 + 13), as `yes | head` gives.
@@ -156,11 +187,23 @@ def build_parser(module: str | None = None) -> argparse.ArgumentParser:
     )
     commands = parser.add_subparsers(title="commands", metavar="COMMAND")
     registered: set[str] = set()
+    unavailable: dict[str, str] = {}  # a command module -> the extra it needs, not installed
     for name, (owner, text) in COMMANDS.items():
         if module is None or owner == module:
-            if owner not in registered:
-                importlib.import_module(owner).register(commands)
-                registered.add(owner)
+            if owner not in registered and owner not in unavailable:
+                if (extra := _register(owner, commands, chosen=module is not None)) is None:
+                    registered.add(owner)
+                else:
+                    unavailable[owner] = extra
+            if owner in registered:
+                continue
+        if owner in unavailable:
+            # `compd help --man` and `compd completion` in a daemon-only install: named, and why.
+            install = f"pip install 'compd[{unavailable[owner]}]'"
+            commands.add_parser(
+                name, help=f"{text} (needs compd[{unavailable[owner]}])",
+                description=f"{text[0].upper()}{text[1:]}. Needs {install}.".replace("%%", "%"),
+            )  # fmt: skip
         else:
             commands.add_parser(name, help=text)
     for name, command in commands.choices.items():
@@ -168,6 +211,23 @@ def build_parser(module: str | None = None) -> argparse.ArgumentParser:
             line = COMMANDS[name][1].replace("%%", "%")
             command.description = f"{line[0].upper()}{line[1:]}."
     return parser
+
+
+def _register(owner: str, commands: Any, *, chosen: bool) -> str | None:
+    """Register ``owner``'s commands; the extra they import, where it is not installed.
+
+    ``chosen``: the command to run; without the extra, :func:`main` says what to install.
+    """
+    try:
+        importlib.import_module(owner).register(commands)
+    except ModuleNotFoundError as exc:
+        from compd.extras import missing_extra  # only without an extra
+
+        missing = missing_extra(exc)
+        if chosen or missing is None:
+            raise
+        return missing.extra
+    return None
 
 
 class _Version(argparse.Action):

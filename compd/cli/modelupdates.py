@@ -69,8 +69,8 @@ def state_dir_of(args: argparse.Namespace) -> Path:
 
 
 def _updates(args: argparse.Namespace) -> int:
+    from compd.files.jsontext import json_text
     from compd.files.probestate import read_log
-    from compd.toolkit.summary import json_text
 
     state_dir = state_dir_of(args)
     log = read_log(state_dir)

@@ -6,10 +6,14 @@ and anything else that quotes compare's figures cannot drift apart.
 
 from __future__ import annotations
 
-import json
 import math
 from typing import Any
 
+# The --json text of every command, here since the toolkit's commands led; the operations
+# commands (compd model updates) import it from compd.files, without the toolkit's libraries.
+from compd.files.jsontext import json_clean as json_clean
+from compd.files.jsontext import json_finite as json_finite
+from compd.files.jsontext import json_text as json_text
 from compd.model.metrics import Comparison
 from compd.toolkit.analysis import DEFAULT_WINDOW_S, WindowsResult
 from compd.toolkit.evaluate import Evaluation
@@ -21,29 +25,6 @@ def fmt(value: float | None, digits: int = 2) -> str:
         return "n/a"
     text = f"{value:.{digits}f}"
     return text[1:] if text.startswith("-") and float(text) == 0.0 else text
-
-
-def json_clean(value: object) -> object:
-    """NaN and +-inf become ``null`` (JSON has neither; scripts read undefined values as null).
-
-    Infinite figures come from data near the float range (values of 1e300
-    overflow in a model's output): the figure is undefined, not an error.
-    """
-    return None if isinstance(value, float) and not math.isfinite(value) else value
-
-
-def json_finite(value: object) -> object:
-    """``value`` with :func:`json_clean` applied to every float at any depth of dicts and lists."""
-    if isinstance(value, dict):
-        return {k: json_finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [json_finite(v) for v in value]
-    return json_clean(value)
-
-
-def json_text(value: object) -> str:
-    """The text every ``--json`` option prints: indented, strict JSON, non-finite numbers null."""
-    return json.dumps(json_finite(value), indent=2, allow_nan=False)
 
 
 def compare_json(evaluation: Evaluation, comparisons: list[Comparison]) -> dict[str, object]:
