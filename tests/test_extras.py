@@ -174,6 +174,7 @@ OPERATIONS = {
     "status": ["status", "--help"],
     "model": ["model", "load", "--help"],
     "fleet": ["fleet", "list", "--help"],
+    "rollout": ["rollout", "--help"],
     "sensor": ["sensor", "trust", "--help"],
     "read": ["read", "--help"],
     "probe": ["probe", "--help"],
