@@ -26,6 +26,28 @@ def register(commands: Any) -> None:
         "--sample-time-s", type=float, help="compile for this sample time (default: the model's)"
     )
     check.set_defaults(handler=_check)
+    precompile = model.add_parser(
+        "compile",
+        help="write a model file's difference equations at loop periods (what compd run steps)",
+        description="Derive each sub-model's difference equation at each --period-s (zero-order "
+        "hold; a discrete TF resampled exactly) and write them into the file's "
+        "difference_equations section, the rest of the file as it is. compd run steps these "
+        "with numpy alone and refuses a file that would need converting. The periods the file "
+        "already carries are derived anew and kept. The file's sha256 changes.",
+    )
+    precompile.add_argument("model", type=Path, metavar="MODEL.yaml", help="a path, or bundled:NAME")
+    precompile.add_argument(
+        "--period-s",
+        type=float,
+        action="append",
+        metavar="S",
+        help="a loop period (a config's period_s) to precompile for; repeat for several "
+        "(default 1)",
+    )
+    precompile.add_argument(
+        "--out", type=Path, metavar="FILE.yaml", help="write a copy here (default: rewrite MODEL)"
+    )
+    precompile.set_defaults(handler=_compile)
     load = model.add_parser(
         "load", help="validate, install and switch the running daemon to a model file"
     )
@@ -188,6 +210,19 @@ def _check(args: argparse.Namespace) -> int:
         "each output's default tolerance; compd check-config judges a config's",
     )
     out.print(Text.assemble(("ok", "green"), ": compiles, causal and stable"))
+    return 0
+
+
+def _compile(args: argparse.Namespace) -> int:
+    from compd.toolkit.precompile import compile_file
+
+    done = compile_file(args.model, args.period_s or [1.0], args.out)
+    shown = ", ".join(f"{p:g} s" for p in done.periods_s)
+    print(f"{done.path}: " + (f"difference equations at {shown}" if shown else "needs none"))
+    if done.as_is_s:
+        print(f"  at {', '.join(f'{p:g} s' for p in done.as_is_s)} its discrete TFs run as they are")
+    if done.sha256_after != done.sha256_before:
+        print(f"  sha256 {done.sha256_before[:12]} -> {done.sha256_after[:12]}")
     return 0
 
 
