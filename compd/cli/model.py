@@ -35,7 +35,9 @@ def register(commands: Any) -> None:
         "with numpy alone and refuses a file that would need converting. The periods the file "
         "already carries are derived anew and kept. The file's sha256 changes.",
     )
-    precompile.add_argument("model", type=Path, metavar="MODEL.yaml", help="a path, or bundled:NAME")
+    precompile.add_argument(
+        "model", type=Path, metavar="MODEL.yaml", help="a path, or bundled:NAME"
+    )
     precompile.add_argument(
         "--period-s",
         type=float,
@@ -137,6 +139,7 @@ def _check(args: argparse.Namespace) -> int:
     model_file = load_model(args.model)
     compiled = model_file.compile(args.sample_time_s)
     warnings = model_file.check_plausible()
+    periods = _check_equations(model_file)
     out = console()
     out.print(
         Text.assemble(
@@ -209,8 +212,31 @@ def _check(args: argparse.Namespace) -> int:
         "no config: the default plausibility settings, every signal the calibration logged read, "
         "each output's default tolerance; compd check-config judges a config's",
     )
+    out.print(
+        f"compd run steps it at {periods} (its difference equations, numpy alone); "
+        f"another loop period: compd model compile {model_file.path} --period-s S",
+        markup=False,
+    )
     out.print(Text.assemble(("ok", "green"), ": compiles, causal and stable"))
     return 0
+
+
+def _check_equations(model_file: Any) -> str:
+    """The periods ``compd run`` takes the file at, its stored equations checked against its TFs."""
+    from compd.errors import ModelError, ModelFileError
+    from compd.model.precompiled import check_derived
+
+    for stored in model_file.equations:
+        try:
+            check_derived(model_file.model, stored)
+        except ModelError as exc:
+            raise ModelFileError(
+                model_file.path,
+                exc.message,
+                where=exc.where,
+                fix=f"Write them anew with 'compd model compile {model_file.path}'",
+            ) from exc
+    return ", ".join(f"{p:g} s" for p in model_file.runnable_periods_s()) or "no period"
 
 
 def _compile(args: argparse.Namespace) -> int:
@@ -220,7 +246,9 @@ def _compile(args: argparse.Namespace) -> int:
     shown = ", ".join(f"{p:g} s" for p in done.periods_s)
     print(f"{done.path}: " + (f"difference equations at {shown}" if shown else "needs none"))
     if done.as_is_s:
-        print(f"  at {', '.join(f'{p:g} s' for p in done.as_is_s)} its discrete TFs run as they are")
+        print(
+            f"  at {', '.join(f'{p:g} s' for p in done.as_is_s)} its discrete TFs run as they are"
+        )
     if done.sha256_after != done.sha256_before:
         print(f"  sha256 {done.sha256_before[:12]} -> {done.sha256_after[:12]}")
     return 0

@@ -31,10 +31,10 @@ from compd.files.yamlplace import BUNDLED, parse_yaml, read_limited, resolve_pat
 from compd.files.yamlplace import describe as _describe
 from compd.files.yamlplace import where as _where
 from compd.model.compiled import CompiledModel, compile_model
-from compd.model.precompiled import ConversionNeeded, DifferenceEquations, same_period
 from compd.model.consistency import ConsistencyModel
 from compd.model.guards import Finding, Severity
 from compd.model.guards import check_model as check_plausibility
+from compd.model.precompiled import ConversionNeeded, DifferenceEquations, same_period
 from compd.model.residual import DoorFeatures, ResidualModel
 from compd.model.structure import (
     AmbientZero,
@@ -217,9 +217,7 @@ def parse_model(text: str, path: str | Path = "<model>", sha256: str | None = No
             fix=_FIXES.get(error["type"], ""),
         ) from exc
     model = _build(doc, path, root)
-    equations = equation_sets(
-        doc.difference_equations, model, path, lambda at: _where(root, at)
-    )
+    equations = equation_sets(doc.difference_equations, model, path, lambda at: _where(root, at))
     return ModelFile(str(path), sha256, model, doc, equations)
 
 

@@ -37,8 +37,8 @@ from compd.model.limits import (
     MAX_STATES,
     MAX_SUBMODELS,
 )
-from compd.model.residual import ResidualModel
 from compd.model.precompiled import DifferenceEquations, runnable_tf, stored_at
+from compd.model.residual import ResidualModel
 from compd.model.structure import GateTarget, Model, SubModel
 from compd.model.transfer import DiscreteTF
 from compd.model.zero import start_references

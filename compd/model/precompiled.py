@@ -156,3 +156,27 @@ def runnable_tf(
         f"at {run_s:g} s; compd run steps precompiled equations with numpy alone and does not "
         "convert TFs"
     )
+
+
+def check_derived(model: Model, stored: DifferenceEquations, rtol: float = 1e-9) -> None:
+    """Refuse ``stored`` unless each equation is what :func:`derive` gives now (to ``rtol``).
+
+    The sha256 in the file ties a set to its TFs; this ties it to the
+    conversion itself (``compd model check``: a set written by hand, or by a
+    compd whose conversion was wrong, is caught before a daemon runs it).
+    """
+    fresh = derive(model, stored.period_s)
+    for key, tf in stored.tfs.items():
+        want = fresh.tfs[key]
+        same = tf.nk == want.nk and all(
+            len(mine) == len(theirs)
+            and max((abs(m - t) for m, t in zip(mine, theirs, strict=True)), default=0.0)
+            <= rtol * max(1.0, *(abs(t) for t in theirs))
+            for mine, theirs in ((tf.num, want.num), (tf.den, want.den))
+        )
+        if not same:
+            raise ModelError(
+                f"its difference equation at {stored.period_s:g} s is not what its TF gives at "
+                f"that period (num {list(want.num)}, den {list(want.den)}, nk {want.nk})",
+                where=f"difference_equations ({key[0]}/{key[1]})",
+            )
