@@ -130,12 +130,20 @@ def wait_listening(port: int, process: subprocess.Popen[bytes], bound_s: float =
     raise SystemExit(f"the simulated machine never listened on {port}")
 
 
-def run_daemon(python: str, config: Path, duration_s: float, *, before: bool) -> dict[str, Any]:
-    """Peak RSS (MB) and the heavy libraries of one ``compd run`` (``before``: this compd as it was)."""
+def run_daemon(
+    python: str, config: Path, duration_s: float, *, before: bool, older: bool = False
+) -> dict[str, Any]:
+    """Peak RSS (MB) and the heavy libraries of one ``compd run``.
+
+    ``before``: this compd as it loaded models before; ``older``: ``python`` is
+    another install, run outside this checkout (its own compd, not this one's).
+    """
     env = {**os.environ, "BEFORE": "1" if before else "0"}
+    if older:
+        env.pop("PYTHONPATH", None)
     argv = [python, "-c", CHILD, "run", "--config", str(config), "--duration-s", str(duration_s)]
     child = subprocess.Popen(
-        [*argv, "--log-format", "json"],
+        [*argv, "--log-format", "json"], cwd=config.parent if older else None,
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, text=True,
     )  # fmt: skip
     assert child.stderr is not None
@@ -175,7 +183,7 @@ def main() -> int:
                 python = args.before_python if older else sys.executable
                 try:
                     rows[before] = run_daemon(
-                        python, daemon, args.duration_s, before=before and not older
+                        python, daemon, args.duration_s, before=before and not older, older=older
                     )
                 finally:
                     if machine is not None:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+import statistics
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +60,8 @@ def read_plain_csv(path: str | os.PathLike[str]) -> tuple[np.ndarray, dict[str, 
     steps = np.diff(time_s)
     if np.any(steps <= 0):
         return None
-    sample_time_s = float(f"{np.median(steps):.9g}")
+    # statistics, not numpy's median: that one imports numpy.ma (1.3 MB) into the daemon.
+    sample_time_s = float(f"{statistics.median(steps.tolist()):.9g}")
     low_s, high_s = _SAMPLE_TIME_RANGE_S
     if not (low_s <= sample_time_s <= high_s and math.isfinite(sample_time_s)):
         return None
