@@ -18,8 +18,8 @@ A config with a ``simulation`` section runs without it, its PLC served by
 ``compd simulate-machine`` in a process of its own (as an edge PC talks to
 a real controller); a config for a PLC that nobody serves (``record.yaml``)
 is left out. Per run: the peak resident memory (``ru_maxrss``) and whether
-scipy and pandas were mapped into the process (``/proc/self/maps`` and
-``sys.modules`` at exit). This process imports neither numpy nor compd (a
+scipy and pandas were mapped into the process (its ``/proc/PID/maps``,
+read from here each second) or imported (``sys.modules`` at exit). This process imports neither numpy nor compd (a
 child's ``ru_maxrss`` counts its parent's pages up to ``exec``).
 
 Target: every *after* run < 60 MB and maps neither.
@@ -29,6 +29,7 @@ Run: ``PYTHONPATH=. python benchmarks/bench_daemon_memory.py [--duration-s 15]``
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import socket
@@ -47,17 +48,12 @@ CONFIGS = ROOT / "config"
 CASES = {"simulated.yaml": 15940, "replay.yaml": None, "compd.example.yaml": None}
 HEAVY = ("scipy", "pandas")
 
-#: Runs ``compd ARGV``; at exit reports (on stderr, one JSON line) what it imported and mapped.
+#: Runs ``compd ARGV``; at exit reports (on stderr, one JSON line) which of them it imported.
 #: ``BEFORE=1``: this compd as it loaded models and records before (converting, pandas).
 CHILD = """
 import atexit, json, os, runpy, sys
 def report():
-    maps = open('/proc/self/maps').read()
-    heavy = {'scipy', 'pandas'}
-    found = {
-        'imported': sorted(h for h in heavy if h in sys.modules),
-        'mapped': sorted(h for h in heavy if f'/{h}/' in maps or f'/{h}.libs/' in maps),
-    }
+    found = {'imported': sorted(h for h in ('scipy', 'pandas') if h in sys.modules)}
     print('HEAVY ' + json.dumps(found), file=sys.stderr)
 atexit.register(report)
 if os.environ.get('BEFORE') == '1':
@@ -142,17 +138,31 @@ def run_daemon(
     if older:
         env.pop("PYTHONPATH", None)
     argv = [python, "-c", CHILD, "run", "--config", str(config), "--duration-s", str(duration_s)]
-    child = subprocess.Popen(
-        [*argv, "--log-format", "json"], cwd=config.parent if older else None,
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, text=True,
-    )  # fmt: skip
-    assert child.stderr is not None
-    err = child.stderr.read()
-    _, status, usage = os.wait4(child.pid, 0)
+    log = config.with_suffix(".stderr")
+    with log.open("w") as stderr:
+        child = subprocess.Popen(
+            [*argv, "--log-format", "json"], cwd=config.parent if older else None,
+            stdout=subprocess.DEVNULL, stderr=stderr, env=env,
+        )  # fmt: skip
+    mapped: set[str] = set()
+    while True:  # what is mapped, read from outside (the child reads nothing); wait4 reaps it
+        pid, status, usage = os.wait4(child.pid, os.WNOHANG)
+        if pid:
+            break
+        with contextlib.suppress(OSError):
+            maps = Path(f"/proc/{child.pid}/maps").read_text()
+            mapped |= {h for h in HEAVY if f"/{h}/" in maps or f"/{h}.libs/" in maps}
+        time.sleep(1.0)
+    child.returncode = os.waitstatus_to_exitcode(status)  # reaped here, not by Popen
+    err = log.read_text()
     reports = [line for line in err.splitlines() if line.startswith("HEAVY ")]
     if os.waitstatus_to_exitcode(status) not in (0, 3) or not reports:
         raise SystemExit(f"compd run --config {config} failed:\n{err[-3000:]}")
-    return {"rss_mb": usage.ru_maxrss / 1024, **json.loads(reports[-1][6:])}
+    return {
+        "rss_mb": usage.ru_maxrss / 1024,
+        "mapped": sorted(mapped),
+        **json.loads(reports[-1][6:]),
+    }
 
 
 def main() -> int:
