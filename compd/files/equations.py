@@ -128,6 +128,11 @@ def equation_sets(
     return tuple(sets)
 
 
+def kept_periods(parent: Sequence[DifferenceEquationsDoc] | None) -> tuple[float, ...]:
+    """:data:`RUN_PERIODS_S` and the periods a parent file carried: a derived file runs where it did."""
+    return (*RUN_PERIODS_S, *(doc.period_s for doc in parent or ()))
+
+
 def derived_sets(model: Model, periods_s: Iterable[float]) -> list[DifferenceEquations]:
     """The sets a written file carries: each period of ``periods_s`` and the model's own, where needed.
 
