@@ -222,10 +222,19 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _check_equations(model_file: Any) -> str:
-    """The periods ``compd run`` takes the file at, its stored equations checked against its TFs."""
+    """The periods ``compd run`` takes the file at, its stored equations checked against its TFs.
+
+    The check derives them anew (scipy): in a daemon-only install, without
+    scipy, they are taken as the file's sha256 ties them to its TFs, and said so.
+    """
+    import importlib.util
+
     from compd.errors import ModelError, ModelFileError
     from compd.model.precompiled import check_derived
 
+    periods = ", ".join(f"{p:g} s" for p in model_file.runnable_periods_s()) or "no period"
+    if model_file.equations and importlib.util.find_spec("scipy") is None:
+        return f"{periods} (its equations not derived anew here: that needs compd[toolkit])"
     for stored in model_file.equations:
         try:
             check_derived(model_file.model, stored)
@@ -236,7 +245,7 @@ def _check_equations(model_file: Any) -> str:
                 where=exc.where,
                 fix=f"Write them anew with 'compd model compile {model_file.path}'",
             ) from exc
-    return ", ".join(f"{p:g} s" for p in model_file.runnable_periods_s()) or "no period"
+    return periods
 
 
 def _compile(args: argparse.Namespace) -> int:
