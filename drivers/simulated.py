@@ -25,7 +25,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from compd.errors import DriverDisconnectedError, DriverProtocolError
-from compd.files.data import load_data
+from compd.files.plaincsv import read_plain_csv
 from compd.files.yamlplace import resolve_path
 
 FaultKind = Literal["stuck", "nan", "value", "drop"]
@@ -67,6 +67,22 @@ class _Fault:
         return self.start_s <= t_s < self.end_s
 
 
+def _record(path: Path) -> tuple[np.ndarray, Mapping[str, np.ndarray]]:
+    """The record's times and columns: a plain CSV with numpy alone, any other through load_data.
+
+    ``load_data`` (pandas, ~40 MB) is imported only for a record that is not
+    plain (:mod:`compd.files.plaincsv`), so the daemon replaying the bundled
+    example maps no pandas.
+    """
+    plain = read_plain_csv(path)
+    if plain is not None:
+        return plain
+    from compd.files.data import load_data
+
+    data = load_data(path)
+    return data.time_s, data.columns
+
+
 class SimulatedDriver:
     """Replays ``settings.data`` on the service's clock; see the module docstring."""
 
@@ -77,13 +93,11 @@ class SimulatedDriver:
     ) -> None:
         self.settings = settings
         self._now = now
-        data = load_data(resolve_path(settings.data, base_dir))
+        time_s, columns = _record(resolve_path(settings.data, base_dir))
         # Plain lists: one read interpolates a handful of scalars, where
         # numpy's per-call overhead would cost more than the arithmetic.
-        self._time_s: list[float] = np.asarray(data.time_s, dtype=float).tolist()
-        self._columns = {
-            name: np.asarray(v, dtype=float).tolist() for name, v in data.columns.items()
-        }
+        self._time_s: list[float] = np.asarray(time_s, dtype=float).tolist()
+        self._columns = {name: np.asarray(v, dtype=float).tolist() for name, v in columns.items()}
         self._t0: float | None = None
         self._faults = [
             _Fault(f.kind, f.address, f.start_s, f.start_s + f.duration_s, f.value)

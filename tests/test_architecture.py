@@ -14,7 +14,6 @@ import yaml
 
 from tests.acceptance.conftest import machine_doc
 from tests.installed import DRIVER_CONTRACT, run_installed
-from tests.loop_rate import at_loop_rate
 
 ROOT = Path(__file__).parents[1]
 BUNDLED_MODEL = ROOT / "config" / "simulated_model.yaml"
@@ -132,11 +131,10 @@ def wait_listening(port: int, process: subprocess.Popen[bytes], bound_s: float =
 def test_run_for_a_real_machine_loads_no_toolkit_twin_or_plotting(short_dir: Path) -> None:
     """The daemon against a controller elsewhere (here the twin's own process) imports no modelling stack.
 
-    With the bundled model's TFs at the loop's period (as the daemon compiles
-    them), it loads no scipy either: compiled, checked and stepped with numpy.
+    The bundled model carries its difference equations at the loop's period,
+    so it loads no scipy either: compiled, checked and stepped with numpy.
     """
-    model = at_loop_rate(BUNDLED_MODEL, short_dir / "model_1s.yaml", 1.0)
-    doc = machine_doc(short_dir, model, simulation={"scenario": "production", "hours": 1})
+    doc = machine_doc(short_dir, BUNDLED_MODEL, simulation={"scenario": "production", "hours": 1})
     assert doc["period_s"] == 1.0
     machine_config = short_dir / "machine.yaml"
     machine_config.write_text(yaml.safe_dump(doc))
@@ -170,8 +168,8 @@ def test_run_for_a_real_machine_loads_no_toolkit_twin_or_plotting(short_dir: Pat
     # JSON logs and no terminal: structlog's rich tracebacks and the terminal's console unused.
     assert loaded(modules, ("rich", "pygments")) == [], "rich (5 MB) only for a terminal"
     assert loaded(modules, ("colorama", "greenlet")) == [], "a Windows console, greenlet contexts"
-    # A model file of discrete TFs is compiled, checked and stepped with numpy alone.
-    assert loaded(modules, ("scipy",)) == [], "scipy (~100 MB) only converts continuous TFs"
+    # A model file's precompiled difference equations are compiled, checked and stepped with numpy.
+    assert loaded(modules, ("scipy",)) == [], "scipy (~100 MB) only converts TFs, in the toolkit"
     # No 'probes' section: the probe update's numerics (about 1.4 MB resident) stay out.
     probe_numerics = (
         "compd.service.loop.probing",

@@ -78,7 +78,7 @@ def _probe_bounds(config: Any, output: str) -> str:
     doc = config.doc
     probes = doc.probes
     model_file = load_model(installed_model(config.state_dir) or config.model_path)
-    _, names = output_columns(model_file.compile(doc.period_s), output)
+    _, names = output_columns(model_file.compile(doc.period_s, convert=False), output)
     prior = output_prior(model_file, output, names).prior
     settings = ProbeSettings.defaults(prior, **probes.overrides())
     return (
@@ -110,7 +110,7 @@ def check_config_command(args: argparse.Namespace) -> int:
         installed = installed_model(config.state_dir)
         model_path = installed or config.model_path
         model_file = load_model(model_path)
-        compiled = model_file.compile(doc.period_s)
+        compiled = model_file.compile(doc.period_s, convert=False)  # as compd run: numpy alone
         check_model(config, model_file, compiled)
         out.print(Text.assemble(("ok", "green"), f": {config.path}"))
         out.print(

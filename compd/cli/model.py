@@ -26,6 +26,30 @@ def register(commands: Any) -> None:
         "--sample-time-s", type=float, help="compile for this sample time (default: the model's)"
     )
     check.set_defaults(handler=_check)
+    precompile = model.add_parser(
+        "compile",
+        help="write a model file's difference equations at loop periods (what compd run steps)",
+        description="Derive each sub-model's difference equation at each --period-s (zero-order "
+        "hold; a discrete TF resampled exactly) and write them into the file's "
+        "difference_equations section, the rest of the file as it is. compd run steps these "
+        "with numpy alone and refuses a file that would need converting. The periods the file "
+        "already carries are derived anew and kept. The file's sha256 changes.",
+    )
+    precompile.add_argument(
+        "model", type=Path, metavar="MODEL.yaml", help="a path, or bundled:NAME"
+    )
+    precompile.add_argument(
+        "--period-s",
+        type=float,
+        action="append",
+        metavar="S",
+        help="a loop period (a config's period_s) to precompile for; repeat for several "
+        "(default 1)",
+    )
+    precompile.add_argument(
+        "--out", type=Path, metavar="FILE.yaml", help="write a copy here (default: rewrite MODEL)"
+    )
+    precompile.set_defaults(handler=_compile)
     load = model.add_parser(
         "load", help="validate, install and switch the running daemon to a model file"
     )
@@ -126,6 +150,7 @@ def _check(args: argparse.Namespace) -> int:
     model_file = load_model(args.model)
     compiled = model_file.compile(args.sample_time_s)
     warnings = model_file.check_plausible()
+    periods = _check_equations(model_file)
     out = console()
     out.print(
         Text.assemble(
@@ -198,7 +223,54 @@ def _check(args: argparse.Namespace) -> int:
         "no config: the default plausibility settings, every signal the calibration logged read, "
         "each output's default tolerance; compd check-config judges a config's",
     )
+    out.print(
+        f"compd run steps it at {periods} (its difference equations, numpy alone); "
+        f"another loop period: compd model compile {model_file.path} --period-s S",
+        markup=False,
+    )
     out.print(Text.assemble(("ok", "green"), ": compiles, causal and stable"))
+    return 0
+
+
+def _check_equations(model_file: Any) -> str:
+    """The periods ``compd run`` takes the file at, its stored equations checked against its TFs.
+
+    The check derives them anew (scipy): in a daemon-only install, without
+    scipy, they are taken as the file's sha256 ties them to its TFs, and said so.
+    """
+    import importlib.util
+
+    from compd.errors import ModelError, ModelFileError
+    from compd.model.precompiled import check_derived
+
+    periods = ", ".join(f"{p:g} s" for p in model_file.runnable_periods_s()) or "no period"
+    if model_file.equations and importlib.util.find_spec("scipy") is None:
+        return f"{periods} (its equations not derived anew here: that needs compd[toolkit])"
+    for stored in model_file.equations:
+        try:
+            check_derived(model_file.model, stored)
+        except ModelError as exc:
+            raise ModelFileError(
+                model_file.path,
+                exc.message,
+                where=exc.where,
+                fix=f"Write them anew with 'compd model compile {model_file.path}'",
+            ) from exc
+    return periods
+
+
+def _compile(args: argparse.Namespace) -> int:
+    from compd.toolkit.precompile import compile_file
+
+    done = compile_file(args.model, args.period_s or [1.0], args.out)
+    shown = ", ".join(f"{p:g} s" for p in done.periods_s)
+    print(f"{done.path}: " + (f"difference equations at {shown}" if shown else "needs none"))
+    if done.as_is_s:
+        print(
+            f"  at {', '.join(f'{p:g} s' for p in done.as_is_s)} its discrete TFs run as they are"
+        )
+    if done.sha256_after != done.sha256_before:
+        print(f"  sha256 {done.sha256_before[:12]} -> {done.sha256_after[:12]}")
     return 0
 
 

@@ -18,6 +18,7 @@ import yaml
 from pydantic import ValidationError
 
 from compd.errors import ModelError, ModelFileError
+from compd.files.equations import equation_sets
 from compd.files.modelschema import (
     SCHEMA,
     ConsistencyDoc,
@@ -33,6 +34,7 @@ from compd.model.compiled import CompiledModel, compile_model
 from compd.model.consistency import ConsistencyModel
 from compd.model.guards import Finding, Severity
 from compd.model.guards import check_model as check_plausibility
+from compd.model.precompiled import ConversionNeeded, DifferenceEquations, same_period
 from compd.model.residual import DoorFeatures, ResidualModel
 from compd.model.structure import (
     AmbientZero,
@@ -55,6 +57,8 @@ class ModelFile:
     sha256: str
     model: Model
     doc: ModelDoc
+    #: Its ``difference_equations``, checked against its TFs (:mod:`compd.files.equations`).
+    equations: tuple[DifferenceEquations, ...] = ()
 
     def signal_units(self) -> dict[str, str] | None:
         """Each declared signal's unit, or None when the file declares no ``signals``."""
@@ -128,12 +132,40 @@ class ModelFile:
             return (-prior.output_peak_um, prior.output_peak_um)
         return None
 
-    def compile(self, sample_time_s: float | None = None) -> CompiledModel:
-        """Compile for running; a refusal names this file and the sub-model."""
+    def compile(self, sample_time_s: float | None = None, *, convert: bool = True) -> CompiledModel:
+        """Compile for running; a refusal names this file and the sub-model.
+
+        ``convert=False`` is the daemon's way: only the file's difference
+        equations and its discrete TFs at their own rate, with numpy alone; a
+        file that would need converting is refused with the command that adds
+        the equations.
+        """
         try:
-            return compile_model(self.model, sample_time_s)
+            return compile_model(
+                self.model, sample_time_s, equations=self.equations, convert=convert
+            )
+        except ConversionNeeded as exc:
+            period_s = self.model.sample_time_s if sample_time_s is None else sample_time_s
+            carried = ", ".join(f"{p:g} s" for p in self.runnable_periods_s()) or "none"
+            raise ModelFileError(
+                self.path,
+                f"{exc.message} (it runs as it is at: {carried})",
+                where=exc.where,
+                fix=f"Add them with 'compd model compile {self.path} --period-s {period_s:g}' "
+                "(the modelling toolkit: compd[toolkit]), then start or load the file again",
+            ) from exc
         except ModelError as exc:
             raise ModelFileError(self.path, exc.message, where=exc.where) from exc
+
+    def runnable_periods_s(self) -> list[float]:
+        """The loop periods (s) ``compd run`` runs this file at without converting, ascending."""
+        periods = [e.period_s for e in self.equations]
+        own = self.model.sample_time_s
+        if not any(same_period(own, p) for p in periods) and not any(
+            isinstance(sub.tf, ContinuousTF) for o in self.model.outputs for sub in o.submodels
+        ):
+            periods.append(own)
+        return sorted(periods)
 
 
 def load_model(path: str | Path) -> ModelFile:
@@ -184,7 +216,9 @@ def parse_model(text: str, path: str | Path = "<model>", sha256: str | None = No
             where=_where(root, location),
             fix=_FIXES.get(error["type"], ""),
         ) from exc
-    return ModelFile(str(path), sha256, _build(doc, path, root), doc)
+    model = _build(doc, path, root)
+    equations = equation_sets(doc.difference_equations, model, path, lambda at: _where(root, at))
+    return ModelFile(str(path), sha256, model, doc, equations)
 
 
 def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:

@@ -15,6 +15,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from compd.files.equations import MAX_PERIODS, DifferenceEquationsDoc
 from compd.model.limits import MAX_DELAY_SAMPLES, MAX_ORDER, MAX_SAMPLE_TIME_S, MAX_SUBMODELS
 from compd.schemas import MODEL_SCHEMA
 
@@ -508,6 +509,10 @@ class ModelDoc(_Strict):
     signals: dict[str, SignalDoc] | None = None
     ambient: AmbientDoc | None = None
     outputs: dict[str, OutputDoc] = Field(min_length=1)
+    #: The TFs as compd run steps them at each loop period, precompiled (compd.files.equations).
+    difference_equations: list[DifferenceEquationsDoc] | None = Field(
+        default=None, max_length=MAX_PERIODS
+    )
     consistency: ConsistencyDoc | None = None
     probe_prior: dict[str, ProbePriorDoc] | None = None
     provenance: ProvenanceDoc = ProvenanceDoc()

@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 
 import yaml
 
+from compd.files.equations import RUN_PERIODS_S, derived_sets
 from compd.files.modelschema import (
     SCHEMA,
     ConsistencyDoc,
@@ -24,6 +25,7 @@ from compd.files.modelschema import (
     ProvenanceDoc,
     ResidualDoc,
 )
+from compd.model.precompiled import DifferenceEquations
 from compd.model.structure import Gate, InputSpec, Model, SubModel
 from compd.model.transfer import ContinuousTF, DiscreteTF
 
@@ -134,8 +136,13 @@ def model_to_yaml(
     residuals: Mapping[str, ResidualDoc] | None = None,
     consistency: ConsistencyDoc | None = None,
     probe_prior: Mapping[str, ProbePriorDoc] | None = None,
+    run_periods_s: Iterable[float] = RUN_PERIODS_S,
 ) -> str:
     """The model file text for ``model``; ``signals`` maps each signal name to its unit.
+
+    The file carries the difference equations ``compd run`` steps at each of
+    ``run_periods_s`` and at the model's own sample time, where running there
+    needs a conversion (:func:`compd.files.equations.derived_sets`: scipy).
 
     When ``signals`` is given it must name every signal the model reads (the
     schema requires declared signals to cover all uses). ``residuals`` gives,
@@ -203,6 +210,7 @@ def model_to_yaml(
             lines += _submodel(sub)
         if output.name in residuals:
             lines += _residual(residuals[output.name])
+    lines += equations_lines(model, derived_sets(model, run_periods_s))
     if consistency is not None:
         lines += consistency_lines(consistency)
     if probe_prior:
@@ -253,4 +261,33 @@ def probe_prior_lines(docs: Mapping[str, ProbePriorDoc]) -> list[str]:
             "    covariance:  # 10 significant digits",
         ]
         lines += [f"      - {_numbers(float(f'{v:.10g}') for v in row)}" for row in doc.covariance]
+    return lines
+
+
+def equations_lines(model: Model, sets: Sequence[DifferenceEquations]) -> list[str]:
+    """The ``difference_equations:`` block for ``sets`` (no lines for none), sub-models in model order."""
+    if not sets:
+        return []
+    lines = [
+        "# each sub-model's TF as compd run steps it at a loop period, derived from the TFs above by",
+        "# compd (zero-order hold; a discrete TF resampled exactly), ascending powers of z^-1: the",
+        "# daemon runs these with numpy alone and converts nothing. tfs_sha256: of the TFs they come",
+        "# from. 'compd model compile FILE --period-s P' adds a period",
+        "difference_equations:",
+    ]
+    for equations in sorted(sets, key=lambda s: s.period_s):
+        lines += [
+            f"  - period_s: {yaml_float(equations.period_s)}",
+            f'    tfs_sha256: "{equations.tfs_sha256}"',
+            "    outputs:",
+        ]
+        for output in model.outputs:
+            lines.append(f"      {_string(output.name)}:")
+            for sub in output.submodels:
+                tf = equations.tfs[(output.name, sub.name)]
+                lines += [
+                    f"        {_string(sub.name)}: {{nk: {tf.nk},",
+                    f"          num: {_numbers(tf.num)},",
+                    f"          den: {_numbers(tf.den)}}}",
+                ]
     return lines

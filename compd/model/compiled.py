@@ -1,7 +1,9 @@
 """Compilation: a model becomes flat arrays once, at load, so a tick is a few array operations.
 
 Every sub-model is brought to the run sample time (continuous parts by
-zero-order hold, discrete parts converted exactly when the rate differs),
+zero-order hold, discrete parts converted exactly when the rate differs; or
+taken as the model file's precompiled difference equations at that period,
+:mod:`compd.model.precompiled`, which is all the daemon does),
 normalised so ``a0 == 1``, checked for stability, and padded to a common
 length ``L`` so all sub-models advance together in transposed direct form II
 (the form ``scipy.signal.lfilter`` uses, so its ``zi`` *is* compd's state)::
@@ -35,9 +37,10 @@ from compd.model.limits import (
     MAX_STATES,
     MAX_SUBMODELS,
 )
+from compd.model.precompiled import DifferenceEquations, runnable_tf, stored_at
 from compd.model.residual import ResidualModel
 from compd.model.structure import GateTarget, Model, SubModel
-from compd.model.transfer import ContinuousTF, DiscreteTF, resample_discrete
+from compd.model.transfer import DiscreteTF
 from compd.model.zero import start_references
 
 
@@ -255,8 +258,21 @@ class CompiledModel:
         return start_references(self, self._vector(signals))[0]
 
 
-def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledModel:
+def compile_model(
+    model: Model,
+    sample_time_s: float | None = None,
+    *,
+    equations: tuple[DifferenceEquations, ...] = (),
+    convert: bool = True,
+) -> CompiledModel:
     """Compile ``model`` to run at ``sample_time_s`` (default: the model's own).
+
+    ``equations`` are the difference equations its file carries
+    (:mod:`compd.model.precompiled`): the set at ``sample_time_s`` is run as
+    it is. Without one, a TF that needs converting (continuous, or discrete at
+    another rate) is converted (scipy) when ``convert``, else refused with
+    :class:`~compd.model.precompiled.ConversionNeeded`: the daemon compiles
+    with ``convert=False`` and numpy alone.
 
     Raises :class:`ModelError` naming the sub-model (``outputs.X.submodels[i]``)
     when one is non-causal, unstable, cannot be brought to the sample time,
@@ -282,14 +298,17 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
     paths: list[str] = []
     tfs: list[DiscreteTF] = []
     owner: list[int] = []
+    stored = stored_at(equations, run_s)
     for out_i, output in enumerate(model.outputs):
         for sub_i, sub in enumerate(output.submodels):
             path = f"outputs.{output.name}.submodels[{sub_i}] ({sub.name})"
             try:
-                tfs.append(_discretise(sub.tf, model.sample_time_s, run_s))
+                key = (output.name, sub.name)
+                tf = runnable_tf(sub.tf, key, model.sample_time_s, run_s, stored, convert=convert)
+                tfs.append(tf)
                 _check_gain(tfs[-1], sub.gain)
             except ModelError as exc:
-                raise ModelError(exc.message, where=path) from exc
+                raise type(exc)(exc.message, where=path) from exc
             subs.append(sub)
             paths.append(path)
             owner.append(out_i)
@@ -357,17 +376,6 @@ def compile_model(model: Model, sample_time_s: float | None = None) -> CompiledM
         ),
         output_bias_um=np.array([output.bias_um for output in model.outputs], dtype=float),
     )
-
-
-def _discretise(tf: DiscreteTF | ContinuousTF, model_s: float, run_s: float) -> DiscreteTF:
-    if isinstance(tf, ContinuousTF):
-        tf.check_stable()
-        discrete = tf.discretise(run_s)
-    else:
-        tf.check_stable()
-        discrete = resample_discrete(tf, model_s, run_s)
-    discrete.check_stable()
-    return discrete
 
 
 def _check_gain(tf: DiscreteTF, gain: float) -> None:

@@ -41,11 +41,16 @@ _UNIT_CIRCLE_MARGIN = 1e-9
 
 @contextmanager
 def _quiet_conversions() -> Iterator[None]:
-    """scipy warns when a converted numerator has ~1e-17 leading terms; they are rounding, not a fault."""
+    """scipy warns when a converted numerator has ~1e-17 leading terms; they are rounding, not a fault.
+
+    A singular matrix logarithm warns too: its result is not finite, which the
+    conversion then refuses as a ModelError (the message a user reads).
+    """
     import scipy.signal  # see the module's docstring: only conversions load scipy
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", scipy.signal.BadCoefficients)
+        warnings.filterwarnings("ignore", message="The logm input matrix is exactly singular")
         yield
 
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
+from compd.files.equations import kept_periods
 from compd.files.experiments import Stacked, as_stacked, single
 from compd.files.modelfigures import extension_headline
 from compd.files.modelfile import ModelFile, parse_model
@@ -356,6 +357,7 @@ def with_verification(extension: Extension, verify_path: str, before: float, aft
         signals=extension.extended.signal_units(),
         provenance=provenance,
         consistency=doc.consistency,
+        run_periods_s=kept_periods(doc.difference_equations),
     )
 
 

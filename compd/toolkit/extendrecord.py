@@ -18,6 +18,7 @@ import numpy as np
 
 from compd import __version__
 from compd.files.data import DataSet
+from compd.files.equations import kept_periods
 from compd.files.modelfigures import derived_provenance, extension_headline
 from compd.files.modelfile import ModelFile
 from compd.files.modelschema import CalibrationDoc, ExtensionDoc, TriedDoc
@@ -122,6 +123,7 @@ def extension_yaml(
         signals=units,
         provenance=provenance,
         consistency=doc.consistency,
+        run_periods_s=kept_periods(doc.difference_equations),
     )
 
 

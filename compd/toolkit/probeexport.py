@@ -22,6 +22,7 @@ import numpy as np
 
 from compd import __version__
 from compd.errors import ModelFileError
+from compd.files.equations import kept_periods
 from compd.files.modelfile import ModelFile, parse_model
 from compd.files.modelschema import ProbePriorDoc, ProbeUpdateDoc, ProbeUsedDoc
 from compd.files.modelwriter import model_to_yaml
@@ -151,6 +152,7 @@ def export_updated(model_file: ModelFile, state_dir: Path, command: str | None =
         residuals=residuals,
         consistency=doc.consistency,
         probe_prior=priors,
+        run_periods_s=kept_periods(doc.difference_equations),
     )
     # Parsed beside the parent, where a residual model's sidecar is.
     updated = parse_model(text, model_file.path)

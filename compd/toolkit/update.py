@@ -31,6 +31,7 @@ import numpy as np
 from compd import __version__
 from compd.errors import DataFileError, ModelError
 from compd.files.data import DataSet
+from compd.files.equations import kept_periods
 from compd.files.modelfile import ModelFile, parse_model
 from compd.files.modelschema import CharacteristicDoc, UpdateDoc
 from compd.files.modelwriter import model_to_yaml
@@ -242,6 +243,7 @@ def update_model(
         signals=parent.signal_units(),
         provenance=provenance,
         consistency=doc.consistency,
+        run_periods_s=kept_periods(doc.difference_equations),
     )
     updated = parse_model(text, "<updated model>")
     return Update(

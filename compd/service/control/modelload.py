@@ -72,7 +72,9 @@ def slot_from_bytes(
 def slot_from_file(config: Config, model_file: ModelFile, loaded_at_unix_s: float) -> ModelSlot:
     """:func:`slot_from_bytes` for a model file already read."""
     model_file.check_plausible()  # what `compd model check` refuses, the daemon never runs
-    compiled = model_file.compile(config.doc.period_s)
+    # The file's difference equations at the period, stepped with numpy alone: a file that
+    # would need converting (scipy) is refused with the command that precompiles it.
+    compiled = model_file.compile(config.doc.period_s, convert=False)
     check_model(config, model_file, compiled)
     return ModelSlot(model_file, compiled, loaded_at_unix_s)
 

@@ -1,0 +1,88 @@
+"""``compd model compile``: a model file's difference equations at the loop periods, written into it.
+
+The daemon steps the equations a model file carries and converts nothing
+(:mod:`compd.model.precompiled`); this derives them (zero-order hold, exact
+resampling: scipy) for each period asked and each the file already carries,
+and rewrites only the file's ``difference_equations`` section
+(:func:`compd.files.equations.with_equations`), comments and everything
+else as written. The result is read back before it replaces anything, so a
+file is never left that compd would refuse.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from compd.errors import ModelError, ModelFileError
+from compd.files.equations import MAX_PERIODS, with_equations
+from compd.files.modelfile import load_model, parse_model_bytes
+from compd.files.modelwriter import equations_lines
+from compd.files.unreadable import write_atomic
+from compd.files.yamlplace import read_limited
+from compd.model.precompiled import (
+    DifferenceEquations,
+    derive,
+    model_needs_conversion,
+    same_period,
+)
+
+
+@dataclass(frozen=True)
+class Compiled:
+    """What ``compd model compile`` wrote: where, the periods carried, the file's sha256 before and after."""
+
+    path: Path
+    periods_s: tuple[float, ...]
+    as_is_s: tuple[float, ...]
+    sha256_before: str
+    sha256_after: str
+
+
+def compile_file(source: Path, periods_s: Iterable[float], out: Path | None = None) -> Compiled:
+    """Write ``source`` (or a copy at ``out``) with difference equations at ``periods_s``.
+
+    Periods the file already carries are derived anew and kept; a period the
+    model runs at as it is (its discrete TFs at their own rate) needs none.
+    Raises :class:`ModelFileError` naming the file and the sub-model when a
+    period cannot be reached (e.g. a pole with no continuous equivalent).
+    """
+    model_file = load_model(source)
+    model = model_file.model
+    wanted = sorted({float(p) for p in periods_s} | {e.period_s for e in model_file.equations})
+    sets: list[DifferenceEquations] = []
+    as_is: list[float] = []
+    for period_s in wanted:
+        if any(same_period(period_s, s.period_s) for s in sets):
+            continue
+        if not model_needs_conversion(model, period_s):
+            as_is.append(period_s)
+            continue
+        try:
+            sets.append(derive(model, period_s))
+        except ModelError as exc:
+            raise ModelFileError(
+                model_file.path,
+                f"cannot run at {period_s:g} s: {exc.message}",
+                where=exc.where,
+                fix="Choose a loop period the model can be brought to, or re-identify it at that "
+                "period",
+            ) from exc
+    if len(sets) > MAX_PERIODS:
+        raise ModelFileError(
+            model_file.path,
+            f"{len(sets)} periods asked; a model file carries at most {MAX_PERIODS}",
+            fix="Ask for the periods your configs tick at",
+        )
+    raw = read_limited(Path(model_file.path), ModelFileError)
+    text = with_equations(raw.decode("utf-8"), equations_lines(model, sets))
+    destination = Path(model_file.path) if out is None else out
+    written = text.encode("utf-8")
+    checked = parse_model_bytes(written, destination)  # what it writes, compd reads
+    mode = destination.stat().st_mode & 0o777 if destination.exists() else None
+    write_atomic(destination, written)
+    if mode is not None:
+        destination.chmod(mode)  # rewritten in place: as readable as it was
+    periods = tuple(s.period_s for s in sets)
+    return Compiled(destination, periods, tuple(as_is), model_file.sha256, checked.sha256)
