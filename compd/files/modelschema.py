@@ -490,12 +490,26 @@ class ProbePriorDoc(_Strict):
     samples: int = Field(ge=1, le=MAX_COUNT)
     effective_samples: FiniteFloat = Field(gt=0)
     output_peak_um: FiniteFloat = Field(default=0.0, ge=0)
+    #: The parameters are the model's coefficients (issue 42): each sub-model's static gain in
+    #: the file (um per input unit), the prior's mean; absent: gains on the sub-models (mean 1).
+    coefficients: list[FiniteFloat] | None = None
+    #: With ``coefficients``: the calibration's posterior of gains on the sub-models, in the
+    #: coefficients' units (um per input unit); the update's ``gains`` member starts from it.
+    gains_covariance: list[list[FiniteFloat]] | None = None
 
     @model_validator(mode="after")
     def _shape(self) -> ProbePriorDoc:
         n = len(self.parameters)
         if self.parameters[-1] != "bias":
             raise ValueError("'parameters' end with 'bias'")
+        if self.gains_covariance is not None and (
+            len(self.gains_covariance) != n or any(len(row) != n for row in self.gains_covariance)
+        ):
+            raise ValueError(f"'gains_covariance' must be {n} x {n}")
+        if self.coefficients is not None and len(self.coefficients) != n - 1:
+            raise ValueError(
+                f"'coefficients' must have {n - 1} values (one per sub-model, not the bias)"
+            )
         if len(self.covariance) != n or any(len(row) != n for row in self.covariance):
             raise ValueError(f"'covariance' must be {n} x {n} (one row and column per parameter)")
         return self

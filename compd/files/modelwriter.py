@@ -246,8 +246,9 @@ def consistency_lines(doc: ConsistencyDoc) -> list[str]:
 def probe_prior_lines(docs: Mapping[str, ProbePriorDoc]) -> list[str]:
     """The ``probe_prior:`` block: per output, what the probe update starts from (compd.model.probeupdate)."""
     lines = [
-        "# per output, the prior of the probe update (compd.model.probeupdate): each sub-model's gain",
-        "# and a bias, the calibration's posterior widened by its residue's autocorrelation",
+        "# per output, the prior of the probe update (compd.model.probeupdate): each sub-model's",
+        "# coefficient (its static gain, um per input unit; or its gain where no coefficients are",
+        "# given) and a bias, the calibration's posterior widened by its residue's autocorrelation",
         "probe_prior:",
     ]
     for output, doc in docs.items():
@@ -258,9 +259,19 @@ def probe_prior_lines(docs: Mapping[str, ProbePriorDoc]) -> list[str]:
             f"    samples: {doc.samples}",
             f"    effective_samples: {yaml_float(doc.effective_samples)}",
             f"    output_peak_um: {yaml_float(doc.output_peak_um)}",
+        ]
+        if doc.coefficients is not None:
+            lines.append(f"    coefficients: {_numbers(doc.coefficients)}")
+        lines += [
             "    covariance:  # 10 significant digits",
         ]
         lines += [f"      - {_numbers(float(f'{v:.10g}') for v in row)}" for row in doc.covariance]
+        if doc.gains_covariance is not None:
+            lines.append("    gains_covariance:  # 10 significant digits")
+            lines += [
+                f"      - {_numbers(float(f'{v:.10g}') for v in row)}"
+                for row in doc.gains_covariance
+            ]
     return lines
 
 

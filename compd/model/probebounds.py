@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from compd.errors import ModelError
-from compd.model.probeupdate import ProbeSettings, max_probe_um
+from compd.model.probeupdate import ProbeSettings, max_probe_um, parameter_bounds
 from compd.model.updateprior import Prior
 
 #: A restored state's times may be this far after the reader's clock (s): a touch time may
@@ -35,12 +35,13 @@ def check_bounds(
     accepted_shift_um: float,
 ) -> None:
     """The bounds a state reached by updates keeps (see :meth:`OutputLearner.restore`)."""
-    low, high = settings.gain_bounds
-    slack = 1e-9 * max(1.0, abs(high))
-    for name, gain in zip(prior.names[:-1], theta[:-1], strict=True):
-        if not low - slack <= gain <= high + slack:
+    lows, highs = parameter_bounds(prior, settings)
+    what = "gain" if prior.form == "gains" else "coefficient"
+    for name, value, low, high in zip(prior.names[:-1], theta[:-1], lows, highs, strict=True):
+        slack = 1e-9 * max(1.0, abs(low), abs(high))
+        if not low - slack <= value <= high + slack:
             raise ModelError(
-                f"the gain of {name} is {gain:g}, beyond its rails [{low:g}, {high:g}]"
+                f"the {what} of {name} is {value:g}, beyond its rails [{low:g}, {high:g}]"
             )
     # Twice the bound (or what a person accepted): a state learned under a larger
     # probes.max_shift_um is not set aside for that alone.
@@ -59,10 +60,10 @@ def check_bounds(
             f"the variance of {prior.names[i]} is {variances[i]:g}, beyond {widest[i]:g} "
             "(a million times its prior's): no update reaches it"
         )
-    try:
-        np.linalg.cholesky(covariance)
-    except np.linalg.LinAlgError:
-        raise ModelError("covariance is not positive definite") from None
+    # Positive semi-definite: a member of the bank that holds the coefficients has 0 there.
+    smallest = float(np.linalg.eigvalsh(covariance).min())
+    if not smallest >= -1e-9 * max(1.0, float(np.abs(np.diag(covariance)).max())):
+        raise ModelError("covariance is not positive semi-definite")
 
 
 def number(value: object, key: str) -> float:

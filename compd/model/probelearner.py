@@ -33,6 +33,7 @@ becomes what the model predicts. numpy only: no files, no logging.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -42,6 +43,7 @@ import numpy as np
 
 from compd.errors import ModelError
 from compd.model.compiled import CompiledModel
+from compd.model.probebank import MEMBERS, UpdaterBank, member_prior
 from compd.model.probebounds import (
     RESTORE_SKEW_S,
     SIMULATED_SKEW_S,
@@ -54,7 +56,6 @@ from compd.model.probeupdate import (
     PendingProbe,
     ProbeSettings,
     ProbeStep,
-    ProbeUpdater,
     max_probe_um,
 )
 
@@ -78,8 +79,9 @@ DEFAULT_KEEP_S = 12 * 3600.0
 #: A touch up to this far after the last tick observed takes that tick's regressor (the clocks
 #: of a PLC and the daemon, or a person typing "now", differ by a tick or two).
 AHEAD_SLACK_S = 5.0
-#: The version of :meth:`OutputLearner.state`'s layout.
-STATE_VERSION = 1
+#: The version of :meth:`OutputLearner.state`'s layout (2: the bank's members, issue 42; 1 is
+#: read as one update every learning member starts from).
+STATE_VERSION = 2
 
 
 class ShiftRefused(ModelError):
@@ -209,7 +211,7 @@ class OutputLearner:
         self, prior: Prior, settings: ProbeSettings, window: RegressorWindow | None = None
     ) -> None:
         self.window = window or RegressorWindow()
-        self.updater = ProbeUpdater(prior, settings)
+        self.updater = UpdaterBank(prior, settings)
         p = len(prior.names)
         self._rows = _Rows(p, self.window.keep_s)
         self._bin = -math.inf  # the row bin of the last kept row
@@ -223,6 +225,8 @@ class OutputLearner:
         #: bound instead of ``max_shift_um`` where larger, until a reset.
         self.accepted_shift_um = 0.0
         self._delta = np.zeros(p)
+        #: How far a restored state's latest time lay ahead of the clock, clamped (s; 0: none).
+        self.clamped_s = 0.0
 
     @property
     def prior(self) -> Prior:
@@ -318,7 +322,7 @@ class OutputLearner:
         recent = rows[(times > self.since_s) & (times <= touched_at_s)]
         recent = recent[:: max(1, len(recent) // RECENT_ROWS)]
         u = self.updater
-        before = (u.theta.copy(), u.covariance.copy(), u.last_time_s, u.drifted_to_s, u.pending)
+        before = copy.deepcopy(u)
         steps = u.probe(
             touched_at_s, x, thermal_error_um, fixed_um, recent=recent, accept_shift=accept_shift
         )
@@ -327,7 +331,7 @@ class OutputLearner:
         if accept_shift:
             self.accepted_shift_um = max(self.accepted_shift_um, shift)
         elif shift > held * (1 + 1e-9):
-            u.theta, u.covariance, u.last_time_s, u.drifted_to_s, u.pending = before
+            self.updater = before
             raise ShiftRefused(
                 f"the update would move the learned shift (the bias) to {shift:.1f} um, beyond "
                 f"the {held:.1f} um the probes may reach alone (probes.max_shift_um): not applied. "
@@ -397,7 +401,7 @@ class OutputLearner:
 
     def reset(self) -> None:
         """Back to the prior: the calibration's parameters (the kept regressors stay)."""
-        self.updater = ProbeUpdater(self.prior, self.settings)
+        self.updater = UpdaterBank(self.prior, self.settings)
         self.since_s = -math.inf
         self.untaken_in_a_row = 0
         self.accepted_shift_um = 0.0
@@ -414,6 +418,15 @@ class OutputLearner:
             # this runs in the tick that takes a probe.
             "theta": np.asarray(u.theta, dtype=float).tolist(),
             "covariance": np.asarray(u.covariance, dtype=float).tolist(),
+            "members": [
+                {
+                    "name": name,
+                    "weight": float(weight),
+                    "theta": np.asarray(member.theta, dtype=float).tolist(),
+                    "covariance": np.asarray(member.covariance, dtype=float).tolist(),
+                }
+                for (name, _), weight, member in zip(MEMBERS, u.weights, u.members, strict=True)
+            ],
             "last_time_s": u.last_time_s,
             "drifted_to_s": u.drifted_to_s,
             "since_s": self.last_taken_s,
@@ -453,10 +466,12 @@ class OutputLearner:
         """
         learner = cls(prior, settings, window)
         p = len(prior.names)
+        learner.clamped_s = 0.0
         if not isinstance(state, Mapping):
             raise ModelError(f"a learner's state is a mapping, not {type(state).__name__}")
-        if state.get("version") != STATE_VERSION:
-            raise ModelError(f"version is {state.get('version')!r}, not {STATE_VERSION}")
+        version = state.get("version")
+        if version not in (1, STATE_VERSION):
+            raise ModelError(f"version is {version!r}, not {STATE_VERSION} (or 1)")
         if list(state.get("parameters") or []) != list(prior.names):
             raise ModelError(
                 f"parameters are {state.get('parameters')!r}, the model's are {list(prior.names)}"
@@ -473,9 +488,16 @@ class OutputLearner:
         learner.accepted_shift_um = accepted
         check_bounds(prior, settings, theta, covariance, accepted)
         u = learner.updater
-        u.theta, u.covariance = theta, covariance
+        if version == 1:  # one update (before issue 42): each learning member starts from it
+            for member in u.members:
+                member.theta, member.covariance = theta.copy(), covariance.copy()
+        else:
+            _restore_members(u, state.get("members"), settings, accepted)
+        u.mix()
         u.last_time_s = time_or_none(state.get("last_time_s"), "last_time_s")
         u.drifted_to_s = time_or_none(state.get("drifted_to_s"), "drifted_to_s")
+        for member in u.members:  # each member's random walk runs from the last probe taken
+            member.last_time_s, member.drifted_to_s = u.last_time_s, u.drifted_to_s
         since = time_or_none(state.get("since_s"), "since_s")
         learner.since_s = -math.inf if since is None else since
         untaken = state.get("untaken_in_a_row")
@@ -503,5 +525,82 @@ class OutputLearner:
                         f"{key} is {t_s - now_s:.0f} s in the future (at most "
                         f"{skew_s:g} s): the state is not this machine's past"
                     )
+            learner.clamped_s = learner.clamp_times(now_s)
         learner._delta = u.theta - prior.mean
         return learner
+
+    def clamp_times(self, now_s: float) -> float:
+        """Times after ``now_s`` (a clock set back, a simulation's clock ahead of the wall) set to it.
+
+        Probe due-ness counts from the last probe taken, and probes must come
+        after the last one: a time in the future would hold both until the
+        clock caught up, a whole shift perhaps. Returns how far the latest
+        was ahead (s; 0: none was).
+        """
+        u = self.updater
+        ahead = 0.0
+        for updater in (u, *u.members):
+            for key in ("last_time_s", "drifted_to_s"):
+                t_s = getattr(updater, key)
+                if t_s is not None and t_s > now_s:
+                    ahead = max(ahead, t_s - now_s)
+                    setattr(updater, key, now_s)
+        if u.pending is not None and u.pending.time_s > now_s:
+            ahead = max(ahead, u.pending.time_s - now_s)
+            u.pending.time_s = now_s
+        if self.since_s > now_s:
+            ahead = max(ahead, self.since_s - now_s)
+            self.since_s = now_s
+        return ahead
+
+    def forget_shift(self) -> float:
+        """The learned bias back to the prior's, with its variance; the gains (coefficients) kept.
+
+        What the probes learned as a constant belongs to the thermal state it
+        was learned in: after a cold start the calibrated model's zero holds
+        again, and the next probe re-decides the shift (issue 42). Returns
+        the shift forgotten (um).
+        """
+        u = self.updater
+        shift = float(u.theta[-1] - self.prior.mean[-1])
+        for member in u.members:
+            member.theta[-1] = member.prior.mean[-1]
+            member.covariance[-1, :] = 0.0
+            member.covariance[:, -1] = 0.0
+            member.covariance[-1, -1] = member.prior.covariance[-1, -1]
+        u.pending = None
+        u.mix()
+        self._delta = u.theta - self.prior.mean
+        return shift
+
+
+def _restore_members(
+    bank: UpdaterBank, members: object, settings: ProbeSettings, accepted_shift_um: float
+) -> None:
+    """The bank's members from a state, each checked against its own prior's bounds."""
+    if not isinstance(members, list) or len(members) != len(MEMBERS):
+        raise ModelError(f"members must be a list of {len(MEMBERS)}")
+    p = len(bank.prior.names)
+    weights = []
+    for (name, share), member, entry in zip(MEMBERS, bank.members, members, strict=True):
+        if not isinstance(entry, Mapping) or entry.get("name") != name:
+            raise ModelError(f"members must be {[n for n, _ in MEMBERS]} in this order")
+        weight = number(entry.get("weight"), f"members.{name}.weight")
+        if not 0.0 < weight <= 1.0:
+            raise ModelError(f"members.{name}.weight is {weight:g}, not within (0, 1]")
+        weights.append(weight)
+        theta = array_of(entry.get("theta"), (p,), f"members.{name}.theta")
+        covariance = array_of(entry.get("covariance"), (p, p), f"members.{name}.covariance")
+        if not np.allclose(covariance, covariance.T, rtol=1e-9, atol=1e-12):
+            raise ModelError(f"members.{name}.covariance is not symmetric")
+        try:
+            check_bounds(
+                member_prior(bank.prior, share), settings, theta, covariance, accepted_shift_um
+            )
+        except ModelError as exc:
+            raise ModelError(f"members.{name}: {exc}") from None
+        member.theta, member.covariance = theta, covariance
+    total = sum(weights)
+    if not abs(total - 1.0) <= 1e-6:
+        raise ModelError(f"members' weights sum to {total:g}, not 1")
+    bank.weights = np.array(weights)

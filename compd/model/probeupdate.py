@@ -1,13 +1,16 @@
 """Recursive Bayesian (Kalman) update of a model's linear parameters from sparse probe measurements.
 
-Every compd model's output is linear in per-sub-model gains (issue 35 item 2;
-the same decomposition as :mod:`compd.model.gains`)::
+Every compd model's output is linear in its sub-models' coefficients (issue
+42; issue 35 item 2 for gains)::
 
-    y(t) = f(t) + sum_i g_i c_i(t) + b = f(t) + x(t)' theta,   x = (c_1 .. c_n, 1),  theta = (g_1 .. g_n, b)
+    y(t) = f(t) + sum_i k_i u_i(t) + b = f(t) + x(t)' theta,   x = (u_1 .. u_n, 1),  theta = (k_1 .. k_n, b)
 
-where ``c_i`` (um) is sub-model ``i``'s contribution as simulated with the
-file's gains and ``f`` (um) what no gain scales (a residual model's term).
-The file's model is ``theta0 = (1 .. 1, 0)``. The parameters follow a random
+where ``k_i`` is sub-model ``i``'s static gain in the file (um per input
+unit: a lag term's or a static gain's, as ``compd fit`` identified it),
+``u_i = c_i / k_i`` its contribution per unit of it (:meth:`Prior.regressors`)
+and ``f`` (um) what no coefficient scales (a residual model's term). The
+file's model is ``theta0 = (k_1 .. k_n, 0)`` (a prior in gains: ``u_i = c_i``,
+``theta0 = (1 .. 1, 0)``). The parameters follow a random
 walk; a probe measures ``z = y + v``, ``v ~ N(0, R)``:
 
 - time update over ``dt_s`` seconds: ``P += Q(dt_s)``, where
@@ -27,8 +30,10 @@ Guard rails (issue 35 item 3):
   variance is widened so the confirmed innovation is one sigma
   (``P_bb += e^2 - R - x' P x``: the random walk did not allow for a shift of
   that size) and both probes are taken in time order;
-- gains are clipped to ``gain_bounds``, the bias keeping the updated
-  prediction at the probe; the updated prediction at the probe
+- each parameter but the bias is clipped to its rails
+  (:func:`parameter_bounds`: a gain to ``gain_bounds``, a coefficient to
+  :data:`COEFFICIENT_BOUND_SD` prior standard deviations of the file's), the
+  bias keeping the updated prediction at the probe; the updated prediction at the probe
   may not be further than ``max_departure_um`` from the calibration model's
   (``x' theta0``): the bias, the one parameter with no guard rail, takes up
   the excess;
@@ -111,6 +116,26 @@ MAX_PROBE_UM = 1000.0
 #: ... nor beyond this many times the largest output the calibration model gave.
 MAX_PROBE_PEAKS = 10.0
 ProbeResult = Literal["accepted", "flagged", "confirmed", "rejected"]
+
+
+#: In the coefficients form each coefficient stays within this many prior standard deviations
+#: of the file's: a rail against a runaway, not a shrinkage (the departure bound and the reach
+#: limit hold the predictions).
+COEFFICIENT_BOUND_SD = 6.0
+
+
+def parameter_bounds(prior: Prior, settings: ProbeSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Each parameter's rails but the bias's: (low, high), both (p - 1,).
+
+    Gains: ``settings.gain_bounds``; coefficients: the file's
+    ``+- COEFFICIENT_BOUND_SD`` prior standard deviations.
+    """
+    p = len(prior.names) - 1
+    if prior.coefficients is None:
+        low, high = settings.gain_bounds
+        return np.full(p, float(low)), np.full(p, float(high))
+    spread = COEFFICIENT_BOUND_SD * np.sqrt(np.maximum(np.diag(prior.covariance)[:-1], 0.0))
+    return prior.coefficients - spread, prior.coefficients + spread
 
 
 def max_probe_um(prior: Prior) -> float:
@@ -207,10 +232,13 @@ class ProbeUpdater:
     drifted_to_s: float | None = field(init=False, default=None)
     _recent: np.ndarray | None = field(init=False, default=None, repr=False)
     pending: PendingProbe | None = field(init=False, default=None)
+    #: What the update takes a probe's noise to be (um^2): the settings' probe noise.
+    noise_variance_um2: float = field(init=False)
 
     def __post_init__(self) -> None:
         self.theta = self.prior.mean
         self.covariance = self.prior.covariance.copy()
+        self.noise_variance_um2 = self.settings.probe_noise_um**2
 
     def predict(self, x: np.ndarray, fixed_um: np.ndarray | float = 0.0) -> np.ndarray:
         """``f + x' theta`` (um) for one regressor (p,) or many (N, p)."""
@@ -263,6 +291,7 @@ class ProbeUpdater:
             self.last_time_s,
             self.drifted_to_s,
             self.pending,
+            self.noise_variance_um2,
             self.settings,
         )
         try:
@@ -277,6 +306,7 @@ class ProbeUpdater:
                 self.last_time_s,
                 self.drifted_to_s,
                 self.pending,
+                self.noise_variance_um2,
                 self.settings,
             ) = before
             raise
@@ -300,7 +330,7 @@ class ProbeUpdater:
         # probe is taken, so a flagged one changes nothing at all.
         variance = float(x @ self.covariance @ x) + self._drift_variance(time_s)
         innovation = measured_um - predicted
-        sd = float(np.sqrt(variance + self.settings.probe_noise_um**2))
+        sd = float(np.sqrt(variance + self.noise_variance_um2))
         beyond = abs(innovation) > max(
             self.settings.reject_sigma * sd, self.settings.reject_floor_um
         )
@@ -308,8 +338,8 @@ class ProbeUpdater:
         if beyond and accept_shift:  # a person vouches for it: confirmed at once, rail widened
             departure = abs(innovation) + self.settings.max_departure_um
             self.settings = replace(self.settings, max_departure_um=departure)
-            r = self.settings.probe_noise_um**2
-            self.covariance[-1, -1] += max(0.0, innovation * innovation - r - variance)
+            r = self.noise_variance_um2
+            self._widen_bias(max(0.0, innovation * innovation - r - variance))
             sd = float(np.sqrt(x @ self.covariance @ x + self._drift_variance(time_s) + r))
             step = self._take(time_s, x, fixed_um, measured_um, predicted, sd, "confirmed")
             return [*self._dropped(pending), step]
@@ -323,19 +353,23 @@ class ProbeUpdater:
         # Confirmed: the machine moved further than the random walk allows (a shift: a crash,
         # a re-clamped part). The bias's variance is widened so this innovation is one sigma,
         # then both probes are taken in time order.
-        r = self.settings.probe_noise_um**2
-        self.covariance[-1, -1] += max(0.0, innovation * innovation - r - variance)
+        r = self.noise_variance_um2
+        self._widen_bias(max(0.0, innovation * innovation - r - variance))
         first = self._pending_step(pending)
         predicted = float(fixed_um + x @ self.theta)
         sd = float(np.sqrt(x @ self.covariance @ x + self._drift_variance(time_s) + r))
         return [first, self._take(time_s, x, fixed_um, measured_um, predicted, sd, "confirmed")]
+
+    def _widen_bias(self, variance_um2: float) -> None:
+        """Widen the bias's variance (a confirmed shift the random walk did not allow for)."""
+        self.covariance[-1, -1] += variance_um2
 
     def _pending_step(self, pending: PendingProbe) -> ProbeStep:
         """A flagged probe taken once confirmed."""
         predicted = float(pending.fixed_um + pending.x @ self.theta)
         x = pending.x
         drift = self._drift_variance(pending.time_s)
-        sd = float(np.sqrt(x @ self.covariance @ x + drift + self.settings.probe_noise_um**2))
+        sd = float(np.sqrt(x @ self.covariance @ x + drift + self.noise_variance_um2))
         return self._take(
             pending.time_s,
             pending.x,
@@ -388,7 +422,7 @@ class ProbeUpdater:
         """The time update to ``time_s``, the Kalman measurement update (Joseph form), then the rails."""
         self._drift(x, time_s)
         before = self.theta.copy()
-        r = self.settings.probe_noise_um**2
+        r = self.noise_variance_um2
         p = self.covariance
         px = p @ x
         s = float(x @ px) + r
@@ -401,7 +435,7 @@ class ProbeUpdater:
         # A gain clipped to its rails would take back part of the update at this probe: the
         # bias (no rail) keeps the updated prediction here.
         updated = float(x @ self.theta)
-        low, high = self.settings.gain_bounds
+        low, high = parameter_bounds(self.prior, self.settings)
         np.clip(self.theta[:-1], low, high, out=self.theta[:-1])
         self.theta[-1] += updated - float(x @ self.theta)
         calibration = float(x @ self.prior.mean)

@@ -1,11 +1,24 @@
 """The prior of the probe update (:mod:`compd.model.probeupdate`): the calibration's posterior, or a default.
 
-"The calibration's posterior as prior" (issue 35 item 2): at fit time the
-calibration output is regressed on the model's contributions, and the
-parameters' covariance is that regression's ridge posterior widened by the
-residue's autocorrelation (its effective sample size, Sokal's integrated
-autocorrelation time). A model file without it gets a documented
-conservative default. numpy only.
+Two forms of the parameters (issue 42):
+
+- **the model's coefficients** (what ``compd fit`` stores now): each
+  sub-model's static gain (um per input unit, a lag term's or a static
+  gain's, as the fit identified it), then the bias (um). The regressor of a
+  sub-model is its contribution per unit of its coefficient, so a term the
+  calibration shrank to almost nothing can grow again when the machine says
+  so. The covariance is the calibration's posterior of a ridge regression
+  in standardised units (:func:`coefficient_prior`): narrow along the
+  directions the calibration pinned, as wide as the prior allows along
+  those it could not decide (inputs that move together, lag terms nothing
+  excited);
+- **gains on the file's sub-models** (files written before issue 42, and
+  the default of a file without a prior): every gain 1, the contributions
+  as the regressors (:func:`calibration_prior`, :func:`default_prior`).
+
+Both widen the calibration's information by the residue's autocorrelation
+(its effective sample size, Sokal's integrated autocorrelation time). numpy
+only.
 """
 
 from __future__ import annotations
@@ -28,6 +41,12 @@ DEFAULT_GAIN_SD = 0.3
 DEFAULT_BIAS_SD_RMS = 2.0
 #: The name of the bias parameter.
 BIAS = "bias"
+#: Before the calibration each coefficient, in standardised units (um per standard deviation
+#: of its regressor over the calibration), is 0 +- this many standard deviations of the
+#: calibration output: one input could explain all of it. What the calibration could not
+#: decide keeps about that much room for the probes. Chosen on the random machines and the
+#: shared record, nested (benchmarks/bench_probes.py ``--coefficient-scale``; README there).
+DEFAULT_COEFFICIENT_SCALE = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -40,7 +59,9 @@ class Prior:
     size (0 for a default prior); ``output_peak_um``: the largest
     ``|output|`` the calibration model gave over its calibration (0:
     unknown); ``source``: ``"calibration"`` (``compd fit`` stored it) or
-    ``"default"`` (:func:`default_prior`).
+    ``"default"`` (:func:`default_prior`); ``coefficients``: in the model's
+    coefficients form, each sub-model's static gain in the file (um per
+    input unit; the prior's mean), else None (gains, mean 1).
     """
 
     names: tuple[str, ...]
@@ -50,6 +71,11 @@ class Prior:
     effective_samples: float = 0.0
     output_peak_um: float = 0.0
     source: Literal["calibration", "default"] = "calibration"
+    coefficients: np.ndarray | None = None
+    #: In the coefficients form, the calibration's posterior of gains on the sub-models (the
+    #: update before issue 42: each coefficient moves in proportion to itself), in the
+    #: coefficients' units; the bank's ``gains`` member starts from it. None: ``covariance``.
+    gains_covariance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         p = len(self.names)
@@ -57,12 +83,48 @@ class Prior:
             raise ModelError(f"prior covariance must be {p} x {p}, is {self.covariance.shape}")
         if not np.all(np.isfinite(self.covariance)):
             raise ModelError("prior covariance must be finite")
+        if self.coefficients is not None and (
+            self.coefficients.shape != (p - 1,) or not np.all(np.isfinite(self.coefficients))
+        ):
+            raise ModelError(f"prior coefficients must be {p - 1} finite values")
+        if self.gains_covariance is not None and (
+            self.gains_covariance.shape != (p, p) or not np.all(np.isfinite(self.gains_covariance))
+        ):
+            raise ModelError(f"prior gains covariance must be {p} x {p} finite values")
+
+    @property
+    def form(self) -> Literal["coefficients", "gains"]:
+        """What the parameters are: the model's coefficients, or gains on its sub-models."""
+        return "gains" if self.coefficients is None else "coefficients"
 
     @property
     def mean(self) -> np.ndarray:
+        """The file's model: its coefficients (or gains of 1), then a bias of 0."""
         theta = np.ones(len(self.names))
+        if self.coefficients is not None:
+            theta[:-1] = self.coefficients
         theta[-1] = 0.0
         return theta
+
+    @property
+    def units(self) -> np.ndarray:
+        """Per parameter, the contribution (um) of one unit of it in the file: ``x = (c, 1) / units``.
+
+        The coefficient itself where it is not 0 (its contribution per unit
+        coefficient is the sub-model's unit-gain response); 1 for a gain, the
+        bias, and a coefficient of exactly 0 (whose contribution is 0).
+        """
+        mean = self.mean
+        units = np.where(mean != 0.0, mean, 1.0)
+        units[-1] = 1.0
+        return units
+
+    def regressors(self, contributions_um: np.ndarray) -> np.ndarray:
+        """The update's regressors from the sub-models' contributions (um): (S,) -> (S+1,), (N, S) -> (N, S+1)."""
+        c = np.asarray(contributions_um, dtype=float)
+        ones = np.ones((*c.shape[:-1], 1))
+        x: np.ndarray = np.concatenate([c, ones], axis=-1) / self.units
+        return x
 
 
 def default_prior(names: tuple[str, ...], calibration_rms_um: float) -> Prior:
@@ -119,6 +181,76 @@ def calibration_prior(
     covariance = np.linalg.pinv(information, hermitian=True)
     covariance = 0.5 * (covariance + covariance.T)
     return Prior(names, covariance, sigma, int(e.size), float(n_eff), peak)
+
+
+def coefficient_prior(
+    names: tuple[str, ...],
+    contributions_um: np.ndarray,
+    residue_um: np.ndarray,
+    coefficients: np.ndarray,
+    *,
+    scale: float | None = None,
+) -> Prior:
+    """The calibration's posterior in the model's coefficients (issue 42).
+
+    With ``B`` (n, S) the sub-models' unit responses over the calibration
+    (contributions per unit coefficient, :attr:`Prior.units`), ``D`` their
+    standard deviations, ``Z = [B D^-1, 1]``, ``s`` the residue's standard
+    deviation and ``n_eff`` its effective sample size::
+
+        P_z = ((n_eff / n) Z'Z / s^2 + diag(1 / tau^2, ..., 1 / tau^2, 0))^-1,   P = D^-1 P_z D^-1
+
+    the ridge posterior in standardised units: before the calibration each
+    standardised coefficient is ``0 +- tau``, ``tau = scale`` standard
+    deviations of the calibration output (:data:`DEFAULT_COEFFICIENT_SCALE`);
+    the bias free. The mean is the fitted model (``coefficients``), whatever
+    ridge the fit itself used: the covariance says how far the calibration
+    pinned each direction, wide where it could not (inputs that move
+    together, slow lags a short calibration never excited).
+    """
+    c = np.asarray(contributions_um, dtype=float)
+    e = np.asarray(residue_um, dtype=float).ravel()
+    k = np.asarray(coefficients, dtype=float)
+    if (
+        c.ndim != 2
+        or c.shape[0] != e.size
+        or c.shape[1] + 1 != len(names)
+        or k.shape != (c.shape[1],)
+    ):
+        raise ModelError(
+            f"{len(names)} parameters need (n, {len(names) - 1}) contributions, n residues and "
+            f"{len(names) - 1} coefficients"
+        )
+    if e.size < 3:
+        raise ModelError("a calibration prior needs at least 3 samples")
+    shape = Prior(names, np.eye(len(names)), 1.0, coefficients=k)
+    basis = shape.regressors(c)[:, :-1]
+    sd = np.std(basis, axis=0)
+    sd = np.where(sd > 0.0, sd, 1.0)
+    z = np.column_stack([basis / sd, np.ones(e.size)])
+    sigma = max(float(np.std(e)), 1e-6)
+    n_eff = effective_samples(e)
+    y = c.sum(axis=1) + e
+    tau = (DEFAULT_COEFFICIENT_SCALE if scale is None else scale) * max(float(np.std(y)), sigma)
+    ridge = np.full(len(names), 1.0 / tau**2)
+    ridge[-1] = 0.0
+    information = (n_eff / e.size) * (z.T @ z) / sigma**2 + np.diag(ridge)
+    covariance = np.linalg.pinv(information, hermitian=True)
+    units = np.append(sd, 1.0)
+    covariance = covariance / np.outer(units, units)
+    covariance = 0.5 * (covariance + covariance.T)
+    peak = float(np.max(np.abs(c.sum(axis=1))))
+    gains = calibration_prior(names, c, e).covariance * np.outer(shape.units, shape.units)
+    return Prior(
+        names,
+        covariance,
+        sigma,
+        int(e.size),
+        float(n_eff),
+        peak,
+        coefficients=k,
+        gains_covariance=0.5 * (gains + gains.T),
+    )
 
 
 def effective_samples(residue: np.ndarray, window_c: float = 5.0) -> float:

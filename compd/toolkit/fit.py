@@ -356,7 +356,7 @@ def fit_data(
         provenance=provenance,
         consistency=consistency_of(data, list(model.signals()), output, starts, span),
         # Issue 35: what the probe update starts from, the calibration's own posterior.
-        probe_prior=calibration_probe_priors(contributions, y, first),
+        probe_prior=calibration_probe_priors(model, contributions, y, first),
     )
     return FitResult(
         identification,

@@ -146,7 +146,7 @@ def run_probes(
     )
     time_s = evaluation.data.time_s
     contributions = evaluation.result.contributions[:, owned]
-    x = np.column_stack([contributions, np.ones(len(time_s))])
+    x = prior.prior.regressors(contributions)
     open_loop = evaluation.predicted(output)
     fixed = open_loop - contributions.sum(axis=1)  # what no gain scales (a residual model)
     inside = (probes.time_s >= time_s[0]) & (probes.time_s <= time_s[-1])

@@ -88,7 +88,8 @@ def export_updated(model_file: ModelFile, state_dir: Path, command: str | None =
             continue
         theta = learner.theta
         _, names = output_columns(compiled, output.name)
-        gain_of = dict(zip(names, theta[:-1], strict=True))
+        # The multiplier of each sub-model's gain: its coefficient over the file's (1 per gain).
+        gain_of = dict(zip(names, theta[:-1] / learner.prior.units[:-1], strict=True))
         outputs.append(
             Output(
                 output.name,
@@ -100,7 +101,16 @@ def export_updated(model_file: ModelFile, state_dir: Path, command: str | None =
                 output.bias_um + float(theta[-1]),
             )
         )
-        if np.all(theta[:-1] != 0.0):
+        if learner.prior.form == "coefficients":
+            # The new file's coefficients are the learned ones: the posterior is its prior as is.
+            priors[output.name] = probe_prior_doc(
+                dataclasses.replace(
+                    learner.prior,
+                    covariance=learner.updater.covariance.copy(),
+                    coefficients=theta[:-1].copy(),
+                )
+            )
+        elif np.all(theta[:-1] != 0.0):
             scale = np.append(theta[:-1], 1.0)
             covariance = learner.updater.covariance / np.outer(scale, scale)
             priors[output.name] = probe_prior_doc(

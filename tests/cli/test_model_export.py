@@ -46,8 +46,9 @@ def served(tmp_path_factory):
     columns, names = output_columns(run.compiled, OUTPUT)
     prior = output_prior(model_file, OUTPUT, names).prior
     learner = OutputLearner(prior, ProbeSettings.defaults(prior))
-    x = np.column_stack([run.result.contributions[:, columns], np.ones(len(run.data.time_s))])
-    fixed = run.predicted(OUTPUT) - x[:, :-1].sum(axis=1)
+    contributions = run.result.contributions[:, columns]
+    x = prior.regressors(contributions)
+    fixed = run.predicted(OUTPUT) - contributions.sum(axis=1)
     measured = run.data.column(OUTPUT)
     t_s = EPOCH_S + run.data.time_s
     touches = {k: k + 6 for k in range(720, len(t_s), 720)}  # every 2 h, read a minute later
@@ -72,7 +73,7 @@ def served(tmp_path_factory):
 def test_the_exported_model_predicts_what_the_daemon_does_with_the_learned_parameters(
     served, capsys
 ) -> None:
-    """Gains times the learned factors, the bias as bias_um: the file's output is f + x' theta, to 1e-9 um."""
+    """Each sub-model at its learned coefficient, the bias as bias_um: the file's output is f + x' theta, to 1e-9 um."""
     folder, model, state, learner, steps, x, run = served
     # At 8 h the machine is 6.7 um off the model: flagged, taken when 10 h confirms it.
     assert [s.result for s in steps] == RESULTS
@@ -111,15 +112,15 @@ def test_the_exported_file_passes_model_check_and_names_its_probes(served, capsy
     assert [p.innovation_before_um for p in record.probes] == [
         s.innovation_before_um for s in steps
     ]
-    assert record.parameters[OUTPUT]["bias"] == float(learner.theta[-1])
-    # The exported model starts from what was learned: its prior is the posterior, rescaled.
+    assert record.parameters[OUTPUT]["bias"] == pytest.approx(float(learner.theta[-1]), rel=1e-12)
+    # The exported model starts from what was learned: its prior is the posterior, in the
+    # learned coefficients (the new file's own).
     names = tuple(record.parameters[OUTPUT])[:-1]
     prior = output_prior(updated, OUTPUT, names)
-    assert prior.note is None
-    scale = np.append(learner.theta[:-1], 1.0)
-    np.testing.assert_allclose(
-        prior.prior.covariance, learner.updater.covariance / np.outer(scale, scale), rtol=1e-8
-    )
+    assert prior.note is None and prior.prior.form == "coefficients"
+    assert prior.prior.coefficients is not None
+    np.testing.assert_allclose(prior.prior.coefficients, learner.theta[:-1], rtol=1e-12)
+    np.testing.assert_allclose(prior.prior.covariance, learner.updater.covariance, rtol=1e-8)
 
 
 def test_a_file_bias_is_added_by_the_tick_runner_and_the_simulation_alike(served) -> None:
@@ -185,4 +186,4 @@ def test_the_provenance_names_only_the_probes_since_the_last_reset(served, tmp_p
         == 0
     )
     (record,) = load_model(out).doc.provenance.probe_updates
-    assert [(p.source, p.result) for p in record.probes] == [("cli", "confirmed")]
+    assert [(p.source, p.result) for p in record.probes] == [("cli", RESULTS[-1])]

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from compd.errors import ModelError
+from compd.model.probebank import UpdaterBank
 from compd.model.probelearner import (
     RECENT_ROWS,
     OutputLearner,
@@ -18,7 +19,7 @@ from compd.model.probelearner import (
     ShiftRefused,
     probed_thermal_error_um,
 )
-from compd.model.probeupdate import ProbeSettings, ProbeUpdater
+from compd.model.probeupdate import ProbeSettings
 from compd.model.updateprior import BIAS, Prior
 
 NAMES = ("a", "b", BIAS)
@@ -40,11 +41,11 @@ def ticked(seconds: int, start_s: float = 0.0, **window: float) -> OutputLearner
 
 
 def test_the_probe_is_taken_with_the_regressor_of_its_touch_not_of_its_arrival() -> None:
-    """A probe touched at 3600 s and arriving at 3660 s updates as the bare update does at 3600 s."""
+    """A probe touched at 3600 s and arriving at 3660 s updates as the bare bank does at 3600 s."""
     learner = ticked(3661)
     truth = float(regressor(3600.0) @ np.array([1.3, 0.8, 2.0]))
     (step,) = learner.probe(3600.0, truth)
-    bare = ProbeUpdater(PRIOR, SETTINGS)
+    bare = UpdaterBank(PRIOR, SETTINGS)
     times = np.arange(0.0, 3601.0, 60.0)  # the kept rows: one a minute
     rows = np.array([regressor(t) for t in times])
     (expected,) = bare.probe(3600.0, regressor(3600.0), truth, 0.5, recent=rows)
@@ -179,7 +180,7 @@ def test_the_state_round_trips_through_json_and_a_reset_returns_to_the_prior() -
         (lambda s: s["covariance"][0].__setitem__(1, 5.0), "covariance is not symmetric"),
         (lambda s: s.update(parameters=["a", "c", BIAS]), "the model's are"),
         (lambda s: s.update(last_time_s="soon"), "last_time_s is 'soon', not a finite number"),
-        (lambda s: s.update(version=9), "version is 9, not 1"),
+        (lambda s: s.update(version=9), "version is 9, not 2"),
         (lambda s: s["pending"].update(x=[1.0, math.inf, 1.0]), "pending.x has a value"),
         (lambda s: s.update(untaken_in_a_row=-1), "untaken_in_a_row is -1, not a count"),
     ],
@@ -304,7 +305,7 @@ def _absurd(change: str) -> dict[str, object]:
         ("gain", r"the gain of a is 1e\+20, beyond its rails \[0, 3\]"),
         ("bias", r"the bias is 1e\+06 um, beyond 60 um"),
         ("future", r"last_time_s is \d+ s in the future"),
-        ("indefinite", "not positive definite"),
+        ("indefinite", "not positive semi-definite"),
         ("wide", "the variance of b is 1e\\+12"),
         ("accepted", r"accepted_shift_um is 1e\+09"),
     ],

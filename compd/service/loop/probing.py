@@ -237,6 +237,17 @@ class ProbeLearning:
             output: learners.get(output) or OutputLearner(prior, settings)
             for output, (prior, settings) in setups.items()
         }
+        if slot.started_cold:
+            for output, learner in self.learners.items():
+                shift = learner.forget_shift()
+                if shift != 0.0:
+                    log.info(
+                        "cold start: the learned shift is set back, the next probe re-decides it; "
+                        "the learned coefficients carry over",
+                        model=compiled.name,
+                        output=output,
+                        shift_um=round(shift, 3),
+                    )
 
     def turn_off(self, why: str) -> None:
         """After a failure of the learning itself: nothing learned is applied, no probe taken, until restart."""
@@ -257,6 +268,15 @@ class ProbeLearning:
             self._shift = shift
             self._say_shift(t_unix_s)
         self.follow(slot, t_unix_s)
+        for output, learner in self.learners.items():
+            ahead_s = learner.clamp_times(t_unix_s)
+            if ahead_s > 0.0:
+                log.warning(
+                    "a probe time lay in the future (a clock set back): set to now, so probes "
+                    "fall due from now",
+                    output=output,
+                    ahead_s=round(ahead_s, 1),
+                )
         runner = slot.runner
         self.adjustments_um = dict.fromkeys(self.learners, 0.0)
         self._taken_now = ()
@@ -266,8 +286,9 @@ class ProbeLearning:
         outputs = slot.outputs
         regressors = {}
         for output, learner in self.learners.items():
-            x = np.append(contributions[self._columns[output]], 1.0)
-            fixed = float(outputs[self._output_index[output]]) - float(x[:-1].sum())
+            owned = contributions[self._columns[output]]
+            x = learner.prior.regressors(owned)
+            fixed = float(outputs[self._output_index[output]]) - float(owned.sum())
             if not (np.all(np.isfinite(x)) and math.isfinite(fixed)):
                 continue
             try:

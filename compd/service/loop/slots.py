@@ -42,6 +42,9 @@ class ModelSlot:
         self.runner: TickRunner | None = None
         #: How the running model's state was set at its start (said in the log and the status).
         self.initialised: str | None = None
+        #: Started from today's readings as a cold machine's (or as the zero): what the probes
+        #: learned as a constant does not carry over (:meth:`OutputLearner.forget_shift`).
+        self.started_cold = False
         self.outputs = np.full(len(compiled.output_names), np.nan)
         self.names = list(qualified_names(compiled))
         self._index = {name: i for i, name in enumerate(compiled.output_names)}
@@ -71,6 +74,7 @@ class ModelSlot:
         (``state.fresh_start: now``), so the offsets start from 0.
         """
         self.start(*fresh_state(self.compiled, checked, zero_now=zero_now))
+        self.started_cold = zero_now or self.compiled.reads_cold(checked)
 
     def output(self, name: str) -> float:
         return float(self.outputs[self._index[name]])

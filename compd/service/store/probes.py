@@ -69,6 +69,15 @@ class ProbeKeeper:
             )
         elif restored.restored:
             log.info("probe updates resumed", model=slot.compiled.name, outputs=restored.restored)
+        for output, learner in restored.learners.items():
+            if learner.clamped_s > 0.0:
+                log.warning(
+                    "the saved probe times lay in the future (a clock set back, or a simulation's "
+                    "clock ahead of the wall): set to now, so probes fall due from now",
+                    model=slot.compiled.name,
+                    output=output,
+                    ahead_s=round(learner.clamped_s, 1),
+                )
         return restored.learners
 
     def on_tick(self, snapshot: TickSnapshot) -> None:
