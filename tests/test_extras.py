@@ -18,7 +18,6 @@ import tomllib
 from collections.abc import Iterator
 from importlib import metadata
 from pathlib import Path
-from typing import Any
 
 import pytest
 import yaml
@@ -26,7 +25,6 @@ from packaging.requirements import Requirement
 
 from compd.cli import COMMANDS
 from compd.extras import EXTRAS, Missing, hint, missing_extra
-from compd.model.transfer import DiscreteTF, resample_discrete
 from tests.ports import free_port
 
 ROOT = Path(__file__).parent.parent
@@ -218,22 +216,6 @@ def test_an_opcua_config_without_asyncua_names_the_extra(home: Path) -> None:
 # --- the daemon without the toolkit, for real ------------------------------------
 
 
-def numpy_model(source: Path, destination: Path, period_s: float) -> Path:
-    """``source``'s discrete TFs resampled to the loop's period (here, with scipy): stepped with numpy alone."""
-    doc: dict[str, Any] = yaml.safe_load(source.read_text())
-    for output in doc["outputs"].values():
-        for sub in output["submodels"]:
-            tf = sub["tf"]
-            assert tf["form"] == "discrete" and tf.get("power_order") == "ascending", tf
-            discrete = DiscreteTF.from_coefficients(tf["num"], tf["den"], tf.get("nk", 0))
-            resampled = resample_discrete(discrete, float(doc["sample_time_s"]), period_s)
-            tf.update(num=[float(v) for v in resampled.num], den=[float(v) for v in resampled.den])
-            tf["nk"] = int(resampled.nk)
-    doc["sample_time_s"] = period_s
-    destination.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return destination
-
-
 def wait_listening(port: int, process: subprocess.Popen[bytes], bound_s: float = 120.0) -> None:
     deadline = time.monotonic() + bound_s
     while time.monotonic() < deadline and process.poll() is None:
@@ -247,9 +229,8 @@ def wait_listening(port: int, process: subprocess.Popen[bytes], bound_s: float =
 def test_the_daemon_runs_checks_and_answers_without_the_toolkit(home: Path) -> None:
     """check-config, run and status on a real machine's config (the twin serves it from elsewhere)."""
     doc = yaml.safe_load((ROOT / "config" / "simulated.yaml").read_text())
-    model = numpy_model(
-        ROOT / "config" / "simulated_model.yaml", home / "model.yaml", doc["period_s"]
-    )
+    # The bundled model as shipped: it carries its difference equations at the loop's period.
+    model = ROOT / "config" / "simulated_model.yaml"
     port = free_port()
     doc["drivers"]["plc"]["settings"]["port"] = port
     doc["model"] = str(model)
