@@ -29,7 +29,6 @@ prediction, and each probe taken is taken by every member. numpy only.
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -82,28 +81,47 @@ class UpdaterBank(ProbeUpdater):
         self.mix()
 
     def mix(self) -> None:
-        """``theta``, ``covariance`` and the probe noise: the members' weighted mixture."""
+        """``theta``, ``covariance`` and the probe noise: the members' weighted mixture.
+
+        ``sum_k w_k (P_k + d_k d_k')`` with ``d_k`` a member's departure from
+        the mean, the spread as one product (O(K p^2)).
+        """
         thetas = np.array([m.theta for m in self.members])
         w = self.weights
         self.theta = w @ thetas
         spread = thetas - self.theta
-        covariance = sum(
-            (
-                wk * (m.covariance + np.outer(d, d))
-                for wk, m, d in zip(w, self.members, spread, strict=True)
-            ),
-            start=np.zeros_like(self.covariance),
-        )
+        covariance = spread.T @ (w[:, None] * spread)
+        for wk, member in zip(w, self.members, strict=True):
+            covariance += wk * member.covariance
         self.covariance = 0.5 * (covariance + covariance.T)
         self.noise_variance_um2 = float(w @ [m.noise_variance_um2 for m in self.members])
 
+    def snapshot(self) -> tuple[Any, ...]:
+        """What a probe changes, copied: :meth:`put_back` returns the bank to it."""
+        members = [(m.theta.copy(), m.covariance.copy(), m.drifted_to_s) for m in self.members]
+        return (
+            members,
+            self.weights.copy(),
+            self.theta.copy(),
+            self.covariance.copy(),
+            self.last_time_s,
+            self.drifted_to_s,
+            self.pending,
+        )
+
+    def put_back(self, snapshot: tuple[Any, ...]) -> None:
+        members, self.weights, self.theta, self.covariance, *times = snapshot
+        self.last_time_s, self.drifted_to_s, self.pending = times
+        for member, (theta, covariance, drifted_to_s) in zip(self.members, members, strict=True):
+            member.theta, member.covariance, member.drifted_to_s = theta, covariance, drifted_to_s
+
     def probe(self, *args: Any, **kwargs: Any) -> list[ProbeStep]:
         """:meth:`ProbeUpdater.probe`; a refusal leaves every member and weight as it was."""
-        saved = copy.deepcopy((self.members, self.weights))
+        saved = self.snapshot()
         try:
             return super().probe(*args, **kwargs)
         except BaseException:
-            self.members, self.weights = saved
+            self.put_back(saved)
             raise
 
     def _widen_bias(self, variance_um2: float) -> None:

@@ -33,7 +33,6 @@ becomes what the model predicts. numpy only: no files, no logging.
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -322,7 +321,7 @@ class OutputLearner:
         recent = rows[(times > self.since_s) & (times <= touched_at_s)]
         recent = recent[:: max(1, len(recent) // RECENT_ROWS)]
         u = self.updater
-        before = copy.deepcopy(u)
+        before = u.snapshot()
         steps = u.probe(
             touched_at_s, x, thermal_error_um, fixed_um, recent=recent, accept_shift=accept_shift
         )
@@ -331,7 +330,7 @@ class OutputLearner:
         if accept_shift:
             self.accepted_shift_um = max(self.accepted_shift_um, shift)
         elif shift > held * (1 + 1e-9):
-            self.updater = before
+            u.put_back(before)
             raise ShiftRefused(
                 f"the update would move the learned shift (the bias) to {shift:.1f} um, beyond "
                 f"the {held:.1f} um the probes may reach alone (probes.max_shift_um): not applied. "
