@@ -141,9 +141,10 @@ def _export(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     out = console()
     for name, learner in exported.learned.items():
+        # Each sub-model's gain is multiplied by its learned coefficient over the file's.
+        multipliers = learner.theta[:-1] / learner.prior.units[:-1]
         factors = ", ".join(
-            f"{n} x{v:.3f}"
-            for n, v in zip(learner.prior.names[:-1], learner.theta[:-1], strict=True)
+            f"{n} x{v:.3f}" for n, v in zip(learner.prior.names[:-1], multipliers, strict=True)
         )
         out.print(f"{name}: gains {factors}; bias {learner.theta[-1]:+.3f} um", markup=False)
     out.print(
