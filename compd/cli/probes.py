@@ -37,7 +37,7 @@ def interval_s(text: str) -> float:
 def probe_options(parser: argparse.ArgumentParser) -> None:
     """``compare``'s probe options."""
     group = parser.add_argument_group(
-        "probe updates: the model's gains and bias updated at probe instants, judged "
+        "probe updates: the model's coefficients and bias updated at probe instants, judged "
         "between them, the open-loop figure beside it"
     )
     source = group.add_mutually_exclusive_group()

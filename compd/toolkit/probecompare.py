@@ -2,7 +2,7 @@
 
 The model is run over the record as ``compare`` runs it (its evaluation, a
 ``--from`` part included); then, in time order, each probe updates the
-output's gains and bias (:class:`compd.model.probelearner.OutputLearner`,
+output's coefficients and bias (:class:`compd.model.probelearner.OutputLearner`,
 what the daemon steps: the regressor interpolated at the touch instant, the
 bound held over the rows since the last probe taken; it keeps every sample
 here, the daemon one a minute). Every sample is predicted with the
