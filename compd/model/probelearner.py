@@ -42,20 +42,15 @@ import numpy as np
 
 from compd.errors import ModelError
 from compd.model.compiled import CompiledModel
-from compd.model.probebank import MEMBERS, UpdaterBank, member_prior
+from compd.model.learnerstate import restore_into, state_of
+from compd.model.probebank import UpdaterBank
 from compd.model.probebounds import (
     RESTORE_SKEW_S,
     SIMULATED_SKEW_S,
-    array_of,
-    check_bounds,
-    number,
-    time_or_none,
 )
 from compd.model.probeupdate import (
-    PendingProbe,
     ProbeSettings,
     ProbeStep,
-    max_probe_um,
 )
 
 __all__ = [
@@ -78,9 +73,6 @@ DEFAULT_KEEP_S = 12 * 3600.0
 #: A touch up to this far after the last tick observed takes that tick's regressor (the clocks
 #: of a PLC and the daemon, or a person typing "now", differ by a tick or two).
 AHEAD_SLACK_S = 5.0
-#: The version of :meth:`OutputLearner.state`'s layout (2: the bank's members, issue 42; 1 is
-#: read as one update every learning member starts from).
-STATE_VERSION = 2
 
 
 class ShiftRefused(ModelError):
@@ -408,39 +400,7 @@ class OutputLearner:
 
     def state(self) -> dict[str, Any]:
         """The update's state as plain JSON values (no NaN: times not yet set are null)."""
-        u = self.updater
-        pending = u.pending
-        return {
-            "version": STATE_VERSION,
-            "parameters": list(self.prior.names),
-            # tolist(): Python floats, 5x faster than a comprehension (0.16 ms at 81 parameters):
-            # this runs in the tick that takes a probe.
-            "theta": np.asarray(u.theta, dtype=float).tolist(),
-            "covariance": np.asarray(u.covariance, dtype=float).tolist(),
-            "members": [
-                {
-                    "name": name,
-                    "weight": float(weight),
-                    "theta": np.asarray(member.theta, dtype=float).tolist(),
-                    "covariance": np.asarray(member.covariance, dtype=float).tolist(),
-                }
-                for (name, _), weight, member in zip(MEMBERS, u.weights, u.members, strict=True)
-            ],
-            "last_time_s": u.last_time_s,
-            "drifted_to_s": u.drifted_to_s,
-            "since_s": self.last_taken_s,
-            "untaken_in_a_row": self.untaken_in_a_row,
-            "accepted_shift_um": self.accepted_shift_um,
-            "pending": None
-            if pending is None
-            else {
-                "time_s": pending.time_s,
-                "x": np.asarray(pending.x, dtype=float).tolist(),
-                "fixed_um": pending.fixed_um,
-                "measured_um": pending.measured_um,
-                "innovation_um": pending.innovation_um,
-            },
-        }
+        return state_of(self)
 
     @classmethod
     def restore(
@@ -464,68 +424,8 @@ class OutputLearner:
         ``skew_s`` after it (a simulation's clock runs ahead of the wall: a larger one).
         """
         learner = cls(prior, settings, window)
-        p = len(prior.names)
-        learner.clamped_s = 0.0
-        if not isinstance(state, Mapping):
-            raise ModelError(f"a learner's state is a mapping, not {type(state).__name__}")
-        version = state.get("version")
-        if version not in (1, STATE_VERSION):
-            raise ModelError(f"version is {version!r}, not {STATE_VERSION} (or 1)")
-        if list(state.get("parameters") or []) != list(prior.names):
-            raise ModelError(
-                f"parameters are {state.get('parameters')!r}, the model's are {list(prior.names)}"
-            )
-        theta = array_of(state.get("theta"), (p,), "theta")
-        covariance = array_of(state.get("covariance"), (p, p), "covariance")
-        if not np.allclose(covariance, covariance.T, rtol=1e-9, atol=1e-12):
-            raise ModelError("covariance is not symmetric")
-        accepted = number(state.get("accepted_shift_um", 0.0), "accepted_shift_um")
-        if not 0.0 <= accepted <= max_probe_um(prior):
-            raise ModelError(
-                f"accepted_shift_um is {accepted:g}, not within [0, {max_probe_um(prior):g}] um"
-            )
-        learner.accepted_shift_um = accepted
-        check_bounds(prior, settings, theta, covariance, accepted)
-        u = learner.updater
-        if version == 1:  # one update (before issue 42): each learning member starts from it
-            for member in u.members:
-                member.theta, member.covariance = theta.copy(), covariance.copy()
-        else:
-            _restore_members(u, state.get("members"), settings, accepted)
-        u.mix()
-        u.last_time_s = time_or_none(state.get("last_time_s"), "last_time_s")
-        u.drifted_to_s = time_or_none(state.get("drifted_to_s"), "drifted_to_s")
-        for member in u.members:  # each member's random walk runs from the last probe taken
-            member.last_time_s, member.drifted_to_s = u.last_time_s, u.drifted_to_s
-        since = time_or_none(state.get("since_s"), "since_s")
-        learner.since_s = -math.inf if since is None else since
-        untaken = state.get("untaken_in_a_row")
-        if isinstance(untaken, bool) or not isinstance(untaken, int) or not 0 <= untaken <= 10**6:
-            raise ModelError(f"untaken_in_a_row is {untaken!r}, not a count")
-        learner.untaken_in_a_row = untaken
-        pending = state.get("pending")
-        if pending is not None:
-            if not isinstance(pending, Mapping):
-                raise ModelError("pending is not a mapping")
-            u.pending = PendingProbe(
-                number(pending.get("time_s"), "pending.time_s"),
-                array_of(pending.get("x"), (p,), "pending.x"),
-                number(pending.get("fixed_um"), "pending.fixed_um"),
-                number(pending.get("measured_um"), "pending.measured_um"),
-                number(pending.get("innovation_um"), "pending.innovation_um"),
-            )
-        if now_s is not None:
-            times = {"last_time_s": u.last_time_s, "drifted_to_s": u.drifted_to_s, "since_s": since}
-            if u.pending is not None:
-                times["pending.time_s"] = u.pending.time_s
-            for key, t_s in times.items():
-                if t_s is not None and t_s > now_s + skew_s:
-                    raise ModelError(
-                        f"{key} is {t_s - now_s:.0f} s in the future (at most "
-                        f"{skew_s:g} s): the state is not this machine's past"
-                    )
-            learner.clamped_s = learner.clamp_times(now_s)
-        learner._delta = u.theta - prior.mean
+        restore_into(learner, state, now_s=now_s, skew_s=skew_s)
+        learner._delta = learner.updater.theta - prior.mean
         return learner
 
     def clamp_times(self, now_s: float) -> float:
@@ -571,35 +471,3 @@ class OutputLearner:
         u.mix()
         self._delta = u.theta - self.prior.mean
         return shift
-
-
-def _restore_members(
-    bank: UpdaterBank, members: object, settings: ProbeSettings, accepted_shift_um: float
-) -> None:
-    """The bank's members from a state, each checked against its own prior's bounds."""
-    if not isinstance(members, list) or len(members) != len(MEMBERS):
-        raise ModelError(f"members must be a list of {len(MEMBERS)}")
-    p = len(bank.prior.names)
-    weights = []
-    for (name, share), member, entry in zip(MEMBERS, bank.members, members, strict=True):
-        if not isinstance(entry, Mapping) or entry.get("name") != name:
-            raise ModelError(f"members must be {[n for n, _ in MEMBERS]} in this order")
-        weight = number(entry.get("weight"), f"members.{name}.weight")
-        if not 0.0 < weight <= 1.0:
-            raise ModelError(f"members.{name}.weight is {weight:g}, not within (0, 1]")
-        weights.append(weight)
-        theta = array_of(entry.get("theta"), (p,), f"members.{name}.theta")
-        covariance = array_of(entry.get("covariance"), (p, p), f"members.{name}.covariance")
-        if not np.allclose(covariance, covariance.T, rtol=1e-9, atol=1e-12):
-            raise ModelError(f"members.{name}.covariance is not symmetric")
-        try:
-            check_bounds(
-                member_prior(bank.prior, share), settings, theta, covariance, accepted_shift_um
-            )
-        except ModelError as exc:
-            raise ModelError(f"members.{name}: {exc}") from None
-        member.theta, member.covariance = theta, covariance
-    total = sum(weights)
-    if not abs(total - 1.0) <= 1e-6:
-        raise ModelError(f"members' weights sum to {total:g}, not 1")
-    bank.weights = np.array(weights)
