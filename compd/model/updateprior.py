@@ -44,8 +44,8 @@ BIAS = "bias"
 #: Before the calibration each coefficient, in standardised units (um per standard deviation
 #: of its regressor over the calibration), is 0 +- this many standard deviations of the
 #: calibration output: one input could explain all of it. What the calibration could not
-#: decide keeps about that much room for the probes. Chosen on the random machines and the
-#: shared record, nested (benchmarks/bench_probes.py ``--coefficient-scale``; README there).
+#: decide keeps about that much room; the probe bank's ``narrow`` member takes a hundredth of
+#: the variance (:data:`compd.model.probebank.MEMBERS`, where the choice was measured).
 DEFAULT_COEFFICIENT_SCALE = 1.0
 
 
