@@ -81,7 +81,7 @@ class UpdaterBank(ProbeUpdater):
         self.mix()
 
     def mix(self) -> None:
-        """``theta``, ``covariance`` and the probe noise: the members' weighted mixture.
+        """``theta`` and ``covariance``: the members' weighted mixture.
 
         ``sum_k w_k (P_k + d_k d_k')`` with ``d_k`` a member's departure from
         the mean, the spread as one product (O(K p^2)).
@@ -94,7 +94,6 @@ class UpdaterBank(ProbeUpdater):
         for wk, member in zip(w, self.members, strict=True):
             covariance += wk * member.covariance
         self.covariance = 0.5 * (covariance + covariance.T)
-        self.noise_variance_um2 = float(w @ [m.noise_variance_um2 for m in self.members])
 
     def snapshot(self) -> tuple[Any, ...]:
         """What a probe changes, copied: :meth:`put_back` returns the bank to it."""
@@ -145,17 +144,11 @@ class UpdaterBank(ProbeUpdater):
         for k, member in enumerate(self.members):
             member.settings = self.settings
             predicted = float(fixed_um + x @ member.theta)
-            variance = (
-                float(x @ member.covariance @ x)
-                + member._drift_variance(time_s)
-                + member.noise_variance_um2
-            )
-            innovation = measured_um - predicted
-            log_likelihood[k] = -0.5 * (math.log(variance) + innovation * innovation / variance)
+            sd = member.predicted_sd_um(x, time_s)
+            z = (measured_um - predicted) / sd
+            log_likelihood[k] = -math.log(sd) - 0.5 * z * z
             member._recent = self._recent
-            step = member._take(
-                time_s, x, fixed_um, measured_um, predicted, math.sqrt(variance), result
-            )
+            step = member._take(time_s, x, fixed_um, measured_um, predicted, sd, result)
             bounded = bounded or step.bounded
         weights = self.weights * np.exp(log_likelihood - log_likelihood.max())
         weights = np.maximum(weights / weights.sum(), WEIGHT_FLOOR)

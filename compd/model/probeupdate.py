@@ -232,13 +232,10 @@ class ProbeUpdater:
     drifted_to_s: float | None = field(init=False, default=None)
     _recent: np.ndarray | None = field(init=False, default=None, repr=False)
     pending: PendingProbe | None = field(init=False, default=None)
-    #: What the update takes a probe's noise to be (um^2): the settings' probe noise.
-    noise_variance_um2: float = field(init=False)
 
     def __post_init__(self) -> None:
         self.theta = self.prior.mean
         self.covariance = self.prior.covariance.copy()
-        self.noise_variance_um2 = self.settings.probe_noise_um**2
 
     def predict(self, x: np.ndarray, fixed_um: np.ndarray | float = 0.0) -> np.ndarray:
         """``f + x' theta`` (um) for one regressor (p,) or many (N, p)."""
@@ -291,7 +288,6 @@ class ProbeUpdater:
             self.last_time_s,
             self.drifted_to_s,
             self.pending,
-            self.noise_variance_um2,
             self.settings,
         )
         try:
@@ -306,7 +302,6 @@ class ProbeUpdater:
                 self.last_time_s,
                 self.drifted_to_s,
                 self.pending,
-                self.noise_variance_um2,
                 self.settings,
             ) = before
             raise
@@ -330,7 +325,7 @@ class ProbeUpdater:
         # probe is taken, so a flagged one changes nothing at all.
         variance = float(x @ self.covariance @ x) + self._drift_variance(time_s)
         innovation = measured_um - predicted
-        sd = float(np.sqrt(variance + self.noise_variance_um2))
+        sd = float(np.sqrt(variance + self.settings.probe_noise_um**2))
         beyond = abs(innovation) > max(
             self.settings.reject_sigma * sd, self.settings.reject_floor_um
         )
@@ -338,9 +333,9 @@ class ProbeUpdater:
         if beyond and accept_shift:  # a person vouches for it: confirmed at once, rail widened
             departure = abs(innovation) + self.settings.max_departure_um
             self.settings = replace(self.settings, max_departure_um=departure)
-            r = self.noise_variance_um2
+            r = self.settings.probe_noise_um**2
             self._widen_bias(max(0.0, innovation * innovation - r - variance))
-            sd = float(np.sqrt(x @ self.covariance @ x + self._drift_variance(time_s) + r))
+            sd = self.predicted_sd_um(x, time_s)
             step = self._take(time_s, x, fixed_um, measured_um, predicted, sd, "confirmed")
             return [*self._dropped(pending), step]
         if not beyond:
@@ -353,11 +348,11 @@ class ProbeUpdater:
         # Confirmed: the machine moved further than the random walk allows (a shift: a crash,
         # a re-clamped part). The bias's variance is widened so this innovation is one sigma,
         # then both probes are taken in time order.
-        r = self.noise_variance_um2
+        r = self.settings.probe_noise_um**2
         self._widen_bias(max(0.0, innovation * innovation - r - variance))
         first = self._pending_step(pending)
         predicted = float(fixed_um + x @ self.theta)
-        sd = float(np.sqrt(x @ self.covariance @ x + self._drift_variance(time_s) + r))
+        sd = self.predicted_sd_um(x, time_s)
         return [first, self._take(time_s, x, fixed_um, measured_um, predicted, sd, "confirmed")]
 
     def _widen_bias(self, variance_um2: float) -> None:
@@ -367,9 +362,7 @@ class ProbeUpdater:
     def _pending_step(self, pending: PendingProbe) -> ProbeStep:
         """A flagged probe taken once confirmed."""
         predicted = float(pending.fixed_um + pending.x @ self.theta)
-        x = pending.x
-        drift = self._drift_variance(pending.time_s)
-        sd = float(np.sqrt(x @ self.covariance @ x + drift + self.noise_variance_um2))
+        sd = self.predicted_sd_um(pending.x, pending.time_s)
         return self._take(
             pending.time_s,
             pending.x,
@@ -391,6 +384,12 @@ class ProbeUpdater:
                 pending.time_s, pending.measured_um, predicted, float("nan"), e, e, "rejected"
             )
         ]
+
+    def predicted_sd_um(self, x: np.ndarray, time_s: float) -> float:
+        """The innovation's predicted standard deviation at ``x`` and ``time_s`` (um):
+        the parameters' uncertainty, their drift since the last probe taken, the probe noise."""
+        variance = float(x @ self.covariance @ x) + self._drift_variance(time_s)
+        return math.sqrt(variance + self.settings.probe_noise_um**2)
 
     def _drift_variance(self, time_s: float) -> float:
         """``x' Q(dt) x`` (um^2): the drift of the prediction since the last probe taken."""
@@ -422,7 +421,7 @@ class ProbeUpdater:
         """The time update to ``time_s``, the Kalman measurement update (Joseph form), then the rails."""
         self._drift(x, time_s)
         before = self.theta.copy()
-        r = self.noise_variance_um2
+        r = self.settings.probe_noise_um**2
         p = self.covariance
         px = p @ x
         s = float(x @ px) + r
