@@ -12,7 +12,11 @@ from __future__ import annotations
 
 import random
 import socket
+import subprocess
+import time
 from pathlib import Path
+
+import pytest
 
 #: Where to pick when the kernel does not say its ephemeral range (Linux's default starts at 32768).
 FALLBACK_EPHEMERAL_LOW = 32768
@@ -42,3 +46,14 @@ def free_port() -> int:
     with socket.socket() as probe:  # everything taken: the kernel's pick, as before
         probe.bind(("127.0.0.1", 0))
         return int(probe.getsockname()[1])
+
+
+def wait_listening(port: int, process: subprocess.Popen[bytes], bound_s: float = 120.0) -> None:
+    """Until something accepts connections on 127.0.0.1:``port`` (the process still running)."""
+    deadline = time.monotonic() + bound_s
+    while time.monotonic() < deadline and process.poll() is None:
+        with socket.socket() as probe:
+            if probe.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.1)
+    pytest.fail(f"nothing listens on port {port} (exit status {process.poll()})")

@@ -14,6 +14,7 @@ import yaml
 
 from tests.acceptance.conftest import machine_doc
 from tests.installed import DRIVER_CONTRACT, run_installed
+from tests.ports import wait_listening
 
 ROOT = Path(__file__).parents[1]
 BUNDLED_MODEL = ROOT / "config" / "simulated_model.yaml"
@@ -112,20 +113,6 @@ def short_dir() -> Iterator[Path]:
     directory.mkdir(exist_ok=True)
     yield directory
     shutil.rmtree(directory, ignore_errors=True)
-
-
-def wait_listening(port: int, process: subprocess.Popen[bytes], bound_s: float = 120.0) -> None:
-    """Until something accepts connections on 127.0.0.1:``port`` (the process still running)."""
-    import socket
-    import time
-
-    deadline = time.monotonic() + bound_s
-    while time.monotonic() < deadline and process.poll() is None:
-        with socket.socket() as probe:
-            if probe.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.1)
-    pytest.fail(f"nothing listens on port {port} (exit status {process.poll()})")
 
 
 def test_run_for_a_real_machine_loads_no_toolkit_twin_or_plotting(short_dir: Path) -> None:

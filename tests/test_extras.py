@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -25,7 +24,7 @@ from packaging.requirements import Requirement
 
 from compd.cli import COMMANDS
 from compd.extras import EXTRAS, Missing, hint, missing_extra
-from tests.ports import free_port
+from tests.ports import free_port, wait_listening
 
 ROOT = Path(__file__).parent.parent
 PROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
@@ -214,16 +213,6 @@ def test_an_opcua_config_without_asyncua_names_the_extra(home: Path) -> None:
 
 
 # --- the daemon without the toolkit, for real ------------------------------------
-
-
-def wait_listening(port: int, process: subprocess.Popen[bytes], bound_s: float = 120.0) -> None:
-    deadline = time.monotonic() + bound_s
-    while time.monotonic() < deadline and process.poll() is None:
-        with socket.socket() as probe:
-            if probe.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.1)
-    pytest.fail(f"nothing listens on port {port} (exit status {process.poll()})")
 
 
 def test_the_daemon_runs_checks_and_answers_without_the_toolkit(home: Path) -> None:
