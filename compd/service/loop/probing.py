@@ -267,16 +267,9 @@ class ProbeLearning:
         if shift > self._shift:
             self._shift = shift
             self._say_shift(t_unix_s)
+        # Times in the future are clamped where they can come from, a saved state (ProbeKeeper):
+        # the loop's clock is the wall's mapped once at start, and a touch may not lie ahead of it.
         self.follow(slot, t_unix_s)
-        for output, learner in self.learners.items():
-            ahead_s = learner.clamp_times(t_unix_s)
-            if ahead_s > 0.0:
-                log.warning(
-                    "a probe time lay in the future (a clock set back): set to now, so probes "
-                    "fall due from now",
-                    output=output,
-                    ahead_s=round(ahead_s, 1),
-                )
         runner = slot.runner
         self.adjustments_um = dict.fromkeys(self.learners, 0.0)
         self._taken_now = ()
