@@ -8,6 +8,7 @@ import json
 import os
 import re
 import select
+import socket
 import subprocess
 import sys
 import time
@@ -383,7 +384,11 @@ def test_read_loads_the_daemons_stack_only(tmp_path):
     """``compd read`` on a Modbus config imports no toolkit, twin, report, pandas, rich.live or other driver."""
     from tests.test_architecture import NOT_IN_THE_DAEMON, imported_by, loaded
 
-    status, modules, out = imported_by("read", "--config", machine_config(tmp_path, free_port()))
+    # A port bound and never listened on: refused, and no other test's server can take it meanwhile.
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        port = held.getsockname()[1]
+        status, modules, out = imported_by("read", "--config", machine_config(tmp_path, port))
     assert status == 1 and "cannot connect" in out
     assert "compd.drivers.modbus.driver" in modules
     assert loaded(modules, (*NOT_IN_THE_DAEMON, "asyncua", "can")) == []
