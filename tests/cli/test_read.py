@@ -144,7 +144,10 @@ def test_read_an_unknown_name_is_refused_with_the_names_there_are(tmp_path, plc)
 
 def test_a_driver_that_cannot_connect_shows_its_error_on_each_row(tmp_path):
     """Nothing listening: every row says 'cannot connect', exit 1, no traceback."""
-    code, out, err = compd("read", "--config", machine_config(tmp_path, free_port()), "--json")
+    with socket.socket() as held:  # bound, never listening: refused, and nobody else's meanwhile
+        held.bind(("127.0.0.1", 0))
+        config = machine_config(tmp_path, held.getsockname()[1])
+        code, out, err = compd("read", "--config", config, "--json")
     rows = points(out)
     assert {r["health"] for r in rows.values()} == {"ERROR"}
     assert all("cannot connect" in r["problem"] for r in rows.values())
