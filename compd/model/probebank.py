@@ -81,52 +81,53 @@ class UpdaterBank(ProbeUpdater):
         self.mix()
 
     def mix(self) -> None:
-        """``theta`` and ``covariance``: the members' weighted mixture.
+        """``theta``: the members' weighted mean (:attr:`covariance` is mixed when asked for)."""
+        self.theta = self.weights @ np.array([m.theta for m in self.members])
 
-        ``sum_k w_k (P_k + d_k d_k')`` with ``d_k`` a member's departure from
-        the mean, the spread as one product (O(K p^2)).
-        """
-        thetas = np.array([m.theta for m in self.members])
-        w = self.weights
-        self.theta = w @ thetas
-        spread = thetas - self.theta
-        covariance = spread.T @ (w[:, None] * spread)
-        for wk, member in zip(w, self.members, strict=True):
+    @property
+    def covariance(self) -> np.ndarray:
+        """The mixture's covariance ``sum_k w_k (P_k + d_k d_k')``, ``d_k`` a member's departure
+        from the mean (a new array; only a saved state and an export ask for it)."""
+        spread = np.array([m.theta for m in self.members]) - self.theta
+        covariance: np.ndarray = spread.T @ (self.weights[:, None] * spread)
+        for wk, member in zip(self.weights, self.members, strict=True):
             covariance += wk * member.covariance
-        self.covariance = 0.5 * (covariance + covariance.T)
+        return 0.5 * (covariance + covariance.T)
+
+    @covariance.setter
+    def covariance(self, value: np.ndarray) -> None:
+        """The members carry the covariance; the bank keeps none of its own."""
+
+    def parameter_variance(self, x: np.ndarray) -> float:
+        """``x' P x`` of the mixture without forming it: each member's, plus the members' spread."""
+        return sum(
+            float(wk) * (member.parameter_variance(x) + float(x @ (member.theta - self.theta)) ** 2)
+            for wk, member in zip(self.weights, self.members, strict=True)
+        )
 
     def snapshot(self) -> tuple[Any, ...]:
         """What a probe changes, copied: :meth:`put_back` returns the bank to it."""
-        members = [(m.theta.copy(), m.covariance.copy(), m.drifted_to_s) for m in self.members]
         return (
-            members,
+            [m.snapshot() for m in self.members],
             self.weights.copy(),
             self.theta.copy(),
-            self.covariance.copy(),
             self.last_time_s,
             self.drifted_to_s,
             self.pending,
         )
 
     def put_back(self, snapshot: tuple[Any, ...]) -> None:
-        members, self.weights, self.theta, self.covariance, *times = snapshot
+        members, self.weights, self.theta, *times = snapshot
         self.last_time_s, self.drifted_to_s, self.pending = times
-        for member, (theta, covariance, drifted_to_s) in zip(self.members, members, strict=True):
-            member.theta, member.covariance, member.drifted_to_s = theta, covariance, drifted_to_s
+        for member, saved in zip(self.members, members, strict=True):
+            member.put_back(saved)
 
-    def probe(self, *args: Any, **kwargs: Any) -> list[ProbeStep]:
-        """:meth:`ProbeUpdater.probe`; a refusal leaves every member and weight as it was."""
-        saved = self.snapshot()
-        try:
-            return super().probe(*args, **kwargs)
-        except BaseException:
-            self.put_back(saved)
-            raise
+    def finite(self) -> bool:
+        return bool(np.all(np.isfinite(self.weights))) and all(m.finite() for m in self.members)
 
     def _widen_bias(self, variance_um2: float) -> None:
         for member in self.members:
-            member.covariance[-1, -1] += variance_um2
-        self.mix()
+            member._widen_bias(variance_um2)
 
     def _take(
         self,

@@ -464,9 +464,11 @@ class OutputLearner:
         shift = float(u.theta[-1] - self.prior.mean[-1])
         for member in u.members:
             member.theta[-1] = member.prior.mean[-1]
-            member.covariance[-1, :] = 0.0
-            member.covariance[:, -1] = 0.0
-            member.covariance[-1, -1] = member.prior.covariance[-1, -1]
+            covariance = member.covariance
+            covariance[-1, :] = 0.0
+            covariance[:, -1] = 0.0
+            covariance[-1, -1] = member.prior.covariance[-1, -1]
+            member.covariance = covariance
         u.pending = None
         u.mix()
         self._delta = u.theta - self.prior.mean

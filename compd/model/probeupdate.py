@@ -18,8 +18,8 @@ walk; a probe measures ``z = y + v``, ``v ~ N(0, R)``:
   prior's shape, scaled so that the prediction at the probe's regressor may
   drift by ``drift_um_per_sqrt_h`` um per sqrt(hour);
 - measurement update: innovation ``e = z - x' theta``, ``S = x' P x + R``,
-  ``K = P x / S``, ``theta += K e`` and the Joseph form
-  ``P = (I - K x') P (I - K x')' + K R K'``.
+  ``K = P x / S``, ``theta += K e`` and ``P -= (P x)(P x)' / S`` (Joseph's form
+  ``(I - K x') P (I - K x')' + K R K'`` for this optimal ``K``).
 
 Guard rails (issue 35 item 3):
 
@@ -67,6 +67,7 @@ from typing import Literal
 import numpy as np
 
 from compd.errors import ModelError
+from compd.model.probecovariance import DriftingCovariance
 from compd.model.updateprior import BIAS, Prior
 
 __all__ = [
@@ -226,7 +227,8 @@ class ProbeUpdater:
     prior: Prior
     settings: ProbeSettings
     theta: np.ndarray = field(init=False)
-    covariance: np.ndarray = field(init=False)
+    #: ``P``, kept so that a probe costs one pass over it (:mod:`compd.model.probecovariance`).
+    _p: DriftingCovariance = field(init=False, repr=False)
     last_time_s: float | None = field(init=False, default=None)
     #: Up to when the random walk has been added to ``covariance`` (the last probe taken).
     drifted_to_s: float | None = field(init=False, default=None)
@@ -236,6 +238,44 @@ class ProbeUpdater:
     def __post_init__(self) -> None:
         self.theta = self.prior.mean
         self.covariance = self.prior.covariance.copy()
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """The parameters' covariance ``P`` (a new array: change it by assigning)."""
+        return self._p.matrix()
+
+    @covariance.setter
+    def covariance(self, value: np.ndarray) -> None:
+        self._p = DriftingCovariance.of(value, self.prior.covariance)
+
+    def parameter_variance(self, x: np.ndarray) -> float:
+        """``x' P x`` (um^2): the prediction's variance at ``x`` from the parameters' uncertainty."""
+        return float(x @ self._p.times(x))
+
+    def snapshot(self) -> tuple[object, ...]:
+        """What a probe changes: :meth:`put_back` returns the update to it (snapshots may nest
+        while nothing changes between them: a learner's around its update's own)."""
+        return (
+            self.theta.copy(),
+            self._p,
+            self._p.snapshot(),
+            self._p.drift_weight,
+            self.last_time_s,
+            self.drifted_to_s,
+            self.pending,
+        )
+
+    def put_back(self, snapshot: tuple[object, ...]) -> None:
+        theta, p, token, weight, last, drifted, pending = snapshot
+        assert isinstance(p, DriftingCovariance) and isinstance(token, int)
+        p.put_back(token)
+        p.drift_weight = weight  # type: ignore[assignment]
+        self.theta, self._p = theta, p  # type: ignore[assignment]
+        self.last_time_s, self.drifted_to_s, self.pending = last, drifted, pending  # type: ignore[assignment]
+
+    def finite(self) -> bool:
+        """Whether the parameters and their covariance are all finite numbers."""
+        return bool(np.all(np.isfinite(self.theta))) and self._p.finite()
 
     def predict(self, x: np.ndarray, fixed_um: np.ndarray | float = 0.0) -> np.ndarray:
         """``f + x' theta`` (um) for one regressor (p,) or many (N, p)."""
@@ -266,7 +306,7 @@ class ProbeUpdater:
         A :class:`ModelError` (a value beyond :func:`max_probe_um`, a touch
         out of order, an update that is not finite) leaves the state as it was.
         """
-        x = np.asarray(x, dtype=float)
+        x = np.array(x, dtype=float)  # the update's own copy: products with it are kept
         if x.shape != self.theta.shape:
             raise ModelError(f"a probe's regressor needs {self.theta.size} values, has {x.shape}")
         if not (np.all(np.isfinite(x)) and np.isfinite(measured_um)):
@@ -282,31 +322,17 @@ class ProbeUpdater:
             raise ModelError(
                 f"probes must come in time order: {time_s} s after {self.last_time_s} s"
             )
-        before = (
-            self.theta.copy(),
-            self.covariance.copy(),
-            self.last_time_s,
-            self.drifted_to_s,
-            self.pending,
-            self.settings,
-        )
+        before, settings = self.snapshot(), self.settings
         try:
             with np.errstate(all="ignore"):  # an overflow is refused below, not warned about
                 steps = self._probe(time_s, x, measured_um, fixed_um, recent, accept_shift)
-            if not (np.all(np.isfinite(self.theta)) and np.all(np.isfinite(self.covariance))):
+            if not self.finite():
                 raise ModelError("the update gave parameters that are not finite numbers")
         except BaseException:
-            (
-                self.theta,
-                self.covariance,
-                self.last_time_s,
-                self.drifted_to_s,
-                self.pending,
-                self.settings,
-            ) = before
+            self.put_back(before)
             raise
         finally:
-            self.settings = before[-1]
+            self.settings = settings
         return steps
 
     def _probe(
@@ -323,7 +349,7 @@ class ProbeUpdater:
         predicted = float(fixed_um + x @ self.theta)
         # x' Q(dt) x is the drift over dt by Q's construction; P itself drifts only when a
         # probe is taken, so a flagged one changes nothing at all.
-        variance = float(x @ self.covariance @ x) + self._drift_variance(time_s)
+        variance = self.parameter_variance(x) + self._drift_variance(time_s)
         innovation = measured_um - predicted
         sd = float(np.sqrt(variance + self.settings.probe_noise_um**2))
         beyond = abs(innovation) > max(
@@ -357,7 +383,7 @@ class ProbeUpdater:
 
     def _widen_bias(self, variance_um2: float) -> None:
         """Widen the bias's variance (a confirmed shift the random walk did not allow for)."""
-        self.covariance[-1, -1] += variance_um2
+        self._p.add_to_last(variance_um2)
 
     def _pending_step(self, pending: PendingProbe) -> ProbeStep:
         """A flagged probe taken once confirmed."""
@@ -388,7 +414,7 @@ class ProbeUpdater:
     def predicted_sd_um(self, x: np.ndarray, time_s: float) -> float:
         """The innovation's predicted standard deviation at ``x`` and ``time_s`` (um):
         the parameters' uncertainty, their drift since the last probe taken, the probe noise."""
-        variance = float(x @ self.covariance @ x) + self._drift_variance(time_s)
+        variance = self.parameter_variance(x) + self._drift_variance(time_s)
         return math.sqrt(variance + self.settings.probe_noise_um**2)
 
     def _drift_variance(self, time_s: float) -> float:
@@ -402,11 +428,10 @@ class ProbeUpdater:
         self.drifted_to_s = time_s
         if dt_s <= 0.0 or self.settings.drift_um_per_sqrt_h <= 0.0:
             return
-        p0 = self.prior.covariance
-        scale = float(x @ p0 @ x)
+        scale = self._p.prior_quadratic(x)
         if scale <= 0.0:
             return
-        self.covariance += p0 * (self.settings.drift_um_per_sqrt_h**2 * dt_s / 3600.0 / scale)
+        self._p.drift_weight += self.settings.drift_um_per_sqrt_h**2 * dt_s / 3600.0 / scale
 
     def _take(
         self,
@@ -418,19 +443,24 @@ class ProbeUpdater:
         sd_um: float,
         result: ProbeResult,
     ) -> ProbeStep:
-        """The time update to ``time_s``, the Kalman measurement update (Joseph form), then the rails."""
+        """The time update to ``time_s``, the Kalman measurement update, then the rails."""
         self._drift(x, time_s)
         before = self.theta.copy()
         r = self.settings.probe_noise_um**2
-        p = self.covariance
-        px = p @ x
+        px = self._p.times(x)
         s = float(x @ px) + r
-        k = px / s
+        if not math.isfinite(s):  # an overflow: the step would be 0 * inf
+            raise ModelError("the update gave parameters that are not finite numbers")
         innovation = measured_um - predicted_um
-        self.theta = self.theta + k * innovation
-        # Joseph form (I - k x') P (I - k x')' + r k k', expanded to O(p^2): with
-        # P x = px it is P - k px' - px k' + (x' P x + r) k k', symmetric by construction.
-        self.covariance = p - np.outer(k, px) - np.outer(px, k) + s * np.outer(k, k)
+        self.theta = self.theta + px * (innovation / s)
+        # With the optimal gain k = P x / s, Joseph's form (I - k x') P (I - k x')' + r k k'
+        # is P - (P x)(P x)' / s: one rank-one product, symmetric as the outer product of one
+        # vector with itself, made in place (a new p x p array per probe costs more than the
+        # arithmetic). The drift part of P is not touched (probecovariance).
+        try:
+            self._p.downdate(px / math.sqrt(s))
+        except ValueError as error:
+            raise ModelError("the update gave parameters that are not finite numbers") from error
         # A gain clipped to its rails would take back part of the update at this probe: the
         # bias (no rail) keeps the updated prediction here.
         updated = float(x @ self.theta)
