@@ -20,7 +20,7 @@
    from the tick's time stamp to the subscriber's receipt, p50/p99 (target
    p99 < 50 ms on one machine). This measures the broker and paho, not 50
    daemons: 50 and 100 real ``compd run`` processes on one loaded 2-core host
-   measured p99 86 ms and 291 ms (issue 36; README "Benchmarks").
+   measured p99 86 ms and 291 ms (docs/benchmarks.md, "Telemetry and fleets").
 
 Run: ``PYTHONPATH=. python benchmarks/bench_telemetry.py [--ticks N] [--period-s P] [--fleet-s S]``
 (quick: ``--ticks 300 --period-s 0.1 --fleet-s 20``). Needs mosquitto

@@ -1,4 +1,4 @@
-"""The habits the README claims are gated: ruff, its formatter and mypy pass at the versions the lock pins."""
+"""The habits docs/development.md claims are gated: ruff, its formatter and mypy pass at the versions the lock pins."""
 
 from __future__ import annotations
 

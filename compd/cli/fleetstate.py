@@ -153,7 +153,7 @@ def connected(
                 f"the broker {broker.host}:{broker.port} refused this user's message to "
                 f"{listener.marker_topic} ({listener.marker_refused}): reading the fleet's "
                 f"retained state and rolling out need write on {section.topic_prefix}/+/{DESIRED}, "
-                "as the roll-out user has (README 'Many machines', the ACL)"
+                "as the roll-out user has (the ACL: deploy/README.md, 'The MQTT broker')"
             )
         yield client
     finally:

@@ -304,7 +304,7 @@ def man_page() -> str:
         ("EXIT STATUS", exit_codes_page()),
         ("STATUS WORD", status_word_page()),
         ("UNITS", units_page()),
-        ("SEE ALSO", "compd help TOPIC for the config and model-file keys; README.md"),
+        ("SEE ALSO", "compd help TOPIC for the config and model-file keys; README.md and docs/"),
     ]
     text = str(page).replace("%%", "%").rstrip("\n") + "\n"  # argparse escapes, unexpanded
     text = escape_quote_lines(text)

@@ -334,8 +334,8 @@ _FIXES = {
     "literal_error": "Use one of the allowed values",
     "float_parsing": "Give a number",
     "finite_number": "Give a finite number",
-    "too_long": "Give fewer items (see the bounds in README.md, 'Model files')",
-    "less_than_equal": "Give a smaller value (see the bounds in README.md, 'Model files')",
+    "too_long": "Give fewer items (see the bounds in docs/commands.md, 'Model files')",
+    "less_than_equal": "Give a smaller value (see the bounds in docs/commands.md, 'Model files')",
 }
 
 

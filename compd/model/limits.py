@@ -6,8 +6,8 @@ output that overflows on the first tick, an order of 3000 a root-finding
 problem of minutes. Thermal-error models are a handful of low-order
 sub-models (Horejs 2010-004: orders 1-4, delays of a few samples, gains of
 micrometres per kelvin), so compd refuses anything beyond these bounds at
-compile time, before one state is allocated. The README's model-file
-section states the same numbers.
+compile time, before one state is allocated. docs/commands.md's
+'Model files' states the same numbers.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ def fmt(value: float | None, digits: int = 2) -> str:
 
 
 def compare_json(evaluation: Evaluation, comparisons: list[Comparison]) -> dict[str, object]:
-    """The ``compare --json`` object (key names are a contract, see the README)."""
+    """The ``compare --json`` object (key names are a contract, see docs/commands.md)."""
     return {
         "model": evaluation.compiled.name,
         "model_sha256": evaluation.model_file.sha256,

@@ -1,4 +1,4 @@
-"""``compd status`` on a probed axis: the shift's probe RMS the README promises, in the human output too."""
+"""``compd status`` on a probed axis: the shift's probe RMS docs/commands.md promises, in the human output too."""
 
 from __future__ import annotations
 

@@ -24,7 +24,7 @@ DASHBOARD = DEPLOY / "grafana" / "compd-fleet.json"
 PROMTOOL = shutil.which("promtool")
 #: Series Prometheus itself adds to every target, beside what compd exports.
 PROMETHEUS_OWN = {"up"}
-#: The alerts the README promises a shop.
+#: The alerts docs/fleet.md ("Metrics and the status page") promises a shop.
 ALERTS = {
     "CompdDown",
     "CompdAbsent",

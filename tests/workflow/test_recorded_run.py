@@ -1,6 +1,6 @@
 """A day recorded by the daemon in hourly Parquet files fits as one run: the same model as the joined file.
 
-The README recommends hourly Parquet files; the recorder rotates them, but
+docs/fleet.md recommends hourly Parquet files; the recorder rotates them, but
 the machine ran on. Fitted as separate experiments, each file starts from
 rest with its own input references (-75 % where the run fits 97 %). Here the
 real recorder records the simulated machine's 24 h calibration run (the

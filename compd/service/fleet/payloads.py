@@ -1,7 +1,7 @@
 """The JSON objects a daemon's telemetry publishes: header, birth, status, event, death and will.
 
 Every payload starts with the same header (``schema``, ``kind``,
-``machine_id``, ``session``, ``seq``, ``time``); see README "Many machines"
+``machine_id``, ``session``, ``seq``, ``time``); see docs/fleet.md, "Telemetry",
 for each kind's fields. The numbers are in engineering units, said once in
 the birth (``units``, each signal's ``unit`` and its Prometheus ``metric``),
 and health both as a word and as ``compd_signal_health``'s code.

@@ -19,7 +19,7 @@ the re-birth naming the new sha256 then tell that it is switched in.
 
 Who may send is the broker's business: each machine logs in as its own user,
 and the broker's ACL lets only the roll-out user write ``<prefix>/+/cmd/#``
-(README "Many machines"). Here the payload is bounded (a model file's
+(deploy/README.md, "The MQTT broker"). Here the payload is bounded (a model file's
 :data:`~compd.files.yamlplace.MAX_YAML_BYTES`, base64) and must carry the
 sha256 of the bytes it delivers, so a truncated or altered model is refused
 before it is parsed.
@@ -191,7 +191,7 @@ class RemoteLoads:
         """Load the roll-out's desired record, heard at connecting: a machine that was away catches up.
 
         The record is the fleet's current word (each roll-out overwrites it,
-        and only the roll-out user may write it: README "Many machines"), so
+        and only the roll-out user may write it: docs/fleet.md, "Rolling a model out"), so
         neither its age nor its id is checked as a command's are; everything
         else is: its sha256, then the daemon's own checks, blend or refusal
         (a ``model_refused`` event; a record refused once is not tried again
