@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -52,3 +54,16 @@ def test_without_the_block_the_default_and_a_note() -> None:
     assert read.prior.source == "default"
     np.testing.assert_allclose(np.sqrt(np.diag(read.prior.covariance)), [0.3, 2.0])
     assert read.note is not None and "conservative default" in read.note
+
+
+def test_the_transient_variances_round_trip_and_a_negative_one_is_refused() -> None:
+    """Per probe interval (s) the residue's transient variance (um^2), read back as written; a
+    negative variance is a model-file error naming the block."""
+    prior = dataclasses.replace(_prior(), transient_um2=((900.0, 0.25), (7200.0, 1.5)))
+    text = model_to_yaml(_model(), probe_prior={"disp_z_um": probe_prior_doc(prior)})
+    assert "transient_variance_um2:" in text
+    read = output_prior(parse_model(text), "disp_z_um", ("spindle",))
+    assert read.prior.transient_um2 == ((900.0, 0.25), (7200.0, 1.5))
+    assert read.prior.transient_variance_um2(7200.0) == pytest.approx(1.5)
+    with pytest.raises(ModelFileError, match="probe_prior"):
+        parse_model(text.replace("7200.0: 1.5", "7200.0: -1.5"))

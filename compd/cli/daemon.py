@@ -80,7 +80,9 @@ def _probe_bounds(config: Any, output: str) -> str:
     model_file = load_model(installed_model(config.state_dir) or config.model_path)
     _, names = output_columns(model_file.compile(doc.period_s, convert=False), output)
     prior = output_prior(model_file, output, names).prior
-    settings = ProbeSettings.defaults(prior, **probes.overrides())
+    settings = ProbeSettings.defaults(
+        prior, interval_s=probes.every_h * 3600.0, **probes.overrides()
+    )
     return (
         f"one taken per {probes.min_gap_s:g} s of touch time (a resend answered as it was); "
         f"|value| <= {max_probe_um(prior):g} um; the learned shift within "

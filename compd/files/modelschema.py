@@ -496,6 +496,15 @@ class ProbePriorDoc(_Strict):
     #: With ``coefficients``: the calibration's posterior of gains on the sub-models, in the
     #: coefficients' units (um per input unit); the update's ``gains`` member starts from it.
     gains_covariance: list[list[FiniteFloat]] | None = None
+    #: Per probe interval (s), the calibration residue's variance that does not persist over it
+    #: (um^2): a probe's innovation carries it and the next probe no longer sees it.
+    transient_variance_um2: (
+        dict[
+            Annotated[float, Field(gt=0, allow_inf_nan=False)],
+            Annotated[float, Field(ge=0, allow_inf_nan=False)],
+        ]
+        | None
+    ) = None
 
     @model_validator(mode="after")
     def _shape(self) -> ProbePriorDoc:

@@ -262,6 +262,14 @@ def probe_prior_lines(docs: Mapping[str, ProbePriorDoc]) -> list[str]:
         ]
         if doc.coefficients is not None:
             lines.append(f"    coefficients: {_numbers(doc.coefficients)}")
+        if doc.transient_variance_um2:
+            lines.append(
+                "    transient_variance_um2:  # per probe interval (s): what does not persist over it"
+            )
+            lines += [
+                f"      {yaml_float(interval)}: {yaml_float(variance)}"
+                for interval, variance in sorted(doc.transient_variance_um2.items())
+            ]
         lines += [
             "    covariance:  # 10 significant digits",
         ]

@@ -49,6 +49,7 @@ def probe_prior_doc(prior: Prior) -> ProbePriorDoc:
         gains_covariance=None
         if prior.gains_covariance is None
         else [[float(v) for v in row] for row in prior.gains_covariance],
+        transient_variance_um2={i: v for i, v in prior.transient_um2} or None,
     )
 
 
@@ -98,6 +99,7 @@ def output_prior(model_file: ModelFile, output: str, submodels: tuple[str, ...])
             gains_covariance=None
             if coefficients is None or stored.gains_covariance is None
             else np.array(stored.gains_covariance, dtype=float),
+            transient_um2=tuple(sorted((stored.transient_variance_um2 or {}).items())),
         )
         return OutputPrior(prior)
     calibration = model_file.doc.provenance.calibration
@@ -148,6 +150,8 @@ def calibration_probe_priors(
         ):
             continue
         coefficients = np.array([gains[name] for name in terms])
-        prior = coefficient_prior((*terms, BIAS), c, residue, coefficients)
+        prior = coefficient_prior(
+            (*terms, BIAS), c, residue, coefficients, sample_time_s=model.sample_time_s
+        )
         docs[output] = probe_prior_doc(prior)
     return docs

@@ -83,6 +83,8 @@ __all__ = [
 
 #: Default probe noise, um (issue 35's feasibility study).
 DEFAULT_PROBE_NOISE_UM = 0.5
+#: The probe interval the settings assume when none is given (the daemon's ``probes.every_h``).
+DEFAULT_PROBE_INTERVAL_S = 7200.0
 #: Default drift: the output may move this many calibration residue sigmas per sqrt(hour).
 DEFAULT_DRIFT_SIGMAS_PER_SQRT_H = 0.3
 #: Default rejection threshold, in predicted standard deviations of the innovation.
@@ -156,17 +158,25 @@ class ProbeSettings:
     reject_floor_um: float = 0.0
     reject_sigma: float = DEFAULT_REJECT_SIGMA
     gain_bounds: tuple[float, float] = DEFAULT_GAIN_BOUNDS
+    #: The calibration residue's variance that does not persist over the probe interval (um^2,
+    #: :func:`~compd.model.updateprior.transient_variances`): the bank's ``gains`` member counts
+    #: it as probe noise (:data:`compd.model.probebank.MEMBERS`).
+    transient_variance_um2: float = 0.0
     #: The largest learned shift (the bias, um) the probes may reach without a person
     #: (:class:`~compd.model.probelearner.OutputLearner` holds it; the gains have their
     #: rails); inf: unbounded. :meth:`defaults` makes it twice ``max_departure_um``.
     max_shift_um: float = math.inf
 
     @classmethod
-    def defaults(cls, prior: Prior, **overrides: float) -> ProbeSettings:
-        """The documented defaults, scaled by the prior's calibration residue sigma."""
+    def defaults(
+        cls, prior: Prior, *, interval_s: float = DEFAULT_PROBE_INTERVAL_S, **overrides: float
+    ) -> ProbeSettings:
+        """The documented defaults, scaled by the prior's calibration residue sigma; probes
+        about ``interval_s`` apart (the transient variance over it)."""
         sigma, peak = prior.residue_sigma_um, prior.output_peak_um
         values: dict[str, float] = {
             "probe_noise_um": DEFAULT_PROBE_NOISE_UM,
+            "transient_variance_um2": prior.transient_variance_um2(interval_s),
             "drift_um_per_sqrt_h": DEFAULT_DRIFT_SIGMAS_PER_SQRT_H * sigma,
             "max_departure_um": (
                 max(MIN_DEPARTURE_UM, DEFAULT_DEPARTURE_SHARE * peak)

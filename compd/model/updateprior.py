@@ -76,6 +76,9 @@ class Prior:
     #: update before issue 42: each coefficient moves in proportion to itself), in the
     #: coefficients' units; the bank's ``gains`` member starts from it. None: ``covariance``.
     gains_covariance: np.ndarray | None = None
+    #: The calibration residue's transient variance (:func:`transient_variances`): pairs of a
+    #: probe interval (s) and the variance (um^2) that does not persist over it; () unknown.
+    transient_um2: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         p = len(self.names)
@@ -91,6 +94,23 @@ class Prior:
             self.gains_covariance.shape != (p, p) or not np.all(np.isfinite(self.gains_covariance))
         ):
             raise ModelError(f"prior gains covariance must be {p} x {p} finite values")
+        intervals = [pair[0] for pair in self.transient_um2]
+        if not all(
+            len(pair) == 2 and pair[0] > 0 and pair[1] >= 0 and np.all(np.isfinite(pair))
+            for pair in self.transient_um2
+        ) or intervals != sorted(set(intervals)):
+            raise ModelError(
+                "prior transient variances must be pairs of an interval (s, increasing, above 0) "
+                "and a variance (um^2, 0 or more)"
+            )
+
+    def transient_variance_um2(self, interval_s: float) -> float:
+        """The residue's variance that does not persist over ``interval_s`` (um^2), interpolated
+        in :attr:`transient_um2` (0 at 0 s, the last value beyond the last interval); 0 unknown."""
+        if not self.transient_um2 or not interval_s > 0:
+            return 0.0
+        intervals, variances = zip(*((0.0, 0.0), *self.transient_um2), strict=True)
+        return float(np.interp(interval_s, intervals, variances))
 
     @property
     def form(self) -> Literal["coefficients", "gains"]:
@@ -190,6 +210,7 @@ def coefficient_prior(
     coefficients: np.ndarray,
     *,
     scale: float | None = None,
+    sample_time_s: float | None = None,
 ) -> Prior:
     """The calibration's posterior in the model's coefficients (issue 42).
 
@@ -206,7 +227,9 @@ def coefficient_prior(
     the bias free. The mean is the fitted model (``coefficients``), whatever
     ridge the fit itself used: the covariance says how far the calibration
     pinned each direction, wide where it could not (inputs that move
-    together, slow lags a short calibration never excited).
+    together, slow lags a short calibration never excited). With
+    ``sample_time_s`` (the residue's), also the residue's transient variance
+    per probe interval (:func:`transient_variances`).
     """
     c = np.asarray(contributions_um, dtype=float)
     e = np.asarray(residue_um, dtype=float).ravel()
@@ -250,7 +273,46 @@ def coefficient_prior(
         peak,
         coefficients=k,
         gains_covariance=0.5 * (gains + gains.T),
+        transient_um2=() if sample_time_s is None else transient_variances(e, sample_time_s),
     )
+
+
+#: The probe intervals :func:`transient_variances` reports, s (15 min to a day).
+TRANSIENT_INTERVALS_S = (900.0, 1800.0, 3600.0, 7200.0, 14400.0, 28800.0, 86400.0)
+
+
+def transient_variances(
+    residue_um: np.ndarray, sample_time_s: float
+) -> tuple[tuple[float, float], ...]:
+    """Per probe interval ``T`` (:data:`TRANSIENT_INTERVALS_S`), the residue's variance that does
+    not persist over it: ``C(0) - mean(C(tau), 0 < tau <= T)`` (um^2, at least 0), ``C`` the
+    residue's autocovariance.
+
+    A probe measures the model's error at one instant. Of that error, the
+    part that persists (a slow drift the calibration did not capture) is what
+    the update should learn; the part that comes and goes within the
+    interval (a door, a chiller's cycle, coolant switched on and off) is gone
+    before the next probe, and an update that learns it moves the model the
+    wrong way half the time. The calibration's residue says how large that
+    part is: with the error split as slow + transient, ``C(0)`` is both
+    variances and the mean of ``C`` over the interval is the slow part's.
+    Intervals shorter than two samples, or not shorter than half the residue
+    (whose autocovariance is no longer estimated from enough pairs), are left
+    out.
+    """
+    e = np.asarray(residue_um, dtype=float).ravel()
+    e = e - e.mean()
+    n = e.size
+    size = 1 << int(2 * n - 1).bit_length()
+    spectrum = np.fft.rfft(e, size)
+    acf = np.fft.irfft(spectrum * np.conj(spectrum), size)[:n] / n
+    pairs = []
+    for interval_s in TRANSIENT_INTERVALS_S:
+        lags = int(interval_s // sample_time_s)
+        if lags < 2 or lags >= n // 2:
+            continue
+        pairs.append((interval_s, max(0.0, float(acf[0] - acf[1 : lags + 1].mean()))))
+    return tuple(pairs)
 
 
 def effective_samples(residue: np.ndarray, window_c: float = 5.0) -> float:

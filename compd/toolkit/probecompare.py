@@ -37,7 +37,7 @@ from compd.model.probelearner import (
     ShiftRefused,
     output_columns,
 )
-from compd.model.probeupdate import ProbeSettings, ProbeStep
+from compd.model.probeupdate import DEFAULT_PROBE_INTERVAL_S, ProbeSettings, ProbeStep
 from compd.toolkit.evaluate import Evaluation
 
 __all__ = ["RECENT_ROWS", "ProbeRun", "Probes", "read_probes", "run_probes"]
@@ -57,6 +57,18 @@ class Probes:
     #: :data:`REPROBE_AFTER_S` later, as the daemon's probe-due bit asks the PLC for one.
     #: None (probes read from a file): only the probes given.
     draw: Callable[[float], float] | None = None
+    #: The interval they were drawn at (s); None: read from a file.
+    every_s: float | None = None
+
+    @property
+    def interval_s(self) -> float:
+        """How far apart the probes are (s): as drawn, else their median spacing, else the
+        daemon's default (one probe)."""
+        if self.every_s is not None:
+            return self.every_s
+        if self.time_s.size >= 2:
+            return float(np.median(np.diff(self.time_s)))
+        return DEFAULT_PROBE_INTERVAL_S
 
     @classmethod
     def every(
@@ -81,7 +93,7 @@ class Probes:
         def draw(t_s: float) -> float:
             return float(np.interp(t_s, t_all, y_all) + again.normal(0.0, noise_um))
 
-        return cls(t_all[index], y_all[index] + noise, draw)
+        return cls(t_all[index], y_all[index] + noise, draw, float(every_s))
 
 
 @dataclass(frozen=True)
@@ -141,7 +153,7 @@ def run_probes(
     # The daemon's learner, keeping every sample of the record (the daemon keeps one a minute).
     learner = OutputLearner(
         prior.prior,
-        ProbeSettings.defaults(prior.prior, **settings),
+        ProbeSettings.defaults(prior.prior, interval_s=probes.interval_s, **settings),
         RegressorWindow(row_every_s=0.0, keep_s=math.inf),
     )
     time_s = evaluation.data.time_s

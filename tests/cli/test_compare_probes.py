@@ -65,6 +65,12 @@ def test_fit_stores_the_calibrations_prior(case) -> None:
     assert np.all(np.linalg.eigvalsh(np.array(prior.covariance)) > 0)
     assert 1 <= prior.effective_samples < prior.samples
     assert prior.output_peak_um > 0
+    # The residue's transient variance per probe interval: 15 min to 8 h of a 24 h calibration,
+    # growing with the interval, within the residue's own variance.
+    transient = prior.transient_variance_um2
+    assert transient is not None and sorted(transient) == [900, 1800, 3600, 7200, 14400, 28800]
+    values = [transient[k] for k in sorted(transient)]
+    assert values == sorted(values) and 0 < values[-1] <= prior.residue_sigma_um**2 * 1.01
 
 
 def test_probes_every_2h_beat_open_loop_on_a_changed_machine(case, capsys) -> None:
@@ -87,18 +93,22 @@ def test_probes_from_a_file_and_a_mis_probe(case, capsys, tmp_path) -> None:
     """Probes from a file: a value 50 um off is flagged, rejected when the next agrees, and changes nothing."""
     folder, model = case
     data = pd.read_csv(folder / "later.csv")
-    at = [7200.0, 14400.0, 21600.0]
+    at = [3600.0, 7200.0, 10800.0, 14400.0, 18000.0]
     values = [float(data.loc[data.time_s == t, "disp_z_um"].iloc[0]) for t in at]
     probes = tmp_path / "probes.csv"
     pd.DataFrame({"time_s": at, "disp_z_um": values}).to_csv(probes, index=False)
     clean = _compare(capsys, model, folder / "later.csv", "--probes", str(probes))
-    values[1] += 50.0
+    values[2] += 50.0
     pd.DataFrame({"time_s": at, "disp_z_um": values}).to_csv(probes, index=False)
     mis = _compare(capsys, model, folder / "later.csv", "--probes", str(probes))
     steps = [p["result"] for p in mis["outputs"]["disp_z_um"]["probes"]]
-    assert steps == ["accepted", "flagged", "rejected", "accepted"]
-    # The mis-probe changed nothing: the run equals one without that probe.
-    pd.DataFrame({"time_s": at[::2], "disp_z_um": values[::2]}).to_csv(probes, index=False)
+    assert steps == ["accepted", "accepted", "flagged", "rejected", "accepted", "accepted"]
+    # The mis-probe changed nothing: the run equals one without that probe (the same median
+    # spacing, 1 h: the interval the update assumes for probes from a file).
+    keep = [0, 1, 3, 4]
+    pd.DataFrame({"time_s": [at[k] for k in keep], "disp_z_um": [values[k] for k in keep]}).to_csv(
+        probes, index=False
+    )
     without = _compare(capsys, model, folder / "later.csv", "--probes", str(probes))
     rms = [s["outputs"]["disp_z_um"]["with_probes"]["rms_um"] for s in (mis, without)]
     assert rms[0] == pytest.approx(rms[1], rel=1e-9)

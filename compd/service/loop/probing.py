@@ -225,7 +225,9 @@ class ProbeLearning:
                 continue
             columns, names = output_columns(compiled, output)
             prior = output_prior(slot.model_file, output, names)
-            settings = ProbeSettings.defaults(prior.prior, **dict(self.setup.overrides))
+            settings = ProbeSettings.defaults(
+                prior.prior, interval_s=self.setup.every_h * 3600.0, **dict(self.setup.overrides)
+            )
             setups[output] = (prior.prior, settings)
             self._columns[output] = columns
             if prior.note:
