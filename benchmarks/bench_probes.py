@@ -46,10 +46,11 @@ from compd.errors import CompdError  # noqa: E402
 from compd.files.data import load_data  # noqa: E402
 from compd.files.experiments import load_experiments  # noqa: E402
 from compd.files.modelfile import parse_model  # noqa: E402
-from compd.model import probeupdate, updateprior  # noqa: E402
+from compd.model import probesettings, updateprior  # noqa: E402
 from compd.model.metrics import fit_percent  # noqa: E402
 from compd.model.probebank import UpdaterBank  # noqa: E402
-from compd.model.probeupdate import ProbeSettings, ProbeUpdater  # noqa: E402
+from compd.model.probesettings import ProbeSettings  # noqa: E402
+from compd.model.probeupdate import ProbeUpdater  # noqa: E402
 from compd.model.updateprior import BIAS, default_prior  # noqa: E402
 from compd.sim.machines import random_machine, write_case, write_log  # noqa: E402
 from compd.toolkit.fit import FitRequest, fit_data  # noqa: E402
@@ -251,13 +252,13 @@ def main(argv: list[str] | None = None) -> int:
         "--reject-floor-share",
         type=float,
         help="compare settings: the rejection floor as a share of the calibration output's peak "
-        f"(default {probeupdate.DEFAULT_REJECT_FLOOR_SHARE})",
+        f"(default {probesettings.DEFAULT_REJECT_FLOOR_SHARE})",
     )
     parser.add_argument(
         "--drift-sigmas",
         type=float,
         help="compare settings: the drift in calibration sigmas per sqrt(h) "
-        f"(default {probeupdate.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H})",
+        f"(default {probesettings.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H})",
     )
     parser.add_argument(
         "--gain-scale",
@@ -276,14 +277,14 @@ def main(argv: list[str] | None = None) -> int:
         updateprior.DEFAULT_COEFFICIENT_SCALE = args.coefficient_scale
     # Module defaults read at each call: set before the workers fork, they take them too.
     if args.reject_floor_share is not None:
-        probeupdate.DEFAULT_REJECT_FLOOR_SHARE = args.reject_floor_share
+        probesettings.DEFAULT_REJECT_FLOOR_SHARE = args.reject_floor_share
     if args.gain_scale is not None:
         updateprior.DEFAULT_PRIOR_GAIN_SCALE = args.gain_scale
     if args.drift_sigmas is not None:
-        probeupdate.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H = args.drift_sigmas
+        probesettings.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H = args.drift_sigmas
     print(
-        f"settings: reject floor {probeupdate.DEFAULT_REJECT_FLOOR_SHARE} x output peak, drift "
-        f"{probeupdate.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H} sigma per sqrt(h), prior gain scale "
+        f"settings: reject floor {probesettings.DEFAULT_REJECT_FLOOR_SHARE} x output peak, drift "
+        f"{probesettings.DEFAULT_DRIFT_SIGMAS_PER_SQRT_H} sigma per sqrt(h), prior gain scale "
         f"{updateprior.DEFAULT_PRIOR_GAIN_SCALE}, coefficient scale "
         f"{updateprior.DEFAULT_COEFFICIENT_SCALE}, probe noise {NOISE_UM} um"
     )

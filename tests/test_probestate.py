@@ -18,7 +18,7 @@ from compd.files.probestate import (
     save_learned,
 )
 from compd.model.probelearner import OutputLearner
-from compd.model.probeupdate import ProbeSettings
+from compd.model.probesettings import ProbeSettings
 from compd.model.updateprior import BIAS, Prior
 
 SHA = "a" * 64

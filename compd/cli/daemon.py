@@ -73,7 +73,7 @@ def _probe_bounds(config: Any, output: str) -> str:
     """What the daemon takes of an axis's probes: one per gap, within physics, the shift a person accepts."""
     from compd.files.probeprior import output_prior
     from compd.model.probelearner import output_columns
-    from compd.model.probeupdate import ProbeSettings, max_probe_um
+    from compd.model.probesettings import ProbeSettings, max_probe_um
 
     doc = config.doc
     probes = doc.probes

@@ -35,7 +35,8 @@ from typing import Any
 from compd.errors import ModelError
 from compd.files.unreadable import finite, json_int, set_aside, write_atomic
 from compd.model.probelearner import RESTORE_SKEW_S, OutputLearner, RegressorWindow
-from compd.model.probeupdate import ProbeSettings, ProbeStep
+from compd.model.probesettings import ProbeSettings
+from compd.model.probeupdate import ProbeStep
 from compd.model.updateprior import Prior
 
 #: The folder of the probe files in the state directory.

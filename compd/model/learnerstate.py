@@ -18,7 +18,8 @@ import numpy as np
 from compd.errors import ModelError
 from compd.model.probebank import MEMBERS, UpdaterBank, member_prior
 from compd.model.probebounds import array_of, check_bounds, number, time_or_none
-from compd.model.probeupdate import PendingProbe, ProbeSettings, max_probe_um
+from compd.model.probesettings import ProbeSettings, max_probe_um
+from compd.model.probeupdate import PendingProbe
 
 if TYPE_CHECKING:
     from compd.model.probelearner import OutputLearner

@@ -40,7 +40,8 @@ from typing import Any
 
 import numpy as np
 
-from compd.model.probeupdate import ProbeResult, ProbeSettings, ProbeStep, ProbeUpdater
+from compd.model.probesettings import ProbeSettings
+from compd.model.probeupdate import ProbeResult, ProbeStep, ProbeUpdater
 from compd.model.updateprior import Prior
 
 __all__ = ["COUNTS_TRANSIENT", "MEMBERS", "WEIGHT_FLOOR", "UpdaterBank", "member_prior"]
@@ -56,7 +57,7 @@ MEMBERS: tuple[tuple[str, float | str], ...] = (
     ("narrow", 0.01),
 )
 #: The members that count the calibration residue's transient variance as probe noise
-#: (:attr:`~compd.model.probeupdate.ProbeSettings.transient_variance_um2`). Chosen on the
+#: (:attr:`~compd.model.probesettings.ProbeSettings.transient_variance_um2`). Chosen on the
 #: random machines (seeds 0-99) and checked on seeds 1000-1099 and the shared record
 #: (benchmarks/README, "The transient variance"): both members gained more on the random
 #: machines but cost the shared record 2.5 points at 2 h (80.5 -> 78.0 %); ``gains`` alone

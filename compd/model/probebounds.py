@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from compd.errors import ModelError
-from compd.model.probeupdate import ProbeSettings, max_probe_um, parameter_bounds
+from compd.model.probesettings import ProbeSettings, max_probe_um, parameter_bounds
 from compd.model.updateprior import Prior
 
 #: A restored state's times may be this far after the reader's clock (s): a touch time may

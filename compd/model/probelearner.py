@@ -48,10 +48,8 @@ from compd.model.probebounds import (
     RESTORE_SKEW_S,
     SIMULATED_SKEW_S,
 )
-from compd.model.probeupdate import (
-    ProbeSettings,
-    ProbeStep,
-)
+from compd.model.probesettings import ProbeSettings
+from compd.model.probeupdate import ProbeStep
 
 __all__ = [
     "RESTORE_SKEW_S",

@@ -37,7 +37,8 @@ from compd.model.probelearner import (
     ShiftRefused,
     output_columns,
 )
-from compd.model.probeupdate import DEFAULT_PROBE_INTERVAL_S, ProbeSettings, ProbeStep
+from compd.model.probesettings import DEFAULT_PROBE_INTERVAL_S, ProbeSettings
+from compd.model.probeupdate import ProbeStep
 from compd.toolkit.evaluate import Evaluation
 
 __all__ = ["RECENT_ROWS", "ProbeRun", "Probes", "read_probes", "run_probes"]

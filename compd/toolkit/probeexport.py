@@ -29,7 +29,7 @@ from compd.files.modelwriter import model_to_yaml
 from compd.files.probeprior import output_prior, probe_prior_doc
 from compd.files.probestate import ProbeRecord, learned_path, read_log, restore_learners
 from compd.model.probelearner import OutputLearner, output_columns
-from compd.model.probeupdate import ProbeSettings
+from compd.model.probesettings import ProbeSettings
 from compd.model.structure import Output
 from compd.model.updateprior import Prior
 

@@ -15,7 +15,7 @@ from compd.files.probeprior import output_prior
 from compd.files.probestate import ProbeRecord, append_record, learned_path, save_learned
 from compd.model.metrics import fit_percent
 from compd.model.probelearner import OutputLearner, output_columns
-from compd.model.probeupdate import ProbeSettings
+from compd.model.probesettings import ProbeSettings
 from compd.model.run import TickRunner
 from compd.toolkit.evaluate import evaluate
 from tests.cli.test_compare_probes import _record

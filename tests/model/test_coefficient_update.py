@@ -11,7 +11,7 @@ import pytest
 from compd.errors import ModelError
 from compd.model.probebank import MEMBERS, UpdaterBank
 from compd.model.probelearner import OutputLearner, RegressorWindow
-from compd.model.probeupdate import ProbeSettings, parameter_bounds
+from compd.model.probesettings import ProbeSettings, parameter_bounds
 from compd.model.updateprior import BIAS, Prior, coefficient_prior
 
 NAMES = ("T1_gain", "T2_gain", "T1_lag", BIAS)

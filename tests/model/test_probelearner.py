@@ -19,7 +19,7 @@ from compd.model.probelearner import (
     ShiftRefused,
     probed_thermal_error_um,
 )
-from compd.model.probeupdate import ProbeSettings
+from compd.model.probesettings import ProbeSettings
 from compd.model.updateprior import BIAS, Prior
 
 NAMES = ("a", "b", BIAS)

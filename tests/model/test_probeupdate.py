@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from compd.errors import ModelError
-from compd.model.probeupdate import REACH, ProbeSettings, ProbeUpdater
+from compd.model.probesettings import ProbeSettings
+from compd.model.probeupdate import REACH, ProbeUpdater
 from compd.model.updateprior import (
     BIAS,
     DEFAULT_PRIOR_GAIN_SCALE,

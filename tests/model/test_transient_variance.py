@@ -9,7 +9,7 @@ import pytest
 
 from compd.errors import ModelError
 from compd.model.probebank import UpdaterBank
-from compd.model.probeupdate import ProbeSettings
+from compd.model.probesettings import ProbeSettings
 from compd.model.updateprior import BIAS, Prior, transient_variances
 
 

@@ -496,7 +496,7 @@ class ProbesDoc(Strict):
     axes: dict[str, ProbeAxisDoc | None] = Field(default_factory=dict)
 
     def overrides(self) -> dict[str, float]:
-        """The settings given, as :meth:`compd.model.probeupdate.ProbeSettings.defaults` takes them."""
+        """The settings given, as :meth:`compd.model.probesettings.ProbeSettings.defaults` takes them."""
         given = {
             "probe_noise_um": self.probe_noise_um,
             "drift_um_per_sqrt_h": self.drift_um_per_sqrt_h,

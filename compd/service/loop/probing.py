@@ -47,7 +47,7 @@ from compd.errors import ModelError
 from compd.faultlog import FaultLog
 from compd.files.probeprior import output_prior
 from compd.model.probelearner import OutputLearner, output_columns, probed_thermal_error_um
-from compd.model.probeupdate import MAX_PROBE_UM, ProbeSettings, max_probe_um
+from compd.model.probesettings import MAX_PROBE_UM, ProbeSettings, max_probe_um
 from compd.model.updateprior import Prior
 from compd.service.loop.offsethistory import OFFSET_HISTORY_S, OffsetHistory
 from compd.service.loop.offsets import AxisPoint

@@ -26,7 +26,7 @@ from compd.files.probestate import (
     write_learned,
 )
 from compd.model.probelearner import RESTORE_SKEW_S, SIMULATED_SKEW_S, OutputLearner
-from compd.model.probeupdate import ProbeSettings
+from compd.model.probesettings import ProbeSettings
 from compd.model.updateprior import Prior
 from compd.service.loop.probemessages import ProbeTaken
 from compd.service.loop.slots import ModelSlot
