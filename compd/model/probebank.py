@@ -114,7 +114,8 @@ class UpdaterBank(ProbeUpdater):
         covariance: np.ndarray = spread.T @ (self.weights[:, None] * spread)
         for wk, member in zip(self.weights, self.members, strict=True):
             covariance += wk * member.covariance
-        return 0.5 * (covariance + covariance.T)
+        mixture: np.ndarray = 0.5 * (covariance + covariance.T)
+        return mixture
 
     @covariance.setter
     def covariance(self, value: np.ndarray) -> None:
