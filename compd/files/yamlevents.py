@@ -16,7 +16,7 @@ tree composed (:class:`compd.files.yamlplace.NodeTree`).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import yaml
 
@@ -121,7 +121,9 @@ def _scalar(loader: Any, event: yaml.ScalarEvent) -> Any:
         tag = loader.resolve(yaml.ScalarNode, event.value, event.implicit)
     if tag not in SCALAR_TAGS:
         raise _GiveUp  # a merge key ('<<'), !!binary, a tag of the file's own
-    node = yaml.ScalarNode(tag, event.value, event.start_mark, event.end_mark, event.style)
+    # libyaml's events carry its own Mark type, with the same line and column: what an error reads.
+    start, end = cast(yaml.Mark, event.start_mark), cast(yaml.Mark, event.end_mark)
+    node = yaml.ScalarNode(tag, event.value, start, end, event.style)
     return loader.yaml_constructors[tag](loader, node)
 
 
