@@ -16,6 +16,7 @@ NaN, a fixed (e.g. out-of-range) value, or the whole connection dropping.
 from __future__ import annotations
 
 import bisect
+from array import array
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,6 +84,14 @@ def _record(path: Path) -> tuple[np.ndarray, Mapping[str, np.ndarray]]:
     return data.time_s, data.columns
 
 
+def _doubles(values: object) -> array[float]:
+    """``values`` as packed doubles: indexed, a Python float as from a list, but 8 bytes a
+    sample, not 32 (a float object and the list's slot): 0.55 MB less for the bundled record."""
+    packed = array("d")
+    packed.frombytes(np.ascontiguousarray(values, dtype=np.float64).tobytes())
+    return packed
+
+
 class SimulatedDriver:
     """Replays ``settings.data`` on the service's clock; see the module docstring."""
 
@@ -94,10 +103,10 @@ class SimulatedDriver:
         self.settings = settings
         self._now = now
         time_s, columns = _record(resolve_path(settings.data, base_dir))
-        # Plain lists: one read interpolates a handful of scalars, where
+        # Indexed as Python floats: one read interpolates a handful of scalars, where
         # numpy's per-call overhead would cost more than the arithmetic.
-        self._time_s: list[float] = np.asarray(time_s, dtype=float).tolist()
-        self._columns = {name: np.asarray(v, dtype=float).tolist() for name, v in columns.items()}
+        self._time_s = _doubles(time_s)
+        self._columns = {name: _doubles(v) for name, v in columns.items()}
         self._t0: float | None = None
         self._faults = [
             _Fault(f.kind, f.address, f.start_s, f.start_s + f.duration_s, f.value)

@@ -22,6 +22,7 @@ import os
 import shutil
 import subprocess
 import sys
+import sysconfig
 import tempfile
 import tomllib
 from pathlib import Path
@@ -57,6 +58,23 @@ def assemble(dest: Path) -> Path:
     return dest
 
 
+def console_script(name: str) -> Path | None:
+    """The console script ``name`` of the environment this Python runs in, or None if it has none.
+
+    Beside ``sys.executable`` (sysconfig's ``scripts``: a venv's ``bin/``), else in the user
+    scheme's (``pip install --user``): never whichever ``name`` comes first on PATH, which in
+    a venv that is not activated is another install's (or none).
+    """
+    schemes = [sysconfig.get_default_scheme()]
+    if sys.prefix == sys.base_prefix:  # a venv: its own scripts only; outside one, --user's too
+        schemes.append(f"{os.name}_user")
+    for scheme in schemes:
+        found = Path(sysconfig.get_path("scripts", scheme)) / name
+        if found.is_file() and os.access(found, os.X_OK):
+            return found
+    return None
+
+
 def run_installed(*argv: str, timeout_s: float = 900) -> subprocess.CompletedProcess[str]:
     """Run ``argv`` in an assembled tree on the import path; its file names as in the checkout."""
     with tempfile.TemporaryDirectory(prefix="compd-installed-") as tmp:
@@ -81,7 +99,7 @@ def main(argv: list[str]) -> int:
     if not argv:
         print(__doc__, file=sys.stderr)
         return 2
-    tool = shutil.which(argv[0]) or argv[0]
+    tool = str(console_script(argv[0]) or shutil.which(argv[0]) or argv[0])
     done = run_installed(tool, *argv[1:])
     sys.stdout.write(done.stdout)
     sys.stderr.write(done.stderr)

@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from tests.acceptance.conftest import machine_doc
-from tests.installed import DRIVER_CONTRACT, run_installed
+from tests.installed import DRIVER_CONTRACT, console_script, run_installed
 from tests.ports import wait_listening
 
 ROOT = Path(__file__).parents[1]
@@ -27,7 +27,7 @@ NOT_IN_A_PARSER = ("numpy", "scipy", "pandas", "pydantic", "structlog", "pymodbu
 
 def test_each_room_imports_only_the_rooms_below_it() -> None:
     """import-linter checks pyproject.toml's contracts: layers; what the daemon and the driver API may load."""
-    lint = shutil.which("lint-imports") or pytest.fail("import-linter is in the test extras")
+    lint = str(console_script("lint-imports") or pytest.fail("import-linter is in the test extras"))
     done = run_installed(lint, "--no-cache")  # as a developer runs it: python -m tests.installed
     assert done.returncode == 0, done.stdout + done.stderr
     assert "0 broken" in done.stdout
@@ -39,7 +39,7 @@ def test_each_room_imports_only_the_rooms_below_it() -> None:
 
 def test_a_plain_lint_imports_in_the_checkout_runs_the_layers() -> None:
     """Without the installed layout (no compd/drivers folder) the layers still check: drivers is optional there."""
-    lint = shutil.which("lint-imports") or pytest.fail("import-linter is in the test extras")
+    lint = str(console_script("lint-imports") or pytest.fail("import-linter is in the test extras"))
     done = subprocess.run(
         [lint, "--no-cache"], cwd=ROOT, capture_output=True, text=True, timeout=600
     )

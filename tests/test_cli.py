@@ -1,7 +1,6 @@
 """The compd command: model check, simulate, compare and demo, end to end on real files."""
 
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +11,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from compd.cli import main
+from tests.installed import console_script
 
 CONFIG = Path(__file__).parent.parent / "config"
 DATA = CONFIG / "example_spectrum.csv"
@@ -161,10 +161,11 @@ def test_demo_runs_on_the_bundled_files(capsys: pytest.CaptureFixture[str]) -> N
     assert "controller's linear regression leaves" in out
 
 
-@pytest.mark.skipif(shutil.which("compd") is None, reason="compd is not installed as a command")
+@pytest.mark.skipif(console_script("compd") is None, reason="compd is not installed as a command")
 def test_installed_console_script_runs() -> None:
-    """The installed `compd` console script answers --version."""
-    result = subprocess.run(["compd", "--version"], capture_output=True, text=True, check=True)
+    """This environment's `compd` console script (beside its python, PATH or not) answers --version."""
+    script = str(console_script("compd"))
+    result = subprocess.run([script, "--version"], capture_output=True, text=True, check=True)
     assert result.stdout.startswith("compd ")
 
 

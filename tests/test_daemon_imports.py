@@ -13,6 +13,8 @@ from tests.mosquitto import free_port
 from tests.test_architecture import NOT_IN_THE_DAEMON, imported_by, loaded
 
 CONFIGS = Path(__file__).parents[1] / "config"
+#: Loaded on the way to an error message, never by a daemon that starts.
+ONLY_ON_AN_ERROR = ("difflib",)
 BUNDLED_CONFIGS = sorted(
     p.name for p in CONFIGS.glob("*.yaml") if "schema: compd.config/1" in p.read_text()
 )
@@ -63,3 +65,5 @@ def test_run_on_a_bundled_config_maps_no_scipy_or_pandas(name: str, tmp_path: Pa
     assert "compd.service.daemon" in modules, out
     assert loaded(modules, ("scipy", "pandas")) == [], "the daemon steps numpy arrays"
     assert loaded(modules, NOT_IN_THE_DAEMON) == []
+    # What only an error in a file needs: the nearest key to a misspelt one.
+    assert loaded(modules, ONLY_ON_AN_ERROR) == []

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from tests.installed import run_installed
+from tests.installed import console_script, run_installed
 
 ROOT = Path(__file__).parent.parent
 
@@ -21,9 +20,10 @@ def _run(*argv: str) -> subprocess.CompletedProcess[str]:
 @pytest.mark.parametrize("argv", [("check", "."), ("format", "--check", ".")], ids=" ".join)
 def test_ruff_is_clean(argv: tuple[str, ...]) -> None:
     """``ruff check .`` and ``ruff format --check .`` report nothing (drivers, tests and benchmarks included)."""
-    if shutil.which("ruff") is None:
+    ruff = console_script("ruff")  # this environment's, at the lock's version: not PATH's
+    if ruff is None:
         pytest.skip("ruff is not installed: pip install -c .ci/requirements.lock -e '.[dev]'")
-    done = _run("ruff", *argv)
+    done = _run(str(ruff), *argv)
     assert done.returncode == 0, done.stdout + done.stderr
 
 

@@ -71,6 +71,35 @@ def side_clone(dest: Path) -> Path:
     return dest
 
 
+def site_directories() -> list[str]:
+    """The site directories this Python imports from, in its order: a venv's, the system's, the user's."""
+    return [
+        entry for entry in sys.path
+        if Path(entry).name in ("site-packages", "dist-packages") and Path(entry).is_dir()
+    ]  # fmt: skip
+
+
+def sees_this_environment(python: Path) -> Path:
+    """Have the venv of ``python`` import, after its own packages, from this Python's site directories.
+
+    ``venv --system-site-packages`` would show it the *base* interpreter's
+    packages: from inside a venv (how most people run the suite) not this
+    one's, where the dependencies are. A ``.pth`` file in the new venv's
+    site-packages adds each of this Python's site directories with
+    ``site.addsitedir``, so their own ``.pth`` files (an editable install's
+    finder) are processed too. Named to sort after an install's own ``.pth``
+    files and appended to ``sys.path``: what the new venv installs wins.
+    """
+    purelib = subprocess.run(
+        [python, "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
+        capture_output=True, text=True, check=True,
+    ).stdout.strip()  # fmt: skip
+    lines = [f"import site; site.addsitedir({entry!r})\n" for entry in site_directories()]
+    pth = Path(purelib) / "zz-compd-tests-outer-environment.pth"
+    pth.write_text("".join(lines))
+    return pth
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("editable", [True, False], ids=["pip install -e", "pip install"])
 def test_a_second_clone_installed_imports_its_own_drivers_and_configs(
@@ -78,13 +107,14 @@ def test_a_second_clone_installed_imports_its_own_drivers_and_configs(
 ) -> None:
     """Another clone installed in a fresh environment imports compd.drivers and bundled: from its own files.
 
-    The environment sees this checkout's install too (``--system-site-packages``,
+    The environment sees this checkout's install too (:func:`sees_this_environment`;
     ``--no-deps``: no download): the new install must win for every file. About 15 s.
     """
     clone = side_clone(tmp_path / "clone")
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", venv], check=True)
+    subprocess.run([sys.executable, "-m", "venv", venv], check=True)
     python = venv / "bin" / "python"
+    sees_this_environment(python)
     install = [python, "-m", "pip", "install", "-q", "--no-deps", "--disable-pip-version-check"]
     installed = subprocess.run(
         [*install, *(["-e"] if editable else []), clone],

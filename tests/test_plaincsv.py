@@ -33,6 +33,10 @@ def test_the_bundled_record_reads_as_load_data_reads_it() -> None:
         "time_s,mode\n0,on\n10,off\n20,on\n",  # a text column
         "time,a\n0,1\n10,2\n20,3\n",  # another time column
         "time_s,a\n0,1\n20,2\n10,3\n",  # times out of order
+        "time_s,a\n0,1\n",  # one row: no sample time
+        "# run: 1\ntime_s,a\n0,1\n10,2\n",  # the recorder's metadata lines: load_data's
+        "time_s,a\n0,1\n# a note\n10,2\n",  # a line that is no row
+        "time_s,a\n0,1,2\n10,2\n",  # rows of different lengths
     ],
 )
 def test_a_record_that_is_not_plain_is_left_to_load_data(text: str, tmp_path: Path) -> None:

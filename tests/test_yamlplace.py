@@ -7,10 +7,18 @@ import threading
 from pathlib import Path
 
 import pytest
+import yaml
 
 from compd.errors import ConfigFileError, InputFileError, ModelFileError
 from compd.files.modelfile import load_model, parse_model
-from compd.files.yamlplace import MAX_YAML_BYTES, MAX_YAML_DEPTH, MAX_YAML_NODES, parse_yaml
+from compd.files.yamlplace import (
+    MAX_YAML_BYTES,
+    MAX_YAML_DEPTH,
+    MAX_YAML_NODES,
+    NodeTree,
+    parse_yaml,
+    where,
+)
 from compd.service.config.loading import load_config
 
 from .test_modelfile import VALID
@@ -118,3 +126,57 @@ def test_a_date_that_is_no_date_in_a_config_is_a_config_error(tmp_path: Path) ->
     path.write_text("schema: compd.config/1\nperiod_s: 1\nmachine_id: 2024-13-45\n")
     with pytest.raises(ConfigFileError, match=r"compd.yaml: line 3 \(machine_id\): '2024-13-45'"):
         load_config(path)
+
+
+#: Documents the event-built path takes as they are, and ones it hands to the composer.
+AS_COMPOSED = {
+    "empty": "",
+    "a scalar": "3",
+    "types": "a: yes\nb: 0x1f\nc: 1_000\nd: .inf\ne: ~\nf: 2024-01-02T03:04:05Z\ng: '1'\nh: !!str 12\n",
+    "keys": "~: 1\n1: a\n2.5: b\n",
+    "nested": "a:\n  - {b: [1, 2, {c: d}]}\n  - - x\n    - y\n",
+    "anchors": "a: &x [1, 2]\nb: *x\n",
+    "a merge key": "base: &b {x: 1}\nc:\n  <<: *b\n  y: 2\n",
+    "tags": "s: !!set {a, b}\nb: !!binary aGVsbG8=\no: !!omap [a: 1]\n",
+}
+
+
+@pytest.mark.parametrize("text", AS_COMPOSED.values(), ids=AS_COMPOSED.keys())
+def test_a_document_built_from_events_is_the_one_composing_builds(text: str) -> None:
+    """The document loaded without a node tree is, value for value, what PyYAML's safe loader builds."""
+    data, _ = parse_yaml(text, "x.yaml", InputFileError)
+    assert repr(data) == repr(yaml.load(text, Loader=yaml.CSafeLoader))
+
+
+def test_every_bundled_file_loads_as_composing_loads_it() -> None:
+    """Each YAML file in config/ (models with a 60 x 60 covariance, configs) loads as PyYAML loads it."""
+    files = sorted(Path(__file__).parents[1].joinpath("config").glob("*.yaml"))
+    assert len(files) >= 8
+    for path in files:
+        text = path.read_text()
+        data, tree = parse_yaml(text, path, InputFileError)
+        assert repr(data) == repr(yaml.load(text, Loader=yaml.CSafeLoader)), path
+        assert built_from_events(tree), f"{path.name}: loaded without composing its nodes"
+
+
+def built_from_events(tree: NodeTree) -> bool:
+    return not tree._composed  # what these tests check: no node composed yet
+
+
+def test_only_an_error_composes_the_node_tree_for_its_line() -> None:
+    """A valid model file keeps no nodes; the first error needing a line composes them, once."""
+    data, tree = parse_yaml(VALID, "m.yaml", ModelFileError)
+    assert isinstance(data, dict) and built_from_events(tree)
+    assert where(tree, ("outputs",)).startswith("line ")
+    assert not built_from_events(tree)
+    with pytest.raises(ModelFileError, match=r"line \d+ \(outputs"):
+        parse_model(VALID.replace("outputs:", "outputs:\n  bogus_key_here: 1\n  _x:", 1))
+
+
+@pytest.mark.parametrize("machine_id", ["mill-1\n", "mill 1", "mühle"])
+def test_a_pattern_holds_to_the_end_of_the_value(machine_id: str) -> None:
+    """Patterns are matched by Python's re (no Rust regex engine in the daemon): a trailing newline is refused too."""
+    from compd.service.config.docs import ConfigDoc
+
+    with pytest.raises(ValueError, match="should match pattern"):
+        ConfigDoc.model_validate({"machine_id": machine_id})

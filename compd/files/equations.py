@@ -50,7 +50,12 @@ _FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+    # Patterns matched by Python's re (written with \Z, which ends a value as Rust's $ does):
+    # each Rust regex pydantic compiles costs the daemon 0.1-0.3 MB. Schemas built when first
+    # used: a section's own validator only where it is validated alone.
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, strict=False, regex_engine="python-re", defer_build=True
+    )
 
 
 class EquationDoc(_Strict):
@@ -67,7 +72,7 @@ class DifferenceEquationsDoc(_Strict):
     #: The loop period (s) these equations run at (a config's ``period_s``).
     period_s: _FiniteFloat = Field(gt=0, le=MAX_SAMPLE_TIME_S)
     #: The sha256 of the sample time and TFs they were derived from (compd.model.precompiled).
-    tfs_sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    tfs_sha256: str = Field(pattern=r"^[0-9a-f]{64}\Z")
     #: Per output, per sub-model name: its difference equation at ``period_s``.
     outputs: dict[str, dict[str, EquationDoc]]
 

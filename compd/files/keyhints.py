@@ -7,7 +7,6 @@ example config to find that ``max_rate_um_per_sec`` is ``max_rate_um_per_s``.
 
 from __future__ import annotations
 
-import difflib
 import types
 import typing
 from collections.abc import Mapping, Sequence
@@ -31,6 +30,8 @@ def known_keys(model: Any, loc: Sequence[str | int]) -> list[str] | None:
 
 def unknown_key_hint(model: Any, loc: Sequence[str | int]) -> str:
     """``did you mean 'x'?; keys here: a, b, c`` for the unknown key at ``loc``; '' when not known."""
+    import difflib  # only on an error's way out: a daemon that starts never loads it
+
     keys = known_keys(model, loc[:-1])
     if not keys:
         return ""

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 from pydantic import ValidationError
 
 from compd.errors import ModelError, ModelFileError
@@ -27,7 +26,7 @@ from compd.files.modelschema import (
     ResidualDoc,
     TFDoc,
 )
-from compd.files.yamlplace import BUNDLED, parse_yaml, read_limited, resolve_path, shorten
+from compd.files.yamlplace import BUNDLED, NodeTree, parse_yaml, read_limited, resolve_path, shorten
 from compd.files.yamlplace import describe as _describe
 from compd.files.yamlplace import where as _where
 from compd.model.compiled import CompiledModel, compile_model
@@ -221,7 +220,7 @@ def parse_model(text: str, path: str | Path = "<model>", sha256: str | None = No
     return ModelFile(str(path), sha256, model, doc, equations)
 
 
-def _build(doc: ModelDoc, path: str | Path, root: yaml.Node | None) -> Model:
+def _build(doc: ModelDoc, path: str | Path, root: NodeTree | None) -> Model:
     declared = doc.signals
     outputs = []
     for out_name, out_doc in doc.outputs.items():

@@ -32,7 +32,12 @@ MAX_SEED = 2**128 - 1
 class _Strict(BaseModel):
     """What the model does: an unknown key here could change the offsets, so it is refused."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+    # Patterns matched by Python's re (written with \Z, which ends a value as Rust's $ does):
+    # each Rust regex pydantic compiles costs the daemon 0.1-0.3 MB. Schemas built when first
+    # used: a section's own validator only where it is validated alone.
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, strict=False, regex_engine="python-re", defer_build=True
+    )
 
 
 class _Record(BaseModel):
@@ -45,7 +50,9 @@ class _Record(BaseModel):
     (:func:`unread_provenance_keys`).
     """
 
-    model_config = ConfigDict(extra="allow", frozen=True, strict=False)
+    model_config = ConfigDict(
+        extra="allow", frozen=True, strict=False, regex_engine="python-re", defer_build=True
+    )
 
 
 class SignalDoc(_Strict):
@@ -115,7 +122,9 @@ class SubModelDoc(_Strict):
     input: InputDoc
     tf: TFDoc
     gain: FiniteFloat = 1.0
-    gain_name: str | None = Field(default=None, min_length=1, pattern=r"^[A-Za-z_][A-Za-z0-9_.-]*$")
+    gain_name: str | None = Field(
+        default=None, min_length=1, pattern=r"^[A-Za-z_][A-Za-z0-9_.-]*\Z"
+    )
     gate: GateDoc | None = None
     position: PositionDoc | None = None
 
@@ -133,7 +142,7 @@ class ResidualDoc(_Strict):
     threshold: FiniteFloat = 0.5
     time_constants_s: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]] = Field(min_length=1)
     file: str = Field(min_length=1)
-    sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}\Z")
     trees: int | None = Field(default=None, ge=1, le=MAX_COUNT)
     max_depth: int | None = Field(default=None, ge=1, le=MAX_COUNT)
     seed: int | None = Field(default=None, ge=0, le=MAX_SEED)

@@ -21,6 +21,7 @@ from typing import Any
 import yaml
 
 from compd.errors import InputFileError
+from compd.files.yamlevents import build
 
 #: Limits on any YAML file compd reads (model, config, effect catalogue): a few
 #: kilobytes is typical; these bound the work a hostile or broken file can cause.
@@ -74,9 +75,33 @@ def read_limited(
     return raw
 
 
-def parse_yaml(
-    text: str, path: object, error: type[InputFileError]
-) -> tuple[Any, yaml.Node | None]:
+class NodeTree:
+    """A YAML text's node tree, for the line of a place: composed the first time it is asked for.
+
+    Loading builds the document from the parser's events (:mod:`compd.files.yamlevents`);
+    only an error needs lines, so only an error composes the nodes (0.4 kB a value).
+    """
+
+    __slots__ = ("_composed", "_root", "_text")
+
+    def __init__(self, text: str, root: yaml.Node | None = None, *, composed: bool = False) -> None:
+        self._text = text
+        self._root = root
+        self._composed = composed
+
+    @property
+    def root(self) -> yaml.Node | None:
+        if not self._composed:
+            loader = _Loader(self._text)
+            try:
+                self._root = loader.get_single_node()
+            finally:
+                loader.dispose()
+            self._composed = True
+        return self._root
+
+
+def parse_yaml(text: str, path: object, error: type[InputFileError]) -> tuple[Any, NodeTree]:
     """The document and its node tree (for line numbers); a syntax error names the file and line.
 
     The one place compd reads YAML text, so every loader (model, config,
@@ -84,16 +109,25 @@ def parse_yaml(
     bounded: size, nesting and alias expansion are checked on the event
     stream (no recursion, no construction) before a node is built, and a
     duplicate key is an error rather than the last one silently winning.
+    The document is built from the events where it can be (no node tree:
+    :mod:`compd.files.yamlevents`), else composed and constructed.
     """
     if len(text) > MAX_YAML_BYTES:
         raise error(path, f"larger than {MAX_YAML_BYTES} bytes")
     try:
         _check_events(text, path, error)
+        try:
+            built, data = build(text, _Loader)
+        except (ValueError, OverflowError) as exc:
+            raise _unbuildable(NodeTree(text).root, exc, path, error) from exc
+        if built:
+            return data, NodeTree(text)
         loader = _Loader(text)
         try:
             root = loader.get_single_node()
             try:
-                return (None if root is None else loader.construct_document(root)), root
+                data = None if root is None else loader.construct_document(root)
+                return data, NodeTree(text, root, composed=True)
             except (ValueError, OverflowError) as exc:
                 # A scalar the YAML resolver types but Python cannot build: an integer of more
                 # digits than int() converts (4300), a date such as 2024-13-45.
@@ -265,8 +299,10 @@ def describe(error: Any) -> str:
     return message
 
 
-def where(root: yaml.Node | None, location: tuple[str | int, ...]) -> str:
+def where(root: yaml.Node | NodeTree | None, location: tuple[str | int, ...]) -> str:
     """``line N (a.b[2].c)``: the dotted place, with the YAML line of the deepest node found."""
+    if isinstance(root, NodeTree):
+        root = root.root
     dotted = ""
     for part in location:
         if isinstance(part, int):

@@ -21,6 +21,7 @@ import yaml
 from compd.cli import build_parser
 from compd.files.data import load_data
 from compd.service.control.socket import request_sync
+from tests.installed import console_script
 
 DEPLOY = Path(__file__).parents[2] / "deploy"
 UNIT = DEPLOY / "compd.service"
@@ -58,10 +59,10 @@ def service(request: pytest.FixtureRequest) -> dict[str, list[str]]:
 @pytest.fixture(params=list(UNITS), ids=list(UNITS))
 def installable_unit(request: pytest.FixtureRequest, tmp_path: Path) -> Path:
     """The unit with ExecStart pointing at this environment's compd, as verify checks it exists."""
-    compd = shutil.which("compd") or str(Path(sys.executable).parent / "compd")
-    if not Path(compd).exists():
+    compd = console_script("compd")  # this environment's, not PATH's
+    if compd is None:
         pytest.skip("the compd entry point is not installed: pip install -e .")
-    text = UNITS[request.param].read_text().replace("/opt/compd/venv/bin/compd", compd)
+    text = UNITS[request.param].read_text().replace("/opt/compd/venv/bin/compd", str(compd))
     path = tmp_path / request.param
     path.write_text(text)
     return path

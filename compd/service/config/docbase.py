@@ -34,7 +34,12 @@ class Strict(BaseModel):
     Every number in it, however deep, is within ``±``:data:`MAX_NUMBER`.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # Patterns matched by Python's re (written with \Z, which ends a value as Rust's $ does):
+    # each Rust regex pydantic compiles costs the daemon 0.1-0.3 MB. Schemas built when first
+    # used: a section's own validator only where it is validated alone.
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, regex_engine="python-re", defer_build=True
+    )
 
     @field_validator("*", mode="after")
     @classmethod

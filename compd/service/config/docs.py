@@ -512,7 +512,7 @@ class ConfigDoc(Strict):
     schema_: Literal["compd.config/1"] = Field(alias="schema")
     #: This machine's name across a fleet: in every recording's metadata (and telemetry's topics).
     machine_id: (
-        Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+$")] | None
+        Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._-]+\Z")] | None
     ) = None
     #: The model file; a config without ``outputs`` (a data logger, ``compd record``) needs none.
     model: str | None = None

@@ -31,7 +31,7 @@ class TelemetryTlsDoc(Strict):
 
 
 #: An MQTT topic level compd writes: no wildcards, no separators, no spaces.
-TopicLevel = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.:-]+$", max_length=100)]
+TopicLevel = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.:-]+\Z", max_length=100)]
 
 
 class TelemetryDoc(Strict):
@@ -43,7 +43,9 @@ class TelemetryDoc(Strict):
     port: int | None = Field(
         default=None, ge=1, le=65535, description="default: 1883, 8883 with tls"
     )
-    topic_prefix: Annotated[str, Field(pattern=r"^[A-Za-z0-9_.:-]+(/[A-Za-z0-9_.:-]+)*$")] = "compd"
+    topic_prefix: Annotated[str, Field(pattern=r"^[A-Za-z0-9_.:-]+(/[A-Za-z0-9_.:-]+)*\Z")] = (
+        "compd"
+    )
     every_ticks: int = Field(default=1, ge=1)
     queue_size: int = Field(default=1000, ge=1)
     qos: Literal[0, 1, 2] = 1

@@ -25,7 +25,6 @@ from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import yaml
 from pydantic import BaseModel, ValidationError
 
 from compd.drivers.base import Driver, DriverType, address_syntax, check_address, check_host
@@ -39,6 +38,7 @@ from compd.errors import ConfigFileError
 from compd.files.keyhints import unknown_key_hint
 from compd.files.yamlplace import (
     FIXES,
+    NodeTree,
     describe,
     parse_yaml,
     read_limited,
@@ -97,7 +97,7 @@ class Config:
     #: ``KEY=VALUE`` set on the command line (``--set``); a reload applies them again.
     overrides: tuple[str, ...] = ()
     #: The YAML node tree, for the line numbers of errors found later (:func:`check_model`).
-    root: yaml.Node | None = field(default=None, repr=False, compare=False)
+    root: NodeTree | None = field(default=None, repr=False, compare=False)
 
     @property
     def base_dir(self) -> Path:
@@ -235,7 +235,7 @@ class _Places:
     """Errors placed in the config file: the line and key of a location."""
 
     path: Path
-    root: yaml.Node | None
+    root: NodeTree | None
 
     def error(self, location: tuple[str | int, ...], message: str, fix: str) -> ConfigFileError:
         return ConfigFileError(self.path, message, where=where(self.root, location), fix=fix)
@@ -253,9 +253,7 @@ class _Places:
         return validation_error(exc, self.path, self.root, prefix, model)
 
 
-def _read_doc(
-    text: str, path: Path, overrides: Sequence[str] = ()
-) -> tuple[ConfigDoc, yaml.Node | None]:
+def _read_doc(text: str, path: Path, overrides: Sequence[str] = ()) -> tuple[ConfigDoc, NodeTree]:
     """The YAML, of the supported schema, with ``overrides`` set, validated section by section."""
     data, root = parse_yaml(text, path, ConfigFileError)
     if overrides:
@@ -525,7 +523,7 @@ def _check_hosts(
 def validation_error(
     exc: ValidationError,
     path: Path,
-    root: yaml.Node | None,
+    root: NodeTree | None,
     prefix: tuple[str | int, ...],
     model: type[BaseModel] | None = None,
 ) -> ConfigFileError:
