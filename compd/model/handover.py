@@ -15,6 +15,7 @@ happens to cut right now has not cut for ever). Instead:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -42,9 +43,8 @@ class SignalHistory:
         return self._count
 
     def append(self, values: Mapping[str, float]) -> None:
-        row = self._rows[self._next]
-        for name, i in self._index.items():
-            row[i] = values.get(name, np.nan)
+        # One assignment of the row (a numpy call per cell costs more than the copy).
+        self._rows[self._next] = [values.get(name, math.nan) for name in self.names]
         self._next = (self._next + 1) % len(self._rows)
         self._count = min(self._count + 1, len(self._rows))
 

@@ -10,6 +10,7 @@ polynomial form, and there the two agree to about 1e-4 relative.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -61,12 +62,28 @@ class TickRunner:
         compiled.check_state(state)
         self.compiled = compiled
         n_subs = compiled.n_submodels
-        self._n_z = n_subs * compiled.n_states
+        self._n_z = n_z = n_subs * compiled.n_states
         self._matrix = df2t_matrix(compiled.b, compiled.a)
         self._x = np.concatenate([state.z.ravel(), np.zeros(n_subs)])
+        #: The inputs' part of ``_x``, written in place each tick.
+        self._u = self._x[n_z:]
         self._reference = state.reference.copy()
-        self._n_signals = len(compiled.signals)
-        self._extended = compiled.extended(np.zeros(self._n_signals))
+        self._n_signals = n_signals = len(compiled.signals)
+        self._extended = compiled.extended(np.zeros(n_signals))
+        rows = np.arange(n_subs)
+        n_extended = n_signals + 2  # the constant 0 and 1 slots (CompiledModel.extended)
+        # u = extended[plus] - extended[minus] - reference, as one (S, signals + 2) product:
+        # each row holds +1, -1 and -reference (on the constant-1 slot), so the sum is exact
+        # up to its order (a last-bit difference from the three subtractions).
+        self._inputs = np.zeros((n_subs, n_extended))
+        self._inputs[rows, compiled.plus_index] += 1.0
+        self._inputs[rows, compiled.minus_index] -= 1.0
+        self._inputs[:, n_signals + 1] -= self._reference
+        # The gate test (CompiledModel.gates_open) as one product: each row holds the sign on
+        # its gate's slot (+1 on the constant-1 slot without a gate: always open), exact.
+        self._gated = bool(np.any(compiled.gate_index < n_signals))
+        self._gate_matrix = np.zeros((n_subs, n_extended))
+        self._gate_matrix[rows, compiled.gate_index] = compiled.gate_sign
         self._input_ungated = ~compiled.gate_on_input
         self._gain = compiled.gain.copy()
         self._weighted_outputs = compiled.output_matrix * self._gain
@@ -80,7 +97,7 @@ class TickRunner:
             name: float(self._gain[members[0]]) for name, members in self._gain_members.items()
         }
         # Models without slope terms skip the (all-ones) position factors.
-        self._positioned = bool(np.any(compiled.position_index < self._n_signals))
+        self._positioned = bool(np.any(compiled.position_index < n_signals))
         #: Each sub-model's contribution (um) at the last tick, gain and gate applied.
         self.contributions = np.zeros(n_subs)
         # Swiss-lathe paper residual models: their door-feature state advances with each tick.
@@ -125,35 +142,51 @@ class TickRunner:
 
         Non-finite signals are refused before the state is touched, so a bad
         reading can never poison the model.
+
+        A tick after a sleep runs with cold caches, where each numpy call costs
+        several microseconds whatever its size: the inputs, the gates and the
+        recursion are a few products of matrices built once (``__init__``),
+        and a mapping of signals is checked in plain Python.
         """
         compiled = self.compiled
-        if isinstance(signals, Mapping):
-            signals = compiled.signal_vector(signals)
         extended = self._extended
-        extended[: self._n_signals] = signals
-        if not np.isfinite(extended).all():
+        if type(signals) is dict or isinstance(signals, Mapping):  # the dict first: no ABC check
+            try:
+                values = [signals[name] for name in compiled.signals]
+            except KeyError:
+                values = compiled.signal_vector(signals).tolist()  # raises, naming them
+            finite = all(map(math.isfinite, values))
+            if finite:
+                extended[: self._n_signals] = values
+        else:
+            extended[: self._n_signals] = signals
+            finite = bool(np.isfinite(extended).all())
+        if not finite:
             raise ModelError(
                 f"non-finite signal value in {signals!r}; the state was left unchanged"
             )
-        opened = compiled.gates_open(extended)
-        u = extended[compiled.plus_index] - extended[compiled.minus_index]
-        u -= self._reference
-        u *= opened | self._input_ungated
+        u = self._u
+        np.matmul(self._inputs, extended, out=u)
+        opened = None
+        if self._gated:
+            opened = self._gate_matrix @ extended > compiled.signed_threshold
+            u *= opened | self._input_ungated
         x = self._x
-        x[self._n_z :] = u
         advanced = self._matrix @ x
         x[: self._n_z] = advanced[: self._n_z]
         y = advanced[self._n_z :]
-        y *= opened | compiled.gate_on_input
+        if opened is not None:
+            y *= opened | compiled.gate_on_input
         if self._positioned:
             y *= compiled.position_factors(extended)
         self.contributions = y * self._gain
         outputs: np.ndarray = self._weighted_outputs @ y
-        dt_s = compiled.sample_time_s
-        for r, (out_i, residual, part, signal_i) in enumerate(self._residuals):
-            term = residual.step(self._residual[part], extended[signal_i], dt_s)
-            self.residual_terms[r] = term
-            outputs[out_i] += term
+        if self._residuals:
+            dt_s = compiled.sample_time_s
+            for r, (out_i, residual, part, signal_i) in enumerate(self._residuals):
+                term = residual.step(self._residual[part], extended[signal_i], dt_s)
+                self.residual_terms[r] = term
+                outputs[out_i] += term
         if self._bias is not None:
             outputs += self._bias
         return outputs
