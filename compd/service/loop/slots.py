@@ -231,7 +231,7 @@ class ModelSlots:
                 slot.outputs[:] = np.nan
                 fault = self._unload(slot, f"failed: {exc!r}")
                 continue
-            if not np.isfinite(slot.outputs).all():  # the method: no np.all wrapper each tick
+            if not all(map(math.isfinite, slot.outputs.tolist())):  # a few outputs: no ufunc
                 fault = f"model {slot.compiled.name!r} gave a non-finite output"
                 state = slot.runner.state
                 if not all(np.all(np.isfinite(v)) for v in (state.z, state.residual)):
@@ -306,4 +306,4 @@ class ModelSlots:
 
     @staticmethod
     def _complete(slot: ModelSlot, checked: Mapping[str, float]) -> bool:
-        return all(math.isfinite(checked[s]) for s in slot.compiled.signals)
+        return all(map(math.isfinite, map(checked.__getitem__, slot.compiled.signals)))
