@@ -521,11 +521,11 @@ def _model_outputs(slot: ModelSlot | None) -> tuple[dict[str, float], dict[str, 
     """The active model's outputs and each sub-model's contribution (NaN before it starts)."""
     if slot is None:
         return {}, {}
-    outputs = dict(zip(slot.compiled.output_names, slot.outputs.tolist(), strict=True))
+    outputs = dict(zip(slot.compiled.output_names, slot.outputs, strict=True))
     runner = slot.runner
     if runner is None:
         return outputs, {name: math.nan for name in slot.names}
-    return outputs, dict(zip(slot.names, runner.contributions.tolist(), strict=True))
+    return outputs, dict(zip(slot.names, runner.contributions_um, strict=True))
 
 
 def _finite(value: float | None) -> float:
