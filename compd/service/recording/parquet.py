@@ -58,10 +58,10 @@ from pathlib import Path
 from typing import Any
 
 from compd.errors import RecorderError
+from compd.service.recording.csvline import Cell
 from compd.service.recording.marks import tidy_array
 from compd.service.recording.recorder import (
     TIME_COLUMN,
-    Cell,
     RecordingFiles,
     check_columns,
     delete_oldest,

@@ -129,7 +129,8 @@ class RecordingTicks:
                 columns, values = self._layout.row(snapshot.record)
                 self.recorder.record_values(columns, values, at_s=snapshot.record.wall_unix_s)
             else:
-                row = tick_row(snapshot) | self.extra_columns()
+                row = tick_row(snapshot)
+                row |= self.extra_columns()
                 self.recorder.record(row, at_s=snapshot.record.wall_unix_s)
         except RecorderError as exc:
             self.fault.failed("recorder failed", error=str(exc))
