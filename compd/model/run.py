@@ -1,17 +1,19 @@
 """Running a compiled model: per tick for the daemon, vectorised over whole data files.
 
 Both paths compute the same transposed-direct-form-II recursion (see
-:mod:`compd.model.compiled`): ``step`` as one state-space matrix product per
-tick, ``simulate`` as one ``lfilter`` per sub-model. They agree to rounding;
-the tests hold them to 1e-9 on well-conditioned models. High-order TFs with
-clustered slow poles (time constants of hours at 1 s) amplify rounding in any
-polynomial form, and there the two agree to about 1e-4 relative.
+:mod:`compd.model.compiled`): ``step`` one sample at a time on Python floats,
+``simulate`` as one ``lfilter`` per sub-model, operation by operation in the
+same order. They agree to rounding (the sums over sub-models are in another
+order); the tests hold them to 1e-9 on well-conditioned models. High-order
+TFs with clustered slow poles (time constants of hours at 1 s) amplify
+rounding in any polynomial form, and there the two agree to about 1e-4 relative.
 """
 
 from __future__ import annotations
 
+import math
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -22,54 +24,60 @@ from compd.model.compiled import CompiledModel, ModelState
 from compd.model.dfilter import lfilter
 
 
-def df2t_matrix(b: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """One matrix ``M`` with ``[z(k); y(k)] = M @ [z(k-1); u(k)]`` for all stacked DF2T filters.
-
-    ``z`` is the (S, n) state flattened row by row, ``u`` and ``y`` hold one
-    value per sub-model. From ``y = b0 u + z0`` and
-    ``z'_i = b_{i+1} u - a_{i+1} y + z_{i+1}`` it follows that
-    ``z'_i = (b_{i+1} - a_{i+1} b0) u - a_{i+1} z0 + z_{i+1}``.
-    """
-    n_subs, length = b.shape
-    n = length - 1
-    size = n_subs * n + n_subs
-    matrix = np.zeros((size, size))
-    for s in range(n_subs):
-        base, u_col, y_row = s * n, n_subs * n + s, n_subs * n + s
-        matrix[base : base + n, u_col] = b[s, 1:] - a[s, 1:] * b[s, 0]
-        if n:
-            matrix[base : base + n, base] = -a[s, 1:]
-            matrix[base + np.arange(n - 1), base + np.arange(1, n)] += 1.0
-            matrix[y_row, base] = 1.0
-        matrix[y_row, u_col] = b[s, 0]
-    return matrix
-
-
 class TickRunner:
-    """Stateful per-tick evaluation: ``step(signals) -> outputs`` (um, one per axis output).
+    """Stateful per-tick evaluation: ``step(signals) -> outputs`` (um, a float per axis output).
 
     Position signals (Pahk 2002's slope terms) are read like any other signal,
     so a daemon that feeds the model its :attr:`CompiledModel.signals` each
     tick reads the axis position each tick with no change of its own.
 
-    All sub-models advance together as one matrix-vector product
-    (:func:`df2t_matrix`), so a tick costs a few small numpy operations
-    whatever the number of sub-models, and no allocation of the state.
+    A tick is one sample of a few sub-models: it runs on Python floats, in
+    the order :func:`simulate` (``lfilter``, :mod:`compd.model.dfilter`)
+    evaluates the same recursion, so the two give the same numbers. numpy
+    would do less arithmetic per call, but a daemon ticking once a second
+    wakes with cold caches, where entering numpy costs tens of microseconds
+    before any arithmetic (bench_tick's "cold" figure): 10 sub-models of 4th
+    order take ~12 us warm here, and a third of the numpy step cold.
     """
 
     def __init__(self, compiled: CompiledModel, state: ModelState) -> None:
         compiled.check_state(state)
         self.compiled = compiled
-        n_subs = compiled.n_submodels
-        self._n_z = n_subs * compiled.n_states
-        self._matrix = df2t_matrix(compiled.b, compiled.a)
-        self._x = np.concatenate([state.z.ravel(), np.zeros(n_subs)])
-        self._reference = state.reference.copy()
-        self._n_signals = len(compiled.signals)
-        self._extended = compiled.extended(np.zeros(self._n_signals))
-        self._input_ungated = ~compiled.gate_on_input
+        n_signals = len(compiled.signals)
+        zero_slot, one_slot = n_signals, n_signals + 1  # CompiledModel.extended's constants
+        owners = compiled.output_matrix.argmax(axis=0).tolist()
         self._gain = compiled.gain.copy()
-        self._weighted_outputs = compiled.output_matrix * self._gain
+        self._gains = self._gain.tolist()
+        self._z: list[list[float]] = state.z.tolist()
+        #: Per sub-model, what a tick reads of it (None: no minus signal, gate or position).
+        self._subs: list[_Sub] = []
+        for s in range(compiled.n_submodels):
+            minus = int(compiled.minus_index[s])
+            gate = int(compiled.gate_index[s])
+            position = int(compiled.position_index[s])
+            self._subs.append(
+                _Sub(
+                    plus=int(compiled.plus_index[s]),
+                    reference=float(state.reference[s]),
+                    minus=None if minus == zero_slot else minus,
+                    gate=None
+                    if gate == one_slot
+                    else (
+                        gate,
+                        float(compiled.gate_sign[s]),
+                        float(compiled.signed_threshold[s]),
+                        bool(compiled.gate_on_input[s]),
+                    ),
+                    position=None
+                    if position == one_slot
+                    else (position, float(compiled.position_reference_mm[s])),
+                    owner=owners[s],
+                    b=compiled.b[s].tolist(),
+                    a=compiled.a[s].tolist(),
+                )
+            )
+        self._reference = state.reference.copy()
+        self._n_outputs = len(compiled.output_names)
         self._gain_members: dict[str, np.ndarray] = {}
         for s, sub in enumerate(compiled.submodels):
             if sub.gain_name is not None:
@@ -79,23 +87,32 @@ class TickRunner:
         self.gains: dict[str, float] = {
             name: float(self._gain[members[0]]) for name, members in self._gain_members.items()
         }
-        # Models without slope terms skip the (all-ones) position factors.
-        self._positioned = bool(np.any(compiled.position_index < self._n_signals))
         #: Each sub-model's contribution (um) at the last tick, gain and gate applied.
-        self.contributions = np.zeros(n_subs)
+        self.contributions_um: list[float] = [0.0] * compiled.n_submodels
         # Swiss-lathe paper residual models: their door-feature state advances with each tick.
         self._residual = state.residual.copy()
         self._residuals = compiled.residual_slices()
         #: Each residual model's term (um) at the last tick, in ``compiled.residuals`` order.
         self.residual_terms = np.zeros(len(self._residuals))
-        self._bias = compiled.bias_of(len(compiled.output_names))
+        bias = compiled.bias_of(self._n_outputs)
+        self._bias = None if bias is None else bias.tolist()
+
+    @property
+    def submodel_gains(self) -> np.ndarray:
+        """The gain each sub-model's output is weighed by now (:meth:`set_gains` included)."""
+        return self._gain.copy()
+
+    @property
+    def contributions(self) -> np.ndarray:
+        """Each sub-model's contribution (um) at the last tick, as an array."""
+        return np.array(self.contributions_um)
 
     @property
     def state(self) -> ModelState:
         """A snapshot of the current state (safe to persist while stepping goes on)."""
         compiled = self.compiled
-        z = self._x[: self._n_z].reshape(compiled.n_submodels, compiled.n_states)
-        return ModelState(z.copy(), self._reference.copy(), self._residual.copy())
+        z = np.array(self._z, dtype=float).reshape(compiled.n_submodels, compiled.n_states)
+        return ModelState(z, self._reference.copy(), self._residual.copy())
 
     def set_gains(self, gains: Mapping[str, float]) -> None:
         """Set named gains (``gain_name`` -> value) from the next :meth:`step` on.
@@ -104,7 +121,7 @@ class TickRunner:
         output (``y = W diag(g) y_sub``) and never enters its recursion, so a
         gain change moves the outputs by ``W diag(dg) y_sub`` at once and
         nothing else (ramp the gains to make that bumpless). Names not given
-        keep their value. Costs one (n_outputs, S) product.
+        keep their value.
         """
         for name, value in gains.items():
             members = self._gain_members.get(name)
@@ -118,45 +135,88 @@ class TickRunner:
         for name, value in gains.items():
             self._gain[self._gain_members[name]] = value
             self.gains[name] = float(value)
-        self._weighted_outputs = self.compiled.output_matrix * self._gain
+        self._gains = self._gain.tolist()
 
-    def step(self, signals: np.ndarray | Mapping[str, float]) -> np.ndarray:
-        """Advance one sample and return the outputs in ``compiled.output_names`` order.
+    def step(self, signals: np.ndarray | Mapping[str, float] | Sequence[float]) -> list[float]:
+        """Advance one sample and return the outputs (um) in ``compiled.output_names`` order.
 
         Non-finite signals are refused before the state is touched, so a bad
         reading can never poison the model.
         """
         compiled = self.compiled
-        if isinstance(signals, Mapping):
-            signals = compiled.signal_vector(signals)
-        extended = self._extended
-        extended[: self._n_signals] = signals
-        if not np.isfinite(extended).all():
+        if type(signals) is dict or isinstance(signals, Mapping):  # the dict first: no ABC check
+            try:
+                values = [float(signals[name]) for name in compiled.signals]
+            except KeyError:
+                values = compiled.signal_vector(signals).tolist()  # raises, naming them
+        else:
+            values = np.asarray(signals, dtype=float).tolist()
+            if len(values) != len(compiled.signals):
+                raise ModelError(
+                    f"model {compiled.name!r} needs {len(compiled.signals)} signal values "
+                    f"({list(compiled.signals)}), got {len(values)}"
+                )
+        if not all(map(math.isfinite, values)):
             raise ModelError(
                 f"non-finite signal value in {signals!r}; the state was left unchanged"
             )
-        opened = compiled.gates_open(extended)
-        u = extended[compiled.plus_index] - extended[compiled.minus_index]
-        u -= self._reference
-        u *= opened | self._input_ungated
-        x = self._x
-        x[self._n_z :] = u
-        advanced = self._matrix @ x
-        x[: self._n_z] = advanced[: self._n_z]
-        y = advanced[self._n_z :]
-        y *= opened | compiled.gate_on_input
-        if self._positioned:
-            y *= compiled.position_factors(extended)
-        self.contributions = y * self._gain
-        outputs: np.ndarray = self._weighted_outputs @ y
-        dt_s = compiled.sample_time_s
-        for r, (out_i, residual, part, signal_i) in enumerate(self._residuals):
-            term = residual.step(self._residual[part], extended[signal_i], dt_s)
-            self.residual_terms[r] = term
-            outputs[out_i] += term
+        values += (0.0, 1.0)  # CompiledModel.extended's constant slots
+        outputs = [0.0] * self._n_outputs
+        contributions = self.contributions_um
+        gains = self._gains
+        for s, (sub, z) in enumerate(zip(self._subs, self._z, strict=True)):
+            # The input as _submodel_response forms it, gated on the input where it says.
+            u = values[sub.plus] - sub.reference
+            if sub.minus is not None:
+                u -= values[sub.minus]
+            gate = sub.gate
+            opened = True
+            if gate is not None:
+                index, sign, threshold, on_input = gate
+                opened = values[index] * sign > threshold
+                if on_input:
+                    u *= opened
+            # Transposed direct form II, operation by operation as compd.model.dfilter.
+            b, a = sub.b, sub.a
+            if z:
+                y = z[0] + b[0] * u
+                last = len(z) - 1
+                for i in range(last):
+                    z[i] = z[i + 1] + u * b[i + 1] - y * a[i + 1]
+                z[last] = u * b[last + 1] - y * a[last + 1]
+            else:
+                y = u * b[0]
+            if gate is not None and not gate[3]:
+                y *= opened
+            if sub.position is not None:
+                y *= values[sub.position[0]] - sub.position[1]
+            contributions[s] = contribution = y * gains[s]
+            outputs[sub.owner] += contribution
+        if self._residuals:
+            dt_s = compiled.sample_time_s
+            for r, (out_i, residual, part, signal_i) in enumerate(self._residuals):
+                term = float(residual.step(self._residual[part], values[signal_i], dt_s))
+                self.residual_terms[r] = term
+                outputs[out_i] += term
         if self._bias is not None:
-            outputs += self._bias
+            outputs = [o + bias for o, bias in zip(outputs, self._bias, strict=True)]
         return outputs
+
+
+@dataclass(frozen=True, slots=True)
+class _Sub:
+    """One sub-model as a tick reads it: indices into the extended signal values, its TF."""
+
+    plus: int
+    reference: float
+    minus: int | None
+    #: (signal index, sign, signed threshold, on the input)
+    gate: tuple[int, float, float, bool] | None
+    #: (signal index, reference mm)
+    position: tuple[int, float] | None
+    owner: int
+    b: list[float]
+    a: list[float]
 
 
 @dataclass(frozen=True, eq=False)

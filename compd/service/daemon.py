@@ -25,6 +25,7 @@ from __future__ import annotations
 import asyncio
 import gc
 import hashlib
+import math
 import time
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
@@ -166,6 +167,7 @@ class Service:
         self._unverifiable_rows = UnverifiableCache()
         #: The last tick's snapshot (None before the first): what ``compd status`` and the page read.
         self.last: TickSnapshot | None = None
+        self._model_id: ModelId | None = None  # the running model's, made once per model
         self.telemetry: Telemetry | None = None  # the page reads these while it is built
         self.recording: RecordingTicks | None = None
         #: The loop's subscribers (:mod:`compd.service.build`), each told of every tick once.
@@ -276,16 +278,24 @@ class Service:
 
     async def _tick(self, t_s: float) -> None:
         started_s = self.clock.now()
-        cpu_started_s, real_started_s = time.thread_time(), time.perf_counter()
+        # The thread's CPU clock is a system call, each a few microseconds after a sleep:
+        # read only where a subscriber reads the tick's CPU (the metrics).
+        read_cpu = self.subscribers.read_cpu
+        cpu_started_s = time.thread_time() if read_cpu else math.nan
+        real_started_s = time.perf_counter()
         record = await self.compensator.tick(t_s)
         running = self.compensator.running
+        if running is None:
+            model = None
+        elif (model := self._model_id) is None or model.sha256 != running.sha256:
+            model = self._model_id = ModelId(running.compiled.name, running.sha256)
         snapshot = TickSnapshot(
             record=record,
             ticks=self.compensator.counters.ticks,
             counters=TickSnapshot.frozen(self.counters()),
-            model=None if running is None else ModelId(running.compiled.name, running.sha256),
+            model=model,
             lateness_s=self.timing.last_lateness_s,
-            cpu_s=time.thread_time() - cpu_started_s,
+            cpu_s=time.thread_time() - cpu_started_s if read_cpu else math.nan,
             started_real_s=real_started_s,
             on_time=self.clock.now() - started_s < self.config.doc.period_s,
         )

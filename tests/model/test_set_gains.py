@@ -98,7 +98,7 @@ def test_names_not_given_keep_their_value_and_fixed_gains_never_change() -> None
     expected = compile_model(scheduled_model(g1=0.8, g2=0.5)).output_matrix * np.array(
         [0.8, 0.5, 0.7, 0.8, 1.0]
     )
-    assert_allclose(runner._weighted_outputs, expected)
+    assert_allclose(compiled.output_matrix * runner.submodel_gains, expected)
 
 
 def test_an_unknown_or_non_finite_gain_is_refused_and_nothing_changes() -> None:

@@ -133,7 +133,8 @@ def test_a_non_finite_model_output_sets_the_status_bit_and_is_logged_once(tmp_pa
 
     def poison(record: TickRecord) -> None:
         if service.compensator.counters.ticks == 100:
-            service.compensator.active.runner._x[:] = np.nan  # type: ignore[union-attr]
+            for z in service.compensator.active.runner._z:  # type: ignore[union-attr]
+                z[:] = [np.nan] * len(z)
 
     records: list[TickRecord] = []
     service.subscribe(lambda record: (records.append(record), poison(record)))

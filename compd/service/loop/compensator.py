@@ -359,9 +359,11 @@ class Compensator:
         out_of_clamp = self.held.out_of_clamp
         self.counters.offsets_out_of_clamp += len(out_of_clamp)
         readings = {}
-        was = {point.name: self.monitors[point.name].reading.health for point in self.signals}
-        for point in self.signals:
-            readings[point.name] = self.monitors[point.name].update(t_s, values.get(point.name))
+        was = {}
+        for point in self.signals:  # each monitor is its own: its health before, then its update
+            monitor = self.monitors[point.name]
+            was[point.name] = monitor.reading.health
+            readings[point.name] = monitor.update(t_s, values.get(point.name))
         readings = self._redundant(t_s, readings)
         readings = self._plausible(t_s, readings, values)
         if self.redundancy is not None:
@@ -405,6 +407,7 @@ class Compensator:
         outside_envelope: dict[str, str] = {}
         if models is not None and self.axes:
             self._calibrate(models.active)
+        faulted_now = {name for name, r in readings.items() if r.health is Health.FAULTED}
         for axis in self.axes:
             assert models is not None  # axes need a model (checked in __init__)
             output = models.output(axis.model_output, weight)
@@ -414,8 +417,7 @@ class Compensator:
                 output += learned
             if weight is not None:
                 flags.add(Flag.BLENDING)
-            depends = self.active.depends[axis.model_output]
-            faulted = any(readings[s].health is Health.FAULTED for s in depends)
+            faulted = not faulted_now.isdisjoint(models.active.depends[axis.model_output])
             targets[axis.name] = target = axis.sign * output
             stage = self.safety[axis.name]
             # An offset read back outside the clamp: this tick writes the policy's value as is.
@@ -521,11 +523,11 @@ def _model_outputs(slot: ModelSlot | None) -> tuple[dict[str, float], dict[str, 
     """The active model's outputs and each sub-model's contribution (NaN before it starts)."""
     if slot is None:
         return {}, {}
-    outputs = dict(zip(slot.compiled.output_names, slot.outputs.tolist(), strict=True))
+    outputs = dict(zip(slot.compiled.output_names, slot.outputs, strict=True))
     runner = slot.runner
     if runner is None:
         return outputs, {name: math.nan for name in slot.names}
-    return outputs, dict(zip(slot.names, runner.contributions.tolist(), strict=True))
+    return outputs, dict(zip(slot.names, runner.contributions_um, strict=True))
 
 
 def _finite(value: float | None) -> float:

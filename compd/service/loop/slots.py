@@ -45,7 +45,8 @@ class ModelSlot:
         #: Started from today's readings as a cold machine's (or as the zero): what the probes
         #: learned as a constant does not carry over (:meth:`OutputLearner.forget_shift`).
         self.started_cold = False
-        self.outputs = np.full(len(compiled.output_names), np.nan)
+        #: The outputs (um) of the last tick, in ``compiled.output_names`` order (NaN: none).
+        self.outputs: list[float] = [math.nan] * len(compiled.output_names)
         self.names = list(qualified_names(compiled))
         self._index = {name: i for i, name in enumerate(compiled.output_names)}
         owners = compiled.output_matrix.argmax(axis=0)
@@ -77,7 +78,7 @@ class ModelSlot:
         self.started_cold = zero_now or self.compiled.reads_cold(checked)
 
     def output(self, name: str) -> float:
-        return float(self.outputs[self._index[name]])
+        return self.outputs[self._index[name]]
 
 
 #: What a start from today's readings (``state.fresh_start: now``) means, for the log and status.
@@ -218,7 +219,7 @@ class ModelSlots:
             if slot is None:
                 continue
             if not self._complete(slot, checked):
-                slot.outputs[:] = np.nan
+                slot.outputs = [math.nan] * len(slot.outputs)
                 continue
             try:
                 if slot.runner is None:
@@ -228,10 +229,10 @@ class ModelSlots:
                     self.schedule.apply(slot.runner)
                 slot.outputs = slot.runner.step(checked)
             except Exception as exc:  # a model must never end the loop
-                slot.outputs[:] = np.nan
+                slot.outputs = [math.nan] * len(slot.outputs)
                 fault = self._unload(slot, f"failed: {exc!r}")
                 continue
-            if not np.isfinite(slot.outputs).all():  # the method: no np.all wrapper each tick
+            if not all(map(math.isfinite, slot.outputs)):
                 fault = f"model {slot.compiled.name!r} gave a non-finite output"
                 state = slot.runner.state
                 if not all(np.all(np.isfinite(v)) for v in (state.z, state.residual)):
@@ -250,7 +251,7 @@ class ModelSlots:
         if restore is not self.previous:
             history = self.history.matrix(restore.compiled.signals)
             restore.runner = None
-            restore.outputs[:] = np.nan  # not stepped this tick: the axes hold
+            restore.outputs = [math.nan] * len(restore.outputs)  # not stepped: the axes hold
             if len(history) >= 2:  # warm, from the recent inputs (compd.model.handover)
                 try:
                     restore.start(
@@ -288,7 +289,7 @@ class ModelSlots:
             self._tell("fault", "model fault: the axes hold their offsets", reason=fault)
         elif fault is not None:
             log.debug("model fault goes on", reason=fault)
-        elif self.fault is not None and np.all(np.isfinite(self.active.outputs)):
+        elif self.fault is not None and all(map(math.isfinite, self.active.outputs)):
             log.info("model outputs are finite again", model=self.active.compiled.name)
             self._tell("cleared", "model outputs are finite again", model=self.active.compiled.name)
         else:
@@ -306,4 +307,4 @@ class ModelSlots:
 
     @staticmethod
     def _complete(slot: ModelSlot, checked: Mapping[str, float]) -> bool:
-        return all(math.isfinite(checked[s]) for s in slot.compiled.signals)
+        return all(map(math.isfinite, map(checked.__getitem__, slot.compiled.signals)))

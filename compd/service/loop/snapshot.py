@@ -42,7 +42,8 @@ class TickSnapshot:
     counters: Mapping[str, int]
     #: None: a data logger (no model).
     model: ModelId | None
-    #: How late the tick started after its deadline (s), and the CPU it took (s).
+    #: How late the tick started after its deadline (s), and the CPU it took (s; NaN where no
+    #: subscriber reads it: :attr:`~compd.service.loop.subscribers.Subscribers.read_cpu`).
     lateness_s: float
     cpu_s: float
     #: When the tick started, ``time.perf_counter()`` time (s).

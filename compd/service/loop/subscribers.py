@@ -38,7 +38,8 @@ class Subscriber(Protocol):
 
     Optionally ``async begin()`` (started before the first tick: a server, a connection)
     and ``async end(*, killed)`` (at shutdown: files closed, the last state saved; with
-    ``killed``, only what the OS would close).
+    ``killed``, only what the OS would close), and ``reads_cpu = True`` where it reads
+    :attr:`TickSnapshot.cpu_s <compd.service.loop.snapshot.TickSnapshot.cpu_s>` (NaN otherwise).
     """
 
     name: str
@@ -55,16 +56,23 @@ class Subscribers:
         self.budget_s = SLOW_SHARE * period_s
         self.sink = sink
         self._entries: list[_Entry] = []
+        #: A subscriber reads each tick's CPU time (``reads_cpu``): the loop measures it then.
+        self.read_cpu = False
 
     def add(self, subscriber: Subscriber) -> None:
         """Register ``subscriber`` (once: a second with the same name is a programming error)."""
         if any(entry.subscriber.name == subscriber.name for entry in self._entries):
             raise CompdError(f"a tick subscriber named {subscriber.name!r} is registered already")
         self._entries.append(_Entry(subscriber, self.sink))
+        self.read_cpu = self._reads_cpu()
 
     def remove(self, name: str) -> None:
         """Stop calling the subscriber named ``name`` (nothing if none is)."""
         self._entries = [e for e in self._entries if e.subscriber.name != name]
+        self.read_cpu = self._reads_cpu()
+
+    def _reads_cpu(self) -> bool:
+        return any(getattr(e.subscriber, "reads_cpu", False) for e in self._entries)
 
     def __iter__(self) -> Iterator[Subscriber]:
         return (entry.subscriber for entry in self._entries)
@@ -119,14 +127,15 @@ class _Entry:
         except Exception as exc:
             self.failing.failed("tick subscriber failed", error=f"{type(exc).__name__}: {exc}")
         else:
-            self.failing.cleared("tick subscriber works again")
+            if self.failing.active:  # (cleared() does nothing otherwise: no call every tick)
+                self.failing.cleared("tick subscriber works again")
         ended_s = time.perf_counter()
         took_s = ended_s - started_s
         if took_s > budget_s:
             self.slow.failed(
                 "tick subscriber slow", took_ms=round(took_s * 1e3, 1), budget_ms=budget_s * 1e3
             )
-        else:
+        elif self.slow.active:
             self.slow.cleared("tick subscriber on time again")
         return ended_s
 

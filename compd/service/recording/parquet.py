@@ -52,16 +52,16 @@ import logging
 import math
 import os
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from compd.errors import RecorderError
+from compd.service.recording.csvline import Cell
 from compd.service.recording.marks import tidy_array
 from compd.service.recording.recorder import (
     TIME_COLUMN,
-    Cell,
     RecordingFiles,
     check_columns,
     delete_oldest,
@@ -129,6 +129,12 @@ class ParquetRecorder(RecordingFiles):
         self._failure: RecorderError | None = None
         self._backoff_s = RETRY_FIRST_S
         self._retry_at_s = -math.inf
+
+    def record_values(
+        self, columns: tuple[str, ...], values: Sequence[Cell], *, at_s: float | None = None
+    ) -> None:
+        """:meth:`record` of the row ``dict(zip(columns, values))`` (as the CSV recorder's)."""
+        self.record(dict(zip(columns, values, strict=True)), at_s=at_s)
 
     def record(self, row: Mapping[str, Cell], *, at_s: float | None = None) -> None:
         """Append one row stamped ``at_s`` (s since the epoch, default the clock's now).

@@ -48,13 +48,14 @@ import math
 import os
 import re
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Self
 
 from compd.errors import RecorderError
 from compd.files.columns import TIME_NAMES
+from compd.service.recording.csvline import Cell, LineFormats, Stamps, cell
 from compd.service.recording.marks import RunMarks
 
 log = logging.getLogger(__name__)
@@ -66,11 +67,8 @@ NAME = re.compile(
     rf"^{PREFIX}-(?:(?P<machine>[A-Za-z0-9._-]+)-)?(?P<time>\d{{8}}T\d{{6}}Z)"
     r"(?:-(?P<number>\d+))?\.(?P<format>csv|parquet)$"
 )
-_QUOTED = re.compile(r'[,"\r\n]')
 #: A machine_id that may name files (the config's pattern): others are left out of the name.
 _MACHINE = re.compile(r"[A-Za-z0-9._-]{1,64}")
-
-Cell = float | int | str
 
 
 class RecordingFiles:
@@ -205,6 +203,8 @@ class Recorder(RecordingFiles):
         self._written = 0  # bytes of complete lines known to be in the open file
         self._pending: list[bytes] = []
         self._rows_in_file = 0
+        self._stamps = Stamps()
+        self._lines = LineFormats()
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -218,10 +218,9 @@ class Recorder(RecordingFiles):
         (``%.15g``: ``21.15``, ``20``; :func:`~compd.service.recording.marks.tidy`
         says why), bools as 1/0, NaN as ``nan`` (a gap to
         :func:`~compd.files.data.load_data`), text quoted when it holds a comma,
-        quote or newline. Raises
+        quote or newline (:mod:`compd.service.recording.csvline`). Raises
         :class:`~compd.errors.RecorderError` when the files cannot be written.
         """
-        now_s = self._clock() if at_s is None else at_s
         try:
             values = [row[name] for name in self._columns]
             same = len(row) == len(values)
@@ -230,24 +229,21 @@ class Recorder(RecordingFiles):
         if not same or not values or self._metadata_changed:
             self._start_columns(row)
             values = [row[name] for name in self._columns]
-        stamp = datetime.fromtimestamp(now_s, UTC).isoformat(timespec="milliseconds")
-        # A plain float (most cells) formatted inline, as _cell formats it: a call per
-        # cell was a fifth of the tick's CPU (40 cells a row).
-        line = (
-            stamp
-            + ","
-            + ",".join(
-                [
-                    "%.15g" % (v + 0.0)
-                    if type(v) is float
-                    else str(v)
-                    if type(v) is int  # a bool is no int here: _cell writes it 1/0
-                    else _cell(v)  # numpy's scalars, bools, text
-                    for v in values
-                ]
-            )
-            + "\n"
-        ).encode()
+        self._append(values, self._clock() if at_s is None else at_s)
+
+    def record_values(
+        self, columns: tuple[str, ...], values: Sequence[Cell], *, at_s: float | None = None
+    ) -> None:
+        """:meth:`record` of the row ``dict(zip(columns, values))`` (distinct ``columns``), without
+        the dict: the loop's row, whose columns stay the same tuple tick after tick."""
+        if (columns is not self._columns and columns != self._columns) or self._metadata_changed:
+            self._start_columns(dict(zip(columns, values, strict=True)))
+            if len(self._columns) != len(columns):
+                raise RecorderError(f"a row's columns are not distinct: {columns}")
+        self._append(values, self._clock() if at_s is None else at_s)
+
+    def _append(self, values: Sequence[Cell], now_s: float) -> None:
+        line = self._lines.line(self._stamps(now_s), values).encode()
         if self._fd is None or (
             self._rows_in_file
             and (
@@ -306,7 +302,7 @@ class Recorder(RecordingFiles):
             f"# {key}: {' '.join(value.split())}\n"
             for key, value in self.file_metadata(path, now_s).items()
         )
-        header = comments + ",".join(map(_cell, (TIME_COLUMN, *self._columns))) + "\n"
+        header = comments + ",".join(map(cell, (TIME_COLUMN, *self._columns))) + "\n"
         self._pending = [header.encode()]
         self._size = len(self._pending[0])
         self._written = 0
@@ -442,16 +438,6 @@ def _write_all(fd: int, data: bytes) -> None:
     view = memoryview(data)
     while view:
         view = view[os.write(fd, view) :]
-
-
-def _cell(value: Cell) -> str:
-    if value is True or value is False:
-        return "1" if value else "0"
-    # 15 digits (recorder_marks.tidy says why); "%" is the quickest; + 0.0 turns -0.0 into 0.0.
-    text = "%.15g" % (value + 0.0) if isinstance(value, float) else str(value)
-    if isinstance(value, str) and _QUOTED.search(text):
-        return '"' + text.replace('"', '""') + '"'
-    return text
 
 
 def sync_directory(directory: Path) -> None:
