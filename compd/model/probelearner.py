@@ -34,7 +34,8 @@ becomes what the model predicts. numpy only: no files, no logging.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+import operator
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -204,7 +205,9 @@ class OutputLearner:
         p = len(prior.names)
         self._rows = _Rows(p, self.window.keep_s)
         self._bin = -math.inf  # the row bin of the last kept row
-        self._latest: tuple[float, np.ndarray, float] | None = None
+        #: The last tick: its time, regressor (Python floats: the tick enters no numpy) and
+        #: unscaled part.
+        self._latest: tuple[float, list[float], float] | None = None
         #: The touch instant of the last probe taken (the departure bound holds over the rows after it).
         self.since_s = -math.inf
         #: Probes in a row the update did not take (flagged, then not confirmed): at 2 the
@@ -213,7 +216,7 @@ class OutputLearner:
         #: The largest |learned bias| a person accepted (um; ``accept_shift``): held as the
         #: bound instead of ``max_shift_um`` where larger, until a reset.
         self.accepted_shift_um = 0.0
-        self._delta = np.zeros(p)
+        self._set_delta(np.zeros(p))
         #: How far a restored state's latest time lay ahead of the clock, clamped (s; 0: none).
         self.clamped_s = 0.0
 
@@ -240,26 +243,31 @@ class OutputLearner:
         """Whether the parameters differ from the prior's (a probe was taken since the last reset)."""
         return bool(np.any(self._delta != 0.0))
 
-    def observe(self, t_s: float, x: np.ndarray, fixed_um: float = 0.0) -> None:
-        """One tick's regressor ``x`` (p,: contributions, then 1) and unscaled part ``fixed_um``; O(p)."""
-        x = np.asarray(x, dtype=float)
+    def observe(self, t_s: float, x: Sequence[float] | np.ndarray, fixed_um: float = 0.0) -> None:
+        """One tick's regressor ``x`` (p,: contributions, then 1) and unscaled part ``fixed_um``; O(p).
+
+        In Python floats: a tick after the loop's sleep pays tens of us per
+        numpy call (cold caches); a row is kept as an array once a minute.
+        """
+        row = x.tolist() if isinstance(x, np.ndarray) and x.ndim == 1 else x
         if (
-            x.shape != self._delta.shape
-            or not np.all(np.isfinite(x))
+            not isinstance(row, list | tuple)
+            or len(row) != len(self._delta_row)
+            or not all(isinstance(v, float | int) and math.isfinite(v) for v in row)
             or not math.isfinite(fixed_um)
         ):
             raise ModelError(
-                f"a regressor needs {self._delta.size} finite values and a finite unscaled part; "
-                f"got {x.shape} values at {t_s} s"
+                f"a regressor needs {len(self._delta_row)} finite values and a finite unscaled "
+                f"part; got {np.shape(x)} values at {t_s} s"
             )
         if self._latest is not None and not t_s > self._latest[0]:
             raise ModelError(f"ticks must come in time order: {t_s} s after {self._latest[0]} s")
-        self._latest = (float(t_s), x.copy(), float(fixed_um))
+        self._latest = (float(t_s), [float(v) for v in row], float(fixed_um))
         every = self.window.row_every_s
         row_bin = math.floor(t_s / every) if every > 0.0 else t_s
         if row_bin != self._bin:
             self._bin = row_bin
-            self._rows.append(np.array([t_s]), x[None, :], np.array([fixed_um]))
+            self._rows.append(np.array([t_s]), np.array([row], dtype=float), np.array([fixed_um]))
 
     def observe_many(self, t_s: np.ndarray, x: np.ndarray, fixed_um: np.ndarray) -> None:
         """:meth:`observe` for a record's rows at once (N,), (N, p), (N,): what ``compare`` replays."""
@@ -268,9 +276,9 @@ class OutputLearner:
         fixed_um = np.asarray(fixed_um, dtype=float)
         if not len(t_s):
             return
-        if x.shape != (len(t_s), self._delta.size) or fixed_um.shape != t_s.shape:
+        if x.shape != (len(t_s), len(self._delta_row)) or fixed_um.shape != t_s.shape:
             raise ModelError(
-                f"regressors must be ({len(t_s)}, {self._delta.size}) with {len(t_s)} unscaled "
+                f"regressors must be ({len(t_s)}, {len(self._delta_row)}) with {len(t_s)} unscaled "
                 f"values; got {x.shape} and {fixed_um.shape}"
             )
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(fixed_um))):
@@ -284,7 +292,7 @@ class OutputLearner:
         if keep.size:
             self._rows.append(t_s[keep], x[keep], fixed_um[keep])
             self._bin = float(bins[-1])
-        self._latest = (float(t_s[-1]), x[-1].copy(), float(fixed_um[-1]))
+        self._latest = (float(t_s[-1]), x[-1].tolist(), float(fixed_um[-1]))
 
     def probe(
         self, touched_at_s: float, thermal_error_um: float, *, accept_shift: bool = False
@@ -332,7 +340,7 @@ class OutputLearner:
             self.untaken_in_a_row = 0
         else:
             self.untaken_in_a_row += 1
-        self._delta = self.updater.theta - self.prior.mean
+        self._set_delta(self.updater.theta - self.prior.mean)
         return steps
 
     def regressor_at(self, t_s: float) -> tuple[np.ndarray, float]:
@@ -343,7 +351,8 @@ class OutputLearner:
                 "(its regressor is not known)"
             )
         times, rows, fixed = self._rows.view()
-        latest_t, latest_x, latest_f = self._latest
+        latest_t, latest_row, latest_f = self._latest
+        latest_x = np.array(latest_row)
         if t_s >= latest_t:
             if t_s - latest_t > AHEAD_SLACK_S:
                 raise ModelError(
@@ -351,7 +360,7 @@ class OutputLearner:
                     f"observed ({latest_t:.1f} s): give the touch instant on the daemon's time "
                     "axis, and observe the tick first"
                 )
-            return latest_x.copy(), latest_f
+            return latest_x, latest_f
         oldest = float(times[0])
         if t_s < oldest:
             raise ModelError(
@@ -372,12 +381,20 @@ class OutputLearner:
         f = (f1 - float(fixed[j])) / (t1 - t0) * (t_s - t0) + float(fixed[j])
         return x, f
 
-    def adjustment_um(self, x: np.ndarray) -> float:
-        """``x' (theta - theta0)`` (um): what the loop adds to the file model's output; O(p).
+    def adjustment_um(self, x: Sequence[float] | np.ndarray) -> float:
+        """``x' (theta - theta0)`` (um): what the loop adds to the file model's output; O(p),
+        in Python floats for a tick's list.
 
         0.0 before any accepted probe (and after :meth:`reset`).
         """
-        return float(np.asarray(x) @ self._delta)
+        if isinstance(x, np.ndarray):
+            return float(x @ self._delta)
+        return float(sum(map(operator.mul, x, self._delta_row)))
+
+    def _set_delta(self, delta: np.ndarray) -> None:
+        """``theta - theta0``, and as Python floats for the tick (:meth:`adjustment_um`)."""
+        self._delta = delta
+        self._delta_row = delta.tolist()
 
     def adjustments_um(self, rows: np.ndarray) -> np.ndarray:
         """:meth:`adjustment_um` for many regressors (N, p): what ``compare`` adds over a record."""
@@ -394,7 +411,7 @@ class OutputLearner:
         self.since_s = -math.inf
         self.untaken_in_a_row = 0
         self.accepted_shift_um = 0.0
-        self._delta = np.zeros_like(self._delta)
+        self._set_delta(np.zeros_like(self._delta))
 
     def state(self) -> dict[str, Any]:
         """The update's state as plain JSON values (no NaN: times not yet set are null)."""
@@ -423,7 +440,7 @@ class OutputLearner:
         """
         learner = cls(prior, settings, window)
         restore_into(learner, state, now_s=now_s, skew_s=skew_s)
-        learner._delta = learner.updater.theta - prior.mean
+        learner._set_delta(learner.updater.theta - prior.mean)
         return learner
 
     def clamp_times(self, now_s: float) -> float:
@@ -469,5 +486,5 @@ class OutputLearner:
             member.covariance = covariance
         u.pending = None
         u.mix()
-        self._delta = u.theta - self.prior.mean
+        self._set_delta(u.theta - self.prior.mean)
         return shift

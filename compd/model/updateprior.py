@@ -23,7 +23,9 @@ only.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -138,6 +140,18 @@ class Prior:
         units = np.where(mean != 0.0, mean, 1.0)
         units[-1] = 1.0
         return units
+
+    @cached_property
+    def _unit_row(self) -> list[float]:
+        return [float(u) for u in self.units]
+
+    def regressor_row(self, contributions_um: Sequence[float]) -> list[float]:
+        """:meth:`regressors` of one tick in Python floats (the same divisions, so the same
+        numbers): the tick enters no numpy."""
+        units = self._unit_row
+        row = [c / u for c, u in zip(contributions_um, units, strict=False)]
+        row.append(1.0 / units[-1])
+        return row
 
     def regressors(self, contributions_um: np.ndarray) -> np.ndarray:
         """The update's regressors from the sub-models' contributions (um): (S,) -> (S+1,), (N, S) -> (N, S+1)."""
