@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -62,7 +63,14 @@ def run_with_load(
         task = asyncio.create_task(service.run())
         counters = service.compensator.counters
         await ticked(service, task, 100)
-        replies["load"] = await request(socket, load_request(good.read_bytes(), good))
+        # A hang guard, not a bound: on virtual time the loop ticks back to back and shares the
+        # interpreter with the model check in its worker thread; under the suite's load the
+        # reply once took over the client's default 5 s.
+        started = time.perf_counter()
+        replies["load"] = await request(
+            socket, load_request(good.read_bytes(), good), timeout_s=120.0
+        )
+        replies["took_s"] = time.perf_counter() - started
         stop_at = counters.ticks + ticks_after
         await ticked(service, task, stop_at)
         service.stop()
