@@ -156,9 +156,17 @@ def test_hot_load_refuses_a_bad_model_and_blends_a_good_one(tmp_path):
         task = asyncio.create_task(service.run())
         counters = service.compensator.counters
         await ticked(service, task, 300)
-        replies["bad"] = await request(socket, load_request(bad.read_bytes(), bad))
-        replies["status"] = await request(socket, {"cmd": "status"})
-        replies["good"] = await request(socket, load_request(good.read_bytes(), good))
+        # Hang guards, not bounds: on virtual time the loop ticks back to back and shares the
+        # interpreter with the model check in its worker thread (a load's reply took 0.15-4.6 s
+        # on an idle machine, once over the client's default 5 s under the suite's load).
+        wait_s = 120.0
+        replies["bad"] = await request(
+            socket, load_request(bad.read_bytes(), bad), timeout_s=wait_s
+        )
+        replies["status"] = await request(socket, {"cmd": "status"}, timeout_s=wait_s)
+        replies["good"] = await request(
+            socket, load_request(good.read_bytes(), good), timeout_s=wait_s
+        )
         # Counted from the reply: virtual ticks race ahead while the daemon checks the model.
         stop_at = counters.ticks + 1500
         await ticked(service, task, stop_at)
