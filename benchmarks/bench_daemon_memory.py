@@ -49,6 +49,9 @@ from typing import Any
 
 import yaml
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests.ports (simconfig's too)
+from tests.ports import wait_listening
+
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "config"
 #: The daemon configs measured, and the PLC port each is served on here.
@@ -121,16 +124,6 @@ def configs(name: str, directory: Path, port: int | None, *, before: bool) -> tu
     daemon = directory / f"daemon-{name}"
     daemon.write_text(yaml.safe_dump(doc))
     return daemon, machine
-
-
-def wait_listening(port: int, process: subprocess.Popen[bytes], bound_s: float = 120.0) -> None:
-    deadline = time.monotonic() + bound_s
-    while time.monotonic() < deadline and process.poll() is None:
-        with socket.socket() as probe:
-            if probe.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.1)
-    raise SystemExit(f"the simulated machine never listened on {port}")
 
 
 def run_daemon(

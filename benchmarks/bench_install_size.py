@@ -36,7 +36,6 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -45,6 +44,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests.ports (simconfig's too)
+from simconfig import simulated_and_real
+
+from tests.ports import wait_listening
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The issue's figure: a fresh venv after ``pip install -c .ci/requirements.lock .``, before the split.
@@ -151,29 +155,11 @@ def peak_rss_mb(argv: list[str], *, cwd: Path) -> tuple[int, float, str]:
     return os.waitstatus_to_exitcode(status), usage.ru_maxrss / 1024, lines[-1] if lines else ""
 
 
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
-
-
 def configs(directory: Path, full: Venv, source: Path) -> tuple[Path, Path, Path]:
     """The bundled simulated config on a free port, and the same without its ``simulation``:
     with the bundled model as it is, and with its TFs at the loop's period."""
-    doc = yaml.safe_load((source / "config" / "simulated.yaml").read_text())
-    doc["model"] = str(source / "config" / "simulated_model.yaml")
-    doc["drivers"]["plc"]["settings"]["port"] = free_port()
-    doc["drivers"]["plc"]["timeout_s"] = 10.0  # hang guards on a busy host (bench_startup's)
-    doc["drivers"]["plc"]["settings"]["request_timeout_s"] = 5.0
-    doc["state"] = {"directory": str(directory / "state")}
-    doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
-    doc["control_socket"] = str(directory / "sim.sock")
-    simulated = directory / "simulated.yaml"
-    simulated.write_text(yaml.safe_dump(doc))
-    del doc["simulation"]
-    doc["control_socket"] = str(directory / "real.sock")
-    real = directory / "real.yaml"
-    real.write_text(yaml.safe_dump(doc))
+    simulated, real = simulated_and_real(directory, source)
+    doc = yaml.safe_load(real.read_text())
     model_at_period = directory / "model_at_period.yaml"
     subprocess.run(
         [str(full.python), "-c", AT_LOOP_RATE, doc["model"], str(model_at_period),
@@ -185,16 +171,6 @@ def configs(directory: Path, full: Venv, source: Path) -> tuple[Path, Path, Path
     at_period = directory / "real_at_period.yaml"
     at_period.write_text(yaml.safe_dump(doc))
     return simulated, real, at_period
-
-
-def wait_listening(port: int, process: subprocess.Popen[bytes], bound_s: float = 120) -> None:
-    deadline = time.monotonic() + bound_s
-    while time.monotonic() < deadline and process.poll() is None:
-        with socket.socket() as probe:
-            if probe.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.2)
-    raise SystemExit(f"the twin never listened on {port} (exit status {process.poll()})")
 
 
 def shown(status: int, rss: float, last: str) -> str:

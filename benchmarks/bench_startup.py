@@ -35,7 +35,8 @@ import tempfile
 import time
 from pathlib import Path
 
-import yaml
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests.ports (simconfig's too)
+from simconfig import simulated_and_real
 
 ROOT = Path(__file__).resolve().parents[1]
 REPEATS = 7
@@ -80,28 +81,11 @@ def median_of(argv: list[str]) -> tuple[float, float, float]:
     return tuple(statistics.median(r[i] for r in runs) for i in range(3))  # type: ignore[return-value]
 
 
-def configs(directory: Path) -> tuple[Path, Path]:
-    """The bundled simulated config on a free port; the same without its ``simulation``."""
-    doc = yaml.safe_load((ROOT / "config" / "simulated.yaml").read_text())
-    doc["model"] = str(ROOT / "config" / "simulated_model.yaml")
-    doc["drivers"]["plc"]["settings"]["port"] = 15920
-    doc["state"] = {"directory": str(directory / "state")}
-    doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
-    doc["control_socket"] = str(directory / "sim.sock")
-    simulated = directory / "simulated.yaml"
-    simulated.write_text(yaml.safe_dump(doc))
-    del doc["simulation"]
-    doc["control_socket"] = str(directory / "real.sock")
-    real = directory / "real.yaml"
-    real.write_text(yaml.safe_dump(doc))
-    return simulated, real
-
-
 def main() -> int:
     print(environment())
     compd = [sys.executable, "-m", "compd.cli"]
     with tempfile.TemporaryDirectory(dir="/tmp") as tmp:
-        simulated, real = configs(Path(tmp))
+        simulated, real = simulated_and_real(Path(tmp), ROOT)
         rows = [
             ("python -c pass (the floor)", [sys.executable, "-c", "pass"], None),
             (

@@ -23,3 +23,24 @@ def bundled_doc(prefix: str) -> tuple[Path, dict[str, Any]]:
     doc["recorder"] = {"enabled": False}
     doc["control_socket"] = str(directory / "c.sock")
     return directory, doc
+
+
+def simulated_and_real(directory: Path, source: Path) -> tuple[Path, Path]:
+    """Checkout ``source``'s bundled simulated config on a free port, with its state, recorder and
+    control socket in ``directory``; and the same without its ``simulation`` (a real-machine
+    config: its PLC served by ``compd simulate-machine`` in another process)."""
+    doc = yaml.safe_load((source / "config" / "simulated.yaml").read_text())
+    doc["model"] = str(source / "config" / "simulated_model.yaml")
+    doc["drivers"]["plc"]["settings"]["port"] = free_port()
+    doc["drivers"]["plc"]["timeout_s"] = 10.0  # hang guards on a busy host
+    doc["drivers"]["plc"]["settings"]["request_timeout_s"] = 5.0
+    doc["state"] = {"directory": str(directory / "state")}
+    doc["recorder"] = {"enabled": True, "directory": str(directory / "records")}
+    doc["control_socket"] = str(directory / "sim.sock")
+    simulated = directory / "simulated.yaml"
+    simulated.write_text(yaml.safe_dump(doc))
+    del doc["simulation"]
+    doc["control_socket"] = str(directory / "real.sock")
+    real = directory / "real.yaml"
+    real.write_text(yaml.safe_dump(doc))
+    return simulated, real
