@@ -23,8 +23,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from compd.errors import DataFileError, ModelError, ModelFileError
+from compd.files.equations import kept_periods
 from compd.files.modelfile import ModelFile, parse_model
-from compd.files.modelschema import ProvenanceDoc, ResidualDoc, ResidualFiguresDoc
+from compd.files.modelschema import ModelDoc, ResidualDoc, ResidualFiguresDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.files.sidecar import FOREST_ARRAYS, sidecar_bytes, sidecar_path
 from compd.model.residual import DEFAULT_TIME_CONSTANTS_S, DoorFeatures, Forest, ResidualModel
@@ -231,7 +232,7 @@ def stack_on_model(
     units = model_file.signal_units() or {}
     return _stack(
         base,
-        model_file.doc.provenance,
+        model_file.doc,
         data.column(measured) - evaluation.predicted(predicted),
         data,
         model_path,
@@ -245,7 +246,7 @@ def stack_on_model(
 
 def _stack(
     base: Model,
-    provenance: ProvenanceDoc,
+    parent: ModelDoc,
     residue: np.ndarray,
     data: DataSet,
     model_path: str | Path,
@@ -298,6 +299,7 @@ def _stack(
         f"{fit.tf_alone.peak_to_peak_um:.3f} -> {fit.stacked.peak_to_peak_um:.3f} um, RMS "
         f"{fit.tf_alone.rms_um:.3f} -> {fit.stacked.rms_um:.3f} um"
     )
+    provenance = parent.provenance
     notes = "; ".join(filter(None, [provenance.notes, note]))
     text = model_to_yaml(
         model,
@@ -305,5 +307,12 @@ def _stack(
         signals={s: units.get(s) or unit_of(s) for s in model.signals()},
         provenance=provenance.model_copy(update={"notes": notes}),
         residuals={output: doc},
+        # What the forest does not change stays the parent's: the inputs' consistency checks
+        # (the daemon's stand-ins), the probe prior (its sub-models' coefficients are the same;
+        # its residue is the TF's alone, so probes are trusted as much as the parent's, not more)
+        # and the loop periods the parent ran at without converting.
+        consistency=parent.consistency,
+        probe_prior=parent.probe_prior,
+        run_periods_s=kept_periods(parent.difference_equations),
     )
     return StackedFit(model, fit, text, name, sidecar)

@@ -69,6 +69,21 @@ def test_stacked_model_file_names_its_checked_sidecar(models) -> None:
     assert np.isfinite(block.calibration_stacked.peak_to_peak_um)
 
 
+def keeps_what_the_forest_does_not_change(parent: Path, stacked: Path) -> None:
+    """The stacked file carries its parent's input checks, probe prior and loop periods."""
+    before, after = load_model(parent), load_model(stacked)
+    assert before.doc.consistency is not None and before.doc.probe_prior
+    assert after.doc.consistency == before.doc.consistency
+    assert after.doc.probe_prior == before.doc.probe_prior
+    assert set(before.runnable_periods_s()) <= set(after.runnable_periods_s())
+
+
+def test_stacked_model_keeps_the_plain_fits_input_checks_and_probe_prior(models) -> None:
+    """`compd fit --residual-model` writes the sensor consistency checks and probe prior the plain fit writes."""
+    plain, stacked, _ = models
+    keeps_what_the_forest_does_not_change(plain, stacked)
+
+
 def test_fit_refuses_a_record_without_door_openings(folder: Path) -> None:
     """Calibration data in which the door never opens is refused with the column and a fix."""
     calibration = twin(folder, "calibration", 4, seed=9)  # twin() names files by scenario and seed
@@ -83,12 +98,14 @@ def test_fit_refuses_a_record_without_door_openings(folder: Path) -> None:
 
 
 def test_residual_command_stacks_a_forest_on_a_model_without_door(folder: Path, models) -> None:
-    """`compd residual` on a model fitted without door openings cuts unseen residue RMS >= 70 %, p-p >= 40 %."""
+    """`compd residual` on a model fitted without door openings cuts unseen residue RMS >= 70 %, p-p >= 40 %,
+    and keeps what the forest does not change (input checks, probe prior, the parent's loop periods)."""
     _, _, run = models
     calibration = twin(folder, "calibration", 24, seed=1)
     base, stacked = folder / "no-door.yaml", folder / "no-door-stacked.yaml"
     fit = ("fit", "--data", calibration, "--output", "disp_z_um", "--inputs", BASE_INPUTS)
     compd(*fit, "--out", base)
+    compd("model", "compile", base, "--period-s", 2)  # a period the parent alone carries
     door_run = twin(folder, "door", 24, seed=1)
     summary = compd_json("residual", base, door_run, *FOREST, "--verify", run, "--out", stacked)
     alone, both = summary["verify"]["model_alone"], summary["verify"]["stacked"]
@@ -96,6 +113,8 @@ def test_residual_command_stacks_a_forest_on_a_model_without_door(folder: Path, 
     assert both["peak_to_peak_um"] <= 0.60 * alone["peak_to_peak_um"], (alone, both)
     unseen = compd_json("compare", stacked, run)["outputs"]["disp_z_um"]
     assert unseen["rms_um"] == pytest.approx(both["rms_um"], abs=1e-9)
+    keeps_what_the_forest_does_not_change(base, stacked)
+    assert 2.0 in load_model(stacked).runnable_periods_s()
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
         code = main(["residual", str(stacked), str(door_run), "--out", str(folder / "twice.yaml")])
