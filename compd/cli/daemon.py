@@ -72,7 +72,7 @@ def plausibility_line(model_file: ModelFile, doc: ConfigDoc) -> str:
 def _probe_bounds(config: Any, output: str) -> str:
     """What the daemon takes of an axis's probes: one per gap, within physics, the shift a person accepts."""
     from compd.files.probeprior import output_prior
-    from compd.model.probelearner import output_columns
+    from compd.model.proberegressors import output_columns
     from compd.model.probesettings import ProbeSettings, max_probe_um
 
     doc = config.doc

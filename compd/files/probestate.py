@@ -34,7 +34,8 @@ from typing import Any
 
 from compd.errors import ModelError
 from compd.files.unreadable import finite, json_int, set_aside, write_atomic
-from compd.model.probelearner import RESTORE_SKEW_S, OutputLearner, RegressorWindow
+from compd.model.probelearner import RESTORE_SKEW_S, OutputLearner
+from compd.model.proberegressors import RegressorWindow
 from compd.model.probesettings import ProbeSettings
 from compd.model.probeupdate import ProbeStep
 from compd.model.updateprior import Prior

@@ -27,8 +27,8 @@ within a run (in the daemon: unix seconds, the loop's time mapped to the
 wall clock once at start, as ``Compensator.wall_at`` does): the state
 carries the last probe's time, and probes come in time order.
 
-:func:`probed_thermal_error_um` is the one place where what a probe measures
-becomes what the model predicts. numpy only: no files, no logging.
+What a probe is regressed on (an output's columns, the kept rows, the probed
+output) is :mod:`compd.model.proberegressors`. numpy only: no files, no logging.
 """
 
 from __future__ import annotations
@@ -36,19 +36,18 @@ from __future__ import annotations
 import math
 import operator
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from compd.errors import ModelError
-from compd.model.compiled import CompiledModel
 from compd.model.learnerstate import restore_into, state_of
 from compd.model.probebank import UpdaterBank
 from compd.model.probebounds import (
     RESTORE_SKEW_S,
     SIMULATED_SKEW_S,
 )
+from compd.model.proberegressors import KeptRows, RegressorWindow
 from compd.model.probesettings import ProbeSettings
 from compd.model.probeupdate import ProbeStep
 
@@ -56,19 +55,12 @@ __all__ = [
     "RESTORE_SKEW_S",
     "SIMULATED_SKEW_S",
     "OutputLearner",
-    "RegressorWindow",
     "ShiftRefused",
-    "output_columns",
-    "probed_thermal_error_um",
 ]
 from compd.model.updateprior import Prior
 
 #: The regressors since the last probe the departure bound is held over, at most this many.
 RECENT_ROWS = 240
-#: The daemon keeps one regressor row per this many seconds ...
-DEFAULT_ROW_EVERY_S = 60.0
-#: ... over this long: a touch older than this is refused (a shift's gauge results typed in late).
-DEFAULT_KEEP_S = 12 * 3600.0
 #: A touch up to this far after the last tick observed takes that tick's regressor (the clocks
 #: of a PLC and the daemon, or a person typing "now", differ by a tick or two).
 AHEAD_SLACK_S = 5.0
@@ -76,110 +68,6 @@ AHEAD_SLACK_S = 5.0
 
 class ShiftRefused(ModelError):
     """An update that would take the learned bias beyond ``max_shift_um``: not applied."""
-
-
-def output_columns(compiled: CompiledModel, output: str) -> tuple[np.ndarray, tuple[str, ...]]:
-    """``output``'s sub-models: their columns in the model's contributions, and their names.
-
-    The regressor of a tick is ``x = (contributions[columns], 1)``; the
-    names, then :data:`~compd.model.updateprior.BIAS`, are the prior's
-    parameters (:func:`compd.files.probeprior.output_prior`).
-    """
-    if output not in compiled.output_names:
-        raise ModelError(f"model {compiled.name!r} has no output {output!r}")
-    columns = np.flatnonzero(compiled.output_matrix[compiled.output_names.index(output)])
-    names = tuple(compiled.submodels[int(s)].name for s in columns)
-    return columns, names
-
-
-def probed_thermal_error_um(residue_um: float, offset_um: float, sign: float) -> float:
-    """The thermal error the model predicts, from what a probe measures with compensation active.
-
-    The machine applies the offset compd writes to the tool centre point
-    (:mod:`compd.sim.plc.machine`)::
-
-        residue_um = e_um + offset_um,    offset_um = sign * y_um   (compd.service.loop.compensator)
-
-    where ``e_um`` is the axis's thermal error and ``y_um`` the model's
-    output: compensation is perfect when ``e_um = -sign * y_um``. So the
-    output the model should have given is::
-
-        y_um = -sign * e_um = sign * (offset_um - residue_um)
-
-    (``sign`` = -1, the default: ``y_um = residue_um - offset_um``, the residue
-    plus the correction in force). ``residue_um``: the probe's deviation
-    along the axis, the same sense as the axis's offset; ``offset_um``: the
-    offset in force at the touch instant, in um as written to the PLC
-    (before the point's ``scale``); ``sign``: the axis's ``sign`` (+-1).
-    Without compensation (offset 0) the residue is the thermal error itself.
-    """
-    if sign not in (-1.0, 1.0):
-        raise ModelError(f"an axis sign is +1 or -1, not {sign!r}")
-    if not (math.isfinite(residue_um) and math.isfinite(offset_um)):
-        raise ModelError(
-            f"a probe's residue ({residue_um!r} um) and the offset in force ({offset_um!r} um) "
-            "must be finite"
-        )
-    return float(sign * (offset_um - residue_um))
-
-
-@dataclass(frozen=True)
-class RegressorWindow:
-    """How the regressors are kept: one row per ``row_every_s`` bin (0: every tick) over ``keep_s``."""
-
-    row_every_s: float = DEFAULT_ROW_EVERY_S
-    keep_s: float = DEFAULT_KEEP_S
-
-    def __post_init__(self) -> None:
-        if not (self.row_every_s >= 0.0 and self.keep_s > 0.0):
-            raise ModelError(
-                f"regressor window: row_every_s must be >= 0 and keep_s above 0, are "
-                f"{self.row_every_s!r} and {self.keep_s!r}"
-            )
-
-
-class _Rows:
-    """Time-ordered rows ``(t_s, x, fixed_um)`` in one growing array, the oldest dropped past ``keep_s``.
-
-    Appending is amortised O(p): the live rows are moved to the front only
-    when the array is full, and the array doubles only when more than half
-    of it is live.
-    """
-
-    def __init__(self, p: int, keep_s: float, capacity: int = 64) -> None:
-        self.keep_s = keep_s
-        self.t_s = np.empty(capacity)
-        self.x = np.empty((capacity, p))
-        self.fixed_um = np.empty(capacity)
-        self.lo = self.hi = 0
-
-    def __len__(self) -> int:
-        return self.hi - self.lo
-
-    def append(self, t_s: np.ndarray, x: np.ndarray, fixed_um: np.ndarray) -> None:
-        n = len(t_s)
-        if self.hi + n > len(self.t_s):
-            live = len(self)
-            size = len(self.t_s)
-            while live + n > size // 2:
-                size *= 2
-            for name in ("t_s", "x", "fixed_um"):
-                old = getattr(self, name)
-                new = np.empty((size, *old.shape[1:]))
-                new[:live] = old[self.lo : self.hi]
-                setattr(self, name, new)
-            self.lo, self.hi = 0, live
-        self.t_s[self.hi : self.hi + n] = t_s
-        self.x[self.hi : self.hi + n] = x
-        self.fixed_um[self.hi : self.hi + n] = fixed_um
-        self.hi += n
-        if math.isfinite(self.keep_s):
-            oldest = self.t_s[self.hi - 1] - self.keep_s
-            self.lo += int(np.searchsorted(self.t_s[self.lo : self.hi], oldest, side="left"))
-
-    def view(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        part = slice(self.lo, self.hi)
-        return self.t_s[part], self.x[part], self.fixed_um[part]
 
 
 class OutputLearner:
@@ -203,7 +91,7 @@ class OutputLearner:
         self.window = window or RegressorWindow()
         self.updater = UpdaterBank(prior, settings)
         p = len(prior.names)
-        self._rows = _Rows(p, self.window.keep_s)
+        self._rows = KeptRows(p, self.window.keep_s)
         self._bin = -math.inf  # the row bin of the last kept row
         #: The last tick: its time, regressor (Python floats: the tick enters no numpy) and
         #: unscaled part.

@@ -30,13 +30,8 @@ import numpy as np
 from compd.errors import DataFileError
 from compd.files.probeprior import OutputPrior, output_prior
 from compd.model.metrics import Comparison
-from compd.model.probelearner import (
-    RECENT_ROWS,
-    OutputLearner,
-    RegressorWindow,
-    ShiftRefused,
-    output_columns,
-)
+from compd.model.probelearner import RECENT_ROWS, OutputLearner, ShiftRefused
+from compd.model.proberegressors import RegressorWindow, output_columns
 from compd.model.probesettings import DEFAULT_PROBE_INTERVAL_S, ProbeSettings
 from compd.model.probeupdate import ProbeStep
 from compd.toolkit.evaluate import Evaluation

@@ -28,7 +28,8 @@ from compd.files.modelschema import ProbePriorDoc, ProbeUpdateDoc, ProbeUsedDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.files.probeprior import output_prior, probe_prior_doc
 from compd.files.probestate import ProbeRecord, learned_path, read_log, restore_learners
-from compd.model.probelearner import OutputLearner, output_columns
+from compd.model.probelearner import OutputLearner
+from compd.model.proberegressors import output_columns
 from compd.model.probesettings import ProbeSettings
 from compd.model.structure import Output
 from compd.model.updateprior import Prior

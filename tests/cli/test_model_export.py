@@ -14,7 +14,8 @@ from compd.files.modelfile import load_model
 from compd.files.probeprior import output_prior
 from compd.files.probestate import ProbeRecord, append_record, learned_path, save_learned
 from compd.model.metrics import fit_percent
-from compd.model.probelearner import OutputLearner, output_columns
+from compd.model.probelearner import OutputLearner
+from compd.model.proberegressors import output_columns
 from compd.model.probesettings import ProbeSettings
 from compd.model.run import TickRunner
 from compd.toolkit.evaluate import evaluate

@@ -10,7 +10,8 @@ import pytest
 
 from compd.errors import ModelError
 from compd.model.probebank import MEMBERS, UpdaterBank
-from compd.model.probelearner import OutputLearner, RegressorWindow
+from compd.model.probelearner import OutputLearner
+from compd.model.proberegressors import RegressorWindow
 from compd.model.probesettings import ProbeSettings, parameter_bounds
 from compd.model.updateprior import BIAS, Prior, coefficient_prior
 

@@ -12,13 +12,8 @@ import pytest
 
 from compd.errors import ModelError
 from compd.model.probebank import UpdaterBank
-from compd.model.probelearner import (
-    RECENT_ROWS,
-    OutputLearner,
-    RegressorWindow,
-    ShiftRefused,
-    probed_thermal_error_um,
-)
+from compd.model.probelearner import RECENT_ROWS, OutputLearner, ShiftRefused
+from compd.model.proberegressors import RegressorWindow, probed_thermal_error_um
 from compd.model.probesettings import ProbeSettings
 from compd.model.updateprior import BIAS, Prior
 

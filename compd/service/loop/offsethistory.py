@@ -2,7 +2,7 @@
 
 What a probe measures with compensation on is the residue; the thermal error
 the model should have predicted is the residue plus the offset in force when
-the probe touched (:func:`compd.model.probelearner.probed_thermal_error_um`),
+the probe touched (:func:`compd.model.proberegressors.probed_thermal_error_um`),
 so the loop keeps that offset over :data:`OFFSET_HISTORY_S`.
 """
 

@@ -11,7 +11,7 @@ touched. Each tick, after the model has stepped, :class:`ProbeLearning`
 2. takes the probes that arrived: what a probe measures with compensation on
    is the residue, so the thermal error the model should have predicted is the
    residue plus the offset in force at the touch instant
-   (:func:`~compd.model.probelearner.probed_thermal_error_um`, the one place
+   (:func:`~compd.model.proberegressors.probed_thermal_error_um`, the one place
    the sign is decided); the update, its guard rails and its flagging of a
    probe far from the prediction are :mod:`compd.model.probeupdate`'s;
 3. gives each output's learned adjustment, which the compensator adds to the
@@ -45,7 +45,8 @@ import structlog
 from compd.errors import ModelError
 from compd.faultlog import FaultLog
 from compd.files.probeprior import output_prior
-from compd.model.probelearner import OutputLearner, output_columns, probed_thermal_error_um
+from compd.model.probelearner import OutputLearner
+from compd.model.proberegressors import output_columns, probed_thermal_error_um
 from compd.model.probesettings import MAX_PROBE_UM, ProbeSettings, max_probe_um
 from compd.model.updateprior import Prior
 from compd.service.loop.offsethistory import OFFSET_HISTORY_S, OffsetHistory
