@@ -24,6 +24,7 @@ from compd.files.modelfile import ModelFile
 from compd.files.modelschema import CalibrationDoc, ExtensionDoc, TriedDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.structure import Model
+from compd.toolkit.derived import kept_priors, kept_residuals
 from compd.toolkit.extendjudge import HeldOut
 from compd.toolkit.fitmodel import unit_of
 
@@ -122,7 +123,9 @@ def extension_yaml(
         description=extended_description(doc.description, signal, record.submodels),
         signals=units,
         provenance=provenance,
+        residuals=kept_residuals(parent),
         consistency=doc.consistency,
+        probe_prior=kept_priors(parent, model)[0],
         run_periods_s=kept_periods(doc.difference_equations),
     )
 

@@ -149,3 +149,15 @@ def test_update_of_a_stacked_model_keeps_its_forest_and_says_the_prior_is_gone(
     assert not load_model(derived).doc.probe_prior
     assert any("probe prior" in note for note in summary["notes"]), summary["notes"]
 
+
+def test_extend_of_a_stacked_model_keeps_its_forest(folder: Path, models, tmp_path: Path) -> None:
+    """`compd extend` of a stacked model, written elsewhere, keeps its forest and says its probe prior is gone."""
+    _, stacked, _ = models
+    cutting = twin(folder, "cutting", 16, seed=2)
+    derived = tmp_path / "elsewhere" / "extended.yaml"
+    derived.parent.mkdir()
+    summary = compd_json(
+        "extend", stacked, cutting, "--effect", "spindle_power_kw", "--force", "--out", derived
+    )
+    derived_keeps_the_forest(stacked, derived)
+    assert any("probe prior" in note for note in summary["notes"]), summary["notes"]
