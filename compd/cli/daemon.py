@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from compd.cli.args import EXIT_NOT_CONNECTED
 from compd.cli.serving import config_from_arg, configure_logging
+from compd.cli.unguarded import envelope_line
 from compd.drivers.base import address_note
 from compd.drivers.registry import load_driver_type
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
@@ -69,8 +70,9 @@ def plausibility_line(model_file: ModelFile, doc: ConfigDoc) -> str:
     return line
 
 
-def _probe_bounds(config: Any, output: str) -> str:
-    """What the daemon takes of an axis's probes: one per gap, within physics, the shift a person accepts."""
+def _probe_bounds(config: Any, output: str) -> list[str]:
+    """What the daemon takes of an axis's probes: one per gap, within physics, the shift a person
+    accepts; and, where so, that its update starts from the default prior (the daemon logs it too)."""
     from compd.files.probeprior import output_prior
     from compd.model.probelearner import output_columns
     from compd.model.probesettings import ProbeSettings, max_probe_um
@@ -79,16 +81,18 @@ def _probe_bounds(config: Any, output: str) -> str:
     probes = doc.probes
     model_file = load_model(installed_model(config.state_dir) or config.model_path)
     _, names = output_columns(model_file.compile(doc.period_s, convert=False), output)
-    prior = output_prior(model_file, output, names).prior
+    found = output_prior(model_file, output, names)
+    prior = found.prior
     settings = ProbeSettings.defaults(
         prior, interval_s=probes.every_h * 3600.0, **probes.overrides()
     )
-    return (
+    line = (
         f"one taken per {probes.min_gap_s:g} s of touch time (a resend answered as it was); "
         f"|value| <= {max_probe_um(prior):g} um; the learned shift within "
         f"{settings.max_shift_um:.1f} um unless a person accepts more "
         "(compd model probe --accept-shift)"
     )
+    return [line] if found.note is None else [line, f"note: {found.note}"]
 
 
 def check_config_command(args: argparse.Namespace) -> int:
@@ -101,6 +105,7 @@ def check_config_command(args: argparse.Namespace) -> int:
     # a config is "ok" or an error, never both.
     sim = _simulated_machine(config)
     probe_lines = _probe_lines(config)
+    model_file = None
     if config.model_path is None:
         out.print(Text.assemble(("ok", "green"), f": {config.path}"))
         out.print(
@@ -143,6 +148,19 @@ def check_config_command(args: argparse.Namespace) -> int:
             f"  axis {axis}: {o.sign:+d} x {o.model_output} -> {o.driver}:{o.address}, "
             f"|offset| <= {o.max_offset_um:g} um, <= {o.max_rate_um_per_s:g} um/s"
         )
+        if model_file is not None:
+            safety = doc.safety
+            out.print(
+                "    "
+                + envelope_line(
+                    model_file,
+                    o.model_output,
+                    safety.envelope_margin,
+                    safety.envelope_after_s,
+                    o.max_offset_um,
+                ),
+                markup=False,
+            )
     for line in probe_lines:
         out.print(line)
     if sim is not None:
@@ -185,7 +203,7 @@ def _probe_lines(config: Config) -> list[str]:
             f"count {reg.counter_address}, echo {reg.echo_address}"
         )
         lines.append(f"  probes {axis}: {probes.measures}, due every {probes.every_h:g} h; {where}")
-        lines.append(f"    {_probe_bounds(config, doc.outputs[axis].model_output)}")
+        lines += [f"    {line}" for line in _probe_bounds(config, doc.outputs[axis].model_output)]
     return lines
 
 

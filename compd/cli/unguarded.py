@@ -1,0 +1,53 @@
+"""What a model file leaves a daemon without, said by ``compd model check`` and ``compd check-config``.
+
+A model file written by hand, by an older compd, or derived by a command that
+could not keep everything (``compd extend`` changes the coefficients its probe
+prior describes) still runs: these lines say what runs without, rather than
+an unqualified "ok". The daemon logs the same at its start.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from compd.files.modelfile import ModelFile
+    from compd.model.compiled import CompiledModel
+
+
+def prior_note(model_file: ModelFile, compiled: CompiledModel, output: str) -> str | None:
+    """Why ``output``'s probe update would start from the conservative default; None: the calibration's."""
+    from compd.files.probeprior import output_prior
+    from compd.model.probelearner import output_columns
+
+    _, names = output_columns(compiled, output)
+    return output_prior(model_file, output, names).note
+
+
+def no_envelope_note(model_file: ModelFile, output: str, clamp: str) -> str | None:
+    """What judges ``output``'s offset when the file records no calibrated range of it; None: it does."""
+    if model_file.output_range(output) is not None:
+        return None
+    return (
+        f"{output}: the model file records no calibrated range of it (no provenance.calibration "
+        f"range, no probe prior): {clamp} alone judges its offset, an offset extrapolated beyond "
+        "anything calibrated is written as long as it is inside the clamp; refit with compd fit "
+        "to record one"
+    )
+
+
+def envelope_line(
+    model_file: ModelFile, output: str, margin: float | None, after_s: float, clamp_um: float
+) -> str:
+    """How the daemon judges the offset of the axis that writes ``output`` (:mod:`compd.service.loop.envelope`)."""
+    clamp = f"the clamp (|offset| <= {clamp_um:g} um)"
+    if margin is None:
+        return f"note: envelope_margin: null: {clamp} alone judges its offset"
+    note = no_envelope_note(model_file, output, clamp)
+    if note is not None:
+        return f"note: {note}"
+    low, high = model_file.output_range(output) or (0.0, 0.0)
+    return (
+        f"envelope: {output} {low:.4g}..{high:.4g} um over the calibration, widened by "
+        f"{margin:.0%} of its span; outside it or at the clamp for {after_s:g} s the axis is faulted"
+    )

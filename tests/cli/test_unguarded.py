@@ -1,0 +1,66 @@
+"""``compd model check`` and ``compd check-config`` say what a model file leaves the daemon without, not a bare ok."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from tests.acceptance.conftest import machine_doc, write_config
+from tests.clirun import compd
+
+BUNDLED_MODEL = Path(__file__).resolve().parents[2] / "config" / "simulated_model.yaml"
+SIMULATION = {"scenario": "production", "hours": 1, "seed": 1}
+
+
+def without_calibration(folder: Path) -> Path:
+    """The bundled model as a hand-written or older file has it: no calibration ranges, no probe prior."""
+    doc = yaml.safe_load(BUNDLED_MODEL.read_text())
+    del doc["probe_prior"], doc["provenance"]["calibration"]
+    path = folder / "bare-model.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def said(*argv: object) -> str:
+    return " ".join(compd(*argv).split())
+
+
+def test_model_check_notes_a_model_without_envelope_or_probe_prior(tmp_path: Path) -> None:
+    """A file without calibration ranges and probe prior: model check names both losses and the fix."""
+    text = said("model", "check", without_calibration(tmp_path))
+    assert "disp_z_um: the model file records no calibrated range of it" in text
+    assert "a daemon's clamp alone judges its offset" in text
+    assert (
+        "has no probe_prior for it: the probe update starts from the conservative default" in text
+    )
+    assert text.count("refit with compd fit") == 2
+    bundled = said("model", "check", BUNDLED_MODEL)
+    assert "no calibrated range" not in bundled and "probe_prior" not in bundled
+
+
+def test_check_config_says_what_judges_each_axis_offset(tmp_path: Path) -> None:
+    """check-config states each axis's calibrated envelope, or that the clamp alone judges its offset."""
+    bundled = write_config(tmp_path, machine_doc(tmp_path, BUNDLED_MODEL, simulation=SIMULATION))
+    text = said("check-config", bundled.path)
+    assert (
+        "envelope: disp_z_um -98.38..7.064 um over the calibration, widened by 25% of its span"
+        in text
+    )
+    bare = machine_doc(tmp_path, without_calibration(tmp_path), simulation=SIMULATION)
+    text = said("check-config", write_config(tmp_path, bare, "bare.yaml").path)
+    assert "records no calibrated range of it" in text
+    assert "the clamp (|offset| <= 150 um) alone judges its offset" in text
+    bare["safety"] = {"envelope_margin": None}
+    text = said("check-config", write_config(tmp_path, bare, "off.yaml").path)
+    assert "envelope_margin: null: the clamp (|offset| <= 150 um) alone judges its offset" in text
+
+
+def test_check_config_says_a_probed_axis_starts_from_the_default_prior(tmp_path: Path) -> None:
+    """A probed axis whose model has no probe prior: check-config says the update starts from the default."""
+    probes = {"axes": {"Z": None}}
+    doc = machine_doc(tmp_path, without_calibration(tmp_path), simulation=SIMULATION, probes=probes)
+    text = said("check-config", write_config(tmp_path, doc).path)
+    assert "note: disp_z_um: the model file has no probe_prior for it" in text
+    doc = machine_doc(tmp_path, BUNDLED_MODEL, simulation=SIMULATION, probes=probes)
+    assert "probe_prior" not in said("check-config", write_config(tmp_path, doc, "ok.yaml").path)
