@@ -19,6 +19,7 @@ from compd.errors import ModelError, ModelFileError
 from compd.files.equations import MAX_PERIODS, with_equations
 from compd.files.modelfile import load_model, parse_model_bytes
 from compd.files.modelwriter import equations_lines
+from compd.files.sidecar import copy_sidecars, residual_files
 from compd.files.unreadable import write_atomic
 from compd.files.yamlplace import read_limited
 from compd.model.precompiled import (
@@ -78,6 +79,8 @@ def compile_file(source: Path, periods_s: Iterable[float], out: Path | None = No
     raw = read_limited(Path(model_file.path), ModelFileError)
     text = with_equations(raw.decode("utf-8"), equations_lines(model, sets))
     destination = Path(model_file.path) if out is None else out
+    # A stacked model's forest goes with it: the copy names the same sidecar beside itself.
+    copy_sidecars(residual_files(model_file.doc), model_file.path, destination)
     written = text.encode("utf-8")
     checked = parse_model_bytes(written, destination)  # what it writes, compd reads
     mode = destination.stat().st_mode & 0o777 if destination.exists() else None

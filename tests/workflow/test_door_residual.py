@@ -161,3 +161,15 @@ def test_extend_of_a_stacked_model_keeps_its_forest(folder: Path, models, tmp_pa
     )
     derived_keeps_the_forest(stacked, derived)
     assert any("probe prior" in note for note in summary["notes"]), summary["notes"]
+
+
+def test_compile_of_a_stacked_model_into_another_folder_takes_its_forest(
+    models, tmp_path: Path
+) -> None:
+    """`compd model compile --out` elsewhere writes a stacked model that loads, its forest beside it."""
+    _, stacked, _ = models
+    copy = tmp_path / "elsewhere" / "compiled.yaml"
+    copy.parent.mkdir()
+    compd("model", "compile", stacked, "--period-s", 2, "--out", copy)
+    assert 2.0 in load_model(copy).runnable_periods_s()
+    assert load_model(copy).model.outputs[0].residual is not None
