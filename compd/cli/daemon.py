@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from compd.cli.args import EXIT_NOT_CONNECTED
 from compd.cli.serving import config_from_arg, configure_logging
-from compd.cli.unguarded import envelope_line
+from compd.cli.unguarded import envelope_line, load_notes
 from compd.drivers.base import address_note
 from compd.drivers.registry import load_driver_type
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
@@ -431,6 +431,8 @@ async def model_load(config: Config, model_path: Path) -> int:
     model_path = model_source(model_path)  # bundled:NAME as `compd model check` reads it
     raw = read_limited(model_path, ModelFileError)
     slot = slot_from_bytes(config, raw, model_path, 0.0)
+    # It runs, but without what the file lacks: said once it is installed or loaded.
+    notes = [f"note: {n}" for n in load_notes(config, slot.model_file, slot.compiled)]
     try:
         reply = await request(
             config.control_socket, load_request(raw, model_path), timeout_s=LOAD_TIMEOUT_S + 10
@@ -442,6 +444,7 @@ async def model_load(config: Config, model_path: Path) -> int:
         else:
             print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {installed}")
         print(f"no daemon runs ({exc}); it will start with this model", file=sys.stderr)
+        _say(notes)
         return 0
     except ControlError as exc:
         raise ControlError(
@@ -460,7 +463,13 @@ async def model_load(config: Config, model_path: Path) -> int:
         return 0
     print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {reply.get('installed')}")
     print(f"the daemon is switching to it, blended over {reply.get('blend_s', 0):g} s")
+    _say(notes)
     return 0
+
+
+def _say(notes: list[str]) -> None:
+    for note in notes:
+        print(note, file=sys.stderr)
 
 
 def install_signal_handlers(service: Service) -> None:

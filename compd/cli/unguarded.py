@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from compd.files.modelfile import ModelFile
     from compd.model.compiled import CompiledModel
+    from compd.service.config.loading import Config
 
 
 def prior_note(model_file: ModelFile, compiled: CompiledModel, output: str) -> str | None:
@@ -51,3 +52,24 @@ def envelope_line(
         f"envelope: {output} {low:.4g}..{high:.4g} um over the calibration, widened by "
         f"{margin:.0%} of its span; outside it or at the clamp for {after_s:g} s the axis is faulted"
     )
+
+
+def load_notes(config: Config, model_file: ModelFile, compiled: CompiledModel) -> list[str]:
+    """What the daemon runs ``model_file`` without, under ``config`` (``compd model load`` says it)."""
+    doc = config.doc
+    notes = []
+    if doc.plausibility.enabled and model_file.consistency() is None:
+        notes.append(
+            f"{model_file.path} has no consistency model: the daemon checks its inputs one by "
+            "one, a wrong reading within its limits is not caught and no input has a stand-in; "
+            "refit with compd fit to add one"
+        )
+    for o in doc.outputs.values():
+        clamp = f"the clamp (|offset| <= {o.max_offset_um:g} um)"
+        if doc.safety.envelope_margin is not None:
+            notes.append(no_envelope_note(model_file, o.model_output, clamp) or "")
+    probes = doc.probes
+    if probes is not None and probes.enabled:
+        for axis in probes.axes:
+            notes.append(prior_note(model_file, compiled, doc.outputs[axis].model_output) or "")
+    return [note for note in notes if note]

@@ -5,9 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import yaml
+from structlog.testing import capture_logs
 
-from tests.acceptance.conftest import machine_doc, write_config
-from tests.clirun import compd
+from tests.acceptance.conftest import machine_doc, simulate, write_config
+from tests.clirun import compd, compd_result
 
 BUNDLED_MODEL = Path(__file__).resolve().parents[2] / "config" / "simulated_model.yaml"
 SIMULATION = {"scenario": "production", "hours": 1, "seed": 1}
@@ -64,3 +65,35 @@ def test_check_config_says_a_probed_axis_starts_from_the_default_prior(tmp_path:
     assert "note: disp_z_um: the model file has no probe_prior for it" in text
     doc = machine_doc(tmp_path, BUNDLED_MODEL, simulation=SIMULATION, probes=probes)
     assert "probe_prior" not in said("check-config", write_config(tmp_path, doc, "ok.yaml").path)
+
+
+def test_model_load_says_what_the_new_model_runs_without(tmp_path: Path) -> None:
+    """compd model load of a file without consistency, envelope and probe prior names each loss, the fix with it."""
+    doc = machine_doc(tmp_path, BUNDLED_MODEL, simulation=SIMULATION, probes={"axes": {"Z": None}})
+    config = write_config(tmp_path, doc)
+    bare = yaml.safe_load(without_calibration(tmp_path).read_text())
+    del bare["consistency"]
+    model = tmp_path / "no-checks.yaml"
+    model.write_text(yaml.safe_dump(bare, sort_keys=False))
+    code, _, err = compd_result("model", "load", model, "--config", config.path)
+    text = " ".join(err.split())
+    assert code == 0, err
+    assert (
+        "no-checks.yaml has no consistency model: the daemon checks its inputs one by one" in text
+    )
+    assert "records no calibrated range of it" in text and "has no probe_prior for it" in text
+    code, _, err = compd_result("model", "load", BUNDLED_MODEL, "--config", config.path)
+    assert code == 0 and "note:" not in err, err
+
+
+def test_the_daemon_warns_when_its_model_has_no_consistency_check(tmp_path: Path) -> None:
+    """A daemon whose config checks plausibility, running a model without consistency, logs a warning."""
+    bare = yaml.safe_load(BUNDLED_MODEL.read_text())
+    del bare["consistency"]
+    model = tmp_path / "no-checks.yaml"
+    model.write_text(yaml.safe_dump(bare, sort_keys=False))
+    config = write_config(tmp_path, machine_doc(tmp_path, model, simulation=SIMULATION))
+    with capture_logs() as logs:
+        simulate(config, duration_s=5.0)
+    warned = [e for e in logs if e["log_level"] == "warning" and "consistency" in e["event"]]
+    assert warned and warned[0]["model"] == "twin-z", logs
