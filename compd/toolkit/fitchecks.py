@@ -7,6 +7,7 @@ it takes; every check here only reads the data set and raises
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -65,6 +66,52 @@ def check_arguments(
                 where=f"column {column!r}",
                 fix="Leave it out of --inputs, or calibrate on data in which it varies",
             )
+    check_units(data, output, inputs)
+
+
+#: A displacement's name ending in a length unit other than um: compd's outputs are in um.
+_LENGTH_UNIT = re.compile(r"_(mm|m|nm|cm|in|inch|mil)$", re.IGNORECASE)
+#: Machine-tool temperatures in degC lie far below this; kelvin far above it.
+_KELVIN_OR_DEGC_SPLIT = 150.0
+
+
+def check_units(data: DataSet, output: str, inputs: Sequence[str]) -> None:
+    """Refuse what a column's name says against what it holds: a constant or non-um output, a
+    temperature in kelvin named degC (or the reverse); fitted, each is a model wrong by a factor
+    or an offset that no figure of the fit shows."""
+    values = data.column(output)
+    if np.ptp(values) == 0.0:
+        raise DataFileError(
+            data.path,
+            f"the output column {output!r} is constant ({values[0]:g}) over the whole record: "
+            "there is no displacement to model",
+            where=f"column {output!r}",
+            fix="Name the measured displacement column with --output",
+        )
+    if (unit := _LENGTH_UNIT.search(output)) is not None:
+        raise DataFileError(
+            data.path,
+            f"the output column {output!r} is in {unit.group(1)} by its name; compd's outputs "
+            "(the offsets it writes) are in um, and a fit would take its values as um",
+            where=f"column {output!r}",
+            fix="Convert it to um in a column named ..._um (e.g. disp_z_um), or rename it if it "
+            "already holds um",
+        )
+    for column in inputs:
+        middle = float(np.median(data.column(column)))
+        if column.endswith("_degC") and middle > _KELVIN_OR_DEGC_SPLIT:
+            said, fix = "degC", f"Subtract 273.15 (it reads kelvin), or name it {column[:-5]}_K"
+        elif column.endswith("_K") and middle < _KELVIN_OR_DEGC_SPLIT:
+            said, fix = "K", f"Add 273.15 (it reads degC), or name it {column[:-2]}_degC"
+        else:
+            continue
+        raise DataFileError(
+            data.path,
+            f"input column {column!r} is in {said} by its name, but its median is {middle:g}: "
+            "a machine tool is not that hot or cold, so the unit is likely wrong",
+            where=f"column {column!r}",
+            fix=fix,
+        )
 
 
 def check_position(
