@@ -119,6 +119,7 @@ def _um(value: float | None, *, signed: bool = False) -> str:
 def _export(args: argparse.Namespace) -> int:
     from compd.cli.terminal import console
     from compd.files.modelfile import load_model
+    from compd.files.provenancepaths import with_portable_provenance
     from compd.files.sidecar import copy_sidecars, residual_files
     from compd.files.unreadable import write_atomic
     from compd.toolkit.probeexport import export_updated
@@ -129,7 +130,14 @@ def _export(args: argparse.Namespace) -> int:
     )
     out_path = Path(args.out)
     copy_sidecars(residual_files(model_file.doc), model_file.path, out_path)
-    write_atomic(out_path, exported.text.encode())
+    # The parent's recorded paths are relative to its folder: seen from the new file's.
+    text = with_portable_provenance(
+        exported.text,
+        out_path,
+        parent=model_file.doc.provenance,
+        parent_path=Path(model_file.path),
+    )
+    write_atomic(out_path, text.encode())
     for note in exported.notes:
         print(f"note: {note}", file=sys.stderr)
     out = console()

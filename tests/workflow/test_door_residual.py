@@ -21,6 +21,7 @@ import pytest
 
 from compd.cli import main
 from compd.files.modelfile import load_model
+from compd.report.verdict import fitted_on
 from tests.workflow.test_hidden_effects import BASE_INPUTS, compd, compd_json, twin
 
 FOREST = ("--trees", 30, "--max-depth", 8)
@@ -164,12 +165,15 @@ def test_extend_of_a_stacked_model_keeps_its_forest(folder: Path, models, tmp_pa
 
 
 def test_compile_of_a_stacked_model_into_another_folder_takes_its_forest(
-    models, tmp_path: Path
+    folder: Path, models, tmp_path: Path
 ) -> None:
-    """`compd model compile --out` elsewhere writes a stacked model that loads, its forest beside it."""
+    """`compd model compile --out` elsewhere writes a stacked model that loads, its forest beside it,
+    and still names the record it was fitted on (so a report on it says the figures are not new data)."""
     _, stacked, _ = models
     copy = tmp_path / "elsewhere" / "compiled.yaml"
     copy.parent.mkdir()
     compd("model", "compile", stacked, "--period-s", 2, "--out", copy)
     assert 2.0 in load_model(copy).runnable_periods_s()
     assert load_model(copy).model.outputs[0].residual is not None
+    calibration = str(twin(folder, "door", 24, seed=1).resolve())
+    assert fitted_on(load_model(stacked), calibration) and fitted_on(load_model(copy), calibration)
