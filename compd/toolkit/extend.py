@@ -47,6 +47,7 @@ from compd.toolkit.extendjudge import (
     without_prior,
 )
 from compd.toolkit.extendrecord import ExtensionRecord, Tried, extension_yaml
+from compd.toolkit.fitchecks import check_input_units
 from compd.toolkit.methods import FitMethod, Prepared, method_named, writes_lags
 from compd.toolkit.nestedselect import LAG_BANK
 from compd.toolkit.span import Span, span_data, until_stop
@@ -314,6 +315,7 @@ def check_effect_signal(data: DataSet, signal: str, measured_name: str) -> None:
             f"column {signal!r} is constant, so it cannot explain anything in this record",
             fix="Extend on a record in which the effect varies",
         )
+    check_input_units(data, [signal])
 
 
 def one_output(evaluation: Evaluation, column: str | None) -> tuple[str, str]:

@@ -97,6 +97,12 @@ def check_units(data: DataSet, output: str, inputs: Sequence[str]) -> None:
             fix="Convert it to um in a column named ..._um (e.g. disp_z_um), or rename it if it "
             "already holds um",
         )
+    check_input_units(data, inputs)
+
+
+def check_input_units(data: DataSet, inputs: Sequence[str]) -> None:
+    """Refuse a temperature input in kelvin named degC, or in degC named K: its reference (the
+    thermal zero a model keeps) would be 273 degrees off what the daemon reads."""
     for column in inputs:
         middle = float(np.median(data.column(column)))
         if column.endswith("_degC") and middle > _KELVIN_OR_DEGC_SPLIT:
