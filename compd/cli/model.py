@@ -213,8 +213,10 @@ def _check(args: argparse.Namespace) -> int:
             + ", ".join(f"{s:.3g}" for s in consistency.sigma),
             markup=False,
         )
-    from compd.cli.unguarded import no_envelope_note, prior_note
+    from compd.cli.unguarded import no_envelope_note, prior_note, unchecked_note
 
+    if (unchecked := unchecked_note(model_file, compiled)) is not None:
+        out.print(f"note: {unchecked}", markup=False)
     for output in compiled.output_names:
         notes = (no_envelope_note(model_file, output, "a daemon's clamp"),)
         notes += (prior_note(model_file, compiled, output),)

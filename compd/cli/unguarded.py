@@ -73,3 +73,20 @@ def load_notes(config: Config, model_file: ModelFile, compiled: CompiledModel) -
         for axis in probes.axes:
             notes.append(prior_note(model_file, compiled, doc.outputs[axis].model_output) or "")
     return [note for note in notes if note]
+
+
+def unchecked_note(model_file: ModelFile, compiled: CompiledModel) -> str | None:
+    """The model inputs its consistency model does not predict (e.g. added by ``compd extend``); None: none."""
+    doc = model_file.doc.consistency
+    if doc is None:
+        return None  # said on its own: no consistency model at all
+    inputs = dict.fromkeys(sub.input.signal for sub in compiled.submodels)
+    unchecked = [name for name in inputs if name not in doc.checked]
+    if not unchecked:
+        return None
+    return (
+        f"not checked against the other signals: {', '.join(unchecked)} (model inputs its "
+        "consistency model does not predict, e.g. added by compd extend after the fit): each "
+        "is checked on its own, a wrong reading within its limits is not caught and it has no "
+        "stand-in; refit with compd fit with them among --inputs to check them"
+    )

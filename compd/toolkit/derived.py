@@ -36,3 +36,15 @@ def kept_priors(parent: ModelFile, model: Model) -> tuple[dict[str, ProbePriorDo
         for name in sorted(changed & set(priors))
     ]
     return {n: p for n, p in priors.items() if n not in changed}, notes
+
+
+def consistency_note(parent: ModelFile, signal: str) -> str | None:
+    """Why a new input ``signal`` is not checked against the others: the parent's checks predate it."""
+    doc = parent.doc.consistency
+    if doc is None or signal in doc.checked:
+        return None
+    return (
+        f"{signal}: the consistency checks are the calibration's and do not predict it: the daemon "
+        "checks it on its own (no stand-in, a wrong reading within its limits is not caught); "
+        "refit with compd fit with it among --inputs to check it against the others"
+    )

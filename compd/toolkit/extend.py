@@ -36,7 +36,7 @@ from compd.model.metrics import fit_percent
 from compd.model.structure import InputSpec, Model, SubModel
 from compd.model.transfer import DiscreteTF, resample_discrete
 from compd.toolkit.candidates import guard_findings, refuse_errors
-from compd.toolkit.derived import kept_priors, kept_residuals
+from compd.toolkit.derived import consistency_note, kept_priors, kept_residuals
 from compd.toolkit.evaluate import Evaluation, compare, evaluate_each, measured_columns
 from compd.toolkit.extendjudge import (
     RULE,
@@ -222,7 +222,9 @@ def extend_model(
         findings=findings,
         refitted=prior.signals,
         fell_back=fell_back,
-        notes=tuple(kept_priors(parent, model)[1]),
+        notes=tuple(
+            filter(None, [*kept_priors(parent, model)[1], consistency_note(parent, signal)])
+        ),
     )
 
 

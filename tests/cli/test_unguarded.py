@@ -97,3 +97,18 @@ def test_the_daemon_warns_when_its_model_has_no_consistency_check(tmp_path: Path
         simulate(config, duration_s=5.0)
     warned = [e for e in logs if e["log_level"] == "warning" and "consistency" in e["event"]]
     assert warned and warned[0]["model"] == "twin-z", logs
+
+
+def test_an_input_the_consistency_model_does_not_predict_is_named(tmp_path: Path) -> None:
+    """A model input outside the consistency checks (as compd extend adds one): model check and check-config name it."""
+    doc = yaml.safe_load(BUNDLED_MODEL.read_text())
+    doc["consistency"]["checked"].remove("T_headstock_degC")
+    for key in ("sigma", "max_rate_per_s"):
+        doc["consistency"][key].pop("T_headstock_degC", None)
+    model = tmp_path / "partly.yaml"
+    model.write_text(yaml.safe_dump(doc, sort_keys=False))
+    expected = "not checked against the other signals: T_headstock_degC (model inputs its"
+    assert expected in said("model", "check", model)
+    config = write_config(tmp_path, machine_doc(tmp_path, model, simulation=SIMULATION))
+    assert expected in said("check-config", config.path)
+    assert "not checked against" not in said("model", "check", BUNDLED_MODEL)

@@ -152,7 +152,8 @@ def test_update_of_a_stacked_model_keeps_its_forest_and_says_the_prior_is_gone(
 
 
 def test_extend_of_a_stacked_model_keeps_its_forest(folder: Path, models, tmp_path: Path) -> None:
-    """`compd extend` of a stacked model, written elsewhere, keeps its forest and says its probe prior is gone."""
+    """`compd extend` of a stacked model, written elsewhere, keeps its forest; it says its probe prior is gone
+    and its new input is outside the consistency checks."""
     _, stacked, _ = models
     cutting = twin(folder, "cutting", 16, seed=2)
     derived = tmp_path / "elsewhere" / "extended.yaml"
@@ -162,6 +163,10 @@ def test_extend_of_a_stacked_model_keeps_its_forest(folder: Path, models, tmp_pa
     )
     derived_keeps_the_forest(stacked, derived)
     assert any("probe prior" in note for note in summary["notes"]), summary["notes"]
+    assert any(
+        note.startswith("spindle_power_kw: the consistency checks are the calibration's")
+        for note in summary["notes"]
+    ), summary["notes"]
 
 
 def test_compile_of_a_stacked_model_into_another_folder_takes_its_forest(
