@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from compd.cli.args import EXIT_NOT_CONNECTED
 from compd.cli.serving import config_from_arg, configure_logging
-from compd.cli.unguarded import envelope_line, load_notes, unchecked_note
+from compd.cli.unguarded import envelope_line, load_notes, unchecked_note, unranged_note
 from compd.drivers.base import address_note
 from compd.drivers.registry import load_driver_type
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
@@ -128,6 +128,8 @@ def check_config_command(args: argparse.Namespace) -> int:
         out.print(f"  {plausibility_line(model_file, doc)}")
         if doc.plausibility.enabled and (unchecked := unchecked_note(model_file, compiled)):
             out.print(f"  note: {unchecked}", markup=False)
+        if (unranged := unranged_note(config, model_file, compiled)) is not None:
+            out.print(f"  note: {unranged}", markup=False)
         _print_verifiable(out, config, model_file, compiled)
     out.print(f"  drivers: {', '.join(f'{n} ({d.type})' for n, d in doc.drivers.items())}")
     out.print(f"  signals: {', '.join(doc.signals)}")

@@ -90,3 +90,27 @@ def unchecked_note(model_file: ModelFile, compiled: CompiledModel) -> str | None
         "is checked on its own, a wrong reading within its limits is not caught and it has no "
         "stand-in; refit with compd fit with them among --inputs to check them"
     )
+
+
+def unranged_note(config: Config, model_file: ModelFile, compiled: CompiledModel) -> str | None:
+    """The model inputs the config reads without a range check (``checks.min``/``max``); None: none."""
+    signals = config.doc.signals
+    bare = [
+        name
+        for name in compiled.signals
+        if name in signals
+        and (signals[name].checks.min is None or signals[name].checks.max is None)
+    ]
+    if not bare:
+        return None
+    cross = config.doc.plausibility.enabled and model_file.consistency() is not None
+    caught = (
+        "only the check against the other signals catches"
+        if cross
+        else "nothing catches (no check against the other signals either)"
+    )
+    return (
+        f"no range check on model input(s) {', '.join(bare)} (checks min and max): a reading no "
+        f"machine gives (an open Pt100 reads ~850 degC) {caught} before the model uses it; set "
+        "checks: {min: ..., max: ...} to what the machine can read"
+    )

@@ -112,3 +112,19 @@ def test_an_input_the_consistency_model_does_not_predict_is_named(tmp_path: Path
     config = write_config(tmp_path, machine_doc(tmp_path, model, simulation=SIMULATION))
     assert expected in said("check-config", config.path)
     assert "not checked against" not in said("model", "check", BUNDLED_MODEL)
+
+
+def test_a_model_input_without_a_range_check_is_named(tmp_path: Path) -> None:
+    """check-config names a model input read without checks min and max, and what then catches a broken sensor."""
+    doc = machine_doc(tmp_path, BUNDLED_MODEL, simulation=SIMULATION)
+    del doc["signals"]["T_headstock_degC"]["checks"]["max"]
+    text = said("check-config", write_config(tmp_path, doc).path)
+    assert "no range check on model input(s) T_headstock_degC (checks min and max)" in text
+    assert "only the check against the other signals catches" in text
+    doc["plausibility"] = {"enabled": False}
+    text = said("check-config", write_config(tmp_path, doc, "off.yaml").path)
+    assert "nothing catches (no check against the other signals either)" in text
+    bundled = machine_doc(tmp_path, BUNDLED_MODEL, simulation=SIMULATION)
+    assert "no range check" not in said(
+        "check-config", write_config(tmp_path, bundled, "ok.yaml").path
+    )
