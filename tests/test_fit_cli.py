@@ -358,3 +358,27 @@ def test_a_column_whose_values_contradict_its_name_is_refused(
     error = " ".join(capsys.readouterr().err.split())
     assert str(data) in error and message in error and fix in error, error
     assert not out.exists()
+
+
+def recorded(frame: pd.DataFrame, path, units: dict[str, str]) -> None:
+    """``frame`` as compd's recorder writes a CSV: each column's unit in a ``# unit.NAME: UNIT`` line."""
+    with open(path, "w") as handle:
+        handle.writelines(f"# unit.{name}: {unit}\n" for name, unit in units.items())
+        frame.to_csv(handle, index=False)
+
+
+def test_a_recorded_files_units_are_the_models(calibration_csv, tmp_path, capsys):
+    """A column named without a unit keeps the unit compd's recorder wrote for it (degC, not '-', which a
+    config's degC signal could not feed); a recorded unit its values contradict is refused."""
+    frame = pd.read_csv(calibration_csv).rename(columns={"T_spindle_degC": "spindle_temp"})
+    data = tmp_path / "recorded.csv"
+    recorded(frame, data, {"spindle_temp": "degC"})
+    out = tmp_path / "model.yaml"
+    argv = ["fit", "--data", str(data), "--output", "disp_z_um", "--out", str(out)]
+    assert main([*argv, "--inputs", "spindle_temp,T_ambient_degC"]) == 0
+    assert load_model(out).signal_units()["spindle_temp"] == "degC"
+    recorded(frame, data, {"spindle_temp": "K"})
+    assert main([*argv, "--inputs", "spindle_temp"]) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert "input column 'spindle_temp' is in K as the file records it" in error
+    assert "Add 273.15 (it reads degC), or record it with the config's 'unit: degC'" in error

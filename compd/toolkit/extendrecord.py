@@ -26,7 +26,7 @@ from compd.files.modelwriter import model_to_yaml
 from compd.model.structure import Model
 from compd.toolkit.derived import kept_priors, kept_residuals
 from compd.toolkit.extendjudge import HeldOut
-from compd.toolkit.fitmodel import unit_of
+from compd.toolkit.fitmodel import column_unit
 
 
 @dataclass(frozen=True)
@@ -81,7 +81,7 @@ def extension_yaml(
     units = parent.signal_units()
     signal = record.signal
     if units is not None and signal not in units:
-        units = {**units, signal: unit_of(signal)}
+        units = {**units, signal: column_unit(data, signal)}
     calibration = doc.provenance.calibration
     if calibration is not None and calibration_rms_um is not None:
         calibration = widened_calibration(calibration, data, output, calibration_rms_um)

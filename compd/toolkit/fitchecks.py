@@ -13,8 +13,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from compd.errors import DataFileError
+from compd.files.columns import UNIT_PREFIX
 from compd.files.data import DataSet
 from compd.model.orderfit import MAX_ORDER
+from compd.toolkit.fitmodel import column_unit
 from compd.toolkit.methods import FIT_METHODS
 
 
@@ -101,19 +103,30 @@ def check_units(data: DataSet, output: str, inputs: Sequence[str]) -> None:
 
 
 def check_input_units(data: DataSet, inputs: Sequence[str]) -> None:
-    """Refuse a temperature input in kelvin named degC, or in degC named K: its reference (the
-    thermal zero a model keeps) would be 273 degrees off what the daemon reads."""
+    """Refuse a temperature input in kelvin said to be degC, or in degC said to be K (by the file's
+    recorded unit, else its name): its reference (the thermal zero a model keeps) would be 273
+    degrees off what the daemon reads."""
     for column in inputs:
+        unit = column_unit(data, column)
+        recorded = UNIT_PREFIX + column in data.metadata
         middle = float(np.median(data.column(column)))
-        if column.endswith("_degC") and middle > _KELVIN_OR_DEGC_SPLIT:
-            said, fix = "degC", f"Subtract 273.15 (it reads kelvin), or name it {column[:-5]}_K"
-        elif column.endswith("_K") and middle < _KELVIN_OR_DEGC_SPLIT:
-            said, fix = "K", f"Add 273.15 (it reads degC), or name it {column[:-2]}_degC"
+        if unit == "degC" and middle > _KELVIN_OR_DEGC_SPLIT:
+            fix = "Subtract 273.15 (it reads kelvin)"
+            other = "K"
+        elif unit == "K" and middle < _KELVIN_OR_DEGC_SPLIT:
+            fix = "Add 273.15 (it reads degC)"
+            other = "degC"
         else:
             continue
+        said = "as the file records it" if recorded else "by its name"
+        fix += (
+            f", or record it with the config's 'unit: {other}'"
+            if recorded
+            else f", or name it {column.rsplit('_', 1)[0]}_{other}"
+        )
         raise DataFileError(
             data.path,
-            f"input column {column!r} is in {said} by its name, but its median is {middle:g}: "
+            f"input column {column!r} is in {unit} {said}, but its median is {middle:g}: "
             "a machine tool is not that hot or cold, so the unit is likely wrong",
             where=f"column {column!r}",
             fix=fix,
