@@ -86,9 +86,11 @@ def test_model_load_says_what_the_new_model_runs_without(tmp_path: Path) -> None
     assert code == 0 and "note:" not in err, err
 
 
-def test_the_daemon_warns_when_its_model_has_no_consistency_check(tmp_path: Path) -> None:
-    """A daemon whose config checks plausibility, running a model without consistency, logs a warning."""
-    bare = yaml.safe_load(BUNDLED_MODEL.read_text())
+def test_the_daemon_warns_when_its_model_has_no_consistency_check_or_envelope(
+    tmp_path: Path,
+) -> None:
+    """A daemon running a model without consistency and calibrated range logs a warning for each."""
+    bare = yaml.safe_load(without_calibration(tmp_path).read_text())
     del bare["consistency"]
     model = tmp_path / "no-checks.yaml"
     model.write_text(yaml.safe_dump(bare, sort_keys=False))
@@ -97,6 +99,8 @@ def test_the_daemon_warns_when_its_model_has_no_consistency_check(tmp_path: Path
         simulate(config, duration_s=5.0)
     warned = [e for e in logs if e["log_level"] == "warning" and "consistency" in e["event"]]
     assert warned and warned[0]["model"] == "twin-z", logs
+    (clamp,) = [e for e in logs if e["event"].startswith("the model file records no calibrated")]
+    assert clamp["log_level"] == "warning" and clamp["axis"] == "Z" and "compd fit" in clamp["fix"]
 
 
 def test_an_input_the_consistency_model_does_not_predict_is_named(tmp_path: Path) -> None:

@@ -79,6 +79,28 @@ def slot_from_file(config: Config, model_file: ModelFile, loaded_at_unix_s: floa
     return ModelSlot(model_file, compiled, loaded_at_unix_s)
 
 
+def warn_unguarded(config: Config, slot: ModelSlot) -> None:
+    """One WARNING per axis whose offset the running model leaves to the clamp alone.
+
+    A model file without a calibrated output range (written by hand or by an
+    older compd) runs, but the envelope (:mod:`compd.service.loop.envelope`)
+    has nothing to judge its offset by: said at start and at each load, not
+    found out when an extrapolated offset is written.
+    """
+    if config.doc.safety.envelope_margin is None:
+        return
+    for axis, output in config.doc.outputs.items():
+        if slot.model_file.output_range(output.model_output) is None:
+            log.warning(
+                "the model file records no calibrated range of this output: the clamp alone "
+                "judges the axis's offset",
+                axis=axis,
+                output=output.model_output,
+                model=str(slot.model_file.path),
+                fix="refit with compd fit to record one",
+            )
+
+
 def load_slot(config: Config, path: Path, loaded_at_unix_s: float) -> ModelSlot:
     """:func:`slot_from_bytes` for a file (a regular file, size-limited); raises on any problem."""
     return slot_from_bytes(config, read_limited(path, ModelFileError), path, loaded_at_unix_s)
@@ -98,6 +120,13 @@ def startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot | None, 
     """
     if config.model_path is None:
         return None, None
+    slot, fallback = _startup_slots(config, now_unix_s)
+    warn_unguarded(config, slot)
+    return slot, fallback
+
+
+def _startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot, ModelSlot | None]:
+    assert config.model_path is not None
     installed = installed_model(config.state_dir)
     if installed is None:
         return load_slot(config, config.model_path, now_unix_s), None
@@ -234,6 +263,7 @@ class ModelLoader:
                 f"cannot install the model in {self.config.state_dir} ({exc.strerror})"
             ) from exc
         slot.model_file = dataclasses.replace(slot.model_file, path=str(installed))
+        warn_unguarded(self.config, slot)
         return slot
 
     async def keep(self, running: ModelSlot) -> None:
