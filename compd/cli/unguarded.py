@@ -1,4 +1,4 @@
-"""What a model file leaves a daemon without, said by ``compd model check`` and ``compd check-config``.
+"""What a model file leaves a daemon without, said by ``compd model check``, ``check-config`` and ``model load``.
 
 A model file written by hand, by an older compd, or derived by a command that
 could not keep everything (``compd extend`` changes the coefficients its probe
