@@ -218,8 +218,10 @@ def _check(args: argparse.Namespace) -> int:
     if (unchecked := unchecked_note(model_file, compiled)) is not None:
         out.print(f"note: {unchecked}", markup=False)
     for output in compiled.output_names:
-        notes = (no_envelope_note(model_file, output, "a daemon's clamp"),)
-        notes += (prior_note(model_file, compiled, output),)
+        notes = (
+            no_envelope_note(model_file, output, "a daemon's clamp"),
+            prior_note(model_file, compiled, output),
+        )
         for note in filter(None, notes):
             out.print(f"note: {note}", markup=False)
     from compd.cli.verifytable import print_verifiable
