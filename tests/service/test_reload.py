@@ -21,6 +21,8 @@ from compd.service.loop.clock import VirtualClock
 
 from .daemon_setup import short_socket, write_config
 
+EXAMPLE_MODEL = Path(__file__).resolve().parents[2] / "config" / "example_gated_arx.yaml"
+
 #: A give-up bound for waits on another process or thread, never an assertion on elapsed time.
 GIVE_UP_S = 60.0
 
@@ -220,3 +222,26 @@ def _ignores_sighup(pid: int) -> bool:
         return False
     mask = next(line.split()[1] for line in status.splitlines() if line.startswith("SigIgn:"))
     return bool(int(mask, 16) & 1 << (signal.SIGHUP - 1))
+
+
+def test_a_model_file_changed_on_disk_is_named_not_applied(tmp_path):
+    """SIGHUP after the running model's file changed: one WARNING with the fix, the loaded model runs on."""
+    model = tmp_path / "model.yaml"
+    model.write_bytes(EXAMPLE_MODEL.read_bytes())
+    config = write_config(tmp_path, {"model": str(model)})
+    service = Service(config, clock=VirtualClock(), control=False)
+    running = service.compensator.running
+    assert running is not None
+
+    def edit() -> None:
+        model.write_text(model.read_text() + "# edited by hand\n")
+
+    logs = reloaded_while_running(service, edit)
+    (warning,) = reloads_warnings(logs)
+    assert warning["event"].startswith("reload: the model file changed on disk")
+    assert (
+        warning["fix"] == f"Switch to it with 'compd model load {model}' (checked, then blended in)"
+    )
+    assert warning["running_sha256"] == running.sha256 != warning["on_disk_sha256"]
+    assert service.compensator.running is not None
+    assert service.compensator.running.sha256 == running.sha256
