@@ -382,3 +382,7 @@ def test_a_recorded_files_units_are_the_models(calibration_csv, tmp_path, capsys
     error = " ".join(capsys.readouterr().err.split())
     assert "input column 'spindle_temp' is in K as the file records it" in error
     assert "Add 273.15 (it reads degC), or record it with the config's 'unit: degC'" in error
+    recorded(frame, data, {"disp_z_um": "mm"})
+    assert main([*argv, "--inputs", "spindle_temp"]) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert "the output column 'disp_z_um' is in mm as the file records it" in error

@@ -71,7 +71,8 @@ def check_arguments(
     check_units(data, output, inputs)
 
 
-#: A displacement's name ending in a length unit other than um: compd's outputs are in um.
+#: A displacement's name ending in a length unit other than um (or a recorded unit other than
+#: um): compd's outputs are in um.
 _LENGTH_UNIT = re.compile(r"_(mm|m|nm|cm|in|inch|mil)$", re.IGNORECASE)
 #: Machine-tool temperatures in degC lie far below this; kelvin far above it.
 _KELVIN_OR_DEGC_SPLIT = 150.0
@@ -90,10 +91,14 @@ def check_units(data: DataSet, output: str, inputs: Sequence[str]) -> None:
             where=f"column {output!r}",
             fix="Name the measured displacement column with --output",
         )
-    if (unit := _LENGTH_UNIT.search(output)) is not None:
+    recorded = data.metadata.get(UNIT_PREFIX + output)
+    named = _LENGTH_UNIT.search(output)
+    unit = recorded if recorded is not None else (named.group(1) if named else "um")
+    if unit not in ("um", "µm", "μm", "-"):
+        said = "as the file records it" if recorded is not None else "by its name"
         raise DataFileError(
             data.path,
-            f"the output column {output!r} is in {unit.group(1)} by its name; compd's outputs "
+            f"the output column {output!r} is in {unit} {said}; compd's outputs "
             "(the offsets it writes) are in um, and a fit would take its values as um",
             where=f"column {output!r}",
             fix="Convert it to um in a column named ..._um (e.g. disp_z_um), or rename it if it "
