@@ -386,3 +386,21 @@ def test_a_recorded_files_units_are_the_models(calibration_csv, tmp_path, capsys
     assert main([*argv, "--inputs", "spindle_temp"]) == 2
     error = " ".join(capsys.readouterr().err.split())
     assert "the output column 'disp_z_um' is in mm as the file records it" in error
+
+
+def test_compare_refuses_a_record_in_another_unit_than_the_model_reads(
+    calibration_csv, tmp_path, capsys
+):
+    """A recording that says an input is in degF, for a model fitted in degC, exits 2; another spelling of degC runs."""
+    model = tmp_path / "model.yaml"
+    assert _fit(calibration_csv, model) == 0
+    frame = pd.read_csv(calibration_csv)
+    data = tmp_path / "recorded.csv"
+    recorded(frame, data, {"T_spindle_degC": "degF"})
+    capsys.readouterr()
+    assert main(["compare", str(model), str(data)]) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert "column 'T_spindle_degC' is recorded in 'degF', and model" in error
+    assert "reads it in 'degC'" in error and "Convert the column to 'degC'" in error
+    recorded(frame, data, {"T_spindle_degC": "°C"})
+    assert main(["compare", str(model), str(data)]) == 0
