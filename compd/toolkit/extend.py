@@ -190,7 +190,9 @@ def extend_model(
     yaml_text = extension_yaml(
         parent,
         model,
-        data if span is None else span_data(data, span),
+        # The calibration's ranges widen by the record as judged: a displacement not zeroed at
+        # its start (taken as its change from there) would widen the output's to its raw values.
+        before.data if first == 0 or span is None else span_data(data, span),
         record,
         {output: fit_before},
         {output: fit_after},
@@ -223,7 +225,15 @@ def extend_model(
         refitted=prior.signals,
         fell_back=fell_back,
         notes=tuple(
-            filter(None, [*kept_priors(parent, model)[1], consistency_note(parent, signal)])
+            filter(
+                None,
+                [
+                    # What the judging did to the record (a displacement not zeroed), as fit says it.
+                    *(f"{data.path}: {n}" for n in before.data.notes if n not in data.notes),
+                    *kept_priors(parent, model)[1],
+                    consistency_note(parent, signal),
+                ],
+            )
         ),
     )
 
