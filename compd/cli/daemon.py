@@ -24,6 +24,7 @@ from compd.drivers.base import address_note
 from compd.drivers.registry import load_driver_type
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
 from compd.files.modelfile import load_model, model_source
+from compd.files.sidecar import residual_files
 from compd.files.yamlplace import read_limited
 from compd.service.config.loading import Config
 from compd.service.config.modelcheck import check_model
@@ -36,7 +37,7 @@ from compd.service.loop.compensator import TickRecord
 from compd.service.loop.safety import Level
 from compd.service.loop.signals import Health
 from compd.service.notify import SystemdNotifier
-from compd.service.store.state import install_model_bytes, installed_model
+from compd.service.store.state import install_model_bytes, install_sidecars, installed_model
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -437,11 +438,18 @@ async def model_load(config: Config, model_path: Path) -> int:
     slot = slot_from_bytes(config, raw, model_path, 0.0)
     # It runs, but without what the file lacks: said once it is installed or loaded.
     notes = [f"note: {n}" for n in load_notes(config, slot.model_file, slot.compiled)]
+    # A stacked model's forests go with it (checked above against the file's sha256).
+    sidecars = {
+        f: (model_path.parent / f).read_bytes() for f in residual_files(slot.model_file.doc)
+    }
     try:
         reply = await request(
-            config.control_socket, load_request(raw, model_path), timeout_s=LOAD_TIMEOUT_S + 10
+            config.control_socket,
+            load_request(raw, model_path, sidecars),
+            timeout_s=LOAD_TIMEOUT_S + 10,
         )
     except NotRunningError as exc:
+        install_sidecars(config.state_dir, sidecars)
         installed = install_model_bytes(config.state_dir, raw, config.model_path)
         if installed == config.model_path:
             print(f"{slot.compiled.name} (sha256 {slot.sha256[:12]}) is the config's own model")

@@ -23,9 +23,10 @@ import base64
 import binascii
 import contextlib
 import dataclasses
+import hashlib
 import re
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -33,6 +34,7 @@ import structlog
 
 from compd.errors import CompdError, ConfigFileError, ModelFileError
 from compd.files.modelfile import ModelFile, parse_model_bytes
+from compd.files.sidecar import residual_files
 from compd.files.yamlplace import MAX_YAML_BYTES, read_limited, shorten
 from compd.service.config.loading import Config
 from compd.service.config.modelcheck import check_model
@@ -40,6 +42,7 @@ from compd.service.loop.slots import ModelSlot
 from compd.service.store.state import (
     MODELS_DIR,
     install_model_bytes,
+    install_sidecars,
     installed_model,
     reinstate_model,
 )
@@ -99,6 +102,41 @@ def warn_unguarded(config: Config, slot: ModelSlot) -> None:
                 model=str(slot.model_file.path),
                 fix="refit with compd fit to record one",
             )
+
+
+def installed_slot(
+    config: Config, raw: bytes, sidecars: Mapping[str, bytes], loaded_at_unix_s: float
+) -> ModelSlot:
+    """:func:`slot_from_bytes` for a model a client sent, read where it will be installed.
+
+    Its residual forests (sent with it, or installed with it before) are read
+    from the state directory's ``models/``, beside ``models/<sha256>.yaml``,
+    never from a path the client names; those sent and not taken are removed.
+    """
+    path = config.state_dir / MODELS_DIR / f"{hashlib.sha256(raw).hexdigest()}.yaml"
+    written = install_sidecars(config.state_dir, sidecars)
+    try:
+        slot = slot_from_bytes(config, raw, path, loaded_at_unix_s)
+    except ModelFileError as exc:
+        for file in written:
+            file.unlink(missing_ok=True)
+        if exc.where.endswith(".residual.file"):
+            raise ModelFileError(
+                path,
+                f"its residual forest was not sent with it ({exc.message})",
+                where=exc.where,
+                fix="Load it with 'compd model load FILE', which sends the .npz beside FILE",
+            ) from exc
+        raise
+    except BaseException:
+        for file in written:
+            file.unlink(missing_ok=True)
+        raise
+    named = set(residual_files(slot.model_file.doc))
+    for file in written:
+        if file.name not in named:
+            file.unlink(missing_ok=True)
+    return slot
 
 
 def load_slot(config: Config, path: Path, loaded_at_unix_s: float) -> ModelSlot:
@@ -201,9 +239,32 @@ def _set_aside_installed(state_dir: Path, installed: Path, config_model: Path, r
     )
 
 
-def load_request(raw: bytes, name: str | Path) -> dict[str, Any]:
-    """The control-socket request that loads the model file ``raw`` (``name`` for messages)."""
-    return {"cmd": "load", "name": str(name), "model_base64": base64.b64encode(raw).decode("ascii")}
+def load_request(
+    raw: bytes, name: str | Path, sidecars: Mapping[str, bytes] | None = None
+) -> dict[str, Any]:
+    """The control-socket request that loads the model file ``raw`` (``name`` for messages),
+    with the residual forests it names (``sidecars``: file name -> bytes)."""
+    request = {"cmd": "load", "name": str(name), "model_base64": _b64(raw)}
+    if sidecars:
+        request["sidecars_base64"] = {file: _b64(content) for file, content in sidecars.items()}
+    return request
+
+
+def _b64(content: bytes) -> str:
+    return base64.b64encode(content).decode("ascii")
+
+
+def request_sidecars(message: dict[str, Any]) -> dict[str, bytes]:
+    """The residual forests a ``load`` request carries (file name -> bytes); none is no error."""
+    sent = message.get("sidecars_base64", {})
+    if not isinstance(sent, dict) or not all(
+        isinstance(k, str) and isinstance(v, str) for k, v in sent.items()
+    ):
+        raise CompdError('"sidecars_base64" is an object of file name -> base64 text')
+    try:
+        return {file: base64.b64decode(text, validate=True) for file, text in sent.items()}
+    except binascii.Error as exc:
+        raise CompdError(f"sidecars_base64 is not base64 ({exc})") from exc
 
 
 def request_bytes(message: dict[str, Any]) -> tuple[bytes, str]:
@@ -238,9 +299,10 @@ class ModelLoader:
     async def accept(self, message: dict[str, Any]) -> ModelSlot:
         """The new model's slot, installed as the next start's model; raises CompdError if refused."""
         raw, name = request_bytes(message)
+        sidecars = request_sidecars(message)
         if self._busy is not None and not self._busy.done():
             raise CompdError("another model load is still being checked; try again shortly")
-        self._busy = in_daemon_thread(slot_from_bytes, self.config, raw, name, self.wall())
+        self._busy = in_daemon_thread(installed_slot, self.config, raw, sidecars, self.wall())
         try:
             async with asyncio.timeout(self.timeout_s):
                 # shield: a timed-out check finishes in its thread, its result dropped.
