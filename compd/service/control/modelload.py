@@ -244,7 +244,7 @@ def load_request(
 ) -> dict[str, Any]:
     """The control-socket request that loads the model file ``raw`` (``name`` for messages),
     with the residual forests it names (``sidecars``: file name -> bytes)."""
-    request = {"cmd": "load", "name": str(name), "model_base64": _b64(raw)}
+    request: dict[str, Any] = {"cmd": "load", "name": str(name), "model_base64": _b64(raw)}
     if sidecars:
         request["sidecars_base64"] = {file: _b64(content) for file, content in sidecars.items()}
     return request
