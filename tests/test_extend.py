@@ -156,6 +156,21 @@ def test_constant_effect_signal_is_refused(
     assert code == 2 and "constant" in err
 
 
+def test_an_effect_temperature_in_kelvin_named_degc_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Kelvin in a degC column would make the new sub-model's thermal zero 273 degrees off: exit 2, the fix named."""
+    data = tmp_path / "kelvin.csv"
+    frame = pd.read_csv(DATA)
+    frame["coolant_degC"] = frame["T_ram_degC"] + 273.15
+    frame.to_csv(data, index=False)
+    code, err = extend(
+        capsys, REGRESSION, data, "--effect", "coolant_degC", "--out", tmp_path / "x.yaml"
+    )
+    assert code == 2 and "in degC by its name" in err and "Subtract 273.15" in err, err
+    assert not (tmp_path / "x.yaml").exists()
+
+
 def test_bad_order_is_refused_before_any_work(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -310,3 +310,97 @@ def test_fit_ends_with_what_the_other_signals_cannot_verify(calibration_csv, tmp
     assert {row.split()[1] for row in rows} == {"T_spindle_degC", "T_ambient_degC"}
     assert any("not verifiable: add a redundant sensor beside" in row for row in rows)
     assert "a fit has no service config: the default plausibility settings" in " ".join(out.split())
+
+
+@pytest.mark.parametrize(
+    ("change", "output", "inputs", "message", "fix"),
+    [
+        (
+            lambda d: d.assign(T_spindle_degC=d.T_spindle_degC + 273.15),
+            "disp_z_um",
+            "T_spindle_degC",
+            "input column 'T_spindle_degC' is in degC by its name, but its median is",
+            "Subtract 273.15 (it reads kelvin), or name it T_spindle_K",
+        ),
+        (
+            lambda d: d.rename(columns={"T_spindle_degC": "T_spindle_K"}),
+            "disp_z_um",
+            "T_spindle_K",
+            "input column 'T_spindle_K' is in K by its name",
+            "Add 273.15 (it reads degC)",
+        ),
+        (
+            lambda d: d.assign(disp_z_mm=d.disp_z_um / 1000.0),
+            "disp_z_mm",
+            "T_spindle_degC",
+            "the output column 'disp_z_mm' is in mm by its name; compd's outputs",
+            "Convert it to um in a column named ..._um",
+        ),
+        (
+            lambda d: d.assign(disp_z_um=0.0),
+            "disp_z_um",
+            "T_spindle_degC",
+            "the output column 'disp_z_um' is constant (0) over the whole record",
+            "Name the measured displacement column with --output",
+        ),
+    ],
+    ids=["kelvin-named-degC", "degC-named-K", "output-in-mm", "constant-output"],
+)
+def test_a_column_whose_values_contradict_its_name_is_refused(
+    calibration_csv, tmp_path, capsys, change, output, inputs, message, fix
+):
+    """Kelvin in a degC column (or the reverse), an output in mm and a constant output exit 2, not a wrong model."""
+    data = tmp_path / "changed.csv"
+    change(pd.read_csv(calibration_csv)).to_csv(data, index=False)
+    out = tmp_path / "model.yaml"
+    arguments = ["--data", str(data), "--output", output, "--inputs", inputs, "--out", str(out)]
+    assert main(["fit", *arguments]) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert str(data) in error and message in error and fix in error, error
+    assert not out.exists()
+
+
+def recorded(frame: pd.DataFrame, path, units: dict[str, str]) -> None:
+    """``frame`` as compd's recorder writes a CSV: each column's unit in a ``# unit.NAME: UNIT`` line."""
+    with open(path, "w") as handle:
+        handle.writelines(f"# unit.{name}: {unit}\n" for name, unit in units.items())
+        frame.to_csv(handle, index=False)
+
+
+def test_a_recorded_files_units_are_the_models(calibration_csv, tmp_path, capsys):
+    """A column named without a unit keeps the unit compd's recorder wrote for it (degC, not '-', which a
+    config's degC signal could not feed); a recorded unit its values contradict is refused."""
+    frame = pd.read_csv(calibration_csv).rename(columns={"T_spindle_degC": "spindle_temp"})
+    data = tmp_path / "recorded.csv"
+    recorded(frame, data, {"spindle_temp": "degC"})
+    out = tmp_path / "model.yaml"
+    argv = ["fit", "--data", str(data), "--output", "disp_z_um", "--out", str(out)]
+    assert main([*argv, "--inputs", "spindle_temp,T_ambient_degC"]) == 0
+    assert load_model(out).signal_units()["spindle_temp"] == "degC"
+    recorded(frame, data, {"spindle_temp": "K"})
+    assert main([*argv, "--inputs", "spindle_temp"]) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert "input column 'spindle_temp' is in K as the file records it" in error
+    assert "Add 273.15 (it reads degC), or record it with the config's 'unit: degC'" in error
+    recorded(frame, data, {"disp_z_um": "mm"})
+    assert main([*argv, "--inputs", "spindle_temp"]) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert "the output column 'disp_z_um' is in mm as the file records it" in error
+
+
+def test_compare_refuses_a_record_in_another_unit_than_the_model_reads(
+    calibration_csv, tmp_path, capsys
+):
+    """A recording that says an input is in degF, for a model fitted in degC, exits 2; another spelling of degC runs."""
+    model = tmp_path / "model.yaml"
+    assert _fit(calibration_csv, model) == 0
+    frame = pd.read_csv(calibration_csv)
+    data = tmp_path / "recorded.csv"
+    recorded(frame, data, {"T_spindle_degC": "degF"})
+    capsys.readouterr()
+    assert main(["compare", str(model), str(data)]) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert "column 'T_spindle_degC' is recorded in 'degF', and model" in error
+    assert "reads it in 'degC'" in error and "Convert the column to 'degC'" in error
+    recorded(frame, data, {"T_spindle_degC": "°C"})
+    assert main(["compare", str(model), str(data)]) == 0

@@ -92,6 +92,17 @@ def test_missing_sidecar_is_refused(written, tmp_path) -> None:
         load_model(copy)
 
 
+@pytest.mark.parametrize("file", ["/etc/hostname", "../model.residual.npz", "sub/x.npz", ".."])
+def test_a_sidecar_named_outside_the_model_files_folder_is_refused(written, tmp_path, file) -> None:
+    """The sidecar is a file name beside the model file: a path elsewhere is refused at its line,
+    before any file is read (a daemon parses models a client sends)."""
+    path, _ = written
+    copy = tmp_path / "model.yaml"
+    copy.write_text(path.read_text().replace("file: model.residual.npz", f"file: {file!r}"))
+    with pytest.raises(ModelFileError, match=r"residual\.file.*must be a file name beside"):
+        load_model(copy)
+
+
 def test_door_that_never_changes_is_refused() -> None:
     """Calibration data whose door signal never changes state cannot calibrate a door residual."""
     with pytest.raises(DataFileError, match=r"never changes state.*always shut"):

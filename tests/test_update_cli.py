@@ -253,3 +253,27 @@ def test_model_check_says_the_recorded_figures_predate_the_update(case: dict[str
     assert "measured before its 1 update(s): compd update re-optimised gains since" in text
     code, stdout, _ = run("model", "check", fitted)
     assert "update(s)" not in stdout
+
+
+def test_update_keeps_the_ambient_zero_and_optimises_with_the_bias_it_writes(
+    case: dict[str, Path],
+) -> None:
+    """A model with an ambient zero and a bias keeps both, and the fit update reports is the written file's."""
+    parent = case["folder"] / "biased.yaml"
+    parent.write_text(
+        model_text().replace("    submodels:", "    bias_um: 5.0\n    submodels:", 1)
+        + "ambient: {signal: T_ambient_degC, reference: 20.0, moves: [T_spindle_degC]}\n"
+    )
+    out = case["folder"] / "biased-updated.yaml"
+    code, stdout, err = run(
+        "update", parent, case["data"], "--probes", case["probes"], "--out", out, "--json"
+    )
+    assert code == 0, err
+    reported = json.loads(stdout)["fit_percent_after"]["disp_z_um"]
+    updated = load_model(out)
+    assert updated.model.ambient == load_model(parent).model.ambient
+    assert updated.model.outputs[0].bias_um == 5.0
+    code, stdout, _ = run("compare", out, case["data"], "--json")
+    assert json.loads(stdout)["outputs"]["disp_z_um"]["fit_percent"] == pytest.approx(
+        reported, abs=1e-6
+    )

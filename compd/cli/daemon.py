@@ -19,10 +19,12 @@ from typing import TYPE_CHECKING, Any
 
 from compd.cli.args import EXIT_NOT_CONNECTED
 from compd.cli.serving import config_from_arg, configure_logging
+from compd.cli.unguarded import envelope_line, load_notes, unchecked_note, unranged_note
 from compd.drivers.base import address_note
 from compd.drivers.registry import load_driver_type
 from compd.errors import CompdError, ControlError, ModelFileError, NotRunningError
 from compd.files.modelfile import load_model, model_source
+from compd.files.sidecar import residual_files
 from compd.files.yamlplace import read_limited
 from compd.service.config.loading import Config
 from compd.service.config.modelcheck import check_model
@@ -35,7 +37,7 @@ from compd.service.loop.compensator import TickRecord
 from compd.service.loop.safety import Level
 from compd.service.loop.signals import Health
 from compd.service.notify import SystemdNotifier
-from compd.service.store.state import install_model_bytes, installed_model
+from compd.service.store.state import install_model_bytes, install_sidecars, installed_model
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -69,8 +71,9 @@ def plausibility_line(model_file: ModelFile, doc: ConfigDoc) -> str:
     return line
 
 
-def _probe_bounds(config: Any, output: str) -> str:
-    """What the daemon takes of an axis's probes: one per gap, within physics, the shift a person accepts."""
+def _probe_bounds(config: Any, output: str) -> list[str]:
+    """What the daemon takes of an axis's probes: one per gap, within physics, the shift a person
+    accepts; and, where so, that its update starts from the default prior (the daemon logs it too)."""
     from compd.files.probeprior import output_prior
     from compd.model.proberegressors import output_columns
     from compd.model.probesettings import ProbeSettings, max_probe_um
@@ -79,16 +82,18 @@ def _probe_bounds(config: Any, output: str) -> str:
     probes = doc.probes
     model_file = load_model(installed_model(config.state_dir) or config.model_path)
     _, names = output_columns(model_file.compile(doc.period_s, convert=False), output)
-    prior = output_prior(model_file, output, names).prior
+    found = output_prior(model_file, output, names)
+    prior = found.prior
     settings = ProbeSettings.defaults(
         prior, interval_s=probes.every_h * 3600.0, **probes.overrides()
     )
-    return (
+    line = (
         f"one taken per {probes.min_gap_s:g} s of touch time (a resend answered as it was); "
         f"|value| <= {max_probe_um(prior):g} um; the learned shift within "
         f"{settings.max_shift_um:.1f} um unless a person accepts more "
         "(compd model probe --accept-shift)"
     )
+    return [line] if found.note is None else [line, f"note: {found.note}"]
 
 
 def check_config_command(args: argparse.Namespace) -> int:
@@ -101,6 +106,7 @@ def check_config_command(args: argparse.Namespace) -> int:
     # a config is "ok" or an error, never both.
     sim = _simulated_machine(config)
     probe_lines = _probe_lines(config)
+    model_file = None
     if config.model_path is None:
         out.print(Text.assemble(("ok", "green"), f": {config.path}"))
         out.print(
@@ -121,6 +127,10 @@ def check_config_command(args: argparse.Namespace) -> int:
             + (" (installed with 'compd model load')" if installed else "")
         )
         out.print(f"  {plausibility_line(model_file, doc)}")
+        if doc.plausibility.enabled and (unchecked := unchecked_note(model_file, compiled)):
+            out.print(f"  note: {unchecked}", markup=False)
+        if (unranged := unranged_note(config, model_file, compiled)) is not None:
+            out.print(f"  note: {unranged}", markup=False)
         _print_verifiable(out, config, model_file, compiled)
     out.print(f"  drivers: {', '.join(f'{n} ({d.type})' for n, d in doc.drivers.items())}")
     out.print(f"  signals: {', '.join(doc.signals)}")
@@ -143,6 +153,19 @@ def check_config_command(args: argparse.Namespace) -> int:
             f"  axis {axis}: {o.sign:+d} x {o.model_output} -> {o.driver}:{o.address}, "
             f"|offset| <= {o.max_offset_um:g} um, <= {o.max_rate_um_per_s:g} um/s"
         )
+        if model_file is not None:
+            safety = doc.safety
+            out.print(
+                "    "
+                + envelope_line(
+                    model_file,
+                    o.model_output,
+                    safety.envelope_margin,
+                    safety.envelope_after_s,
+                    o.max_offset_um,
+                ),
+                markup=False,
+            )
     for line in probe_lines:
         out.print(line)
     if sim is not None:
@@ -185,7 +208,7 @@ def _probe_lines(config: Config) -> list[str]:
             f"count {reg.counter_address}, echo {reg.echo_address}"
         )
         lines.append(f"  probes {axis}: {probes.measures}, due every {probes.every_h:g} h; {where}")
-        lines.append(f"    {_probe_bounds(config, doc.outputs[axis].model_output)}")
+        lines += [f"    {line}" for line in _probe_bounds(config, doc.outputs[axis].model_output)]
     return lines
 
 
@@ -413,17 +436,27 @@ async def model_load(config: Config, model_path: Path) -> int:
     model_path = model_source(model_path)  # bundled:NAME as `compd model check` reads it
     raw = read_limited(model_path, ModelFileError)
     slot = slot_from_bytes(config, raw, model_path, 0.0)
+    # It runs, but without what the file lacks: said once it is installed or loaded.
+    notes = [f"note: {n}" for n in load_notes(config, slot.model_file, slot.compiled)]
+    # A stacked model's forests go with it (checked above against the file's sha256).
+    sidecars = {
+        f: (model_path.parent / f).read_bytes() for f in residual_files(slot.model_file.doc)
+    }
     try:
         reply = await request(
-            config.control_socket, load_request(raw, model_path), timeout_s=LOAD_TIMEOUT_S + 10
+            config.control_socket,
+            load_request(raw, model_path, sidecars),
+            timeout_s=LOAD_TIMEOUT_S + 10,
         )
     except NotRunningError as exc:
+        install_sidecars(config.state_dir, sidecars)
         installed = install_model_bytes(config.state_dir, raw, config.model_path)
         if installed == config.model_path:
             print(f"{slot.compiled.name} (sha256 {slot.sha256[:12]}) is the config's own model")
         else:
             print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {installed}")
         print(f"no daemon runs ({exc}); it will start with this model", file=sys.stderr)
+        _say(notes)
         return 0
     except ControlError as exc:
         raise ControlError(
@@ -442,7 +475,13 @@ async def model_load(config: Config, model_path: Path) -> int:
         return 0
     print(f"installed {slot.compiled.name} (sha256 {slot.sha256[:12]}) as {reply.get('installed')}")
     print(f"the daemon is switching to it, blended over {reply.get('blend_s', 0):g} s")
+    _say(notes)
     return 0
+
+
+def _say(notes: list[str]) -> None:
+    for note in notes:
+        print(note, file=sys.stderr)
 
 
 def install_signal_handlers(service: Service) -> None:

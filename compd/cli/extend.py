@@ -26,6 +26,7 @@ from compd.files.effects import load_catalogue
 from compd.files.experiments import as_stacked
 from compd.files.modelfile import load_model
 from compd.files.provenancepaths import write_model_text
+from compd.files.sidecar import copy_sidecars, residual_files
 from compd.model.identify import MIN_SAMPLES
 from compd.model.transfer import DiscreteTF
 from compd.toolkit.extend import extend_model, verify_extension, with_verification
@@ -147,6 +148,8 @@ def _extend(args: argparse.Namespace) -> int:
     if verify_data is not None:
         verified = verify_extension(extension, verify_data)
         yaml_text = with_verification(extension, verify_data.data.path, *verified)
+    # The parent's residual forests stay in the new model: their sidecars go beside it.
+    copy_sidecars(residual_files(parent.doc), parent.path, args.out)
     write_model_text(
         args.out, yaml_text, parent=parent.doc.provenance, parent_path=Path(parent.path)
     )
@@ -197,6 +200,7 @@ def _extend(args: argparse.Namespace) -> int:
             for s, h in (choice.judged.items() if choice else [(signal, extension.held_out)])
         ],
         "findings": [f.describe() for f in extension.findings],
+        "notes": list(extension.notes),
         "verify": None
         if verified is None
         else {
@@ -259,6 +263,8 @@ def _extend(args: argparse.Namespace) -> int:
     out.print(f"kept: a sub-model on {signal} {held.describe()}; {RULE}")
     for finding in extension.findings:
         print(finding.describe(), file=sys.stderr)
+    for note in extension.notes:
+        print(f"note: {note}", file=sys.stderr)
     if not span.whole:
         out.print(span.describe("fitted"))
     out.print(f"wrote {args.out}")

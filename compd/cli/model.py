@@ -213,6 +213,17 @@ def _check(args: argparse.Namespace) -> int:
             + ", ".join(f"{s:.3g}" for s in consistency.sigma),
             markup=False,
         )
+    from compd.cli.unguarded import no_envelope_note, prior_note, unchecked_note
+
+    if (unchecked := unchecked_note(model_file, compiled)) is not None:
+        out.print(f"note: {unchecked}", markup=False)
+    for output in compiled.output_names:
+        notes = (
+            no_envelope_note(model_file, output, "a daemon's clamp"),
+            prior_note(model_file, compiled, output),
+        )
+        for note in filter(None, notes):
+            out.print(f"note: {note}", markup=False)
     from compd.cli.verifytable import print_verifiable
     from compd.service.config.verifiable import model_unverifiable
 

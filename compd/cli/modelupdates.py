@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import shutil
 import sys
 from pathlib import Path
 from typing import Any
@@ -120,6 +119,8 @@ def _um(value: float | None, *, signed: bool = False) -> str:
 def _export(args: argparse.Namespace) -> int:
     from compd.cli.terminal import console
     from compd.files.modelfile import load_model
+    from compd.files.provenancepaths import with_portable_provenance
+    from compd.files.sidecar import copy_sidecars, residual_files
     from compd.files.unreadable import write_atomic
     from compd.toolkit.probeexport import export_updated
 
@@ -128,15 +129,15 @@ def _export(args: argparse.Namespace) -> int:
         model_file, state_dir_of(args), command=" ".join(["compd", *sys.argv[1:]])
     )
     out_path = Path(args.out)
-    # A residual model's sidecar goes beside the new file, as the file names it.
-    for output in model_file.doc.outputs.values():
-        if output.residual is not None:
-            source = Path(model_file.path).parent / output.residual.file
-            target = out_path.parent / output.residual.file
-            if source.resolve() != target.resolve():
-                target.parent.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(source, target)
-    write_atomic(out_path, exported.text.encode())
+    copy_sidecars(residual_files(model_file.doc), model_file.path, out_path)
+    # The parent's recorded paths are relative to its folder: seen from the new file's.
+    text = with_portable_provenance(
+        exported.text,
+        out_path,
+        parent=model_file.doc.provenance,
+        parent_path=Path(model_file.path),
+    )
+    write_atomic(out_path, text.encode())
     for note in exported.notes:
         print(f"note: {note}", file=sys.stderr)
     out = console()

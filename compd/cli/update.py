@@ -16,6 +16,7 @@ from compd.cli.common import data_options, load_data_from_args
 from compd.cli.terminal import console
 from compd.files.modelfile import load_model
 from compd.files.provenancepaths import write_model_text
+from compd.files.sidecar import copy_sidecars, residual_files
 from compd.toolkit.gainsets import parse_bounds
 from compd.toolkit.probes import load_probes
 from compd.toolkit.summary import fmt, json_text
@@ -99,6 +100,8 @@ def _update(args: argparse.Namespace) -> int:
         init=args.init,
         command=command,
     )
+    # The parent's residual forests stay in the new model: their sidecars go beside it.
+    copy_sidecars(residual_files(parent.doc), parent.path, args.out)
     write_model_text(
         args.out, result.yaml_text, parent=parent.doc.provenance, parent_path=Path(parent.path)
     )

@@ -141,13 +141,25 @@ class ResidualDoc(_Strict):
     signal: str = Field(min_length=1)
     threshold: FiniteFloat = 0.5
     time_constants_s: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]] = Field(min_length=1)
-    file: str = Field(min_length=1)
+    #: A file name beside the model file, no folder: a model file (one a client sends the daemon
+    #: too) names nothing elsewhere, and an installed model's forest is beside it.
+    file: str = Field(min_length=1, max_length=255)
     sha256: str = Field(pattern=r"^[0-9a-f]{64}\Z")
     trees: int | None = Field(default=None, ge=1, le=MAX_COUNT)
     max_depth: int | None = Field(default=None, ge=1, le=MAX_COUNT)
     seed: int | None = Field(default=None, ge=0, le=MAX_SEED)
     calibration_tf_alone: ResidualFiguresDoc | None = None
     calibration_stacked: ResidualFiguresDoc | None = None
+
+    @field_validator("file")
+    @classmethod
+    def _beside(cls, file: str) -> str:
+        if file in (".", "..") or any(c in file for c in "/\\\x00"):
+            raise ValueError(
+                "must be a file name beside the model file, with no folder (compd fit and "
+                "compd residual write MODEL.residual.npz)"
+            )
+        return file
 
 
 class OutputDoc(_Strict):

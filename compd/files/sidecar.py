@@ -8,13 +8,18 @@ from __future__ import annotations
 
 import hashlib
 import io
-from collections.abc import Mapping
+import shutil
+from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from compd.errors import ModelError, ModelFileError
 from compd.model.residual import Forest
+
+if TYPE_CHECKING:
+    from compd.files.modelschema import ModelDoc
 
 #: Forest arrays stored per output, as ``<output>/<name>`` in the sidecar.
 FOREST_ARRAYS = ("roots", "left", "right", "feature", "threshold", "value")
@@ -80,3 +85,23 @@ def load_sidecar(model_path: str | Path, file: str, sha256: str, output: str) ->
             where=f"outputs.{output}.residual.file",
             fix=fix,
         ) from exc
+
+
+def copy_sidecars(files: Iterable[str], parent_path: str | Path, out_path: str | Path) -> None:
+    """A derived model's residual sidecars ``files`` (as the parent names them) beside ``out_path``.
+
+    A model derived from a stacked one (``compd update``, ``compd extend``,
+    ``compd model export --updated``) names its parent's forests: written
+    elsewhere without them, it could not be loaded.
+    """
+    for file in files:
+        source = Path(parent_path).parent / file
+        target = Path(out_path).parent / file
+        if source.resolve() != target.resolve():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(source, target)
+
+
+def residual_files(doc: ModelDoc) -> list[str]:
+    """The sidecar files a model file names (one per output with a residual forest)."""
+    return [o.residual.file for o in doc.outputs.values() if o.residual is not None]

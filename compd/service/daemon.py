@@ -190,7 +190,11 @@ class Service:
         self.http: StatusServer | None = subscribed.http
         #: SIGHUP (:meth:`reload`): the config re-read, the recording re-opened.
         self.reloader = Reloader(
-            config, self.recorder, self.notifier, ready=lambda: self.compensator.counters.ticks > 0
+            config,
+            self.recorder,
+            self.notifier,
+            ready=lambda: self.compensator.counters.ticks > 0,
+            running=self._running_file,
         )
         if self.telemetry is not None:
             build.fleet_wiring(
@@ -250,6 +254,11 @@ class Service:
         """SIGHUP: re-read and check the config, re-open the recording; never stops (signal-handler safe)."""
         if not self.stop_event.is_set():
             self.reloader.request()
+
+    def _running_file(self) -> tuple[str, str] | None:
+        """The running model's file and sha256, for the reload's check of the file on disk."""
+        slot = self.compensator.running
+        return None if slot is None else (str(slot.model_file.path), slot.sha256)
 
     def subscribe(self, on_tick: Callable[[TickRecord], None], name: str = "on_tick") -> None:
         """Call ``on_tick`` with every tick's record from now on (a live view, a test, the soak's witness)."""

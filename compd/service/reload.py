@@ -13,6 +13,10 @@ socket as a crash does. The daemon takes it instead (:meth:`Reloader.request`):
    and are taken only by a restart, where everything is checked before the
    first write. One WARNING names the changed sections and the fix (a restart;
    a model switches without one with ``compd model load``).
+   The config's model file is not a config section: one changed on disk
+   while the daemon runs it is not applied either (a model switches with
+   ``compd model load``, checked and blended), and one WARNING says so
+   rather than "config unchanged" alone.
 3. The recorder closes its file; the next tick starts a new one of the same
    run (``run_reason: reopened``), so a file moved away by logrotate is let go.
    (The logs go to stderr, the journal: there is no log file to re-open.)
@@ -26,6 +30,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import hashlib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -49,11 +54,14 @@ class Reloader:
         notifier: SystemdNotifier,
         *,
         ready: Callable[[], bool],
+        running: Callable[[], tuple[str, str] | None] = lambda: None,
     ) -> None:
         self.config = config
         self.recorder = recorder
         self.notifier = notifier
         self.ready = ready
+        #: The running model's file path and sha256 (None: none runs).
+        self.running = running
         #: Reloads done (each SIGHUP taken, whatever came of it).
         self.done = 0
         self._task: asyncio.Task[None] | None = None
@@ -87,6 +95,7 @@ class Reloader:
                 error=str(exc),
             )
             config = "refused (error logged)"
+        await asyncio.to_thread(self._check_model_file)
         recorder = self._reopen_recorder()
         self.done += 1
         log.info("reloaded", config=config, recorder=recorder)
@@ -110,6 +119,28 @@ class Reloader:
             "without a restart with 'compd model load FILE'",
         )
         return f"changed ({', '.join(changed)}), not applied: restart to apply"
+
+    def _check_model_file(self) -> None:
+        """One WARNING when the running model is the config's file and that file changed on disk."""
+        running, path = self.running(), self.config.model_path
+        if running is None or path is None:
+            return
+        running_path, running_sha256 = running
+        if Path(running_path).resolve() != path.resolve():
+            return  # an installed model runs: the config's file is its fallback
+        try:
+            on_disk = hashlib.sha256(path.read_bytes()).hexdigest()
+        except OSError as exc:
+            on_disk = f"unreadable ({exc.strerror})"
+        if on_disk == running_sha256:
+            return
+        log.warning(
+            "reload: the model file changed on disk; running on with the model it loaded",
+            model=str(path),
+            running_sha256=running_sha256,
+            on_disk_sha256=on_disk,
+            fix=f"Switch to it with 'compd model load {path}' (checked, then blended in)",
+        )
 
     def _reopen_recorder(self) -> str:
         if self.recorder is None:

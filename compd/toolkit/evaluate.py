@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from compd.errors import DataFileError
+from compd.files.columns import UNIT_PREFIX
 from compd.files.data import DataSet
 from compd.files.experiments import Stacked, stack
 from compd.files.modelfile import ModelFile
@@ -59,6 +60,38 @@ class Evaluation:
 
     def predicted(self, output: str) -> np.ndarray:
         return self.result.output(self.compiled, output)
+
+
+def check_recorded_units(model_file: ModelFile, data: DataSet) -> None:
+    """Refuse a column the file records in another unit than the model file reads it in.
+
+    A recording says each column's unit (``unit.<column>``, the config's); a
+    model run on degF or mm numbers where it was fitted on degC or um gives
+    figures off by a factor that nothing else shows. The daemon refuses such a
+    config; the toolkit refuses such a record.
+    """
+    declared = model_file.signal_units() or {}
+    for name in model_file.model.signals():
+        recorded = data.metadata.get(UNIT_PREFIX + name)
+        model_unit = declared.get(name)
+        if recorded is None or model_unit in (None, "-") or _same(recorded) == _same(model_unit):
+            continue
+        raise DataFileError(
+            data.path,
+            f"column {name!r} is recorded in {recorded!r}, and model {model_file.path} reads it "
+            f"in {model_unit!r}",
+            where=f"column {name!r}",
+            fix=f"Convert the column to {model_unit!r} (and its unit.{name} line), or use a "
+            "model fitted on data in the recorded unit",
+        )
+
+
+#: Spellings of one unit (the daemon's unit check knows more, with their conversions).
+_SPELLINGS = {"°C": "degC", "C": "degC", "µm": "um", "μm": "um", "1/min": "rpm", "%": "percent"}
+
+
+def _same(unit: str) -> str:
+    return _SPELLINGS.get(unit, unit)
 
 
 def signal_matrix(compiled: CompiledModel, data: DataSet) -> np.ndarray:
@@ -109,6 +142,7 @@ def evaluate(
     ]
     if not as_logged:
         data, _ = zero_displacements(data, displacements)
+    check_recorded_units(model_file, data)
     signals = signal_matrix(compiled, data)
     state: ModelState = (
         compiled.rest_state(signals[0]) if init == "rest" else compiled.steady_state(signals[0])

@@ -16,6 +16,7 @@ those of the file a user will load (what it records: :mod:`compd.toolkit.extendr
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -32,9 +33,10 @@ from compd.model.guards import Finding, Severity
 from compd.model.identify import Identification
 from compd.model.lagbank import lag_name
 from compd.model.metrics import fit_percent
-from compd.model.structure import InputSpec, Model, Output, SubModel
+from compd.model.structure import InputSpec, Model, SubModel
 from compd.model.transfer import DiscreteTF, resample_discrete
 from compd.toolkit.candidates import guard_findings, refuse_errors
+from compd.toolkit.derived import consistency_note, kept_priors, kept_residuals
 from compd.toolkit.evaluate import Evaluation, compare, evaluate_each, measured_columns
 from compd.toolkit.extendjudge import (
     RULE,
@@ -45,6 +47,7 @@ from compd.toolkit.extendjudge import (
     without_prior,
 )
 from compd.toolkit.extendrecord import ExtensionRecord, Tried, extension_yaml
+from compd.toolkit.fitchecks import check_input_units
 from compd.toolkit.methods import FitMethod, Prepared, method_named, writes_lags
 from compd.toolkit.nestedselect import LAG_BANK
 from compd.toolkit.span import Span, span_data, until_stop
@@ -74,6 +77,8 @@ class Extension:
     refitted: tuple[str, ...] = ()
     #: The method's first choice failed the guard rails; its fallback was added instead.
     fell_back: bool = False
+    #: What the new file could not keep of its parent (a probe prior), for the user.
+    notes: tuple[str, ...] = ()
 
 
 def extend_model(
@@ -185,7 +190,9 @@ def extend_model(
     yaml_text = extension_yaml(
         parent,
         model,
-        data if span is None else span_data(data, span),
+        # The calibration's ranges widen by the record as judged: a displacement not zeroed at
+        # its start (taken as its change from there) would widen the output's to its raw values.
+        before.data if first == 0 or span is None else span_data(data, span),
         record,
         {output: fit_before},
         {output: fit_after},
@@ -193,7 +200,7 @@ def extend_model(
         calibration_rms_um=_rms((measured - after.predicted(output))[first:]),
         output=output,
     )
-    extended = parse_model(yaml_text, "<extended model>")
+    extended = parse_model(yaml_text, parent.path)  # beside the parent, where its sidecars are
     findings = [f for f in guard_findings(data, model) if set(names) & set(f.submodel.split(" + "))]
     if not force:
         refuse_errors(
@@ -217,6 +224,17 @@ def extend_model(
         findings=findings,
         refitted=prior.signals,
         fell_back=fell_back,
+        notes=tuple(
+            filter(
+                None,
+                [
+                    # What the judging did to the record (a displacement not zeroed), as fit says it.
+                    *(f"{data.path}: {n}" for n in before.data.notes if n not in data.notes),
+                    *kept_priors(parent, model)[1],
+                    consistency_note(parent, signal),
+                ],
+            )
+        ),
     )
 
 
@@ -309,6 +327,7 @@ def check_effect_signal(data: DataSet, signal: str, measured_name: str) -> None:
             f"column {signal!r} is constant, so it cannot explain anything in this record",
             fix="Extend on a record in which the effect varies",
         )
+    check_input_units(data, [signal])
 
 
 def one_output(evaluation: Evaluation, column: str | None) -> tuple[str, str]:
@@ -356,7 +375,9 @@ def with_verification(extension: Extension, verify_path: str, before: float, aft
         description=doc.description,
         signals=extension.extended.signal_units(),
         provenance=provenance,
+        residuals=kept_residuals(extension.extended),
         consistency=doc.consistency,
+        probe_prior=doc.probe_prior,
         run_periods_s=kept_periods(doc.difference_equations),
     )
 
@@ -408,17 +429,16 @@ def _with_submodels(
     drop: tuple[str, ...] = (),
 ) -> Model:
     outputs = tuple(
-        Output(
-            o.name,
-            (*(s for s in o.submodels if s.name not in drop), *submodels),
-            bias_um=o.bias_um,
+        dataclasses.replace(
+            o, submodels=(*(s for s in o.submodels if s.name not in drop), *submodels)
         )
         if o.name == output
         else o
         for o in model.outputs
     )
-    # A new name, so reports and logs can tell the extended model from its parent.
-    return Model(f"{model.name}+{signal}", model.sample_time_s, outputs)
+    # A new name, so reports and logs can tell the extended model from its parent; all else
+    # (the ambient zero, a residual forest, a bias) stays: the new sub-model fits what they leave.
+    return dataclasses.replace(model, name=f"{model.name}+{signal}", outputs=outputs)
 
 
 def _unique(name: str, taken: set[str]) -> str:

@@ -24,8 +24,9 @@ from compd.files.modelfile import ModelFile
 from compd.files.modelschema import CalibrationDoc, ExtensionDoc, TriedDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.structure import Model
+from compd.toolkit.derived import kept_priors, kept_residuals
 from compd.toolkit.extendjudge import HeldOut
-from compd.toolkit.fitmodel import unit_of
+from compd.toolkit.fitmodel import column_unit
 
 
 @dataclass(frozen=True)
@@ -80,7 +81,7 @@ def extension_yaml(
     units = parent.signal_units()
     signal = record.signal
     if units is not None and signal not in units:
-        units = {**units, signal: unit_of(signal)}
+        units = {**units, signal: column_unit(data, signal)}
     calibration = doc.provenance.calibration
     if calibration is not None and calibration_rms_um is not None:
         calibration = widened_calibration(calibration, data, output, calibration_rms_um)
@@ -122,7 +123,9 @@ def extension_yaml(
         description=extended_description(doc.description, signal, record.submodels),
         signals=units,
         provenance=provenance,
+        residuals=kept_residuals(parent),
         consistency=doc.consistency,
+        probe_prior=kept_priors(parent, model)[0],
         run_periods_s=kept_periods(doc.difference_equations),
     )
 

@@ -55,10 +55,10 @@ from compd.toolkit.candidates import (
 from compd.toolkit.denoise import bake_lowpasses, denoise_columns, denoise_note
 from compd.toolkit.fitchecks import check_arguments, check_position
 from compd.toolkit.fitmodel import (
+    column_unit,
     describe_references,
     fit_provenance,
     identification_to_model,
-    unit_of,
     with_references,
 )
 from compd.toolkit.methods import METHODS, Prepared, method_named
@@ -289,7 +289,7 @@ def fit_data(
     )
     denoise_doc = None
     if denoised:
-        units = {column: unit_of(column) for column in denoised}
+        units = {column: column_unit(data, column) for column in denoised}
         baked = bake_lowpasses(model, identification, data, denoised, units)
         model, identification, denoise_doc = baked.model, baked.identification, baked.doc
     comparison = Comparison.of(output, y[first:], identification.simulated_um[first:])
@@ -314,7 +314,7 @@ def fit_data(
     # The thermal zero: the calibration's first values (each experiment's, averaged), which
     # the fit took the inputs as changes from; the daemon starts from it (no "value at start").
     references = {c: float(np.mean(data.column(c)[list(starts)])) for c in inputs}
-    model = with_references(model, references)
+    model = with_references(model, references, {n: column_unit(data, n) for n in references})
     provenance = fit_provenance(
         data, identification, comparison, request.command, phase_gate, slope, span
     )
@@ -348,7 +348,7 @@ def fit_data(
     if denoise_doc is not None:
         notes = f"{provenance.notes}; {denoise_note(denoise_doc)}"
         provenance = provenance.model_copy(update={"denoise": denoise_doc, "notes": notes})
-    signals = {signal: unit_of(signal) for signal in model.signals()}
+    signals = {signal: column_unit(data, signal) for signal in model.signals()}
     text = model_to_yaml(
         model,
         description=f"{output} from {', '.join(inputs)}, identified by compd fit --method {chosen}",

@@ -7,13 +7,16 @@ it takes; every check here only reads the data set and raises
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
 import numpy as np
 
 from compd.errors import DataFileError
+from compd.files.columns import UNIT_PREFIX
 from compd.files.data import DataSet
 from compd.model.orderfit import MAX_ORDER
+from compd.toolkit.fitmodel import column_unit
 from compd.toolkit.methods import FIT_METHODS
 
 
@@ -65,6 +68,74 @@ def check_arguments(
                 where=f"column {column!r}",
                 fix="Leave it out of --inputs, or calibrate on data in which it varies",
             )
+    check_units(data, output, inputs)
+
+
+#: A displacement's name ending in a length unit other than um (or a recorded unit other than
+#: um): compd's outputs are in um.
+_LENGTH_UNIT = re.compile(r"_(mm|m|nm|cm|in|inch|mil)$", re.IGNORECASE)
+#: Machine-tool temperatures in degC lie far below this; kelvin far above it.
+_KELVIN_OR_DEGC_SPLIT = 150.0
+
+
+def check_units(data: DataSet, output: str, inputs: Sequence[str]) -> None:
+    """Refuse what a column's name says against what it holds: a constant or non-um output, a
+    temperature in kelvin named degC (or the reverse); fitted, each is a model wrong by a factor
+    or an offset that no figure of the fit shows."""
+    values = data.column(output)
+    if np.ptp(values) == 0.0:
+        raise DataFileError(
+            data.path,
+            f"the output column {output!r} is constant ({values[0]:g}) over the whole record: "
+            "there is no displacement to model",
+            where=f"column {output!r}",
+            fix="Name the measured displacement column with --output",
+        )
+    recorded = data.metadata.get(UNIT_PREFIX + output)
+    named = _LENGTH_UNIT.search(output)
+    unit = recorded if recorded is not None else (named.group(1) if named else "um")
+    if unit not in ("um", "µm", "μm", "-"):
+        said = "as the file records it" if recorded is not None else "by its name"
+        raise DataFileError(
+            data.path,
+            f"the output column {output!r} is in {unit} {said}; compd's outputs "
+            "(the offsets it writes) are in um, and a fit would take its values as um",
+            where=f"column {output!r}",
+            fix="Convert it to um in a column named ..._um (e.g. disp_z_um), or rename it if it "
+            "already holds um",
+        )
+    check_input_units(data, inputs)
+
+
+def check_input_units(data: DataSet, inputs: Sequence[str]) -> None:
+    """Refuse a temperature input in kelvin said to be degC, or in degC said to be K (by the file's
+    recorded unit, else its name): its reference (the thermal zero a model keeps) would be 273
+    degrees off what the daemon reads."""
+    for column in inputs:
+        unit = column_unit(data, column)
+        recorded = UNIT_PREFIX + column in data.metadata
+        middle = float(np.median(data.column(column)))
+        if unit == "degC" and middle > _KELVIN_OR_DEGC_SPLIT:
+            fix = "Subtract 273.15 (it reads kelvin)"
+            other = "K"
+        elif unit == "K" and middle < _KELVIN_OR_DEGC_SPLIT:
+            fix = "Add 273.15 (it reads degC)"
+            other = "degC"
+        else:
+            continue
+        said = "as the file records it" if recorded else "by its name"
+        fix += (
+            f", or record it with the config's 'unit: {other}'"
+            if recorded
+            else f", or name it {column.rsplit('_', 1)[0]}_{other}"
+        )
+        raise DataFileError(
+            data.path,
+            f"input column {column!r} is in {unit} {said}, but its median is {middle:g}: "
+            "a machine tool is not that hot or cold, so the unit is likely wrong",
+            where=f"column {column!r}",
+            fix=fix,
+        )
 
 
 def check_position(

@@ -20,6 +20,7 @@ import numpy as np
 
 from compd import __version__
 from compd.errors import ModelError
+from compd.files.columns import UNIT_PREFIX
 from compd.files.effects import load_catalogue
 from compd.files.modelschema import CalibrationDoc, ProvenanceDoc
 from compd.model.lagbank import lag_name
@@ -53,6 +54,12 @@ def unit_of(name: str) -> str:
     if match is None:
         return "-"
     return {"kw": "kW", "pct": "percent"}.get(match.group(1), match.group(1))
+
+
+def column_unit(data: DataSet, name: str) -> str:
+    """A column's unit: as the file records it (compd's recorder writes ``unit.<column>``, the
+    config's unit), else as its name carries it (:func:`unit_of`)."""
+    return data.metadata.get(UNIT_PREFIX + name) or unit_of(name)
 
 
 def identification_to_model(
@@ -134,7 +141,9 @@ def identification_to_model(
     return Model(name, identification.sample_time_s, (Output(output, tuple(subs)),))
 
 
-def with_references(model: Model, references: Mapping[str, float]) -> Model:
+def with_references(
+    model: Model, references: Mapping[str, float], units: Mapping[str, str] | None = None
+) -> Model:
     """``model`` with each input's reference fixed at ``references[signal]`` (its thermal zero).
 
     The fit takes inputs as changes from the calibration's first values; the
@@ -144,6 +153,7 @@ def with_references(model: Model, references: Mapping[str, float]) -> Model:
     An input the effect catalogue calls the shop air (``T_ambient*``, ...) becomes
     the model's :class:`~compd.model.structure.AmbientZero`: a cold machine is in
     equilibrium with today's air, not the calibration day's, so the zero follows it.
+    ``units``: each input's unit where the data records it (else its name's).
     """
     catalogue = load_catalogue()
     air = [name for name in references if catalogue.effect_for(name).startswith("ambient")]
@@ -159,7 +169,8 @@ def with_references(model: Model, references: Mapping[str, float]) -> Model:
         )
         for output in model.outputs
     )
-    temperatures = tuple(name for name in references if unit_of(name) in ("degC", "K"))
+    unit = (units or {}).get
+    temperatures = tuple(n for n in references if (unit(n) or unit_of(n)) in ("degC", "K"))
     ambient = AmbientZero(air[0], float(references[air[0]]), temperatures) if air else None
     return replace(model, outputs=outputs, ambient=ambient)
 

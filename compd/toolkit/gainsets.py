@@ -4,9 +4,9 @@ Post-process 2024 eq. 6 scales whole sub-models by gains ``g1, g2, ...``; the mo
 file names them (``gain_name`` per sub-model, shared names share a value).
 Here the names are resolved against a model (plus any sub-model a user frees
 with ``--bounds NAME=LOW:HIGH``), and a model run over a data file is split
-into each gain's contribution at gain 1 and the fixed rest, so that any gain
-vector's output is ``fixed + C @ g`` without running the model again (see
-:mod:`compd.model.gains`).
+into each gain's contribution at gain 1 and the fixed rest (the other
+sub-models, residual forests, biases), so that any gain vector's output is
+``fixed + C @ g`` without running the model again (see :mod:`compd.model.gains`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 from compd.errors import ModelFileError
 from compd.files.data import DataSet
 from compd.files.modelfile import ModelFile
-from compd.model.structure import Model, Output
+from compd.model.structure import Model
 from compd.toolkit.evaluate import InitialState, evaluate
 
 
@@ -109,20 +109,20 @@ def model_gains(
 
 
 def with_gains(model: Model, gains: list[Gain], values: np.ndarray) -> Model:
-    """``model`` with each gain's sub-models set to its value."""
+    """``model`` with each gain's sub-models set to its value; all else (its ambient zero,
+    residual forests, biases) as it was."""
     new = {place: float(v) for gain, v in zip(gains, values, strict=True) for place in gain.members}
     outputs = tuple(
-        Output(
-            output.name,
-            tuple(
+        dataclasses.replace(
+            output,
+            submodels=tuple(
                 dataclasses.replace(sub, gain=new.get((o, s), sub.gain))
                 for s, sub in enumerate(output.submodels)
             ),
-            bias_um=output.bias_um,
         )
         for o, output in enumerate(model.outputs)
     )
-    return Model(model.name, model.sample_time_s, outputs)
+    return dataclasses.replace(model, outputs=outputs)
 
 
 @dataclass(frozen=True, eq=False)
@@ -155,7 +155,6 @@ def decompose(
             flat += 1
     contributions, fixed = {}, {}
     for o, output in enumerate(unit.outputs):
-        own = [column[(o, s)] for s in range(len(output.submodels))]
         gained = np.zeros((len(data), len(gains)))
         free: set[int] = set()
         for j, gain in enumerate(gains):
@@ -163,7 +162,8 @@ def decompose(
             free.update(cols)
             if cols:
                 gained[:, j] = per_sub[:, cols].sum(axis=1)
-        rest = [c for c in own if c not in free]
         contributions[output.name] = gained
-        fixed[output.name] = per_sub[:, rest].sum(axis=1) if rest else np.zeros(len(data))
+        # The rest is the output less what the gains scale: the other sub-models, and its
+        # residual forest and bias, which the written model keeps and adds too.
+        fixed[output.name] = evaluation.predicted(output.name) - gained.sum(axis=1)
     return Decomposition(data, contributions, fixed)

@@ -17,8 +17,10 @@ from pathlib import Path
 
 from compd.errors import ModelError, ModelFileError
 from compd.files.equations import MAX_PERIODS, with_equations
-from compd.files.modelfile import load_model, parse_model_bytes
+from compd.files.modelfile import ModelFile, load_model, parse_model, parse_model_bytes
 from compd.files.modelwriter import equations_lines
+from compd.files.provenancepaths import with_portable_provenance
+from compd.files.sidecar import copy_sidecars, residual_files
 from compd.files.unreadable import write_atomic
 from compd.files.yamlplace import read_limited
 from compd.model.precompiled import (
@@ -78,6 +80,10 @@ def compile_file(source: Path, periods_s: Iterable[float], out: Path | None = No
     raw = read_limited(Path(model_file.path), ModelFileError)
     text = with_equations(raw.decode("utf-8"), equations_lines(model, sets))
     destination = Path(model_file.path) if out is None else out
+    # A stacked model's forest goes with it: the copy names the same sidecar beside itself.
+    copy_sidecars(residual_files(model_file.doc), model_file.path, destination)
+    if destination.parent.resolve() != Path(model_file.path).parent.resolve():
+        text = _moved_provenance(model_file, text, destination)
     written = text.encode("utf-8")
     checked = parse_model_bytes(written, destination)  # what it writes, compd reads
     mode = destination.stat().st_mode & 0o777 if destination.exists() else None
@@ -86,3 +92,20 @@ def compile_file(source: Path, periods_s: Iterable[float], out: Path | None = No
         destination.chmod(mode)  # rewritten in place: as readable as it was
     periods = tuple(s.period_s for s in sets)
     return Compiled(destination, periods, tuple(as_is), model_file.sha256, checked.sha256)
+
+
+def _moved_provenance(model_file: ModelFile, text: str, destination: Path) -> str:
+    """``text`` with its provenance's paths (relative to the source's folder) seen from ``destination``'s.
+
+    Without it a copy elsewhere names other files, or none: ``compd report``
+    no longer sees that a record is the one the model was fitted on. The block
+    is rewritten only where it is the file's last, as compd writes it; a file
+    arranged otherwise by hand is copied as it is.
+    """
+    moved = with_portable_provenance(
+        text, destination, parent=model_file.doc.provenance, parent_path=Path(model_file.path)
+    )
+    before = parse_model(text, model_file.path).doc
+    after = parse_model(moved, model_file.path).doc
+    unchanged = before.model_copy(update={"provenance": after.provenance}) == after
+    return moved if unchanged else text

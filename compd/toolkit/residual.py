@@ -257,7 +257,7 @@ def _stack(
     options: tuple[str, int, int, int],
     span: Span | None = None,
 ) -> StackedFit:
-    from compd.toolkit.fitmodel import unit_of
+    from compd.toolkit.fitmodel import column_unit
 
     signal, trees, max_depth, seed = options
     door = data.column(signal)  # an unknown column names the file's columns
@@ -304,7 +304,7 @@ def _stack(
     text = model_to_yaml(
         model,
         description=f"{description}, plus a residual forest on {signal} (Swiss-lathe paper)",
-        signals={s: units.get(s) or unit_of(s) for s in model.signals()},
+        signals={s: units.get(s) or column_unit(data, s) for s in model.signals()},
         provenance=provenance.model_copy(update={"notes": notes}),
         residuals={output: doc},
         # What the forest does not change stays the parent's: the inputs' consistency checks

@@ -44,6 +44,7 @@ from compd.model.gains import (
     update_gains,
 )
 from compd.model.metrics import fit_percent
+from compd.toolkit.derived import kept_priors, kept_residuals
 from compd.toolkit.evaluate import InitialState
 from compd.toolkit.gainsets import Decomposition, Gain, decompose, model_gains, with_gains
 from compd.toolkit.probes import ProbeRows, Probes, probe_rows, probed_outputs
@@ -237,15 +238,19 @@ def update_model(
             "command": command or doc.provenance.command,
         }
     )
+    priors, prior_notes = kept_priors(parent, model)
+    notes += prior_notes
     text = model_to_yaml(
         model,
         description=doc.description,
         signals=parent.signal_units(),
         provenance=provenance,
+        residuals=kept_residuals(parent),
         consistency=doc.consistency,
+        probe_prior=priors,
         run_periods_s=kept_periods(doc.difference_equations),
     )
-    updated = parse_model(text, "<updated model>")
+    updated = parse_model(text, parent.path)  # beside the parent, where its forests' sidecars are
     return Update(
         parent=parent,
         updated=updated,

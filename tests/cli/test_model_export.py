@@ -18,6 +18,7 @@ from compd.model.probelearner import OutputLearner
 from compd.model.proberegressors import output_columns
 from compd.model.probesettings import ProbeSettings
 from compd.model.run import TickRunner
+from compd.report.verdict import fitted_on
 from compd.toolkit.evaluate import evaluate
 from tests.cli.test_compare_probes import _record
 
@@ -188,3 +189,15 @@ def test_the_provenance_names_only_the_probes_since_the_last_reset(served, tmp_p
     )
     (record,) = load_model(out).doc.provenance.probe_updates
     assert [(p.source, p.result) for p in record.probes] == [("cli", RESULTS[-1])]
+
+
+def test_a_file_exported_to_another_folder_still_names_the_record_it_was_fitted_on(
+    served, tmp_path
+) -> None:
+    """Exported elsewhere, the provenance's paths are seen from the new folder: a report still knows the calibration."""
+    folder, model, state, _, _, _, _ = served
+    out = tmp_path / "elsewhere" / "updated.yaml"
+    out.parent.mkdir()
+    argv = ["model", "export", "--updated", "--state-dir", str(state), str(model), str(out)]
+    assert main(argv) == 0
+    assert fitted_on(load_model(out), str(folder / "calib.csv"))

@@ -21,6 +21,8 @@ from compd.service.loop.clock import VirtualClock
 
 from .daemon_setup import short_socket, write_config
 
+EXAMPLE_MODEL = Path(__file__).resolve().parents[2] / "config" / "example_gated_arx.yaml"
+
 #: A give-up bound for waits on another process or thread, never an assertion on elapsed time.
 GIVE_UP_S = 60.0
 
@@ -48,6 +50,17 @@ def reloaded_while_running(service: Service, before_reload: Any = None) -> list[
     return logs
 
 
+def reloads_warnings(logs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The warnings and errors, less the start's own (the example model has no consistency check
+    and no calibrated range)."""
+    starts = ("no consistency", "the model file records no calibrated range")
+    return [
+        e
+        for e in logs
+        if e["log_level"] in ("warning", "error") and not e["event"].startswith(starts)
+    ]
+
+
 def recordings(config: Any) -> list[Path]:
     assert config.recorder_dir is not None
     return sorted(config.recorder_dir.glob("compd-*.csv"))
@@ -64,11 +77,7 @@ def test_a_reload_with_the_same_config_starts_a_new_recording_of_the_same_run(tm
     )
     # A subscriber over its time budget is the machine's load, not the reload's doing (seen once:
     # the recorder's new file took 280 ms while the suite and a type check shared 2 cores).
-    assert not [
-        e
-        for e in logs
-        if e["log_level"] in ("warning", "error") and e["event"] != "tick subscriber slow"
-    ]
+    assert not [e for e in reloads_warnings(logs) if e["event"] != "tick subscriber slow"]
     first, second = (load_data(path).metadata for path in recordings(config))
     assert first["run_id"] == second["run_id"] and second["run_reason"] == "reopened"
     assert second["run_previous"] == recordings(config)[0].name
@@ -87,7 +96,7 @@ def test_a_changed_config_is_not_applied_and_named(tmp_path):
         config.path.write_text(yaml.safe_dump(doc, sort_keys=False))
 
     logs = reloaded_while_running(service, edit)
-    (warning,) = [e for e in logs if e["log_level"] == "warning"]
+    (warning,) = reloads_warnings(logs)
     assert warning["changed"] == ["blend_s", "outputs"] and "restart" in warning["fix"]
     (done,) = [e for e in logs if e["event"] == "reloaded"]
     assert done["config"].startswith("changed (blend_s, outputs), not applied")
@@ -213,3 +222,26 @@ def _ignores_sighup(pid: int) -> bool:
         return False
     mask = next(line.split()[1] for line in status.splitlines() if line.startswith("SigIgn:"))
     return bool(int(mask, 16) & 1 << (signal.SIGHUP - 1))
+
+
+def test_a_model_file_changed_on_disk_is_named_not_applied(tmp_path):
+    """SIGHUP after the running model's file changed: one WARNING with the fix, the loaded model runs on."""
+    model = tmp_path / "model.yaml"
+    model.write_bytes(EXAMPLE_MODEL.read_bytes())
+    config = write_config(tmp_path, {"model": str(model)})
+    service = Service(config, clock=VirtualClock(), control=False)
+    running = service.compensator.running
+    assert running is not None
+
+    def edit() -> None:
+        model.write_text(model.read_text() + "# edited by hand\n")
+
+    logs = reloaded_while_running(service, edit)
+    (warning,) = reloads_warnings(logs)
+    assert warning["event"].startswith("reload: the model file changed on disk")
+    assert (
+        warning["fix"] == f"Switch to it with 'compd model load {model}' (checked, then blended in)"
+    )
+    assert warning["running_sha256"] == running.sha256 != warning["on_disk_sha256"]
+    assert service.compensator.running is not None
+    assert service.compensator.running.sha256 == running.sha256

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+import dataclasses
 import hashlib
 from pathlib import Path
 
@@ -10,7 +12,9 @@ import pytest
 from numpy.testing import assert_allclose
 
 from compd.cli import main
+from compd.cli.daemon import model_load
 from compd.files.data import load_data
+from compd.files.modelfile import load_model
 from compd.files.modelschema import ResidualDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.files.sidecar import sidecar_bytes, sidecar_path
@@ -18,12 +22,14 @@ from compd.model.residual import DoorFeatures
 from compd.model.run import simulate
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF
+from compd.service.control.modelload import load_request, startup_slots
+from compd.service.control.socket import request
 from compd.service.daemon import Service
 from compd.service.loop.clock import VirtualClock
 from compd.service.store.state import load_state
 from compd.toolkit.residual import fit_residual
 
-from .daemon_setup import run, simulated_doc, write_config
+from .daemon_setup import run, short_socket, simulated_doc, ticked, write_config
 
 CHECKS = {"min": -1, "max": 80, "stale_s": 10, "hold_s": 30}
 
@@ -59,9 +65,10 @@ def setup(tmp_path_factory) -> tuple[Path, Path]:
     return path, data_path
 
 
-def config_for(folder: Path, model: Path, data: Path, start_s: float = 0.0):
+def config_for(folder: Path, model: Path, data: Path, start_s: float = 0.0, **extra: object):
     """The simulated config reading the twin file, with Z offsets from ``disp_z_um``."""
     changes = {
+        **extra,
         "model": str(model),
         "drivers": {"machine": {"settings": {"data": str(data), "start_s": start_s}}},
         "signals": {
@@ -125,3 +132,77 @@ def test_restart_resumes_the_door_features(setup, tmp_path) -> None:
                        compiled.steady_state(signals[saved.ticks]))  # fmt: skip
     assert settled.residuals is not None and reference.residuals is not None
     assert np.max(np.abs(settled.residuals - reference.residuals)) > 0.1, "the features resumed"
+
+
+def plain_beside(stacked: Path, folder: Path) -> Path:
+    """``stacked``'s TF alone, as the config's model a stacked one is loaded over."""
+    model = load_model(stacked).model
+    plain = dataclasses.replace(
+        model, name="plain", outputs=(dataclasses.replace(model.outputs[0], residual=None),)
+    )
+    path = folder / "plain.yaml"
+    path.write_text(model_to_yaml(plain, signals={"T_spindle_degC": "degC"}))
+    return path
+
+
+def test_a_stacked_model_loaded_into_a_running_daemon_is_the_next_starts(setup, tmp_path) -> None:
+    """compd model load of a stacked model: the daemon switches to it, and the next start runs it too
+    (its forest installed beside it), not the config's model with the installed one set aside."""
+    stacked, data = setup
+    config = config_for(
+        tmp_path, plain_beside(stacked, tmp_path), data, control_socket=str(short_socket())
+    )
+    service = Service(config, clock=VirtualClock(), control=True)
+
+    async def scenario() -> int:
+        task = asyncio.create_task(service.run())
+        await ticked(service, task, 3)
+        code = await model_load(config, stacked)
+        service.stop()
+        await task
+        return code
+
+    assert asyncio.run(scenario()) == 0
+    next_start, _ = startup_slots(config, 0.0)
+    assert next_start is not None and next_start.compiled.name == "stacked-door"
+    assert next_start.model_file.model.outputs[0].residual is not None
+
+
+def test_a_stacked_model_installed_with_no_daemon_running_starts(setup, tmp_path) -> None:
+    """compd model load with no daemon: "it will start with this model" holds for a stacked one."""
+    stacked, data = setup
+    config = config_for(
+        tmp_path, plain_beside(stacked, tmp_path), data, control_socket=str(short_socket())
+    )
+    assert asyncio.run(model_load(config, stacked)) == 0
+    next_start, _ = startup_slots(config, 0.0)
+    assert next_start is not None and next_start.compiled.name == "stacked-door"
+
+
+def test_the_daemon_reads_a_stacked_models_forest_from_the_request_not_the_clients_folder(
+    setup, tmp_path
+) -> None:
+    """A load request without the forest its model names is refused: the daemon does not look beside
+    the client's file, it reads what the request carries (compd model load sends it)."""
+    stacked, data = setup
+    config = config_for(
+        tmp_path, plain_beside(stacked, tmp_path), data, control_socket=str(short_socket())
+    )
+    service = Service(config, clock=VirtualClock(), control=True)
+    replies = {}
+
+    async def scenario() -> None:
+        task = asyncio.create_task(service.run())
+        await ticked(service, task, 3)
+        raw = stacked.read_bytes()
+        socket = config.control_socket
+        replies["bare"] = await request(socket, load_request(raw, stacked), timeout_s=120)
+        sidecar = {sidecar_path(stacked).name: sidecar_path(stacked).read_bytes()}
+        replies["with"] = await request(socket, load_request(raw, stacked, sidecar), timeout_s=120)
+        service.stop()
+        await task
+
+    asyncio.run(scenario())
+    assert not replies["bare"]["ok"] and "forest was not sent with it" in replies["bare"]["error"]
+    assert str(stacked.parent) not in replies["bare"]["error"]
+    assert replies["with"]["ok"], replies["with"]

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from structlog.testing import capture_logs
 
+from compd.errors import CompdError
 from compd.files.modelfile import load_model
 from compd.files.yamlplace import resolve_path
 from compd.model.compiled import ModelState
@@ -19,6 +20,7 @@ from compd.service.store.state import (
     SavedState,
     StateError,
     install_model,
+    install_sidecars,
     installed_model,
     load_state,
     resume_decision,
@@ -276,3 +278,20 @@ def test_a_daemon_with_a_corrupt_state_file_sets_it_aside_and_starts(tmp_path, r
     assert next(iter(replace)) in error["reason"]
     assert aside.read_text() == corrupt, "kept as it was"
     assert load_state(config.state_dir) is not None, "a new state saved at shutdown"
+
+
+def test_an_installed_models_forest_is_never_replaced_by_another_of_its_name(
+    tmp_path: Path,
+) -> None:
+    """Forests go beside the installed models; another model's forest of the same name is refused, not
+    overwritten (the model installed with it would no longer start); a name with a folder is refused."""
+    assert install_sidecars(tmp_path, {"m.residual.npz": b"first"}) == [
+        tmp_path / "models" / "m.residual.npz"
+    ]
+    assert install_sidecars(tmp_path, {"m.residual.npz": b"first"}) == []  # the same: kept
+    with pytest.raises(CompdError, match="holds another installed model's forest"):
+        install_sidecars(tmp_path, {"m.residual.npz": b"second"})
+    assert (tmp_path / "models" / "m.residual.npz").read_bytes() == b"first"
+    for name in ("../m.residual.npz", "m.yaml", "/etc/m.npz"):
+        with pytest.raises(CompdError, match=r"a \.npz file name with no folder"):
+            install_sidecars(tmp_path, {name: b"x"})

@@ -21,6 +21,7 @@ import pytest
 
 from compd.cli import main
 from compd.files.modelfile import load_model
+from compd.report.verdict import fitted_on
 from tests.workflow.test_hidden_effects import BASE_INPUTS, compd, compd_json, twin
 
 FOREST = ("--trees", 30, "--max-depth", 8)
@@ -119,3 +120,65 @@ def test_residual_command_stacks_a_forest_on_a_model_without_door(folder: Path, 
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
         code = main(["residual", str(stacked), str(door_run), "--out", str(folder / "twice.yaml")])
     assert code == 2 and "already have a residual model" in err.getvalue()
+
+
+def derived_keeps_the_forest(stacked: Path, derived: Path) -> None:
+    """A file derived from a stacked one loads with its own copy of the forest, ambient zero and input checks."""
+    parent, child = load_model(stacked), load_model(derived)
+    assert (derived.parent / parent.doc.outputs["disp_z_um"].residual.file).exists()
+    assert child.doc.outputs["disp_z_um"].residual == parent.doc.outputs["disp_z_um"].residual
+    assert child.model.outputs[0].residual is not None
+    assert child.model.ambient == parent.model.ambient is not None
+    assert child.doc.consistency == parent.doc.consistency
+
+
+def test_update_of_a_stacked_model_keeps_its_forest_and_says_the_prior_is_gone(
+    models, tmp_path: Path
+) -> None:
+    """`compd update` of a stacked model, written elsewhere, keeps its forest and says its probe prior is gone."""
+    _, stacked, run = models
+    rows = np.loadtxt(run, delimiter=",", skiprows=1, usecols=(0, 16))[::180]  # time_s, disp_z_um
+    probes = tmp_path / "probes.csv"
+    np.savetxt(probes, rows, delimiter=",", header="time_s,disp_z_um", comments="")
+    first = load_model(stacked).model.outputs[0].submodels[0].name
+    derived = tmp_path / "elsewhere" / "updated.yaml"
+    derived.parent.mkdir()
+    summary = compd_json(
+        "update", stacked, run, "--probes", probes, "--bounds", f"{first}=0:2", "--out", derived
+    )
+    derived_keeps_the_forest(stacked, derived)
+    assert not load_model(derived).doc.probe_prior
+    assert any("probe prior" in note for note in summary["notes"]), summary["notes"]
+
+
+def test_extend_of_a_stacked_model_keeps_its_forest(folder: Path, models, tmp_path: Path) -> None:
+    """`compd extend` of a stacked model, written elsewhere, keeps its forest; it says its probe prior is gone
+    and its new input is outside the consistency checks."""
+    _, stacked, _ = models
+    cutting = twin(folder, "cutting", 16, seed=2)
+    derived = tmp_path / "elsewhere" / "extended.yaml"
+    derived.parent.mkdir()
+    summary = compd_json(
+        "extend", stacked, cutting, "--effect", "spindle_power_kw", "--force", "--out", derived
+    )
+    derived_keeps_the_forest(stacked, derived)
+    assert any("probe prior" in note for note in summary["notes"]), summary["notes"]
+    assert any(
+        note.startswith("spindle_power_kw: the consistency checks are the calibration's")
+        for note in summary["notes"]
+    ), summary["notes"]
+
+
+def test_compile_of_a_stacked_model_into_another_folder_takes_its_forest(
+    folder: Path, models, tmp_path: Path
+) -> None:
+    """`compd model compile --out` elsewhere writes a stacked model that loads, its forest beside it,
+    and still names the record it was fitted on (so a report on it says the figures are not new data)."""
+    _, stacked, _ = models
+    copy = tmp_path / "elsewhere" / "compiled.yaml"
+    copy.parent.mkdir()
+    compd("model", "compile", stacked, "--period-s", 2, "--out", copy)
+    assert 2.0 in load_model(copy).runnable_periods_s()
+    assert load_model(copy).model.outputs[0].residual is not None
+    calibration = str(twin(folder, "door", 24, seed=1).resolve())
+    assert fitted_on(load_model(stacked), calibration) and fitted_on(load_model(copy), calibration)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from compd.files.modelfigures import EXPECTED, HELD_OUT, VERIFIED, model_figures
@@ -288,3 +289,24 @@ def test_the_report_of_an_older_extended_file_names_the_base_models_figures(
     assert f"fit of {label} " in card
     assert f"<li>notes of {label}: free-run simulation fit" in card
     assert "<li>notes: " not in card
+
+
+def test_a_record_not_zeroed_widens_the_calibration_by_its_change_and_says_so(
+    loop: dict[str, Path], tmp_path: Path
+) -> None:
+    """Extended on a run whose displacement starts at 500 um, the output's calibrated range (the daemon's
+    envelope) widens by the run's change from its start, not to 500 um, and extend says it zeroed it."""
+    raised = tmp_path / "raised.csv"
+    frame = pd.read_csv(loop["cutting"])
+    frame[OUTPUT] += 500.0
+    frame.to_csv(raised, index=False)
+    out = tmp_path / "raised.yaml"
+    summary = json.loads(
+        compd(
+            "extend", loop["base"], raised, "--effect", "spindle_power_kw", "--out", out, "--json"
+        )
+    )
+    low, high = load_model(out).output_range(OUTPUT) or (0.0, 0.0)
+    base_low, _ = load_model(loop["base"]).output_range(OUTPUT) or (0.0, 0.0)
+    assert low == base_low and high < 1.0  # the run's own change from its start, not 500 um
+    assert any("disp_z_um starts at 500" in note for note in summary["notes"]), summary["notes"]

@@ -45,6 +45,17 @@ def unit_problem(unit: str, model_unit: str, scale: float, offset: float) -> tup
     """
     if unit == model_unit:
         return None
+    if model_unit == "-" and unit in _LINEAR:
+        # The file does not say (fitted on a column whose name carried no unit): a config
+        # declaring '-' to match would take away the checks its unit gives (a temperature's
+        # stuck check), so the fix is the model file's word, not the config's.
+        return (
+            "the model file does not say which unit it was fitted in",
+            f"If it was fitted on {unit!r} values, write it in the model file's 'signals' "
+            f"section ({{unit: {unit}}}); else refit on data whose column says its unit "
+            "(compd's recordings do). Do not declare 'unit: -' in the config: its unit decides "
+            "the signal's checks",
+        )
     have, want = _LINEAR.get(unit), _LINEAR.get(model_unit)
     if have is None or want is None or have[0] != want[0]:
         unknown = unit if have is None else model_unit

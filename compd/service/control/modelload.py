@@ -23,9 +23,10 @@ import base64
 import binascii
 import contextlib
 import dataclasses
+import hashlib
 import re
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -33,6 +34,7 @@ import structlog
 
 from compd.errors import CompdError, ConfigFileError, ModelFileError
 from compd.files.modelfile import ModelFile, parse_model_bytes
+from compd.files.sidecar import residual_files
 from compd.files.yamlplace import MAX_YAML_BYTES, read_limited, shorten
 from compd.service.config.loading import Config
 from compd.service.config.modelcheck import check_model
@@ -40,6 +42,7 @@ from compd.service.loop.slots import ModelSlot
 from compd.service.store.state import (
     MODELS_DIR,
     install_model_bytes,
+    install_sidecars,
     installed_model,
     reinstate_model,
 )
@@ -79,6 +82,63 @@ def slot_from_file(config: Config, model_file: ModelFile, loaded_at_unix_s: floa
     return ModelSlot(model_file, compiled, loaded_at_unix_s)
 
 
+def warn_unguarded(config: Config, slot: ModelSlot) -> None:
+    """One WARNING per axis whose offset the running model leaves to the clamp alone.
+
+    A model file without a calibrated output range (written by hand or by an
+    older compd) runs, but the envelope (:mod:`compd.service.loop.envelope`)
+    has nothing to judge its offset by: said at start and at each load, not
+    found out when an extrapolated offset is written.
+    """
+    if config.doc.safety.envelope_margin is None:
+        return
+    for axis, output in config.doc.outputs.items():
+        if slot.model_file.output_range(output.model_output) is None:
+            log.warning(
+                "the model file records no calibrated range of this output: the clamp alone "
+                "judges the axis's offset",
+                axis=axis,
+                output=output.model_output,
+                model=str(slot.model_file.path),
+                fix="refit with compd fit to record one",
+            )
+
+
+def installed_slot(
+    config: Config, raw: bytes, sidecars: Mapping[str, bytes], loaded_at_unix_s: float
+) -> ModelSlot:
+    """:func:`slot_from_bytes` for a model a client sent, read where it will be installed.
+
+    Its residual forests (sent with it, or installed with it before) are read
+    from the state directory's ``models/``, beside ``models/<sha256>.yaml``,
+    never from a path the client names; those sent and not taken are removed.
+    """
+    path = config.state_dir / MODELS_DIR / f"{hashlib.sha256(raw).hexdigest()}.yaml"
+    written = install_sidecars(config.state_dir, sidecars)
+    try:
+        slot = slot_from_bytes(config, raw, path, loaded_at_unix_s)
+    except ModelFileError as exc:
+        for file in written:
+            file.unlink(missing_ok=True)
+        if exc.where.endswith(".residual.file"):
+            raise ModelFileError(
+                path,
+                f"its residual forest was not sent with it ({exc.message})",
+                where=exc.where,
+                fix="Load it with 'compd model load FILE', which sends the .npz beside FILE",
+            ) from exc
+        raise
+    except BaseException:
+        for file in written:
+            file.unlink(missing_ok=True)
+        raise
+    named = set(residual_files(slot.model_file.doc))
+    for file in written:
+        if file.name not in named:
+            file.unlink(missing_ok=True)
+    return slot
+
+
 def load_slot(config: Config, path: Path, loaded_at_unix_s: float) -> ModelSlot:
     """:func:`slot_from_bytes` for a file (a regular file, size-limited); raises on any problem."""
     return slot_from_bytes(config, read_limited(path, ModelFileError), path, loaded_at_unix_s)
@@ -98,6 +158,13 @@ def startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot | None, 
     """
     if config.model_path is None:
         return None, None
+    slot, fallback = _startup_slots(config, now_unix_s)
+    warn_unguarded(config, slot)
+    return slot, fallback
+
+
+def _startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot, ModelSlot | None]:
+    assert config.model_path is not None
     installed = installed_model(config.state_dir)
     if installed is None:
         return load_slot(config, config.model_path, now_unix_s), None
@@ -172,9 +239,32 @@ def _set_aside_installed(state_dir: Path, installed: Path, config_model: Path, r
     )
 
 
-def load_request(raw: bytes, name: str | Path) -> dict[str, Any]:
-    """The control-socket request that loads the model file ``raw`` (``name`` for messages)."""
-    return {"cmd": "load", "name": str(name), "model_base64": base64.b64encode(raw).decode("ascii")}
+def load_request(
+    raw: bytes, name: str | Path, sidecars: Mapping[str, bytes] | None = None
+) -> dict[str, Any]:
+    """The control-socket request that loads the model file ``raw`` (``name`` for messages),
+    with the residual forests it names (``sidecars``: file name -> bytes)."""
+    request: dict[str, Any] = {"cmd": "load", "name": str(name), "model_base64": _b64(raw)}
+    if sidecars:
+        request["sidecars_base64"] = {file: _b64(content) for file, content in sidecars.items()}
+    return request
+
+
+def _b64(content: bytes) -> str:
+    return base64.b64encode(content).decode("ascii")
+
+
+def request_sidecars(message: dict[str, Any]) -> dict[str, bytes]:
+    """The residual forests a ``load`` request carries (file name -> bytes); none is no error."""
+    sent = message.get("sidecars_base64", {})
+    if not isinstance(sent, dict) or not all(
+        isinstance(k, str) and isinstance(v, str) for k, v in sent.items()
+    ):
+        raise CompdError('"sidecars_base64" is an object of file name -> base64 text')
+    try:
+        return {file: base64.b64decode(text, validate=True) for file, text in sent.items()}
+    except binascii.Error as exc:
+        raise CompdError(f"sidecars_base64 is not base64 ({exc})") from exc
 
 
 def request_bytes(message: dict[str, Any]) -> tuple[bytes, str]:
@@ -209,9 +299,10 @@ class ModelLoader:
     async def accept(self, message: dict[str, Any]) -> ModelSlot:
         """The new model's slot, installed as the next start's model; raises CompdError if refused."""
         raw, name = request_bytes(message)
+        sidecars = request_sidecars(message)
         if self._busy is not None and not self._busy.done():
             raise CompdError("another model load is still being checked; try again shortly")
-        self._busy = in_daemon_thread(slot_from_bytes, self.config, raw, name, self.wall())
+        self._busy = in_daemon_thread(installed_slot, self.config, raw, sidecars, self.wall())
         try:
             async with asyncio.timeout(self.timeout_s):
                 # shield: a timed-out check finishes in its thread, its result dropped.
@@ -234,6 +325,7 @@ class ModelLoader:
                 f"cannot install the model in {self.config.state_dir} ({exc.strerror})"
             ) from exc
         slot.model_file = dataclasses.replace(slot.model_file, path=str(installed))
+        warn_unguarded(self.config, slot)
         return slot
 
     async def keep(self, running: ModelSlot) -> None:

@@ -305,7 +305,7 @@ class Compensator:
         for name, monitor in self.monitors.items():  # a new model: its own defaults
             monitor.checks = replace(monitor.checks, max_jump=self._configured_jumps[name])
         if model is None:
-            log.debug(
+            log.warning(
                 "no consistency check in this file: inputs are checked one by one",
                 model=slot.compiled.name,
             )

@@ -247,6 +247,37 @@ def install_model_bytes(state_dir: Path, content: bytes, config_model: Path | No
     return installed
 
 
+def install_sidecars(state_dir: Path, sidecars: Mapping[str, bytes]) -> list[Path]:
+    """Each residual forest a model file names (``MODEL.residual.npz``) beside its installed copy.
+
+    An installed model is ``models/<sha256>.yaml`` and names its forest beside
+    it: without it the next start would refuse the model (and set it aside).
+    A file of that name already there with the same bytes is kept; with other
+    bytes (another installed model's forest) the load is refused, since
+    replacing it would break that model. Returns the files written.
+    """
+    written = []
+    for name, content in sidecars.items():
+        if not name.endswith(".npz") or name in (".", "..") or any(c in name for c in "/\\\x00"):
+            raise CompdError(f"a model's forest is a .npz file name with no folder, not {name!r}")
+        target = state_dir / MODELS_DIR / name
+        try:
+            existing: bytes | None = target.read_bytes()
+        except FileNotFoundError:
+            existing = None
+        if existing == content:
+            continue
+        if existing is not None:
+            raise CompdError(
+                f"{target} holds another installed model's forest; nothing was installed. Write "
+                "the stacked model under a name of its own (compd residual --out NAME.yaml names "
+                "its forest NAME.residual.npz)"
+            )
+        write_atomic(target, content)
+        written.append(target)
+    return written
+
+
 def _sha256_of(path: Path) -> str | None:
     try:
         return hashlib.sha256(path.read_bytes()).hexdigest()
