@@ -140,6 +140,21 @@ def test_model_compile_names_a_period_the_model_cannot_be_brought_to(tmp_path: P
     assert status == 2 and "cannot run at 1 s" in err and "negative real axis" in err
 
 
+def test_model_compile_derives_anew_the_equations_of_a_tf_edited_after_they_were_written(
+    tmp_path: Path,
+) -> None:
+    """Every reader refuses equations derived from other TFs, naming ``compd model compile``; that
+    command itself takes them as what it writes anew, at the periods they were carried at."""
+    path = tmp_path / "m.yaml"
+    path.write_text(model_to_yaml(discrete_model(10.0)).replace("-0.9]", "-0.8]", 1))
+    with pytest.raises(ModelFileError, match=r"derived from other TFs.*compd model compile"):
+        load_model(path)
+    status, out, err = compd_result("model", "compile", path)
+    assert status == 0, err
+    assert "were derived from other TFs" in out and "derived anew" in out
+    assert [e.period_s for e in load_model(path).equations] == [1.0]
+
+
 def test_a_written_model_carries_the_equations_its_periods_need() -> None:
     """10 s discrete: 1 s precompiled; 1 s discrete: none needed, it runs as it is."""
     at_10 = parse_model(model_to_yaml(discrete_model(10.0)), "m10.yaml")

@@ -276,6 +276,11 @@ def _compile(args: argparse.Namespace) -> int:
     done = compile_file(args.model, args.period_s or [1.0], args.out)
     shown = ", ".join(f"{p:g} s" for p in done.periods_s)
     print(f"{done.path}: " + (f"difference equations at {shown}" if shown else "needs none"))
+    if done.stale_s:
+        print(
+            f"  the equations it carried at {', '.join(f'{p:g} s' for p in done.stale_s)} were "
+            "derived from other TFs (a tf changed after they were written): derived anew"
+        )
     if done.as_is_s:
         print(
             f"  at {', '.join(f'{p:g} s' for p in done.as_is_s)} its discrete TFs run as they are"

@@ -11,9 +11,12 @@ file is never left that compd would refuse.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+
+import yaml
 
 from compd.errors import ModelError, ModelFileError
 from compd.files.equations import MAX_PERIODS, with_equations
@@ -40,6 +43,9 @@ class Compiled:
     as_is_s: tuple[float, ...]
     sha256_before: str
     sha256_after: str
+    #: The periods whose equations the file carried for other TFs (a sub-model's tf changed by
+    #: hand or by a tool after they were written), derived anew from the file's TFs.
+    stale_s: tuple[float, ...] = ()
 
 
 def compile_file(source: Path, periods_s: Iterable[float], out: Path | None = None) -> Compiled:
@@ -50,9 +56,9 @@ def compile_file(source: Path, periods_s: Iterable[float], out: Path | None = No
     Raises :class:`ModelFileError` naming the file and the sub-model when a
     period cannot be reached (e.g. a pole with no continuous equivalent).
     """
-    model_file = load_model(source)
+    model_file, carried_s, stale_s = _read_for_compiling(Path(source))
     model = model_file.model
-    wanted = sorted({float(p) for p in periods_s} | {e.period_s for e in model_file.equations})
+    wanted = sorted({float(p) for p in periods_s} | set(carried_s))
     sets: list[DifferenceEquations] = []
     as_is: list[float] = []
     for period_s in wanted:
@@ -79,6 +85,7 @@ def compile_file(source: Path, periods_s: Iterable[float], out: Path | None = No
         )
     raw = read_limited(Path(model_file.path), ModelFileError)
     text = with_equations(raw.decode("utf-8"), equations_lines(model, sets))
+    sha256_before = hashlib.sha256(raw).hexdigest()
     destination = Path(model_file.path) if out is None else out
     # A stacked model's forest goes with it: the copy names the same sidecar beside itself.
     copy_sidecars(residual_files(model_file.doc), model_file.path, destination)
@@ -91,7 +98,41 @@ def compile_file(source: Path, periods_s: Iterable[float], out: Path | None = No
     if mode is not None:
         destination.chmod(mode)  # rewritten in place: as readable as it was
     periods = tuple(s.period_s for s in sets)
-    return Compiled(destination, periods, tuple(as_is), model_file.sha256, checked.sha256)
+    return Compiled(
+        destination, periods, tuple(as_is), sha256_before, checked.sha256, tuple(stale_s)
+    )
+
+
+def _read_for_compiling(source: Path) -> tuple[ModelFile, tuple[float, ...], tuple[float, ...]]:
+    """The model file, the periods its equations are carried at, and those carried for other TFs.
+
+    Equations derived from TFs the file no longer has (its ``tf`` edited
+    after they were written) are what this command writes anew, so they
+    are not held against the file here as every other reader holds them;
+    any other refusal stands.
+    """
+    try:
+        model_file = load_model(source)
+    except ModelFileError as exc:
+        if "difference_equations" not in exc.where:
+            raise
+        text = read_limited(source, ModelFileError).decode("utf-8")
+        model_file = parse_model(with_equations(text, []), source)
+        stale = _carried_periods(text)
+        return model_file, stale, stale
+    return model_file, tuple(e.period_s for e in model_file.equations), ()
+
+
+def _carried_periods(text: str) -> tuple[float, ...]:
+    """The ``period_s`` of each set the file's ``difference_equations`` section lists."""
+    sets = (yaml.safe_load(text) or {}).get("difference_equations") or []
+    return tuple(
+        float(entry["period_s"])
+        for entry in sets
+        if isinstance(entry, dict)
+        and isinstance(entry.get("period_s"), int | float)
+        and entry["period_s"] > 0
+    )
 
 
 def _moved_provenance(model_file: ModelFile, text: str, destination: Path) -> str:

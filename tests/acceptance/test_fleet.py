@@ -28,6 +28,8 @@ import yaml
 from compd.cli import main
 from compd.cli.args import EXIT_INPUT_ERROR
 from compd.cli.rollout import desired_record
+from compd.files.equations import tfs_sha256, with_equations
+from compd.files.modelfile import parse_model
 from compd.service.config.loading import Config
 from compd.service.daemon import Service
 from compd.service.fleet.remoteload import DESIRED_SCHEMA
@@ -165,12 +167,12 @@ def test_a_bad_model_is_refused_by_every_machine_and_a_machine_away_does_not_ans
     fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ):
     """Unstable model: refused here before sending, and by every machine when sent; a stopped one: no answer."""
-    bad = _variant(tmp_path, "unstable.yaml", unstable=True)
+    bad = _variant(tmp_path, "bad.yaml", unstable=True)
     settings = _broker_settings(tmp_path, broker.port)
     with Subscriber(broker.port, "compd/#") as sub:
         _start_and_wait_for_births(fleet, sub)
         assert main(["model", "rollout", str(bad), *settings, *ALL]) == EXIT_INPUT_ERROR
-        assert "stable" in capsys.readouterr().err
+        assert "unstable:" in capsys.readouterr().err
         assert not [m for m in sub.messages if "/cmd/" in m.topic], "refused before sending"
 
         code = main(["model", "rollout", str(bad), *settings, *ALL, "--no-local-check"])
@@ -178,7 +180,7 @@ def test_a_bad_model_is_refused_by_every_machine_and_a_machine_away_does_not_ans
         assert code == 1, table
         for machine in fleet:
             assert _row(table, machine.machine_id)[0] == "refused", table
-        assert table.count("stable") >= len(fleet), "the reason, per machine"
+        assert table.count("unstable:") >= len(fleet), "the reason, per machine"
         refused = [e for e in sub.of("event") if e["event"] == "model_refused"]
         assert len(refused) == len(fleet)
         assert all(_running(sub, m.machine_id) == _running(sub, "mill-a") for m in fleet)
@@ -318,12 +320,22 @@ ALL = ["--machines", ",".join(machine_id for machine_id, _, _ in FLEET)]
 
 
 def _variant(folder: Path, name: str, *, unstable: bool = False) -> Path:
-    """The machines' model with one more comment line (a new sha256), or with an unstable pole."""
+    """The machines' model with one more comment line (a new sha256), or with an unstable pole.
+
+    Unstable: the first sub-model's denominator, in its TF and in the difference equations the
+    machines step, has poles 2 and 0.5, and the equations' ``tfs_sha256`` is the edited TFs', so
+    what a machine refuses is the pole (not equations derived from other TFs).
+    """
     text = MODEL.read_text() + "\n# rolled out to the fleet\n"
     if unstable:
-        # The first denominator, whatever its fit gave: poles 2 and 0.5.
-        text, replaced = re.subn(r"den: \[[^\]]*\]", "den: [1.0, -2.5, 1.0]", text, count=1)
-        assert replaced == 1
+        unstable_den = "den: [1.0, -2.5, 1.0]"
+        head, section, equations = text.partition("difference_equations:")
+        head, replaced = re.subn(r"den: \[[^\]]*\]", unstable_den, head, count=1)
+        equations, also = re.subn(r"den: \[[^\]]*\]", unstable_den, equations, count=1)
+        assert replaced == also == 1
+        digest = tfs_sha256(parse_model(with_equations(head + section + equations, [])).model)
+        equations = re.sub(r'tfs_sha256: "[0-9a-f]{64}"', f'tfs_sha256: "{digest}"', equations)
+        text = head + section + equations
     path = folder / name
     path.write_text(text)
     return path
@@ -557,7 +569,7 @@ def test_a_machine_back_refuses_a_bad_desired_model_and_runs_on(
     fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ):
     """An unstable model left as desired for a machine away: back, it refuses it once, keeps its model."""
-    bad = _variant(tmp_path, "unstable.yaml", unstable=True)
+    bad = _variant(tmp_path, "bad.yaml", unstable=True)
     settings = _broker_settings(tmp_path, broker.port)
     with Subscriber(broker.port, "compd/#") as sub:
         away = fleet[0]
@@ -579,7 +591,7 @@ def test_a_machine_back_refuses_a_bad_desired_model_and_runs_on(
         )
         refused = [e for e in sub.of("event", away.machine_id) if e["event"] == "model_refused"]
         assert refused[0]["message"] == "desired model refused"
-        assert "stable" in refused[0]["details"]["reason"], refused[0]
+        assert "unstable:" in refused[0]["details"]["reason"], refused[0]
         assert _running(sub, away.machine_id) == running, "the running model untouched"
         assert not [e for e in sub.of("event", away.machine_id) if e["event"] == "model_loaded"]
 
@@ -588,7 +600,7 @@ def test_a_canary_that_refuses_stops_the_roll_out_to_every_machine_online(
     fleet: list[Machine], broker: Mosquitto, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ):
     """``--online --canary 1``: the first machine refuses, the others are not sent it; a good model reaches all."""
-    bad = _variant(tmp_path, "unstable.yaml", unstable=True)
+    bad = _variant(tmp_path, "bad.yaml", unstable=True)
     good = _variant(tmp_path, "rolled-out.yaml")
     settings = _broker_settings(tmp_path, broker.port)
     with Subscriber(broker.port, "compd/#") as sub:

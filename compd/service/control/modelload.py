@@ -105,13 +105,19 @@ def warn_unguarded(config: Config, slot: ModelSlot) -> None:
 
 
 def installed_slot(
-    config: Config, raw: bytes, sidecars: Mapping[str, bytes], loaded_at_unix_s: float
+    config: Config,
+    raw: bytes,
+    sidecars: Mapping[str, bytes],
+    loaded_at_unix_s: float,
+    name: str = "",
 ) -> ModelSlot:
     """:func:`slot_from_bytes` for a model a client sent, read where it will be installed.
 
     Its residual forests (sent with it, or installed with it before) are read
     from the state directory's ``models/``, beside ``models/<sha256>.yaml``,
     never from a path the client names; those sent and not taken are removed.
+    A refusal names the file as the client sent it (``name``): its fix is for
+    that file, not for the copy in the state directory.
     """
     path = config.state_dir / MODELS_DIR / f"{hashlib.sha256(raw).hexdigest()}.yaml"
     written = install_sidecars(config.state_dir, sidecars)
@@ -120,12 +126,20 @@ def installed_slot(
     except ModelFileError as exc:
         for file in written:
             file.unlink(missing_ok=True)
+        sent = name or str(path)
         if exc.where.endswith(".residual.file"):
             raise ModelFileError(
-                path,
+                sent,
                 f"its residual forest was not sent with it ({exc.message})",
                 where=exc.where,
                 fix="Load it with 'compd model load FILE', which sends the .npz beside FILE",
+            ) from exc
+        if exc.path == str(path) and name:
+            raise ModelFileError(
+                name,
+                exc.message.replace(str(path), name),
+                where=exc.where,
+                fix=exc.fix.replace(str(path), name),
             ) from exc
         raise
     except BaseException:
@@ -302,7 +316,9 @@ class ModelLoader:
         sidecars = request_sidecars(message)
         if self._busy is not None and not self._busy.done():
             raise CompdError("another model load is still being checked; try again shortly")
-        self._busy = in_daemon_thread(installed_slot, self.config, raw, sidecars, self.wall())
+        self._busy = in_daemon_thread(
+            installed_slot, self.config, raw, sidecars, self.wall(), name
+        )
         try:
             async with asyncio.timeout(self.timeout_s):
                 # shield: a timed-out check finishes in its thread, its result dropped.
