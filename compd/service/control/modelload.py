@@ -175,13 +175,6 @@ def startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot | None, 
     """
     if config.model_path is None:
         return None, None
-    slot, fallback = _startup_slots(config, now_unix_s)
-    warn_unguarded(config, slot)
-    return slot, fallback
-
-
-def _startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot, ModelSlot | None]:
-    assert config.model_path is not None
     installed = installed_model(config.state_dir)
     if installed is None:
         return load_slot(config, config.model_path, now_unix_s), None
