@@ -70,6 +70,7 @@ def rollout_command(args: Any) -> int:
 
     from compd.cli.terminal import console
     from compd.files.modelfile import load_model
+    from compd.files.sidecar import residual_files
 
     section, base_dir = broker_section(args.broker_config)
     machines = machine_list(args.machines)
@@ -89,6 +90,17 @@ def rollout_command(args: Any) -> int:
         raw = read_limited(args.model, ModelFileError)
         if not args.no_local_check:
             model_file = load_model(args.model)
+            forests = residual_files(model_file.doc)
+            if forests:
+                # The desired record and the command carry the YAML alone: every machine
+                # would refuse it.
+                raise ModelFileError(
+                    args.model,
+                    f"a stacked model: its residual forest ({', '.join(forests)}) does not "
+                    "travel with a roll-out, so every machine would refuse it",
+                    fix=f"Load it on each machine with 'compd model load {args.model}' (which "
+                    "sends the .npz), or roll out the model without its forest",
+                )
             model_file.compile(None)
             for finding in model_file.check_plausible():
                 print(finding.describe(), file=sys.stderr)

@@ -38,7 +38,12 @@ from compd.faultlog import Event, FaultLog
 from compd.service import build
 from compd.service.config.loading import Config
 from compd.service.config.verifiable import UnverifiableCache
-from compd.service.control.modelload import ModelLoader, request_bytes, startup_slots
+from compd.service.control.modelload import (
+    ModelLoader,
+    request_bytes,
+    startup_slots,
+    warn_unguarded,
+)
 from compd.service.control.peers import FdBudget
 from compd.service.control.socket import ControlServer
 from compd.service.identity import identity
@@ -95,6 +100,8 @@ class Service:
         slot, fallback = startup_slots(config, now_unix)
         self.drivers = dict(drivers) if drivers is not None else config.build_drivers(clock.now)
         resume = resumable_state(config, slot, clock, now_unix) if slot is not None else None
+        if slot is not None:
+            warn_unguarded(config, slot)  # after the line naming the model
         self.resumed = resume is not None
         offsets = dict(resume.offsets_um) if resume is not None else {}
         self.links = {

@@ -6,13 +6,21 @@ the broker, ``--pending`` says so (exit status 0) rather than print an empty tab
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
 from compd.cli import build_parser, main
+from compd.files.modelschema import ResidualDoc
+from compd.files.modelwriter import model_to_yaml
+from compd.files.sidecar import sidecar_bytes, sidecar_path
+from compd.model.structure import InputSpec, Model, Output, SubModel
+from compd.model.transfer import DiscreteTF
+from compd.toolkit.residual import fit_residual
 from tests.mosquitto import WAIT_S, Mosquitto, mosquitto_binary
 
 needs_mosquitto = pytest.mark.skipif(
@@ -58,3 +66,31 @@ def test_pending_as_json_with_nothing_pending_is_an_empty_list(
     """--json with nothing pending: the title and no machines, exit status 0."""
     assert main(["rollout", "--pending", *empty_broker, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["machines"] == []
+
+
+def test_a_stacked_model_is_refused_before_anything_is_sent(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A model with a residual forest cannot travel over MQTT: refused with the fix, no broker needed."""
+    door = (np.arange(2000) % 200 >= 150).astype(float)
+    fit = fit_residual(-3.0 * door, door, signal="door_open", sample_time_s=10.0, trees=5)
+    tf = DiscreteTF.from_coefficients([0.0, 0.1], [1.0, -0.9], 0)
+    sub = SubModel("T_a", "temperature", InputSpec("T_a_degC"), tf)
+    model = tmp_path / "stacked.yaml"
+    sidecar = sidecar_bytes({"disp_z_um": fit.residual.forest})
+    sidecar_path(model).write_bytes(sidecar)
+    block = ResidualDoc(
+        signal="door_open",
+        time_constants_s=list(fit.residual.features.time_constants_s),
+        file=sidecar_path(model).name,
+        sha256=hashlib.sha256(sidecar).hexdigest(),
+    )
+    outputs = (Output("disp_z_um", (sub,), fit.residual),)
+    model.write_text(model_to_yaml(Model("stacked", 10.0, outputs), residuals={"disp_z_um": block}))
+    broker = tmp_path / "broker.yaml"
+    broker.write_text(yaml.safe_dump({"host": "127.0.0.1", "port": 1}))
+    argv = ["rollout", str(model), "--broker-config", str(broker), "--machines", "m1"]
+    assert main(argv) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert "a stacked model: its residual forest (stacked.residual.npz) does not travel" in error
+    assert f"compd model load {model}" in error

@@ -204,5 +204,8 @@ def test_the_daemon_reads_a_stacked_models_forest_from_the_request_not_the_clien
 
     asyncio.run(scenario())
     assert not replies["bare"]["ok"] and "forest was not sent with it" in replies["bare"]["error"]
-    assert str(stacked.parent) not in replies["bare"]["error"]
+    looked = (
+        config.state_dir / "models" / sidecar_path(stacked).name
+    )  # its own folder, not the client's
+    assert str(looked) in replies["bare"]["error"]
     assert replies["with"]["ok"], replies["with"]

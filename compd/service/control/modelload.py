@@ -32,7 +32,7 @@ from typing import Any, TypeVar
 
 import structlog
 
-from compd.errors import CompdError, ConfigFileError, ModelFileError
+from compd.errors import CompdError, ConfigFileError, InputFileError, ModelFileError
 from compd.files.modelfile import ModelFile, parse_model_bytes
 from compd.files.sidecar import residual_files
 from compd.files.yamlplace import MAX_YAML_BYTES, read_limited, shorten
@@ -107,50 +107,53 @@ def warn_unguarded(config: Config, slot: ModelSlot) -> None:
 def installed_slot(
     config: Config,
     raw: bytes,
+    name: str | Path,
     sidecars: Mapping[str, bytes],
     loaded_at_unix_s: float,
-    name: str = "",
 ) -> ModelSlot:
-    """:func:`slot_from_bytes` for a model a client sent, read where it will be installed.
+    """:func:`slot_from_bytes` for a model a client sent (``name``: its name, for messages), read
+    where it will be installed.
 
     Its residual forests (sent with it, or installed with it before) are read
     from the state directory's ``models/``, beside ``models/<sha256>.yaml``,
     never from a path the client names; those sent and not taken are removed.
-    A refusal names the file as the client sent it (``name``): its fix is for
-    that file, not for the copy in the state directory.
     """
     path = config.state_dir / MODELS_DIR / f"{hashlib.sha256(raw).hexdigest()}.yaml"
     written = install_sidecars(config.state_dir, sidecars)
     try:
         slot = slot_from_bytes(config, raw, path, loaded_at_unix_s)
-    except ModelFileError as exc:
+    except BaseException as exc:
         for file in written:
             file.unlink(missing_ok=True)
-        sent = name or str(path)
-        if exc.where.endswith(".residual.file"):
-            raise ModelFileError(
-                sent,
-                f"its residual forest was not sent with it ({exc.message})",
-                where=exc.where,
-                fix="Load it with 'compd model load FILE', which sends the .npz beside FILE",
-            ) from exc
-        if exc.path == str(path) and name:
-            raise ModelFileError(
-                name,
-                exc.message.replace(str(path), name),
-                where=exc.where,
-                fix=exc.fix.replace(str(path), name),
-            ) from exc
-        raise
-    except BaseException:
-        for file in written:
-            file.unlink(missing_ok=True)
+        if isinstance(exc, InputFileError):
+            raise _as_named(exc, path, str(name)) from exc
         raise
     named = set(residual_files(slot.model_file.doc))
     for file in written:
         if file.name not in named:
             file.unlink(missing_ok=True)
     return slot
+
+
+def _as_named(exc: InputFileError, path: Path, name: str) -> InputFileError:
+    """``exc`` naming the model as the client did, not by where the daemon reads it."""
+    if exc.where.endswith(".residual.file"):
+        return ModelFileError(
+            name,
+            f"its residual forest was not sent with it ({exc.message})",
+            where=exc.where,
+            fix="Load it with 'compd model load FILE', which sends the .npz beside FILE",
+        )
+
+    def swap(text: str) -> str:
+        return text.replace(str(path), name)
+
+    return type(exc)(
+        name if exc.path == str(path) else exc.path,
+        swap(exc.message),
+        where=exc.where,
+        fix=swap(exc.fix),
+    )
 
 
 def load_slot(config: Config, path: Path, loaded_at_unix_s: float) -> ModelSlot:
@@ -172,13 +175,6 @@ def startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot | None, 
     """
     if config.model_path is None:
         return None, None
-    slot, fallback = _startup_slots(config, now_unix_s)
-    warn_unguarded(config, slot)
-    return slot, fallback
-
-
-def _startup_slots(config: Config, now_unix_s: float) -> tuple[ModelSlot, ModelSlot | None]:
-    assert config.model_path is not None
     installed = installed_model(config.state_dir)
     if installed is None:
         return load_slot(config, config.model_path, now_unix_s), None
@@ -316,9 +312,7 @@ class ModelLoader:
         sidecars = request_sidecars(message)
         if self._busy is not None and not self._busy.done():
             raise CompdError("another model load is still being checked; try again shortly")
-        self._busy = in_daemon_thread(
-            installed_slot, self.config, raw, sidecars, self.wall(), name
-        )
+        self._busy = in_daemon_thread(installed_slot, self.config, raw, name, sidecars, self.wall())
         try:
             async with asyncio.timeout(self.timeout_s):
                 # shield: a timed-out check finishes in its thread, its result dropped.
