@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 def prior_note(model_file: ModelFile, compiled: CompiledModel, output: str) -> str | None:
     """Why ``output``'s probe update would start from the conservative default; None: the calibration's."""
     from compd.files.probeprior import output_prior
-    from compd.model.probelearner import output_columns
+    from compd.model.proberegressors import output_columns
 
     _, names = output_columns(compiled, output)
     return output_prior(model_file, output, names).note
