@@ -44,7 +44,7 @@ log = structlog.get_logger("compd.service.loop.compensator")
 MIN_DEFAULT_JUMP = 1.0
 
 
-@dataclass
+@dataclass(slots=True)
 class TickRecord:
     """Everything one tick saw and did, for the recorder, the status and the tests."""
 
