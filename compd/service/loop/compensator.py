@@ -368,7 +368,8 @@ class Compensator:
             monitor = self.monitors[point.name]
             was[point.name] = monitor.reading.health
             readings[point.name] = monitor.update(t_s, values.get(point.name))
-        readings = self._redundant(t_s, readings)
+        if self.redundancy is not None:
+            readings = self._redundant(t_s, readings)
         readings = self._plausible(t_s, readings, values)
         if self.redundancy is not None:
             readings = self.redundancy.mark(readings)
