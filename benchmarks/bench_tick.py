@@ -61,8 +61,9 @@ from compd.service.loop.ticks import run_periodic
 from compd.service.recording.recorder import Recorder
 
 MAX_P99_LATENESS_MS = 5.0
-#: What compd may add to the bare asyncio loop's CPU per tick (issue 43). It adds 0.43-0.47 ms
-#: (the main before, 0.49-0.53 in the same runs alternated); its Python work, 147 calls per tick
+#: What compd may add to the bare asyncio loop's CPU per tick (issue 43). It adds 0.43-0.60 ms,
+#: mean 0.50 (the main before, 0.49-0.59, mean 0.54, six runs each alternated, the
+#: side-by-side figure alone in four); its Python work, 147 calls per tick
 #: (192 before), is 0.11-0.19 ms back to back, 0.48-0.52 ms after a 20 ms sleep (2026-11-29,
 #: branch tick2).
 MAX_ADDED_CPU_MS_PER_TICK = 0.3
