@@ -21,7 +21,8 @@ and reports:
   them, the same ticks on the virtual clock, back to back (the tick's own
   Python work, caches warm) and with 20 ms of real sleep between two (the
   same work after other processes ran: what a tick costs on the real clock,
-  less the wake-up).
+  less the wake-up), and the calls a tick makes (Python functions, calls
+  into C: ``sys.setprofile``), a figure the machine's load does not change.
 
 Also, on its own: the recorder's CPU cost of one 20-column row (written
 each row), best of 3 runs of 1000 rows, process CPU time.
@@ -60,8 +61,11 @@ from compd.service.loop.ticks import run_periodic
 from compd.service.recording.recorder import Recorder
 
 MAX_P99_LATENESS_MS = 5.0
-#: What compd may add to the bare asyncio loop's CPU per tick (issue 43). Its Python work is
-#: 0.12-0.23 ms back to back, 0.70-0.77 ms after a 20 ms sleep (2026-11-29, branch tick).
+#: What compd may add to the bare asyncio loop's CPU per tick (issue 43). It adds 0.43-0.60 ms,
+#: mean 0.50 (the main before, 0.49-0.59, mean 0.54, six runs each alternated, the
+#: side-by-side figure alone in four); its Python work, 147 calls per tick
+#: (192 before), is 0.11-0.19 ms back to back, 0.48-0.52 ms after a 20 ms sleep (2026-11-29,
+#: branch tick2).
 MAX_ADDED_CPU_MS_PER_TICK = 0.3
 MAX_RECORDER_ROW_US = 50.0
 #: The real sleep between two ticks on the virtual clock that shows the cost of cold caches (s).
@@ -208,6 +212,32 @@ class Measured:
     cpu: CpuPerTick
 
 
+def calls_per_tick(n_ticks: int = 40) -> tuple[float, float]:
+    """Python function calls and calls into C per tick (``sys.setprofile``): what a tick does, in
+    a figure no other process's load changes. The service of :func:`work_cpu`, ticks 10 to n - 10."""
+    counts = {"call": 0, "c_call": 0}
+
+    def count(frame: object, event: str, arg: object) -> None:
+        if event in counts:
+            counts[event] += 1
+
+    with tempfile.TemporaryDirectory(prefix="compd-bench-", dir="/tmp") as tmp:
+        config = load_config(write_config(Path(tmp), n_ticks))
+        ticks = 0
+
+        def on_tick(record: TickRecord) -> None:
+            nonlocal ticks
+            ticks += 1
+            if ticks in (10, n_ticks - 10):
+                sys.setprofile(count if ticks == 10 else None)
+
+        service = Service(config, clock=VirtualClock(), control=False)
+        service.subscribe(on_tick)
+        asyncio.run(service.run(duration_s=float(n_ticks - 1)))
+    counted = n_ticks - 20
+    return counts["call"] / counted, counts["c_call"] / counted
+
+
 def work_cpu(n_ticks: int, pause_s: float) -> CpuPerTick:
     """CPU per tick of the same service on the virtual clock, ``pause_s`` real seconds between ticks.
 
@@ -327,6 +357,8 @@ def main() -> int:
         f"  the same ticks on the virtual clock: {hot.total_ms:.3f} ms back to back (the work), "
         f"{paused.total_ms:.3f} ms with {PAUSE_S * 1e3:g} ms of sleep between two (cold caches)"
     )
+    python_calls, c_calls = calls_per_tick()
+    print(f"  calls per tick: {python_calls:.0f} Python functions, {c_calls:.0f} into C")
     # Probes on every axis, one every 60 ticks: the same loop beside the figures above.
     probed = measure(args.ticks, args.period_s, probe_every_ticks=60)
     ordered_p = sorted(probed.lateness_ms)

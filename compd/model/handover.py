@@ -15,6 +15,7 @@ happens to cut right now has not cut for ever). Instead:
 
 from __future__ import annotations
 
+import itertools
 import math
 from array import array
 from collections.abc import Mapping
@@ -52,7 +53,7 @@ class SignalHistory:
         width = len(self.names)
         if width:  # (an empty slice of an array numpy views counts as a resize)
             start = self._next * width
-            row = array("f", [values.get(name, math.nan) for name in self.names])
+            row = array("f", map(values.get, self.names, itertools.repeat(math.nan)))
             self._flat[start : start + width] = row
         self._next = (self._next + 1) % len(self._rows)
         self._count = min(self._count + 1, len(self._rows))

@@ -146,7 +146,7 @@ class TickRunner:
         compiled = self.compiled
         if type(signals) is dict or isinstance(signals, Mapping):  # the dict first: no ABC check
             try:
-                values = [float(signals[name]) for name in compiled.signals]
+                values = list(map(float, map(signals.__getitem__, compiled.signals)))
             except KeyError:
                 values = compiled.signal_vector(signals).tolist()  # raises, naming them
         else:

@@ -462,9 +462,11 @@ class Service:
 
     def counters(self) -> dict[str, int]:
         """The service's counters, as ``compd status``, telemetry and the metrics give them."""
-        links = self.links.values()
-        return vars(self.compensator.counters) | {
-            "overruns": self.timing.overruns,
-            "driver_faults": sum(link.faults for link in links),
-            "reconnects": sum(link.reconnects for link in links),
-        }
+        counters = vars(self.compensator.counters) | {"overruns": self.timing.overruns}
+        faults = reconnects = 0
+        for link in self.links.values():
+            faults += link.faults
+            reconnects += link.reconnects
+        counters["driver_faults"] = faults
+        counters["reconnects"] = reconnects
+        return counters

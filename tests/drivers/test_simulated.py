@@ -48,6 +48,16 @@ def test_interpolates_and_loops(tmp_path):
     assert values == [0.0, 5.0, 20.0, 0.0, 5.0]
 
 
+def test_a_read_at_any_time_is_what_a_fresh_driver_reads_then(tmp_path):
+    """Forward a tick, back, past the end and across the seam: each read finds its own samples."""
+    driver, clock = make(tmp_path)
+    for t in (0.0, 1.0, 2.0, 12.5, 13.5, 3.0, 19.9, 20.0, 29.0, 31.0, 0.5, 64.0, 64.5, 10.0):
+        clock.t = t
+        fresh, fresh_clock = make(tmp_path)
+        fresh_clock.t = t
+        assert read(driver, "a", "b") == read(fresh, "a", "b"), t
+
+
 def test_time_scale_and_start(tmp_path):
     """time_scale data seconds pass per clock second, from start_s."""
     driver, clock = make(tmp_path, time_scale=2.0, start_s=4.0, loop=False)

@@ -9,6 +9,7 @@ so that no I/O error can end the loop; the models it steps are the slots of
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -43,7 +44,7 @@ log = structlog.get_logger("compd.service.loop.compensator")
 MIN_DEFAULT_JUMP = 1.0
 
 
-@dataclass
+@dataclass(slots=True)
 class TickRecord:
     """Everything one tick saw and did, for the recorder, the status and the tests."""
 
@@ -151,8 +152,11 @@ class Compensator:
         pairs: Sequence[Pair] = (),
     ) -> None:
         self.signals = list(signals)
+        self._signal_names = [point.name for point in self.signals]
         self.monitors = dict(monitors)
         self.axes = list(axes)
+        self._axis_names = [axis.name for axis in self.axes]
+        self._readback_axes = [axis for axis in self.axes if axis.readback]
         self.safety = dict(safety)
         self.links = dict(links)
         self.status_point = status
@@ -364,7 +368,8 @@ class Compensator:
             monitor = self.monitors[point.name]
             was[point.name] = monitor.reading.health
             readings[point.name] = monitor.update(t_s, values.get(point.name))
-        readings = self._redundant(t_s, readings)
+        if self.redundancy is not None:
+            readings = self._redundant(t_s, readings)
         readings = self._plausible(t_s, readings, values)
         if self.redundancy is not None:
             readings = self.redundancy.mark(readings)
@@ -389,7 +394,21 @@ class Compensator:
                 self._signal_faults[point.name].cleared(
                     "signal usable again", health=reading.health.name.lower()
                 )
-        checked = {name: r.value for name, r in readings.items()}
+        # The readings as the rest of the tick uses them, in one pass (the tick runs with cold
+        # caches: each comprehension is a function and a frame of its own).
+        checked: dict[str, float] = {}
+        health: dict[str, Health] = {}
+        reasons: dict[str, str] = {}
+        faulted_now: set[str] = set()
+        bad: list[bool] = []  # per input, in order: not OK (a status bit each)
+        for name, reading in readings.items():
+            checked[name] = reading.value
+            health[name] = state = reading.health
+            if reading.reason:
+                reasons[name] = reading.reason
+            if state is Health.FAULTED:
+                faulted_now.add(name)
+            bad.append(state is not Health.OK)
         if self.schedule is not None:
             key = readings[self.schedule.table.signal]
             self.schedule.update(t_s, key.value, usable=key.health is not Health.FAULTED)
@@ -407,7 +426,6 @@ class Compensator:
         outside_envelope: dict[str, str] = {}
         if models is not None and self.axes:
             self._calibrate(models.active)
-        faulted_now = {name for name, r in readings.items() if r.health is Health.FAULTED}
         for axis in self.axes:
             assert models is not None  # axes need a model (checked in __init__)
             output = models.output(axis.model_output, weight)
@@ -428,23 +446,26 @@ class Compensator:
                 else stage.step(target, t_s, faulted=faulted, measured_um=axis.sign * learned)
             )
             offsets[axis.name] = result.offset_um
-            any_frozen |= faulted or clamp_fault or stage.watch.faulted
-            outside |= stage.watch.faulted
-            self.envelope_faults.update(axis.name, stage.watch)
-            if (said := stage.watch.sentence(axis.name)) is not None:
-                outside_envelope[axis.name] = said
+            watch = stage.watch
+            any_frozen |= faulted or clamp_fault or watch.faulted
+            outside |= watch.faulted
+            self.envelope_faults.update(axis.name, watch)
+            if watch.why is not None and (said := watch.sentence(axis.name)) is not None:
+                outside_envelope[axis.name] = said  # outside its envelope: how, and how long
             if result.clamped:
                 flags.add(Flag.CLAMPED)
             if result.slewed:
                 flags.add(Flag.SLEWING)
         if models is not None and models.active.runner is None:
             flags.add(Flag.STARTING)
-        if self.model_fault is not None:
+        model_fault = None if models is None else models.fault
+        if model_fault is not None:
             any_frozen = True
         # A link down, or a device refusing writes: the offsets are not getting through.
-        if not all(link.up and not link.refusing_writes for link in self.links.values()):
-            flags.add(Flag.DRIVER_DOWN)
-        bad = [r.health is not Health.OK for r in readings.values()]
+        for link in self.links.values():
+            if not link.up or link.refusing_writes:
+                flags.add(Flag.DRIVER_DOWN)
+                break
         level = Level.FAULTED if any_frozen else Level.DEGRADED if any(bad) else Level.OK
         unsure = Flag.DRIVER_DOWN in flags or mismatches or self.held.unknown
         if unsure and level is Level.OK:
@@ -457,7 +478,7 @@ class Compensator:
             mismatch=bool(mismatches or out_of_clamp)
             and status is not None
             and status.mismatch_bit,
-            model_fault=(self.model_fault is not None or outside)
+            model_fault=(model_fault is not None or outside)
             and status is not None
             and status.model_fault_bit,
         )
@@ -474,8 +495,8 @@ class Compensator:
             t_s=t_s,
             wall_unix_s=now_unix_s,
             values=checked,
-            health={name: r.health for name, r in readings.items()},
-            reasons={name: r.reason for name, r in readings.items() if r.reason},
+            health=health,
+            reasons=reasons,
             model_outputs=outputs,
             contributions=contributions,
             targets_um=targets,
@@ -484,9 +505,11 @@ class Compensator:
             heartbeat=self.heartbeat,
             written=written,
             gains=dict(self.schedule.applied) if self.schedule is not None else {},
-            acknowledged_um={a.name: acknowledged.get(a.name, math.nan) for a in self.axes},
-            readback_um={a.name: _um(a, held.get(a.name)) for a in self.axes if a.readback},
-            read={p.name: _finite(values.get(p.name)) for p in self.signals},
+            acknowledged_um=_each(acknowledged, self._axis_names),
+            readback_um={a.name: _um(a, held.get(a.name)) for a in self._readback_axes}
+            if self._readback_axes
+            else {},
+            read=_each(values, self._signal_names),  # the points' values are floats already
             probes=() if probing is None else probing.taken(),
             probe_adjustments_um={} if probing is None else dict(probing.adjustments_um),
             probe_innovations_um={} if probing is None else probing.innovations_um(),
@@ -530,8 +553,13 @@ def _model_outputs(slot: ModelSlot | None) -> tuple[dict[str, float], dict[str, 
     return outputs, dict(zip(slot.names, runner.contributions_um, strict=True))
 
 
-def _finite(value: float | None) -> float:
-    return math.nan if value is None else float(value)
+#: NaN as often as asked: the default of ``map(mapping.get, names, _NAN)``.
+_NAN = itertools.repeat(math.nan)
+
+
+def _each(values: Mapping[str, float], names: list[str]) -> dict[str, float]:
+    """``values`` of ``names``, in their order, NaN where missing (in C: no frame per tick)."""
+    return dict(zip(names, map(values.get, names, _NAN), strict=True))
 
 
 def _um(axis: AxisPoint, raw: float | None) -> float:

@@ -195,7 +195,8 @@ class DriverLink:
             if self.observe is not None:
                 self.observe("write", time.perf_counter() - started_s)
         self._succeeded()
-        self._refused.cleared("driver write accepted again")
+        if self._refused.active:  # (cleared() does nothing otherwise: no call every tick)
+            self._refused.cleared("driver write accepted again")
         return True
 
     async def close(self) -> None:

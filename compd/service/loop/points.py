@@ -102,6 +102,7 @@ class DriverBatches:
             d: [p.address for p in points] + [a.address for a in self._readbacks.get(d, [])]
             for d, points in self._reads.items()
         }
+        self._drivers = list(self._reads)
 
     async def read(self) -> tuple[dict[str, float], dict[str, float]]:
         """Signal values by name, and the raw offsets read back by axis name.
@@ -112,15 +113,18 @@ class DriverBatches:
         which takes such a value as a fault, never as "not read" (which would
         leave it in place unflagged).
         """
-        drivers = list(self._reads)
-        results = await _all([self.links[d].read(self._addresses[d]) for d in drivers])
+        drivers = self._drivers
+        if len(drivers) == 1:  # the usual case: no list of calls, no gather
+            results = [await self.links[drivers[0]].read(self._addresses[drivers[0]])]
+        else:
+            results = await _all([self.links[d].read(self._addresses[d]) for d in drivers])
         values: dict[str, float] = {}
         held: dict[str, float] = {}
         for driver, raw in zip(drivers, results, strict=True):
             for point in self._reads[driver]:
                 if point.address in raw:
                     values[point.name] = point.convert(raw[point.address])
-            for axis in self._readbacks.get(driver, []):
+            for axis in self._readbacks.get(driver, ()):
                 if axis.address in raw:
                     held[axis.name] = raw[axis.address]
         return values, held
@@ -136,7 +140,9 @@ class DriverBatches:
 
         ``also``: more raw values per driver and address, in the same batch (a probe's echo).
         """
-        batches: dict[str, dict[str, float]] = {d: dict(b) for d, b in (also or {}).items()}
+        batches: dict[str, dict[str, float]] = {}
+        if also:
+            batches = {d: dict(b) for d, b in also.items()}
         for axis in self.axes:
             if axis.name in raws:
                 batches.setdefault(axis.driver, {})[axis.address] = raws[axis.name]
@@ -144,6 +150,9 @@ class DriverBatches:
             batch = batches.setdefault(self.status.driver, {})
             batch[self.status.status_address] = float(word)
             batch[self.status.heartbeat_address] = float(heartbeat)
+        if len(batches) == 1:  # the usual case: no list of calls, no gather
+            ((driver, batch),) = batches.items()
+            return {driver: await self.links[driver].write(batch)}
         drivers = list(batches)
         results = await _all([self.links[d].write(batches[d]) for d in drivers])
         return dict(zip(drivers, results, strict=True))

@@ -122,7 +122,7 @@ class AxisLimits:
     max_rate_um_per_s: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class AxisOutput:
     """One axis's offset this tick and what the stage did to it."""
 

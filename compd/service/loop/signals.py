@@ -56,7 +56,7 @@ class Checks:
     hold_s: float = 30.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Reading:
     """The value to use this tick (``nan`` only before the first good value) and why."""
 

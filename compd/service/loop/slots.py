@@ -237,7 +237,8 @@ class ModelSlots:
                 state = slot.runner.state
                 if not all(np.all(np.isfinite(v)) for v in (state.z, state.residual)):
                     fault = self._unload(slot, "its state turned NaN/inf")
-        self._latch_fault(fault)
+        if fault is not None or self.fault is not None:  # (nothing to latch otherwise)
+            self._latch_fault(fault)
 
     def _unload(self, slot: ModelSlot, why: str) -> str:
         """Take a failed model out of the loop: restore the one it replaced, or restart it."""

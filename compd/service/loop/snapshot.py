@@ -18,7 +18,7 @@ from types import MappingProxyType
 from compd.service.loop.compensator import TickRecord
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class ModelId:
     """The model that ran this tick: its name and the sha256 of its file."""
 
@@ -26,7 +26,7 @@ class ModelId:
     sha256: str
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class TickSnapshot:
     """What one tick saw and did, with the service's counters and the tick's timing after it.
 
@@ -57,6 +57,7 @@ class TickSnapshot:
         return self.ticks == 1
 
     @staticmethod
-    def frozen(counters: Mapping[str, int]) -> Mapping[str, int]:
-        """``counters`` as a read-only mapping (a subscriber cannot change what the next one reads)."""
-        return MappingProxyType(dict(counters))
+    def frozen(counters: dict[str, int]) -> Mapping[str, int]:
+        """``counters``, a dict no one else keeps, as a read-only mapping (a subscriber cannot
+        change what the next one reads)."""
+        return MappingProxyType(counters)

@@ -70,13 +70,18 @@ class LineFormats:
 
     def __init__(self) -> None:
         self._formats: dict[tuple[type, ...], str | None] = {}
+        #: The last row's types and format: the next row's, as a rule (compared, not hashed).
+        self._last: tuple[tuple[type, ...], str | None] = ((), None)
 
     def line(self, stamp_text: str, values: Sequence[Cell]) -> str:
         types = tuple(map(type, values))
-        try:
-            form = self._formats[types]
-        except KeyError:
-            form = self._formats[types] = _format(types)
+        last_types, form = self._last
+        if types != last_types:
+            try:
+                form = self._formats[types]
+            except KeyError:
+                form = self._formats[types] = _format(types)
+            self._last = types, form
         if form is None:
             return stamp_text + "," + ",".join(map(cell, values)) + "\n"
         line = form % (stamp_text, *values)

@@ -264,7 +264,7 @@ class Recorder(RecordingFiles):
         """Write the gathered rows now, as whole lines, or none of them."""
         if not self._pending or self._fd is None:
             return
-        data = b"".join(self._pending)
+        data = self._pending[0] if len(self._pending) == 1 else b"".join(self._pending)
         rows = len(self._pending) - (self._written == 0)  # the header is no row
         self._pending.clear()
         try:
@@ -435,9 +435,11 @@ def _order(match: re.Match[str]) -> tuple[str, int]:
 
 
 def _write_all(fd: int, data: bytes) -> None:
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view) :]
+    written = os.write(fd, data)
+    if written < len(data):  # a short write (a signal, a full disk): the rest, until done or raised
+        view = memoryview(data)[written:]
+        while view:
+            view = view[os.write(fd, view) :]
 
 
 def sync_directory(directory: Path) -> None:

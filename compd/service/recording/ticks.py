@@ -10,7 +10,7 @@ import structlog
 from compd.errors import RecorderError
 from compd.faultlog import FaultLog
 from compd.service.loop.compensator import TickRecord
-from compd.service.loop.snapshot import TickSnapshot
+from compd.service.loop.snapshot import ModelId, TickSnapshot
 from compd.service.recording.parquet import ParquetRecorder
 from compd.service.recording.recorder import Recorder
 
@@ -120,11 +120,15 @@ class RecordingTicks:
         #: the service itself cannot know. None: the row as the tick made it.
         self.extra_columns: Callable[[], Mapping[str, float]] | None = None
         self._layout = RowLayout()
+        #: The model the files were last told of (the daemon keeps one ModelId per model).
+        self._model: ModelId | None = None
 
     def on_tick(self, snapshot: TickSnapshot) -> None:
         try:
-            if snapshot.model is not None:  # a data logger names no model
-                self.recorder.set_model(snapshot.model.name, snapshot.model.sha256)
+            model = snapshot.model
+            if model is not None and model is not self._model:  # a data logger names no model
+                self.recorder.set_model(model.name, model.sha256)
+                self._model = model
             if self.extra_columns is None:
                 columns, values = self._layout.row(snapshot.record)
                 self.recorder.record_values(columns, values, at_s=snapshot.record.wall_unix_s)
