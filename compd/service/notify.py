@@ -19,6 +19,7 @@ level until a send succeeds again.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import socket
 import time
@@ -188,7 +189,11 @@ class SystemdTicks:
     loop that can no longer keep its deadlines (or hangs in I/O) stops pinging
     and systemd restarts it. A machine that is merely unreachable (PLC off at
     night) still gets healthy ticks: freezing the offsets is right there, and
-    restarting would not help.
+    restarting would not help. It is pinged at the first healthy tick a
+    quarter of the watchdog's timeout after the last ping (half the interval
+    ``sd_watchdog_enabled(3)`` asks for, so one late tick costs nothing), not
+    every tick: each ping wakes systemd (PID 1). Without a watchdog
+    (``WatchdogSec=`` unset) nothing is pinged.
     """
 
     name = "systemd"
@@ -196,6 +201,7 @@ class SystemdTicks:
     def __init__(self, notifier: SystemdNotifier, *, status_every_ticks: int) -> None:
         self.notifier = notifier
         self.status_every_ticks = status_every_ticks
+        self._next_ping_real_s = -math.inf
 
     def on_tick(self, snapshot: TickSnapshot) -> None:
         if snapshot.first:
@@ -204,8 +210,14 @@ class SystemdTicks:
                 if snapshot.model is None
                 else f"compensating with {snapshot.model.name}"
             )
-        if snapshot.on_time:
+        interval_s = self.notifier.watchdog_interval_s
+        if (
+            snapshot.on_time
+            and interval_s is not None
+            and snapshot.started_real_s >= self._next_ping_real_s
+        ):
             self.notifier.watchdog()
+            self._next_ping_real_s = snapshot.started_real_s + interval_s / 2.0
         if snapshot.ticks % self.status_every_ticks == 0:
             self.notifier.status(systemd_summary(snapshot))
 

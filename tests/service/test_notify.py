@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import socket
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
-from compd.service.notify import SystemdNotifier
+from compd.service.notify import SystemdNotifier, SystemdTicks
 
 
 @pytest.fixture
@@ -153,3 +155,49 @@ def test_a_bad_notify_socket_value_disables_notification(caplog):
         notifier = SystemdNotifier({"NOTIFY_SOCKET": "vsock:2:1234"})
     assert not notifier.enabled and not notifier.ready()
     assert "NOTIFY_SOCKET" in caplog.text
+
+
+def _tick(ticks: int, started_real_s: float, *, on_time: bool = True) -> SimpleNamespace:
+    """What SystemdTicks reads of a tick's snapshot: its count, real start and whether on time."""
+    return SimpleNamespace(
+        ticks=ticks, first=ticks == 1, model=None, started_real_s=started_real_s, on_time=on_time
+    )
+
+
+def _pings(sock: socket.socket) -> list[bytes]:
+    """Every WATCHDOG=1 datagram waiting on ``sock`` (the rest dropped)."""
+    sock.setblocking(False)
+    got = []
+    with contextlib.suppress(BlockingIOError):
+        while True:
+            got.append(sock.recv(4096))
+    return [g for g in got if g == b"WATCHDOG=1"]
+
+
+def test_the_watchdog_is_pinged_every_quarter_timeout_not_every_tick(path_socket):
+    """WatchdogSec=10 s, a tick each 1 s: a ping at 0, 3, 6 and 9 s (each the first tick 2.5 s
+    after the last ping); a late tick does not ping, the next healthy one does."""
+    sock, address = path_socket
+    notifier = SystemdNotifier({"NOTIFY_SOCKET": address, "WATCHDOG_USEC": "10000000"})
+    ticks = SystemdTicks(notifier, status_every_ticks=10**9)
+    pinged = []
+    for second in range(10):
+        ticks.on_tick(_tick(second + 1, float(second)))
+        pinged += [second] * len(_pings(sock))
+    assert pinged == [0, 3, 6, 9]
+    ticks.on_tick(_tick(11, 12.0, on_time=False))
+    assert _pings(sock) == []
+    ticks.on_tick(_tick(12, 13.0))
+    assert _pings(sock) == [b"WATCHDOG=1"]
+    notifier.close()
+
+
+def test_without_a_watchdog_nothing_is_pinged(path_socket):
+    """A unit without WatchdogSec= (no WATCHDOG_USEC) gets READY=1 and no WATCHDOG=1 at all."""
+    sock, address = path_socket
+    notifier = SystemdNotifier({"NOTIFY_SOCKET": address})
+    ticks = SystemdTicks(notifier, status_every_ticks=10**9)
+    for second in range(5):
+        ticks.on_tick(_tick(second + 1, float(second)))
+    assert _pings(sock) == []
+    notifier.close()
