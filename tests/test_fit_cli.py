@@ -404,3 +404,25 @@ def test_compare_refuses_a_record_in_another_unit_than_the_model_reads(
     assert "reads it in 'degC'" in error and "Convert the column to 'degC'" in error
     recorded(frame, data, {"T_spindle_degC": "°C"})
     assert main(["compare", str(model), str(data)]) == 0
+
+
+def test_a_time_column_in_milliseconds_is_refused_naming_the_data(
+    calibration_csv, tmp_path, capsys
+):
+    """``time_s`` holding ms makes a 10 s record step 10,000 s: fit and compare name the data file
+    and the fix (divide by 1000), not the model's sample time."""
+    frame = pd.read_csv(calibration_csv)
+    frame["time_s"] *= 1000.0
+    data = tmp_path / "in-ms.csv"
+    frame.to_csv(data, index=False)
+    out = tmp_path / "model.yaml"
+    fit = ["fit", "--output", "disp_z_um", "--inputs", "T_spindle_degC", "--out", str(out)]
+    assert main([*fit, "--data", str(data)]) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert f"{data}: the time column: steps" in error and "divide it by 1000" in error, error
+    assert not out.exists()
+    assert main([*fit, "--data", str(calibration_csv)]) == 0
+    capsys.readouterr()
+    assert main(["compare", str(out), str(data)]) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert f"{data}: the time column: steps" in error and "divide it by 1000" in error, error

@@ -21,6 +21,7 @@ from compd.files.modelfile import ModelFile
 from compd.model.compiled import CompiledModel, ModelState
 from compd.model.experiments import ONE
 from compd.model.initial import estimate_initial_state
+from compd.model.limits import MAX_SAMPLE_TIME_S
 from compd.model.metrics import Comparison, fit_percent
 from compd.model.run import SimulationResult, simulate
 from compd.toolkit.selection import is_displacement
@@ -94,6 +95,20 @@ def _same(unit: str) -> str:
     return _SPELLINGS.get(unit, unit)
 
 
+def check_step(data: DataSet) -> None:
+    """Refuse a record whose step no model runs at, naming the data (else a model fitted or run
+    at it is refused for its sample time, naming the model): milliseconds in ``time_s``."""
+    if data.sample_time_s > MAX_SAMPLE_TIME_S:
+        raise DataFileError(
+            data.path,
+            f"steps {data.sample_time_s:g} s (its median step), longer than the "
+            f"{MAX_SAMPLE_TIME_S:g} s a model runs at",
+            where="the time column",
+            fix="If the time column holds milliseconds, divide it by 1000 (time_s is in seconds); "
+            "else resample the record to a step of at most an hour",
+        )
+
+
 def signal_matrix(compiled: CompiledModel, data: DataSet) -> np.ndarray:
     """The model's signals as an (N, n_signals) array; a missing column names the model and the file."""
     missing = [name for name in compiled.signals if not data.has(name)]
@@ -127,6 +142,7 @@ def evaluate(
     """
     notes = []
     model_s = model_file.model.sample_time_s
+    check_step(data)
     if not np.isclose(model_s, data.sample_time_s, rtol=1e-9, atol=0.0):
         notes.append(
             f"model sample time {model_s:g} s converted exactly to the data's "

@@ -16,6 +16,7 @@ from compd.errors import DataFileError
 from compd.files.columns import UNIT_PREFIX
 from compd.files.data import DataSet
 from compd.model.orderfit import MAX_ORDER
+from compd.toolkit.evaluate import check_step
 from compd.toolkit.fitmodel import column_unit
 from compd.toolkit.methods import FIT_METHODS
 
@@ -45,6 +46,7 @@ def check_arguments(
         )
     for column in (output, *inputs):
         data.column(column)  # an unknown column names the file's columns
+    check_step(data)
     if order != "auto" and not (isinstance(order, int) and 1 <= order <= MAX_ORDER):
         raise DataFileError(
             data.path,
