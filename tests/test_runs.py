@@ -77,6 +77,28 @@ def test_files_of_different_machines_are_never_joined(tmp_path: Path) -> None:
         assert any("another machine (mill-a and mill-b)" in n for n in experiments[0].notes)
 
 
+def test_files_that_record_a_column_in_different_units_are_never_joined(tmp_path: Path) -> None:
+    """A file recording T_degC in degF (the config's unit changed between files) does not continue
+    one recording it in degC: joined, its values would be read in the first file's unit."""
+    recorder = Recorder(
+        tmp_path,
+        max_file_bytes=1 << 30,
+        max_file_age_s=FILE_S,
+        max_total_bytes=1 << 32,
+        metadata={"machine_id": "mill-a", "unit.T_degC": "degC"},
+    )
+    with recorder as rec:
+        write(rec, range(120))
+    second = recorded(tmp_path)[1]
+    second.write_text(second.read_text().replace("# unit.T_degC: degC", "# unit.T_degC: degF"))
+    for joining in ("per-run", "contiguous"):
+        experiments = load_experiments([tmp_path], joining=joining)  # type: ignore[arg-type]
+        assert [len(e) for e in experiments] == [60, 60]
+        assert any(
+            "T_degC is recorded in degC in one and in degF" in n for n in experiments[0].notes
+        )
+
+
 def test_a_gap_beyond_max_gap_splits_a_run_and_a_shorter_one_is_interpolated(
     tmp_path: Path,
 ) -> None:

@@ -50,7 +50,14 @@ from typing import Literal
 
 import numpy as np
 
-from compd.files.columns import MACHINE_ID, RUN_FILE, RUN_ID, RUN_PREVIOUS, RUN_REASON
+from compd.files.columns import (
+    MACHINE_ID,
+    RUN_FILE,
+    RUN_ID,
+    RUN_PREVIOUS,
+    RUN_REASON,
+    UNIT_PREFIX,
+)
 from compd.files.data import DataSet
 
 #: How the files of several become experiments: each its own, a recorded run's joined, or
@@ -113,6 +120,11 @@ def continues(before: DataSet, data: DataSet, *, how: Joining, max_gap_s: float)
     """Whether ``data`` continues ``before`` (module docstring's rules for ``how``)."""
     if before.metadata.get(MACHINE_ID) != data.metadata.get(MACHINE_ID):
         return Link(0, f"another machine ({_machine(before)} and {_machine(data)})")
+    for key, unit in before.metadata.items():
+        other = data.metadata.get(key)
+        if key.startswith(UNIT_PREFIX) and other is not None and other != unit:
+            column = key.removeprefix(UNIT_PREFIX)
+            return Link(0, f"{column} is recorded in {unit} in one and in {other} in the other")
     if how == "per-run":
         if data.metadata.get(RUN_ID) != before.metadata.get(RUN_ID):
             return Link(0, "another run (compd was started again)")
