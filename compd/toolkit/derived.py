@@ -8,8 +8,13 @@ says, so a daemon never runs quietly without it.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import numpy as np
+
 from compd.files.modelfile import ModelFile
 from compd.files.modelschema import ProbePriorDoc, ResidualDoc
+from compd.files.probeprior import static_gains
 from compd.model.structure import Model
 
 
@@ -22,20 +27,64 @@ def kept_priors(parent: ModelFile, model: Model) -> tuple[dict[str, ProbePriorDo
     """The parent's probe priors of the outputs ``model`` did not change, and a note per dropped one.
 
     A prior is the calibration's posterior in the parent's sub-models and
-    coefficients: an output whose sub-models or gains changed would start its
-    probe update from parameters it no longer has, so it gets none (the
-    daemon's conservative default, which it logs), and the command says so.
+    coefficients. Where only the sub-models' gains changed (``compd update``)
+    it is centred on the new coefficients (:func:`recentred`). An output whose
+    sub-models changed otherwise would start its probe update from parameters
+    it no longer has, so it gets none (the daemon's conservative default,
+    which it logs), and the command says so.
     """
     before = {o.name: o.submodels for o in parent.model.outputs}
-    changed = {o.name for o in model.outputs if before.get(o.name) != o.submodels}
     priors = dict(parent.doc.probe_prior or {})
+    kept: dict[str, ProbePriorDoc] = {}
+    for output in model.outputs:
+        prior = priors.get(output.name)
+        if prior is None:
+            continue
+        if before.get(output.name) == output.submodels:
+            kept[output.name] = prior
+        elif (moved := recentred(prior, parent.model, model, output.name)) is not None:
+            kept[output.name] = moved
     notes = [
-        f"{name}: its sub-models or gains changed, so the calibration's probe prior no longer "
+        f"{name}: its sub-models changed, so the calibration's probe prior no longer "
         "fits them: the new file has none for it, and a daemon with probes starts its probe "
         "update from the conservative default"
-        for name in sorted(changed & set(priors))
+        for name in sorted(set(priors) - set(kept))
+        if name in {o.name for o in model.outputs}
     ]
-    return {n: p for n, p in priors.items() if n not in changed}, notes
+    return kept, notes
+
+
+def recentred(
+    prior: ProbePriorDoc, parent: Model, model: Model, output: str
+) -> ProbePriorDoc | None:
+    """``prior`` (in the coefficients) centred on ``model``'s where only gains changed, else None.
+
+    The calibration's uncertainty about each coefficient is kept as it was
+    (wider than what the probes behind the new gains taught: the update
+    starts no surer than the calibration left it); the gains' posterior,
+    relative to each coefficient, is scaled with it.
+    """
+    if prior.coefficients is None:
+        return None
+    old = {o.name: o.submodels for o in parent.outputs}.get(output, ())
+    new = next((o.submodels for o in model.outputs if o.name == output), ())
+    if len(old) != len(new) or any(
+        replace(a, gain=b.gain) != b for a, b in zip(old, new, strict=True)
+    ):
+        return None
+    before, after = static_gains(parent, output), static_gains(model, output)
+    if before is None or after is None or list(after) != prior.parameters[:-1]:
+        return None
+    scale = np.array([after[n] / before[n] if before[n] else 1.0 for n in after] + [1.0])
+    gains = prior.gains_covariance
+    return prior.model_copy(
+        update={
+            "coefficients": [after[n] for n in after],
+            "gains_covariance": None
+            if gains is None
+            else (np.asarray(gains) * np.outer(scale, scale)).tolist(),
+        }
+    )
 
 
 def consistency_note(parent: ModelFile, signal: str) -> str | None:

@@ -21,6 +21,7 @@ import pytest
 
 from compd.cli import main
 from compd.files.modelfile import load_model
+from compd.files.probeprior import output_prior, static_gains
 from compd.report.verdict import fitted_on
 from tests.workflow.test_hidden_effects import BASE_INPUTS, compd, compd_json, twin
 
@@ -132,10 +133,11 @@ def derived_keeps_the_forest(stacked: Path, derived: Path) -> None:
     assert child.doc.consistency == parent.doc.consistency
 
 
-def test_update_of_a_stacked_model_keeps_its_forest_and_says_the_prior_is_gone(
+def test_update_of_a_stacked_model_keeps_its_forest_and_its_probe_prior_on_the_new_gains(
     models, tmp_path: Path
 ) -> None:
-    """`compd update` of a stacked model, written elsewhere, keeps its forest and says its probe prior is gone."""
+    """`compd update` of a stacked model, written elsewhere, keeps its forest, and its probe prior
+    centred on the updated coefficients (the daemon takes it, not the conservative default)."""
     _, stacked, run = models
     rows = np.loadtxt(run, delimiter=",", skiprows=1, usecols=(0, 16))[::180]  # time_s, disp_z_um
     probes = tmp_path / "probes.csv"
@@ -147,8 +149,14 @@ def test_update_of_a_stacked_model_keeps_its_forest_and_says_the_prior_is_gone(
         "update", stacked, run, "--probes", probes, "--bounds", f"{first}=0:2", "--out", derived
     )
     derived_keeps_the_forest(stacked, derived)
-    assert not load_model(derived).doc.probe_prior
-    assert any("probe prior" in note for note in summary["notes"]), summary["notes"]
+    assert not any("probe prior" in note for note in summary["notes"]), summary["notes"]
+    parent, child = load_model(stacked), load_model(derived)
+    before, after = parent.doc.probe_prior["disp_z_um"], child.doc.probe_prior["disp_z_um"]
+    assert after.covariance == before.covariance and after.coefficients != before.coefficients
+    names = tuple(s.name for s in child.model.outputs[0].submodels)
+    taken = output_prior(child, "disp_z_um", names)
+    assert taken.note is None
+    assert np.allclose(taken.prior.mean[:-1], list(static_gains(child.model, "disp_z_um").values()))
 
 
 def test_extend_of_a_stacked_model_keeps_its_forest(folder: Path, models, tmp_path: Path) -> None:
