@@ -244,6 +244,10 @@ def test_recordings_load_as_data_on_the_tick_grid(tmp_path):
 class _Watchdog:
     """Counts the sd_notify calls the service makes (the real notifier is tested on a socket)."""
 
+    #: No spacing between pings (a real unit's is a quarter of WatchdogSec, in real time, which a
+    #: virtual clock's back-to-back ticks would all fall within): every tick on time pings.
+    watchdog_interval_s = 0.0
+
     def __init__(self) -> None:
         self.pings = 0
 
