@@ -130,7 +130,22 @@ def status_command(args: argparse.Namespace) -> int:
     for row in reply.get("unverifiable") or []:
         if not row["verifiable"]:
             out.print(unverifiable_line(row))
+    if (line := state_line(reply)) is not None:
+        out.print(line)
     return 0
+
+
+def state_line(reply: dict[str, Any]) -> Text | None:
+    """``state not saved in DIR (error): a restart resumes from an older state``, while saves fail;
+    None while they work (a daemon too old to say: None too)."""
+    state = reply.get("state")
+    if not state or state["saving"]:
+        return None
+    return Text(
+        f"  state not saved in {state['directory']} ({state['error']}): "
+        "a restart resumes from an older state",
+        "bold red",
+    )
 
 
 def offset_line(axis: str, reply: dict[str, Any]) -> str:

@@ -63,6 +63,7 @@ from compd.service.store.state import SavedState, resumable_state
 if TYPE_CHECKING:
     from compd.service.fleet.telemetry import Telemetry
     from compd.service.http.server import StatusServer
+    from compd.service.store.saver import StateSaver
 
 log = structlog.get_logger("compd.service.daemon")
 
@@ -177,6 +178,7 @@ class Service:
         self._model_id: ModelId | None = None  # the running model's, made once per model
         self.telemetry: Telemetry | None = None  # the page reads these while it is built
         self.recording: RecordingTicks | None = None
+        self.saver: StateSaver | None = None  # the page reads it while it is built
         #: The loop's subscribers (:mod:`compd.service.build`), each told of every tick once.
         subscribed = build.tick_subscribers(
             config,
@@ -190,7 +192,7 @@ class Service:
         )
         self.recording = subscribed.recording
         self.recorder = None if self.recording is None else self.recording.recorder
-        self.saver = subscribed.saver
+        self.saver = saver = subscribed.saver
         #: MQTT telemetry (:mod:`compd.service.fleet.telemetry`) where the config asks for it.
         self.telemetry = subscribed.telemetry
         #: Metrics and the status page (config ``http``); None without one: nothing measured then.
@@ -208,8 +210,7 @@ class Service:
                 self.telemetry,
                 config,
                 reporters=[*self.links.values(), self.compensator],
-                faults=[self.saver.fault]
-                + ([] if self.recording is None else [self.recording.fault]),
+                faults=[saver.fault] + ([] if self.recording is None else [self.recording.fault]),
                 load_model=self.load_model,
                 take_probe=None if self.probing is None else self.take_probe,
             )
@@ -290,7 +291,8 @@ class Service:
 
     def save_state(self) -> None:
         """Save now, in the calling thread (at shutdown)."""
-        self.saver.save_now()
+        if self.saver is not None:
+            self.saver.save_now()
 
     async def _tick(self, t_s: float) -> None:
         started_s = self.clock.now()
@@ -446,6 +448,8 @@ class Service:
         ) | {
             "probes": None if self.probing is None else self.probing.status(self.clock.wall()),
             "unverifiable": self._unverifiable(),
+            # Where the state is saved and, while saves fail, why (a restart resumes from older).
+            "state": None if self.saver is None else self.saver.status(),
         }
 
     def _unverifiable(self) -> list[dict[str, Any]]:

@@ -34,7 +34,10 @@ def healthz(run: RunningCompd) -> tuple[int, dict[str, Any]]:
 
 def test_healthy_then_503_naming_the_dropped_plc_then_healthy_again(run: RunningCompd) -> None:
     """Before the faults 200 and no problems; the PLC off the network 503 "driver plc down"; back, 200."""
-    assert healthz(run) == (200, {"healthy": True, "level": "ok", "problems": []})
+    assert healthz(run) == (
+        200,
+        {"healthy": True, "level": "ok", "problems": [], "warnings": []},
+    )
 
     run.hold_at(DROPPED)
     status, answer = healthz(run)

@@ -17,6 +17,7 @@ from compd.service.loop.compensator import Compensator
 from compd.service.loop.links import DriverLink
 from compd.service.loop.snapshot import TickSnapshot
 from compd.service.loop.ticks import TickTiming
+from compd.service.store.saver import StateSaver
 
 if TYPE_CHECKING:
     from compd.service.loop.probing import ProbeLearning
@@ -63,6 +64,10 @@ class ServiceView(Protocol):
     def started_unix_s(self) -> float: ...
     @property
     def telemetry(self) -> TelemetryView | None: ...
+    @property
+    def saver(self) -> StateSaver | None:
+        """The state saver: whether saves fail, and why; None while the service is built."""
+
     @property
     def recorder_fault(self) -> FaultLog | None:
         """The recorder's fault episodes; None: the service records nothing."""
