@@ -4,13 +4,9 @@
 from __future__ import annotations
 
 import asyncio
-import shutil
 import socket
-import tempfile
-from collections.abc import Iterator
 from pathlib import Path
 
-import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from compd.cli.status import state_line
@@ -20,40 +16,21 @@ from compd.service.loop.clock import VirtualClock
 from compd.service.loop.compensator import TickRecord
 from compd.service.notify import SystemdNotifier
 
-from .daemon_setup import write_config
+from .daemon_setup import notify_socket, status_lines, write_config
 
 
-@pytest.fixture
-def notify_socket() -> Iterator[tuple[socket.socket, str]]:
-    """A datagram socket standing for systemd's, on a path short enough for AF_UNIX."""
-    directory = tempfile.mkdtemp(prefix="compd-", dir="/tmp")
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    path = str(Path(directory) / "n.sock")
-    sock.bind(path)
-    sock.setblocking(False)
-    yield sock, path
-    sock.close()
-    shutil.rmtree(directory)
-
-
-def _statuses(sock: socket.socket) -> list[str]:
-    """Every tick's ``STATUS=`` line waiting on ``sock``, in order (not start's or shutdown's)."""
-    lines = []
-    while True:
-        try:
-            datagram = sock.recv(65536).decode()
-        except BlockingIOError:
-            return [line for line in lines if "; status word " in line]
-        lines += [f[len("STATUS=") :] for f in datagram.split("\n") if f.startswith("STATUS=")]
-
-
-def _run(tmp_path: Path, notifier: SystemdNotifier, *, broken: bool) -> Service:
+def _run(
+    tmp_path: Path, sock: socket.socket, path: str, *, broken: bool
+) -> tuple[Service, list[str]]:
     """The bundled simulated config for 60 s, saving every 10 ticks, with ``state.json`` made a
-    directory at the first tick where ``broken`` (every save fails: the rename cannot replace it)."""
+    directory at the first tick where ``broken`` (every save fails: the rename cannot replace it);
+    the service, and systemd's status lines."""
     config = write_config(tmp_path, {"state": {"save_every_ticks": 10}, "live_every_ticks": 10})
     state_file = config.state_dir / "state.json"
+    lines: list[str] = []
 
     def break_state(record: TickRecord) -> None:
+        lines.extend(status_lines(sock))
         if broken and not state_file.is_dir():
             state_file.unlink(missing_ok=True)
             state_file.mkdir(parents=True)
@@ -62,12 +39,12 @@ def _run(tmp_path: Path, notifier: SystemdNotifier, *, broken: bool) -> Service:
         config,
         clock=VirtualClock(),
         control=False,
-        notifier=notifier,
+        notifier=SystemdNotifier({"NOTIFY_SOCKET": path}),
         on_tick=break_state,
         background_saves=False,
     )
     asyncio.run(service.run(duration_s=60.0))
-    return service
+    return service, lines
 
 
 def _state_saved_metric(service: Service) -> float:
@@ -78,13 +55,11 @@ def _state_saved_metric(service: Service) -> float:
     raise AssertionError("no compd_state_saved in /metrics")
 
 
-def test_saves_that_fail_are_in_the_status_the_metrics_and_systemds_line(
-    tmp_path: Path, notify_socket: tuple[socket.socket, str]
-) -> None:
+def test_saves_that_fail_are_in_the_status_the_metrics_and_systemds_line(tmp_path: Path) -> None:
     """Every save refused: status says saving false with the error, ``compd status`` prints a red
     "state not saved" line, ``compd_state_saved`` is 0, and systemd's status line says it too."""
-    sock, path = notify_socket
-    service = _run(tmp_path, SystemdNotifier({"NOTIFY_SOCKET": path}), broken=True)
+    with notify_socket() as (sock, path):
+        service, statuses = _run(tmp_path, sock, path, broken=True)
     state = service.status()["state"]
     assert state["saving"] is False and "Is a directory" in state["error"], state
     line = state_line(service.status())
@@ -93,19 +68,15 @@ def test_saves_that_fail_are_in_the_status_the_metrics_and_systemds_line(
     )
     assert line.plain.endswith("a restart resumes from an older state")
     assert _state_saved_metric(service) == 0
-    statuses = _statuses(sock)
     assert statuses and "state not saved in" in statuses[-1], statuses
 
 
-def test_saves_that_work_say_nothing(
-    tmp_path: Path, notify_socket: tuple[socket.socket, str]
-) -> None:
+def test_saves_that_work_say_nothing(tmp_path: Path) -> None:
     """Saves that succeed: saving true, no status line, ``compd_state_saved`` 1, and systemd's line
     reads offsets, status word and level alone: ``Z +... um; status word 0 (ok)``."""
-    sock, path = notify_socket
-    service = _run(tmp_path, SystemdNotifier({"NOTIFY_SOCKET": path}), broken=False)
+    with notify_socket() as (sock, path):
+        service, statuses = _run(tmp_path, sock, path, broken=False)
     assert service.status()["state"]["saving"] is True
     assert state_line(service.status()) is None
     assert _state_saved_metric(service) == 1
-    statuses = _statuses(sock)
     assert statuses and statuses[-1].endswith("; status word 0 (ok)"), statuses
