@@ -288,7 +288,7 @@ def tick_subscribers(
         systemd=SystemdTicks(
             notifier,
             status_every_ticks=doc.live_every_ticks,
-            notes=lambda: [] if (problem := saver.problem()) is None else [problem],
+            notes=view.not_assured,
         ),
         recording=recording,
         saver=saver,

@@ -452,6 +452,25 @@ class Service:
             "state": None if self.saver is None else self.saver.status(),
         }
 
+    def not_assured(self) -> list[str]:
+        """What is not well though compensation goes on, one line each (``/healthz``'s warnings,
+        systemd's status line): the state not saved, and per axis the inputs whose wrong reading
+        the sensors cannot see within the axis's tolerance (the status word's level says ``ok``
+        meanwhile: it judges the readings, not what checks them)."""
+        notes = []
+        if self.saver is not None and (problem := self.saver.problem()) is not None:
+            notes.append(problem)
+        unseen: dict[str, list[dict[str, Any]]] = {}
+        for row in self._unverifiable():
+            if not row["verifiable"]:
+                unseen.setdefault(row["axis"], []).append(row)
+        notes += [
+            f"not assured on {axis}: {', '.join(r['input'] for r in rows)} "
+            f"not verifiable to its {rows[0]['tolerance_um']:.3g} um tolerance"
+            for axis, rows in unseen.items()
+        ]
+        return notes
+
     def _unverifiable(self) -> list[dict[str, Any]]:
         """What the sensors cannot verify of the running model, per input and axis (none: no model)."""
         slot = self.compensator.running

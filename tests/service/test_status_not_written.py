@@ -88,4 +88,4 @@ def test_systemds_status_line_marks_the_offset_not_written_and_says_degraded(
     during = lines[165 - 1]
     assert during.startswith("Y ") and " um not written; status word " in during, during
     assert "(degraded)" in during, during  # the PLC's link down: offsets not getting through
-    assert lines[-1].endswith("(ok)") and "not written" not in lines[-1], lines[-1]
+    assert "; status word 0 (ok)" in lines[-1] and "not written" not in lines[-1], lines[-1]

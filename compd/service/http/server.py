@@ -14,7 +14,8 @@ lock and no thread:
 - ``GET /healthz``: for load balancers and probes, ``200`` while ticks are on time and the
   outputs healthy, else ``503``; both with ``{"healthy": ..., "problems": [...]}``
   (:func:`compd.service.loop.statusview.health_problems`) and ``"warnings"``: what is
-  not well though compensation goes on (the state not saved), never a 503.
+  not well though compensation goes on (the state not saved, inputs the sensors cannot
+  verify to an axis's tolerance), never a 503.
 
 Nothing can be changed through it: only GET and HEAD are answered, any other
 method is ``405 Method Not Allowed``, and the page carries a content
@@ -280,8 +281,7 @@ class StatusServer:
         last = service.compensator.last
         level = None if last is None else Level(last.status & 0b11).name.lower()
         # Not a reason to restart or route around this daemon (it compensates), but not all well.
-        saver = service.saver
-        warnings = [] if saver is None or (warning := saver.problem()) is None else [warning]
+        warnings = service.not_assured()
         answer = _json(
             {"healthy": not problems, "level": level, "problems": problems, "warnings": warnings}
         )

@@ -83,5 +83,8 @@ class ServiceView(Protocol):
     def clock_wall(self) -> float:
         """The loop clock's wall time now (unix s)."""
 
+    def not_assured(self) -> list[str]:
+        """What is not well though compensation goes on (the state not saved, inputs not verifiable)."""
+
     def status(self) -> dict[str, Any]:
         """``compd status``'s answer."""
