@@ -454,9 +454,10 @@ class Service:
 
     def not_assured(self) -> list[str]:
         """What is not well though compensation goes on, one line each (``/healthz``'s warnings,
-        systemd's status line): the state not saved, and per axis the inputs whose wrong reading
+        systemd's status line): the state not saved; per axis the inputs whose wrong reading
         the sensors cannot see within the axis's tolerance (the status word's level says ``ok``
-        meanwhile: it judges the readings, not what checks them)."""
+        meanwhile: it judges the readings, not what checks them), and the probes disagreeing
+        with the model (the PLC's probe status bit 1)."""
         notes = []
         if self.saver is not None and (problem := self.saver.problem()) is not None:
             notes.append(problem)
@@ -469,6 +470,13 @@ class Service:
             f"not verifiable to its {rows[0]['tolerance_um']:.3g} um tolerance"
             for axis, rows in unseen.items()
         ]
+        if (probing := self.probing) is not None:
+            notes += [
+                f"not assured on {axis}: two probes in a row not taken: "
+                "the model no longer describes the machine"
+                for axis in probing.axes
+                if probing.disagrees(axis)
+            ]
         return notes
 
     def _unverifiable(self) -> list[dict[str, Any]]:
