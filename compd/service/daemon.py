@@ -52,7 +52,7 @@ from compd.service.loop.compensator import Compensator, TickRecord
 from compd.service.loop.probemessages import probe_request
 from compd.service.loop.safety import HEARTBEAT_MODULO
 from compd.service.loop.snapshot import ModelId, TickSnapshot
-from compd.service.loop.statusview import status_snapshot, unverifiable_status
+from compd.service.loop.statusview import not_assured, status_snapshot, unverifiable_status
 from compd.service.loop.subscribers import Subscribers, TickCallback
 from compd.service.loop.ticks import TickTiming, run_periodic
 from compd.service.notify import SystemdNotifier
@@ -458,26 +458,14 @@ class Service:
         the sensors cannot see within the axis's tolerance (the status word's level says ``ok``
         meanwhile: it judges the readings, not what checks them), and the probes disagreeing
         with the model (the PLC's probe status bit 1)."""
-        notes = []
-        if self.saver is not None and (problem := self.saver.problem()) is not None:
-            notes.append(problem)
-        unseen: dict[str, list[dict[str, Any]]] = {}
-        for row in self._unverifiable():
-            if not row["verifiable"]:
-                unseen.setdefault(row["axis"], []).append(row)
-        notes += [
-            f"not assured on {axis}: {', '.join(r['input'] for r in rows)} "
-            f"not verifiable to its {rows[0]['tolerance_um']:.3g} um tolerance"
-            for axis, rows in unseen.items()
-        ]
-        if (probing := self.probing) is not None:
-            notes += [
-                f"not assured on {axis}: two probes in a row not taken: "
-                "the model no longer describes the machine"
-                for axis in probing.axes
-                if probing.disagrees(axis)
-            ]
-        return notes
+        probing = self.probing
+        return not_assured(
+            self._unverifiable(),
+            disagreeing=[]
+            if probing is None
+            else [a for a in probing.axes if probing.disagrees(a)],
+            also=[] if self.saver is None or (p := self.saver.problem()) is None else [p],
+        )
 
     def _unverifiable(self) -> list[dict[str, Any]]:
         """What the sensors cannot verify of the running model, per input and axis (none: no model)."""

@@ -228,3 +228,29 @@ def unverifiable_status(
         }
         for r in rows
     ]
+
+
+def not_assured(
+    unverifiable: Sequence[Mapping[str, Any]], *, disagreeing: Sequence[str], also: Sequence[str]
+) -> list[str]:
+    """``also`` (e.g. the state not saved), then one line per axis whose compensation is not
+    assured though the status word's level may read ok: the inputs (:func:`unverifiable_status`'s
+    rows) whose wrong reading the sensors cannot see within its tolerance, and the axes whose
+    probes disagree with the model (two in a row not taken)."""
+    unseen: dict[str, list[Mapping[str, Any]]] = {}
+    for row in unverifiable:
+        if not row["verifiable"]:
+            unseen.setdefault(row["axis"], []).append(row)
+    return [
+        *also,
+        *(
+            f"not assured on {axis}: {', '.join(r['input'] for r in rows)} "
+            f"not verifiable to its {rows[0]['tolerance_um']:.3g} um tolerance"
+            for axis, rows in unseen.items()
+        ),
+        *(
+            f"not assured on {axis}: two probes in a row not taken: "
+            "the model no longer describes the machine"
+            for axis in disagreeing
+        ),
+    ]
