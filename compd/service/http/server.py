@@ -317,6 +317,8 @@ class StatusServer:
                 # None: a data logger (no model).
                 "model": None if (running := comp.running) is None else _model_json(running),
                 "status": _status_bits(None if last is None else last.status),
+                # What is not well though the level may read ok (/healthz's warnings).
+                "not_assured": service.not_assured(),
                 "units": {name: s.unit for name, s in service.config.doc.signals.items()},
                 "faults": self.faults.as_json(),
                 "model_loads": self.faults.loads_json(),
