@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 from pathlib import Path
 
-from compd.cli.status import offset_line
+from compd.cli.status import offset_line, tick_line
 from compd.service.daemon import Service
 from compd.service.loop.clock import VirtualClock
 from compd.service.notify import SystemdNotifier
@@ -32,11 +32,13 @@ def _with_outage(tmp_path: Path, duration_s: float):
 
 
 def test_during_a_plc_outage_the_offset_is_marked_not_written(tmp_path: Path) -> None:
-    """Inside the drop the status answer names the axis and its link; the line says "not written: plc link down"."""
+    """Inside the drop the status answer names the axis and its link; the line says "not written: plc link
+    down", and the tick's line the word's level: "status word 65 (degraded)"."""
     service, records = _with_outage(tmp_path, 165.0)
     assert not records[-1].written
     reply = service.status()
     assert reply["offsets_not_written"] == {"Y": "plc link down"}
+    assert f"status word {reply['status_word']} (degraded)  heartbeat" in tick_line(reply)
     line = offset_line("Y", reply)
     assert line.startswith(
         f"  offset Y: {reply['offsets_um']['Y']:+.3f} um (not written: plc link down; target"

@@ -77,6 +77,8 @@ def status_snapshot(
         "last_tick": None if last is None else when(last.wall_unix_s),
         "last_tick_age_s": None if last is None else round(age_s(last.wall_unix_s), 3),
         "status_word": None if last is None else last.status,
+        # The word's level (bits 0-1) in words: ok, degraded or faulted.
+        "level": None if last is None else Level(last.status & 0b11).name.lower(),
         "heartbeat": comp.heartbeat,
         "offsets_um": {a: s.offset_um for a, s in comp.safety.items()},
         # What the PLC holds as far as compd knows (read back, else acknowledged).
