@@ -64,10 +64,7 @@ def status_command(args: argparse.Namespace) -> int:
         )
     if model is not None and model.get("fault"):
         out.print(Text.assemble(("model fault", "red"), f": {model['fault']}"))
-    out.print(
-        f"last tick {_tick_age(reply)}  status word {reply['status_word']}  "
-        f"heartbeat {reply['heartbeat']}"
-    )
+    out.print(tick_line(reply))
     for name, state in reply["drivers"].items():
         if state == "not connected":  # never answered since start: a PLC off, a wrong address
             out.print(
@@ -130,7 +127,30 @@ def status_command(args: argparse.Namespace) -> int:
     for row in reply.get("unverifiable") or []:
         if not row["verifiable"]:
             out.print(unverifiable_line(row))
+    if (line := state_line(reply)) is not None:
+        out.print(line)
     return 0
+
+
+def state_line(reply: dict[str, Any]) -> Text | None:
+    """``state not saved in DIR (error): a restart resumes from an older state``, while saves fail;
+    None while they work (a daemon too old to say: None too)."""
+    state = reply.get("state")
+    if not state or state["saving"]:
+        return None
+    return Text(
+        f"  state not saved in {state['directory']} ({state['error']}): "
+        "a restart resumes from an older state",
+        "bold red",
+    )
+
+
+def tick_line(reply: dict[str, Any]) -> str:
+    """``last tick 0.8 s ago (...)  status word 1025 (degraded)  heartbeat 436``: the word's level in
+    words, so a number is not read as all well."""
+    level = reply.get("level")
+    word = f"{reply['status_word']}" + ("" if level is None else f" ({level})")
+    return f"last tick {_tick_age(reply)}  status word {word}  heartbeat {reply['heartbeat']}"
 
 
 def offset_line(axis: str, reply: dict[str, Any]) -> str:

@@ -278,15 +278,20 @@ def tick_subscribers(
         if config.recorder_dir is not None
         else None
     )
+    saver = StateSaver(
+        config.state_dir,
+        saved_state,
+        every_ticks=doc.state.save_every_ticks,
+        background=background_saves,
+    )
     return Subscribed(
-        systemd=SystemdTicks(notifier, status_every_ticks=doc.live_every_ticks),
-        recording=recording,
-        saver=StateSaver(
-            config.state_dir,
-            saved_state,
-            every_ticks=doc.state.save_every_ticks,
-            background=background_saves,
+        systemd=SystemdTicks(
+            notifier,
+            status_every_ticks=doc.live_every_ticks,
+            notes=view.not_assured,
         ),
+        recording=recording,
+        saver=saver,
         telemetry=(
             telemetry(
                 doc.telemetry,

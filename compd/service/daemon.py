@@ -52,7 +52,7 @@ from compd.service.loop.compensator import Compensator, TickRecord
 from compd.service.loop.probemessages import probe_request
 from compd.service.loop.safety import HEARTBEAT_MODULO
 from compd.service.loop.snapshot import ModelId, TickSnapshot
-from compd.service.loop.statusview import status_snapshot, unverifiable_status
+from compd.service.loop.statusview import not_assured, status_snapshot, unverifiable_status
 from compd.service.loop.subscribers import Subscribers, TickCallback
 from compd.service.loop.ticks import TickTiming, run_periodic
 from compd.service.notify import SystemdNotifier
@@ -63,6 +63,7 @@ from compd.service.store.state import SavedState, resumable_state
 if TYPE_CHECKING:
     from compd.service.fleet.telemetry import Telemetry
     from compd.service.http.server import StatusServer
+    from compd.service.store.saver import StateSaver
 
 log = structlog.get_logger("compd.service.daemon")
 
@@ -177,6 +178,7 @@ class Service:
         self._model_id: ModelId | None = None  # the running model's, made once per model
         self.telemetry: Telemetry | None = None  # the page reads these while it is built
         self.recording: RecordingTicks | None = None
+        self.saver: StateSaver | None = None  # the page reads it while it is built
         #: The loop's subscribers (:mod:`compd.service.build`), each told of every tick once.
         subscribed = build.tick_subscribers(
             config,
@@ -190,7 +192,7 @@ class Service:
         )
         self.recording = subscribed.recording
         self.recorder = None if self.recording is None else self.recording.recorder
-        self.saver = subscribed.saver
+        self.saver = saver = subscribed.saver
         #: MQTT telemetry (:mod:`compd.service.fleet.telemetry`) where the config asks for it.
         self.telemetry = subscribed.telemetry
         #: Metrics and the status page (config ``http``); None without one: nothing measured then.
@@ -208,8 +210,7 @@ class Service:
                 self.telemetry,
                 config,
                 reporters=[*self.links.values(), self.compensator],
-                faults=[self.saver.fault]
-                + ([] if self.recording is None else [self.recording.fault]),
+                faults=[saver.fault] + ([] if self.recording is None else [self.recording.fault]),
                 load_model=self.load_model,
                 take_probe=None if self.probing is None else self.take_probe,
             )
@@ -290,7 +291,8 @@ class Service:
 
     def save_state(self) -> None:
         """Save now, in the calling thread (at shutdown)."""
-        self.saver.save_now()
+        if self.saver is not None:
+            self.saver.save_now()
 
     async def _tick(self, t_s: float) -> None:
         started_s = self.clock.now()
@@ -446,7 +448,24 @@ class Service:
         ) | {
             "probes": None if self.probing is None else self.probing.status(self.clock.wall()),
             "unverifiable": self._unverifiable(),
+            # Where the state is saved and, while saves fail, why (a restart resumes from older).
+            "state": None if self.saver is None else self.saver.status(),
         }
+
+    def not_assured(self) -> list[str]:
+        """What is not well though compensation goes on, one line each (``/healthz``'s warnings,
+        systemd's status line): the state not saved; per axis the inputs whose wrong reading
+        the sensors cannot see within the axis's tolerance (the status word's level says ``ok``
+        meanwhile: it judges the readings, not what checks them), and the probes disagreeing
+        with the model (the PLC's probe status bit 1)."""
+        probing = self.probing
+        return not_assured(
+            self._unverifiable(),
+            disagreeing=[]
+            if probing is None
+            else [a for a in probing.axes if probing.disagrees(a)],
+            also=[] if self.saver is None or (p := self.saver.problem()) is None else [p],
+        )
 
     def _unverifiable(self) -> list[dict[str, Any]]:
         """What the sensors cannot verify of the running model, per input and axis (none: no model)."""

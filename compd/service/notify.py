@@ -23,8 +23,11 @@ import math
 import os
 import socket
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING
+
+from compd.service.loop.safety import Level
+from compd.service.loop.signals import Health
 
 if TYPE_CHECKING:
     from compd.service.loop.snapshot import TickSnapshot
@@ -198,9 +201,17 @@ class SystemdTicks:
 
     name = "systemd"
 
-    def __init__(self, notifier: SystemdNotifier, *, status_every_ticks: int) -> None:
+    def __init__(
+        self,
+        notifier: SystemdNotifier,
+        *,
+        status_every_ticks: int,
+        notes: Callable[[], Sequence[str]] = tuple,
+    ) -> None:
         self.notifier = notifier
         self.status_every_ticks = status_every_ticks
+        #: What else the status line must say, beside the tick's own (the state not saved).
+        self.notes = notes
         self._next_ping_real_s = -math.inf
 
     def on_tick(self, snapshot: TickSnapshot) -> None:
@@ -219,11 +230,32 @@ class SystemdTicks:
             self.notifier.watchdog()
             self._next_ping_real_s = snapshot.started_real_s + interval_s / 2.0
         if snapshot.ticks % self.status_every_ticks == 0:
-            self.notifier.status(systemd_summary(snapshot))
+            self.notifier.status(systemd_summary(snapshot, self.notes()))
 
 
-def systemd_summary(snapshot: TickSnapshot) -> str:
-    """One line for ``systemctl status``: offsets and the status word."""
+def systemd_summary(snapshot: TickSnapshot, notes: Sequence[str] = ()) -> str:
+    """One line for ``systemctl status``: the offsets, the status word and its level, and what is
+    not OK.
+
+    ``Z +0.16 um; status word 0 (ok)`` while all is well; otherwise each axis whose
+    offset the tick did not get acknowledged is marked ``not written`` (the PLC holds
+    another), and the line names the inputs not ``ok`` (held, estimated: a stand-in,
+    faulted), the axes outside their envelope and ``notes`` (e.g. the state not saved):
+    the line ``systemctl status`` shows must not read as all well when it is not.
+    """
     record = snapshot.record
-    offsets = ", ".join(f"{axis} {value:+.2f} um" for axis, value in record.offsets_um.items())
-    return f"{offsets}; status word {record.status}"
+    offsets = ", ".join(
+        f"{axis} {value:+.2f} um"
+        + ("" if math.isfinite(record.acknowledged_um.get(axis, math.nan)) else " not written")
+        for axis, value in record.offsets_um.items()
+    )
+    level = Level(record.status & 0b11).name.lower()
+    said = [
+        f"{name} {health.name.lower()}"
+        for name, health in record.health.items()
+        if health is not Health.OK
+    ]
+    said += [f"{axis} outside its envelope" for axis in record.outside_envelope]
+    said += notes
+    tail = f": {'; '.join(said)}" if said else ""
+    return f"{offsets}; status word {record.status} ({level}){tail}"

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import copy
+import shutil
+import socket
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -82,3 +85,31 @@ async def ticked(service: Service, running: asyncio.Task[Any], ticks: int) -> No
 def short_socket() -> Path:
     """A control-socket path short enough for AF_UNIX (pytest's tmp_path can exceed 108 bytes)."""
     return Path(tempfile.mkdtemp(prefix="compd-", dir="/tmp")) / "c.sock"
+
+
+@contextlib.contextmanager
+def notify_socket() -> Iterator[tuple[socket.socket, str]]:
+    """A datagram socket standing for systemd's, on a path short enough for AF_UNIX, and its path
+    (``NOTIFY_SOCKET``). Its queue holds few datagrams (``net.unix.max_dgram_qlen``, often 10):
+    read it every tick (:func:`status_lines`)."""
+    directory = tempfile.mkdtemp(prefix="compd-", dir="/tmp")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    path = str(Path(directory) / "n.sock")
+    sock.bind(path)
+    sock.setblocking(False)
+    try:
+        yield sock, path
+    finally:
+        sock.close()
+        shutil.rmtree(directory)
+
+
+def status_lines(sock: socket.socket) -> list[str]:
+    """Every ``STATUS=`` line waiting on ``sock``, in order, a tick's (``...; status word ...``) only."""
+    lines: list[str] = []
+    while True:
+        try:
+            datagram = sock.recv(65536).decode()
+        except BlockingIOError:
+            return [line for line in lines if "; status word " in line]
+        lines += [f[len("STATUS=") :] for f in datagram.split("\n") if f.startswith("STATUS=")]

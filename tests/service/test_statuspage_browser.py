@@ -88,6 +88,10 @@ def test_page_shows_inputs_offsets_status_and_provenance(shown: Shown, run: Runn
     assert offsets.startswith("Z") and f"{status['offsets_um']['Z']:.2f}" in offsets
     assert f"{status['status_word']} (0x" in shown.text("#status")
     assert shown.text("#level") in {"ok", "degraded", "faulted"}
+    # Beside it, what the level does not say: the spindle's one sensor (its second taken away).
+    assert shown.text("#not-assured") == (
+        "not assured on Z: T_spindle_degC not verifiable to its 1.56 um tolerance"
+    )
     model = shown.text("#model")
     assert status["model"]["sha256"] in model and "97.9 %" in model and "oe" in model
     faults = shown.text("#faults")

@@ -9,6 +9,7 @@ probed axis the probes taken, flagged and refused.
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -125,3 +126,30 @@ def record(t_s: float, health: Health) -> TickRecord:
         heartbeat=0,
         written=True,
     )
+
+
+def test_the_summary_says_what_compd_could_not_assure(tmp_path: Path) -> None:
+    """The spindle on one sensor (its second taken away) and a state directory that refuses every
+    save: the summary has a row for each, not only counts of 0."""
+    doc: dict[str, Any] = yaml.safe_load(SIMULATED.read_text())
+    doc["model"] = str(MODEL)
+    doc["drivers"]["plc"]["settings"]["port"] = free_port()
+    doc["signals"]["T_spindle_degC"].pop("redundant")
+    doc["state"] = {"directory": str(tmp_path / "state"), "save_every_ticks": 10}
+    doc["recorder"] = {"enabled": False}
+    doc["simulation"] = {"scenario": "production", "hours": 1, "seed": 1}
+    path = tmp_path / "compd.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    state_file = tmp_path / "state" / "state.json"
+
+    def break_state(*_: object) -> None:
+        if not state_file.is_dir():  # a save's rename cannot replace a directory
+            state_file.unlink(missing_ok=True)
+            state_file.mkdir(parents=True)
+
+    result = asyncio.run(run_simulation(load_config(path), duration_s=60, on_tick=break_state))
+    rows = shown(result)
+    assert any(title.startswith("state not saved ([Errno 21] Is a directory") for title in rows), (
+        rows
+    )
+    assert "not assured on Z: T_spindle_degC not verifiable to its 1.56 um tolerance" in rows, rows

@@ -445,6 +445,17 @@ def _link_metrics(service: ServiceView) -> Iterator[Metric]:
             "Snapshots and events dropped: the oldest of a full queue, or refused by the client.",
             mqtt.dropped,
         )
+    if (saver := service.saver) is not None:
+        yield _gauge(
+            "compd_state_saved",
+            "1 while the state saves; 0 while saves fail (a restart resumes from an older state).",
+            saver.problem() is None,
+        )
+        yield _counter(
+            "compd_state_save_faults",
+            "Episodes in which the state could not be saved.",
+            saver.fault.episodes,
+        )
     fault = service.recorder_fault
     if fault is not None:
         yield _gauge(

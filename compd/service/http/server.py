@@ -13,7 +13,9 @@ lock and no thread:
 - ``GET /history.json?points=N``: the last hour of ticks (:mod:`compd.service.http.history`);
 - ``GET /healthz``: for load balancers and probes, ``200`` while ticks are on time and the
   outputs healthy, else ``503``; both with ``{"healthy": ..., "problems": [...]}``
-  (:func:`compd.service.loop.statusview.health_problems`).
+  (:func:`compd.service.loop.statusview.health_problems`) and ``"warnings"``: what is
+  not well though compensation goes on (the state not saved, inputs the sensors cannot
+  verify to an axis's tolerance), never a 503.
 
 Nothing can be changed through it: only GET and HEAD are answered, any other
 method is ``405 Method Not Allowed``, and the page carries a content
@@ -278,7 +280,11 @@ class StatusServer:
             problems.append(problem)  # what the probes taught is not applied while it fails
         last = service.compensator.last
         level = None if last is None else Level(last.status & 0b11).name.lower()
-        answer = _json({"healthy": not problems, "level": level, "problems": problems})
+        # Not a reason to restart or route around this daemon (it compensates), but not all well.
+        warnings = service.not_assured()
+        answer = _json(
+            {"healthy": not problems, "level": level, "problems": problems, "warnings": warnings}
+        )
         answer.set_status(503 if problems else 200)
         return answer
 
@@ -311,6 +317,8 @@ class StatusServer:
                 # None: a data logger (no model).
                 "model": None if (running := comp.running) is None else _model_json(running),
                 "status": _status_bits(None if last is None else last.status),
+                # What is not well though the level may read ok (/healthz's warnings).
+                "not_assured": service.not_assured(),
                 "units": {name: s.unit for name, s in service.config.doc.signals.items()},
                 "faults": self.faults.as_json(),
                 "model_loads": self.faults.loads_json(),

@@ -17,6 +17,7 @@ from compd.service.loop.compensator import Compensator
 from compd.service.loop.links import DriverLink
 from compd.service.loop.snapshot import TickSnapshot
 from compd.service.loop.ticks import TickTiming
+from compd.service.store.saver import StateSaver
 
 if TYPE_CHECKING:
     from compd.service.loop.probing import ProbeLearning
@@ -64,6 +65,10 @@ class ServiceView(Protocol):
     @property
     def telemetry(self) -> TelemetryView | None: ...
     @property
+    def saver(self) -> StateSaver | None:
+        """The state saver: whether saves fail, and why; None while the service is built."""
+
+    @property
     def recorder_fault(self) -> FaultLog | None:
         """The recorder's fault episodes; None: the service records nothing."""
 
@@ -77,6 +82,9 @@ class ServiceView(Protocol):
 
     def clock_wall(self) -> float:
         """The loop clock's wall time now (unix s)."""
+
+    def not_assured(self) -> list[str]:
+        """What is not well though compensation goes on (the state not saved, inputs not verifiable)."""
 
     def status(self) -> dict[str, Any]:
         """``compd status``'s answer."""

@@ -77,6 +77,8 @@ def status_snapshot(
         "last_tick": None if last is None else when(last.wall_unix_s),
         "last_tick_age_s": None if last is None else round(age_s(last.wall_unix_s), 3),
         "status_word": None if last is None else last.status,
+        # The word's level (bits 0-1) in words: ok, degraded or faulted.
+        "level": None if last is None else Level(last.status & 0b11).name.lower(),
         "heartbeat": comp.heartbeat,
         "offsets_um": {a: s.offset_um for a, s in comp.safety.items()},
         # What the PLC holds as far as compd knows (read back, else acknowledged).
@@ -227,4 +229,30 @@ def unverifiable_status(
             "remedy": r.remedy,
         }
         for r in rows
+    ]
+
+
+def not_assured(
+    unverifiable: Sequence[Mapping[str, Any]], *, disagreeing: Sequence[str], also: Sequence[str]
+) -> list[str]:
+    """``also`` (e.g. the state not saved), then one line per axis whose compensation is not
+    assured though the status word's level may read ok: the inputs (:func:`unverifiable_status`'s
+    rows) whose wrong reading the sensors cannot see within its tolerance, and the axes whose
+    probes disagree with the model (two in a row not taken)."""
+    unseen: dict[str, list[Mapping[str, Any]]] = {}
+    for row in unverifiable:
+        if not row["verifiable"]:
+            unseen.setdefault(row["axis"], []).append(row)
+    return [
+        *also,
+        *(
+            f"not assured on {axis}: {', '.join(r['input'] for r in rows)} "
+            f"not verifiable to its {rows[0]['tolerance_um']:.3g} um tolerance"
+            for axis, rows in unseen.items()
+        ),
+        *(
+            f"not assured on {axis}: two probes in a row not taken: "
+            "the model no longer describes the machine"
+            for axis in disagreeing
+        ),
     ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import structlog
 
@@ -41,6 +42,8 @@ class StateSaver:
         self.every_ticks = every_ticks
         self.background = background
         self.fault = FaultLog(log)
+        #: Why the last save failed, while saves fail (``fault.active``); None while they succeed.
+        self.error: str | None = None
         self._saving: asyncio.Future[None] | None = None
 
     def on_tick(self, snapshot: TickSnapshot) -> None:
@@ -81,6 +84,28 @@ class StateSaver:
         try:
             save_state(self.state_dir, saved)
         except OSError as exc:
-            self.fault.failed("cannot save state", error=str(exc), directory=directory)
+            self.error = str(exc)
+            self.fault.failed("cannot save state", error=self.error, directory=directory)
         else:
+            self.error = None
             self.fault.cleared("state saved again", directory=directory)
+
+    def status(self) -> dict[str, Any]:
+        """``compd status``'s ``state``: where it is saved and, while saves fail, why.
+
+        A failing save does not stop compensation, but a restart then resumes
+        from an older state (or none): the operator must hear of it beside the
+        offsets, not only once in the journal.
+        """
+        return {
+            "directory": str(self.state_dir),
+            "saving": self.error is None,
+            "error": self.error,
+            "failed_episodes": self.fault.episodes,
+        }
+
+    def problem(self) -> str | None:
+        """One line while saves fail (``/healthz``'s warnings, systemd's status); None while they work."""
+        if self.error is None:
+            return None
+        return f"state not saved in {self.state_dir} ({self.error}): a restart resumes from an older state"

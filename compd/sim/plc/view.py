@@ -7,6 +7,7 @@ from typing import Any
 
 from rich.table import Table
 
+from compd.service.loop.statusview import not_assured
 from compd.sim.plc.machine import AxisSummary, SimulatedMachine
 from compd.sim.plc.tally import SignalTally
 from compd.toolkit.summary import fmt
@@ -64,6 +65,7 @@ def fault_table(
         table.add_row(key.replace("_", " "), str(counters[key]))
     for axis, probes in ((status.get("probes") or {}).get("axes") or {}).items():
         table.add_row(f"probes {axis}: taken / flagged / refused", _probe_counts(probes["results"]))
+    _not_assured_rows(table, status)
     table.add_row("PLC: heartbeat timeouts", str(machine.plc.heartbeat_timeouts))
     table.add_row("PLC: values written", str(machine.plc.writes))
     return table
@@ -90,6 +92,22 @@ def _signal_rows(table: Table, signals: SignalTally) -> None:
     table.add_row("stand-ins used", str(sum(t.stand_in_episodes for t in stand_ins.values())))
     for name, t in stand_ins.items():
         table.add_row(f"  stand-in time {name}", f"{t.stand_in_s:.0f} s")
+
+
+def _not_assured_rows(table: Table, status: Mapping[str, Any]) -> None:
+    """What compd could not assure at the end, as ``/healthz``'s warnings say it: the state not
+    saved (its failed episodes), the inputs nothing verifies to an axis's tolerance, probes that
+    disagree with the model. A run whose counts are all 0 is not all well without them."""
+    state = status.get("state")
+    if state is not None and not state["saving"]:
+        table.add_row(f"state not saved ({state['error']})", str(state["failed_episodes"]))
+    axes = (status.get("probes") or {}).get("axes") or {}
+    for line in not_assured(
+        status.get("unverifiable") or [],
+        disagreeing=[axis for axis, probes in axes.items() if probes["disagrees"]],
+        also=[],
+    ):
+        table.add_row(line, "")
 
 
 def _probe_counts(results: Mapping[str, int]) -> str:

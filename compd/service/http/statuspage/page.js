@@ -83,6 +83,10 @@ function showStatus(status, page) {
   health.periodS = page.period_s;
   health.tickAgeS = status.last_tick_age_s;
   document.getElementById("flags").replaceChildren(...page.status.flags.map((f) => el("span", f)));
+  // Beside a level that may read ok: what compd cannot assure (an input nothing verifies, ...).
+  const notAssured = document.getElementById("not-assured");
+  notAssured.textContent = page.not_assured.join("; ");
+  notAssured.hidden = page.not_assured.length === 0;
 
   fillTable("offsets", Object.keys(status.offsets_um).map((axis) => row([
     [axis], [num(status.offsets_um[axis], 2), true],
