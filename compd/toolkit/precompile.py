@@ -16,8 +16,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
 from compd.errors import ModelError, ModelFileError
 from compd.files.equations import MAX_PERIODS, with_equations
 from compd.files.modelfile import ModelFile, load_model, parse_model, parse_model_bytes
@@ -25,7 +23,7 @@ from compd.files.modelwriter import equations_lines
 from compd.files.provenancepaths import with_portable_provenance
 from compd.files.sidecar import copy_sidecars, residual_files
 from compd.files.unreadable import write_atomic
-from compd.files.yamlplace import read_limited
+from compd.files.yamlplace import parse_yaml, read_limited
 from compd.model.precompiled import (
     DifferenceEquations,
     derive,
@@ -118,14 +116,15 @@ def _read_for_compiling(source: Path) -> tuple[ModelFile, tuple[float, ...], tup
             raise
         text = read_limited(source, ModelFileError).decode("utf-8")
         model_file = parse_model(with_equations(text, []), source)
-        stale = _carried_periods(text)
+        stale = _carried_periods(text, source)
         return model_file, stale, stale
     return model_file, tuple(e.period_s for e in model_file.equations), ()
 
 
-def _carried_periods(text: str) -> tuple[float, ...]:
+def _carried_periods(text: str, source: Path) -> tuple[float, ...]:
     """The ``period_s`` of each set the file's ``difference_equations`` section lists."""
-    sets = (yaml.safe_load(text) or {}).get("difference_equations") or []
+    data, _ = parse_yaml(text, source, ModelFileError)  # bounded, as every model file is read
+    sets = (data if isinstance(data, dict) else {}).get("difference_equations") or []
     return tuple(
         float(entry["period_s"])
         for entry in sets
