@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +10,6 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from compd.errors import DataFileError, ModelFileError
 from compd.files.modelfile import load_model
-from compd.files.modelschema import ResidualDoc
 from compd.files.modelwriter import model_to_yaml
 from compd.model.compiled import compile_model
 from compd.model.run import simulate
@@ -20,9 +18,9 @@ from compd.model.transfer import DiscreteTF
 from compd.toolkit.residual import (
     check_door_signal,
     fit_residual,
-    sidecar_bytes,
     sidecar_path,
 )
+from tests.stacked import forest_beside
 
 DT_S = 10.0
 
@@ -39,15 +37,7 @@ def written(tmp_path_factory) -> tuple[Path, Model]:
     sub = SubModel("T_a", "temperature", InputSpec("T_a_degC"), tf)
     model = Model("stacked", DT_S, (Output("disp_z_um", (sub,), fit.residual),))
     path = folder / "model.yaml"
-    sidecar = sidecar_bytes({"disp_z_um": fit.residual.forest})
-    sidecar_path(path).write_bytes(sidecar)
-    doc = ResidualDoc(
-        signal="door_open",
-        time_constants_s=list(fit.residual.features.time_constants_s),
-        file=sidecar_path(path).name,
-        sha256=hashlib.sha256(sidecar).hexdigest(),
-        trees=10,
-    )
+    doc = forest_beside(path, fit.residual, trees=10)
     signals = {"T_a_degC": "degC", "door_open": "-"}
     path.write_text(model_to_yaml(model, signals=signals, residuals={"disp_z_um": doc}))
     return path, model

@@ -22,9 +22,11 @@ def value(k: int) -> float:
     return 20.0 + 0.01 * k
 
 
-def make(directory: Path, machine: str | None = "mill-a") -> Recorder:
-    """A CSV recorder rotating every FILE_S, as a daemon with ``machine_id: machine`` makes it."""
+def make(directory: Path, machine: str | None = "mill-a", **units: str) -> Recorder:
+    """A CSV recorder rotating every FILE_S, as a daemon with ``machine_id: machine`` makes it
+    (``units``: each column's unit, as the config's signals give them)."""
     metadata = {"machine_id": machine} if machine else {}
+    metadata |= {f"unit.{column}": unit for column, unit in units.items()}
     return Recorder(
         directory,
         max_file_bytes=1 << 30,
@@ -80,14 +82,7 @@ def test_files_of_different_machines_are_never_joined(tmp_path: Path) -> None:
 def test_files_that_record_a_column_in_different_units_are_never_joined(tmp_path: Path) -> None:
     """A file recording T_degC in degF (the config's unit changed between files) does not continue
     one recording it in degC: joined, its values would be read in the first file's unit."""
-    recorder = Recorder(
-        tmp_path,
-        max_file_bytes=1 << 30,
-        max_file_age_s=FILE_S,
-        max_total_bytes=1 << 32,
-        metadata={"machine_id": "mill-a", "unit.T_degC": "degC"},
-    )
-    with recorder as rec:
+    with make(tmp_path, T_degC="degC") as rec:
         write(rec, range(120))
     second = recorded(tmp_path)[1]
     second.write_text(second.read_text().replace("# unit.T_degC: degC", "# unit.T_degC: degF"))

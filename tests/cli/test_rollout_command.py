@@ -6,7 +6,6 @@ the broker, ``--pending`` says so (exit status 0) rather than print an empty tab
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
@@ -15,13 +14,12 @@ import pytest
 import yaml
 
 from compd.cli import build_parser, main
-from compd.files.modelschema import ResidualDoc
 from compd.files.modelwriter import model_to_yaml
-from compd.files.sidecar import sidecar_bytes, sidecar_path
 from compd.model.structure import InputSpec, Model, Output, SubModel
 from compd.model.transfer import DiscreteTF
 from compd.toolkit.residual import fit_residual
 from tests.mosquitto import WAIT_S, Mosquitto, mosquitto_binary
+from tests.stacked import forest_beside
 
 needs_mosquitto = pytest.mark.skipif(
     mosquitto_binary() is None,
@@ -77,14 +75,7 @@ def test_a_stacked_model_is_refused_before_anything_is_sent(
     tf = DiscreteTF.from_coefficients([0.0, 0.1], [1.0, -0.9], 0)
     sub = SubModel("T_a", "temperature", InputSpec("T_a_degC"), tf)
     model = tmp_path / "stacked.yaml"
-    sidecar = sidecar_bytes({"disp_z_um": fit.residual.forest})
-    sidecar_path(model).write_bytes(sidecar)
-    block = ResidualDoc(
-        signal="door_open",
-        time_constants_s=list(fit.residual.features.time_constants_s),
-        file=sidecar_path(model).name,
-        sha256=hashlib.sha256(sidecar).hexdigest(),
-    )
+    block = forest_beside(model, fit.residual)
     outputs = (Output("disp_z_um", (sub,), fit.residual),)
     model.write_text(model_to_yaml(Model("stacked", 10.0, outputs), residuals={"disp_z_um": block}))
     broker = tmp_path / "broker.yaml"

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
-import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -15,9 +14,8 @@ from compd.cli import main
 from compd.cli.daemon import model_load
 from compd.files.data import load_data
 from compd.files.modelfile import load_model
-from compd.files.modelschema import ResidualDoc
 from compd.files.modelwriter import model_to_yaml
-from compd.files.sidecar import sidecar_bytes, sidecar_path
+from compd.files.sidecar import sidecar_path
 from compd.model.residual import DoorFeatures
 from compd.model.run import simulate
 from compd.model.structure import InputSpec, Model, Output, SubModel
@@ -28,6 +26,7 @@ from compd.service.daemon import Service
 from compd.service.loop.clock import VirtualClock
 from compd.service.store.state import load_state
 from compd.toolkit.residual import fit_residual
+from tests.stacked import forest_beside
 
 from .daemon_setup import run, short_socket, simulated_doc, ticked, write_config
 
@@ -52,14 +51,7 @@ def setup(tmp_path_factory) -> tuple[Path, Path]:
     )
     model = Model("stacked-door", 1.0, (Output("disp_z_um", (sub,), fit.residual),))
     path = folder / "stacked.yaml"
-    sidecar = sidecar_bytes({"disp_z_um": fit.residual.forest})
-    sidecar_path(path).write_bytes(sidecar)
-    doc = ResidualDoc(
-        signal="door_open",
-        time_constants_s=list(fit.residual.features.time_constants_s),
-        file=sidecar_path(path).name,
-        sha256=hashlib.sha256(sidecar).hexdigest(),
-    )
+    doc = forest_beside(path, fit.residual)
     units = {"T_spindle_degC": "degC", "door_open": "-"}
     path.write_text(model_to_yaml(model, signals=units, residuals={"disp_z_um": doc}))
     return path, data_path
