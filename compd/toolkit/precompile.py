@@ -18,7 +18,7 @@ from pathlib import Path
 
 from compd.errors import ModelError, ModelFileError
 from compd.files.equations import MAX_PERIODS, with_equations
-from compd.files.modelfile import ModelFile, load_model, parse_model, parse_model_bytes
+from compd.files.modelfile import ModelFile, model_source, parse_model, parse_model_bytes
 from compd.files.modelwriter import equations_lines
 from compd.files.provenancepaths import with_portable_provenance
 from compd.files.sidecar import copy_sidecars, residual_files
@@ -29,6 +29,7 @@ from compd.model.precompiled import (
     derive,
     model_needs_conversion,
     same_period,
+    tfs_sha256,
 )
 
 
@@ -102,36 +103,27 @@ def compile_file(source: Path, periods_s: Iterable[float], out: Path | None = No
 
 
 def _read_for_compiling(source: Path) -> tuple[ModelFile, tuple[float, ...], tuple[float, ...]]:
-    """The model file, the periods its equations are carried at, and those carried for other TFs.
+    """The model file without its equations, the periods it carried them at, and those carried
+    for other TFs.
 
-    Equations derived from TFs the file no longer has (its ``tf`` edited
-    after they were written) are what this command writes anew, so they
-    are not held against the file here as every other reader holds them;
-    any other refusal stands.
+    The section is what this command writes anew, so it is not held against
+    the file here as every other reader holds it (equations derived from TFs
+    the file no longer has: its ``tf`` edited after they were written).
     """
-    try:
-        model_file = load_model(source)
-    except ModelFileError as exc:
-        if "difference_equations" not in exc.where:
-            raise
-        text = read_limited(source, ModelFileError).decode("utf-8")
-        model_file = parse_model(with_equations(text, []), source)
-        stale = _carried_periods(text, source)
-        return model_file, stale, stale
-    return model_file, tuple(e.period_s for e in model_file.equations), ()
-
-
-def _carried_periods(text: str, source: Path) -> tuple[float, ...]:
-    """The ``period_s`` of each set the file's ``difference_equations`` section lists."""
-    data, _ = parse_yaml(text, source, ModelFileError)  # bounded, as every model file is read
-    sets = (data if isinstance(data, dict) else {}).get("difference_equations") or []
-    return tuple(
-        float(entry["period_s"])
-        for entry in sets
-        if isinstance(entry, dict)
-        and isinstance(entry.get("period_s"), int | float)
-        and entry["period_s"] > 0
-    )
+    path = model_source(source)
+    text = read_limited(path, ModelFileError).decode("utf-8")
+    data, _ = parse_yaml(text, path, ModelFileError)  # bounded, as every model file is read
+    model_file = parse_model(with_equations(text, []), path)
+    digest = tfs_sha256(model_file.model)
+    carried, stale = [], []
+    sets = data.get("difference_equations") if isinstance(data, dict) else None
+    for entry in sets if isinstance(sets, list) else ():
+        period_s = entry.get("period_s") if isinstance(entry, dict) else None
+        if isinstance(period_s, int | float) and period_s > 0:
+            carried.append(float(period_s))
+            if entry.get("tfs_sha256") != digest:
+                stale.append(float(period_s))
+    return model_file, tuple(carried), tuple(stale)
 
 
 def _moved_provenance(model_file: ModelFile, text: str, destination: Path) -> str:
